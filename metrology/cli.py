@@ -1,0 +1,314 @@
+"""The ``gcps`` command line (DESIGN.md 1.6): a user-facing tool and the contract of external checks.
+
+Exit status 0 on success, 2 with a one-line message on bad input. Outputs are
+written only once everything has been computed, each atomically, so a failed
+run leaves no partial file behind. Heavy libraries are imported inside the
+subcommands that use them, to keep start-up short.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+EXIT_BAD_INPUT = 2
+
+
+class BadInputError(Exception):
+    """A user error: reported as one line, exit status 2."""
+
+
+# --------------------------------------------------------------------- helpers
+def _load_rig(path: str) -> Any:
+    from metrology.core.io import read_rig
+
+    return read_rig(path)
+
+
+def _load_stack(path: str, rig: Any, what: str) -> Any:
+    from metrology.core.io import read_stack
+
+    try:
+        return read_stack(path, rig=rig).images
+    except FileNotFoundError as exc:
+        raise BadInputError(f"{what} stack {path}: not found") from exc
+    except ValueError as exc:
+        raise BadInputError(f"{what} stack: {exc}") from exc
+
+
+def _write_json(data: Any, path: str | Path) -> None:
+    from metrology.core.io import write_text_atomic
+
+    write_text_atomic(json.dumps(data, indent=2, allow_nan=False) + "\n", path)
+
+
+def _check_out_suffix(path: str, allowed: Sequence[str], option: str) -> None:
+    if Path(path).suffix.lower() not in allowed:
+        raise BadInputError(f"{option} {path}: extension must be one of {', '.join(allowed)}")
+
+
+def _check_parent(path: str, option: str) -> None:
+    parent = Path(path).resolve().parent
+    if not parent.is_dir():
+        raise BadInputError(f"{option} {path}: folder {parent} does not exist")
+
+
+def _decode_options(args: argparse.Namespace) -> Any:
+    from metrology.core.measure import DecodeOptions
+
+    return DecodeOptions(
+        min_modulation=args.min_modulation,
+        consistency_codes=args.consistency,
+        smoothing_px=args.smoothing,
+        discontinuity_codes=args.discontinuity,
+    )
+
+
+def _add_decode_options(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("decoding")
+    group.add_argument(
+        "--min-modulation",
+        type=float,
+        default=None,
+        metavar="GREY",
+        help="modulation threshold in grey levels (default: 4%% of full scale)",
+    )
+    group.add_argument(
+        "--consistency",
+        type=float,
+        default=0.35,
+        metavar="CODES",
+        help="allowed gray/phase disagreement beyond the gray cell, code units (default 0.35)",
+    )
+    group.add_argument(
+        "--smoothing",
+        type=float,
+        default=0.0,
+        metavar="PX",
+        help="Gaussian smoothing of square-wave fringes along X, pixels (default 0: sinusoidal)",
+    )
+    group.add_argument(
+        "--discontinuity",
+        type=float,
+        default=1.0,
+        metavar="CODES",
+        help="drop both pixels of a neighbour pair whose codes jump by more (mixed pixels); 0 disables (default 1.0)",
+    )
+
+
+# ----------------------------------------------------------------- commands
+def cmd_patterns(args: argparse.Namespace) -> dict[str, Any]:
+    from metrology.core.io import write_stack
+    from metrology.core.patterns import projector_patterns
+
+    if args.width <= 0 or args.height <= 0:
+        raise BadInputError(f"--width and --height must be positive, got {args.width}x{args.height}")
+    images = projector_patterns(args.width, args.height, nlp=args.nlp, square=args.square)
+    write_stack(images, args.out)
+    return {"out": args.out, "patterns": int(images.shape[0])}
+
+
+def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
+    import numpy as np
+
+    from metrology.core.measure import measure_height
+
+    _check_parent(args.out, "--out")
+    _check_out_suffix(args.out, (".npy",), "--out")
+    if args.mesh:
+        _check_out_suffix(args.mesh, (".ply", ".stl", ".obj"), "--mesh")
+        _check_parent(args.mesh, "--mesh")
+    if args.json:
+        _check_parent(args.json, "--json")
+    started = time.perf_counter()
+    rig = _load_rig(args.rig)
+    reference = _load_stack(args.reference, rig, "reference")
+    obj = _load_stack(args.object, rig, "object")
+    read_s = time.perf_counter() - started
+    result = measure_height(rig, reference, obj, _decode_options(args), gray_only=bool(args.json))
+    mesh = None
+    if args.mesh:
+        from metrology.core.mesh import mesh_from_heights
+
+        mesh = mesh_from_heights(rig, result.z_mm)
+
+    from metrology.core.io import write_height_npy
+
+    write_height_npy(result.z_mm, args.out)
+    if mesh is not None:
+        from metrology.core.mesh import write_mesh
+
+        write_mesh(mesh, args.mesh)
+    stats = result.statistics()
+    if args.json:
+        gray = result.gray_z_mm
+        stats = {
+            **stats,
+            "gray_only_valid_pixels": int(np.isfinite(gray).sum()) if gray is not None else None,
+            "timings_s": {"read_s": read_s, **result.timings_s},
+            "rig": rig.to_dict(),
+        }
+        _write_json(stats, args.json)
+    return {"out": args.out, **{k: v for k, v in stats.items() if k.endswith(("pixels", "fraction"))}}
+
+
+def cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
+    from metrology.core.simulate_cli import simulate_command
+
+    return simulate_command(args)
+
+
+def cmd_calibrate(args: argparse.Namespace) -> dict[str, Any]:
+    from metrology.core.calibrate import calibrate_from_stacks_cli
+
+    return calibrate_from_stacks_cli(args)
+
+
+def cmd_characterize(args: argparse.Namespace) -> dict[str, Any]:
+    from metrology.core.characterize import characterize_cli
+
+    return characterize_cli(args)
+
+
+def cmd_sensitivity(args: argparse.Namespace) -> dict[str, Any]:
+    from metrology.core.sensitivity import sensitivity_curves
+
+    rig = _load_rig(args.rig)
+    params = [args.param] if args.param else ["L", "d", "alpha"]
+    curves = {param: sensitivity_curves(rig, param, z_mm=args.z_mm) for param in params}
+    _check_parent(args.out, "--out")
+    _write_json({"rig": rig.to_dict(), "z_mm": args.z_mm, "curves": curves}, args.out)
+    return {"out": args.out, "params": params}
+
+
+# ------------------------------------------------------------------ parser
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="gcps",
+        description="Gray-code + phase-shift fringe-projection profilometer (gcps-v1 conventions).",
+    )
+    parser.add_argument("--quiet", action="store_true", help="print nothing on success")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("patterns", help="write the eleven projector images as PNG")
+    p.add_argument("--width", type=int, required=True, help="projector width, px")
+    p.add_argument("--height", type=int, required=True, help="projector height, px")
+    p.add_argument("--nlp", type=int, default=128, help="light codes across the width (default 128)")
+    p.add_argument("--square", action="store_true", help="square-wave phase patterns (smooth on decoding)")
+    p.add_argument("--out", required=True, help="output folder or .zip")
+    p.set_defaults(func=cmd_patterns)
+
+    p = sub.add_parser("simulate", help="render a capture stack with the virtual rig")
+    p.add_argument("--rig", required=True, help="rig JSON (DESIGN.md 1.2)")
+    p.add_argument(
+        "--scene",
+        required=True,
+        help="reference, plane, block, sphere, two_spheres, staircase, face, flowerpot or stage",
+    )
+    p.add_argument("--out", required=True, help="output folder or .zip (a folder for --scene stage)")
+    p.add_argument("--truth", help="write the true height map here (.npy)")
+    p.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="scene parameter, e.g. --param z_mm=40 --param height_mm=30 (repeatable)",
+    )
+    p.add_argument("--z-mm", type=float, help="height of plane/block scenes, mm")
+    p.add_argument("--z-in", help="stage positions, mm: a list '0,4,8' or a range 'START:STOP:STEP' (inclusive)")
+    p.add_argument("--repeats", type=int, default=1, help="captures per stage position (default 1)")
+    p.add_argument(
+        "--preset",
+        choices=["realistic", "noise-free"],
+        default="realistic",
+        help="realistic: 8-bit, 1.5 grey levels noise, slight defocus; noise-free: exact 16-bit",
+    )
+    p.add_argument("--bits", type=int, choices=[8, 16], help="bit depth (overrides the preset)")
+    p.add_argument("--noise", type=float, help="camera noise, grey levels (overrides the preset)")
+    p.add_argument("--camera-defocus", type=float, help="camera blur sigma, px")
+    p.add_argument("--projector-defocus", type=float, help="projector blur sigma, code units")
+    p.add_argument("--gamma", type=float, help="projector gamma")
+    p.add_argument("--ambient", type=float, help="ambient light, fraction of full scale")
+    p.add_argument("--square", action="store_true", help="square-wave phase patterns")
+    p.add_argument("--supersample", type=int, help="sub-pixel samples per axis")
+    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("measure", help="height map (and mesh) of an object")
+    p.add_argument("--rig", required=True)
+    p.add_argument("--reference", required=True, help="capture stack of the reference plane (folder or .zip)")
+    p.add_argument("--object", required=True, help="capture stack of the object (folder or .zip)")
+    p.add_argument("--out", required=True, help="height map, float32 mm, NaN where not measured (.npy)")
+    p.add_argument("--mesh", help="mesh output (.ply, .stl or .obj)")
+    p.add_argument("--json", help="statistics and timings (.json)")
+    _add_decode_options(p)
+    p.set_defaults(func=cmd_measure)
+
+    p = sub.add_parser("calibrate", help="calibrate L and alpha on a master block")
+    p.add_argument("--rig", required=True, help="rig JSON with the rough starting values")
+    p.add_argument("--reference", required=True)
+    p.add_argument(
+        "--master",
+        required=True,
+        action="append",
+        help="capture stack of the master block (repeatable for --method lsq)",
+    )
+    p.add_argument("--master-height", type=float, required=True, help="master block height, mm")
+    p.add_argument("--method", choices=["paper", "lsq"], default="lsq", help="calibration method (default lsq)")
+    p.add_argument("--delta-z", type=float, default=0.025, help="paper: required accuracy, mm (default 0.025)")
+    p.add_argument("--m-hat", type=float, default=0.0001, help="paper: slope threshold (default 0.0001)")
+    p.add_argument("--max-iterations", type=int, default=None, help="iteration cap")
+    p.add_argument("--fit-d", action="store_true", help="lsq: also fit d")
+    p.add_argument("--roi", help="top-face region 'row0:row1,col0:col1' (default: found automatically)")
+    p.add_argument("--out", required=True, help="calibrated rig JSON")
+    _add_decode_options(p)
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("characterize", help="linearity and accuracy from a stage series")
+    p.add_argument("--rig", required=True)
+    p.add_argument("--reference", required=True)
+    p.add_argument("--series", required=True, help="SERIES.json listing stage positions and captures")
+    p.add_argument("--out", required=True, help="report JSON")
+    p.add_argument("--patch", type=int, default=5, help="test-point patch size, px (default 5)")
+    p.add_argument("--points", type=int, default=21, help="test points along X (default 21)")
+    p.add_argument("--rows", help="rows of the test points, comma-separated (default: middle row)")
+    _add_decode_options(p)
+    p.set_defaults(func=cmd_characterize)
+
+    p = sub.add_parser("sensitivity", help="systematic-error curves of Eqs. 22-25 and Fig. 6")
+    p.add_argument("--rig", required=True)
+    p.add_argument("--param", choices=["L", "d", "alpha"], help="one parameter (default: all three)")
+    p.add_argument("--z-mm", type=float, default=40.0, help="constant height of the study, mm (default 40)")
+    p.add_argument("--out", required=True)
+    p.set_defaults(func=cmd_sensitivity)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    func: Callable[[argparse.Namespace], dict[str, Any]] = args.func
+    try:
+        summary = func(args)
+    except BadInputError as exc:
+        return _fail(str(exc))
+    except (ValueError, OSError) as exc:  # RigError, StackError and file errors are ValueError/OSError
+        return _fail(str(exc))
+    if not args.quiet:
+        print(json.dumps(summary))
+    return 0
+
+
+def _fail(message: str) -> int:
+    line = " ".join(message.split())
+    print(f"gcps: error: {line}", file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
