@@ -69,11 +69,18 @@ DPHI_TABLE: np.ndarray = _derive_dphi_table()
 """dPhi of Eq. 3 in radians, shape (4, 4): rows ``l^ mod 4``, columns quadrant of Phi; NaN = invalid."""
 DPHI_TABLE.setflags(write=False)
 
+# dPhi in code units for cv2.LUT, indexed by (l^ mod 4) * 4 + 2 [sin Phi >= 0] + [cos Phi > 0]:
+# the sign pairs (0, 0), (0, 1), (1, 1), (1, 0) are the quadrants 0, 1, 2, 3 of DPHI_TABLE.
+_QUADRANT_FROM_SIGNS = (0, 1, 3, 2)
 _K_LUT = np.full(256, np.nan, np.float32)
-_K_LUT[:16] = DPHI_TABLE.ravel() * (2 / np.pi)  # dPhi in code units, for cv2.LUT on (l^ mod 4) * 4 + quadrant
+for _row in range(4):
+    for _signs, _quadrant in enumerate(_QUADRANT_FROM_SIGNS):
+        _K_LUT[4 * _row + _signs] = DPHI_TABLE[_row, _quadrant] * (2 / np.pi)
 
-_BINARY_FROM_GRAY_LUT = np.zeros(256, np.uint8)
-_BINARY_FROM_GRAY_LUT[: 2**N_GRAY_BITS] = binary_from_gray(np.arange(2**N_GRAY_BITS))
+_BINARY_FROM_GRAY = binary_from_gray(np.arange(256), n_bits=8)
+_BINARY_FROM_GRAY_F32_LUT = _BINARY_FROM_GRAY.astype(np.float32)  # gray word -> binary word l^
+_ROW4_FROM_GRAY_LUT = ((_BINARY_FROM_GRAY & 3) * 4).astype(np.uint8)  # gray word -> (l^ mod 4) * 4
+_BIT_WEIGHTS = (1 << np.arange(N_GRAY_BITS - 1, -1, -1)).astype(np.uint8)[:, None, None]
 
 DEFAULT_TILE_PX = 1 << 14
 """Pixels per tile of work: small enough that a tile's temporaries stay in cache."""
@@ -261,7 +268,7 @@ def _decode_rows(
     modulation_out: np.ndarray | None = None,
     mask_out: np.ndarray | None = None,
 ) -> None:
-    """Decode one tile of rows in place (the hot loop; about 12 ns per pixel here).
+    """Decode one tile of rows in place (the hot loop: see benchmarks/decode.py).
 
     Integer arithmetic where the input is integral; the dPhi table is applied with
     ``cv2.LUT`` on a 4-bit index and invalid codes are set to NaN by OR-ing the
@@ -286,12 +293,10 @@ def _decode_rows(
         gray = gray_images
         threshold = (total >> 2).astype(gray_images.dtype)
 
-    # gray word (MSB first, by doubling and OR-ing), then gray -> binary by table
-    gray_word = (gray[0] > threshold).view(np.uint8)
-    for k in range(1, N_GRAY_BITS):
-        np.add(gray_word, gray_word, out=gray_word)
-        gray_word |= (gray[k] > threshold).view(np.uint8)
-    word = cv2.LUT(gray_word, _BINARY_FROM_GRAY_LUT)
+    # gray word: all seven bit planes thresholded at once, weighted and summed (MSB first)
+    bits = np.greater(gray, threshold).view(np.uint8)
+    bits *= _BIT_WEIGHTS
+    gray_word = bits.sum(axis=0, dtype=np.uint8)
 
     sf = s.astype(np.float32)
     cf = c.astype(np.float32)
@@ -300,14 +305,16 @@ def _decode_rows(
     t = np.arctan2(sf, cf)
     t *= np.float32(2 / np.pi)  # wrapped phase in code units, [-2, 2]
 
-    # quadrant of Phi from the signs: [-pi,-pi/2) 0, [-pi/2,0) 1, [0,pi/2) 2, [pi/2,pi] 3
+    # table index: (l^ mod 4) * 4 (one table look-up from the gray word) + the signs of sin and
+    # cos of Phi, which select its quadrant ([-pi,-pi/2), [-pi/2,0), [0,pi/2), [pi/2,pi])
+    index = cv2.LUT(gray_word, _ROW4_FROM_GRAY_LUT)
     upper = (s >= 0).view(np.uint8)
-    quadrant = (upper << np.uint8(1)) | (upper ^ (c > 0).view(np.uint8))
-    index = ((word & np.uint8(3)) << np.uint8(2)) | quadrant
+    index |= upper << np.uint8(1)
+    index |= (c > 0).view(np.uint8)
     fraction = cv2.LUT(index, _K_LUT)  # dPhi in code units, NaN where inconsistent
     fraction += t  # l - l^ (Eq. 3)
 
-    word_f = word.astype(np.float32)
+    word_f = cv2.LUT(gray_word, _BINARY_FROM_GRAY_F32_LUT)
     np.add(word_f, fraction, out=codes_out)
     fraction -= np.float32(0.5)
     np.abs(fraction, out=fraction)

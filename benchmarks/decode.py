@@ -1,0 +1,159 @@
+"""Decode + triangulate throughput, against baselines timed in the same run.
+
+    .venv/bin/python benchmarks/decode.py            # 1280x1024 and 2048x2048
+    .venv/bin/python benchmarks/decode.py --no-opencv --sizes 1280x1024
+
+What is timed (medians over ``--repeats`` interleaved runs, so a noisy shared
+machine affects all rows alike):
+
+* ``object vs kept reference``: :func:`measure_height` of an 8-bit object stack
+  against a :class:`Reference` decoded once (the common case: one reference plane,
+  many objects). Decode (Eqs. 1-3) + Eq. 14 + Eq. 17, fused per tile.
+* ``both stacks``: the reference decoded too, inside the timed call.
+* ``memory bound``: ``np.copyto`` of the bytes the job must touch (11 uint8
+  images in, one float32 out: 15 bytes per pixel) -- the floor.
+* ``OpenCV GrayCodePattern``/``PSP``: OpenCV-contrib's structured_light
+  decoders in their own environment (``benchmarks/opencv_env.sh``), timed by
+  ``benchmarks/opencv_baseline.py`` on the same frame size; per camera frame.
+
+Peak extra memory: ``tracemalloc`` peak of the object measurement, inputs and
+the kept reference excluded, in bytes per pixel.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from metrology.core.measure import DecodeOptions, measure_height, prepare_reference  # noqa: E402
+from metrology.core.patterns import PATTERN_NAMES, pattern_intensity  # noqa: E402
+from metrology.core.rig import Rig  # noqa: E402
+from metrology.core.triangulate import codes_from_abscissa  # noqa: E402
+
+
+def synthetic_pair(width: int, height: int, seed: int = 0) -> tuple[Rig, np.ndarray, np.ndarray]:
+    """An 8-bit reference/object pair (plane at 40 mm), 1.5 grey levels of noise."""
+    rig = Rig(L_mm=1022.0, d_mm=352.0, alpha_rad=0.332, fw_mm=500.0, nlp=128, width_px=width, height_px=height)
+    rng = np.random.default_rng(seed)
+    x_a = rig.column_x_mm()
+
+    def stack(z_mm: float) -> np.ndarray:
+        x_h = rig.d_mm + (1 - z_mm / rig.L_mm) * (x_a - rig.d_mm)
+        codes = codes_from_abscissa(rig, x_h * rig.L_mm / (rig.L_mm - z_mm))
+        rows = np.stack([12 + 200 * pattern_intensity(codes, n) for n in PATTERN_NAMES])
+        images = np.broadcast_to(rows[:, None, :], (11, height, width)) + rng.normal(0, 1.5, (11, height, width))
+        return np.clip(np.round(images), 0, 255).astype(np.uint8)
+
+    return rig, stack(0.0), stack(40.0)
+
+
+def median_time(func, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        func()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def opencv_baseline(width: int, height: int) -> dict | None:
+    env = ROOT / "benchmarks" / "opencv_env.sh"
+    try:
+        python = subprocess.run(["bash", str(env)], check=True, capture_output=True, text=True).stdout.split()[-1]
+        out = subprocess.run(
+            [python, str(ROOT / "benchmarks" / "opencv_baseline.py"), "--width", str(width), "--height", str(height)],
+            check=True,
+            capture_output=True,
+            text=True,
+            timeout=600,
+        ).stdout
+        return json.loads(out.strip().splitlines()[-1])
+    except (subprocess.SubprocessError, OSError, ValueError, IndexError) as exc:
+        print(f"  (OpenCV baseline unavailable: {exc})")
+        return None
+
+
+def run_size(width: int, height: int, repeats: int, with_opencv: bool) -> dict:
+    rig, ref_stack, obj_stack = synthetic_pair(width, height)
+    mpx = width * height / 1e6
+    options = DecodeOptions()
+    reference = prepare_reference(rig, ref_stack, options)
+    touched = np.empty(15 * width * height, np.uint8)
+    touched_out = np.empty_like(touched)
+
+    rows = {
+        "memory bound (copy 15 B/px)": lambda: np.copyto(touched_out, touched),
+        "object vs kept reference": lambda: measure_height(rig, reference, obj_stack, options, gray_only=False),
+        "object vs kept reference, 1 thread": lambda: measure_height(
+            rig, reference, obj_stack, options, gray_only=False, threads=1
+        ),
+        "both stacks decoded": lambda: measure_height(rig, ref_stack, obj_stack, options, gray_only=False),
+    }
+    for func in rows.values():
+        func()  # warm up
+    samples: dict[str, list[float]] = {name: [] for name in rows}
+    for _ in range(repeats):  # interleaved, so background load hits every row alike
+        for name, func in rows.items():
+            samples[name].append(median_time(func, 1))
+    seconds = {name: statistics.median(values) for name, values in samples.items()}
+
+    tracemalloc.start()
+    measure_height(rig, reference, obj_stack, options, gray_only=False)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+
+    result = {
+        "size": f"{width}x{height}",
+        "cpus": os.cpu_count(),
+        "seconds": seconds,
+        "mpx_per_s": {name: mpx / s for name, s in seconds.items()},
+        "peak_extra_bytes_per_px": peak / (width * height),
+    }
+    floor = seconds["memory bound (copy 15 B/px)"]
+    print(f"\n{width}x{height} ({mpx:.2f} Mpx), medians of {repeats} interleaved runs")
+    print(f"  {'what':40s} {'ms':>8s} {'Mpx/s':>8s} {'x floor':>8s}")
+    for name, s in seconds.items():
+        print(f"  {name:40s} {s * 1e3:8.2f} {mpx / s:8.1f} {s / floor:8.1f}")
+    print(f"  peak extra memory, object vs kept reference: {result['peak_extra_bytes_per_px']:.1f} bytes/px")
+    if with_opencv:
+        cv = opencv_baseline(width, height)
+        if cv:
+            result["opencv"] = cv
+            ours = result["mpx_per_s"]["object vs kept reference"]
+            for key in ("graycode", "psp"):
+                if key in cv and cv[key].get("mpx_per_s"):
+                    rate = cv[key]["mpx_per_s"]
+                    print(f"  OpenCV {key:34s} {'':8s} {rate:8.1f}   ours/OpenCV = {ours / rate:.0f}x")
+                    print(f"    ({cv[key].get('what', '')})")
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sizes", default="1280x1024,2048x2048")
+    parser.add_argument("--repeats", type=int, default=9)
+    parser.add_argument("--no-opencv", action="store_true")
+    parser.add_argument("--json", help="write the results here")
+    args = parser.parse_args()
+    results = []
+    for size in args.sizes.split(","):
+        width, height = (int(v) for v in size.lower().split("x"))
+        results.append(run_size(width, height, args.repeats, not args.no_opencv))
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=2))
+
+
+if __name__ == "__main__":
+    main()
