@@ -1,0 +1,331 @@
+"""Point clouds and meshes of height maps (DESIGN.md 1.5), built with open3d.
+
+Vertices are the 3D points of the valid pixels, ``(X_H, Y_H, z)`` of DESIGN.md 1.1
+(:func:`~metrology.core.triangulate.points_from_heights`), in row-major pixel order.
+The mesh joins neighbouring valid pixels of the image grid and does not bridge depth
+discontinuities (:func:`grid_triangles`).
+
+open3d is slow to import (about a second), so it is imported inside the functions that
+need it, never at module import.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+
+from metrology.core.io import atomic_path
+from metrology.core.rig import Rig
+from metrology.core.triangulate import points_from_heights
+
+if TYPE_CHECKING:  # pragma: no cover
+    import open3d
+
+MESH_EXTENSIONS: tuple[str, ...] = (".ply", ".stl", ".obj")
+"""Mesh file formats written by :func:`write_mesh` (PLY and STL binary)."""
+
+MIN_JUMP_MM = 2.0
+"""Floor of the default discontinuity threshold, mm."""
+
+JUMP_PIXELS = 4.0
+"""Default discontinuity threshold in pixel footprints (see :func:`default_max_jump_mm`)."""
+
+# Triangles of a grid cell with corners a = (k, j), b = (k, j + 1), c = (k + 1, j) and
+# d = (k + 1, j + 1), numbered 0..3: abc, bdc (diagonal b-c) and abd, adc (diagonal a-d).
+# Each is counter-clockwise in the (X right, Y up) plane, X growing with j and Y with k,
+# so its normal points to +Z, towards the rig.
+
+
+def default_max_jump_mm(rig: Rig) -> float:
+    """Default depth-discontinuity threshold: ``max(2 mm, 4 * pixel footprint on R)``.
+
+    Neighbouring pixels whose heights differ by more than this are not joined. Four
+    footprints keep surfaces up to about 76 degrees steep (``atan 4``) connected, while
+    steps higher than the threshold (e.g. a 20 mm block edge) stay open.
+
+    Examples
+    --------
+    >>> from metrology.core.rig import PAPER_RIG
+    >>> round(default_max_jump_mm(PAPER_RIG), 4)  # 500 mm / 640 px = 0.78 mm footprint
+    3.125
+    """
+    return max(MIN_JUMP_MM, JUMP_PIXELS * rig.pixel_mm)
+
+
+def grid_triangles(
+    valid: npt.ArrayLike,
+    z_mm: npt.ArrayLike,
+    max_jump_mm: float,
+) -> np.ndarray:
+    """Triangles joining neighbouring valid pixels of a height map, without bridging steps.
+
+    Each 2x2 cell of pixels ``a = (k, j)``, ``b = (k, j+1)``, ``c = (k+1, j)``,
+    ``d = (k+1, j+1)`` gives
+
+    - two triangles if all four corners are valid, split along the diagonal whose ends
+      differ less in height (so a step that crosses the cell diagonally is followed);
+    - one triangle if exactly three corners are valid (smooth hole and shadow borders);
+    - none otherwise;
+
+    and a triangle is dropped if any of its three edges joins heights differing by more
+    than ``max_jump_mm`` (a depth discontinuity). Fully vectorised.
+
+    Parameters
+    ----------
+    valid : (H, W) array_like of bool
+        Pixels that become vertices. ``z_mm`` must be finite there.
+    z_mm : (H, W) array_like of float
+        Heights, mm; ignored where ``valid`` is False (may be NaN there).
+    max_jump_mm : float
+        Largest height difference along a triangle edge, mm, > 0 (``np.inf`` joins all
+        neighbours). See :func:`default_max_jump_mm`.
+
+    Returns
+    -------
+    triangles : (T, 3) int32 array
+        Vertex indices into the valid pixels taken in row-major order (vertex ``n`` is
+        the ``n``-th True of ``valid.ravel()``), grouped by kind (abc, bdc, abd, adc;
+        see the comment above :func:`default_max_jump_mm`), each group in row-major cell order.
+        Counter-clockwise seen from +Z (X along columns, Y along rows), so normals point
+        up, towards the rig.
+
+    Raises
+    ------
+    ValueError
+        If the shapes differ or are not 2-D, if ``max_jump_mm`` is not positive, or if
+        ``z_mm`` is not finite at a valid pixel.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> grid_triangles(np.ones((2, 3), bool), np.zeros((2, 3)), 1.0).tolist()
+    [[0, 1, 3], [1, 2, 4], [1, 4, 3], [2, 5, 4]]
+    """
+    mask = np.asarray(valid)
+    z = np.asarray(z_mm)
+    if mask.ndim != 2 or mask.dtype != np.bool_:
+        raise ValueError(f"valid must be a 2-D bool array, got shape {mask.shape} dtype {mask.dtype}")
+    if z.shape != mask.shape:
+        raise ValueError(f"z_mm must have the shape of valid {mask.shape}, got {z.shape}")
+    if not (max_jump_mm > 0):
+        raise ValueError(f"max_jump_mm must be positive, got {max_jump_mm!r}")
+    height, width = mask.shape
+    n_vertices = int(np.count_nonzero(mask))
+    if n_vertices >= 2**31:
+        raise ValueError(f"too many vertices for int32 indices: {n_vertices}")
+    dtype = z.dtype if z.dtype.kind == "f" else np.dtype(np.float64)
+    zf = np.where(mask, z, 0).astype(dtype, copy=False)
+    if not np.isfinite(zf).all():
+        bad = int(np.count_nonzero(~np.isfinite(zf)))
+        raise ValueError(f"z_mm is not finite at {bad} pixel(s) marked valid")
+    if height < 2 or width < 2:
+        return np.empty((0, 3), dtype=np.int32)
+
+    va, vb, vc, vd = mask[:-1, :-1], mask[:-1, 1:], mask[1:, :-1], mask[1:, 1:]
+    za, zb, zc, zd = zf[:-1, :-1], zf[:-1, 1:], zf[1:, :-1], zf[1:, 1:]
+    full = va & vb & vc & vd
+    jump = dtype.type(max_jump_mm)
+    dz_bc, dz_ad = np.abs(zb - zc), np.abs(za - zd)
+    use_bc = dz_bc <= dz_ad
+    use_ad = ~use_bc
+    use_bc |= ~full
+    use_ad |= ~full
+    ok_ab = np.abs(za - zb) <= jump
+    ok_cd = np.abs(zc - zd) <= jump
+    ok_ac = np.abs(za - zc) <= jump
+    ok_bd = np.abs(zb - zd) <= jump
+    keeps = (
+        va & vb & vc & use_bc & ok_ab & ok_ac & (dz_bc <= jump),  # a b c
+        vb & vc & vd & use_bc & ok_bd & ok_cd & (dz_bc <= jump),  # b d c
+        va & vb & vd & use_ad & ok_ab & ok_bd & (dz_ad <= jump),  # a b d
+        va & vc & vd & use_ad & (dz_ad <= jump) & ok_cd & ok_ac,  # a d c
+    )
+    # Flat pixel offsets of each kind's corners from corner a.
+    offsets = ((0, 1, width), (1, width + 1, width), (0, 1, width + 1), (0, width + 1, width))
+    index = np.full(height * width, -1, dtype=np.int32)
+    index[mask.ravel()] = np.arange(n_vertices, dtype=np.int32)
+    cells = [np.flatnonzero(keep) for keep in keeps]
+    triangles = np.empty((sum(len(c) for c in cells), 3), dtype=np.int32)
+    start = 0
+    for kind_cells, kind_offsets in zip(cells, offsets, strict=True):
+        corner_a = kind_cells + kind_cells // (width - 1)  # pixel index of corner a = (k, j)
+        stop = start + len(kind_cells)
+        for column, offset in enumerate(kind_offsets):
+            np.take(index, corner_a + offset, out=triangles[start:stop, column])
+        start = stop
+    return triangles
+
+
+def _valid_points(rig: Rig, z_mm: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    z = np.asarray(z_mm, dtype=np.float64)
+    if z.shape != rig.shape:
+        raise ValueError(f"z_mm must have the rig's shape {rig.shape} (height_px, width_px), got {z.shape}")
+    valid = np.isfinite(z)
+    xyz = points_from_heights(rig, z)
+    return valid, z, np.ascontiguousarray(xyz[valid])
+
+
+def mesh_from_heights(rig: Rig, z_mm: npt.ArrayLike, max_jump_mm: float | None = None) -> open3d.geometry.TriangleMesh:
+    """Triangle mesh of a height map (DESIGN.md 1.5).
+
+    Parameters
+    ----------
+    rig : Rig
+    z_mm : (height_px, width_px) array_like of float
+        Heights above R, mm, NaN where not measured.
+    max_jump_mm : float, optional
+        Depth-discontinuity threshold of :func:`grid_triangles`, mm; default
+        :func:`default_max_jump_mm`.
+
+    Returns
+    -------
+    open3d.geometry.TriangleMesh
+        One vertex per finite pixel (row-major), at ``(X_H, Y_H, z)`` in mm (float64);
+        triangles from :func:`grid_triangles`; triangle and vertex normals computed
+        (pointing to +Z on a plane; ``(0, 0, 1)`` for vertices in no triangle).
+
+    Raises
+    ------
+    ValueError
+        If ``z_mm`` does not have the rig's shape.
+    """
+    import open3d as o3d
+
+    valid, z, vertices = _valid_points(rig, z_mm)
+    jump = default_max_jump_mm(rig) if max_jump_mm is None else float(max_jump_mm)
+    triangles = grid_triangles(valid, z, jump)
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
+    mesh.compute_triangle_normals()
+    mesh.compute_vertex_normals()
+    _fix_isolated_normals(mesh, triangles, len(vertices))
+    return mesh
+
+
+def _fix_isolated_normals(mesh: open3d.geometry.TriangleMesh, triangles: np.ndarray, n_vertices: int) -> None:
+    import open3d as o3d
+
+    used = np.zeros(n_vertices, dtype=bool)
+    used[triangles.ravel()] = True
+    if used.all():
+        return
+    normals = np.asarray(mesh.vertex_normals).copy()
+    normals[~used] = (0.0, 0.0, 1.0)
+    mesh.vertex_normals = o3d.utility.Vector3dVector(normals)
+
+
+def point_cloud_from_heights(
+    rig: Rig, z_mm: npt.ArrayLike, max_jump_mm: float | None = None
+) -> open3d.geometry.PointCloud:
+    """Point cloud of a height map, with normals from the pixel grid.
+
+    Parameters
+    ----------
+    rig : Rig
+    z_mm : (height_px, width_px) array_like of float
+        Heights above R, mm, NaN where not measured.
+    max_jump_mm : float, optional
+        Neighbours farther apart in height than this do not contribute to each other's
+        normal (as in :func:`mesh_from_heights`).
+
+    Returns
+    -------
+    open3d.geometry.PointCloud
+        One point per finite pixel (row-major), ``(X_H, Y_H, z)`` in mm; unit normals
+        (area-weighted mean of the grid triangles around each point, ``(0, 0, 1)`` for
+        points in no triangle), oriented towards +Z.
+    """
+    import open3d as o3d
+
+    mesh = mesh_from_heights(rig, z_mm, max_jump_mm)
+    cloud = o3d.geometry.PointCloud(mesh.vertices)
+    cloud.normals = mesh.vertex_normals
+    return cloud
+
+
+def _check_extension(path: Path, allowed: tuple[str, ...]) -> str:
+    ext = path.suffix.lower()
+    if ext not in allowed:
+        raise ValueError(f"cannot write {path.name!r}: extension must be one of {', '.join(allowed)}")
+    return ext
+
+
+def write_mesh(mesh: open3d.geometry.TriangleMesh, path: str | os.PathLike[str]) -> Path:
+    """Write a mesh as binary PLY, binary STL or OBJ, chosen by extension, atomically.
+
+    Parameters
+    ----------
+    mesh : open3d.geometry.TriangleMesh
+        Coordinates in mm. Triangle normals are computed if missing (STL needs them).
+    path : path
+        Destination ending in ``.ply``, ``.stl`` or ``.obj`` (case-insensitive). The file
+        is written to a temporary name in the same folder and renamed into place.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    ValueError
+        On another extension.
+    OSError
+        If open3d fails to write the file.
+
+    Notes
+    -----
+    PLY keeps float64 coordinates and vertex normals; STL keeps float32 coordinates and
+    triangle normals only (about 0.03 um resolution at 500 mm); open3d's OBJ writer keeps
+    6 significant digits (about 0.5 um at 500 mm) and vertex normals.
+    """
+    import open3d as o3d
+
+    path = Path(path)
+    ext = _check_extension(path, MESH_EXTENSIONS)
+    if ext == ".stl" and not mesh.has_triangle_normals():
+        mesh = o3d.geometry.TriangleMesh(mesh)
+        mesh.compute_triangle_normals()
+    # OBJ cannot hold triangle normals; open3d warns about it on every write.
+    with atomic_path(path) as tmp, o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        ok = o3d.io.write_triangle_mesh(
+            tmp,
+            mesh,
+            write_ascii=False,
+            compressed=False,
+            write_vertex_normals=ext != ".stl",
+            write_triangle_uvs=False,
+            print_progress=False,
+        )
+        if not ok:
+            raise OSError(f"open3d could not write {path.name!r}")
+    return path
+
+
+def write_point_cloud(cloud: open3d.geometry.PointCloud, path: str | os.PathLike[str]) -> Path:
+    """Write a point cloud as binary PLY, atomically.
+
+    Parameters
+    ----------
+    cloud : open3d.geometry.PointCloud
+        Coordinates in mm (normals written when present).
+    path : path
+        Destination ending in ``.ply``.
+
+    Raises
+    ------
+    ValueError
+        On another extension.
+    OSError
+        If open3d fails to write the file.
+    """
+    import open3d as o3d
+
+    path = Path(path)
+    _check_extension(path, (".ply",))
+    with atomic_path(path) as tmp:
+        if not o3d.io.write_point_cloud(tmp, cloud, write_ascii=False, compressed=False, print_progress=False):
+            raise OSError(f"open3d could not write {path.name!r}")
+    return path

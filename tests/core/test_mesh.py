@@ -1,0 +1,263 @@
+"""Tests of metrology.core.mesh: grid triangulation, point clouds, meshes and their files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from metrology.core.mesh import (
+    default_max_jump_mm,
+    grid_triangles,
+    mesh_from_heights,
+    point_cloud_from_heights,
+    write_mesh,
+    write_point_cloud,
+)
+from metrology.core.rig import PAPER_RIG, Rig
+from metrology.core.triangulate import points_from_heights
+
+o3d = pytest.importorskip("open3d")
+
+SMALL_RIG = PAPER_RIG.with_parameters(width_px=40, height_px=30, fw_mm=40 * 0.78125)
+
+
+def triangle_normals_z(xyz: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    a, b, c = (xyz[triangles[:, i]] for i in range(3))
+    return np.cross(b - a, c - a)[:, 2]
+
+
+# ------------------------------------------------------------------------ grid_triangles
+
+
+@pytest.mark.parametrize("shape", [(2, 2), (3, 5), (30, 40)])
+def test_plane_gives_two_triangles_per_cell(shape: tuple[int, int]) -> None:
+    height, width = shape
+    z = np.full(shape, 12.5)
+    triangles = grid_triangles(np.ones(shape, bool), z, 3.0)
+    assert triangles.dtype == np.int32
+    assert triangles.shape == (2 * (height - 1) * (width - 1), 3)
+    # Every vertex is used and no triangle is degenerate.
+    assert set(np.unique(triangles)) == set(range(height * width))
+    assert (np.diff(np.sort(triangles, axis=1), axis=1) > 0).all()
+
+
+def test_winding_points_up_on_a_tilted_plane() -> None:
+    rig = SMALL_RIG
+    k, j = np.mgrid[0 : rig.height_px, 0 : rig.width_px]
+    z = 10.0 + 0.3 * j - 0.2 * k  # tilted plane, mm
+    xyz = points_from_heights(rig, z).reshape(-1, 3)
+    triangles = grid_triangles(np.ones(rig.shape, bool), z, default_max_jump_mm(rig))
+    assert len(triangles) == 2 * (rig.height_px - 1) * (rig.width_px - 1)
+    assert (triangle_normals_z(xyz, triangles) > 0).all()
+
+
+def test_step_of_20_mm_is_not_bridged() -> None:
+    rig = SMALL_RIG
+    z = np.full(rig.shape, 5.0)
+    z[:, 20:] = 25.0  # a 20 mm step between columns 19 and 20
+    z[10:20, 5:12] = 25.0  # and a raised block with four edges
+    triangles = grid_triangles(np.ones(rig.shape, bool), z, default_max_jump_mm(rig))
+    zv = z.ravel()[triangles]
+    assert (zv.max(axis=1) - zv.min(axis=1) == 0).all(), "a triangle spans a step"
+    # Every cell that does not straddle a step keeps its two triangles; corner cells of the
+    # block keep the one triangle that lies on a single level.
+    n_cells = (rig.height_px - 1) * (rig.width_px - 1)
+    straddling = 0
+    for k in range(rig.height_px - 1):
+        for j in range(rig.width_px - 1):
+            straddling += len(np.unique(z[k : k + 2, j : j + 2])) > 1
+    assert len(triangles) > 2 * (n_cells - straddling)
+    # With no threshold the step is bridged.
+    bridged = grid_triangles(np.ones(rig.shape, bool), z, np.inf)
+    assert len(bridged) == 2 * n_cells
+
+
+def test_diagonal_step_follows_the_diagonal() -> None:
+    k, j = np.mgrid[0:6, 0:6]
+    z = np.where(j > k, 20.0, 0.0)  # step along the main diagonal
+    triangles = grid_triangles(np.ones(z.shape, bool), z, 2.0)
+    zv = z.ravel()[triangles]
+    assert (zv.max(axis=1) == zv.min(axis=1)).all()
+    # The cells on the step (on the diagonal and just above it) have three corners on one
+    # level: they split along a-d and keep the one triangle on that level.
+    assert len(triangles) == 2 * 5 * 5 - 5 - 4
+
+
+def test_nan_holes_are_excluded() -> None:
+    rig = SMALL_RIG
+    z = np.full(rig.shape, 3.0)
+    z[5:8, 10:14] = np.nan
+    z[0, 0] = np.nan
+    valid = np.isfinite(z)
+    triangles = grid_triangles(valid, z, default_max_jump_mm(rig))
+    assert triangles.max() < valid.sum()
+    # Vertex n is the n-th valid pixel in row-major order; no triangle touches the hole.
+    pixel_of_vertex = np.flatnonzero(valid.ravel())
+    assert valid.ravel()[pixel_of_vertex[triangles]].all()
+    # Cells with three valid corners keep one triangle: the corner cell (0, 0) and the
+    # four cells at the hole's corners; cells touching the hole's sides lose both.
+    n_cells = (rig.height_px - 1) * (rig.width_px - 1)
+    cells_with_nan = 1 + (3 + 1) * (4 + 1)
+    expected = 2 * (n_cells - cells_with_nan) + 1 + 4
+    assert len(triangles) == expected
+
+
+def test_isolated_valid_pixels_make_no_triangle() -> None:
+    valid = np.zeros((5, 5), bool)
+    valid[0, 0] = valid[2, 2] = valid[4, 3] = valid[4, 4] = True
+    z = np.where(valid, 1.0, np.nan)
+    assert grid_triangles(valid, z, 1.0).shape == (0, 3)
+
+
+def test_grid_triangles_bad_input() -> None:
+    with pytest.raises(ValueError, match="valid must be a 2-D bool array"):
+        grid_triangles(np.ones((3, 3)), np.zeros((3, 3)), 1.0)
+    with pytest.raises(ValueError, match=r"z_mm must have the shape of valid \(3, 3\)"):
+        grid_triangles(np.ones((3, 3), bool), np.zeros((3, 4)), 1.0)
+    with pytest.raises(ValueError, match="max_jump_mm must be positive"):
+        grid_triangles(np.ones((3, 3), bool), np.zeros((3, 3)), 0.0)
+    z = np.zeros((3, 3))
+    z[1, 1] = np.nan
+    with pytest.raises(ValueError, match=r"not finite at 1 pixel\(s\) marked valid"):
+        grid_triangles(np.ones((3, 3), bool), z, 1.0)
+
+
+# ------------------------------------------------------------------------ open3d geometry
+
+
+def sample_heights(rig: Rig) -> np.ndarray:
+    k, j = np.mgrid[0 : rig.height_px, 0 : rig.width_px]
+    z = 4.0 + 0.05 * j + 0.02 * k
+    z[8:16, 10:22] += 20.0  # block
+    z[20:24, 30:35] = np.nan  # shadow
+    return z
+
+
+def test_mesh_vertices_are_the_triangulated_points() -> None:
+    rig = SMALL_RIG
+    z = sample_heights(rig)
+    mesh = mesh_from_heights(rig, z)
+    valid = np.isfinite(z)
+    vertices = np.asarray(mesh.vertices)
+    np.testing.assert_array_equal(vertices, points_from_heights(rig, z)[valid])
+    triangles = np.asarray(mesh.triangles)
+    np.testing.assert_array_equal(triangles, grid_triangles(valid, z, default_max_jump_mm(rig)))
+    assert mesh.has_vertex_normals() and mesh.has_triangle_normals()
+    assert (np.asarray(mesh.triangle_normals)[:, 2] > 0).all()
+    normals = np.asarray(mesh.vertex_normals)
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, rtol=1e-9)
+    assert (normals[:, 2] > 0).all()
+
+
+def test_point_cloud_from_heights() -> None:
+    rig = SMALL_RIG
+    z = sample_heights(rig)
+    cloud = point_cloud_from_heights(rig, z)
+    valid = np.isfinite(z)
+    np.testing.assert_array_equal(np.asarray(cloud.points), points_from_heights(rig, z)[valid])
+    normals = np.asarray(cloud.normals)
+    assert normals.shape == (valid.sum(), 3)
+    assert (normals[:, 2] > 0).all()
+
+
+def test_shape_unlike_the_rig_is_refused() -> None:
+    with pytest.raises(ValueError, match=r"rig's shape \(30, 40\)"):
+        mesh_from_heights(SMALL_RIG, np.zeros((30, 41)))
+
+
+def test_all_nan_gives_an_empty_mesh(tmp_path: Path) -> None:
+    mesh = mesh_from_heights(SMALL_RIG, np.full(SMALL_RIG.shape, np.nan))
+    assert len(mesh.vertices) == 0 and len(mesh.triangles) == 0
+
+
+# ------------------------------------------------------------------------ files
+
+
+@pytest.mark.parametrize("ext", [".ply", ".stl", ".obj"])
+def test_mesh_files_round_trip(tmp_path: Path, ext: str) -> None:
+    rig = SMALL_RIG
+    z = sample_heights(rig)
+    mesh = mesh_from_heights(rig, z)
+    path = write_mesh(mesh, tmp_path / f"object{ext}")
+    assert path == tmp_path / f"object{ext}"
+    assert [p.name for p in tmp_path.iterdir()] == [f"object{ext}"], "temporary or extra files left behind"
+    again = o3d.io.read_triangle_mesh(str(path))
+    assert len(again.triangles) == len(mesh.triangles)
+    used = np.unique(np.asarray(mesh.triangles))
+    if ext == ".stl":  # STL stores triangles only: compare the vertices they use
+        assert len(again.vertices) == len(used)
+    else:
+        assert len(again.vertices) == len(mesh.vertices)
+    if ext == ".ply":  # doubles, same order
+        np.testing.assert_array_equal(np.asarray(again.vertices), np.asarray(mesh.vertices))
+    used_xyz = np.asarray(mesh.vertices)[used]
+    # STL stores float32; open3d's OBJ writer keeps 6 significant digits (< 1 um here).
+    tol = {".ply": 0.0, ".stl": 1e-4, ".obj": 1e-3}[ext]
+    np.testing.assert_allclose(again.get_min_bound(), used_xyz.min(axis=0), atol=tol)
+    np.testing.assert_allclose(again.get_max_bound(), used_xyz.max(axis=0), atol=tol)
+
+
+def test_stl_is_binary_with_normals(tmp_path: Path) -> None:
+    rig = SMALL_RIG
+    mesh = mesh_from_heights(rig, np.full(rig.shape, 7.0))
+    bare = o3d.geometry.TriangleMesh(mesh.vertices, mesh.triangles)  # no normals
+    path = write_mesh(bare, tmp_path / "plane.STL")
+    data = path.read_bytes()
+    n_triangles = int.from_bytes(data[80:84], "little")
+    assert n_triangles == 2 * (rig.height_px - 1) * (rig.width_px - 1)
+    assert len(data) == 84 + 50 * n_triangles
+    record = np.frombuffer(data[84:], dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")]))
+    np.testing.assert_allclose(record["n"], np.tile([0.0, 0.0, 1.0], (n_triangles, 1)), atol=1e-6)
+    np.testing.assert_allclose(record["v"][..., 2], 7.0)
+    assert not bare.has_triangle_normals(), "write_mesh must not modify its argument"
+
+
+def test_ply_is_binary(tmp_path: Path) -> None:
+    mesh = mesh_from_heights(SMALL_RIG, sample_heights(SMALL_RIG))
+    header = write_mesh(mesh, tmp_path / "m.ply").read_bytes()[:200]
+    assert b"format binary_little_endian" in header
+
+
+def test_point_cloud_file_round_trip(tmp_path: Path) -> None:
+    rig = SMALL_RIG
+    z = sample_heights(rig)
+    cloud = point_cloud_from_heights(rig, z)
+    path = write_point_cloud(cloud, tmp_path / "cloud.ply")
+    again = o3d.io.read_point_cloud(str(path))
+    np.testing.assert_allclose(np.asarray(again.points), np.asarray(cloud.points))
+    np.testing.assert_allclose(np.asarray(again.normals), np.asarray(cloud.normals))
+    with pytest.raises(ValueError, match=r"extension must be one of \.ply"):
+        write_point_cloud(cloud, tmp_path / "cloud.xyz")
+
+
+def test_write_mesh_refuses_other_extensions(tmp_path: Path) -> None:
+    mesh = mesh_from_heights(SMALL_RIG, sample_heights(SMALL_RIG))
+    for name in ["m.off", "m.gltf", "m"]:
+        with pytest.raises(ValueError, match=r"extension must be one of \.ply, \.stl, \.obj"):
+            write_mesh(mesh, tmp_path / name)
+    assert not list(tmp_path.iterdir())
+
+
+def test_write_mesh_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import metrology.core.io as gio
+
+    mesh = mesh_from_heights(SMALL_RIG, sample_heights(SMALL_RIG))
+
+    def failing_replace(src: object, dst: object) -> None:
+        raise OSError("disk full")
+
+    monkeypatch.setattr(gio.os, "replace", failing_replace)
+    with pytest.raises(OSError, match="disk full"):
+        write_mesh(mesh, tmp_path / "m.ply")
+    assert not list(tmp_path.iterdir())
+
+
+def test_mesh_module_imports_open3d_lazily() -> None:
+    import subprocess
+    import sys
+
+    code = "import sys, metrology.core.mesh; print('open3d' in sys.modules)"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "False"
