@@ -177,6 +177,11 @@ def _write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
             fh.write(data)
 
 
+def write_text_atomic(text: str, path: str | os.PathLike[str]) -> None:
+    """Write UTF-8 ``text`` to ``path`` atomically (a reader sees the old file or the whole new one)."""
+    _write_bytes_atomic(path, text.encode("utf-8"))
+
+
 # ---------------------------------------------------------------------------- image headers
 
 

@@ -1,0 +1,284 @@
+"""Acceptance quantities after VDI/VDE 2634 part 2 (beyond the paper).
+
+All inputs are ``(N, 3)`` float arrays of measured points ``(X, Y, Z)`` in mm, e.g.
+the valid pixels of :func:`metrology.core.triangulate.points_from_heights` (see
+:func:`points_from_height_map`).
+
+- **Flatness measurement error F**: range (max - min) of the signed distances of
+  the points from their least-squares plane. The plane is the total-least-squares
+  fit: through the centroid, normal = right singular vector of the centred points
+  with the smallest singular value (minimises the sum of squared orthogonal
+  distances).
+- **Probing error form P_F**: range of the radial residuals ``|p - c| - r`` about
+  the least-squares sphere (centre and radius free).
+- **Probing error size P_S**: fitted diameter minus the known (calibrated) diameter.
+- **Sphere-spacing error SD**: distance between the fitted centres of two spheres
+  minus the known spacing.
+
+The standard lets up to 0.3 % of the points be discarded as outliers; every
+quantity is reported with and without that rejection (``reject_frac``): the
+``floor(reject_frac * N)`` points with the largest absolute residuals are removed
+and the fit repeated once.
+
+Sphere fit: first the algebraic (linear) least-squares fit, which solves
+``|p|^2 = 2 c . p + (r^2 - |c|^2)`` for ``c`` and ``r^2 - |c|^2`` in one linear
+solve (Kasa fit; biased for partial caps and noisy data), then a geometric
+refinement minimising ``sum (|p_i - c| - r)^2`` with
+``scipy.optimize.least_squares`` (Levenberg-Marquardt) from that start.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from scipy import optimize
+
+from metrology.core.rig import Rig
+from metrology.core.triangulate import points_from_heights
+
+VDI_REJECT_FRAC = 0.003
+"""Share of points VDI/VDE 2634-2 allows to discard as outliers."""
+
+
+@dataclass(frozen=True)
+class PlaneFit:
+    """Least-squares plane: ``normal . (p - centroid) = distance`` (normal has +Z)."""
+
+    centroid: np.ndarray
+    normal: np.ndarray
+    distances: np.ndarray
+
+
+@dataclass(frozen=True)
+class SphereFit:
+    """Least-squares sphere: ``radii = |p - center| - radius``."""
+
+    center: np.ndarray
+    radius: float
+    residuals: np.ndarray
+    algebraic_center: np.ndarray
+    algebraic_radius: float
+
+
+def points_from_height_map(rig: Rig, z_mm: npt.ArrayLike, mask: npt.ArrayLike | None = None) -> np.ndarray:
+    """The valid pixels of a height map as 3D points (DESIGN.md 1.1).
+
+    Parameters
+    ----------
+    rig : Rig
+    z_mm : (height_px, width_px) float array
+        Height map, mm, NaN where invalid.
+    mask : (height_px, width_px) bool array, optional
+        Pixels to keep (e.g. a sphere's region).
+
+    Returns
+    -------
+    points : (N, 3) float64 array, mm: ``(X_H, Y_H, z)``.
+    """
+    xyz = points_from_heights(rig, z_mm)
+    keep = np.isfinite(xyz[..., 2])
+    if mask is not None:
+        m = np.asarray(mask, dtype=bool)
+        if m.shape != rig.shape:
+            raise ValueError(f"mask must have the rig's shape {rig.shape}, got {m.shape}")
+        keep &= m
+    return xyz[keep]
+
+
+def _check_points(points: npt.ArrayLike, name: str = "points", minimum: int = 4) -> np.ndarray:
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"{name} must be an (N, 3) array of X, Y, Z in mm, got shape {p.shape}")
+    p = p[np.isfinite(p).all(axis=1)]
+    if len(p) < minimum:
+        raise ValueError(f"{name} needs at least {minimum} finite points, got {len(p)}")
+    return p
+
+
+def _check_frac(reject_frac: float) -> None:
+    if not (0.0 <= reject_frac < 0.5):
+        raise ValueError(f"reject_frac must lie in [0, 0.5), got {reject_frac!r}")
+
+
+def fit_plane(points: npt.ArrayLike) -> PlaneFit:
+    """Total-least-squares plane through ``(N, 3)`` points (N >= 3), signed distances in mm."""
+    p = _check_points(points, minimum=3)
+    centroid = p.mean(axis=0)
+    _, _, vt = np.linalg.svd(p - centroid, full_matrices=False)
+    normal = vt[-1]
+    if normal[2] < 0:
+        normal = -normal
+    return PlaneFit(centroid=centroid, normal=normal, distances=(p - centroid) @ normal)
+
+
+def fit_sphere(points: npt.ArrayLike) -> SphereFit:
+    """Least-squares sphere through ``(N, 3)`` points (N >= 4): algebraic start, geometric refinement.
+
+    Raises
+    ------
+    ValueError
+        If the points are degenerate (e.g. coplanar).
+    """
+    p = _check_points(points, minimum=4)
+    shift = p.mean(axis=0)
+    q = p - shift  # conditioning
+    a = np.column_stack([2 * q, np.ones(len(q))])
+    b = (q**2).sum(axis=1)
+    sol, _, rank, _ = np.linalg.lstsq(a, b, rcond=None)
+    if rank < 4:
+        raise ValueError("points are degenerate (coplanar or collinear): no sphere fits them")
+    c0 = sol[:3]
+    r0 = math.sqrt(max(sol[3] + c0 @ c0, 0.0))
+
+    def radial(x: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(q - x[:3], axis=1) - x[3]
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        diff = q - x[:3]
+        dist = np.linalg.norm(diff, axis=1)
+        return np.column_stack([-diff / dist[:, None], -np.ones(len(q))])
+
+    res = optimize.least_squares(radial, np.r_[c0, r0], jac=jac, method="lm", xtol=1e-12, ftol=1e-12)
+    center = res.x[:3] + shift
+    radius = float(abs(res.x[3]))
+    return SphereFit(
+        center=center,
+        radius=radius,
+        residuals=np.linalg.norm(p - center, axis=1) - radius,
+        algebraic_center=c0 + shift,
+        algebraic_radius=r0,
+    )
+
+
+def _reject(points: np.ndarray, residuals: np.ndarray, reject_frac: float) -> tuple[np.ndarray, int]:
+    n_out = math.floor(reject_frac * len(points))
+    if n_out == 0:
+        return points, 0
+    keep = np.argsort(np.abs(residuals))[: len(points) - n_out]
+    return points[keep], n_out
+
+
+def flatness_error(points: npt.ArrayLike, reject_frac: float = VDI_REJECT_FRAC) -> dict[str, Any]:
+    """Flatness measurement error F of a plane (VDI/VDE 2634-2).
+
+    Parameters
+    ----------
+    points : (N, 3) float array, mm
+        Points measured on a flat standard.
+    reject_frac : float
+        Share of points with the largest absolute distances discarded for the
+        second figure (standard: 0.003).
+
+    Returns
+    -------
+    dict
+        ``flatness_mm`` (range of signed distances, all points), ``flatness_rejected_mm``
+        (after rejection), ``rms_mm``, ``n_points``, ``n_rejected``, ``normal``,
+        ``centroid_mm``.
+    """
+    _check_frac(reject_frac)
+    p = _check_points(points, minimum=3)
+    fit = fit_plane(p)
+    kept, n_out = _reject(p, fit.distances, reject_frac)
+    fit2 = fit_plane(kept) if n_out else fit
+    return {
+        "flatness_mm": float(np.ptp(fit.distances)),
+        "flatness_rejected_mm": float(np.ptp(fit2.distances)),
+        "rms_mm": float(np.sqrt(np.mean(fit.distances**2))),
+        "n_points": len(p),
+        "n_rejected": n_out,
+        "normal": fit.normal.tolist(),
+        "centroid_mm": fit.centroid.tolist(),
+        "fit": "total least-squares plane (SVD)",
+    }
+
+
+def probing_error(points: npt.ArrayLike, diameter_mm: float, reject_frac: float = VDI_REJECT_FRAC) -> dict[str, Any]:
+    """Probing errors form P_F and size P_S on a sphere of known diameter (VDI/VDE 2634-2).
+
+    Parameters
+    ----------
+    points : (N, 3) float array, mm
+        Points measured on the sphere (N >= 4, not coplanar).
+    diameter_mm : float
+        Calibrated diameter of the sphere, mm, > 0.
+    reject_frac : float
+        Share of points discarded for the ``*_rejected`` figures.
+
+    Returns
+    -------
+    dict
+        ``form_error_mm`` (range of radial residuals), ``size_error_mm`` (fitted minus
+        known diameter), ``diameter_mm``, ``center_mm``, ``rms_mm``, the same three
+        after rejection (``form_error_rejected_mm``, ``size_error_rejected_mm``,
+        ``diameter_rejected_mm``), ``n_points``, ``n_rejected``.
+    """
+    if not (diameter_mm > 0):
+        raise ValueError(f"diameter_mm must be positive, got {diameter_mm!r}")
+    _check_frac(reject_frac)
+    p = _check_points(points)
+    fit = fit_sphere(p)
+    kept, n_out = _reject(p, fit.residuals, reject_frac)
+    fit2 = fit_sphere(kept) if n_out else fit
+    return {
+        "form_error_mm": float(np.ptp(fit.residuals)),
+        "size_error_mm": 2 * fit.radius - diameter_mm,
+        "diameter_mm": 2 * fit.radius,
+        "center_mm": fit.center.tolist(),
+        "rms_mm": float(np.sqrt(np.mean(fit.residuals**2))),
+        "form_error_rejected_mm": float(np.ptp(fit2.residuals)),
+        "size_error_rejected_mm": 2 * fit2.radius - diameter_mm,
+        "diameter_rejected_mm": 2 * fit2.radius,
+        "n_points": len(p),
+        "n_rejected": n_out,
+        "fit": "algebraic linear least-squares sphere, refined geometrically (Levenberg-Marquardt)",
+    }
+
+
+def sphere_spacing_error(
+    points_a: npt.ArrayLike, points_b: npt.ArrayLike, spacing_mm: float, reject_frac: float = VDI_REJECT_FRAC
+) -> dict[str, Any]:
+    """Sphere-spacing error SD of a ball bar (VDI/VDE 2634-2).
+
+    Parameters
+    ----------
+    points_a, points_b : (N, 3) float arrays, mm
+        Points measured on each sphere.
+    spacing_mm : float
+        Calibrated distance between the sphere centres, mm, > 0.
+    reject_frac : float
+        Share of points discarded per sphere for the ``*_rejected`` figures.
+
+    Returns
+    -------
+    dict
+        ``spacing_mm`` (measured), ``spacing_error_mm`` (measured minus known), the
+        same after rejection, ``center_a_mm``, ``center_b_mm``, ``diameter_a_mm``,
+        ``diameter_b_mm``.
+    """
+    if not (spacing_mm > 0):
+        raise ValueError(f"spacing_mm must be positive, got {spacing_mm!r}")
+    _check_frac(reject_frac)
+    a = _check_points(points_a, "points_a")
+    b = _check_points(points_b, "points_b")
+    fa, fb = fit_sphere(a), fit_sphere(b)
+    ka, _ = _reject(a, fa.residuals, reject_frac)
+    kb, _ = _reject(b, fb.residuals, reject_frac)
+    fa2, fb2 = fit_sphere(ka), fit_sphere(kb)
+    spacing = float(np.linalg.norm(fa.center - fb.center))
+    spacing2 = float(np.linalg.norm(fa2.center - fb2.center))
+    return {
+        "spacing_mm": spacing,
+        "spacing_error_mm": spacing - spacing_mm,
+        "spacing_rejected_mm": spacing2,
+        "spacing_error_rejected_mm": spacing2 - spacing_mm,
+        "center_a_mm": fa.center.tolist(),
+        "center_b_mm": fb.center.tolist(),
+        "diameter_a_mm": 2 * fa.radius,
+        "diameter_b_mm": 2 * fb.radius,
+        "fit": "least-squares spheres (algebraic start, geometric refinement); distance of centres",
+    }
