@@ -163,16 +163,100 @@ def cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
     return simulate_command(args)
 
 
-def cmd_calibrate(args: argparse.Namespace) -> dict[str, Any]:
-    from metrology.core.calibrate import calibrate_from_stacks_cli
+def _parse_roi(text: str | None) -> tuple[slice, slice] | None:
+    if not text:
+        return None
+    try:
+        rows, cols = text.split(",")
+        r0, r1 = (int(v) for v in rows.split(":"))
+        c0, c1 = (int(v) for v in cols.split(":"))
+    except ValueError as exc:
+        raise BadInputError(f"--roi {text!r}: expected 'row0:row1,col0:col1'") from exc
+    if r1 <= r0 or c1 <= c0 or r0 < 0 or c0 < 0:
+        raise BadInputError(f"--roi {text!r}: empty or negative range")
+    return slice(r0, r1), slice(c0, c1)
 
-    return calibrate_from_stacks_cli(args)
+
+def cmd_calibrate(args: argparse.Namespace) -> dict[str, Any]:
+    from metrology.core.calibrate import MasterCapture, calibrate_lsq, calibrate_paper
+    from metrology.core.measure import prepare_reference
+
+    if not args.master_height > 0:
+        raise BadInputError(f"--master-height must be positive, got {args.master_height}")
+    if args.method == "paper" and len(args.master) > 1:
+        raise BadInputError("--method paper takes one --master capture")
+    _check_parent(args.out, "--out")
+    roi = _parse_roi(args.roi)
+    rig = _load_rig(args.rig)
+    options = _decode_options(args)
+    reference = prepare_reference(rig, _load_stack(args.reference, rig, "reference"), options)
+    ref_codes = reference.decoded.codes
+    masters = []
+    for path in args.master:
+        result = _measure(rig, reference, _load_stack(path, rig, "master"), options)
+        masters.append(MasterCapture(ref_codes, result.obj_codes, args.master_height, roi=roi))
+    if args.method == "paper":
+        kwargs = {"max_iterations": args.max_iterations} if args.max_iterations else {}
+        calibration = calibrate_paper(
+            rig,
+            ref_codes,
+            masters[0].master_codes,
+            args.master_height,
+            roi=roi,
+            delta_z_mm=args.delta_z,
+            m_hat=args.m_hat,
+            **kwargs,
+        )
+    else:
+        kwargs = {"max_iterations": args.max_iterations} if args.max_iterations else {}
+        calibration = calibrate_lsq(rig, masters, fit_d=args.fit_d, **kwargs)
+    report = calibration.to_dict()
+    _write_json({**calibration.rig.to_dict(), "calibration": report}, args.out)
+    return {
+        "out": args.out,
+        "method": report["method"],
+        "iterations": report["iterations"],
+        "converged": report["converged"],
+        "L_mm": report["L_mm"],
+        "alpha_rad": report["alpha_rad"],
+    }
+
+
+def _measure(rig: Any, reference: Any, stack: Any, options: Any) -> Any:
+    from metrology.core.measure import measure_height
+
+    return measure_height(rig, reference, stack, options, gray_only=False)
 
 
 def cmd_characterize(args: argparse.Namespace) -> dict[str, Any]:
-    from metrology.core.characterize import characterize_cli
+    from metrology.core.characterize import characterize
+    from metrology.core.io import read_series
+    from metrology.core.measure import prepare_reference
 
-    return characterize_cli(args)
+    _check_parent(args.out, "--out")
+    rows = None
+    if args.rows:
+        try:
+            rows = [int(v) for v in args.rows.split(",")]
+        except ValueError as exc:
+            raise BadInputError(f"--rows {args.rows!r}: expected comma-separated row indices") from exc
+    rig = _load_rig(args.rig)
+    series = read_series(args.series)
+    options = _decode_options(args)
+    reference = prepare_reference(rig, _load_stack(args.reference, rig, "reference"), options)
+
+    def heights() -> Any:  # streamed: a bad capture stops the run before any output is written
+        for position in series.positions:
+            for repeat, capture in enumerate(position.captures):
+                stack = _load_stack(str(capture), rig, f"series capture {capture}")
+                yield position.z_in_mm, repeat, _measure(rig, reference, stack, options).z_mm
+
+    report = characterize(rig, heights(), n_points=args.points, rows=rows, patch_px=args.patch)
+    report["rig"] = rig.to_dict()
+    report["decode_options"] = options.to_dict()
+    _write_json(report, args.out)
+    overall = report["overall"]
+    return {"out": args.out, "positions": len(series.positions), **overall}
 
 
 def cmd_sensitivity(args: argparse.Namespace) -> dict[str, Any]:
