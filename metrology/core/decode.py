@@ -151,6 +151,7 @@ def decode_stack(
     min_modulation: float | None = None,
     consistency_codes: float = 0.35,
     smoothing_px: float = 0.0,
+    field_margin_codes: float = 0.0,
     threads: int | None = None,
 ) -> DecodedStack:
     """Decode a gcps-v1 capture stack into light codes (Eqs. 1-3).
@@ -171,6 +172,9 @@ def decode_stack(
     smoothing_px : float
         Gaussian sigma, pixels, applied along X to the phase images before Eq. 2:
         the paper's digital smoothing of square-wave fringes. 0 disables it.
+    field_margin_codes : float
+        Codes closer than this to 0 or ``nlp`` are invalid: at the edges of the coded
+        field the projector's blur mixes fringes with darkness and biases the phase.
     threads : int, optional
         Worker threads over row tiles (numpy releases the GIL); default: CPU count.
 
@@ -190,6 +194,8 @@ def decode_stack(
         raise ValueError(f"consistency_codes must be a non-negative number, got {consistency_codes}")
     if smoothing_px < 0:
         raise ValueError(f"smoothing_px must be >= 0, got {smoothing_px}")
+    if not 0 <= field_margin_codes < nlp / 2:
+        raise ValueError(f"field_margin_codes must be in [0, nlp/2), got {field_margin_codes}")
     if min_modulation is None:
         min_modulation = default_min_modulation(stack.dtype)
     if min_modulation < 0:
@@ -212,6 +218,7 @@ def decode_stack(
             nlp,
             float(min_modulation),
             consistency_codes,
+            field_margin_codes,
             codes[rows],
             gray_codes[rows],
             modulation[rows],
@@ -263,6 +270,7 @@ def _decode_rows(
     nlp: int,
     min_modulation: float,
     consistency_codes: float,
+    field_margin_codes: float,
     codes_out: np.ndarray,
     gray_out: np.ndarray | None = None,
     modulation_out: np.ndarray | None = None,
@@ -321,8 +329,8 @@ def _decode_rows(
     valid = fraction <= np.float32(0.5 + consistency_codes)
     modulated = modulation2 >= np.float32(min_modulation * min_modulation)
     valid &= modulated
-    valid &= codes_out >= 0
-    valid &= codes_out <= np.float32(nlp)
+    valid &= codes_out >= np.float32(field_margin_codes)
+    valid &= codes_out <= np.float32(nlp - field_margin_codes)
     _set_nan(codes_out, valid)
     if mask_out is not None:
         mask_out[...] = valid

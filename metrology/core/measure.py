@@ -12,6 +12,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 
@@ -35,14 +36,26 @@ class DecodeOptions:
     ``min_modulation`` in grey levels (None: 4 % of full scale),
     ``consistency_codes`` in code units, ``smoothing_px`` in pixels,
     ``discontinuity_codes``: neighbouring codes differing by more than this many
-    code units mark a depth discontinuity (or shadow edge) whose two pixels are
-    dropped as possibly mixed; 0 disables the filter.
+    code units mark a depth discontinuity; 0 disables the filter.
+    ``field_margin_codes``: codes closer than this to 0 or nlp are refused (the
+    projector's blur biases the phase at the edges of the coded field).
+    ``edge_band_px``: valid pixels closer than this (4-connected steps) to an
+    invalid pixel or a discontinuity are dropped as possibly mixed (shadow edges,
+    the coded field's edges, depth steps); 0 keeps them.
     """
 
     min_modulation: float | None = None
     consistency_codes: float = 0.35
     smoothing_px: float = 0.0
-    discontinuity_codes: float = 0.0
+    discontinuity_codes: float = 1.0
+    edge_band_px: int = 2
+    field_margin_codes: float = 0.25
+
+    def __post_init__(self) -> None:
+        if self.discontinuity_codes < 0:
+            raise ValueError(f"discontinuity_codes must be >= 0, got {self.discontinuity_codes}")
+        if not isinstance(self.edge_band_px, int) or self.edge_band_px < 0:
+            raise ValueError(f"edge_band_px must be a non-negative integer, got {self.edge_band_px!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -50,6 +63,8 @@ class DecodeOptions:
             "consistency_codes": self.consistency_codes,
             "smoothing_px": self.smoothing_px,
             "discontinuity_codes": self.discontinuity_codes,
+            "edge_band_px": self.edge_band_px,
+            "field_margin_codes": self.field_margin_codes,
         }
 
 
@@ -67,6 +82,7 @@ class Reference:
 
     decoded: DecodedStack
     x_mm: np.ndarray
+    unreliable: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -133,7 +149,8 @@ def prepare_reference(
     decoded = reference if isinstance(reference, DecodedStack) else _decode(rig, reference, options)
     _check_shape(rig, decoded.codes.shape, "reference")
     x_mm = abscissa_from_codes(rig, decoded.codes).astype(np.float32, copy=False)
-    return Reference(decoded=decoded, x_mm=x_mm)
+    unreliable = unreliable_mask(decoded.codes, options.discontinuity_codes, options.edge_band_px)
+    return Reference(decoded=decoded, x_mm=x_mm, unreliable=unreliable)
 
 
 def measure_height(
@@ -181,9 +198,9 @@ def measure_height(
 
     start = time.perf_counter()
     z_mm, obj_codes = _fused_height(rig, reference.x_mm, stack, options, threads)
-    if options.discontinuity_codes > 0:
-        drop = discontinuity_mask(obj_codes, options.discontinuity_codes)
-        drop |= discontinuity_mask(reference.decoded.codes, options.discontinuity_codes)
+    if options.edge_band_px > 0:
+        drop = unreliable_mask(obj_codes, options.discontinuity_codes, options.edge_band_px)
+        drop |= reference.unreliable
         z_mm[drop] = np.nan
         obj_codes[drop] = np.nan
     timings["object_decode_triangulate_s"] = time.perf_counter() - start
@@ -197,32 +214,45 @@ def measure_height(
     return HeightResult(z_mm=z_mm, gray_z_mm=gray_z, obj_codes=obj_codes, timings_s=timings)
 
 
-def discontinuity_mask(codes: np.ndarray, max_step_codes: float) -> np.ndarray:
-    """Pixels beside a code jump larger than ``max_step_codes`` or beside an invalid pixel.
+def unreliable_mask(codes: np.ndarray, max_step_codes: float, band_px: int) -> np.ndarray:
+    """Valid pixels that may be mixed: near an invalid pixel or a depth discontinuity.
 
     Parameters
     ----------
-    codes : (H, W) float array, code units, NaN where invalid
+    codes : (H, W) float array
+        Light codes, code units, NaN where invalid.
     max_step_codes : float
-        Largest code difference between 4-neighbours on a continuous surface.
+        Largest code difference between 4-neighbours on a continuous surface; both
+        pixels of a pair that differ by more are discontinuity seeds (0: no seeds).
+    band_px : int
+        Width of the dropped band: valid pixels within ``band_px`` 4-connected steps
+        of an invalid pixel or a discontinuity seed are marked, and the seeds
+        themselves; 0 marks nothing.
 
     Returns
     -------
     (H, W) bool array
-        True for both pixels of every neighbouring pair whose codes differ by more
-        than ``max_step_codes`` (mixed pixels at depth discontinuities and shadow
-        edges); NaN neighbours count as a jump, so the band also borders holes.
+        True where a valid code should not be reported. A camera pixel straddling a
+        shadow edge, the edge of the coded field or a depth step integrates light from
+        two surfaces and decodes to a code between them: such pixels are dropped, not
+        reported wrong.
     """
-    drop = np.zeros(codes.shape, bool)
-    limit = np.float32(max_step_codes)
-    with np.errstate(invalid="ignore"):
-        jump_x = ~(np.abs(codes[:, 1:] - codes[:, :-1]) <= limit)
-        jump_y = ~(np.abs(codes[1:, :] - codes[:-1, :]) <= limit)
-    drop[:, 1:] |= jump_x
-    drop[:, :-1] |= jump_x
-    drop[1:, :] |= jump_y
-    drop[:-1, :] |= jump_y
-    return drop & np.isfinite(codes)
+    if band_px <= 0:
+        return np.zeros(codes.shape, bool)
+    valid = np.isfinite(codes)
+    seeds = ~valid
+    if max_step_codes > 0:
+        limit = np.float32(max_step_codes)
+        with np.errstate(invalid="ignore"):
+            jump_x = np.abs(codes[:, 1:] - codes[:, :-1]) > limit
+            jump_y = np.abs(codes[1:, :] - codes[:-1, :]) > limit
+        seeds[:, 1:] |= jump_x
+        seeds[:, :-1] |= jump_x
+        seeds[1:, :] |= jump_y
+        seeds[:-1, :] |= jump_y
+    cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+    seeds = cv2.dilate(seeds.view(np.uint8), cross, iterations=band_px).view(bool)
+    return seeds & valid
 
 
 def _decode(rig: Rig, images: npt.ArrayLike | DecodedStack, options: DecodeOptions) -> DecodedStack:
@@ -236,6 +266,7 @@ def _decode(rig: Rig, images: npt.ArrayLike | DecodedStack, options: DecodeOptio
         min_modulation=options.min_modulation,
         consistency_codes=options.consistency_codes,
         smoothing_px=options.smoothing_px,
+        field_margin_codes=options.field_margin_codes,
     )
 
 
@@ -264,7 +295,15 @@ def _fused_height(
 
     def run(rows: slice) -> None:
         l = codes[rows]
-        _decode_rows(stack[:N_GRAY_BITS, rows], phase[:, rows], rig.nlp, min_modulation, options.consistency_codes, l)
+        _decode_rows(
+            stack[:N_GRAY_BITS, rows],
+            phase[:, rows],
+            rig.nlp,
+            min_modulation,
+            options.consistency_codes,
+            options.field_margin_codes,
+            l,
+        )
         # Eq. 14 as a Mobius map, then Eqs. 16-17: z = L D / (d + D)
         num = l * p
         num += t

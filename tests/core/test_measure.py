@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from metrology.core.decode import decode_stack
-from metrology.core.measure import DecodeOptions, discontinuity_mask, measure_height, prepare_reference
+from metrology.core.measure import DecodeOptions, measure_height, prepare_reference, unreliable_mask
 from metrology.core.triangulate import height_from_codes
 from tests.core.test_decode import RIG, ideal_stack, plane_codes
 
@@ -12,7 +12,7 @@ from tests.core.test_decode import RIG, ideal_stack, plane_codes
 def test_fused_path_equals_decode_then_triangulate():
     ref_stack = ideal_stack(plane_codes(RIG, 0.0), bits=8, noise=1.5, seed=1)
     obj_stack = ideal_stack(plane_codes(RIG, 25.0), bits=8, noise=1.5, seed=2)
-    result = measure_height(RIG, ref_stack, obj_stack)
+    result = measure_height(RIG, ref_stack, obj_stack, DecodeOptions(edge_band_px=0, field_margin_codes=0.0))
     expected = height_from_codes(RIG, decode_stack(ref_stack).codes, decode_stack(obj_stack).codes)
     np.testing.assert_allclose(result.z_mm, expected, atol=2e-4, equal_nan=True)
     assert result.z_mm.dtype == np.float32
@@ -40,12 +40,17 @@ def test_shape_unlike_the_rig_is_refused():
         measure_height(RIG, stack, stack[:, :10])
 
 
-def test_discontinuity_mask_drops_both_sides_of_a_jump():
-    codes = np.tile(np.linspace(10, 20, 30, dtype=np.float32), (5, 1))
-    codes[:, 15:] += 3.0  # a step of 3 code units
-    codes[2, 5] = np.nan
-    drop = discontinuity_mask(codes, 1.0)
-    assert drop[:, 14].all() and drop[:, 15].all()
-    assert not drop[:, 16:].any() and not drop[:, :4].any()
-    assert drop[2, 4] and drop[2, 6] and drop[1, 5] and not drop[2, 5]  # NaN neighbours count
-    assert DecodeOptions(discontinuity_codes=1.0).to_dict()["discontinuity_codes"] == 1.0
+def test_unreliable_mask_drops_a_band_at_jumps_and_holes():
+    codes = np.tile(np.linspace(10, 20, 30, dtype=np.float32), (7, 1))
+    codes[:, 15:] += 3.0  # a depth step of 3 code units between columns 14 and 15
+    codes[3, 5] = np.nan  # a hole
+    drop = unreliable_mask(codes, 1.0, 1)
+    assert drop[:, 13:17].all() and not drop[:, 17:].any() and not drop[:, 8:13].any()
+    assert drop[3, 4] and drop[3, 6] and drop[2, 5] and drop[4, 5] and not drop[3, 5]  # NaN is not "dropped"
+    assert not drop[1, 4]  # 4-connected band
+    wide = unreliable_mask(codes, 1.0, 2)
+    assert wide[:, 12:18].all() and not wide[:, 19:].any() and wide[2, 4] and wide[3, 3] and not wide[1, 4]
+    assert not unreliable_mask(codes, 1.0, 0).any()
+    assert not unreliable_mask(codes, 0.0, 1)[:, 17:].any()  # no jump seeds: only the hole's band
+    with pytest.raises(ValueError, match="edge_band_px"):
+        DecodeOptions(edge_band_px=-1)
