@@ -66,6 +66,8 @@ def _decode_options(args: argparse.Namespace) -> Any:
         consistency_codes=args.consistency,
         smoothing_px=args.smoothing,
         discontinuity_codes=args.discontinuity,
+        edge_band_px=args.edge_band,
+        field_margin_codes=args.field_margin,
     )
 
 
@@ -98,6 +100,20 @@ def _add_decode_options(parser: argparse.ArgumentParser) -> None:
         default=1.0,
         metavar="CODES",
         help="drop both pixels of a neighbour pair whose codes jump by more (mixed pixels); 0 disables (default 1.0)",
+    )
+    group.add_argument(
+        "--edge-band",
+        type=int,
+        default=2,
+        metavar="PX",
+        help="drop valid pixels within this many pixels of an invalid pixel or a discontinuity (default 2)",
+    )
+    group.add_argument(
+        "--field-margin",
+        type=float,
+        default=0.25,
+        metavar="CODES",
+        help="refuse codes closer than this to 0 or nlp, the coded field's edges (default 0.25)",
     )
 
 
@@ -157,10 +173,122 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     return {"out": args.out, **{k: v for k, v in stats.items() if k.endswith(("pixels", "fraction"))}}
 
 
-def cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
-    from metrology.core.simulate_cli import simulate_command
+Z_PARAMETER = {"plane": "z_mm", "stage": "z_in_mm", "block": "top_mm"}
+"""The scene parameter that ``--z-mm`` sets."""
 
-    return simulate_command(args)
+
+def _parse_scene_params(items: Sequence[str]) -> dict[str, Any]:
+    params: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        if not sep or not key:
+            raise BadInputError(f"--param {item!r}: expected KEY=VALUE")
+        value: Any
+        if text.lower() in ("true", "false"):
+            value = text.lower() == "true"
+        else:
+            try:
+                value = int(text)
+            except ValueError:
+                try:
+                    value = float(text)
+                except ValueError as exc:
+                    raise BadInputError(f"--param {item!r}: value must be a number or true/false") from exc
+        params[key] = value
+    return params
+
+
+def _parse_positions(text: str) -> list[float]:
+    try:
+        if ":" in text:
+            start, stop, step = (float(v) for v in text.split(":"))
+            if step <= 0 or stop < start:
+                raise ValueError
+            count = round((stop - start) / step) + 1
+            return [round(start + i * step, 9) for i in range(count)]
+        return [float(v) for v in text.split(",")]
+    except ValueError as exc:
+        raise BadInputError(f"--z-in {text!r}: expected '0,4,8' or 'START:STOP:STEP' with STEP > 0") from exc
+
+
+def _simulation_options(args: argparse.Namespace) -> Any:
+    from metrology.core.simulate import SimulationOptions
+
+    base = SimulationOptions.realistic_8bit() if args.preset == "realistic" else SimulationOptions.noise_free_16bit()
+    overrides = {
+        "bit_depth": args.bits,
+        "noise_grey": args.noise,
+        "camera_defocus_px": args.camera_defocus,
+        "projector_defocus_codes": args.projector_defocus,
+        "projector_gamma": args.gamma,
+        "ambient": args.ambient,
+        "supersample": args.supersample,
+        "seed": args.seed,
+    }
+    changes = {key: value for key, value in overrides.items() if value is not None}
+    if args.square:
+        changes["square"] = True
+    return base.with_changes(**changes)
+
+
+def cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
+    import numpy as np
+
+    from metrology.core.io import series_capture_name, write_series, write_stack
+    from metrology.core.scenes import make_scene
+    from metrology.core.simulate import render_series, render_stack
+
+    rig = _load_rig(args.rig)
+    options = _simulation_options(args)
+    params = _parse_scene_params(args.param)
+    if args.z_mm is not None:
+        if args.scene not in Z_PARAMETER:
+            raise BadInputError(f"--z-mm applies to scenes {', '.join(Z_PARAMETER)}, not {args.scene!r}")
+        params[Z_PARAMETER[args.scene]] = args.z_mm
+
+    if args.scene == "stage":
+        if args.z_in is None:
+            raise BadInputError("--scene stage needs --z-in (e.g. 0:80:4)")
+        if args.repeats < 1:
+            raise BadInputError(f"--repeats must be >= 1, got {args.repeats}")
+        positions = _parse_positions(args.z_in)
+        out = Path(args.out)
+        if out.suffix.lower() == ".zip":
+            raise BadInputError("--scene stage writes a folder (one capture folder per position and repeat)")
+        if out.exists() and any(out.iterdir()):
+            raise BadInputError(f"--out {out}: folder exists and is not empty")
+        render_series(rig, positions, args.repeats, options)  # validates before anything is written
+        out.mkdir(parents=True, exist_ok=True)
+        captures: dict[float, list[str]] = {}
+        for z_in, repeat, rendered in render_series(rig, positions, args.repeats, options):
+            name = series_capture_name(z_in, repeat)
+            write_stack(rendered.images, out / name)
+            captures.setdefault(z_in, []).append(name)
+        write_series(captures, out / "series.json")
+        return {
+            "out": str(out),
+            "series": str(out / "series.json"),
+            "positions": len(positions),
+            "repeats": args.repeats,
+        }
+
+    if args.z_in is not None:
+        raise BadInputError("--z-in applies to --scene stage only")
+    try:
+        scene = make_scene(args.scene, rig, **params)
+    except TypeError as exc:
+        raise BadInputError(f"scene {args.scene!r}: {exc}") from exc
+    if args.truth:
+        _check_out_suffix(args.truth, (".npy",), "--truth")
+        _check_parent(args.truth, "--truth")
+    rendered = render_stack(rig, scene, options)
+    write_stack(rendered.images, args.out)
+    if args.truth:
+        from metrology.core.io import write_height_npy
+
+        write_height_npy(rendered.truth_mm, args.truth)
+    valid = int(np.isfinite(rendered.truth_mm).sum())
+    return {"out": args.out, "scene": args.scene, "bit_depth": options.bit_depth, "truth_valid_pixels": valid}
 
 
 def _parse_roi(text: str | None) -> tuple[slice, slice] | None:
