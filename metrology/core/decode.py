@@ -275,6 +275,7 @@ def _decode_rows(
     gray_out: np.ndarray | None = None,
     modulation_out: np.ndarray | None = None,
     mask_out: np.ndarray | None = None,
+    visibility_out: np.ndarray | None = None,
 ) -> None:
     """Decode one tile of rows in place (the hot loop: see benchmarks/decode.py).
 
@@ -334,8 +335,12 @@ def _decode_rows(
     _set_nan(codes_out, valid)
     if mask_out is not None:
         mask_out[...] = valid
-    if modulation_out is not None:
-        np.sqrt(modulation2, out=modulation_out)
+    if modulation_out is not None or visibility_out is not None:
+        modulation = np.sqrt(modulation2, out=modulation_out)
+        if visibility_out is not None:
+            # fringe visibility B / (2 A): independent of albedo and exposure
+            np.divide(modulation, np.maximum(total.astype(np.float32), np.float32(1)), out=visibility_out)
+            visibility_out *= np.float32(2)
     if gray_out is not None:
         word_f += np.float32(0.5)
         modulated &= word_f <= np.float32(nlp)

@@ -39,6 +39,10 @@ class DecodeOptions:
     code units mark a depth discontinuity; 0 disables the filter.
     ``field_margin_codes``: codes closer than this to 0 or nlp are refused (the
     projector's blur biases the phase at the edges of the coded field).
+    ``min_visibility_ratio``: object pixels whose fringe visibility ``B / 2A`` falls
+    below this fraction of the highest visibility in their 5x5 neighbourhood are
+    mixed pixels (two phases averaged across a depth step lower the visibility,
+    whatever the albedo); 0 disables the test.
     ``edge_band_px``: valid pixels closer than this (4-connected steps) to an
     invalid pixel or a discontinuity are dropped as possibly mixed (shadow edges,
     the coded field's edges, depth steps); 0 keeps them.
@@ -50,10 +54,13 @@ class DecodeOptions:
     discontinuity_codes: float = 1.0
     edge_band_px: int = 2
     field_margin_codes: float = 0.25
+    min_visibility_ratio: float = 0.85
 
     def __post_init__(self) -> None:
         if self.discontinuity_codes < 0:
             raise ValueError(f"discontinuity_codes must be >= 0, got {self.discontinuity_codes}")
+        if not 0 <= self.min_visibility_ratio < 1:
+            raise ValueError(f"min_visibility_ratio must be in [0, 1), got {self.min_visibility_ratio}")
         if not isinstance(self.edge_band_px, int) or self.edge_band_px < 0:
             raise ValueError(f"edge_band_px must be a non-negative integer, got {self.edge_band_px!r}")
 
@@ -65,6 +72,7 @@ class DecodeOptions:
             "discontinuity_codes": self.discontinuity_codes,
             "edge_band_px": self.edge_band_px,
             "field_margin_codes": self.field_margin_codes,
+            "min_visibility_ratio": self.min_visibility_ratio,
         }
 
 
@@ -197,9 +205,11 @@ def measure_height(
     _check_shape(rig, stack.shape[1:], "object")
 
     start = time.perf_counter()
-    z_mm, obj_codes = _fused_height(rig, reference.x_mm, stack, options, threads)
+    z_mm, obj_codes, visibility = _fused_height(rig, reference.x_mm, stack, options, threads)
     if options.edge_band_px > 0:
-        drop = unreliable_mask(obj_codes, options.discontinuity_codes, options.edge_band_px)
+        drop = unreliable_mask(
+            obj_codes, options.discontinuity_codes, options.edge_band_px, visibility, options.min_visibility_ratio
+        )
         drop |= reference.unreliable
         z_mm[drop] = np.nan
         obj_codes[drop] = np.nan
@@ -214,7 +224,13 @@ def measure_height(
     return HeightResult(z_mm=z_mm, gray_z_mm=gray_z, obj_codes=obj_codes, timings_s=timings)
 
 
-def unreliable_mask(codes: np.ndarray, max_step_codes: float, band_px: int) -> np.ndarray:
+def unreliable_mask(
+    codes: np.ndarray,
+    max_step_codes: float,
+    band_px: int,
+    visibility: np.ndarray | None = None,
+    min_visibility_ratio: float = 0.0,
+) -> np.ndarray:
     """Valid pixels that may be mixed: near an invalid pixel or a depth discontinuity.
 
     Parameters
@@ -228,6 +244,12 @@ def unreliable_mask(codes: np.ndarray, max_step_codes: float, band_px: int) -> n
         Width of the dropped band: valid pixels within ``band_px`` 4-connected steps
         of an invalid pixel or a discontinuity seed are marked, and the seeds
         themselves; 0 marks nothing.
+    visibility : (H, W) float32 array, optional
+        Fringe visibility ``B / 2A`` of each pixel.
+    min_visibility_ratio : float
+        Pixels whose visibility is below this fraction of the 5x5 neighbourhood's
+        maximum are seeds too: a pixel straddling a depth step averages two phases,
+        which lowers its visibility (a 50/50 mix across a 10 mm step keeps ~77 %).
 
     Returns
     -------
@@ -250,6 +272,10 @@ def unreliable_mask(codes: np.ndarray, max_step_codes: float, band_px: int) -> n
         seeds[:, :-1] |= jump_x
         seeds[1:, :] |= jump_y
         seeds[:-1, :] |= jump_y
+    if visibility is not None and min_visibility_ratio > 0:
+        local_max = cv2.dilate(visibility, np.ones((5, 5), np.uint8))
+        local_max *= np.float32(min_visibility_ratio)
+        seeds |= visibility < local_max
     cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
     seeds = cv2.dilate(seeds.view(np.uint8), cross, iterations=band_px).view(bool)
     return seeds & valid
@@ -277,7 +303,7 @@ def _check_shape(rig: Rig, shape: tuple[int, ...], what: str) -> None:
 
 def _fused_height(
     rig: Rig, x_ref_mm: np.ndarray, stack: np.ndarray, options: DecodeOptions, threads: int | None
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Decode the object and triangulate against ``x_ref_mm`` tile by tile (the fast path)."""
     from metrology.core.decode import smooth_fringes
 
@@ -292,6 +318,7 @@ def _fused_height(
     L, t, p, q, d = (np.float32(v) for v in (m.L_mm, m.t, m.p, m.q, rig.d_mm))
     codes = np.empty((height, width), np.float32)
     z_mm = np.empty((height, width), np.float32)
+    visibility = np.empty((height, width), np.float32) if options.min_visibility_ratio > 0 else None
 
     def run(rows: slice) -> None:
         l = codes[rows]
@@ -303,6 +330,7 @@ def _fused_height(
             options.consistency_codes,
             options.field_margin_codes,
             l,
+            visibility_out=None if visibility is None else visibility[rows],
         )
         # Eq. 14 as a Mobius map, then Eqs. 16-17: z = L D / (d + D)
         num = l * p
@@ -317,4 +345,4 @@ def _fused_height(
         np.divide(num, den, out=z_mm[rows])  # NaN codes give NaN heights
 
     _run_tiled(run, height, width, threads)
-    return z_mm, codes
+    return z_mm, codes, visibility
