@@ -20,6 +20,7 @@ from metrology.core.decode import (
     DecodedStack,
     _decode_rows,
     _run_tiled,
+    _set_nan,
     decode_stack,
     default_min_modulation,
     validate_stack,
@@ -208,11 +209,17 @@ def measure_height(
     z_mm, obj_codes, visibility = _fused_height(rig, reference.x_mm, stack, options, threads)
     if options.edge_band_px > 0:
         drop = unreliable_mask(
-            obj_codes, options.discontinuity_codes, options.edge_band_px, visibility, options.min_visibility_ratio
+            obj_codes,
+            options.discontinuity_codes,
+            options.edge_band_px,
+            visibility,
+            options.min_visibility_ratio,
+            threads,
         )
         drop |= reference.unreliable
-        z_mm[drop] = np.nan
-        obj_codes[drop] = np.nan
+        keep = ~drop
+        _set_nan(z_mm, keep)
+        _set_nan(obj_codes, keep)
     timings["object_decode_triangulate_s"] = time.perf_counter() - start
 
     gray_z = None
@@ -224,32 +231,40 @@ def measure_height(
     return HeightResult(z_mm=z_mm, gray_z_mm=gray_z, obj_codes=obj_codes, timings_s=timings)
 
 
+_VISIBILITY_NEIGHBOURHOOD = np.ones((3, 3), np.uint8)
+_CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+
+
 def unreliable_mask(
     codes: np.ndarray,
     max_step_codes: float,
     band_px: int,
     visibility: np.ndarray | None = None,
     min_visibility_ratio: float = 0.0,
+    threads: int | None = None,
 ) -> np.ndarray:
-    """Valid pixels that may be mixed: near an invalid pixel or a depth discontinuity.
+    """Valid pixels that may be mixed: near an invalid pixel, a depth step or a visibility dip.
 
     Parameters
     ----------
-    codes : (H, W) float array
+    codes : (H, W) float32 array
         Light codes, code units, NaN where invalid.
     max_step_codes : float
         Largest code difference between 4-neighbours on a continuous surface; both
         pixels of a pair that differ by more are discontinuity seeds (0: no seeds).
     band_px : int
         Width of the dropped band: valid pixels within ``band_px`` 4-connected steps
-        of an invalid pixel or a discontinuity seed are marked, and the seeds
-        themselves; 0 marks nothing.
+        of an invalid pixel or a seed are marked, and the seeds themselves; 0 marks
+        nothing.
     visibility : (H, W) float32 array, optional
         Fringe visibility ``B / 2A`` of each pixel.
     min_visibility_ratio : float
-        Pixels whose visibility is below this fraction of the 5x5 neighbourhood's
-        maximum are seeds too: a pixel straddling a depth step averages two phases,
-        which lowers its visibility (a 50/50 mix across a 10 mm step keeps ~77 %).
+        Pixels whose visibility is below this fraction of the maximum of their 3x3
+        neighbourhood are seeds too: a pixel straddling a depth step averages two
+        phases, which lowers its visibility whatever the albedo (a 50/50 mix across
+        a 10 mm step keeps ~77 % of it).
+    threads : int, optional
+        Threads over row tiles.
 
     Returns
     -------
@@ -259,26 +274,36 @@ def unreliable_mask(
         two surfaces and decodes to a code between them: such pixels are dropped, not
         reported wrong.
     """
+    height, width = codes.shape
     if band_px <= 0:
         return np.zeros(codes.shape, bool)
-    valid = np.isfinite(codes)
-    seeds = ~valid
-    if max_step_codes > 0:
-        limit = np.float32(max_step_codes)
-        with np.errstate(invalid="ignore"):
-            jump_x = np.abs(codes[:, 1:] - codes[:, :-1]) > limit
-            jump_y = np.abs(codes[1:, :] - codes[:-1, :]) > limit
-        seeds[:, 1:] |= jump_x
-        seeds[:, :-1] |= jump_x
-        seeds[1:, :] |= jump_y
-        seeds[:-1, :] |= jump_y
-    if visibility is not None and min_visibility_ratio > 0:
-        local_max = cv2.dilate(visibility, np.ones((5, 5), np.uint8))
-        local_max *= np.float32(min_visibility_ratio)
-        seeds |= visibility < local_max
-    cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
-    seeds = cv2.dilate(seeds.view(np.uint8), cross, iterations=band_px).view(bool)
-    return seeds & valid
+    seeds = np.empty(codes.shape, np.uint8)
+    limit = np.float32(max_step_codes)
+    ratio = np.float32(min_visibility_ratio)
+    use_visibility = visibility is not None and min_visibility_ratio > 0
+
+    def run(rows: slice) -> None:
+        top, bottom = max(rows.start - 1, 0), min(rows.stop + 1, height)  # one row of context
+        c = codes[top:bottom]
+        s = ~np.isfinite(c)
+        if max_step_codes > 0:
+            jump_x = np.abs(c[:, 1:] - c[:, :-1]) > limit
+            s[:, 1:] |= jump_x
+            s[:, :-1] |= jump_x
+            jump_y = np.abs(c[1:] - c[:-1]) > limit
+            s[1:] |= jump_y
+            s[:-1] |= jump_y
+        if use_visibility:
+            v = visibility[top:bottom]  # type: ignore[index]
+            local_max = cv2.dilate(v, _VISIBILITY_NEIGHBOURHOOD)
+            local_max *= ratio
+            s |= v < local_max
+        seeds[rows] = s[rows.start - top : rows.stop - top].view(np.uint8)
+
+    _run_tiled(run, height, width, threads)
+    dropped = cv2.dilate(seeds, _CROSS, iterations=band_px).view(bool)
+    dropped &= np.isfinite(codes)
+    return dropped
 
 
 def _decode(rig: Rig, images: npt.ArrayLike | DecodedStack, options: DecodeOptions) -> DecodedStack:
