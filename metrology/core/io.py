@@ -45,6 +45,7 @@ import struct
 import zipfile
 import zlib
 from collections.abc import Iterator, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import IO, Any
@@ -276,6 +277,26 @@ def _tiff_size(data: bytes) -> tuple[int, int]:
     return found[256], found[257]
 
 
+def checked_header(data: bytes, name: str, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> tuple[str, int, int]:
+    """Format, width and height from an image's header, refusing sizes above ``max_pixels``.
+
+    Raises
+    ------
+    StackError
+        If the header is unreadable or claims more than ``max_pixels`` pixels.
+    """
+    try:
+        fmt, width, height = image_header_size(data)
+    except ValueError as exc:
+        raise StackError(f"{name} is not a readable PNG, TIFF or BMP image ({exc})") from None
+    if width * height > max_pixels:
+        raise StackError(
+            f"{name} claims {width}x{height} pixels, more than the limit of {max_pixels} pixels; "
+            "refused before decoding"
+        )
+    return fmt, width, height
+
+
 def decode_grey_image(data: bytes, name: str, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> np.ndarray:
     """Decode one PNG/TIFF/BMP image to grey, checking its header first.
 
@@ -300,15 +321,7 @@ def decode_grey_image(data: bytes, name: str, *, max_pixels: int = DEFAULT_MAX_P
         If the data is not a readable image, is too large, or has a sample type other
         than 8- or 16-bit unsigned integers.
     """
-    try:
-        fmt, width, height = image_header_size(data)
-    except ValueError as exc:
-        raise StackError(f"{name} is not a readable PNG, TIFF or BMP image ({exc})") from None
-    if width * height > max_pixels:
-        raise StackError(
-            f"{name} claims {width}x{height} pixels, more than the limit of {max_pixels} pixels; "
-            "refused before decoding"
-        )
+    fmt, width, height = checked_header(data, name, max_pixels=max_pixels)
     try:
         image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as exc:
@@ -581,36 +594,57 @@ def _decode_stack(
     max_pixels: int,
 ) -> CaptureStack:
     expected_shape = rig.shape if rig is not None else None
-    first: tuple[str, tuple[int, int], int] | None = None  # file, shape, bit depth
-    images: np.ndarray | None = None
-    for index, pattern in enumerate(PATTERN_NAMES):
+    names: list[str] = []
+    first_shape: tuple[str, tuple[int, int]] | None = None
+    # 1. every header, in pattern order, before decoding anything
+    for pattern in PATTERN_NAMES:
         entry, data = files[pattern]
         name = f"{label}/{entry}" if label != "upload" else entry
-        # Shape from the header, before decoding.
-        try:
-            _, width, height = image_header_size(data)
-        except ValueError as exc:
-            raise StackError(f"{name} is not a readable PNG, TIFF or BMP image ({exc})") from None
+        names.append(name)
+        _, width, height = checked_header(data, name, max_pixels=max_pixels)
         shape = (height, width)
         if expected_shape is not None and shape != expected_shape:
             raise StackError(
                 f"{name} has shape {shape} (height, width) but the rig expects {expected_shape} (height_px, width_px)"
             )
-        if first is not None and shape != first[1]:
-            raise StackError(f"{name} has shape {shape} but {first[0]} has shape {first[1]} (height, width)")
-        image = decode_grey_image(data, name, max_pixels=max_pixels)
+        if first_shape is not None and shape != first_shape[1]:
+            raise StackError(
+                f"{name} has shape {shape} but {first_shape[0]} has shape {first_shape[1]} (height, width)"
+            )
+        if first_shape is None:
+            first_shape = (name, shape)
+
+    # 2. decode in parallel (cv2.imdecode releases the GIL); the first error in pattern order wins
+    def decode(index: int) -> np.ndarray | StackError:
+        try:
+            return decode_grey_image(files[PATTERN_NAMES[index]][1], names[index], max_pixels=max_pixels)
+        except StackError as exc:
+            return exc
+
+    with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
+        decoded = list(pool.map(decode, range(len(PATTERN_NAMES))))
+
+    # 3. bit depths, in pattern order
+    images: np.ndarray | None = None
+    first_depth: tuple[str, int] | None = None
+    for index, image in enumerate(decoded):
+        if isinstance(image, StackError):
+            raise image
+        name = names[index]
         depth = 8 if image.dtype == np.uint8 else 16
         if expected_bit_depth is not None and depth != expected_bit_depth:
             raise StackError(f"{name} is {depth}-bit but the stack was declared {expected_bit_depth}-bit")
-        if first is None:
-            first = (name, shape, depth)
-            images = np.empty((len(PATTERN_NAMES), *shape), dtype=image.dtype)
-        elif depth != first[2]:
-            raise StackError(f"{name} is {depth}-bit but {first[0]} is {first[2]}-bit; a stack has one bit depth")
+        if first_depth is None:
+            first_depth = (name, depth)
+            images = np.empty((len(PATTERN_NAMES), *image.shape), dtype=image.dtype)
+        elif depth != first_depth[1]:
+            raise StackError(
+                f"{name} is {depth}-bit but {first_depth[0]} is {first_depth[1]}-bit; a stack has one bit depth"
+            )
         assert images is not None
         images[index] = image
-    assert images is not None and first is not None
-    return CaptureStack(images=images, bit_depth=first[2], shape=first[1])
+    assert images is not None and first_depth is not None and first_shape is not None
+    return CaptureStack(images=images, bit_depth=first_depth[1], shape=first_shape[1])
 
 
 # ---------------------------------------------------------------------------- writing stacks
