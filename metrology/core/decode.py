@@ -111,7 +111,7 @@ class DecodedStack:
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.codes.shape  # type: ignore[return-value]
+        return self.codes.shape
 
     @property
     def valid_fraction(self) -> float:
@@ -316,14 +316,14 @@ def _decode_rows(
 
     # table index: (l^ mod 4) * 4 (one table look-up from the gray word) + the signs of sin and
     # cos of Phi, which select its quadrant ([-pi,-pi/2), [-pi/2,0), [0,pi/2), [pi/2,pi])
-    index = cv2.LUT(gray_word, _ROW4_FROM_GRAY_LUT)
+    index: np.ndarray = cv2.LUT(gray_word, _ROW4_FROM_GRAY_LUT)
     upper = (s >= 0).view(np.uint8)
     index |= upper << np.uint8(1)
     index |= (c > 0).view(np.uint8)
-    fraction = cv2.LUT(index, _K_LUT)  # dPhi in code units, NaN where inconsistent
+    fraction: np.ndarray = cv2.LUT(index, _K_LUT)  # dPhi in code units, NaN where inconsistent
     fraction += t  # l - l^ (Eq. 3)
 
-    word_f = cv2.LUT(gray_word, _BINARY_FROM_GRAY_F32_LUT)
+    word_f: np.ndarray = cv2.LUT(gray_word, _BINARY_FROM_GRAY_F32_LUT)
     np.add(word_f, fraction, out=codes_out)
     fraction -= np.float32(0.5)
     np.abs(fraction, out=fraction)

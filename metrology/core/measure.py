@@ -295,7 +295,7 @@ def unreliable_mask(
             s[:-1] |= jump_y
         if use_visibility:
             v = visibility[top:bottom]  # type: ignore[index]
-            local_max = cv2.dilate(v, _VISIBILITY_NEIGHBOURHOOD)
+            local_max: np.ndarray = cv2.dilate(v, _VISIBILITY_NEIGHBOURHOOD)
             local_max *= ratio
             s |= v < local_max
         seeds[rows] = s[rows.start - top : rows.stop - top].view(np.uint8)
