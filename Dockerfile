@@ -1,0 +1,32 @@
+# GCPS Lab: one image for the web server, the Celery workers and beat.
+FROM python:3.11-slim-bookworm
+
+ENV PYTHONDONTWRITEBYTECODE=1 \
+    PYTHONUNBUFFERED=1 \
+    PIP_NO_CACHE_DIR=1 \
+    DJANGO_SETTINGS_MODULE=metrology.settings \
+    MEDIA_ROOT=/data/media \
+    STATIC_ROOT=/app/var/static
+
+# libgomp1: OpenMP runtime of open3d; libgl1/libglib2.0-0: needed by open3d's import.
+RUN apt-get update \
+    && apt-get install -y --no-install-recommends libgomp1 libgl1 libglib2.0-0 \
+    && rm -rf /var/lib/apt/lists/*
+
+WORKDIR /app
+COPY pyproject.toml README.md ./
+COPY metrology ./metrology
+COPY workers ./workers
+COPY templates ./templates
+COPY manage.py ./
+RUN pip install . gunicorn>=23 \
+    && useradd --system --uid 1000 --home /app gcps \
+    && mkdir -p /data/media /app/var \
+    && SECRET_KEY=build-only-not-secret-build-only-not-secret-build-only DEBUG=1 \
+       python manage.py collectstatic --noinput \
+    && chown -R gcps /data /app/var
+
+USER gcps
+VOLUME ["/data/media"]
+EXPOSE 8000
+CMD ["gunicorn", "metrology.wsgi", "--bind", "0.0.0.0:8000", "--workers", "3", "--timeout", "120"]

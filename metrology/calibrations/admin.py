@@ -1,0 +1,10 @@
+from django.contrib import admin
+
+from metrology.calibrations.models import Calibration
+
+
+@admin.register(Calibration)
+class CalibrationAdmin(admin.ModelAdmin):
+    list_display = ("id", "rig", "method", "master_height_mm", "applied", "job", "owner", "created_at")
+    list_filter = ("method", "applied", "owner")
+    readonly_fields = ("iterations", "result", "parameters", "rig_values")

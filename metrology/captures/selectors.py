@@ -1,0 +1,43 @@
+"""Reads for captures and sessions, scoped to the user."""
+
+from __future__ import annotations
+
+from django.db.models import QuerySet
+from django.http import Http404
+
+from metrology.api_errors import BadInput
+from metrology.captures.models import Capture, CaptureSession
+from metrology.rigs.models import Rig
+
+
+def captures_for(user, rig: Rig | None = None) -> QuerySet[Capture]:
+    captures = Capture.objects.filter(owner=user).select_related("job")
+    return captures.filter(rig=rig) if rig is not None else captures
+
+
+def sessions_for(user, rig: Rig | None = None) -> QuerySet[CaptureSession]:
+    sessions = CaptureSession.objects.filter(owner=user)
+    return sessions.filter(rig=rig) if rig is not None else sessions
+
+
+def get_capture(user, capture_id) -> Capture:
+    capture = captures_for(user).filter(pk=capture_id).first() if str(capture_id).isdigit() else None
+    if capture is None:
+        raise Http404(f"No capture {capture_id} among yours.")
+    return capture
+
+
+def capture_for_job(user, rig: Rig, capture_id: int, *, field: str, roles: tuple[str, ...] = ()) -> Capture:
+    """A capture named in a request body: the user's, of ``rig``, stored, of an allowed role; else 400."""
+    capture = captures_for(user).select_related("job").filter(pk=capture_id).first()
+    if capture is None:
+        raise BadInput(f"{field}: capture {capture_id} does not exist among yours")
+    if capture.rig_id != rig.pk:
+        raise BadInput(f"{field}: capture {capture_id} belongs to rig {capture.rig_id}, not to rig {rig.pk}")
+    if roles and capture.role not in roles:
+        raise BadInput(f"{field}: capture {capture_id} has role {capture.role!r}; expected {' or '.join(roles)}")
+    if not capture.ready:
+        job = capture.job
+        state = f"its job {job.pk} is {job.status}" + (f": {job.error}" if job and job.error else "") if job else ""
+        raise BadInput(f"{field}: capture {capture_id} is not stored yet ({state}); retry when its job is done")
+    return capture

@@ -1,0 +1,96 @@
+"""Where image stacks come from: one small interface, the virtual rig today.
+
+A real camera/projector driver implements :class:`CaptureSource` (project the eleven patterns of
+DESIGN.md 1.3, grab one frame each) and is registered in :data:`SOURCES`; nothing else changes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class CaptureRequest:
+    """What to capture: the scene in front of the rig and the acquisition options."""
+
+    role: str
+    scene: Mapping[str, Any]
+    options: Mapping[str, Any] = field(default_factory=dict)
+    z_in_mm: float | None = None
+    repeat: int = 0
+
+
+@dataclass(frozen=True)
+class AcquiredStack:
+    """An acquired stack: ``images`` (11, H, W) uint8/uint16 in pattern order, and what is known of it."""
+
+    images: np.ndarray
+    bit_depth: int
+    truth_mm: np.ndarray | None = None
+    metadata: Mapping[str, Any] = field(default_factory=dict)
+
+
+@runtime_checkable
+class CaptureSource(Protocol):
+    """A source of capture stacks for a rig."""
+
+    name: str
+
+    def check(self, rig, request: CaptureRequest) -> None:
+        """Raise ``ValueError`` naming the problem if ``request`` cannot be captured (called before queueing)."""
+
+    def acquire(self, rig, request: CaptureRequest) -> AcquiredStack:
+        """Capture the stack (called in a worker)."""
+
+
+class VirtualRigSource:
+    """Renders the stack with the core's simulator (metrology.core.scenes / simulate)."""
+
+    name = "virtual"
+
+    def _build(self, rig, request: CaptureRequest):
+        from metrology.core.scenes import make_scene
+        from metrology.core.simulate import SimulationOptions
+
+        scene_spec = dict(request.scene)
+        scene_name = scene_spec.pop("name", None)
+        if not isinstance(scene_name, str) or not scene_name:
+            raise ValueError('scene.name is required, e.g. {"name": "plane", ...}')
+        if scene_name == "stage" and request.z_in_mm is not None:
+            scene_spec.setdefault("z_in_mm", request.z_in_mm)
+        try:
+            scene = make_scene(scene_name, rig=rig, **scene_spec)
+        except TypeError as exc:
+            raise ValueError(f"scene {scene_name!r}: {exc}") from None
+        try:
+            options = SimulationOptions(**dict(request.options))
+        except TypeError as exc:
+            raise ValueError(f"simulation options: {exc}") from None
+        return scene, options
+
+    def check(self, rig, request: CaptureRequest) -> None:
+        self._build(rig, request)
+
+    def acquire(self, rig, request: CaptureRequest) -> AcquiredStack:
+        from metrology.core.simulate import render_stack
+
+        scene, options = self._build(rig, request)
+        rendered = render_stack(rig, scene, options)
+        images = np.asarray(rendered.images)
+        bit_depth = int(getattr(options, "bit_depth", 16 if images.dtype == np.uint16 else 8))
+        truth = getattr(rendered, "truth_mm", None)
+        return AcquiredStack(images=images, bit_depth=bit_depth, truth_mm=truth, metadata={"source": self.name})
+
+
+SOURCES: dict[str, CaptureSource] = {VirtualRigSource.name: VirtualRigSource()}
+
+
+def get_source(name: str) -> CaptureSource:
+    try:
+        return SOURCES[name]
+    except KeyError:
+        raise ValueError(f"unknown capture source {name!r}; known: {', '.join(sorted(SOURCES))}") from None

@@ -1,0 +1,6 @@
+from django.apps import AppConfig
+
+
+class CharacterizationsConfig(AppConfig):
+    name = "metrology.characterizations"
+    label = "characterizations"

@@ -1,0 +1,322 @@
+"""Jobs: create, enqueue, run (claim -> compute -> commit), sweep the ones whose worker died.
+
+A job is run by :func:`execute_job`, which a Celery task calls with the job's id. The run
+*claims* the job (status running, a fresh ``run_token``) in a short transaction, computes outside
+any transaction while a heartbeat thread keeps ``heartbeat_at`` fresh, and publishes its result
+with :meth:`JobRun.commit`, which re-checks in one transaction that the attempt still owns the job
+before it writes rows and marks the job done. So:
+
+- a done or failed job is never recomputed (a duplicate message is acknowledged and ignored);
+- a job whose worker died (SIGKILL, OOM, lost machine) has a stale heartbeat: the redelivered
+  message (``acks_late`` + ``reject_on_worker_lost`` + the broker's visibility timeout) or the
+  periodic :func:`sweep_stale_jobs` takes it over, and after ``GCPS_JOB_MAX_ATTEMPTS`` attempts
+  it is marked failed with the reason;
+- result files are written under an attempt-specific prefix and referenced by the rows only in
+  the final transaction, so a half-written result is never visible.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from datetime import timedelta
+from importlib import import_module
+
+from django.conf import settings
+from django.db import close_old_connections, connection, transaction
+from django.utils import timezone
+
+from metrology.jobs.models import Job
+from metrology.version import software_version
+
+logger = logging.getLogger(__name__)
+
+# kind -> "module:function" taking (job, run) and computing the job; imported lazily so that
+# jobs depend on no other app.
+HANDLERS: dict[str, str] = {
+    Job.Kind.SIMULATE_CAPTURE: "metrology.captures.services:run_simulate_capture",
+    Job.Kind.MEASUREMENT: "metrology.measurements.services:run_measurement",
+    Job.Kind.CALIBRATION: "metrology.calibrations.services:run_calibration",
+    Job.Kind.CHARACTERIZATION: "metrology.characterizations.services:run_characterization",
+}
+
+
+class SupersededError(Exception):
+    """This attempt no longer owns the job (another attempt took it over, or it was failed)."""
+
+
+class JobFailedError(Exception):
+    """A job cannot complete for a reason a person can act on; the message becomes ``Job.error``."""
+
+
+def create_job(*, owner, kind: str, parameters: dict) -> Job:
+    """A queued job row; call :func:`enqueue_job` inside the same transaction."""
+    return Job.objects.create(
+        owner=owner, kind=kind, parameters=parameters, software_version=software_version(), status=Job.Status.QUEUED
+    )
+
+
+def enqueue_job(job: Job) -> None:
+    """Send the job to the workers once the surrounding transaction commits."""
+    job_id = job.pk
+    transaction.on_commit(lambda: _send(job_id))
+
+
+def _send(job_id: int) -> None:
+    from workers.tasks import run_job
+
+    result = run_job.apply_async(args=[job_id])
+    if not settings.CELERY_TASK_ALWAYS_EAGER:
+        Job.objects.filter(pk=job_id, celery_task_id="").update(celery_task_id=result.id or "")
+
+
+# ----------------------------------------------------------------------------- running
+
+
+@dataclass
+class JobRun:
+    """One attempt at a job: reports progress and phase timings, and commits the result."""
+
+    job_id: int
+    token: uuid.UUID
+    timings: dict[str, float] = field(default_factory=dict)
+    written: list[tuple[object, str]] = field(default_factory=list)  # (storage, name) to delete if superseded
+
+    def progress(self, percent: int, phase: str = "") -> None:
+        """Record progress (0-100) and what the job is doing; raises :class:`SupersededError` if taken over."""
+        updated = Job.objects.filter(pk=self.job_id, run_token=self.token, status=Job.Status.RUNNING).update(
+            progress=max(0, min(100, int(percent))), phase=phase[:64], heartbeat_at=timezone.now()
+        )
+        if not updated:
+            raise SupersededError(f"job {self.job_id} was taken over by another attempt")
+        if settings.GCPS_JOB_PHASE_PAUSE_SECONDS:
+            time.sleep(settings.GCPS_JOB_PHASE_PAUSE_SECONDS)
+
+    @contextlib.contextmanager
+    def phase(self, name: str, percent: int) -> Iterator[None]:
+        """Time a phase (``timings[name]``, seconds) after reporting ``percent`` and ``name``."""
+        self.progress(percent, name)
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.timings[name] = round(self.timings.get(name, 0.0) + time.perf_counter() - start, 4)
+
+    def save_file(self, storage, name: str, content) -> str:
+        """Save ``content`` (a django File) under ``name``; remembered for cleanup. Returns the stored name."""
+        stored = storage.save(name, content)
+        self.written.append((storage, stored))
+        return stored
+
+    def commit(self, write: Callable[[Job], None]) -> None:
+        """In one transaction: check ownership, call ``write(job)`` to store rows, mark the job done."""
+        with transaction.atomic():
+            job = Job.objects.select_for_update().get(pk=self.job_id)
+            if job.run_token != self.token or job.status != Job.Status.RUNNING:
+                raise SupersededError(f"job {self.job_id} was taken over by another attempt")
+            write(job)
+            job.status = Job.Status.DONE
+            job.progress = 100
+            job.phase = "done"
+            job.error = ""
+            job.timings = self.timings
+            job.finished_at = timezone.now()
+            job.heartbeat_at = job.finished_at
+            job.save()
+        self.written.clear()
+
+    def discard_files(self) -> None:
+        for storage, name in self.written:
+            with contextlib.suppress(OSError):
+                storage.delete(name)
+        self.written.clear()
+
+
+def _is_stale(job: Job, now) -> bool:
+    beat = job.heartbeat_at or job.started_at
+    return beat is None or now - beat > timedelta(seconds=settings.GCPS_JOB_STALE_SECONDS)
+
+
+BUSY = "busy"
+
+
+def claim_job(job_id: int, task_id: str = "") -> JobRun | str | None:
+    """Take ownership of a job for this attempt; ``None`` when there is nothing to do.
+
+    Nothing to do: the job is done or failed, or another attempt runs it with a fresh heartbeat.
+    :data:`BUSY` when the job looks running under *this same task id*: a redelivery of the message
+    of a worker that died moments ago (heartbeat not stale yet); the caller retries later.
+    A job that has used up its attempts is marked failed here.
+    """
+    with transaction.atomic():
+        job = Job.objects.select_for_update().filter(pk=job_id).first()
+        if job is None or job.finished:
+            return None
+        now = timezone.now()
+        if job.status == Job.Status.RUNNING and not _is_stale(job, now):
+            return BUSY if task_id and job.celery_task_id == task_id else None
+        if job.attempts >= settings.GCPS_JOB_MAX_ATTEMPTS:
+            _fail(
+                job,
+                f"gave up after {job.attempts} attempts: the worker running it stopped (killed, out of memory "
+                "or past the time limit) each time",
+            )
+            return None
+        job.status = Job.Status.RUNNING
+        job.attempts += 1
+        job.run_token = uuid.uuid4()
+        job.started_at = job.heartbeat_at = now
+        job.error = ""
+        job.phase = "starting"
+        if task_id:
+            job.celery_task_id = task_id
+        job.save()
+        return JobRun(job_id=job.pk, token=job.run_token)
+
+
+def _fail(job: Job, reason: str) -> None:
+    job.status = Job.Status.FAILED
+    job.error = reason
+    job.finished_at = timezone.now()
+    job.save()
+
+
+def fail_job(run: JobRun, reason: str) -> None:
+    """Mark the job failed with ``reason`` if this attempt still owns it."""
+    with transaction.atomic():
+        job = Job.objects.select_for_update().get(pk=run.job_id)
+        if job.run_token == run.token and job.status == Job.Status.RUNNING:
+            job.timings = run.timings
+            _fail(job, reason)
+
+
+def release_job(run: JobRun) -> None:
+    """Give the job back to the queue (before a retry of a transient failure)."""
+    Job.objects.filter(pk=run.job_id, run_token=run.token, status=Job.Status.RUNNING).update(
+        status=Job.Status.QUEUED, run_token=None, phase="waiting to retry"
+    )
+
+
+class _Heartbeat(threading.Thread):
+    """Keeps ``heartbeat_at`` fresh while the computation holds the main thread."""
+
+    def __init__(self, run: JobRun) -> None:
+        super().__init__(name=f"job-{run.job_id}-heartbeat", daemon=True)
+        self.run_ = run
+        self.stop_event = threading.Event()
+
+    def run(self) -> None:
+        try:
+            while not self.stop_event.wait(settings.GCPS_JOB_HEARTBEAT_SECONDS):
+                try:
+                    Job.objects.filter(pk=self.run_.job_id, run_token=self.run_.token).update(
+                        heartbeat_at=timezone.now()
+                    )
+                except Exception:  # a lost database must not kill the computation; the sweep will see it
+                    logger.warning("heartbeat of job %s failed", self.run_.job_id, exc_info=True)
+        finally:
+            connection.close()
+
+    def stop(self) -> None:
+        self.stop_event.set()
+        self.join(timeout=5)
+
+
+def _handler(kind: str) -> Callable[[Job, JobRun], None]:
+    module, _, name = HANDLERS[kind].partition(":")
+    return getattr(import_module(module), name)
+
+
+def execute_job(job_id: int, *, task_id: str = "", transient: tuple[type[BaseException], ...] = ()) -> str:
+    """Run one attempt of a job. Returns what happened: skipped, busy, done, failed or superseded.
+
+    Exceptions listed in ``transient`` release the job and propagate (the task retries them);
+    every other exception fails the job with a message.
+    """
+    close_old_connections()
+    run = claim_job(job_id, task_id)
+    if run is None:
+        return "skipped"
+    if run == BUSY:
+        return BUSY
+    job = Job.objects.get(pk=job_id)
+    heartbeat = None if settings.CELERY_TASK_ALWAYS_EAGER else _Heartbeat(run)
+    if heartbeat:
+        heartbeat.start()
+    try:
+        _handler(job.kind)(job, run)
+        return "done"
+    except SupersededError:
+        run.discard_files()
+        logger.info("job %s attempt superseded; its files were discarded", job_id)
+        return "superseded"
+    except transient:
+        run.discard_files()
+        with contextlib.suppress(Exception):
+            release_job(run)
+        raise
+    except Exception as exc:
+        run.discard_files()
+        reason = _reason(exc)
+        if reason.startswith("internal error"):
+            logger.exception("job %s failed", job_id)
+        fail_job(run, reason)
+        return "failed"
+    finally:
+        if heartbeat:
+            heartbeat.stop()
+
+
+def _reason(exc: Exception) -> str:
+    from celery.exceptions import SoftTimeLimitExceeded
+
+    if isinstance(exc, SoftTimeLimitExceeded):
+        return f"stopped at the time limit of {settings.CELERY_TASK_SOFT_TIME_LIMIT} s (GCPS_TASK_SOFT_TIME_LIMIT)"
+    if isinstance(exc, JobFailedError | ValueError):
+        return str(exc) or type(exc).__name__
+    if isinstance(exc, ImportError):
+        return f"internal error: a part of the measurement core is missing ({exc})"
+    return f"internal error ({type(exc).__name__}): {exc}"
+
+
+# ----------------------------------------------------------------------------- dead workers
+
+
+def sweep_stale_jobs() -> dict[str, int]:
+    """Requeue (or fail, past the attempt limit) running jobs whose heartbeat went stale.
+
+    Run periodically by beat and once when a worker starts. Returns counts.
+    """
+    now = timezone.now()
+    cutoff = now - timedelta(seconds=settings.GCPS_JOB_STALE_SECONDS)
+    counts = {"requeued": 0, "failed": 0}
+    stale_ids = list(
+        Job.objects.filter(status=Job.Status.RUNNING, heartbeat_at__lt=cutoff).values_list("pk", flat=True)
+    )
+    for job_id in stale_ids:
+        with transaction.atomic():
+            job = Job.objects.select_for_update().get(pk=job_id)
+            if job.status != Job.Status.RUNNING or not _is_stale(job, timezone.now()):
+                continue
+            if job.attempts >= settings.GCPS_JOB_MAX_ATTEMPTS:
+                _fail(
+                    job,
+                    f"the worker stopped responding (no heartbeat since {job.heartbeat_at:%Y-%m-%d %H:%M:%S} UTC) "
+                    f"after {job.attempts} attempts",
+                )
+                counts["failed"] += 1
+            else:
+                job.status = Job.Status.QUEUED
+                job.run_token = None
+                job.phase = "requeued: its worker stopped responding"
+                job.save()
+                enqueue_job(job)
+                counts["requeued"] += 1
+    if any(counts.values()):
+        logger.warning("stale job sweep: %s", counts)
+    return counts

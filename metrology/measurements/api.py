@@ -1,0 +1,132 @@
+"""REST endpoints for measurements: POST/GET /api/measurements/, GET .../{id}/ and its result files."""
+
+from __future__ import annotations
+
+from django.http import FileResponse
+from django.urls import reverse
+from drf_spectacular.types import OpenApiTypes
+from drf_spectacular.utils import extend_schema
+from rest_framework import serializers, status
+from rest_framework.parsers import FormParser, JSONParser, MultiPartParser
+from rest_framework.request import Request
+from rest_framework.response import Response
+from rest_framework.views import APIView
+
+from metrology.api_errors import BadInput
+from metrology.jobs.serializers import JobStateMixin
+from metrology.measurements import selectors, services
+from metrology.measurements.models import RESULT_FILES, Measurement
+from metrology.rigs.selectors import get_rig
+
+CONTENT_TYPES = {
+    "height.npy": "application/octet-stream",
+    "height.tiff": "image/tiff",
+    "gray_only_height.npy": "application/octet-stream",
+    "mesh.ply": "application/octet-stream",
+    "mesh.stl": "model/stl",
+    "mesh.obj": "model/obj",
+}
+
+
+class MeasurementRequestSerializer(serializers.Serializer):
+    rig = serializers.IntegerField(min_value=1)
+    reference = serializers.IntegerField(min_value=1, help_text="Capture of the reference plane")
+    object = serializers.IntegerField(min_value=1, help_text="Capture of the object")
+
+
+class MeasurementSerializer(JobStateMixin, serializers.ModelSerializer):
+    files = serializers.SerializerMethodField()
+
+    class Meta:
+        model = Measurement
+        fields = (
+            "id",
+            "rig",
+            "reference",
+            "object",
+            "job",
+            "status",
+            "progress",
+            "phase",
+            "error",
+            "statistics",
+            "rig_values",
+            "timings",
+            "software_version",
+            "files",
+            "created_at",
+        )
+        read_only_fields = fields
+
+    def get_files(self, measurement: Measurement) -> dict[str, str]:
+        """Download paths of the result files that exist (none until the job is done)."""
+        return {
+            name: reverse(f"measurement-{name}", kwargs={"measurement_id": measurement.pk})
+            for name, field in RESULT_FILES.items()
+            if getattr(measurement, field)
+        }
+
+
+class MeasurementListCreateApi(APIView):
+    parser_classes = (JSONParser, FormParser, MultiPartParser)
+
+    @extend_schema(responses=MeasurementSerializer(many=True), operation_id="measurements_list")
+    def get(self, request: Request) -> Response:
+        return Response(MeasurementSerializer(selectors.measurements_for(request.user)[:500], many=True).data)
+
+    @extend_schema(
+        request=MeasurementRequestSerializer, responses={202: MeasurementSerializer}, operation_id="measurements_create"
+    )
+    def post(self, request: Request) -> Response:
+        serializer = MeasurementRequestSerializer(data=request.data)
+        serializer.is_valid(raise_exception=True)
+        data = serializer.validated_data
+        rig = get_rig_for_body(request.user, data["rig"])
+        measurement = services.request_measurement(
+            owner=request.user, rig=rig, reference_id=data["reference"], object_id=data["object"]
+        )
+        measurement = selectors.get_measurement(request.user, measurement.pk)
+        return Response(MeasurementSerializer(measurement).data, status=status.HTTP_202_ACCEPTED)
+
+
+def get_rig_for_body(user, rig_id: int):
+    """A rig named in a request body: 400 (not 404) when it is not the user's."""
+    from django.http import Http404
+
+    try:
+        return get_rig(user, rig_id)
+    except Http404:
+        raise BadInput(f"rig: rig {rig_id} does not exist among yours") from None
+
+
+class MeasurementDetailApi(APIView):
+    @extend_schema(responses=MeasurementSerializer, operation_id="measurements_retrieve")
+    def get(self, request: Request, measurement_id: int) -> Response:
+        return Response(MeasurementSerializer(selectors.get_measurement(request.user, measurement_id)).data)
+
+
+def file_view(filename: str) -> type[APIView]:
+    """A view class serving one result file of a measurement (404 until the job is done)."""
+    field = RESULT_FILES[filename]
+    content_type = CONTENT_TYPES[filename]
+    operation_id = "measurements_" + filename.replace(".", "_")
+
+    class MeasurementFileApi(APIView):
+        @extend_schema(responses={(200, content_type): OpenApiTypes.BINARY}, operation_id=operation_id)
+        def get(self, request: Request, measurement_id: int) -> FileResponse:
+            measurement = selectors.get_measurement(request.user, measurement_id)
+            stored = getattr(measurement, field)
+            if not stored:
+                from django.http import Http404
+
+                job = measurement.job
+                raise Http404(f"{filename} of measurement {measurement.pk} is not available: its job is {job.status}")
+            return FileResponse(
+                stored.open("rb"),
+                as_attachment=True,
+                filename=f"measurement-{measurement.pk}-{filename}",
+                content_type=content_type,
+            )
+
+    MeasurementFileApi.__name__ = f"Measurement{field.title().replace('_', '')}Api"
+    return MeasurementFileApi

@@ -1,0 +1,38 @@
+"""A Measurement: reference + object capture -> height map, meshes and statistics."""
+
+from __future__ import annotations
+
+from django.conf import settings
+from django.db import models
+
+RESULT_FILES: dict[str, str] = {
+    "height.npy": "height_npy",
+    "height.tiff": "height_tiff",
+    "gray_only_height.npy": "gray_only_npy",
+    "mesh.ply": "mesh_ply",
+    "mesh.stl": "mesh_stl",
+    "mesh.obj": "mesh_obj",
+}
+
+
+class Measurement(models.Model):
+    owner = models.ForeignKey(settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="measurements")
+    rig = models.ForeignKey("rigs.Rig", on_delete=models.CASCADE, related_name="measurements")
+    reference = models.ForeignKey("captures.Capture", on_delete=models.PROTECT, related_name="+")
+    object = models.ForeignKey("captures.Capture", on_delete=models.PROTECT, related_name="+")
+    job = models.OneToOneField("jobs.Job", on_delete=models.PROTECT, related_name="measurement")
+    rig_values = models.JSONField(default=dict, blank=True, help_text="Rig geometry the heights were computed with")
+    height_npy = models.FileField(max_length=300, blank=True)
+    height_tiff = models.FileField(max_length=300, blank=True)
+    gray_only_npy = models.FileField(max_length=300, blank=True)
+    mesh_ply = models.FileField(max_length=300, blank=True)
+    mesh_stl = models.FileField(max_length=300, blank=True)
+    mesh_obj = models.FileField(max_length=300, blank=True)
+    statistics = models.JSONField(default=dict, blank=True)
+    created_at = models.DateTimeField(auto_now_add=True)
+
+    class Meta:
+        ordering = ("-created_at", "-id")
+
+    def __str__(self) -> str:
+        return f"measurement {self.pk}"

@@ -1,0 +1,6 @@
+from django.apps import AppConfig
+
+
+class RigsConfig(AppConfig):
+    name = "metrology.rigs"
+    label = "rigs"

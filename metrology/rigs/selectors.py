@@ -1,0 +1,27 @@
+"""Reads for rigs, always scoped to the user (another user's rig is not found)."""
+
+from __future__ import annotations
+
+from django.db.models import QuerySet
+from django.http import Http404
+
+from metrology.rigs.models import Rig
+
+
+def rigs_for(user) -> QuerySet[Rig]:
+    return Rig.objects.filter(owner=user).prefetch_related("history")
+
+
+def get_rig(user, rig_id) -> Rig:
+    rig = rigs_for(user).filter(pk=rig_id).first() if str(rig_id).isdigit() else None
+    if rig is None:
+        raise Http404(f"No rig {rig_id} among yours.")
+    return rig
+
+
+def rig_history(rig: Rig) -> list[dict]:
+    """The rig's geometry over time, oldest first."""
+    return [
+        {"values": entry.values, "source": entry.source, "calibration": entry.calibration_id, "at": entry.created_at}
+        for entry in rig.history.all()
+    ]

@@ -1,0 +1,53 @@
+"""Fixtures for the application tests: a temporary MEDIA_ROOT, users with tokens, API clients."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from rest_framework.test import APIClient
+
+from metrology.accounts.services import create_user_with_token
+from tests.app.stacks import SMALL_RIG
+
+
+@pytest.fixture(autouse=True)
+def media_root(settings, tmp_path) -> Path:
+    """Every test stores files in its own temporary folder."""
+    root = tmp_path / "media"
+    root.mkdir()
+    settings.MEDIA_ROOT = root
+    return root
+
+
+def stored_files(root: Path) -> list[Path]:
+    return sorted(path for path in root.rglob("*") if path.is_file())
+
+
+@pytest.fixture
+def user_and_token(db):
+    return create_user_with_token(username="alice")
+
+
+@pytest.fixture
+def api(user_and_token) -> APIClient:
+    client = APIClient()
+    client.credentials(HTTP_AUTHORIZATION=f"Token {user_and_token[1]}")
+    client.user = user_and_token[0]
+    return client
+
+
+@pytest.fixture
+def other_api(db) -> APIClient:
+    user, key = create_user_with_token(username="bob")
+    client = APIClient()
+    client.credentials(HTTP_AUTHORIZATION=f"Token {key}")
+    client.user = user
+    return client
+
+
+@pytest.fixture
+def rig(api) -> dict:
+    response = api.post("/api/rigs/", {**SMALL_RIG, "name": "bench"}, format="json")
+    assert response.status_code == 201, response.content
+    return response.json()

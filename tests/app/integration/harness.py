@@ -1,0 +1,172 @@
+"""Real processes for integration tests: a fresh PostgreSQL database, Redis, the web server, workers.
+
+Everything runs on loopback. Each run creates its own database ``gcps_test_<hex>`` and its own Celery
+queue, and removes the database afterwards, so runs do not interfere with each other or with a
+developer's instance.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+import requests
+
+ROOT = Path(__file__).resolve().parents[3]
+PG_ADMIN_URL = os.environ.get("GCPS_TEST_PG_URL", "postgresql://postgres@127.0.0.1:5432/postgres")
+REDIS_URL = os.environ.get("GCPS_TEST_REDIS_URL", "redis://127.0.0.1:6379/0")
+
+
+def _unavailable(reason: str) -> None:
+    if os.environ.get("GCPS_REQUIRE_INTEGRATION") or os.environ.get("CI"):
+        pytest.fail(f"integration services unavailable: {reason}")
+    pytest.skip(f"integration services unavailable: {reason}")
+
+
+def check_services() -> None:
+    import psycopg
+    import redis
+
+    try:
+        with psycopg.connect(PG_ADMIN_URL, connect_timeout=3):
+            pass
+    except psycopg.Error as exc:
+        _unavailable(f"PostgreSQL at {PG_ADMIN_URL}: {exc}")
+    try:
+        redis.Redis.from_url(REDIS_URL, socket_connect_timeout=3).ping()
+    except redis.RedisError as exc:
+        _unavailable(f"Redis at {REDIS_URL}: {exc}")
+
+
+@contextmanager
+def fresh_database() -> Iterator[str]:
+    """A new PostgreSQL database for this run; dropped (forcibly) afterwards. Yields its URL."""
+    import psycopg
+
+    name = f"gcps_test_{secrets.token_hex(6)}"
+    with psycopg.connect(PG_ADMIN_URL, autocommit=True) as conn:
+        conn.execute(f'CREATE DATABASE "{name}"')
+    try:
+        yield PG_ADMIN_URL.rsplit("/", 1)[0] + f"/{name}"
+    finally:
+        with psycopg.connect(PG_ADMIN_URL, autocommit=True) as conn:
+            conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+class Stack:
+    """The application's processes, sharing one environment (database, queue, media folder)."""
+
+    def __init__(self, database_url: str, media_root: Path, logs: Path) -> None:
+        self.queue = f"gcps-test-{secrets.token_hex(4)}"
+        self.logs = logs
+        self.env = {
+            **{key: value for key, value in os.environ.items() if not key.startswith(("DJANGO_", "GCPS_"))},
+            "DJANGO_SETTINGS_MODULE": "metrology.settings",
+            "DATABASE_URL": database_url,
+            "REDIS_URL": REDIS_URL,
+            "MEDIA_ROOT": str(media_root),
+            "GCPS_VAR_DIR": str(media_root.parent / "var"),
+            "SECRET_KEY": secrets.token_urlsafe(50),
+            "DEBUG": "0",
+            "ALLOWED_HOSTS": "127.0.0.1,localhost",
+            "SECURE_SSL_REDIRECT": "0",
+            "GCPS_CELERY_QUEUE": self.queue,
+            "GCPS_JOB_HEARTBEAT_SECONDS": "1",
+            "GCPS_JOB_STALE_SECONDS": "3",
+            "GCPS_JOB_SWEEP_SECONDS": "2",
+            "GCPS_BROKER_VISIBILITY_TIMEOUT": "6",
+            "GCPS_BROKER_RESTORE_INTERVAL": "1",
+            "PYTHONUNBUFFERED": "1",
+        }
+        self.processes: list[subprocess.Popen] = []
+        self.base_url = ""
+
+    def manage(self, *args: str) -> str:
+        result = subprocess.run(
+            [sys.executable, "manage.py", *args], cwd=ROOT, env=self.env, capture_output=True, text=True, timeout=300
+        )
+        assert result.returncode == 0, f"manage.py {' '.join(args)} failed:\n{result.stdout}\n{result.stderr}"
+        return result.stdout
+
+    def _spawn(self, name: str, args: list[str], extra_env: dict[str, str] | None = None) -> subprocess.Popen:
+        log = (self.logs / f"{name}.log").open("ab")
+        process = subprocess.Popen(
+            args,
+            cwd=ROOT,
+            env={**self.env, **(extra_env or {})},
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,  # its own process group: we can kill it and its children
+        )
+        self.processes.append(process)
+        return process
+
+    def start_web(self) -> str:
+        port = free_port()
+        self._spawn("web", [sys.executable, "manage.py", "runserver", f"127.0.0.1:{port}", "--noreload"])
+        self.base_url = f"http://127.0.0.1:{port}"
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            try:
+                requests.get(f"{self.base_url}/api/schema/", timeout=2)
+                return self.base_url
+            except requests.ConnectionError:
+                time.sleep(0.2)
+        raise AssertionError(f"web server did not start; see {self.logs / 'web.log'}")
+
+    def start_worker(
+        self, name: str, extra_env: dict[str, str] | None = None, pool: tuple[str, ...] = ("-P", "solo")
+    ) -> subprocess.Popen:
+        celery = [sys.executable, "-m", "celery", "-A", "workers", "worker", *pool, "-Q", self.queue]
+        options = ["-n", f"{name}-{self.queue}@%h", "--without-gossip", "--without-mingle", "--loglevel=INFO"]
+        process = self._spawn(
+            name,
+            [*celery, *options],
+            extra_env,
+        )
+        deadline = time.monotonic() + 60
+        log = self.logs / f"{name}.log"
+        while time.monotonic() < deadline:
+            if log.exists() and b"ready." in log.read_bytes():
+                return process
+            if process.poll() is not None:
+                raise AssertionError(f"worker {name} exited: {log.read_text(errors='replace')}")
+            time.sleep(0.2)
+        raise AssertionError(f"worker {name} did not become ready; see {log}")
+
+    @staticmethod
+    def kill(process: subprocess.Popen) -> None:
+        """SIGKILL the process and its whole process group (as a crash or the OOM killer would)."""
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGKILL)
+        process.wait(timeout=10)
+
+    def stop(self) -> None:
+        for process in self.processes:
+            if process.poll() is None:
+                try:
+                    os.killpg(process.pid, signal.SIGTERM)
+                    process.wait(timeout=10)
+                except (ProcessLookupError, subprocess.TimeoutExpired):
+                    self.kill(process)
+        self.processes.clear()
+        import redis
+
+        client = redis.Redis.from_url(REDIS_URL)
+        client.delete(self.queue, f"_kombu.binding.{self.queue}", f"_kombu.binding_permanent.{self.queue}")

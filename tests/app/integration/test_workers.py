@@ -1,0 +1,208 @@
+"""End to end on the real stack: HTTP API -> PostgreSQL -> Redis -> Celery worker process -> results.
+
+Run with ``pytest -m integration``; needs PostgreSQL and Redis on loopback (see harness.py).
+"""
+
+from __future__ import annotations
+
+import io
+import struct
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from metrology.core.io import write_stack
+from metrology.core.rig import Rig
+from metrology.core.scenes import make_scene
+from metrology.core.simulate import SimulationOptions, render_stack
+from tests.app.stacks import SMALL_RIG
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
+
+# Bigger than the unit tests' rig so that the measurement (with meshes) takes a moment.
+RIG = {**SMALL_RIG, "width_px": 320, "height_px": 240, "name": "integration"}
+
+
+def simulated_zip(scene: str, **params) -> tuple[bytes, np.ndarray]:
+    """A noise-free 16-bit stack of ``scene`` rendered by the core's simulator, and its truth heights."""
+    rig = Rig.from_dict({key: RIG[key] for key in SMALL_RIG})
+    rendered = render_stack(rig, make_scene(scene, rig=rig, **params), SimulationOptions(bit_depth=16, seed=1))
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "stack.zip"
+        write_stack(rendered.images, path)
+        return path.read_bytes(), np.asarray(rendered.truth_mm)
+
+
+def url(http, path: str) -> str:
+    return http.base + path
+
+
+def upload(http, rig_id: int, data: bytes, role: str) -> int:
+    response = http.post(
+        url(http, f"/api/rigs/{rig_id}/captures/"), files={"file": (f"{role}.zip", data)}, data={"role": role}
+    )
+    assert response.status_code == 201, response.text
+    return response.json()["id"]
+
+
+def wait_for(http, path: str, done, timeout: float = 120.0, interval: float = 0.25) -> dict:
+    deadline = time.monotonic() + timeout
+    body: dict = {}
+    while time.monotonic() < deadline:
+        body = http.get(url(http, path)).json()
+        if done(body):
+            return body
+        time.sleep(interval)
+    raise AssertionError(f"timed out waiting on {path}: {body}")
+
+
+def finished(body: dict) -> bool:
+    return body["status"] in ("done", "failed")
+
+
+def ply_vertex_count(data: bytes) -> int:
+    header = data[: data.index(b"end_header")].decode("ascii")
+    assert header.startswith("ply\nformat binary")
+    return int(next(line.split()[2] for line in header.splitlines() if line.startswith("element vertex")))
+
+
+def test_measurement_through_api_redis_and_a_worker_process(stack, http):
+    stack.start_worker("worker-1")
+    rig = http.post(url(http, "/api/rigs/"), json=RIG)
+    assert rig.status_code == 201, rig.text
+    rig_id = rig.json()["id"]
+    reference_zip, _ = simulated_zip("reference")
+    object_zip, truth = simulated_zip("block", top_mm=30.0, size_x_mm=200.0, size_y_mm=150.0)
+    reference = upload(http, rig_id, reference_zip, "reference")
+    obj = upload(http, rig_id, object_zip, "object")
+
+    started = http.post(url(http, "/api/measurements/"), json={"rig": rig_id, "reference": reference, "object": obj})
+    assert started.status_code == 202, started.text
+    measurement_id = started.json()["id"]
+    body = wait_for(http, f"/api/measurements/{measurement_id}/", finished)
+    assert body["status"] == "done", body
+    assert body["progress"] == 100 and body["error"] == ""
+    assert body["statistics"]["valid_fraction"] > 0.5
+
+    response = http.get(url(http, f"/api/measurements/{measurement_id}/height.npy"))
+    assert response.status_code == 200
+    z = np.load(io.BytesIO(response.content))
+    assert z.shape == truth.shape == (240, 320)
+    both = np.isfinite(z) & np.isfinite(truth)
+    assert both.mean() > 0.5
+    error = np.abs(z[both] - truth[both])
+    # noise-free 16-bit: heights within a few micrometres except at the block's edges
+    assert np.median(error) < 0.005, np.median(error)
+    assert np.percentile(error, 95) < 0.05, np.percentile(error, 95)
+
+    mesh = http.get(url(http, f"/api/measurements/{measurement_id}/mesh.ply"))
+    assert mesh.status_code == 200 and ply_vertex_count(mesh.content) > 0.5 * both.sum()
+    stl = http.get(url(http, f"/api/measurements/{measurement_id}/mesh.stl"))
+    assert stl.status_code == 200
+    (triangles,) = struct.unpack("<I", stl.content[80:84])
+    assert len(stl.content) == 84 + 50 * triangles and triangles > 0
+
+    # a duplicate delivery of a done job is acknowledged and not recomputed
+    from redis import Redis
+
+    job_id = body["job"]
+    job_before = http.get(url(http, f"/api/jobs/{job_id}/")).json()
+    _send_task(stack, job_id)
+    time.sleep(2)
+    job_after = http.get(url(http, f"/api/jobs/{job_id}/")).json()
+    assert job_after["attempts"] == job_before["attempts"] == 1
+    assert job_after["finished_at"] == job_before["finished_at"]
+    assert Redis.from_url(stack.env["REDIS_URL"]).llen(stack.queue) == 0
+
+
+def _send_task(stack, job_id: int) -> None:
+    from celery import Celery
+
+    app = Celery(broker=stack.env["REDIS_URL"])
+    app.send_task("workers.tasks.run_job", args=[job_id], queue=stack.queue)
+    app.close()
+
+
+def test_simulated_capture_is_rendered_by_the_worker(stack, http):
+    stack.start_worker("worker-1")
+    rig_id = http.post(url(http, "/api/rigs/"), json=RIG).json()["id"]
+    response = http.post(
+        url(http, f"/api/rigs/{rig_id}/captures/simulate/"),
+        json={"role": "stage", "z_in_mm": 8.0, "scene": {"name": "stage"}, "options": {"bit_depth": 8, "seed": 3}},
+    )
+    assert response.status_code == 202, response.text
+    capture = response.json()
+    assert capture["status"] in ("queued", "running", "stored") and capture["job"]
+    body = wait_for(http, f"/api/captures/{capture['id']}/", lambda b: b["status"] in ("stored", "failed"))
+    assert body["status"] == "stored", http.get(url(http, f"/api/jobs/{capture['job']}/")).json()
+    assert (body["height_px"], body["width_px"], body["bit_depth"]) == (240, 320, 8)
+    assert len(body["checksum_sha256"]) == 64
+
+
+def test_killed_worker_mid_job_then_a_new_worker_finishes_it(stack, http, media_root):
+    # The first worker pauses 1.5 s between phases so that it is surely killed mid-job.
+    first = stack.start_worker("worker-1", {"GCPS_JOB_PHASE_PAUSE_MS": "1500"})
+    rig_id = http.post(url(http, "/api/rigs/"), json=RIG).json()["id"]
+    reference = upload(http, rig_id, simulated_zip("reference")[0], "reference")
+    object_zip, truth = simulated_zip("sphere", radius_mm=80.0)
+    obj = upload(http, rig_id, object_zip, "object")
+    measurement_id = http.post(
+        url(http, "/api/measurements/"), json={"rig": rig_id, "reference": reference, "object": obj}
+    ).json()["id"]
+
+    running = wait_for(
+        http, f"/api/measurements/{measurement_id}/", lambda b: b["status"] == "running" and b["progress"] >= 20
+    )
+    stack.kill(first)
+    killed_at = time.monotonic()
+    # nothing half-written is visible: no result file is served, the job is still "running"
+    after_kill = http.get(url(http, f"/api/measurements/{measurement_id}/")).json()
+    assert after_kill["status"] == "running" and after_kill["files"] == {}, (running, after_kill)
+    assert http.get(url(http, f"/api/measurements/{measurement_id}/height.npy")).status_code == 404
+
+    # a new worker takes it over once the heartbeat is stale (startup sweep or redelivered message)
+    time.sleep(max(0.0, 4.0 - (time.monotonic() - killed_at)))
+    stack.start_worker("worker-2")
+    body = wait_for(http, f"/api/measurements/{measurement_id}/", finished, timeout=120)
+    job = http.get(url(http, f"/api/jobs/{body['job']}/")).json()
+    if body["status"] == "failed":  # allowed by the contract, but it must say why
+        assert body["error"], body
+        return
+    assert job["attempts"] == 2, job
+    z = np.load(io.BytesIO(http.get(url(http, f"/api/measurements/{measurement_id}/height.npy")).content))
+    both = np.isfinite(z) & np.isfinite(truth)
+    assert np.median(np.abs(z[both] - truth[both])) < 0.005
+    # only the finishing attempt's files remain under the measurement's folder
+    attempts = {path.parent.name for path in (media_root / "measurements" / str(measurement_id)).rglob("*.npy")}
+    assert len(attempts) == 1, attempts
+    time.sleep(3)  # the original message comes back after the visibility timeout: it must not rerun the job
+    again = http.get(url(http, f"/api/jobs/{body['job']}/")).json()
+    assert again["attempts"] == 2 and again["status"] == "done" and again["finished_at"] == job["finished_at"]
+
+
+def test_killed_pool_process_is_requeued_and_the_job_finishes(stack, http):
+    """A prefork child killed mid-job (as by the OOM killer or the hard time limit): reject_on_worker_lost."""
+    import psutil
+
+    worker = stack.start_worker(
+        "worker-prefork", {"GCPS_JOB_PHASE_PAUSE_MS": "1500"}, pool=("-P", "prefork", "--concurrency", "1")
+    )
+    rig_id = http.post(url(http, "/api/rigs/"), json=RIG).json()["id"]
+    reference = upload(http, rig_id, simulated_zip("reference")[0], "reference")
+    obj = upload(http, rig_id, simulated_zip("plane", z_mm=20.0)[0], "object")
+    measurement_id = http.post(
+        url(http, "/api/measurements/"), json={"rig": rig_id, "reference": reference, "object": obj}
+    ).json()["id"]
+    wait_for(http, f"/api/measurements/{measurement_id}/", lambda b: b["status"] == "running" and b["progress"] >= 20)
+    children = psutil.Process(worker.pid).children()
+    assert len(children) == 1
+    children[0].kill()
+    body = wait_for(http, f"/api/measurements/{measurement_id}/", finished, timeout=120)
+    assert body["status"] == "done", body
+    job = http.get(url(http, f"/api/jobs/{body['job']}/")).json()
+    assert job["attempts"] == 2, job
+    z = np.load(io.BytesIO(http.get(url(http, f"/api/measurements/{measurement_id}/height.npy")).content))
+    assert abs(float(np.nanmedian(z)) - 20.0) < 0.01

@@ -1,0 +1,150 @@
+"""The job engine: claiming, idempotence, takeover of stale jobs, the sweep, failures and retries."""
+
+from __future__ import annotations
+
+from datetime import timedelta
+
+import pytest
+from celery.exceptions import SoftTimeLimitExceeded
+from django.core.files.base import ContentFile
+from django.core.files.storage import default_storage
+from django.db import OperationalError
+from django.utils import timezone
+
+from metrology.jobs import services
+from metrology.jobs.models import Job
+from tests.app.conftest import stored_files
+
+
+@pytest.fixture
+def job(user_and_token) -> Job:
+    return services.create_job(owner=user_and_token[0], kind=Job.Kind.MEASUREMENT, parameters={"x": 1})
+
+
+@pytest.fixture
+def handler(monkeypatch):
+    """Replace the measurement handler by a function the test sets."""
+    calls = []
+
+    def set_handler(function):
+        def wrapped(job, run):
+            calls.append(run.token)
+            return function(job, run)
+
+        monkeypatch.setattr(services, "_handler", lambda kind: wrapped)
+        return calls
+
+    return set_handler
+
+
+def test_a_job_runs_once_and_a_done_job_is_not_recomputed(job, handler):
+    calls = handler(lambda job, run: run.commit(lambda _job: None))
+    assert services.execute_job(job.pk) == "done"
+    job.refresh_from_db()
+    assert (job.status, job.progress, job.attempts) == ("done", 100, 1)
+    assert services.execute_job(job.pk) == "skipped"
+    assert len(calls) == 1
+
+
+def test_a_running_job_with_a_fresh_heartbeat_is_left_alone(job, handler):
+    calls = handler(lambda job, run: None)
+    assert services.claim_job(job.pk) is not None
+    assert services.execute_job(job.pk) == "skipped"
+    assert calls == []
+
+
+def test_a_redelivered_message_of_a_just_killed_worker_is_retried_later(job, handler):
+    handler(lambda job, run: None)
+    assert services.claim_job(job.pk, task_id="task-1") is not None
+    assert services.execute_job(job.pk, task_id="task-1") == services.BUSY
+    assert services.execute_job(job.pk, task_id="task-2") == "skipped"
+
+
+def test_a_stale_running_job_is_taken_over_and_the_old_attempt_cannot_publish(job, handler, settings):
+    old = services.claim_job(job.pk)
+    old.save_file(default_storage, "measurements/1/old/height.npy", ContentFile(b"half"))
+    Job.objects.filter(pk=job.pk).update(
+        heartbeat_at=timezone.now() - timedelta(seconds=settings.GCPS_JOB_STALE_SECONDS + 1)
+    )
+    new = services.claim_job(job.pk)
+    assert new is not None and new.token != old.token
+    with pytest.raises(services.SupersededError):
+        old.commit(lambda _job: pytest.fail("superseded attempt must not write"))
+    with pytest.raises(services.SupersededError):
+        old.progress(50, "measure")
+    old.discard_files()
+    new.commit(lambda _job: None)
+    job.refresh_from_db()
+    assert job.status == "done" and job.attempts == 2
+
+
+def test_a_job_past_its_attempts_is_failed_with_the_reason(job, settings):
+    Job.objects.filter(pk=job.pk).update(
+        status="running", attempts=settings.GCPS_JOB_MAX_ATTEMPTS, heartbeat_at=timezone.now() - timedelta(hours=1)
+    )
+    assert services.claim_job(job.pk) is None
+    job.refresh_from_db()
+    assert job.status == "failed" and f"gave up after {settings.GCPS_JOB_MAX_ATTEMPTS} attempts" in job.error
+
+
+def test_the_sweep_requeues_stale_jobs_and_fails_exhausted_ones(user_and_token, settings, monkeypatch):
+    sent = []
+    monkeypatch.setattr(services, "enqueue_job", lambda job: sent.append(job.pk))
+    owner = user_and_token[0]
+    old = timezone.now() - timedelta(seconds=settings.GCPS_JOB_STALE_SECONDS + 5)
+    stale = services.create_job(owner=owner, kind="measurement", parameters={})
+    exhausted = services.create_job(owner=owner, kind="measurement", parameters={})
+    fresh = services.create_job(owner=owner, kind="measurement", parameters={})
+    Job.objects.filter(pk=stale.pk).update(status="running", attempts=1, heartbeat_at=old)
+    Job.objects.filter(pk=exhausted.pk).update(
+        status="running", attempts=settings.GCPS_JOB_MAX_ATTEMPTS, heartbeat_at=old
+    )
+    Job.objects.filter(pk=fresh.pk).update(status="running", attempts=1, heartbeat_at=timezone.now())
+    assert services.sweep_stale_jobs() == {"requeued": 1, "failed": 1}
+    assert sent == [stale.pk]
+    assert Job.objects.get(pk=stale.pk).status == "queued"
+    failed = Job.objects.get(pk=exhausted.pk)
+    assert failed.status == "failed" and "the worker stopped responding" in failed.error
+    assert Job.objects.get(pk=fresh.pk).status == "running"
+
+
+@pytest.mark.parametrize(
+    ("error", "reason"),
+    [
+        (ValueError("reference stack has no valid pixel"), "reference stack has no valid pixel"),
+        (SoftTimeLimitExceeded(), "stopped at the time limit of"),
+        (KeyError("boom"), "internal error (KeyError): 'boom'"),
+    ],
+)
+def test_errors_fail_the_job_with_a_reason_and_leave_no_file(job, handler, media_root, error, reason):
+    def compute(job, run):
+        run.save_file(default_storage, f"measurements/{job.pk}/{run.token.hex}/height.npy", ContentFile(b"partial"))
+        raise error
+
+    handler(compute)
+    assert services.execute_job(job.pk) == "failed"
+    job.refresh_from_db()
+    assert job.status == "failed" and reason in job.error
+    assert stored_files(media_root) == []
+
+
+def test_transient_errors_release_the_job_for_a_retry(job, handler):
+    handler(lambda job, run: (_ for _ in ()).throw(OperationalError("server closed the connection")))
+    with pytest.raises(OperationalError):
+        services.execute_job(job.pk, transient=(OperationalError,))
+    job.refresh_from_db()
+    assert job.status == "queued" and job.run_token is None
+    handler(lambda job, run: run.commit(lambda _job: None))
+    assert services.execute_job(job.pk) == "done"
+
+
+def test_task_options():
+    from workers.tasks import TRANSIENT_ERRORS, run_job
+
+    assert run_job.acks_late and run_job.reject_on_worker_lost
+    assert set(run_job.autoretry_for) == set(TRANSIENT_ERRORS)
+    assert OperationalError in TRANSIENT_ERRORS and ValueError not in TRANSIENT_ERRORS
+    from workers import app
+
+    assert app.conf.task_soft_time_limit and app.conf.task_time_limit > app.conf.task_soft_time_limit
+    assert "sweep-stale-jobs" in app.conf.beat_schedule

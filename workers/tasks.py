@@ -1,0 +1,47 @@
+"""Thin Celery tasks: they take ids and call services (metrology.jobs.services)."""
+
+from __future__ import annotations
+
+from celery import shared_task
+from django.db import InterfaceError, OperationalError
+from kombu.exceptions import OperationalError as BrokerOperationalError
+
+# Errors known to be transient: the database or the broker was briefly unreachable.
+TRANSIENT_ERRORS: tuple[type[BaseException], ...] = (
+    OperationalError,
+    InterfaceError,
+    ConnectionError,
+    BrokerOperationalError,
+)
+
+
+@shared_task(
+    bind=True,
+    acks_late=True,
+    reject_on_worker_lost=True,
+    autoretry_for=TRANSIENT_ERRORS,
+    retry_backoff=5,
+    retry_backoff_max=120,
+    retry_jitter=True,
+    max_retries=5,
+)
+def run_job(self, job_id: int) -> str:
+    """Run (or skip, when already done or taken) the job ``job_id``."""
+    from django.conf import settings
+
+    from metrology.jobs.services import BUSY, execute_job
+
+    outcome = execute_job(job_id, task_id=self.request.id or "", transient=TRANSIENT_ERRORS)
+    if outcome == BUSY:
+        # This message came back while its job still looks running: the worker that had it died
+        # moments ago (prefork child killed, time limit). Look again once the heartbeat is stale.
+        raise self.retry(countdown=settings.GCPS_JOB_STALE_SECONDS + 1)
+    return outcome
+
+
+@shared_task(acks_late=True, ignore_result=True)
+def sweep_stale_jobs() -> dict[str, int]:
+    """Requeue or fail jobs whose worker stopped sending heartbeats."""
+    from metrology.jobs.services import sweep_stale_jobs as sweep
+
+    return sweep()
