@@ -104,6 +104,8 @@ INSTALLED_APPS = [
     "metrology.measurements",
     "metrology.calibrations",
     "metrology.characterizations",
+    "metrology.reports",
+    "metrology.dashboard",
 ]
 
 MIDDLEWARE = [
@@ -268,7 +270,9 @@ SECURE_HSTS_PRELOAD = env_bool("SECURE_HSTS_PRELOAD", SECURE_HSTS_SECONDS > 0)
 SECURE_CONTENT_TYPE_NOSNIFF = True
 X_FRAME_OPTIONS = "DENY"
 
-LOGIN_URL = "/admin/login/"
+LOGIN_URL = "/login/"
+LOGIN_REDIRECT_URL = "/"
+LOGOUT_REDIRECT_URL = "/login/"
 
 LOGGING = {
     "version": 1,

@@ -58,6 +58,8 @@ api_patterns = [
 urlpatterns = [
     path("api/", include(api_patterns)),
     path("admin/", admin.site.urls),
+    path("reports/", include("metrology.reports.urls")),
+    path("", include("metrology.dashboard.urls")),
 ]
 
 handler404 = "metrology.api_errors.not_found"

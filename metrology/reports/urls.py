@@ -1,0 +1,3 @@
+"""Report pages and downloads."""
+
+urlpatterns: list = []
