@@ -31,7 +31,11 @@ class Command(BaseCommand):
         parser.add_argument("--timeout", type=float, default=900.0, help="Seconds to wait for the jobs")
 
     def handle(self, *args, user: str, width: int, height: int, timeout: float, **options) -> None:
-        owner, _ = get_user_model().objects.get_or_create(username=user)
+        owner, created = get_user_model().objects.get_or_create(username=user)
+        if created:  # a throw-away demo account: log in to the dashboard as demo / demo
+            owner.set_password(user)
+            owner.save(update_fields=["password"])
+            self.say(f"created user {user!r} with password {user!r} (for the dashboard's login page)")
         token, _ = Token.objects.get_or_create(user=owner)
         self.timeout = timeout
         rig = create_rig(
