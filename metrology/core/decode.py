@@ -284,31 +284,33 @@ def _decode_rows(
     quiet-NaN bit pattern, both several times faster than fancy indexing and
     boolean assignment in numpy.
     """
-    if phase_images.dtype == np.uint8:
-        work: type = np.int16
-    elif phase_images.dtype == np.uint16:
-        work = np.int32
-    else:
-        work = np.float32
-    i0, i1, i2, i3 = (phase_images[i].astype(work) for i in range(N_PHASE_STEPS))
-    s = i1 - i3
-    c = i0 - i2
-    total = i0 + i1 + i2 + i3  # 4 A
-    if work is np.float32:
-        gray = gray_images.astype(np.float32, copy=False)
-        threshold = total * np.float32(0.25)
-    else:
-        # g > A  <=>  g > floor(4A / 4) for integers: compare in the input dtype
+    p0, p1, p2, p3 = (phase_images[i] for i in range(N_PHASE_STEPS))
+    if phase_images.dtype == np.uint8 and gray_images.dtype == np.uint8:
+        # 8-bit fast path: OpenCV goes from uint8 straight to float32 / uint16 in one pass
+        sf = cv2.subtract(p1, p3, dtype=cv2.CV_32F)
+        cf = cv2.subtract(p0, p2, dtype=cv2.CV_32F)
+        total = cv2.add(cv2.add(p0, p2, dtype=cv2.CV_16U), cv2.add(p1, p3, dtype=cv2.CV_16U))  # 4 A
+        # g > A  <=>  g > floor(4A / 4) for integers; |x - 0.375| rounded is floor(x / 4) here
+        threshold = cv2.convertScaleAbs(total, alpha=0.25, beta=-0.375)
         gray = gray_images
-        threshold = (total >> 2).astype(gray_images.dtype)
+    else:
+        work = np.int32 if phase_images.dtype == np.uint16 else np.float32
+        i0, i1, i2, i3 = (p.astype(work) for p in (p0, p1, p2, p3))
+        sf = (i1 - i3).astype(np.float32, copy=False)
+        cf = (i0 - i2).astype(np.float32, copy=False)
+        total = i0 + i1 + i2 + i3  # 4 A
+        if work is np.float32:
+            gray = gray_images.astype(np.float32, copy=False)
+            threshold = total * np.float32(0.25)
+        else:
+            gray = gray_images
+            threshold = (total >> 2).astype(gray_images.dtype)
 
     # gray word: all seven bit planes thresholded at once, weighted and summed (MSB first)
     bits = np.greater(gray, threshold).view(np.uint8)
     bits *= _BIT_WEIGHTS
     gray_word = bits.sum(axis=0, dtype=np.uint8)
 
-    sf = s.astype(np.float32)
-    cf = c.astype(np.float32)
     modulation2 = sf * sf
     modulation2 += cf * cf
     t = np.arctan2(sf, cf)
@@ -317,9 +319,9 @@ def _decode_rows(
     # table index: (l^ mod 4) * 4 (one table look-up from the gray word) + the signs of sin and
     # cos of Phi, which select its quadrant ([-pi,-pi/2), [-pi/2,0), [0,pi/2), [pi/2,pi])
     index: np.ndarray = cv2.LUT(gray_word, _ROW4_FROM_GRAY_LUT)
-    upper = (s >= 0).view(np.uint8)
+    upper = (sf >= 0).view(np.uint8)
     index |= upper << np.uint8(1)
-    index |= (c > 0).view(np.uint8)
+    index |= (cf > 0).view(np.uint8)
     fraction: np.ndarray = cv2.LUT(index, _K_LUT)  # dPhi in code units, NaN where inconsistent
     fraction += t  # l - l^ (Eq. 3)
 
@@ -338,9 +340,10 @@ def _decode_rows(
     if modulation_out is not None or visibility_out is not None:
         modulation = np.sqrt(modulation2, out=modulation_out)
         if visibility_out is not None:
-            # fringe visibility B / (2 A): independent of albedo and exposure
-            np.divide(modulation, np.maximum(total.astype(np.float32), np.float32(1)), out=visibility_out)
-            visibility_out *= np.float32(2)
+            # fringe visibility B / 4A (half of B / 2A; only ratios of it are used): independent
+            # of albedo and exposure; NaN or inf where the pixel is black
+            with np.errstate(divide="ignore", invalid="ignore"):
+                np.divide(modulation, total, out=visibility_out, dtype=np.float32)
     if gray_out is not None:
         word_f += np.float32(0.5)
         modulated &= word_f <= np.float32(nlp)

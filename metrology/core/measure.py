@@ -41,7 +41,7 @@ class DecodeOptions:
     ``field_margin_codes``: codes closer than this to 0 or nlp are refused (the
     projector's blur biases the phase at the edges of the coded field).
     ``min_visibility_ratio``: object pixels whose fringe visibility ``B / 2A`` falls
-    below this fraction of the highest visibility in their 5x5 neighbourhood are
+    below this fraction of the highest visibility in their 3x3 neighbourhood are
     mixed pixels (two phases averaged across a depth step lower the visibility,
     whatever the albedo); 0 disables the test.
     ``edge_band_px``: valid pixels closer than this (4-connected steps) to an
