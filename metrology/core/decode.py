@@ -102,12 +102,15 @@ class DecodedStack:
         fringe amplitude).
     mask : (H, W) bool array
         True where ``codes`` is valid.
+    visibility : (H, W) float32 array
+        Fringe visibility ``B / 2A`` (0..1 for unsaturated images); NaN where the pixel is black.
     """
 
     codes: np.ndarray
     gray_codes: np.ndarray
     modulation: np.ndarray
     mask: np.ndarray
+    visibility: np.ndarray
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -210,6 +213,7 @@ def decode_stack(
     gray_codes = np.empty((height, width), np.float32)
     modulation = np.empty((height, width), np.float32)
     mask = np.empty((height, width), bool)
+    visibility = np.empty((height, width), np.float32)
 
     def run(rows: slice) -> None:
         _decode_rows(
@@ -223,10 +227,12 @@ def decode_stack(
             gray_codes[rows],
             modulation[rows],
             mask[rows],
+            visibility[rows],
         )
 
     _run_tiled(run, height, width, threads)
-    return DecodedStack(codes=codes, gray_codes=gray_codes, modulation=modulation, mask=mask)
+    visibility *= np.float32(2)  # the kernel gives B / 4A
+    return DecodedStack(codes=codes, gray_codes=gray_codes, modulation=modulation, mask=mask, visibility=visibility)
 
 
 def smooth_fringes(phase_images: np.ndarray, sigma_px: float) -> np.ndarray:

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from metrology.core.blur import correct_blur_bias, estimate_blur_variance
 from metrology.core.decode import (
     DecodedStack,
     _decode_rows,
@@ -27,7 +28,7 @@ from metrology.core.decode import (
 )
 from metrology.core.patterns import N_GRAY_BITS
 from metrology.core.rig import Rig
-from metrology.core.triangulate import abscissa_from_codes, height_from_codes
+from metrology.core.triangulate import abscissa_from_codes, height_from_abscissae, height_from_codes
 
 
 @dataclass(frozen=True)
@@ -44,6 +45,10 @@ class DecodeOptions:
     below this fraction of the highest visibility in their 3x3 neighbourhood are
     mixed pixels (two phases averaged across a depth step lower the visibility,
     whatever the albedo); 0 disables the test.
+    ``blur_variance_px2``: variance of the camera's blur (defocus and pixel area), px^2,
+    whose phase bias ``s2/2 laplacian(l)`` is removed from the object's codes
+    (:mod:`metrology.core.blur`); None estimates it from the reference capture, 0 turns
+    the correction off.
     ``edge_band_px``: valid pixels closer than this (4-connected steps) to an
     invalid pixel or a discontinuity are dropped as possibly mixed (shadow edges,
     the coded field's edges, depth steps); 0 keeps them.
@@ -56,10 +61,13 @@ class DecodeOptions:
     edge_band_px: int = 2
     field_margin_codes: float = 0.25
     min_visibility_ratio: float = 0.85
+    blur_variance_px2: float | None = None
 
     def __post_init__(self) -> None:
         if self.discontinuity_codes < 0:
             raise ValueError(f"discontinuity_codes must be >= 0, got {self.discontinuity_codes}")
+        if self.blur_variance_px2 is not None and not 0 <= self.blur_variance_px2 < 100:
+            raise ValueError(f"blur_variance_px2 must be in [0, 100) px^2 or None, got {self.blur_variance_px2}")
         if not 0 <= self.min_visibility_ratio < 1:
             raise ValueError(f"min_visibility_ratio must be in [0, 1), got {self.min_visibility_ratio}")
         if not isinstance(self.edge_band_px, int) or self.edge_band_px < 0:
@@ -74,6 +82,7 @@ class DecodeOptions:
             "edge_band_px": self.edge_band_px,
             "field_margin_codes": self.field_margin_codes,
             "min_visibility_ratio": self.min_visibility_ratio,
+            "blur_variance_px2": self.blur_variance_px2,
         }
 
 
@@ -87,11 +96,16 @@ class Reference:
         Codes of the reference plane (REF of Eq. 16).
     x_mm : (H, W) float32 array
         Abscissa on R of each reference code (Eq. 14), mm; NaN where invalid.
+    unreliable : (H, W) bool array
+        Valid reference pixels dropped as possibly mixed (:func:`unreliable_mask`).
+    blur_variance_px2 : float
+        The camera blur's variance used to correct object codes, px^2 (0: no correction).
     """
 
     decoded: DecodedStack
     x_mm: np.ndarray
     unreliable: np.ndarray
+    blur_variance_px2: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -159,7 +173,13 @@ def prepare_reference(
     _check_shape(rig, decoded.codes.shape, "reference")
     x_mm = abscissa_from_codes(rig, decoded.codes).astype(np.float32, copy=False)
     unreliable = unreliable_mask(decoded.codes, options.discontinuity_codes, options.edge_band_px)
-    return Reference(decoded=decoded, x_mm=x_mm, unreliable=unreliable)
+    blur = options.blur_variance_px2
+    if blur is None:
+        try:
+            blur = estimate_blur_variance(decoded.codes, decoded.visibility)
+        except ValueError:
+            blur = 0.0  # too small a field to tell: no correction
+    return Reference(decoded=decoded, x_mm=x_mm, unreliable=unreliable, blur_variance_px2=blur)
 
 
 def measure_height(
@@ -220,6 +240,9 @@ def measure_height(
         keep = ~drop
         _set_nan(z_mm, keep)
         _set_nan(obj_codes, keep)
+    if reference.blur_variance_px2 > 0:
+        correct_blur_bias(obj_codes, reference.blur_variance_px2)
+        z_mm = height_from_abscissae(rig, reference.x_mm, abscissa_from_codes(rig, obj_codes))
     timings["object_decode_triangulate_s"] = time.perf_counter() - start
 
     gray_z = None

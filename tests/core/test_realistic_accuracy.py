@@ -77,3 +77,20 @@ def test_gray_code_only_vs_gcps_resolution_on_the_flowerpot(reference):
     # GCPS is at the phase-noise limit, ~0.1 mm rms
     assert gcps_rms < 0.15
     assert gray_rms > 10 * gcps_rms
+
+
+@pytest.mark.slow
+def test_sphere_probing_error_vdi_vde_2634(reference):
+    """Issue 3: a sphere of radius 50 mm at realistic noise, probing error size under 50 um; form
+    error reported with and without the standard's 0.3 % outlier rejection."""
+    from metrology.core.acceptance import points_from_height_map, probing_error
+
+    rendered = render_stack(
+        PAPER_RIG, make_scene("sphere", PAPER_RIG, radius_mm=50.0), SimulationOptions.realistic_8bit(seed=21)
+    )
+    z = measure_height(PAPER_RIG, reference, rendered.images).z_mm
+    on_sphere = np.isfinite(z) & (rendered.truth_mm > 0.5)
+    result = probing_error(points_from_height_map(PAPER_RIG, z, mask=on_sphere), 100.0)
+    assert abs(result["size_error_mm"]) < 0.050
+    assert result["form_error_rejected_mm"] < result["form_error_mm"]
+    assert result["n_rejected"] == pytest.approx(0.003 * result["n_points"], abs=2)
