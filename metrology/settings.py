@@ -48,6 +48,21 @@ def env_int(name: str, default: int, *, minimum: int | None = None) -> int:
     return value
 
 
+def env_float(name: str, default: float, *, minimum: float | None = None) -> float:
+    raw = os.environ.get(name)
+    if raw is None or raw.strip() == "":
+        return default
+    try:
+        value = float(raw.strip())
+    except ValueError:
+        raise ImproperlyConfigured(f"{name} must be a number, got {raw!r}") from None
+    if value != value or value in (float("inf"), float("-inf")):
+        raise ImproperlyConfigured(f"{name} must be a finite number, got {raw!r}")
+    if minimum is not None and value < minimum:
+        raise ImproperlyConfigured(f"{name} must be at least {minimum}, got {value}")
+    return value
+
+
 def env_str(name: str, default: str = "") -> str:
     return os.environ.get(name, default).strip()
 
@@ -258,6 +273,14 @@ GCPS_JOB_MAX_ATTEMPTS = env_int("GCPS_JOB_MAX_ATTEMPTS", 3, minimum=1)
 GCPS_JOB_SWEEP_SECONDS = env_int("GCPS_JOB_SWEEP_SECONDS", 60, minimum=1)
 # Fault injection for tests: pause between the phases of a job (0 in production).
 GCPS_JOB_PHASE_PAUSE_SECONDS = float(env_int("GCPS_JOB_PHASE_PAUSE_MS", 0, minimum=0)) / 1000.0
+
+# Characterization reports: a figure "drifted" when it moved by more than its tolerance since the
+# previous report of the same rig. Errors in mm, percentages of full scale, in-out slopes (unitless).
+GCPS_REPORT_DRIFT_TOLERANCE = {
+    "mm": env_float("GCPS_REPORT_DRIFT_TOLERANCE_MM", 0.010, minimum=0.0),
+    "pct_fs": env_float("GCPS_REPORT_DRIFT_TOLERANCE_PCT_FS", 0.020, minimum=0.0),
+    "slope": env_float("GCPS_REPORT_DRIFT_TOLERANCE_SLOPE", 0.001, minimum=0.0),
+}
 
 # ----------------------------------------------------------------------------- security
 SECURE_PROXY_SSL_HEADER = ("HTTP_X_FORWARDED_PROTO", "https") if env_bool("GCPS_BEHIND_PROXY", False) else None

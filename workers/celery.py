@@ -9,7 +9,7 @@ from celery.signals import worker_ready
 
 os.environ.setdefault("DJANGO_SETTINGS_MODULE", "metrology.settings")
 
-app = Celery("gcps", include=["workers.tasks"])
+app = Celery("gcps", include=["workers.tasks", "metrology.reports.tasks"])
 app.config_from_object("django.conf:settings", namespace="CELERY")
 
 

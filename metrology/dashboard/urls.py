@@ -1,3 +1,31 @@
-"""Browser pages (server-rendered)."""
+"""Browser pages (server-rendered), mounted at the site root."""
 
-urlpatterns: list = []
+from django.contrib.auth import views as auth_views
+from django.urls import path
+
+from metrology.dashboard import views
+
+app_name = "dashboard"
+
+urlpatterns = [
+    path("login/", auth_views.LoginView.as_view(redirect_authenticated_user=True), name="login"),
+    path("logout/", auth_views.LogoutView.as_view(), name="logout"),
+    path("", views.home, name="home"),
+    path("jobs/<int:job_id>/", views.job_detail, name="job"),
+    path("assets/plotly.min.js", views.plotly_js, name="plotly-js"),
+    path("rigs/", views.rig_list, name="rigs"),
+    path("rigs/<int:rig_id>/", views.rig_detail, name="rig"),
+    path("rigs/<int:rig_id>/captures/", views.rig_captures, name="rig-captures"),
+    path("rigs/<int:rig_id>/sensitivity/", views.rig_sensitivity, name="rig-sensitivity"),
+    path("captures/", views.capture_list, name="captures"),
+    path("measurements/", views.measurement_list, name="measurements"),
+    path("measurements/new/", views.measurement_new, name="measurement-new"),
+    path("measurements/<int:measurement_id>/", views.measurement_detail, name="measurement"),
+    path("calibrations/", views.calibration_list, name="calibrations"),
+    path("calibrations/new/", views.calibration_new, name="calibration-new"),
+    path("calibrations/<int:calibration_id>/", views.calibration_detail, name="calibration"),
+    path("calibrations/<int:calibration_id>/apply/", views.calibration_apply, name="calibration-apply"),
+    path("characterizations/", views.characterization_list, name="characterizations"),
+    path("characterizations/new/", views.characterization_new, name="characterization-new"),
+    path("characterizations/<int:characterization_id>/", views.characterization_detail, name="characterization"),
+]

@@ -18,6 +18,7 @@ class Job(models.Model):
         MEASUREMENT = "measurement", "Measurement"
         CALIBRATION = "calibration", "Calibration"
         CHARACTERIZATION = "characterization", "Characterization"
+        REPORT = "report", "Characterization report"
 
     owner = models.ForeignKey(settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="jobs")
     kind = models.CharField(max_length=32, choices=Kind.choices)

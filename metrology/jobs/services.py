@@ -43,6 +43,7 @@ HANDLERS: dict[str, str] = {
     Job.Kind.MEASUREMENT: "metrology.measurements.services:run_measurement",
     Job.Kind.CALIBRATION: "metrology.calibrations.services:run_calibration",
     Job.Kind.CHARACTERIZATION: "metrology.characterizations.services:run_characterization",
+    Job.Kind.REPORT: "metrology.reports.services:run_report",
 }
 
 

@@ -1,3 +1,15 @@
-"""Report pages and downloads."""
+"""Report pages: /reports/ (list), /reports/<id>/ (detail), its HTML inline and as a download."""
 
-urlpatterns: list = []
+from django.urls import path
+
+from metrology.reports import views
+
+app_name = "reports"
+
+urlpatterns = [
+    path("", views.report_list, name="list"),
+    path("run/", views.report_run, name="run"),
+    path("<int:report_id>/", views.report_detail, name="detail"),
+    path("<int:report_id>/report.html", views.report_html, name="html"),
+    path("<int:report_id>/download/", views.report_download, name="download"),
+]

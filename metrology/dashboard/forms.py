@@ -1,0 +1,166 @@
+"""Forms of the pages: they parse and check what a person typed; the services decide the rest."""
+
+from __future__ import annotations
+
+from django import forms
+
+from metrology.captures.models import Capture
+
+PAPER_RIG = {"L_mm": 1022.0, "d_mm": 352.0, "alpha_rad": 0.332, "fw_mm": 500.0, "nlp": 128}
+
+# Which scene parameter the "Z" field of the simulate form sets (scenes without one ignore it).
+SCENE_Z_PARAMETER = {"plane": "z_mm", "block": "top_mm", "stage": "z_in_mm", "staircase": "step_height_mm"}
+SCENE_CHOICES = [
+    ("reference", "reference plane (Z = 0)"),
+    ("plane", "plane at height Z"),
+    ("block", "master block, top at Z"),
+    ("sphere", "sphere"),
+    ("two_spheres", "two spheres (ball bar)"),
+    ("staircase", "staircase, steps of Z"),
+    ("face", "face"),
+    ("flowerpot", "flowerpot"),
+    ("stage", "stage plane at Z_in = Z"),
+]
+NOISE_PRESETS: dict[str, tuple[str, dict]] = {
+    "none": ("noise free, 16 bit", {"bit_depth": 16}),
+    "low": ("low noise, 8 bit (0.5 grey levels)", {"bit_depth": 8, "noise_grey": 0.5}),
+    "demo": (
+        "realistic, 8 bit (1.5 grey levels, slight blur)",
+        {"bit_depth": 8, "noise_grey": 1.5, "camera_defocus_px": 0.5},
+    ),
+    "high": ("noisy, 8 bit (4 grey levels, blur)", {"bit_depth": 8, "noise_grey": 4.0, "camera_defocus_px": 0.8}),
+}
+DEFAULT_ROLE_FOR_SCENE = {"reference": "reference", "block": "master", "stage": "stage"}
+
+
+class RigForm(forms.Form):
+    name = forms.CharField(max_length=200, required=False, help_text="A name you will recognise")
+    L_mm = forms.FloatField(label="L (mm)", initial=PAPER_RIG["L_mm"], help_text="Height of the pupils above R")
+    d_mm = forms.FloatField(label="d (mm)", initial=PAPER_RIG["d_mm"], help_text="Projector-camera baseline")
+    alpha_rad = forms.FloatField(label="alpha (rad)", initial=PAPER_RIG["alpha_rad"], help_text="In (0, pi/2)")
+    fw_mm = forms.FloatField(label="FW (mm)", initial=PAPER_RIG["fw_mm"], help_text="Field width on R")
+    nlp = forms.IntegerField(label="nlp", initial=PAPER_RIG["nlp"], help_text="Light codes across the field")
+    width_px = forms.IntegerField(label="width (px)", initial=320, min_value=1)
+    height_px = forms.IntegerField(label="height (px)", initial=240, min_value=1)
+    notes = forms.CharField(widget=forms.Textarea(attrs={"rows": 2}), required=False)
+
+
+class UploadCaptureForm(forms.Form):
+    file = forms.FileField(label="Stack (.zip)", help_text="A zip of GC_0..GC_6 and PS_0..PS_3 images")
+    role = forms.ChoiceField(choices=Capture.Role.choices, initial=Capture.Role.OBJECT)
+    z_in_mm = forms.FloatField(label="Z_in (mm)", required=False, help_text="Stage position (stage captures only)")
+    repeat = forms.IntegerField(min_value=0, initial=0, required=False)
+
+
+class SimulateCaptureForm(forms.Form):
+    scene = forms.ChoiceField(choices=SCENE_CHOICES, initial="plane")
+    z_mm = forms.FloatField(
+        label="Z (mm)", required=False, initial=20.0, help_text="Plane height, block top, stage Z_in or step height"
+    )
+    noise = forms.ChoiceField(
+        label="Noise", choices=[(key, label) for key, (label, _) in NOISE_PRESETS.items()], initial="demo"
+    )
+    role = forms.ChoiceField(
+        choices=[("", "from the scene"), *Capture.Role.choices], required=False, help_text="Default: from the scene"
+    )
+    seed = forms.IntegerField(min_value=0, initial=0, required=False)
+
+    def request_kwargs(self) -> dict:
+        """Keyword arguments of ``request_simulated_capture`` (without owner and rig)."""
+        data = self.cleaned_data
+        name = data["scene"]
+        scene: dict = {"name": name}
+        z = data.get("z_mm")
+        parameter = SCENE_Z_PARAMETER.get(name)
+        if parameter and z is not None:
+            scene[parameter] = z
+        role = data.get("role") or DEFAULT_ROLE_FOR_SCENE.get(name, "object")
+        options = {**NOISE_PRESETS[data["noise"]][1], "seed": data.get("seed") or 0}
+        z_in = z if name == "stage" else None
+        if name == "stage":
+            scene.pop("z_in_mm", None)  # taken from the capture's z_in_mm
+        return {"role": role, "scene": scene, "options": options, "z_in_mm": z_in}
+
+
+class StageSeriesForm(forms.Form):
+    z_from_mm = forms.FloatField(label="from Z_in (mm)", initial=0.0)
+    z_to_mm = forms.FloatField(label="to Z_in (mm)", initial=8.0)
+    z_step_mm = forms.FloatField(label="step (mm)", initial=4.0, min_value=0.001)
+    repeats = forms.IntegerField(min_value=1, max_value=30, initial=2)
+    noise = forms.ChoiceField(choices=[(key, label) for key, (label, _) in NOISE_PRESETS.items()], initial="demo")
+
+    MAX_CAPTURES = 400
+
+    def clean(self):
+        data = super().clean()
+        lo, hi, step = data.get("z_from_mm"), data.get("z_to_mm"), data.get("z_step_mm")
+        if None not in (lo, hi, step):
+            if hi <= lo:
+                raise forms.ValidationError("'to Z_in' must be above 'from Z_in'.")
+            count = int((hi - lo) / step + 1e-9) + 1
+            if count < 2:
+                raise forms.ValidationError("The series needs at least two stage positions: reduce the step.")
+            if count * (data.get("repeats") or 1) > self.MAX_CAPTURES:
+                raise forms.ValidationError(f"That makes more than {self.MAX_CAPTURES} captures: widen the step.")
+            data["positions"] = [lo + i * step for i in range(count)]
+        return data
+
+
+def capture_choices(captures, empty: str = "choose a capture") -> list[tuple[str, str]]:
+    def label(capture: Capture) -> str:
+        scene = (capture.parameters or {}).get("scene", {}).get("name", "")
+        origin = capture.original_name or scene or capture.source
+        z = f", Z_in {capture.z_in_mm:g} mm" if capture.z_in_mm is not None else ""
+        return f"#{capture.pk} {capture.role} ({origin}{z})"
+
+    return [("", empty)] + [(str(c.pk), label(c)) for c in captures]
+
+
+class MeasurementForm(forms.Form):
+    reference = forms.TypedChoiceField(coerce=int, label="Reference capture")
+    object = forms.TypedChoiceField(coerce=int, label="Object capture")
+
+    def __init__(self, *args, captures=(), **kwargs):
+        super().__init__(*args, **kwargs)
+        captures = list(captures)
+        self.fields["reference"].choices = capture_choices([c for c in captures if c.role == "reference"])
+        self.fields["object"].choices = capture_choices([c for c in captures if c.role != "reference"])
+
+
+class CalibrationForm(forms.Form):
+    reference = forms.TypedChoiceField(coerce=int, label="Reference capture")
+    master = forms.TypedChoiceField(coerce=int, label="Master capture")
+    master_height_mm = forms.FloatField(label="Master height H (mm)", initial=40.0)
+    method = forms.ChoiceField(choices=[("lsq", "least squares"), ("paper", "paper (iterative, section 4)")])
+    initial_L_mm = forms.FloatField(label="Start L (mm)", required=False, help_text="Default: the rig's value")
+    initial_alpha_rad = forms.FloatField(label="Start alpha (rad)", required=False, help_text="Default: the rig's")
+    apply = forms.BooleanField(required=False, label="Apply the result to the rig when done")
+
+    def __init__(self, *args, captures=(), **kwargs):
+        super().__init__(*args, **kwargs)
+        captures = list(captures)
+        self.fields["reference"].choices = capture_choices([c for c in captures if c.role == "reference"])
+        self.fields["master"].choices = capture_choices([c for c in captures if c.role in ("master", "object")])
+
+    def initial_values(self) -> dict:
+        data = self.cleaned_data
+        out = {}
+        if data.get("initial_L_mm") is not None:
+            out["L_mm"] = data["initial_L_mm"]
+        if data.get("initial_alpha_rad") is not None:
+            out["alpha_rad"] = data["initial_alpha_rad"]
+        return out
+
+
+class CharacterizationForm(forms.Form):
+    reference = forms.TypedChoiceField(coerce=int, label="Reference capture")
+    session = forms.TypedChoiceField(coerce=int, label="Stage session", help_text="Its stage captures form the series")
+    n_points = forms.IntegerField(label="Test points per row", initial=21, min_value=2, max_value=1000)
+    rows = forms.IntegerField(label="Rows of test points", initial=1, min_value=1, max_value=50)
+
+    def __init__(self, *args, captures=(), sessions=(), **kwargs):
+        super().__init__(*args, **kwargs)
+        self.fields["reference"].choices = capture_choices([c for c in captures if c.role == "reference"])
+        self.fields["session"].choices = [("", "choose a session")] + [
+            (str(s.pk), f"#{s.pk} {s.name or 'session'} ({s.n_stage} stage captures)") for s in sessions
+        ]

@@ -1,0 +1,80 @@
+"""Template tags of the dashboard: plotly figures, job progress bars, number formatting."""
+
+from __future__ import annotations
+
+import math
+
+from django import template
+from django.utils.html import format_html
+from django.utils.safestring import mark_safe
+
+from metrology.figures import figure_json, plot_config
+
+register = template.Library()
+
+_ESCAPES = {ord(">"): "\\u003E", ord("<"): "\\u003C", ord("&"): "\\u0026"}
+
+
+@register.simple_tag
+def plotly_figure(fig, name: str, label: str = ""):
+    """A figure drawn by ``Plotly.newPlot`` with PNG and SVG download buttons.
+
+    The figure's JSON sits in a ``<script type="application/json">`` (escaped like
+    ``json_script``); the dashboard's script draws every ``.js-figure`` on load.
+    """
+    import json
+
+    data = figure_json(fig).translate(_ESCAPES)
+    config = json.dumps(plot_config(name)).translate(_ESCAPES)
+    title = label or name.replace("_", " ")
+    return format_html(
+        '<figure class="figure" aria-label="{title}">'
+        '<div class="js-figure" id="fig-{name}" data-name="{name}"></div>'
+        '<script type="application/json" id="fig-{name}-data">{data}</script>'
+        '<script type="application/json" id="fig-{name}-config">{config}</script>'
+        '<figcaption class="figure-tools">Download this figure: '
+        '<button type="button" class="button small js-download" data-target="fig-{name}" data-format="png">'
+        "PNG</button> "
+        '<button type="button" class="button small js-download" data-target="fig-{name}" data-format="svg">'
+        "SVG</button></figcaption></figure>",
+        title=title,
+        name=name,
+        data=mark_safe(data),
+        config=mark_safe(config),
+    )
+
+
+@register.inclusion_tag("dashboard/_progress.html")
+def job_progress(job, next_url: str = ""):
+    """A progress bar for ``job`` that polls ``/api/jobs/<id>/`` and goes to ``next_url`` when done."""
+    return {"job": job, "next_url": next_url}
+
+
+@register.filter
+def um(value_mm, digits: int = 1):
+    """Millimetres shown as micrometres (``"n/a"`` for None/NaN)."""
+    try:
+        number = float(value_mm)
+    except (TypeError, ValueError):
+        return "n/a"
+    return "n/a" if not math.isfinite(number) else f"{number * 1000:.{int(digits)}f} um"
+
+
+@register.filter
+def num(value, digits: int = 3):
+    """A number with ``digits`` decimals (``"n/a"`` for None/NaN)."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return "n/a" if value in (None, "") else value
+    return "n/a" if not math.isfinite(number) else f"{number:.{int(digits)}f}"
+
+
+@register.filter
+def pct(value, digits: int = 1):
+    """A fraction in [0, 1] as a percentage."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return "n/a"
+    return "n/a" if not math.isfinite(number) else f"{100 * number:.{int(digits)}f} %"

@@ -1,0 +1,461 @@
+"""Browser pages: parse the request, call the same services and selectors as the REST API, render.
+
+Every page needs a login and shows the user's own objects only (the selectors filter by owner, so
+another user's object is a 404). Errors that the services raise are shown in words on the form.
+"""
+
+from __future__ import annotations
+
+from urllib.parse import urlencode
+
+from django.contrib.auth.decorators import login_required
+from django.core.exceptions import ValidationError
+from django.db import transaction
+from django.http import HttpRequest, HttpResponse
+from django.shortcuts import redirect, render
+from django.urls import reverse
+from django.utils.http import url_has_allowed_host_and_scheme
+from django.views.decorators.http import require_http_methods, require_POST
+from rest_framework.exceptions import APIException
+
+from metrology.calibrations import selectors as calibration_selectors
+from metrology.calibrations import services as calibration_services
+from metrology.captures import selectors as capture_selectors
+from metrology.captures import services as capture_services
+from metrology.characterizations import selectors as characterization_selectors
+from metrology.characterizations import services as characterization_services
+from metrology.dashboard import forms
+from metrology.dashboard import selectors as pages
+from metrology.jobs import selectors as job_selectors
+from metrology.measurements import selectors as measurement_selectors
+from metrology.measurements import services as measurement_services
+from metrology.measurements.models import RESULT_FILES
+from metrology.rigs import selectors as rig_selectors
+from metrology.rigs import services as rig_services
+from metrology.version import software_version
+
+SERVICE_ERRORS = (APIException, ValueError, ValidationError)
+
+
+def error_text(exc: Exception) -> str:
+    """A service error as one sentence for the page."""
+    if isinstance(exc, APIException):
+        detail = exc.detail
+        if isinstance(detail, dict):
+            return "; ".join(f"{key}: {' '.join(map(str, value))}" for key, value in detail.items())
+        if isinstance(detail, list):
+            return " ".join(map(str, detail))
+        return str(detail)
+    if isinstance(exc, ValidationError):
+        return " ".join(exc.messages)
+    return str(exc)
+
+
+def _rig_from_query(request: HttpRequest):
+    rig_id = request.GET.get("rig") or request.POST.get("rig")
+    return rig_selectors.get_rig(request.user, rig_id) if rig_id else None
+
+
+# ----------------------------------------------------------------------------- home, jobs
+
+
+@login_required
+def home(request: HttpRequest) -> HttpResponse:
+    user = request.user
+    return render(
+        request,
+        "dashboard/home.html",
+        {
+            "rigs": rig_selectors.rigs_for(user),
+            "jobs": job_selectors.jobs_for(user)[:10],
+            "measurements": measurement_selectors.measurements_for(user)[:5],
+            "characterizations": characterization_selectors.characterizations_for(user)[:5],
+        },
+    )
+
+
+@login_required
+def job_detail(request: HttpRequest, job_id: int) -> HttpResponse:
+    job = job_selectors.get_job(request.user, job_id)
+    next_url = request.GET.get("next", "")
+    if not url_has_allowed_host_and_scheme(next_url, allowed_hosts={request.get_host()}):
+        next_url = pages.job_result_url(job)
+    return render(request, "dashboard/job.html", {"job": job, "next_url": next_url})
+
+
+@login_required
+def plotly_js(request: HttpRequest) -> HttpResponse:
+    response = HttpResponse(pages.plotly_js(), content_type="application/javascript; charset=utf-8")
+    response["Cache-Control"] = "private, max-age=86400"
+    return response
+
+
+# ----------------------------------------------------------------------------- rigs
+
+
+@login_required
+@require_http_methods(["GET", "POST"])
+def rig_list(request: HttpRequest) -> HttpResponse:
+    form = forms.RigForm(request.POST or None)
+    if request.method == "POST" and form.is_valid():
+        try:
+            rig = rig_services.create_rig(owner=request.user, data=form.cleaned_data)
+        except SERVICE_ERRORS as exc:
+            form.add_error(None, error_text(exc))
+        else:
+            return redirect("dashboard:rig", rig.pk)
+    status = 400 if request.method == "POST" else 200
+    return render(
+        request, "dashboard/rigs.html", {"rigs": rig_selectors.rigs_for(request.user), "form": form}, status=status
+    )
+
+
+@login_required
+def rig_detail(request: HttpRequest, rig_id: int) -> HttpResponse:
+    rig = rig_selectors.get_rig(request.user, rig_id)
+    user = request.user
+    return render(
+        request,
+        "dashboard/rig.html",
+        {
+            "rig": rig,
+            "history": list(reversed(rig_selectors.rig_history(rig))),
+            "captures": capture_selectors.captures_for(user, rig).order_by("-id")[:10],
+            "measurements": measurement_selectors.measurements_for(user).filter(rig=rig)[:10],
+            "calibrations": calibration_selectors.calibrations_for(user).filter(rig=rig)[:10],
+            "characterizations": characterization_selectors.characterizations_for(user).filter(rig=rig)[:10],
+        },
+    )
+
+
+@login_required
+def rig_sensitivity(request: HttpRequest, rig_id: int) -> HttpResponse:
+    from metrology.figures.sensitivity import sensitivity_figures
+
+    rig = rig_selectors.get_rig(request.user, rig_id)
+    error = ""
+    try:
+        z_mm = float(request.GET.get("z_mm", 40.0))
+        curves = pages.sensitivity_curves_for(rig, z_mm)
+    except (TypeError, ValueError) as exc:
+        z_mm, curves, error = 40.0, pages.sensitivity_curves_for(rig, 40.0), f"Height not usable: {exc}"
+    return render(
+        request,
+        "dashboard/sensitivity.html",
+        {"rig": rig, "z_mm": z_mm, "figures": sensitivity_figures(curves), "curves": curves, "error": error},
+    )
+
+
+# ----------------------------------------------------------------------------- captures
+
+
+@login_required
+def capture_list(request: HttpRequest) -> HttpResponse:
+    return render(
+        request,
+        "dashboard/captures.html",
+        {
+            "rigs": rig_selectors.rigs_for(request.user),
+            "captures": capture_selectors.captures_for(request.user).select_related("rig").order_by("-id")[:200],
+        },
+    )
+
+
+@login_required
+@require_http_methods(["GET", "POST"])
+def rig_captures(request: HttpRequest, rig_id: int) -> HttpResponse:
+    rig = rig_selectors.get_rig(request.user, rig_id)
+    action = request.POST.get("action") if request.method == "POST" else None
+    upload = forms.UploadCaptureForm(request.POST or None, request.FILES or None, prefix="upload")
+    simulate = forms.SimulateCaptureForm(request.POST or None, prefix="simulate")
+    stage = forms.StageSeriesForm(request.POST or None, prefix="stage")
+    bound = {"upload": upload, "simulate": simulate, "stage": stage}
+    for name, form in bound.items():
+        if name != action:
+            form.is_bound = False  # only the submitted form shows errors
+            form.data, form.files = {}, {}
+    if action in bound and bound[action].is_valid():
+        try:
+            target = _start_capture(request, rig, action, bound[action])
+        except SERVICE_ERRORS as exc:
+            bound[action].add_error(None, error_text(exc))
+        else:
+            return redirect(target)
+    return render(
+        request,
+        "dashboard/rig_captures.html",
+        {
+            "rig": rig,
+            "upload_form": upload,
+            "simulate_form": simulate,
+            "stage_form": stage,
+            "captures": capture_selectors.captures_for(request.user, rig).order_by("-id")[:200],
+            "sessions": pages.stage_sessions(request.user, rig),
+        },
+        status=400 if action else 200,
+    )
+
+
+def _start_capture(request: HttpRequest, rig, action: str, form) -> str:
+    """Call the capture service for the submitted form; returns where to go next."""
+    data = form.cleaned_data
+    if action == "upload":
+        capture_services.upload_capture(
+            owner=request.user,
+            rig=rig,
+            upload=data["file"],
+            role=data["role"],
+            z_in_mm=data.get("z_in_mm"),
+            repeat=data.get("repeat") or 0,
+        )
+        return reverse("dashboard:rig-captures", args=[rig.pk])
+    if action == "simulate":
+        capture = capture_services.request_simulated_capture(owner=request.user, rig=rig, **form.request_kwargs())
+        return reverse("dashboard:job", args=[capture.job_id])
+    options = forms.NOISE_PRESETS[data["noise"]][1]
+    with transaction.atomic():
+        session = capture_services.create_session(
+            owner=request.user, rig=rig, name=f"stage {data['z_from_mm']:g}-{data['z_to_mm']:g} mm"
+        )
+        last = None
+        for index, z_in in enumerate(data["positions"]):
+            for repeat in range(data["repeats"]):
+                last = capture_services.request_simulated_capture(
+                    owner=request.user,
+                    rig=rig,
+                    role="stage",
+                    scene={"name": "stage"},
+                    options={**options, "seed": 100 + index * data["repeats"] + repeat},
+                    z_in_mm=z_in,
+                    repeat=repeat,
+                    session_id=session.pk,
+                )
+    after = f"{reverse('dashboard:characterization-new')}?{urlencode({'rig': rig.pk, 'session': session.pk})}"
+    return f"{reverse('dashboard:job', args=[last.job_id])}?{urlencode({'next': after})}"
+
+
+# ----------------------------------------------------------------------------- measurements
+
+
+@login_required
+def measurement_list(request: HttpRequest) -> HttpResponse:
+    return render(
+        request,
+        "dashboard/measurements.html",
+        {
+            "measurements": measurement_selectors.measurements_for(request.user)[:200],
+            "rigs": rig_selectors.rigs_for(request.user),
+        },
+    )
+
+
+@login_required
+@require_http_methods(["GET", "POST"])
+def measurement_new(request: HttpRequest) -> HttpResponse:
+    rig = _rig_from_query(request)
+    if rig is None:
+        return render(request, "dashboard/choose_rig.html", _choose_rig(request, "measurement"))
+    form = forms.MeasurementForm(request.POST or None, captures=pages.ready_captures(request.user, rig))
+    if request.method == "POST" and form.is_valid():
+        try:
+            measurement = measurement_services.request_measurement(
+                owner=request.user,
+                rig=rig,
+                reference_id=form.cleaned_data["reference"],
+                object_id=form.cleaned_data["object"],
+            )
+        except SERVICE_ERRORS as exc:
+            form.add_error(None, error_text(exc))
+        else:
+            return redirect("dashboard:measurement", measurement.pk)
+    return render(
+        request,
+        "dashboard/measurement_new.html",
+        {"rig": rig, "form": form},
+        status=400 if request.method == "POST" else 200,
+    )
+
+
+@login_required
+def measurement_detail(request: HttpRequest, measurement_id: int) -> HttpResponse:
+    measurement = measurement_selectors.get_measurement(request.user, measurement_id)
+    figures, row, height = {}, 0, measurement.rig_values.get("height_px", 0)
+    if measurement.job.status == "done":
+        requested = request.GET.get("row")
+        figures, row, height = pages.measurement_figures(
+            measurement, int(requested) if requested and requested.lstrip("-").isdigit() else None
+        )
+    files = [
+        (name, reverse(f"measurement-{name}", kwargs={"measurement_id": measurement.pk}))
+        for name, field in RESULT_FILES.items()
+        if getattr(measurement, field)
+    ]
+    return render(
+        request,
+        "dashboard/measurement.html",
+        {
+            "measurement": measurement,
+            "job": measurement.job,
+            "figures": figures,
+            "row": row,
+            "max_row": max(0, height - 1),
+            "files": files,
+            "stats": measurement.statistics or {},
+        },
+    )
+
+
+# ----------------------------------------------------------------------------- calibrations
+
+
+@login_required
+def calibration_list(request: HttpRequest) -> HttpResponse:
+    return render(
+        request,
+        "dashboard/calibrations.html",
+        {"calibrations": calibration_selectors.calibrations_for(request.user)[:200]},
+    )
+
+
+@login_required
+@require_http_methods(["GET", "POST"])
+def calibration_new(request: HttpRequest) -> HttpResponse:
+    rig = _rig_from_query(request)
+    if rig is None:
+        return render(request, "dashboard/choose_rig.html", _choose_rig(request, "calibration"))
+    form = forms.CalibrationForm(request.POST or None, captures=pages.ready_captures(request.user, rig))
+    if request.method == "POST" and form.is_valid():
+        data = form.cleaned_data
+        try:
+            calibration = calibration_services.request_calibration(
+                owner=request.user,
+                rig=rig,
+                reference_id=data["reference"],
+                master_id=data["master"],
+                master_height_mm=data["master_height_mm"],
+                method=data["method"],
+                initial=form.initial_values(),
+                apply=data["apply"],
+            )
+        except SERVICE_ERRORS as exc:
+            form.add_error(None, error_text(exc))
+        else:
+            return redirect("dashboard:calibration", calibration.pk)
+    return render(
+        request,
+        "dashboard/calibration_new.html",
+        {"rig": rig, "form": form},
+        status=400 if request.method == "POST" else 200,
+    )
+
+
+@login_required
+def calibration_detail(request: HttpRequest, calibration_id: int) -> HttpResponse:
+    calibration = calibration_selectors.get_calibration(request.user, calibration_id)
+    figures = pages.calibration_figures(calibration) if calibration.job.status == "done" else {}
+    return render(
+        request,
+        "dashboard/calibration.html",
+        {
+            "calibration": calibration,
+            "job": calibration.job,
+            "figures": figures,
+            "result": calibration.result or {},
+            "error": request.GET.get("error", ""),
+        },
+    )
+
+
+@login_required
+@require_POST
+def calibration_apply(request: HttpRequest, calibration_id: int) -> HttpResponse:
+    calibration = calibration_selectors.get_calibration(request.user, calibration_id)
+    try:
+        calibration_services.apply_calibration(calibration=calibration)
+    except SERVICE_ERRORS as exc:
+        calibration = calibration_selectors.get_calibration(request.user, calibration_id)
+        return render(
+            request,
+            "dashboard/calibration.html",
+            {
+                "calibration": calibration,
+                "job": calibration.job,
+                "figures": {},
+                "result": calibration.result or {},
+                "error": error_text(exc),
+            },
+            status=400,
+        )
+    return redirect("dashboard:rig", calibration.rig_id)
+
+
+# ----------------------------------------------------------------------------- characterizations
+
+
+@login_required
+def characterization_list(request: HttpRequest) -> HttpResponse:
+    return render(
+        request,
+        "dashboard/characterizations.html",
+        {"characterizations": characterization_selectors.characterizations_for(request.user)[:200]},
+    )
+
+
+@login_required
+@require_http_methods(["GET", "POST"])
+def characterization_new(request: HttpRequest) -> HttpResponse:
+    rig = _rig_from_query(request)
+    if rig is None:
+        return render(request, "dashboard/choose_rig.html", _choose_rig(request, "characterization"))
+    initial = {"session": request.GET.get("session")} if request.GET.get("session") else None
+    form = forms.CharacterizationForm(
+        request.POST or None,
+        initial=initial,
+        captures=pages.ready_captures(request.user, rig),
+        sessions=pages.stage_sessions(request.user, rig),
+    )
+    if request.method == "POST" and form.is_valid():
+        data = form.cleaned_data
+        try:
+            characterization = characterization_services.request_characterization(
+                owner=request.user,
+                rig=rig,
+                reference_id=data["reference"],
+                session_id=data["session"],
+                options={"n_points": data["n_points"], "rows": data["rows"]},
+            )
+        except SERVICE_ERRORS as exc:
+            form.add_error(None, error_text(exc))
+        else:
+            return redirect("dashboard:characterization", characterization.pk)
+    return render(
+        request,
+        "dashboard/characterization_new.html",
+        {"rig": rig, "form": form},
+        status=400 if request.method == "POST" else 200,
+    )
+
+
+@login_required
+def characterization_detail(request: HttpRequest, characterization_id: int) -> HttpResponse:
+    from metrology.figures.characterization import FIGURE_TITLES, characterization_figures, summary_rows
+
+    characterization = characterization_selectors.get_characterization(request.user, characterization_id)
+    done = characterization.job.status == "done"
+    results = characterization.results or {}
+    figures = characterization_figures(results) if done else {}
+    return render(
+        request,
+        "dashboard/characterization.html",
+        {
+            "characterization": characterization,
+            "job": characterization.job,
+            "figures": [(key, FIGURE_TITLES[key], fig) for key, fig in figures.items()],
+            "summary": summary_rows(results) if done else [],
+            "software_version": software_version(),
+        },
+    )
+
+
+def _choose_rig(request: HttpRequest, what: str) -> dict:
+    return {"rigs": rig_selectors.rigs_for(request.user), "what": what, "action": request.path}

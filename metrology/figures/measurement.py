@@ -1,0 +1,238 @@
+"""Figures of a measurement: height map, row profiles, gray-code-only vs GCPS, 3D surface.
+
+The browser gets decimated data: :func:`decimate` reduces a height map by block means (NaN
+ignored) to at most ``max_rows x max_cols`` (default 320 x 400), so a 1280 x 1024 map is sent as
+320 x 256 values and the page renders in well under a second on the server.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+import plotly.graph_objects as go
+
+from metrology.figures import PALETTE, base_layout, empty_figure
+
+MAX_ROWS = 320
+MAX_COLS = 400
+MAX_ROWS_3D = 160
+MAX_COLS_3D = 200
+UM = 1000.0
+
+
+def block_factors(shape: tuple[int, int], max_rows: int = MAX_ROWS, max_cols: int = MAX_COLS) -> tuple[int, int]:
+    """Integer block sizes (rows, columns) that bring ``shape`` within ``max_rows x max_cols``."""
+    if max_rows < 1 or max_cols < 1:
+        raise ValueError(f"max_rows and max_cols must be >= 1, got {max_rows}, {max_cols}")
+    return max(1, math.ceil(shape[0] / max_rows)), max(1, math.ceil(shape[1] / max_cols))
+
+
+def decimate(values: npt.ArrayLike, max_rows: int = MAX_ROWS, max_cols: int = MAX_COLS) -> np.ndarray:
+    """Block means of a 2D array (NaN ignored; NaN where a block has no finite value).
+
+    Parameters
+    ----------
+    values : (H, W) float array
+        E.g. a height map in mm, NaN where invalid.
+    max_rows, max_cols : int
+        Largest output shape.
+
+    Returns
+    -------
+    (ceil(H / fr), ceil(W / fc)) float32 array, with ``(fr, fc) = block_factors((H, W), ...)``;
+    edge blocks that are cut short average what they hold.
+
+    >>> decimate(np.arange(16.0).reshape(4, 4), 2, 2).tolist()
+    [[2.5, 4.5], [10.5, 12.5]]
+    """
+    z = np.asarray(values, dtype=np.float32)
+    if z.ndim != 2:
+        raise ValueError(f"values must be a 2D array, got shape {z.shape}")
+    fr, fc = block_factors(z.shape, max_rows, max_cols)
+    if fr == 1 and fc == 1:
+        return z.copy()
+    h, w = z.shape
+    hp, wp = math.ceil(h / fr) * fr, math.ceil(w / fc) * fc
+    padded = np.full((hp, wp), np.nan, dtype=np.float32)
+    padded[:h, :w] = z
+    blocks = padded.reshape(hp // fr, fr, wp // fc, fc)
+    finite = np.isfinite(blocks)
+    count = finite.sum(axis=(1, 3))
+    total = np.where(finite, blocks, 0.0).sum(axis=(1, 3), dtype=np.float64)
+    out = np.full(count.shape, np.nan, dtype=np.float32)
+    np.divide(total, count, out=out, where=count > 0, casting="unsafe")
+    return out
+
+
+def decimate_axis(coords: npt.ArrayLike, factor: int) -> np.ndarray:
+    """Means of consecutive groups of ``factor`` coordinates (the last group may be shorter)."""
+    c = np.asarray(coords, dtype=np.float64)
+    n = math.ceil(len(c) / factor)
+    padded = np.full(n * factor, np.nan)
+    padded[: len(c)] = c
+    groups = padded.reshape(n, factor)
+    return np.array([g[np.isfinite(g)].mean() for g in groups])
+
+
+def height_map_figure(z_mm: npt.ArrayLike, x_mm: npt.ArrayLike, y_mm: npt.ArrayLike, title: str = "") -> go.Figure:
+    """Heatmap of a (decimated) height map with a colour bar in mm.
+
+    Parameters
+    ----------
+    z_mm : (h, w) float array, mm, NaN where invalid (shown blank)
+    x_mm : (w,) float array, X of each column, mm
+    y_mm : (h,) float array, Y of each row, mm
+    """
+    z = np.asarray(z_mm, dtype=np.float32)
+    title = title or "Height map"
+    if not np.isfinite(z).any():
+        return empty_figure(title, "No pixel was measured.")
+    fig = go.Figure(
+        data=[
+            go.Heatmap(
+                z=z,
+                x=np.asarray(x_mm, dtype=np.float32),
+                y=np.asarray(y_mm, dtype=np.float32),
+                colorscale="Viridis",
+                colorbar={"title": {"text": "height (mm)", "side": "right"}},
+                hovertemplate="X = %{x:.1f} mm<br>Y = %{y:.1f} mm<br>z = %{z:.3f} mm<extra></extra>",
+            )
+        ],
+        layout=base_layout(title, "X (mm)", "Y (mm)", height=480),
+    )
+    fig.update_yaxes(scaleanchor="x", scaleratio=1, autorange="reversed")
+    return fig
+
+
+def profile_figure(
+    x_mm: npt.ArrayLike, z_row_mm: npt.ArrayLike, row: int, gray_row_mm: npt.ArrayLike | None = None
+) -> go.Figure:
+    """Height along one image row (full resolution), GCPS; the gray-code-only profile if given."""
+    fig = go.Figure(layout=base_layout(f"Profile along row {row}", "X (mm)", "height (mm)"))
+    fig.add_trace(
+        go.Scattergl(
+            x=np.asarray(x_mm, dtype=np.float32),
+            y=np.asarray(z_row_mm, dtype=np.float32),
+            mode="lines",
+            name="GCPS",
+            line={"color": PALETTE[0], "width": 1.5},
+        )
+    )
+    if gray_row_mm is not None:
+        fig.add_trace(
+            go.Scattergl(
+                x=np.asarray(x_mm, dtype=np.float32),
+                y=np.asarray(gray_row_mm, dtype=np.float32),
+                mode="lines",
+                name="gray code only",
+                line={"color": PALETTE[1], "width": 1},
+            )
+        )
+    return fig
+
+
+def gray_vs_gcps_figure(
+    x_mm: npt.ArrayLike, z_row_mm: npt.ArrayLike, gray_row_mm: npt.ArrayLike, row: int
+) -> go.Figure:
+    """Gray-code-only minus GCPS height along one row, in um: the staircase the phase shift removes."""
+    x = np.asarray(x_mm, dtype=np.float32)
+    diff = (np.asarray(gray_row_mm, dtype=np.float64) - np.asarray(z_row_mm, dtype=np.float64)) * UM
+    fig = go.Figure(layout=base_layout(f"Gray code only minus GCPS, row {row}", "X (mm)", "difference (um)"))
+    fig.add_trace(
+        go.Scattergl(x=x, y=diff.astype(np.float32), mode="lines", name="gray only - GCPS", line={"color": PALETTE[4]})
+    )
+    return fig
+
+
+def surface_figure(xyz_mm: npt.ArrayLike, title: str = "3D view") -> go.Figure:
+    """3D surface of (decimated) points ``(h, w, 3)`` = X_H, Y_H, z in mm; NaN leaves holes."""
+    xyz = np.asarray(xyz_mm, dtype=np.float32)
+    if xyz.ndim != 3 or xyz.shape[2] != 3:
+        raise ValueError(f"xyz_mm must have shape (h, w, 3), got {xyz.shape}")
+    if not np.isfinite(xyz[..., 2]).any():
+        return empty_figure(title, "No pixel was measured.")
+    z = xyz[..., 2]
+    span = [float(np.nanmax(xyz[..., i]) - np.nanmin(xyz[..., i])) or 1.0 for i in range(3)]
+    biggest = max(span[0], span[1])
+    layout = base_layout(title, "", "", height=520, margin={"l": 0, "r": 0, "t": 50, "b": 0})
+    layout["scene"] = {
+        "xaxis": {"title": {"text": "X (mm)"}},
+        "yaxis": {"title": {"text": "Y (mm)"}},
+        "zaxis": {"title": {"text": "z (mm)"}},
+        "aspectmode": "manual",
+        "aspectratio": {"x": span[0] / biggest, "y": span[1] / biggest, "z": max(0.15, min(1.0, span[2] / biggest))},
+    }
+    fig = go.Figure(
+        data=[
+            go.Surface(
+                x=xyz[..., 0],
+                y=xyz[..., 1],
+                z=z,
+                surfacecolor=z,
+                colorscale="Viridis",
+                colorbar={"title": {"text": "z (mm)"}},
+                hovertemplate="X = %{x:.1f} mm<br>Y = %{y:.1f} mm<br>z = %{z:.3f} mm<extra></extra>",
+            )
+        ],
+        layout=layout,
+    )
+    return fig
+
+
+def measurement_figures(
+    z_mm: npt.ArrayLike,
+    xyz_mm: npt.ArrayLike,
+    row: int,
+    *,
+    gray_z_mm: npt.ArrayLike | None = None,
+    x_mm: npt.ArrayLike | None = None,
+    y_mm: npt.ArrayLike | None = None,
+) -> dict[str, go.Figure]:
+    """Every figure of a measurement, from full-resolution data (decimated here).
+
+    Parameters
+    ----------
+    z_mm : (H, W) float array
+        GCPS height map, mm, NaN where invalid.
+    xyz_mm : (H, W, 3) float array
+        ``points_from_heights(rig, z_mm)``: X_H, Y_H, z of each pixel, mm.
+    row : int
+        Image row of the profiles, in [0, H).
+    gray_z_mm : (H, W) float array, optional
+        Gray-code-only height map, mm.
+    x_mm, y_mm : (W,), (H,) float arrays, optional
+        Coordinates of columns and rows on the reference (default: pixel indices).
+
+    Returns
+    -------
+    dict of str -> Figure
+        ``height_map``, ``profile``, ``gray_vs_gcps`` (only with ``gray_z_mm``), ``surface``.
+    """
+    z = np.asarray(z_mm, dtype=np.float32)
+    if z.ndim != 2:
+        raise ValueError(f"z_mm must be a 2D height map, got shape {z.shape}")
+    h, w = z.shape
+    if not 0 <= row < h:
+        raise ValueError(f"row must lie in [0, {h}), got {row}")
+    x = np.arange(w, dtype=np.float64) if x_mm is None else np.asarray(x_mm, dtype=np.float64)
+    y = np.arange(h, dtype=np.float64) if y_mm is None else np.asarray(y_mm, dtype=np.float64)
+    fr, fc = block_factors(z.shape)
+    small = decimate(z)
+    figures = {
+        "height_map": height_map_figure(
+            small,
+            decimate_axis(x, fc),
+            decimate_axis(y, fr),
+            f"Height map ({w} x {h} px, shown as {small.shape[1]} x {small.shape[0]})",
+        )
+    }
+    gray = None if gray_z_mm is None else np.asarray(gray_z_mm, dtype=np.float32)
+    figures["profile"] = profile_figure(x, z[row], row, None if gray is None else gray[row])
+    if gray is not None:
+        figures["gray_vs_gcps"] = gray_vs_gcps_figure(x, z[row], gray[row], row)
+    xyz = np.asarray(xyz_mm)
+    xyz_small = np.stack([decimate(xyz[..., i], MAX_ROWS_3D, MAX_COLS_3D) for i in range(3)], axis=-1)
+    figures["surface"] = surface_figure(xyz_small, f"3D view (shown as {xyz_small.shape[1]} x {xyz_small.shape[0]})")
+    return figures

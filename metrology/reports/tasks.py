@@ -1,0 +1,32 @@
+"""Celery tasks of the reports: what beat runs from a report schedule (a django-celery-beat PeriodicTask).
+
+The task only requests the report (a queued job, at most one pending per rig); the work itself is
+the generic ``workers.tasks.run_job`` with its retries, heartbeats and progress on the Job record.
+"""
+
+from __future__ import annotations
+
+from celery import shared_task
+
+from workers.tasks import TRANSIENT_ERRORS
+
+
+@shared_task(
+    name="metrology.reports.tasks.scheduled_characterization_report",
+    acks_late=True,
+    reject_on_worker_lost=True,
+    autoretry_for=TRANSIENT_ERRORS,
+    retry_backoff=5,
+    retry_backoff_max=120,
+    retry_jitter=True,
+    max_retries=5,
+    soft_time_limit=60,
+    time_limit=90,
+    ignore_result=True,
+)
+def scheduled_characterization_report(rig_id: int, source: str = "auto", options: dict | None = None) -> int | None:
+    """Request a characterization report of rig ``rig_id``; returns its id, or None when one is pending."""
+    from metrology.reports.services import request_scheduled_report
+
+    report = request_scheduled_report(rig_id=int(rig_id), source=source, options=options or {})
+    return report.pk if report else None

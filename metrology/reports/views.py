@@ -1,0 +1,74 @@
+"""Report pages: the user's reports, one report (with its HTML embedded), the HTML itself and its download.
+
+Thin: parse, call a selector or service, answer. Another user's report is a 404.
+"""
+
+from __future__ import annotations
+
+from django.contrib import messages
+from django.contrib.auth.decorators import login_required
+from django.http import FileResponse, Http404, HttpRequest, HttpResponse
+from django.shortcuts import redirect, render
+from django.views.decorators.clickjacking import xframe_options_sameorigin
+from django.views.decorators.http import require_GET, require_POST
+
+from metrology.api_errors import BadInput
+from metrology.reports import selectors, services
+from metrology.rigs.selectors import get_rig, rigs_for
+
+
+@login_required
+@require_GET
+def report_list(request: HttpRequest) -> HttpResponse:
+    reports = list(selectors.reports_for(request.user)[:200])
+    context = {
+        "reports": reports,
+        "schedules": selectors.report_schedules(request.user),
+        "rigs": list(rigs_for(request.user)),
+    }
+    return render(request, "reports/list.html", context)
+
+
+@login_required
+@require_GET
+def report_detail(request: HttpRequest, report_id: int) -> HttpResponse:
+    report = selectors.get_report(request.user, report_id)
+    return render(request, "reports/detail.html", {"report": report, "job": report.job})
+
+
+def _html_file(request: HttpRequest, report_id: int):
+    report = selectors.get_report(request.user, report_id)
+    if not report.html:
+        raise Http404(f"Report {report_id} has no HTML yet (its job is {report.job.status}).")
+    return report, report.html.open("rb")
+
+
+@login_required
+@require_GET
+@xframe_options_sameorigin
+def report_html(request: HttpRequest, report_id: int) -> FileResponse:
+    """The report itself, shown in the browser (and embedded in the detail page)."""
+    _report, handle = _html_file(request, report_id)
+    return FileResponse(handle, content_type="text/html; charset=utf-8")
+
+
+@login_required
+@require_GET
+def report_download(request: HttpRequest, report_id: int) -> FileResponse:
+    """The report as a self-contained HTML file to keep or mail."""
+    report, handle = _html_file(request, report_id)
+    filename = f"gcps-characterization-report-{report.pk}-rig-{report.rig_id}.html"
+    return FileResponse(handle, as_attachment=True, filename=filename, content_type="text/html; charset=utf-8")
+
+
+@login_required
+@require_POST
+def report_run(request: HttpRequest) -> HttpResponse:
+    """Request a report of one of the user's rigs now (the job runs on a worker, or in-process)."""
+    rig = get_rig(request.user, request.POST.get("rig", ""))
+    try:
+        report = services.request_report(rig=rig, owner=request.user, source=request.POST.get("source", "auto"))
+    except BadInput as exc:
+        messages.error(request, str(exc.detail))
+        return redirect("reports:list")
+    return redirect("reports:detail", report_id=report.pk)

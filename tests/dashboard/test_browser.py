@@ -1,0 +1,199 @@
+"""End to end in headless Chromium (Playwright driving Debian's /usr/bin/chromium).
+
+The live server runs in a thread of this process; jobs are picked up by a small in-process
+"worker" thread (one job at a time, like a Celery worker with concurrency 1) so that the pages
+really show a progress bar moving from queued to done. Screenshots go to artifacts/screenshots/.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import threading
+from pathlib import Path
+
+import pytest
+
+from tests.dashboard.conftest import PASSWORD
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+SCREENSHOTS = Path(__file__).resolve().parents[2] / "artifacts" / "screenshots"
+TIMEOUT_MS = 120_000
+
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.slow,
+    pytest.mark.skipif(not os.path.exists(CHROMIUM), reason=f"{CHROMIUM} is not installed"),
+]
+
+
+@pytest.fixture
+def worker(transactional_db, settings, monkeypatch):
+    """Run enqueued jobs in a background thread that shares the live server's database connection."""
+    from django.db import connections
+
+    import metrology.jobs.services as job_services
+
+    settings.GCPS_JOB_PHASE_PAUSE_SECONDS = 0.15  # slow enough for the bar to be seen moving
+    jobs: queue.Queue[int | None] = queue.Queue()
+    shared = connections["default"]
+    shared.inc_thread_sharing()
+    seen: list[tuple[int, str]] = []
+
+    def loop() -> None:
+        connections["default"] = shared  # the in-memory test database, as the live server does
+        while (job_id := jobs.get()) is not None:
+            seen.append((job_id, job_services.execute_job(job_id)))
+
+    thread = threading.Thread(target=loop, daemon=True)
+    thread.start()
+    monkeypatch.setattr(job_services, "_send", jobs.put)
+    yield seen
+    jobs.put(None)
+    thread.join(timeout=60)
+    shared.dec_thread_sharing()
+
+
+@pytest.fixture
+def browser_page():
+    sync_api = pytest.importorskip("playwright.sync_api")
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        context = browser.new_context(viewport={"width": 1280, "height": 900}, accept_downloads=True)
+        page = context.new_page()
+        page.set_default_timeout(TIMEOUT_MS)
+        errors: list[str] = []
+        page.on("pageerror", lambda exc: errors.append(str(exc)))
+        page.js_errors = errors
+        yield page
+        context.close()
+        browser.close()
+
+
+def shot(page, name: str) -> None:
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=str(SCREENSHOTS / f"{name}.png"), full_page=True)
+
+
+def simulate(page, rig_url: str, scene: str, z: str = "", noise: str = "none", seed: str = "1") -> None:
+    page.goto(f"{rig_url}captures/")
+    page.select_option("#id_simulate-scene", scene)
+    page.fill("#id_simulate-z_mm", z)
+    page.select_option("#id_simulate-noise", noise)
+    page.fill("#id_simulate-seed", seed)
+    page.click("form:has(input[value=simulate]) button[type=submit]")
+    page.wait_for_url("**/jobs/*/**")  # the progress page
+    page.wait_for_url(f"{rig_url}captures/")  # ...which moves on once the job is done
+
+
+def test_measure_and_characterize_in_the_browser(live_server, alice, worker, browser_page, tmp_path):
+    page = browser_page
+    base = live_server.url
+
+    # log in
+    page.goto(f"{base}/")
+    assert "/login/" in page.url
+    page.fill("#id_username", "alice")
+    page.fill("#id_password", PASSWORD)
+    page.click("button[type=submit]")
+    page.wait_for_url(f"{base}/")
+    assert page.locator(".empty").first.is_visible()
+    shot(page, "01-home-empty")
+
+    # create a rig
+    page.click("nav >> text=Rigs")
+    page.fill("#id_name", "browser rig")
+    page.fill("#id_width_px", "320")
+    page.fill("#id_height_px", "240")
+    page.click("text=Create rig")
+    page.wait_for_url("**/rigs/*/")
+    rig_url = page.url
+    assert page.locator("h1").inner_text() == "browser rig"
+    shot(page, "02-rig")
+
+    # simulate a reference and an object; each shows a progress bar that reaches done
+    simulate(page, rig_url, "reference")
+    simulate(page, rig_url, "two_spheres", noise="low", seed="2")
+    assert page.locator("td .badge.stored").count() == 2
+    shot(page, "03-captures")
+
+    # run a measurement and watch the bar reach done
+    page.goto(f"{base}/measurements/new/?rig={rig_url.rstrip('/').split('/')[-1]}")
+    page.select_option("#id_reference", index=1)
+    page.select_option("#id_object", index=1)
+    page.click("text=Run measurement")
+    page.wait_for_url("**/measurements/*/")
+    bar = page.locator(".progress[role=progressbar]")
+    if bar.count():  # not yet done when the page was served
+        page.wait_for_selector(".progress[data-status=running], .progress[data-status=done]")
+        shot(page, "04-measurement-progress")
+    page.wait_for_selector("#fig-height_map .main-svg")  # the page reloaded with the figures
+    assert page.locator("#fig-height_map .heatmaplayer, #fig-height_map image").count() >= 1
+    page.wait_for_selector("#fig-surface canvas")  # the 3D view is drawn with WebGL
+    assert page.locator("#fig-surface .gl-container canvas, #fig-surface canvas").count() >= 1
+    assert page.locator("#fig-profile .main-svg").count() >= 1
+    assert page.locator("#fig-gray_vs_gcps .main-svg").count() >= 1
+    assert page.locator("#fig-height_map .colorbar").count() == 1
+    page.wait_for_timeout(500)
+    shot(page, "05-measurement")
+
+    # row chooser
+    page.fill("#id_row", "60")
+    page.click("text=Show row")
+    page.wait_for_selector("#fig-profile .main-svg")
+    assert "Profile along row 60" in page.locator("#fig-profile").inner_text()
+
+    # download the PLY and parse it
+    with page.expect_download() as info:
+        page.click("a[href$='mesh.ply']")
+    path = tmp_path / "mesh.ply"
+    info.value.save_as(path)
+    header = path.read_bytes().split(b"end_header", 1)[0].decode("ascii", "replace")
+    assert header.startswith("ply")
+    vertices = int(next(line.split()[-1] for line in header.splitlines() if line.startswith("element vertex")))
+    faces = int(next(line.split()[-1] for line in header.splitlines() if line.startswith("element face")))
+    assert vertices > 1000 and faces > 1000
+    import open3d as o3d
+
+    mesh = o3d.io.read_triangle_mesh(str(path))
+    assert len(mesh.vertices) == vertices and len(mesh.triangles) == faces
+
+    # a stage series (0, 4, 8 mm, 2 repeats) then a characterization
+    page.goto(f"{rig_url}captures/")
+    page.fill("#id_stage-z_from_mm", "0")
+    page.fill("#id_stage-z_to_mm", "8")
+    page.fill("#id_stage-z_step_mm", "4")
+    page.fill("#id_stage-repeats", "2")
+    page.select_option("#id_stage-noise", "low")
+    page.click("text=Simulate series")
+    page.wait_for_url("**/characterizations/new/**")
+    assert "6 stage captures" in page.locator("#id_session").inner_text()
+    page.select_option("#id_reference", index=1)
+    page.fill("#id_n_points", "9")
+    page.click("text=Run characterization")
+    page.wait_for_url("**/characterizations/*/")
+    page.wait_for_selector("#fig-in_out .main-svg")
+    page.wait_for_selector("#fig-error_vs_z .main-svg")
+    assert "Fig. 12" in page.content() and "Fig. 13" in page.content()
+    assert page.locator("#fig-in_out .scatterlayer .trace").count() >= 2
+    assert "% of full scale" in page.locator("table").first.inner_text()
+    page.wait_for_timeout(500)
+    shot(page, "06-characterization")
+
+    # the sensitivity page
+    page.goto(f"{rig_url}sensitivity/")
+    page.wait_for_selector("#fig-sensitivity_alpha .main-svg")
+    shot(page, "07-sensitivity")
+
+    assert all(status == "done" for _job, status in worker), worker
+    assert not page.js_errors, page.js_errors
