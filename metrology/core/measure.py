@@ -205,7 +205,7 @@ def measure_height(
     gray_only : bool
         Also compute the gray-code-only height map (the paper's comparison).
     threads : int, optional
-        Threads over row tiles; default: CPU count.
+        Threads over row tiles; default :data:`~metrology.core.decode.DEFAULT_THREADS`.
 
     Returns
     -------
