@@ -130,9 +130,9 @@ def _smooth_and_extend(laplacian: np.ndarray) -> np.ndarray:
     edges whose own 5x5 window was incomplete.
     """
     defined = np.isfinite(laplacian)
-    weights = cv2.GaussianBlur(defined.view(np.uint8).astype(np.float32), (0, 0), _SMOOTHING_SIGMA_PX)
+    weights: np.ndarray = cv2.GaussianBlur(defined.view(np.uint8).astype(np.float32), (0, 0), _SMOOTHING_SIGMA_PX)
     np.nan_to_num(laplacian, copy=False, nan=0.0)
-    values = cv2.GaussianBlur(laplacian, (0, 0), _SMOOTHING_SIGMA_PX)
+    values: np.ndarray = cv2.GaussianBlur(laplacian, (0, 0), _SMOOTHING_SIGMA_PX)
     np.maximum(weights, np.float32(_MIN_WEIGHT), out=weights)
     values /= weights
     return values
