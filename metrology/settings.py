@@ -183,6 +183,10 @@ else:
             "ENGINE": "django.db.backends.sqlite3",
             "NAME": VAR_DIR / "gcps.sqlite3",
             "OPTIONS": {"timeout": 20},
+            # tests get a file, not Django's shared in-memory database: the live server, the
+            # test and in-process job threads then each have their own connection, and
+            # concurrent writers wait (timeout) instead of failing with "table is locked"
+            "TEST": {"NAME": VAR_DIR / f"test-{os.getpid()}.sqlite3"},
         }
     }
 DEFAULT_AUTO_FIELD = "django.db.models.BigAutoField"

@@ -239,7 +239,8 @@ def execute_job(job_id: int, *, task_id: str = "", transient: tuple[type[BaseExc
     Exceptions listed in ``transient`` release the job and propagate (the task retries them);
     every other exception fails the job with a message.
     """
-    close_old_connections()
+    if not connection.in_atomic_block:  # a worker's stale connection; never one a caller is using
+        close_old_connections()
     run = claim_job(job_id, task_id)
     if run is None:
         return "skipped"
