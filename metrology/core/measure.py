@@ -24,6 +24,7 @@ from metrology.core.decode import (
     _set_nan,
     decode_stack,
     default_min_modulation,
+    smooth_fringes,
     validate_stack,
 )
 from metrology.core.patterns import N_GRAY_BITS
@@ -353,8 +354,6 @@ def _fused_height(
     rig: Rig, x_ref_mm: np.ndarray, stack: np.ndarray, options: DecodeOptions, threads: int | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Decode the object and triangulate against ``x_ref_mm`` tile by tile (the fast path)."""
-    from metrology.core.decode import smooth_fringes
-
     _, height, width = stack.shape
     phase = stack[N_GRAY_BITS:]
     if options.smoothing_px > 0:
