@@ -387,6 +387,35 @@ def cmd_characterize(args: argparse.Namespace) -> dict[str, Any]:
     return {"out": args.out, "positions": len(series.positions), **overall}
 
 
+def cmd_acceptance(args: argparse.Namespace) -> dict[str, Any]:
+    from metrology.core import acceptance
+    from metrology.core.measure import measure_height
+
+    needs = {"probing": "diameter", "spacing": "spacing"}
+    if args.test in needs and getattr(args, needs[args.test]) is None:
+        raise BadInputError(f"--test {args.test} needs --{needs[args.test]}")
+    _check_parent(args.out, "--out")
+    rig = _load_rig(args.rig)
+    reference = _load_stack(args.reference, rig, "reference")
+    obj = _load_stack(args.object, rig, "object")
+    z_mm = measure_height(rig, reference, obj, _decode_options(args), gray_only=False).z_mm
+    if args.test == "flatness":
+        result = acceptance.flatness_error(acceptance.points_from_height_map(rig, z_mm))
+    elif args.test == "probing":
+        (sphere,) = acceptance.segment_objects(z_mm, 1, args.min_height)
+        result = acceptance.probing_error(acceptance.points_from_height_map(rig, z_mm, sphere), args.diameter)
+    else:
+        first, second = acceptance.segment_objects(z_mm, 2, args.min_height)
+        result = acceptance.sphere_spacing_error(
+            acceptance.points_from_height_map(rig, z_mm, first),
+            acceptance.points_from_height_map(rig, z_mm, second),
+            args.spacing,
+        )
+    report = {"test": args.test, "standard": "VDI/VDE 2634 part 2", "rig": rig.to_dict(), **result}
+    _write_json(report, args.out)
+    return {"out": args.out, "test": args.test}
+
+
 def cmd_sensitivity(args: argparse.Namespace) -> dict[str, Any]:
     from metrology.core.sensitivity import sensitivity_curves
 
@@ -491,6 +520,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rows", help="rows of the test points, comma-separated (default: middle row)")
     _add_decode_options(p)
     p.set_defaults(func=cmd_characterize)
+
+    p = sub.add_parser("acceptance", help="VDI/VDE 2634-2 quantities from a capture of a plane, sphere or ball bar")
+    p.add_argument("--rig", required=True)
+    p.add_argument("--reference", required=True)
+    p.add_argument("--object", required=True, help="capture of the plane, the sphere or the two spheres")
+    p.add_argument(
+        "--test",
+        required=True,
+        choices=["flatness", "probing", "spacing"],
+        help="flatness of a plane; probing error (form, size) of a sphere; spacing of two spheres",
+    )
+    p.add_argument("--diameter", type=float, help="probing: calibrated sphere diameter, mm")
+    p.add_argument("--spacing", type=float, help="spacing: calibrated centre distance, mm")
+    p.add_argument(
+        "--min-height",
+        type=float,
+        default=1.0,
+        help="probing/spacing: pixels this high above R belong to the spheres, mm (default 1)",
+    )
+    p.add_argument("--out", required=True, help="result JSON (with and without the 0.3 %% outlier rejection)")
+    _add_decode_options(p)
+    p.set_defaults(func=cmd_acceptance)
 
     p = sub.add_parser("sensitivity", help="systematic-error curves of Eqs. 22-25 and Fig. 6")
     p.add_argument("--rig", required=True)

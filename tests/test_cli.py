@@ -292,3 +292,97 @@ def test_installed_command_runs(captures, tmp_path):
         text=True,
     )
     assert result.returncode == 2 and result.stderr.startswith("gcps: error:")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("scene", "params", "test", "extra", "key", "limit_mm"),
+    [
+        ("plane", ["--z-mm", "30"], "flatness", [], "flatness_rejected_mm", 0.05),
+        ("sphere", ["--param", "radius_mm=50"], "probing", ["--diameter", "100"], "size_error_mm", 0.002),
+        (
+            "two_spheres",
+            ["--param", "radius_mm=40", "--param", "spacing_mm=250"],
+            "spacing",
+            ["--spacing", "250"],
+            "spacing_error_mm",
+            0.002,
+        ),
+    ],
+)
+def test_acceptance_from_a_capture(captures, tmp_path, scene, params, test, extra, key, limit_mm):
+    """VDI/VDE 2634-2 quantities from noise-free captures: the fits recover the artefacts."""
+    rig = str(captures / "rig.json")
+    assert (
+        run(
+            "simulate",
+            "--rig",
+            rig,
+            "--scene",
+            scene,
+            *params,
+            "--preset",
+            "noise-free",
+            "--out",
+            str(tmp_path / "obj"),
+        )
+        == 0
+    )
+    out = tmp_path / "a.json"
+    assert (
+        run(
+            "acceptance",
+            "--rig",
+            rig,
+            "--reference",
+            str(captures / "ref"),
+            "--object",
+            str(tmp_path / "obj"),
+            "--test",
+            test,
+            *extra,
+            "--out",
+            str(out),
+        )
+        == 0
+    )
+    report = json.loads(out.read_text())
+    assert report["test"] == test and abs(report[key]) < limit_mm, report
+
+
+def test_acceptance_needs_its_calibrated_value(captures, tmp_path, capsys):
+    rig = str(captures / "rig.json")
+    code = main(
+        [
+            "acceptance",
+            "--rig",
+            rig,
+            "--reference",
+            str(captures / "ref"),
+            "--object",
+            str(captures / "ref"),
+            "--test",
+            "probing",
+            "--out",
+            str(tmp_path / "a.json"),
+        ]
+    )
+    assert code == 2 and "--diameter" in capsys.readouterr().err
+    code = main(
+        [
+            "acceptance",
+            "--rig",
+            rig,
+            "--reference",
+            str(captures / "ref"),
+            "--object",
+            str(captures / "ref"),
+            "--test",
+            "probing",
+            "--diameter",
+            "100",
+            "--out",
+            str(tmp_path / "a.json"),
+        ]
+    )
+    assert code == 2 and "found 0 region" in capsys.readouterr().err and not (tmp_path / "a.json").exists()

@@ -33,6 +33,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 from scipy import optimize
@@ -282,3 +283,41 @@ def sphere_spacing_error(
         "diameter_b_mm": 2 * fb.radius,
         "fit": "least-squares spheres (algebraic start, geometric refinement); distance of centres",
     }
+
+
+def segment_objects(z_mm: npt.ArrayLike, count: int, min_height_mm: float = 1.0) -> list[np.ndarray]:
+    """The ``count`` largest regions standing above the reference plane (e.g. the spheres).
+
+    Parameters
+    ----------
+    z_mm : (H, W) float array
+        Height map, mm, NaN where not measured.
+    count : int
+        How many regions to return, largest first, >= 1.
+    min_height_mm : float
+        Pixels higher than this above R belong to an object, mm.
+
+    Returns
+    -------
+    masks : list of ``count`` (H, W) bool arrays, largest region first.
+
+    Raises
+    ------
+    ValueError
+        If fewer than ``count`` regions of at least 100 pixels stand above ``min_height_mm``.
+    """
+    if count < 1:
+        raise ValueError(f"count must be >= 1, got {count}")
+    z = np.asarray(z_mm, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        above = (z > min_height_mm).astype(np.uint8)
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(above, connectivity=4)
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    order = np.argsort(areas)[::-1]
+    big = [int(i) + 1 for i in order if areas[i] >= 100]
+    if len(big) < count:
+        raise ValueError(
+            f"found {len(big)} region(s) of 100 pixels or more higher than {min_height_mm} mm above the "
+            f"reference plane; {count} needed"
+        )
+    return [labels == label for label in big[:count]]
