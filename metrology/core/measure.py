@@ -365,7 +365,10 @@ def _fused_height(
     L, t, p, q, d = (np.float32(v) for v in (m.L_mm, m.t, m.p, m.q, rig.d_mm))
     codes = np.empty((height, width), np.float32)
     z_mm = np.empty((height, width), np.float32)
-    visibility = np.empty((height, width), np.float32) if options.min_visibility_ratio > 0 else None
+    needs_visibility = (
+        options.edge_band_px > 0 and options.min_visibility_ratio > 0
+    )  # read by the mixed-pixel pass only
+    visibility = np.empty((height, width), np.float32) if needs_visibility else None
 
     def run(rows: slice) -> None:
         l = codes[rows]
