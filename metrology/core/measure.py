@@ -227,30 +227,35 @@ def measure_height(
     _check_shape(rig, stack.shape[1:], "object")
 
     start = time.perf_counter()
-    z_mm, obj_codes, visibility = _fused_height(rig, reference.x_mm, stack, options, threads)
+    correct_blur = reference.blur_variance_px2 > 0  # then heights come from the corrected codes
+    fused = _fused_height(
+        rig, reference.x_mm, stack, options, threads, triangulate=not correct_blur, gray_words=gray_only
+    )
+    z_mm, obj_codes = fused.z_mm, fused.codes
     if options.edge_band_px > 0:
         drop = unreliable_mask(
             obj_codes,
             options.discontinuity_codes,
             options.edge_band_px,
-            visibility,
+            fused.visibility,
             options.min_visibility_ratio,
             threads,
         )
         drop |= reference.unreliable
         keep = ~drop
-        _set_nan(z_mm, keep)
         _set_nan(obj_codes, keep)
-    if reference.blur_variance_px2 > 0:
+        if z_mm is not None:
+            _set_nan(z_mm, keep)
+    if correct_blur:
         correct_blur_bias(obj_codes, reference.blur_variance_px2)
         z_mm = height_from_abscissae(rig, reference.x_mm, abscissa_from_codes(rig, obj_codes))
+    assert z_mm is not None
     timings["object_decode_triangulate_s"] = time.perf_counter() - start
 
     gray_z = None
-    if gray_only:
+    if fused.gray_codes is not None:
         start = time.perf_counter()
-        obj_decoded = _decode(rig, stack, options)
-        gray_z = height_from_codes(rig, reference.decoded.gray_codes, obj_decoded.gray_codes)
+        gray_z = height_from_codes(rig, reference.decoded.gray_codes, fused.gray_codes)
         timings["gray_only_s"] = time.perf_counter() - start
     return HeightResult(z_mm=z_mm, gray_z_mm=gray_z, obj_codes=obj_codes, timings_s=timings)
 
@@ -350,10 +355,26 @@ def _check_shape(rig: Rig, shape: tuple[int, ...], what: str) -> None:
         raise ValueError(f"{what} images are {shape[1]}x{shape[0]} px but the rig is {rig.width_px}x{rig.height_px} px")
 
 
+@dataclass(frozen=True)
+class _FusedPass:
+    codes: np.ndarray
+    z_mm: np.ndarray | None
+    visibility: np.ndarray | None
+    gray_codes: np.ndarray | None
+
+
 def _fused_height(
-    rig: Rig, x_ref_mm: np.ndarray, stack: np.ndarray, options: DecodeOptions, threads: int | None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Decode the object and triangulate against ``x_ref_mm`` tile by tile (the fast path)."""
+    rig: Rig,
+    x_ref_mm: np.ndarray,
+    stack: np.ndarray,
+    options: DecodeOptions,
+    threads: int | None,
+    *,
+    triangulate: bool,
+    gray_words: bool,
+) -> _FusedPass:
+    """Decode the object tile by tile (the fast path), triangulating against ``x_ref_mm`` in the
+    same pass when ``triangulate``, and keeping the gray-code-only codes when ``gray_words``."""
     _, height, width = stack.shape
     phase = stack[N_GRAY_BITS:]
     if options.smoothing_px > 0:
@@ -364,10 +385,10 @@ def _fused_height(
     m = rig.mobius
     L, t, p, q, d = (np.float32(v) for v in (m.L_mm, m.t, m.p, m.q, rig.d_mm))
     codes = np.empty((height, width), np.float32)
-    z_mm = np.empty((height, width), np.float32)
-    needs_visibility = (
-        options.edge_band_px > 0 and options.min_visibility_ratio > 0
-    )  # read by the mixed-pixel pass only
+    z_mm = np.empty((height, width), np.float32) if triangulate else None
+    gray_codes = np.empty((height, width), np.float32) if gray_words else None
+    # read by the mixed-pixel pass only
+    needs_visibility = options.edge_band_px > 0 and options.min_visibility_ratio > 0
     visibility = np.empty((height, width), np.float32) if needs_visibility else None
 
     def run(rows: slice) -> None:
@@ -380,8 +401,11 @@ def _fused_height(
             options.consistency_codes,
             options.field_margin_codes,
             l,
+            gray_out=None if gray_codes is None else gray_codes[rows],
             visibility_out=None if visibility is None else visibility[rows],
         )
+        if z_mm is None:
+            return
         # Eq. 14 as a Mobius map, then Eqs. 16-17: z = L D / (d + D)
         num = l * p
         num += t
@@ -395,4 +419,4 @@ def _fused_height(
         np.divide(num, den, out=z_mm[rows])  # NaN codes give NaN heights
 
     _run_tiled(run, height, width, threads)
-    return z_mm, codes, visibility
+    return _FusedPass(codes=codes, z_mm=z_mm, visibility=visibility, gray_codes=gray_codes)
