@@ -351,38 +351,11 @@ def test_acceptance_from_a_capture(captures, tmp_path, scene, params, test, extr
 
 
 def test_acceptance_needs_its_calibrated_value(captures, tmp_path, capsys):
-    rig = str(captures / "rig.json")
-    code = main(
-        [
-            "acceptance",
-            "--rig",
-            rig,
-            "--reference",
-            str(captures / "ref"),
-            "--object",
-            str(captures / "ref"),
-            "--test",
-            "probing",
-            "--out",
-            str(tmp_path / "a.json"),
-        ]
-    )
-    assert code == 2 and "--diameter" in capsys.readouterr().err
-    code = main(
-        [
-            "acceptance",
-            "--rig",
-            rig,
-            "--reference",
-            str(captures / "ref"),
-            "--object",
-            str(captures / "ref"),
-            "--test",
-            "probing",
-            "--diameter",
-            "100",
-            "--out",
-            str(tmp_path / "a.json"),
-        ]
-    )
-    assert code == 2 and "found 0 region" in capsys.readouterr().err and not (tmp_path / "a.json").exists()
+    out = tmp_path / "a.json"
+    probing_the_bare_plane = [
+        "acceptance", "--rig", str(captures / "rig.json"), "--reference", str(captures / "ref"),
+        "--object", str(captures / "ref"), "--test", "probing", "--out", str(out),
+    ]  # fmt: skip
+    assert main(probing_the_bare_plane) == 2 and "--diameter" in capsys.readouterr().err
+    assert main([*probing_the_bare_plane, "--diameter", "100"]) == 2
+    assert "found 0 region" in capsys.readouterr().err and not out.exists()
