@@ -3,8 +3,8 @@
     .venv/bin/python benchmarks/decode.py            # 1280x1024 and 2048x2048
     .venv/bin/python benchmarks/decode.py --no-opencv --sizes 1280x1024
 
-What is timed (medians over ``--repeats`` interleaved runs, so a noisy shared
-machine affects all rows alike):
+What is timed (medians over ``--repeats`` interleaved runs in shuffled order, so a
+noisy shared machine affects all rows alike, each after flushing the caches):
 
 * ``decode + triangulate vs kept reference``: :func:`measure_height` of an 8-bit
   object stack against a :class:`Reference` decoded once (the common case: one
@@ -19,8 +19,14 @@ machine affects all rows alike):
   decoders in their own environment (``benchmarks/opencv_env.sh``), timed by
   ``benchmarks/opencv_baseline.py`` on the same frame size; per camera frame.
 
-Peak extra memory: ``tracemalloc`` peak of the object measurement, inputs and
-the kept reference excluded, in bytes per pixel.
+Peak extra memory: ``tracemalloc`` peak of the object measurement (full pipeline),
+inputs and the kept reference excluded, plus the per-thread scratch arrays the
+tiles reuse, in bytes per pixel.
+
+glibc is asked to keep freed memory for reuse (:mod:`metrology.core.allocation`),
+as the ``gcps`` command and the Celery workers do; ``--release-freed-memory``
+measures with its defaults instead, where every fresh frame-sized array is
+page-faulted in again (4 ms per 5 MB on the reference VM).
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import random
 import statistics
 import subprocess
 import sys
@@ -40,9 +47,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from metrology.core.allocation import retain_freed_memory  # noqa: E402
 from metrology.core.measure import DecodeOptions, measure_height, prepare_reference  # noqa: E402
 from metrology.core.patterns import PATTERN_NAMES, pattern_intensity  # noqa: E402
 from metrology.core.rig import Rig  # noqa: E402
+from metrology.core.tiling import scratch_nbytes  # noqa: E402
 from metrology.core.triangulate import codes_from_abscissa  # noqa: E402
 
 
@@ -103,7 +112,10 @@ def run_size(width: int, height: int, repeats: int, with_opencv: bool) -> dict:
         "decode + triangulate vs kept reference": lambda: measure_height(
             rig, bare_reference, obj_stack, bare, gray_only=False
         ),
-        "  same, 2 threads": lambda: measure_height(rig, bare_reference, obj_stack, bare, gray_only=False, threads=2),
+        "  same, 1 thread": lambda: measure_height(rig, bare_reference, obj_stack, bare, gray_only=False, threads=1),
+        "decode + triangulate, both stacks decoded": lambda: measure_height(
+            rig, ref_stack, obj_stack, bare, gray_only=False
+        ),
         "full pipeline vs kept reference": lambda: measure_height(rig, reference, obj_stack, options, gray_only=False),
         "full pipeline, both stacks decoded": lambda: measure_height(
             rig, ref_stack, obj_stack, options, gray_only=False
@@ -112,15 +124,24 @@ def run_size(width: int, height: int, repeats: int, with_opencv: bool) -> dict:
     for func in rows.values():
         func()  # warm up
     samples: dict[str, list[float]] = {name: [] for name in rows}
-    for _ in range(repeats):  # interleaved, so background load hits every row alike
-        for name, func in rows.items():
-            samples[name].append(median_time(func, 1))
+    # interleaved in a shuffled order, so background load hits every row alike, and with the
+    # caches flushed before each run (a 64 MB copy), so no row inherits another's warm data
+    rng = random.Random(0)
+    flush_src = np.ones(64 << 20, np.uint8)
+    flush_dst = np.empty_like(flush_src)
+    names = list(rows)
+    for _ in range(repeats):
+        rng.shuffle(names)
+        for name in names:
+            np.copyto(flush_dst, flush_src)
+            samples[name].append(median_time(rows[name], 1))
     seconds = {name: statistics.median(values) for name, values in samples.items()}
 
     tracemalloc.start()
     measure_height(rig, reference, obj_stack, options, gray_only=False)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
+    peak += scratch_nbytes()  # the threads' scratch arrays, allocated in the warm-up, count too
 
     result = {
         "size": f"{width}x{height}",
@@ -156,7 +177,14 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=9)
     parser.add_argument("--no-opencv", action="store_true")
     parser.add_argument("--json", help="write the results here")
+    parser.add_argument(
+        "--release-freed-memory",
+        action="store_true",
+        help="leave glibc's defaults (freed frames go back to the kernel and page-fault when reused)",
+    )
     args = parser.parse_args()
+    if not args.release_freed_memory:
+        print(f"freed memory kept for reuse (metrology.core.allocation): {retain_freed_memory()}")
     results = []
     for size in args.sizes.split(","):
         width, height = (int(v) for v in size.lower().split("x"))

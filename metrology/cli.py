@@ -555,6 +555,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from metrology.core.allocation import retain_freed_memory
+
+    retain_freed_memory()  # frame-sized temporaries are reused instead of page-faulting again
     func: Callable[[argparse.Namespace], dict[str, Any]] = args.func
     try:
         summary = func(args)

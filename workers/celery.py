@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 
 from celery import Celery
-from celery.signals import worker_ready
+from celery.signals import worker_init, worker_ready
 
 os.environ.setdefault("DJANGO_SETTINGS_MODULE", "metrology.settings")
 
@@ -31,3 +31,12 @@ def _sweep_on_start(sender: object = None, **_: object) -> None:
     from workers.tasks import sweep_stale_jobs
 
     sweep_stale_jobs.delay()
+
+
+@worker_init.connect
+def _retain_freed_memory(**_: object) -> None:
+    """Measurements allocate frame-sized arrays again and again: keep freed ones for reuse
+    (set before the pool forks, so every child inherits it)."""
+    from metrology.core.allocation import retain_freed_memory
+
+    retain_freed_memory()

@@ -22,6 +22,10 @@ import numpy.typing as npt
 # Savitzky-Golay (5 points, quadratic): second derivative, and smoothing across it
 _SECOND_DERIVATIVE = (np.array([2, -1, -2, -1, 2], np.float64) / 7).astype(np.float32)
 _SMOOTHING = (np.array([-3, 12, 17, 12, -3], np.float64) / 35).astype(np.float32)
+# d2/dx2 smoothed along y plus d2/dy2 smoothed along x, as one 5x5 kernel (rows are y)
+_LAPLACIAN_5X5 = (np.outer(_SMOOTHING, _SECOND_DERIVATIVE) + np.outer(_SECOND_DERIVATIVE, _SMOOTHING)).astype(
+    np.float32
+)
 _BASELINE_PX = 4  # half-width of the difference that measures the reference's code slope
 _EDGE_PX = 8  # columns left out at each side of the field
 
@@ -48,24 +52,28 @@ def estimate_blur_variance(codes: npt.ArrayLike, visibility: npt.ArrayLike) -> f
         If fewer than 500 valid pixels (on every other row) are available or the frequencies do not vary enough
         to fit (a field narrower than a few fringes).
     """
-    l = np.asarray(codes)
-    v = np.asarray(visibility)
+    l = np.asarray(codes, dtype=np.float32)
+    v = np.asarray(visibility, dtype=np.float32)
     if l.shape != v.shape or l.ndim != 2:
         raise ValueError(f"codes and visibility must be two (H, W) arrays of one shape, got {l.shape}, {v.shape}")
-    l = l[::2].astype(np.float64)  # every other row: plenty of samples, half the work
-    v = v[::2].astype(np.float64)
+    width = l.shape[1]
     b = _BASELINE_PX
-    slope = np.full_like(l, np.nan)
-    slope[:, b:-b] = (l[:, 2 * b :] - l[:, : -2 * b]) / (2 * b)  # codes per pixel
-    k2 = (np.pi / 2 * slope) ** 2
+    if width <= 2 * _EDGE_PX:
+        raise ValueError(f"too few valid reference pixels to estimate the blur (the field is {width} px wide)")
+    # every other row: plenty of samples, half the work; columns _EDGE_PX .. width - _EDGE_PX
+    rows = slice(None, None, 2)
+    centre = slice(_EDGE_PX, width - _EDGE_PX)
+    slope = l[rows, _EDGE_PX + b : width - _EDGE_PX + b] - l[rows, _EDGE_PX - b : width - _EDGE_PX - b]
+    k2 = np.square(slope, out=slope)
+    k2 *= np.float32((np.pi / 2 / (2 * b)) ** 2)  # (pi/2 dl/dx)^2, rad^2 per px^2
     with np.errstate(divide="ignore", invalid="ignore"):
-        log_v = np.log(v)
-    ok = np.isfinite(k2) & np.isfinite(log_v)
-    ok[:, :_EDGE_PX] = ok[:, -_EDGE_PX:] = False
+        log_v = np.log(v[rows, centre])
+    ok = np.isfinite(k2)
+    ok &= np.isfinite(log_v)
     if ok.sum() < 500:
         raise ValueError(f"too few valid reference pixels to estimate the blur ({int(ok.sum())})")
-    x = k2[ok]
-    y = log_v[ok]
+    x = k2[ok].astype(np.float64)
+    y = log_v[ok].astype(np.float64)
     if x.max() - x.min() < 0.01:
         raise ValueError("the reference's fringe frequency varies too little across the field to estimate the blur")
     x -= x.mean()
@@ -86,9 +94,7 @@ def code_laplacian(codes: npt.ArrayLike) -> np.ndarray:
         ``d2l/dx2 + d2l/dy2``; NaN where the 5x5 window holds an invalid pixel.
     """
     l = np.asarray(codes, dtype=np.float32)
-    lxx = cv2.sepFilter2D(l, cv2.CV_32F, _SECOND_DERIVATIVE, _SMOOTHING, borderType=cv2.BORDER_CONSTANT)
-    lyy = cv2.sepFilter2D(l, cv2.CV_32F, _SMOOTHING, _SECOND_DERIVATIVE, borderType=cv2.BORDER_CONSTANT)
-    laplacian = lxx + lyy
+    laplacian: np.ndarray = cv2.filter2D(l, cv2.CV_32F, _LAPLACIAN_5X5, borderType=cv2.BORDER_CONSTANT)
     laplacian[:2] = laplacian[-2:] = np.nan
     laplacian[:, :2] = laplacian[:, -2:] = np.nan
     return laplacian
@@ -130,9 +136,11 @@ def _smooth_and_extend(laplacian: np.ndarray) -> np.ndarray:
     edges whose own 5x5 window was incomplete.
     """
     defined = np.isfinite(laplacian)
-    weights: np.ndarray = cv2.GaussianBlur(defined.view(np.uint8).astype(np.float32), (0, 0), _SMOOTHING_SIGMA_PX)
-    np.nan_to_num(laplacian, copy=False, nan=0.0)
-    values: np.ndarray = cv2.GaussianBlur(laplacian, (0, 0), _SMOOTHING_SIGMA_PX)
+    weights: np.ndarray = np.empty(laplacian.shape, np.float32)
+    np.copyto(weights, defined)
+    weights = cv2.GaussianBlur(weights, (0, 0), _SMOOTHING_SIGMA_PX, dst=weights)
+    cv2.patchNaNs(laplacian, 0.0)
+    values: np.ndarray = cv2.GaussianBlur(laplacian, (0, 0), _SMOOTHING_SIGMA_PX, dst=laplacian)
     np.maximum(weights, np.float32(_MIN_WEIGHT), out=weights)
     values /= weights
     return values

@@ -19,17 +19,17 @@ import numpy.typing as npt
 from metrology.core.blur import correct_blur_bias, estimate_blur_variance
 from metrology.core.decode import (
     DecodedStack,
-    _decode_rows,
-    _run_tiled,
-    _set_nan,
+    decode_rows,
     decode_stack,
     default_min_modulation,
+    set_nan_where_false,
     smooth_fringes,
     validate_stack,
 )
 from metrology.core.patterns import N_GRAY_BITS
 from metrology.core.rig import Rig
-from metrology.core.triangulate import abscissa_from_codes, height_from_abscissae, height_from_codes
+from metrology.core.tiling import run_tiled, thread_scratch
+from metrology.core.triangulate import abscissa_from_codes
 
 
 @dataclass(frozen=True)
@@ -97,6 +97,8 @@ class Reference:
         Codes of the reference plane (REF of Eq. 16).
     x_mm : (H, W) float32 array
         Abscissa on R of each reference code (Eq. 14), mm; NaN where invalid.
+    gray_x_mm : (H, W) float32 array
+        The same for the gray-code-only codes (the comparison heights).
     unreliable : (H, W) bool array
         Valid reference pixels dropped as possibly mixed (:func:`unreliable_mask`).
     blur_variance_px2 : float
@@ -105,6 +107,7 @@ class Reference:
 
     decoded: DecodedStack
     x_mm: np.ndarray
+    gray_x_mm: np.ndarray
     unreliable: np.ndarray
     blur_variance_px2: float = 0.0
 
@@ -173,6 +176,7 @@ def prepare_reference(
     decoded = reference if isinstance(reference, DecodedStack) else _decode(rig, reference, options)
     _check_shape(rig, decoded.codes.shape, "reference")
     x_mm = abscissa_from_codes(rig, decoded.codes).astype(np.float32, copy=False)
+    gray_x_mm = abscissa_from_codes(rig, decoded.gray_codes).astype(np.float32, copy=False)
     unreliable = unreliable_mask(decoded.codes, options.discontinuity_codes, options.edge_band_px)
     blur = options.blur_variance_px2
     if blur is None:
@@ -180,7 +184,7 @@ def prepare_reference(
             blur = estimate_blur_variance(decoded.codes, decoded.visibility)
         except ValueError:
             blur = 0.0  # too small a field to tell: no correction
-    return Reference(decoded=decoded, x_mm=x_mm, unreliable=unreliable, blur_variance_px2=blur)
+    return Reference(decoded=decoded, x_mm=x_mm, gray_x_mm=gray_x_mm, unreliable=unreliable, blur_variance_px2=blur)
 
 
 def measure_height(
@@ -206,7 +210,7 @@ def measure_height(
     gray_only : bool
         Also compute the gray-code-only height map (the paper's comparison).
     threads : int, optional
-        Threads over row tiles; default :data:`~metrology.core.decode.DEFAULT_THREADS`.
+        Threads over row tiles; default :data:`~metrology.core.tiling.DEFAULT_THREADS`.
 
     Returns
     -------
@@ -231,31 +235,34 @@ def measure_height(
     fused = _fused_height(
         rig, reference.x_mm, stack, options, threads, triangulate=not correct_blur, gray_words=gray_only
     )
-    z_mm, obj_codes = fused.z_mm, fused.codes
+    z_mm, obj_codes, visibility, gray_codes = fused.z_mm, fused.codes, fused.visibility, fused.gray_codes
+    del fused  # the visibility map goes once the mixed-pixel filter has read it
     if options.edge_band_px > 0:
         drop = unreliable_mask(
             obj_codes,
             options.discontinuity_codes,
             options.edge_band_px,
-            fused.visibility,
+            visibility,
             options.min_visibility_ratio,
             threads,
         )
+        del visibility
         drop |= reference.unreliable
-        keep = ~drop
-        _set_nan(obj_codes, keep)
+        keep = np.logical_not(drop, out=drop)
+        set_nan_where_false(obj_codes, keep, threads)
         if z_mm is not None:
-            _set_nan(z_mm, keep)
+            set_nan_where_false(z_mm, keep, threads)
+        del drop, keep
     if correct_blur:
         correct_blur_bias(obj_codes, reference.blur_variance_px2)
-        z_mm = height_from_abscissae(rig, reference.x_mm, abscissa_from_codes(rig, obj_codes))
+        z_mm = _height_map(rig, reference.x_mm, obj_codes, threads)
     assert z_mm is not None
     timings["object_decode_triangulate_s"] = time.perf_counter() - start
 
     gray_z = None
-    if fused.gray_codes is not None:
+    if gray_codes is not None:
         start = time.perf_counter()
-        gray_z = height_from_codes(rig, reference.decoded.gray_codes, fused.gray_codes)
+        gray_z = _height_map(rig, reference.gray_x_mm, gray_codes, threads)
         timings["gray_only_s"] = time.perf_counter() - start
     return HeightResult(z_mm=z_mm, gray_z_mm=gray_z, obj_codes=obj_codes, timings_s=timings)
 
@@ -314,22 +321,28 @@ def unreliable_mask(
     def run(rows: slice) -> None:
         top, bottom = max(rows.start - 1, 0), min(rows.stop + 1, height)  # one row of context
         c = codes[top:bottom]
-        s = ~np.isfinite(c)
+        scratch = thread_scratch()
+        s = np.isfinite(c, out=scratch.get("seeds", c.shape, bool))
+        np.logical_not(s, out=s)
         if max_step_codes > 0:
-            jump_x = np.abs(c[:, 1:] - c[:, :-1]) > limit
-            s[:, 1:] |= jump_x
-            s[:, :-1] |= jump_x
-            jump_y = np.abs(c[1:] - c[:-1]) > limit
-            s[1:] |= jump_y
-            s[:-1] |= jump_y
+            for axis in (1, 0):
+                ahead = c[:, 1:] if axis == 1 else c[1:]
+                behind = c[:, :-1] if axis == 1 else c[:-1]
+                step = np.subtract(ahead, behind, out=scratch.get("step", ahead.shape, np.float32))
+                np.abs(step, out=step)
+                jump = np.greater(step, limit, out=scratch.get("jump", ahead.shape, bool))
+                (s[:, 1:] if axis == 1 else s[1:])[...] |= jump
+                (s[:, :-1] if axis == 1 else s[:-1])[...] |= jump
         if use_visibility:
             v = visibility[top:bottom]  # type: ignore[index]
-            local_max: np.ndarray = cv2.dilate(v, _VISIBILITY_NEIGHBOURHOOD)
+            local_max: np.ndarray = cv2.dilate(
+                v, _VISIBILITY_NEIGHBOURHOOD, dst=scratch.get("local_max", c.shape, np.float32)
+            )
             local_max *= ratio
-            s |= v < local_max
+            s |= np.less(v, local_max, out=scratch.get("dip", c.shape, bool))
         seeds[rows] = s[rows.start - top : rows.stop - top].view(np.uint8)
 
-    _run_tiled(run, height, width, threads)
+    run_tiled(run, height, width, threads)
     dropped = cv2.dilate(seeds, _CROSS, iterations=band_px).view(bool)
     dropped &= np.isfinite(codes)
     return dropped
@@ -382,8 +395,6 @@ def _fused_height(
     min_modulation = options.min_modulation
     if min_modulation is None:
         min_modulation = default_min_modulation(stack.dtype)
-    m = rig.mobius
-    L, t, p, q, d = (np.float32(v) for v in (m.L_mm, m.t, m.p, m.q, rig.d_mm))
     codes = np.empty((height, width), np.float32)
     z_mm = np.empty((height, width), np.float32) if triangulate else None
     gray_codes = np.empty((height, width), np.float32) if gray_words else None
@@ -391,9 +402,11 @@ def _fused_height(
     needs_visibility = options.edge_band_px > 0 and options.min_visibility_ratio > 0
     visibility = np.empty((height, width), np.float32) if needs_visibility else None
 
+    triangulate_rows = _RowTriangulation(rig, x_ref_mm, codes)
+
     def run(rows: slice) -> None:
         l = codes[rows]
-        _decode_rows(
+        decode_rows(
             stack[:N_GRAY_BITS, rows],
             phase[:, rows],
             rig.nlp,
@@ -404,19 +417,42 @@ def _fused_height(
             gray_out=None if gray_codes is None else gray_codes[rows],
             visibility_out=None if visibility is None else visibility[rows],
         )
-        if z_mm is None:
-            return
-        # Eq. 14 as a Mobius map, then Eqs. 16-17: z = L D / (d + D)
-        num = l * p
-        num += t
-        den = l * q
+        if z_mm is not None:
+            triangulate_rows(rows, z_mm[rows])
+
+    run_tiled(run, height, width, threads)
+    return _FusedPass(codes=codes, z_mm=z_mm, visibility=visibility, gray_codes=gray_codes)
+
+
+class _RowTriangulation:
+    """Eq. 14 as a Mobius map, then Eqs. 16-17 (``z = L D / (d + D)``), for a tile of rows of
+    ``codes`` against the reference abscissae ``x_ref_mm``; temporaries in the thread's scratch."""
+
+    def __init__(self, rig: Rig, x_ref_mm: np.ndarray, codes: np.ndarray) -> None:
+        m = rig.mobius
+        self.L, self.t, self.p, self.q, self.d = (np.float32(v) for v in (m.L_mm, m.t, m.p, m.q, rig.d_mm))
+        self.x_ref_mm = x_ref_mm
+        self.codes = codes
+
+    def __call__(self, rows: slice, z_out: np.ndarray) -> None:
+        l = self.codes[rows]
+        scratch = thread_scratch()
+        num = np.multiply(l, self.p, out=scratch.get("numerator", l.shape, np.float32))
+        num += self.t
+        den = np.multiply(l, self.q, out=scratch.get("denominator", l.shape, np.float32))
         den += np.float32(1)
         num /= den
-        num *= L
-        num -= x_ref_mm[rows]  # D_R
-        den = num + d
-        num *= L
-        np.divide(num, den, out=z_mm[rows])  # NaN codes give NaN heights
+        num *= self.L  # x_obj, Eq. 14
+        num -= self.x_ref_mm[rows]  # D_R
+        np.add(num, self.d, out=den)
+        num *= self.L
+        np.divide(num, den, out=z_out)  # NaN codes give NaN heights
 
-    _run_tiled(run, height, width, threads)
-    return _FusedPass(codes=codes, z_mm=z_mm, visibility=visibility, gray_codes=gray_codes)
+
+def _height_map(rig: Rig, x_ref_mm: np.ndarray, codes: np.ndarray, threads: int | None) -> np.ndarray:
+    """Heights (H, W) float32 mm of ``codes`` against ``x_ref_mm``, tile by tile."""
+    height, width = codes.shape
+    z_mm = np.empty((height, width), np.float32)
+    triangulate_rows = _RowTriangulation(rig, x_ref_mm, codes)
+    run_tiled(lambda rows: triangulate_rows(rows, z_mm[rows]), height, width, threads)
+    return z_mm

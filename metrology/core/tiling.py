@@ -1,0 +1,137 @@
+"""Row tiles of work, the threads that run them, and per-thread scratch arrays.
+
+The hot loops (decoding, triangulation, the mixed-pixel filter) run tile by tile so that
+their temporaries stay in cache, and write every temporary into a scratch array kept for
+the thread: a tile then allocates nothing, which matters more than one would think, since
+freshly allocated memory handed back to the system between tiles comes back page fault by
+page fault.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import weakref
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import numpy.typing as npt
+
+DEFAULT_TILE_PX = 1 << 17
+"""Pixels per tile of work. A tile's call of the decoding kernel is about thirty numpy and
+OpenCV calls, each with a few microseconds of fixed cost, so tiles must be large; but not
+so large that their temporaries (about ten float32 arrays) fall out of the caches. Measured
+for ``measure_height`` at 1280x1024, one thread: 12.3 ms at 32k pixels, 11.0 at 64k, 10.5 at
+128k, 11.8 at 256k (benchmarks/decode.py has the method)."""
+
+DEFAULT_THREADS = min(4, os.cpu_count() or 1)
+"""Threads over tiles: the cores of the machine, at most four. The kernel spends most of its
+time in numpy loops and OpenCV calls that release the GIL: measuring frame after frame at
+1280x1024 on 2 cores, two threads take 6.3 ms where one takes 10.5 ms. After the machine has
+been idle for ~10 ms the gain vanishes (10.7 ms either way on the reference VM, whose idle
+virtual CPUs are slow to wake); it never costs time."""
+
+MIN_TILE_PX = 1 << 15
+"""Smallest tile when a frame is split finer to keep every thread busy."""
+
+
+def row_tiles(height: int, width: int, tile_px: int | None = None) -> list[slice]:
+    """Split ``height`` rows into slices of about ``tile_px`` pixels each (default :data:`DEFAULT_TILE_PX`)."""
+    tile_px = DEFAULT_TILE_PX if tile_px is None else tile_px
+    rows_per_tile = max(1, tile_px // max(1, width))
+    return [slice(r, min(height, r + rows_per_tile)) for r in range(0, height, rows_per_tile)]
+
+
+def run_tiled(
+    run: Callable[[slice], None], height: int, width: int, threads: int | None = None, tile_px: int | None = None
+) -> None:
+    """Call ``run(rows)`` for every row tile of an ``(height, width)`` image, on ``threads`` threads.
+
+    With several threads, tiles shrink (down to :data:`MIN_TILE_PX`) until there are at least
+    two per thread, so that no thread is left with a long last tile.
+    """
+    n_threads = threads if threads is not None else DEFAULT_THREADS
+    if n_threads < 1:
+        raise ValueError(f"threads must be >= 1, got {threads}")
+    tile_px = DEFAULT_TILE_PX if tile_px is None else tile_px
+    if n_threads > 1:
+        tile_px = max(MIN_TILE_PX, min(tile_px, math.ceil(height * width / (2 * n_threads))))
+    tiles = row_tiles(height, width, tile_px)
+    if n_threads == 1 or len(tiles) == 1:
+        for rows in tiles:
+            run(rows)
+        return
+    list(_thread_pool(n_threads).map(run, tiles))
+
+
+_pools: dict[tuple[int, int], ThreadPoolExecutor] = {}
+_pools_lock = threading.Lock()
+
+
+def _thread_pool(n_threads: int) -> ThreadPoolExecutor:
+    """A pool of ``n_threads`` threads kept for the process (and its scratch arrays with it);
+    a forked child (a Celery worker) gets its own, since threads do not survive a fork."""
+    key = (os.getpid(), n_threads)
+    with _pools_lock:
+        pool = _pools.get(key)
+        if pool is None:
+            pool = _pools[key] = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="gcps-tile")
+        return pool
+
+
+class Scratch:
+    """Named scratch arrays of one thread, reused from tile to tile and call to call.
+
+    ``get(name, shape, dtype)`` returns an uninitialised C-contiguous array: a view of the
+    name's buffer, which grows when a larger array is asked for (a frame's last, shorter
+    tile shares it). Two names never share memory. A repeated look-up is one dict access
+    (the kernels make about thirty per tile).
+    """
+
+    _MAX_VIEWS = 256  # beyond this (many frame sizes seen), forget the cached views
+
+    def __init__(self) -> None:
+        _all_scratch.add(self)
+        self._buffers: dict[str, np.ndarray] = {}
+        self._views: dict[tuple[str, tuple[int, ...], npt.DTypeLike], np.ndarray] = {}
+
+    def get(self, name: str, shape: tuple[int, ...], dtype: npt.DTypeLike) -> np.ndarray:
+        key = (name, shape, dtype)
+        view = self._views.get(key)
+        if view is not None:
+            return view
+        n_bytes = math.prod(shape) * np.dtype(dtype).itemsize
+        buffer = self._buffers.get(name)
+        if buffer is None or buffer.nbytes < n_bytes:
+            buffer = self._buffers[name] = np.empty(n_bytes, np.uint8)
+            self._views = {k: v for k, v in self._views.items() if k[0] != name}  # views of the old buffer
+        if len(self._views) >= self._MAX_VIEWS:
+            self._views.clear()
+        view = self._views[key] = buffer[:n_bytes].view(dtype).reshape(shape)
+        return view
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held."""
+        return sum(buffer.nbytes for buffer in self._buffers.values())
+
+
+_all_scratch: weakref.WeakSet[Scratch] = weakref.WeakSet()
+
+
+def scratch_nbytes() -> int:
+    """Bytes held by the scratch arrays of all live threads (a part of the memory footprint)."""
+    return sum(scratch.nbytes for scratch in list(_all_scratch))
+
+
+_local = threading.local()
+
+
+def thread_scratch() -> Scratch:
+    """The calling thread's :class:`Scratch` (created on first use, freed with the thread)."""
+    scratch: Scratch | None = getattr(_local, "scratch", None)
+    if scratch is None:
+        scratch = _local.scratch = Scratch()
+    return scratch

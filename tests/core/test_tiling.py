@@ -1,0 +1,65 @@
+"""Row tiles, the thread pool that runs them, per-thread scratch arrays, freed-memory retention."""
+
+import itertools
+import threading
+
+import numpy as np
+import pytest
+
+from metrology.core.allocation import retain_freed_memory
+from metrology.core.tiling import MIN_TILE_PX, Scratch, row_tiles, run_tiled, scratch_nbytes, thread_scratch
+
+
+def test_row_tiles_cover_the_rows_once():
+    tiles = row_tiles(1000, 1280, tile_px=1 << 17)
+    assert tiles[0].start == 0 and tiles[-1].stop == 1000
+    assert all(a.stop == b.start for a, b in itertools.pairwise(tiles))
+    assert {t.stop - t.start for t in tiles[:-1]} == {(1 << 17) // 1280}
+    assert row_tiles(3, 100_000, tile_px=10) == [slice(0, 1), slice(1, 2), slice(2, 3)]  # a row at least
+
+
+def test_run_tiled_splits_for_every_thread_and_reuses_its_threads():
+    seen: list[tuple[slice, str]] = []
+    lock = threading.Lock()
+
+    def run(rows: slice) -> None:
+        with lock:
+            seen.append((rows, threading.current_thread().name))
+
+    run_tiled(run, 512, 512, threads=2)  # 256k px: split to 4 tiles of 64k px for 2 threads
+    assert sorted(r.start for r, _ in seen) == [0, 128, 256, 384]
+    for _ in range(5):
+        run_tiled(run, 512, 512, threads=2)
+    names = {name for _, name in seen}
+    assert len(names) <= 2 and all(name.startswith("gcps-tile") for name in names)  # one pool, kept
+    seen.clear()
+    run_tiled(run, 64, 64, threads=2)  # smaller than MIN_TILE_PX: one tile, run in the caller
+    assert [r for r, _ in seen] == [slice(0, 64)] and MIN_TILE_PX > 64 * 64
+    assert seen[0][1] == threading.current_thread().name
+    with pytest.raises(ValueError, match="threads"):
+        run_tiled(run, 10, 10, threads=0)
+
+
+def test_scratch_returns_the_same_array_and_never_shares_names():
+    scratch = Scratch()
+    a = scratch.get("a", (4, 5), np.float32)
+    assert scratch.get("a", (4, 5), np.float32) is a
+    b = scratch.get("b", (4, 5), np.float32)
+    assert not np.shares_memory(a, b)
+    assert a.flags.c_contiguous and a.dtype == np.float32
+    assert scratch.nbytes == 2 * 4 * 5 * 4
+    assert thread_scratch() is thread_scratch()
+    assert scratch_nbytes() >= scratch.nbytes
+    other: list[Scratch] = []
+    worker = threading.Thread(target=lambda: other.append(thread_scratch()))
+    worker.start()
+    worker.join()
+    assert other[0] is not thread_scratch()
+
+
+def test_retain_freed_memory_applies_on_glibc():
+    import platform
+
+    applied = retain_freed_memory()
+    if platform.system() == "Linux" and platform.libc_ver()[0] == "glibc":
+        assert applied is True
