@@ -193,10 +193,27 @@ def test_mesh_files_round_trip(tmp_path: Path, ext: str) -> None:
     if ext == ".ply":  # doubles, same order
         np.testing.assert_array_equal(np.asarray(again.vertices), np.asarray(mesh.vertices))
     used_xyz = np.asarray(mesh.vertices)[used]
-    # STL stores float32; open3d's OBJ writer keeps 6 significant digits (< 1 um here).
-    tol = {".ply": 0.0, ".stl": 1e-4, ".obj": 1e-3}[ext]
+    # STL stores float32; OBJ 5 decimals, read back by open3d in float32 (< 0.1 um here)
+    tol = {".ply": 0.0, ".stl": 1e-4, ".obj": 1e-4}[ext]
     np.testing.assert_allclose(again.get_min_bound(), used_xyz.min(axis=0), atol=tol)
     np.testing.assert_allclose(again.get_max_bound(), used_xyz.max(axis=0), atol=tol)
+
+
+def test_obj_keeps_vertex_order_normals_and_faces(tmp_path: Path) -> None:
+    rig = SMALL_RIG
+    mesh = mesh_from_heights(rig, sample_heights(rig))
+    lines = write_mesh(mesh, tmp_path / "object.obj").read_text().splitlines()
+    v = np.array([line.split()[1:] for line in lines if line.startswith("v ")], float)
+    vn = np.array([line.split()[1:] for line in lines if line.startswith("vn ")], float)
+    f = [line.split()[1:] for line in lines if line.startswith("f ")]
+    np.testing.assert_allclose(v, np.asarray(mesh.vertices), rtol=0, atol=5e-6)  # 5 decimals of a mm
+    np.testing.assert_allclose(vn, np.asarray(mesh.vertex_normals), rtol=0, atol=5e-7)
+    faces = np.array([[int(corner.split("//")[0]) for corner in face] for face in f]) - 1
+    np.testing.assert_array_equal(faces, np.asarray(mesh.triangles))
+    assert all(corner.split("//")[0] == corner.split("//")[1] for face in f for corner in face)
+    bare = o3d.geometry.TriangleMesh(mesh.vertices, mesh.triangles)
+    text = write_mesh(bare, tmp_path / "bare.OBJ").read_text()
+    assert "vn " not in text and "//" not in text
 
 
 def test_stl_is_binary_with_normals(tmp_path: Path) -> None:
