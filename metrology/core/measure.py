@@ -29,7 +29,6 @@ from metrology.core.decode import (
 from metrology.core.patterns import N_GRAY_BITS
 from metrology.core.rig import Rig
 from metrology.core.tiling import run_tiled, thread_scratch
-from metrology.core.triangulate import abscissa_from_codes
 
 
 @dataclass(frozen=True)
@@ -95,9 +94,12 @@ class Reference:
     ----------
     decoded : DecodedStack
         Codes of the reference plane (REF of Eq. 16).
-    x_mm : (H, W) float32 array
-        Abscissa on R of each reference code (Eq. 14), mm; NaN where invalid.
-    gray_x_mm : (H, W) float32 array
+    slope_mm : (H, W) float32 array
+        ``L (p - t q) / (1 + q r)`` of each reference code ``r`` (Eq. 14 as the Mobius map
+        ``x = L (t + p l) / (1 + q l)``), mm per code; NaN where invalid. Times
+        ``(l - r) / (1 + q l)`` it gives the displacement ``D_R = x(l) - x(r)`` on R
+        without subtracting two abscissae of ~500 mm in float32 (a 0.4 um height error).
+    gray_slope_mm : (H, W) float32 array
         The same for the gray-code-only codes (the comparison heights).
     unreliable : (H, W) bool array
         Valid reference pixels dropped as possibly mixed (:func:`unreliable_mask`).
@@ -106,8 +108,8 @@ class Reference:
     """
 
     decoded: DecodedStack
-    x_mm: np.ndarray
-    gray_x_mm: np.ndarray
+    slope_mm: np.ndarray
+    gray_slope_mm: np.ndarray
     unreliable: np.ndarray
     blur_variance_px2: float = 0.0
 
@@ -175,8 +177,8 @@ def prepare_reference(
     options = options or DecodeOptions()
     decoded = reference if isinstance(reference, DecodedStack) else _decode(rig, reference, options)
     _check_shape(rig, decoded.codes.shape, "reference")
-    x_mm = abscissa_from_codes(rig, decoded.codes).astype(np.float32, copy=False)
-    gray_x_mm = abscissa_from_codes(rig, decoded.gray_codes).astype(np.float32, copy=False)
+    slope_mm = _slope_map(rig, decoded.codes)
+    gray_slope_mm = _slope_map(rig, decoded.gray_codes)
     unreliable = unreliable_mask(decoded.codes, options.discontinuity_codes, options.edge_band_px)
     blur = options.blur_variance_px2
     if blur is None:
@@ -184,7 +186,9 @@ def prepare_reference(
             blur = estimate_blur_variance(decoded.codes, decoded.visibility)
         except ValueError:
             blur = 0.0  # too small a field to tell: no correction
-    return Reference(decoded=decoded, x_mm=x_mm, gray_x_mm=gray_x_mm, unreliable=unreliable, blur_variance_px2=blur)
+    return Reference(
+        decoded=decoded, slope_mm=slope_mm, gray_slope_mm=gray_slope_mm, unreliable=unreliable, blur_variance_px2=blur
+    )
 
 
 def measure_height(
@@ -232,9 +236,7 @@ def measure_height(
 
     start = time.perf_counter()
     correct_blur = reference.blur_variance_px2 > 0  # then heights come from the corrected codes
-    fused = _fused_height(
-        rig, reference.x_mm, stack, options, threads, triangulate=not correct_blur, gray_words=gray_only
-    )
+    fused = _fused_height(rig, reference, stack, options, threads, triangulate=not correct_blur, gray_words=gray_only)
     z_mm, obj_codes, visibility, gray_codes = fused.z_mm, fused.codes, fused.visibility, fused.gray_codes
     del fused  # the visibility map goes once the mixed-pixel filter has read it
     if options.edge_band_px > 0:
@@ -255,14 +257,15 @@ def measure_height(
         del drop, keep
     if correct_blur:
         correct_blur_bias(obj_codes, reference.blur_variance_px2)
-        z_mm = _height_map(rig, reference.x_mm, obj_codes, threads)
+        z_mm = _height_map(_RowTriangulation(rig, reference.decoded.codes, reference.slope_mm, obj_codes), threads)
     assert z_mm is not None
     timings["object_decode_triangulate_s"] = time.perf_counter() - start
 
     gray_z = None
     if gray_codes is not None:
         start = time.perf_counter()
-        gray_z = _height_map(rig, reference.gray_x_mm, gray_codes, threads)
+        gray_rows = _RowTriangulation(rig, reference.decoded.gray_codes, reference.gray_slope_mm, gray_codes)
+        gray_z = _height_map(gray_rows, threads)
         timings["gray_only_s"] = time.perf_counter() - start
     return HeightResult(z_mm=z_mm, gray_z_mm=gray_z, obj_codes=obj_codes, timings_s=timings)
 
@@ -378,7 +381,7 @@ class _FusedPass:
 
 def _fused_height(
     rig: Rig,
-    x_ref_mm: np.ndarray,
+    reference: Reference,
     stack: np.ndarray,
     options: DecodeOptions,
     threads: int | None,
@@ -386,7 +389,7 @@ def _fused_height(
     triangulate: bool,
     gray_words: bool,
 ) -> _FusedPass:
-    """Decode the object tile by tile (the fast path), triangulating against ``x_ref_mm`` in the
+    """Decode the object tile by tile (the fast path), triangulating against ``reference`` in the
     same pass when ``triangulate``, and keeping the gray-code-only codes when ``gray_words``."""
     _, height, width = stack.shape
     phase = stack[N_GRAY_BITS:]
@@ -402,7 +405,7 @@ def _fused_height(
     needs_visibility = options.edge_band_px > 0 and options.min_visibility_ratio > 0
     visibility = np.empty((height, width), np.float32) if needs_visibility else None
 
-    triangulate_rows = _RowTriangulation(rig, x_ref_mm, codes)
+    triangulate_rows = _RowTriangulation(rig, reference.decoded.codes, reference.slope_mm, codes)
 
     def run(rows: slice) -> None:
         l = codes[rows]
@@ -425,34 +428,51 @@ def _fused_height(
 
 
 class _RowTriangulation:
-    """Eq. 14 as a Mobius map, then Eqs. 16-17 (``z = L D / (d + D)``), for a tile of rows of
-    ``codes`` against the reference abscissae ``x_ref_mm``; temporaries in the thread's scratch."""
+    """Eqs. 14, 16 and 17 for a tile of rows of object ``codes`` against reference codes: the
+    displacement ``D_R = slope (l - r) / (1 + q l)``, then ``z = L D / (d + D)``; temporaries
+    in the thread's scratch."""
 
-    def __init__(self, rig: Rig, x_ref_mm: np.ndarray, codes: np.ndarray) -> None:
-        m = rig.mobius
-        self.L, self.t, self.p, self.q, self.d = (np.float32(v) for v in (m.L_mm, m.t, m.p, m.q, rig.d_mm))
-        self.x_ref_mm = x_ref_mm
+    def __init__(self, rig: Rig, ref_codes: np.ndarray, slope_mm: np.ndarray, codes: np.ndarray) -> None:
+        self.L, self.q, self.d = (np.float32(v) for v in (rig.mobius.L_mm, rig.mobius.q, rig.d_mm))
+        self.ref_codes = ref_codes
+        self.slope_mm = slope_mm
         self.codes = codes
+        self.shape = codes.shape
 
     def __call__(self, rows: slice, z_out: np.ndarray) -> None:
         l = self.codes[rows]
         scratch = thread_scratch()
-        num = np.multiply(l, self.p, out=scratch.get("numerator", l.shape, np.float32))
-        num += self.t
         den = np.multiply(l, self.q, out=scratch.get("denominator", l.shape, np.float32))
         den += np.float32(1)
-        num /= den
-        num *= self.L  # x_obj, Eq. 14
-        num -= self.x_ref_mm[rows]  # D_R
+        num = np.subtract(l, self.ref_codes[rows], out=scratch.get("numerator", l.shape, np.float32))
+        num *= self.slope_mm[rows]
+        num /= den  # D_R, mm
         np.add(num, self.d, out=den)
         num *= self.L
         np.divide(num, den, out=z_out)  # NaN codes give NaN heights
 
 
-def _height_map(rig: Rig, x_ref_mm: np.ndarray, codes: np.ndarray, threads: int | None) -> np.ndarray:
-    """Heights (H, W) float32 mm of ``codes`` against ``x_ref_mm``, tile by tile."""
-    height, width = codes.shape
+def _height_map(triangulate_rows: _RowTriangulation, threads: int | None) -> np.ndarray:
+    """Heights (H, W) float32 mm, tile by tile."""
+    height, width = triangulate_rows.shape
     z_mm = np.empty((height, width), np.float32)
-    triangulate_rows = _RowTriangulation(rig, x_ref_mm, codes)
     run_tiled(lambda rows: triangulate_rows(rows, z_mm[rows]), height, width, threads)
     return z_mm
+
+
+def _slope_map(rig: Rig, ref_codes: np.ndarray, threads: int | None = None) -> np.ndarray:
+    """``L (p - t q) / (1 + q r)`` of reference codes ``r``, (H, W) float32 mm per code, tile by tile."""
+    height, width = ref_codes.shape
+    m = rig.mobius
+    scale = np.float32(m.L_mm * (m.p - m.t * m.q))  # dx/dl at l = 0, mm per code
+    q = np.float32(m.q)
+    slope = np.empty((height, width), np.float32)
+
+    def run(rows: slice) -> None:
+        out = slope[rows]
+        np.multiply(ref_codes[rows], q, out=out)
+        out += np.float32(1)
+        np.divide(scale, out, out=out)
+
+    run_tiled(run, height, width, threads)
+    return slope
