@@ -29,6 +29,7 @@ from metrology.core.decode import (
 from metrology.core.patterns import N_GRAY_BITS
 from metrology.core.rig import Rig
 from metrology.core.tiling import run_tiled, thread_scratch
+from metrology.core.triangulate import reference_slope_mm
 
 
 @dataclass(frozen=True)
@@ -429,8 +430,9 @@ def _fused_height(
 
 class _RowTriangulation:
     """Eqs. 14, 16 and 17 for a tile of rows of object ``codes`` against reference codes: the
-    displacement ``D_R = slope (l - r) / (1 + q l)``, then ``z = L D / (d + D)``; temporaries
-    in the thread's scratch."""
+    in-place form of :func:`~metrology.core.triangulate.displacement_from_codes` and
+    :func:`~metrology.core.triangulate.height_from_displacement`, temporaries in the thread's
+    scratch."""
 
     def __init__(self, rig: Rig, ref_codes: np.ndarray, slope_mm: np.ndarray, codes: np.ndarray) -> None:
         self.L, self.q, self.d = (np.float32(v) for v in (rig.mobius.L_mm, rig.mobius.q, rig.d_mm))
@@ -461,18 +463,8 @@ def _height_map(triangulate_rows: _RowTriangulation, threads: int | None) -> np.
 
 
 def _slope_map(rig: Rig, ref_codes: np.ndarray, threads: int | None = None) -> np.ndarray:
-    """``L (p - t q) / (1 + q r)`` of reference codes ``r``, (H, W) float32 mm per code, tile by tile."""
+    """:func:`~metrology.core.triangulate.reference_slope_mm` of (H, W) codes as float32, tile by tile."""
     height, width = ref_codes.shape
-    m = rig.mobius
-    scale = np.float32(m.L_mm * (m.p - m.t * m.q))  # dx/dl at l = 0, mm per code
-    q = np.float32(m.q)
     slope = np.empty((height, width), np.float32)
-
-    def run(rows: slice) -> None:
-        out = slope[rows]
-        np.multiply(ref_codes[rows], q, out=out)
-        out += np.float32(1)
-        np.divide(scale, out, out=out)
-
-    run_tiled(run, height, width, threads)
+    run_tiled(lambda rows: reference_slope_mm(rig, ref_codes[rows], out=slope[rows]), height, width, threads)
     return slope

@@ -45,7 +45,7 @@ def row_tiles(height: int, width: int, tile_px: int | None = None) -> list[slice
 
 
 def run_tiled(
-    run: Callable[[slice], None], height: int, width: int, threads: int | None = None, tile_px: int | None = None
+    run: Callable[[slice], object], height: int, width: int, threads: int | None = None, tile_px: int | None = None
 ) -> None:
     """Call ``run(rows)`` for every row tile of an ``(height, width)`` image, on ``threads`` threads.
 

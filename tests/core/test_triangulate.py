@@ -10,6 +10,7 @@ from metrology.core.triangulate import (
     abscissa_from_codes,
     abscissa_from_codes_eq14,
     codes_from_abscissa,
+    displacement_from_codes,
     height_from_abscissae,
     height_from_codes,
     points_from_heights,
@@ -57,6 +58,22 @@ def test_eq14_is_the_tilted_line_geometry(rig):
     for x in np.linspace(s_x, t_x, 17):
         code = rig.nlp * hit(x) / u_total
         assert abscissa_from_codes(rig, code) == pytest.approx(x, abs=1e-9)
+
+
+@pytest.mark.parametrize("rig", RIGS)
+def test_displacement_is_the_difference_of_abscissae_without_cancellation(rig):
+    rng = np.random.default_rng(5)
+    ref, obj = rng.uniform(0, rig.nlp, 10_000), rng.uniform(0, rig.nlp, 10_000)
+    exact = abscissa_from_codes(rig, obj) - abscissa_from_codes(rig, ref)
+    np.testing.assert_allclose(displacement_from_codes(rig, ref, obj), exact, rtol=0, atol=1e-9)
+    # float32: the displacement keeps the codes' relative precision (a few ulp of D), where the
+    # difference of two float32 abscissae of ~500 mm is off by up to ~3e-5 mm whatever D is
+    ref32 = ref.astype(np.float32)
+    obj32 = np.clip(ref + rng.uniform(-3, 3, ref.size), 0, rig.nlp).astype(np.float32)
+    d32 = displacement_from_codes(rig, ref32, obj32)
+    assert d32.dtype == np.float32
+    exact32 = abscissa_from_codes(rig, obj32.astype(float)) - abscissa_from_codes(rig, ref32.astype(float))
+    np.testing.assert_allclose(d32, exact32, rtol=1e-6, atol=1e-9)
 
 
 def test_eq17_exact_for_points_on_camera_rays():
