@@ -8,18 +8,12 @@ from __future__ import annotations
 
 from celery import shared_task
 
-from workers.tasks import TRANSIENT_ERRORS
+from workers.tasks import RETRY_ON_TRANSIENT_ERRORS
 
 
 @shared_task(
     name="metrology.reports.tasks.scheduled_characterization_report",
-    acks_late=True,
-    reject_on_worker_lost=True,
-    autoretry_for=TRANSIENT_ERRORS,
-    retry_backoff=5,
-    retry_backoff_max=120,
-    retry_jitter=True,
-    max_retries=5,
+    **RETRY_ON_TRANSIENT_ERRORS,
     soft_time_limit=60,
     time_limit=90,
     ignore_result=True,
