@@ -53,10 +53,10 @@ import numpy as np
 import numpy.typing as npt
 from scipy.ndimage import gaussian_filter1d
 
+from metrology.core.geometry.crossed_axes import camera_ray_point, codes_of_points
 from metrology.core.patterns import GRAY_NAMES, PATTERN_NAMES, PHASE_NAMES, pattern_intensity
 from metrology.core.rig import Rig
 from metrology.core.scenes import Scene, StageScene
-from metrology.core.triangulate import codes_from_abscissa
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -602,13 +602,10 @@ def _blurred_table(name: str, nlp: int, sigma: float, square: bool, gamma: float
 # --------------------------------------------------------------------------- ray casting
 def _trace(rig: Rig, scene: Scene, xa: FloatArray, ya: FloatArray) -> _Trace:
     """First hits, shadows and codes of the camera rays through (xa, ya) on R (flat arrays)."""
-    L = rig.L_mm
     z = _first_hit(rig, scene, xa, ya)
-    k = 1.0 - z / L
-    X = rig.d_mm + k * (xa - rig.d_mm)
-    Y = k * ya
+    X, Y = (np.asarray(a, dtype=np.float64) for a in camera_ray_point(rig, xa, ya, z))
     illuminated = ~_shadowed(rig, scene, X, Y, z)
-    codes = np.asarray(codes_from_abscissa(rig, X * L / (L - z)), dtype=np.float64)
+    codes = np.asarray(codes_of_points(rig, X, z), dtype=np.float64)
     in_field = illuminated & (codes >= 0.0) & (codes <= rig.nlp)
     return _Trace(z=z, X=X, Y=Y, codes=codes, illuminated=illuminated, in_field=in_field)
 
