@@ -199,16 +199,17 @@ def _parse_scene_params(items: Sequence[str]) -> dict[str, Any]:
 
 
 def _parse_positions(text: str) -> list[float]:
+    from metrology.core.simulate import stage_positions
+
     try:
         if ":" in text:
             start, stop, step = (float(v) for v in text.split(":"))
-            if step <= 0 or stop < start:
-                raise ValueError
-            count = round((stop - start) / step) + 1
-            return [round(start + i * step, 9) for i in range(count)]
+            return stage_positions(start, stop, step)
         return [float(v) for v in text.split(",")]
     except ValueError as exc:
-        raise BadInputError(f"--z-in {text!r}: expected '0,4,8' or 'START:STOP:STEP' with STEP > 0") from exc
+        raise BadInputError(
+            f"--z-in {text!r}: expected '0,4,8' or 'START:STOP:STEP' (inclusive stop) with STEP > 0"
+        ) from exc
 
 
 def _simulation_options(args: argparse.Namespace) -> Any:

@@ -9,8 +9,10 @@ materialising full-size temporaries.
 
 from __future__ import annotations
 
+import math
 import time
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import cv2
@@ -31,6 +33,23 @@ from metrology.core.geometry.base import PreparedGeometry, ReferenceSurface, tri
 from metrology.core.patterns import N_GRAY_BITS
 from metrology.core.rig import Rig
 from metrology.core.tiling import run_tiled, thread_scratch
+
+MAX_NLP = 128
+"""Most light codes a gcps-v1 rig may have (7-bit gray code)."""
+MAX_SMOOTHING_PX = 50.0
+"""Largest Gaussian smoothing sigma accepted, px."""
+
+
+def _check_number(name: str, value: Any, *, allow_none: bool = False, upper: float | None = None) -> None:
+    """ValueError naming ``name`` and ``value`` unless ``value`` is a finite number in [0, upper) (or None)."""
+    if value is None and allow_none:
+        return
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    ok = ok and math.isfinite(value) and value >= 0 and (upper is None or value < upper)
+    if not ok:
+        bound = f"[0, {upper:g})" if upper is not None else "[0, inf)"
+        extra = " or None" if allow_none else ""
+        raise ValueError(f"{name} must be a finite number in {bound}{extra}, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -66,14 +85,34 @@ class DecodeOptions:
     blur_variance_px2: float | None = None
 
     def __post_init__(self) -> None:
-        if self.discontinuity_codes < 0:
-            raise ValueError(f"discontinuity_codes must be >= 0, got {self.discontinuity_codes}")
-        if self.blur_variance_px2 is not None and not 0 <= self.blur_variance_px2 < 100:
-            raise ValueError(f"blur_variance_px2 must be in [0, 100) px^2 or None, got {self.blur_variance_px2}")
-        if not 0 <= self.min_visibility_ratio < 1:
-            raise ValueError(f"min_visibility_ratio must be in [0, 1), got {self.min_visibility_ratio}")
-        if not isinstance(self.edge_band_px, int) or self.edge_band_px < 0:
-            raise ValueError(f"edge_band_px must be a non-negative integer, got {self.edge_band_px!r}")
+        _check_number("min_modulation", self.min_modulation, allow_none=True)
+        _check_number("consistency_codes", self.consistency_codes)
+        _check_number("smoothing_px", self.smoothing_px, upper=MAX_SMOOTHING_PX)
+        _check_number("discontinuity_codes", self.discontinuity_codes)
+        edge_band = self.edge_band_px
+        if isinstance(edge_band, bool) or not isinstance(edge_band, (int, np.integer)) or not 0 <= edge_band <= 100:
+            raise ValueError(f"edge_band_px must be an integer in [0, 100], got {edge_band!r}")
+        object.__setattr__(self, "edge_band_px", int(edge_band))
+        _check_number("field_margin_codes", self.field_margin_codes, upper=MAX_NLP / 2)
+        _check_number("min_visibility_ratio", self.min_visibility_ratio, upper=1.0)
+        _check_number("blur_variance_px2", self.blur_variance_px2, allow_none=True, upper=100.0)
+
+    def check_nlp(self, nlp: int) -> None:
+        """Raise ValueError when ``field_margin_codes`` leaves no coded field for ``nlp`` light codes
+        (the margin must be below ``nlp / 2``)."""
+        if not self.field_margin_codes < nlp / 2:
+            raise ValueError(
+                f"field_margin_codes must be below nlp/2 = {nlp / 2:g} (a wider margin leaves no coded field), "
+                f"got {self.field_margin_codes!r}"
+            )
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> DecodeOptions:
+        """Options from :meth:`to_dict`'s object; unknown keys are refused, naming them."""
+        unknown = sorted(set(data) - {f.name for f in fields(cls)})
+        if unknown:
+            raise ValueError(f"unknown decode option(s): {', '.join(unknown)}")
+        return cls(**data)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -175,6 +214,7 @@ def prepare_reference(
     Reference
     """
     options = options or DecodeOptions()
+    options.check_nlp(rig.nlp)
     decoded = reference if isinstance(reference, DecodedStack) else _decode(rig, reference, options)
     _check_shape(rig, decoded.codes.shape, "reference")
     prepared = rig.prepare()
@@ -227,6 +267,9 @@ def measure_height(
         If a stack is malformed or its shape differs from the rig's.
     """
     options = options or DecodeOptions()
+    if not isinstance(options, DecodeOptions):
+        raise TypeError(f"options must be DecodeOptions, got {type(options).__name__}")
+    options.check_nlp(rig.nlp)
     timings: dict[str, float] = {}
     start = time.perf_counter()
     if not isinstance(reference, Reference):
