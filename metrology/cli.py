@@ -1,4 +1,4 @@
-"""The ``gcps`` command line (DESIGN.md 1.6): a user-facing tool and the contract of external checks.
+"""The ``gcps`` command line (docs/command-line.md): a user-facing tool and the contract of external checks.
 
 Exit status 0 on success, 2 with a one-line message on bad input. Outputs are
 written only once everything has been computed, each atomically, so a failed
@@ -431,7 +431,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_patterns)
 
     p = sub.add_parser("simulate", help="render a capture stack with the virtual rig")
-    p.add_argument("--rig", required=True, help="rig JSON (DESIGN.md 1.2)")
+    p.add_argument("--rig", required=True, help="rig JSON (docs/file-formats.md)")
     p.add_argument(
         "--scene",
         required=True,

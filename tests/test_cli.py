@@ -1,4 +1,4 @@
-"""The gcps command line (DESIGN.md 1.6): round trips and every bad input (exit 2, one line, no output)."""
+"""The gcps command line (docs/command-line.md): round trips and every bad input (exit 2, one line, no output)."""
 
 import json
 import shutil

@@ -240,7 +240,7 @@ def find_top_face(
 def fit_master_profile(rig: Rig, z_mm: np.ndarray, face: np.ndarray) -> tuple[float, float, float]:
     """Mean height, regression slope along X and residual RMS of the master's top face.
 
-    The profile's abscissa is ``X_H`` of each pixel (DESIGN.md 1.1).
+    The profile's abscissa is ``X_H`` of each pixel (docs/conventions.md).
 
     Returns
     -------

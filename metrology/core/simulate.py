@@ -1,4 +1,4 @@
-"""The virtual rig: renders the eleven gcps-v1 camera images of a scene (DESIGN.md 1.1, 1.3).
+"""The virtual rig: renders the eleven gcps-v1 camera images of a scene (docs/conventions.md).
 
 The forward model is the exact crossed-optical-axes geometry of the paper (Figs. 1 and 3):
 

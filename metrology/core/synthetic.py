@@ -2,7 +2,7 @@
 
 Calibration and characterization work on decoded light-code maps, and a code
 map depends only on the *true* geometry, never on the rig's parameter estimates.
-For pixel ``(k, j)`` looking at point A of R (abscissa ``x_A``, DESIGN.md 1.1):
+For pixel ``(k, j)`` looking at point A of R (abscissa ``x_A``, docs/conventions.md):
 
 - the reference code is the code of the light plane landing at ``x_A``:
   ``l_ref = codes_from_abscissa(rig, x_A)`` (inverse of Eq. 14);

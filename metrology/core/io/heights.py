@@ -23,7 +23,7 @@ def _as_height_map(z_mm: npt.ArrayLike) -> np.ndarray:
 
 
 def write_height_npy(z_mm: npt.ArrayLike, path: str | os.PathLike[str]) -> None:
-    """Write a height map as a float32 ``.npy`` file, atomically (DESIGN.md 1.5).
+    """Write a height map as a float32 ``.npy`` file, atomically (docs/file-formats.md).
 
     Parameters
     ----------

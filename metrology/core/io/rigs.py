@@ -12,7 +12,7 @@ from metrology.core.rig import Rig, RigError
 
 
 def read_rig(path: str | os.PathLike[str]) -> Rig:
-    """Read a rig file (DESIGN.md 1.2).
+    """Read a rig file (docs/file-formats.md).
 
     Raises
     ------

@@ -34,7 +34,7 @@ class StagePosition:
 
 @dataclass(frozen=True)
 class StageSeries:
-    """A characterization series (SERIES.json, DESIGN.md 1.6), positions in file order."""
+    """A characterization series (SERIES.json, docs/file-formats.md), positions in file order."""
 
     positions: tuple[StagePosition, ...]
 
@@ -79,7 +79,7 @@ def _resolve_capture(base: Path, label: str, where: str, ref: str, check_exists:
 
 
 def read_series(path: str | os.PathLike[str], *, check_exists: bool = True) -> StageSeries:
-    """Read a stage series file (SERIES.json, DESIGN.md 1.6).
+    """Read a stage series file (SERIES.json, docs/file-formats.md).
 
     The file is ``{"positions": [{"z_in_mm": 4.0, "captures": ["z004/r00", ...]}, ...]}``
     with capture paths relative to the file's folder, each a folder or a zip (given with or
@@ -155,7 +155,7 @@ def write_series(
     series: StageSeries | Mapping[float, Sequence[str | os.PathLike[str]]],
     path: str | os.PathLike[str],
 ) -> None:
-    """Write a stage series file (SERIES.json, DESIGN.md 1.6), atomically.
+    """Write a stage series file (SERIES.json, docs/file-formats.md), atomically.
 
     Parameters
     ----------

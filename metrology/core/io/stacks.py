@@ -35,7 +35,7 @@ from metrology.core.rig import Rig
 
 @dataclass(frozen=True, eq=False)
 class CaptureStack:
-    """The eleven images of a capture stack (DESIGN.md 1.3).
+    """The eleven images of a capture stack (docs/file-formats.md).
 
     Parameters
     ----------
@@ -87,7 +87,7 @@ def read_stack(
     max_bytes: int = DEFAULT_MAX_BYTES,
     max_ratio: float = DEFAULT_MAX_RATIO,
 ) -> CaptureStack:
-    """Read and validate a capture stack (DESIGN.md 1.3).
+    """Read and validate a capture stack (docs/file-formats.md).
 
     Parameters
     ----------
@@ -261,7 +261,7 @@ def encode_stack(images: CaptureStack | npt.ArrayLike, ext: str = ".png") -> dic
 
 
 def write_stack(images: CaptureStack | npt.ArrayLike, dest: str | os.PathLike[str], *, ext: str = ".png") -> Path:
-    """Write a capture stack as a folder or a .zip (DESIGN.md 1.3).
+    """Write a capture stack as a folder or a .zip (docs/file-formats.md).
 
     Parameters
     ----------
