@@ -52,7 +52,7 @@ from metrology.core.measure import DecodeOptions, measure_height, prepare_refere
 from metrology.core.patterns import PATTERN_NAMES, pattern_intensity  # noqa: E402
 from metrology.core.rig import Rig  # noqa: E402
 from metrology.core.tiling import scratch_nbytes  # noqa: E402
-from metrology.core.triangulate import codes_from_abscissa  # noqa: E402
+from metrology.core.triangulate import camera_ray_point, codes_of_points  # noqa: E402
 
 
 def synthetic_pair(width: int, height: int, seed: int = 0) -> tuple[Rig, np.ndarray, np.ndarray]:
@@ -62,8 +62,8 @@ def synthetic_pair(width: int, height: int, seed: int = 0) -> tuple[Rig, np.ndar
     x_a = rig.column_x_mm()
 
     def stack(z_mm: float) -> np.ndarray:
-        x_h = rig.d_mm + (1 - z_mm / rig.L_mm) * (x_a - rig.d_mm)
-        codes = codes_from_abscissa(rig, x_h * rig.L_mm / (rig.L_mm - z_mm))
+        x_h, _ = camera_ray_point(rig, x_a, 0.0, z_mm)
+        codes = codes_of_points(rig, x_h, z_mm)
         rows = np.stack([12 + 200 * pattern_intensity(codes, n) for n in PATTERN_NAMES])
         images = np.broadcast_to(rows[:, None, :], (11, height, width)) + rng.normal(0, 1.5, (11, height, width))
         return np.clip(np.round(images), 0, 255).astype(np.uint8)

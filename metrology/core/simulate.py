@@ -1,4 +1,4 @@
-"""The virtual rig: renders the eleven gcps-v1 camera images of a scene (DESIGN.md 1.1, 1.3).
+"""The virtual rig: renders the eleven gcps-v1 camera images of a scene (docs/conventions.md).
 
 The forward model is the exact crossed-optical-axes geometry of the paper (Figs. 1 and 3):
 
@@ -53,10 +53,10 @@ import numpy as np
 import numpy.typing as npt
 from scipy.ndimage import gaussian_filter1d
 
+from metrology.core.geometry.crossed_axes import camera_ray_point, codes_of_points
 from metrology.core.patterns import GRAY_NAMES, PATTERN_NAMES, PHASE_NAMES, pattern_intensity
 from metrology.core.rig import Rig
 from metrology.core.scenes import Scene, StageScene
-from metrology.core.triangulate import codes_from_abscissa
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -340,7 +340,7 @@ def render_series(
     """Render a stage series (paper section 5): ``repeats`` captures at each ``Z_in``.
 
     The noise-free geometry and radiometry are rendered once per position; each repeat only
-    draws fresh camera noise, seeded by ``SeedSequence([options.seed, position index, repeat])``
+    draws fresh camera noise, seeded by :func:`series_seed` (and the scene, as :func:`render_stack`)
     so any capture can be reproduced alone.
 
     Parameters
@@ -387,13 +387,54 @@ def _series(
         _check_inputs(rig, scene, opts)
         clean = _render_clean(rig, scene, opts)
         for repeat in range(repeats):
-            rng = np.random.default_rng(np.random.SeedSequence([opts.seed, index, repeat]))
-            yield z, repeat, _capture(clean, rng)
+            capture_opts = replace(opts, seed=series_seed(opts.seed, index, repeat))
+            yield z, repeat, _capture(clean, np.random.default_rng(stack_seed(capture_opts, scene)))
 
 
-def series_seed(options: SimulationOptions, position_index: int, repeat: int) -> np.random.SeedSequence:
-    """The noise seed :func:`render_series` uses for one capture."""
-    return np.random.SeedSequence([options.seed, position_index, repeat])
+def series_seed(seed: int, position_index: int, repeat: int) -> int:
+    """The noise seed (``SimulationOptions.seed``) of one capture of a stage series.
+
+    ``SeedSequence([seed, position index, repeat])`` reduced to one 32-bit integer: capture
+    ``(i, r)`` of a series seeded ``seed`` is :func:`render_stack` of the stage scene at
+    position ``i`` with ``options.seed = series_seed(seed, i, r)``, so a series rendered
+    capture by capture (the application's jobs) has the same images as :func:`render_series`
+    (``gcps simulate --scene stage``). The reference of a series uses ``seed`` itself.
+
+    Raises
+    ------
+    ValueError
+        If an argument is not a non-negative integer (naming it).
+    """
+    for name, value in (("seed", seed), ("position_index", position_index), ("repeat", repeat)):
+        if not _is_int(value) or value < 0:
+            raise ValueError(f"{name} must be a non-negative integer, got {value!r}")
+    state = np.random.SeedSequence([int(seed), int(position_index), int(repeat)]).generate_state(1, np.uint32)
+    return int(state[0])
+
+
+def stage_positions(start_mm: float, stop_mm: float, step_mm: float) -> list[float]:
+    """Stage positions Z_in from ``start_mm`` to ``stop_mm`` *inclusive*, every ``step_mm``, mm.
+
+    ``start + i step`` for ``i = 0, 1, ...`` while it does not pass ``stop`` (1e-9 of a step of
+    slack for rounding; values rounded to 1e-9 mm): ``0:8:3`` gives 0, 3, 6 and ``0:8:4`` gives
+    0, 4, 8. The one definition used by ``gcps simulate --z-in``, the dashboard and reports.
+
+    Raises
+    ------
+    ValueError
+        If a value is not finite, ``step_mm <= 0`` or ``stop_mm < start_mm`` (naming it).
+    """
+    for name, value in (("start_mm", start_mm), ("stop_mm", stop_mm), ("step_mm", step_mm)):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise ValueError(f"{name} must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ValueError(f"{name} must be finite, got {value!r}")
+    if step_mm <= 0:
+        raise ValueError(f"step_mm must be positive, got {step_mm!r}")
+    if stop_mm < start_mm:
+        raise ValueError(f"stop_mm ({stop_mm!r}) must not be below start_mm ({start_mm!r})")
+    count = math.floor((stop_mm - start_mm) / step_mm + 1e-9) + 1
+    return [round(start_mm + i * step_mm, 9) for i in range(count)]
 
 
 def emitted_pattern(codes: npt.ArrayLike, name: str, nlp: int, options: SimulationOptions) -> FloatArray:
@@ -602,13 +643,10 @@ def _blurred_table(name: str, nlp: int, sigma: float, square: bool, gamma: float
 # --------------------------------------------------------------------------- ray casting
 def _trace(rig: Rig, scene: Scene, xa: FloatArray, ya: FloatArray) -> _Trace:
     """First hits, shadows and codes of the camera rays through (xa, ya) on R (flat arrays)."""
-    L = rig.L_mm
     z = _first_hit(rig, scene, xa, ya)
-    k = 1.0 - z / L
-    X = rig.d_mm + k * (xa - rig.d_mm)
-    Y = k * ya
+    X, Y = (np.asarray(a, dtype=np.float64) for a in camera_ray_point(rig, xa, ya, z))
     illuminated = ~_shadowed(rig, scene, X, Y, z)
-    codes = np.asarray(codes_from_abscissa(rig, X * L / (L - z)), dtype=np.float64)
+    codes = np.asarray(codes_of_points(rig, X, z), dtype=np.float64)
     in_field = illuminated & (codes >= 0.0) & (codes <= rig.nlp)
     return _Trace(z=z, X=X, Y=Y, codes=codes, illuminated=illuminated, in_field=in_field)
 

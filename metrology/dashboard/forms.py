@@ -92,17 +92,20 @@ class StageSeriesForm(forms.Form):
     MAX_CAPTURES = 400
 
     def clean(self):
+        from metrology.core.simulate import stage_positions
+
         data = super().clean()
         lo, hi, step = data.get("z_from_mm"), data.get("z_to_mm"), data.get("z_step_mm")
         if None not in (lo, hi, step):
             if hi <= lo:
                 raise forms.ValidationError("'to Z_in' must be above 'from Z_in'.")
-            count = int((hi - lo) / step + 1e-9) + 1
+            positions = stage_positions(lo, hi, step)
+            count = len(positions)
             if count < 2:
                 raise forms.ValidationError("The series needs at least two stage positions: reduce the step.")
             if count * (data.get("repeats") or 1) > self.MAX_CAPTURES:
                 raise forms.ValidationError(f"That makes more than {self.MAX_CAPTURES} captures: widen the step.")
-            data["positions"] = [lo + i * step for i in range(count)]
+            data["positions"] = positions
         return data
 
 

@@ -212,6 +212,8 @@ def _start_capture(request: HttpRequest, rig, action: str, form) -> str:
     if action == "simulate":
         capture = capture_services.request_simulated_capture(owner=request.user, rig=rig, **form.request_kwargs())
         return reverse("dashboard:job", args=[capture.job_id])
+    from metrology.core.simulate import series_seed
+
     options = forms.NOISE_PRESETS[data["noise"]][1]
     with transaction.atomic():
         session = capture_services.create_session(
@@ -225,7 +227,7 @@ def _start_capture(request: HttpRequest, rig, action: str, form) -> str:
                     rig=rig,
                     role="stage",
                     scene={"name": "stage"},
-                    options={**options, "seed": 100 + index * data["repeats"] + repeat},
+                    options={**options, "seed": series_seed(100, index, repeat)},
                     z_in_mm=z_in,
                     repeat=repeat,
                     session_id=session.pk,

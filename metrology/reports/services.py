@@ -143,11 +143,14 @@ def check_options(options: dict[str, Any] | None) -> dict[str, Any]:
 
 def stage_positions(options: dict[str, Any]) -> list[float]:
     """Stage positions Z_in (mm) from ``z_start_mm`` to ``z_stop_mm`` inclusive, every ``z_step_mm``."""
+    from metrology.core.simulate import stage_positions as positions
+
     start, stop, step = options["z_start_mm"], options["z_stop_mm"], options["z_step_mm"]
     if stop < start:
         return []
-    count = math.floor((stop - start) / step + 1e-9) + 1
-    return [round(start + i * step, 6) for i in range(min(count, MAX_STAGE_CAPTURES + 1))]
+    if (stop - start) / step > MAX_STAGE_CAPTURES:
+        return positions(start, start + MAX_STAGE_CAPTURES * step, step)  # too many: the caller refuses
+    return positions(start, stop, step)
 
 
 def resolve_source(rig: Rig, source: str) -> str:
@@ -355,6 +358,7 @@ def _complete_jobs(
 def _virtual_series(report: Report, run: job_services.JobRun) -> tuple[int, int]:
     """The simulated reference and stage captures of a virtual-stage report: ``(session_id, reference_id)``."""
     from metrology.captures.services import create_session
+    from metrology.core.simulate import series_seed
 
     options = report.parameters
     rig = report.rig
@@ -370,23 +374,21 @@ def _virtual_series(report: Report, run: job_services.JobRun) -> tuple[int, int]
                 owner=report.owner, rig=rig, name=f"virtual stage of report {report.pk}", notes="made by a report"
             )
 
-            def simulate(role: str, scene: dict, seed_offset: int, **extra) -> Capture:
+            def simulate(role: str, scene: dict, seed_index: tuple[int, int] | None, **extra) -> Capture:
                 return request_simulated_capture(
                     owner=report.owner,
                     rig=rig,
                     role=role,
                     scene=scene,
-                    options={**noise, "seed": seed + seed_offset},
+                    options={**noise, "seed": seed if seed_index is None else series_seed(seed, *seed_index)},
                     session_id=session.pk,
                     **extra,
                 )
 
-            simulate("reference", {"name": "reference"}, 0)
+            simulate("reference", {"name": "reference"}, None)
             for i, z_in in enumerate(stage_positions(options)):
                 for repeat in range(options["repeats"]):
-                    simulate(
-                        "stage", {"name": "stage"}, 1 + i * options["repeats"] + repeat, z_in_mm=z_in, repeat=repeat
-                    )
+                    simulate("stage", {"name": "stage"}, (i, repeat), z_in_mm=z_in, repeat=repeat)
             Report.objects.filter(pk=report.pk).update(session=session)
             report.session = session
     captures = list(Capture.objects.filter(session_id=report.session_id).order_by("id"))

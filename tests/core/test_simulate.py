@@ -9,7 +9,7 @@ import pytest
 
 from metrology.core.patterns import PATTERN_NAMES, pattern_intensity
 from metrology.core.rig import PAPER_RIG, Rig
-from metrology.core.scenes import SCENES, make_scene
+from metrology.core.scenes import SCENES, StageScene, make_scene
 from metrology.core.simulate import (
     RenderedStack,
     SimulationOptions,
@@ -17,6 +17,8 @@ from metrology.core.simulate import (
     realistic_8bit,
     render_series,
     render_stack,
+    series_seed,
+    stage_positions,
 )
 from metrology.core.triangulate import codes_from_abscissa, points_from_heights
 
@@ -310,3 +312,30 @@ def test_full_size_realistic_render(name: str) -> None:
     stack = render_stack(PAPER_RIG, make_scene(name), SimulationOptions.realistic_8bit())
     assert stack.images.shape == (11, 480, 640) and stack.images.dtype == np.uint8
     assert np.isfinite(stack.truth_mm).mean() > 0.95
+
+
+def test_stage_positions_stop_inclusive_and_never_past_it() -> None:
+    assert stage_positions(0.0, 8.0, 3.0) == [0.0, 3.0, 6.0]
+    assert stage_positions(0.0, 8.0, 4.0) == [0.0, 4.0, 8.0]
+    assert stage_positions(0.0, 0.3, 0.1) == [0.0, 0.1, 0.2, 0.3]  # 0.3/0.1 = 2.9999999999999996
+    assert stage_positions(2.0, 2.0, 1.0) == [2.0]
+    for args, name in (
+        ((0.0, 8.0, 0.0), "step_mm"),
+        ((8.0, 0.0, 1.0), "stop_mm"),
+        ((float("nan"), 1.0, 1.0), "start_mm"),
+    ):
+        with pytest.raises(ValueError, match=name):
+            stage_positions(*args)
+
+
+def test_a_series_capture_is_render_stack_with_series_seed() -> None:
+    options = realistic_8bit(seed=5, supersample=1)
+    frames = list(render_series(SMALL, [0.0, 4.0], repeats=2, options=options))
+    for index, z in enumerate((0.0, 4.0)):
+        for repeat in range(2):
+            alone = render_stack(SMALL, StageScene(z_in_mm=z), options.with_changes(seed=series_seed(5, index, repeat)))
+            np.testing.assert_array_equal(frames[2 * index + repeat][2].images, alone.images)
+    seeds = {series_seed(5, i, r) for i in range(10) for r in range(10)}
+    assert len(seeds) == 100 and 5 not in seeds
+    with pytest.raises(ValueError, match="repeat"):
+        series_seed(5, 0, -1)
