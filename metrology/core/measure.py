@@ -392,7 +392,8 @@ def unreliable_mask(
     use_visibility = visibility is not None and min_visibility_ratio > 0
     use_creases = blur_variance_px2 > 0 and max_blur_bias_codes > 0
     creases = np.empty(codes.shape, bool) if use_creases else None
-    context = 2 if use_creases else 1  # rows: the 5x5 Laplacian's reach, or the code steps'
+    # rows of context: the code steps' reach, or the 5x5 Laplacian's plus the creases' band
+    context = 3 if use_creases else 1
 
     def run(rows: slice) -> None:
         top, bottom = max(rows.start - context, 0), min(rows.stop + context, height)
@@ -424,13 +425,14 @@ def unreliable_mask(
                 scratch.get("crease", c.shape, bool),
                 scratch.get("laplacian", c.shape, np.float32),
             )
-            creases[rows] = crease[rows.start - top : rows.stop - top]
+            band = cv2.dilate(crease.view(np.uint8), _CROSS, dst=scratch.get("crease_band", c.shape, np.uint8))
+            creases[rows] = band[rows.start - top : rows.stop - top].view(bool)  # with their 4-neighbours
         seeds[rows] = s[rows.start - top : rows.stop - top].view(np.uint8)
 
     run_tiled(run, height, width, threads)
     dropped = cv2.dilate(seeds, _CROSS, iterations=band_px).view(bool)
     if creases is not None:
-        dropped |= cv2.dilate(creases.view(np.uint8), _CROSS).view(bool)  # and their 4-neighbours
+        dropped |= creases
     dropped &= np.isfinite(codes)
     return dropped
 
