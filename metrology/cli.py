@@ -226,6 +226,7 @@ def _simulation_options(args: argparse.Namespace) -> Any:
         "projector_gamma": args.gamma,
         "ambient": args.ambient,
         "supersample": args.supersample,
+        "camera_sampling": args.camera_sampling,
         "seed": args.seed,
     }
     changes = {key: value for key, value in overrides.items() if value is not None}
@@ -273,6 +274,7 @@ def cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
             "series": str(out / "series.json"),
             "positions": len(positions),
             "repeats": args.repeats,
+            "options": options.to_dict(),
         }
 
     if args.z_in is not None:
@@ -291,7 +293,13 @@ def cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
 
         write_height_npy(rendered.truth_mm, args.truth)
     valid = int(np.isfinite(rendered.truth_mm).sum())
-    return {"out": args.out, "scene": args.scene, "bit_depth": options.bit_depth, "truth_valid_pixels": valid}
+    return {
+        "out": args.out,
+        "scene": args.scene,
+        "bit_depth": options.bit_depth,
+        "truth_valid_pixels": valid,
+        "options": options.to_dict(),
+    }
 
 
 def _parse_roi(text: str | None) -> tuple[slice, slice] | None:
@@ -463,6 +471,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ambient", type=float, help="ambient light, fraction of full scale")
     p.add_argument("--square", action="store_true", help="square-wave phase patterns")
     p.add_argument("--supersample", type=int, help="sub-pixel samples per axis")
+    p.add_argument(
+        "--camera-sampling",
+        metavar="area|centre",
+        help="area: a pixel averages its sub-rays (default); centre: it takes its centre ray, then the Gaussian blur",
+    )
     p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     p.set_defaults(func=cmd_simulate)
 

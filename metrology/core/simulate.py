@@ -18,8 +18,10 @@ The forward model is the exact crossed-optical-axes geometry of the paper (Figs.
    ``E = G_sigma * (pattern(l)^gamma * [0 <= l <= nlp])`` is the light the projector emits
    (its gamma acts on the pattern value; its defocus is a Gaussian of ``sigma`` codes across
    the fringes). Shadowed points get ``albedo * ambient``.
-5. **Camera.** Each pixel averages ``supersample x supersample`` sub-rays (mixed pixels at
-   discontinuities and shadow edges), then a Gaussian camera blur, seeded Gaussian noise in
+5. **Camera.** Each pixel averages ``supersample x supersample`` sub-rays over its area
+   (``camera_sampling="area"``: mixed pixels at discontinuities and shadow edges), or takes the
+   light of the one ray through its centre (``camera_sampling="centre"``: a point sample, whose
+   only mixing is the blur that follows); then a Gaussian camera blur, seeded Gaussian noise in
    grey levels, rounding and clipping to 8 or 16 bits.
 
 Square-wave projection (``square=True``) with ``smoothing_codes > 0`` models the paper's
@@ -76,6 +78,9 @@ EDGE_JUMP_MM = 2.0
 CODE_GRID_STEP = 1.0 / 256.0
 """Sampling of the projector patterns in code space when they are blurred, code units."""
 
+CAMERA_SAMPLINGS = ("area", "centre")
+"""Values of :attr:`SimulationOptions.camera_sampling`: a pixel's mean over its area, or its centre ray."""
+
 
 # --------------------------------------------------------------------------- options
 @dataclass(frozen=True)
@@ -108,7 +113,16 @@ class SimulationOptions:
         leaves a third harmonic below 1e-3 of the fundamental), >= 0. Default 0.
     supersample : int
         Sub-rays per pixel along each axis (1 to 8); > 1 renders mixed pixels at
-        discontinuities. Default 1 (exact pixel-centre rendering).
+        discontinuities. Default 1 (exact pixel-centre rendering). With
+        ``camera_sampling="centre"`` the sub-rays only find the depth edges inside each pixel
+        (:attr:`RenderedStack.edges`); the images take the centre ray.
+    camera_sampling : {"area", "centre"}
+        How a pixel gathers light before the camera blur. ``"area"`` (default): the mean of its
+        ``supersample x supersample`` sub-rays, i.e. the pixel's area (a box of one pixel, variance
+        1/12 px^2 per axis, plus ``camera_defocus_px``). ``"centre"``: the light of the ray through
+        the pixel's centre only, then the Gaussian of ``camera_defocus_px``: a camera whose whole
+        blur is Gaussian (no box), which makes the mixing at a depth step a Gaussian-weighted blend
+        of the two sides instead of a sharp area split. With ``supersample=1`` both are the same.
     seed : int
         Seed of the camera noise, >= 0. Default 0.
 
@@ -134,6 +148,7 @@ class SimulationOptions:
     smoothing_codes: float = 0.0
     supersample: int = 1
     seed: int = 0
+    camera_sampling: str = "area"
 
     def __post_init__(self) -> None:
         if _is_bool(self.bit_depth) or self.bit_depth not in (8, 16):
@@ -152,6 +167,9 @@ class SimulationOptions:
         if not _is_int(self.seed) or self.seed < 0:
             raise ValueError(f"option seed must be a non-negative integer, got {self.seed!r}")
         object.__setattr__(self, "seed", int(self.seed))
+        if not isinstance(self.camera_sampling, str) or self.camera_sampling not in CAMERA_SAMPLINGS:
+            expected = " or ".join(repr(v) for v in CAMERA_SAMPLINGS)
+            raise ValueError(f"option camera_sampling must be {expected}, got {self.camera_sampling!r}")
 
     def _check_real(self, name: str, lower: float, strict: bool) -> None:
         value = getattr(self, name)
@@ -162,6 +180,10 @@ class SimulationOptions:
             relation = ">" if strict else ">="
             raise ValueError(f"option {name} must be finite and {relation} {lower:g}, got {value!r}")
         object.__setattr__(self, name, value)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Every option by name (JSON types); ``SimulationOptions(**d)`` rebuilds the same options."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
 
     @property
     def full_scale(self) -> int:
@@ -533,19 +555,9 @@ def _render_clean(rig: Rig, scene: Scene, opts: SimulationOptions) -> _CleanRend
     XA, YA = np.meshgrid(xa, ya)
     sub = _trace(rig, scene, XA.ravel(), YA.ravel())
 
-    if s % 2 == 1:
-        c = s // 2
-
-        def centre(a: npt.NDArray[Any]) -> npt.NDArray[Any]:
-            return np.ascontiguousarray(a.reshape(H, s, W, s)[:, c, :, c])
-
-        z_c, codes_c = centre(sub.z), centre(sub.codes)
-        lit_c = centre(sub.illuminated & sub.in_field)
-    else:
-        XC, YC = np.meshgrid(rig.column_x_mm(), rig.row_y_mm())
-        tc = _trace(rig, scene, XC.ravel(), YC.ravel())
-        z_c, codes_c = tc.z.reshape(H, W), tc.codes.reshape(H, W)
-        lit_c = (tc.illuminated & tc.in_field).reshape(H, W)
+    centre_rays = _centre_rays(rig, scene, sub, H, W, s)
+    z_c, codes_c = centre_rays.z.reshape(H, W), centre_rays.codes.reshape(H, W)
+    lit_c = (centre_rays.illuminated & centre_rays.in_field).reshape(H, W)
 
     truth = np.where(lit_c, z_c, np.nan).astype(np.float32)
     codes = np.where(lit_c, codes_c, np.nan)
@@ -556,9 +568,11 @@ def _render_clean(rig: Rig, scene: Scene, opts: SimulationOptions) -> _CleanRend
         edges |= (z4.max(axis=(1, 3)) - z4.min(axis=(1, 3))) > EDGE_JUMP_MM
         edges |= lit4.any(axis=(1, 3)) != lit4.all(axis=(1, 3))
 
-    albedo = scene.albedo(sub.X, sub.Y).reshape(H * s, W * s)
-    illuminated = sub.illuminated.reshape(H * s, W * s)
-    sub_codes = sub.codes.reshape(H * s, W * s)
+    # the rays whose light the pixels gather: all sub-rays (area) or the centre rays (centre)
+    rays, rows, cols = (centre_rays, H, W) if opts.camera_sampling == "centre" else (sub, H * s, W * s)
+    albedo = scene.albedo(rays.X, rays.Y).reshape(rows, cols)
+    illuminated = rays.illuminated.reshape(rows, cols)
+    sub_codes = rays.codes.reshape(rows, cols)
     signal = albedo * opts.projector_gain * illuminated
     ambient = albedo * opts.ambient
     grey = np.empty((len(PATTERN_NAMES), H, W), dtype=np.float64)
@@ -572,12 +586,33 @@ def _render_clean(rig: Rig, scene: Scene, opts: SimulationOptions) -> _CleanRend
         else:
             emitted = sampler.sample(_blurred_table(name, rig.nlp, sigmas[p], opts.square, opts.projector_gamma, pad))
         intensity = ambient + signal * emitted
-        img = cv2.resize(intensity, (W, H), interpolation=cv2.INTER_AREA) if s > 1 else intensity
+        img = cv2.resize(intensity, (W, H), interpolation=cv2.INTER_AREA) if rows > H else intensity
         if opts.camera_defocus_px > 0:
             sigma = opts.camera_defocus_px
             img = cv2.GaussianBlur(img, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REPLICATE)
         grey[p] = img * full
     return _CleanRender(grey, truth, codes, lit_c, edges, z_c, scene, opts)
+
+
+def _centre_rays(rig: Rig, scene: Scene, sub: _Trace, H: int, W: int, s: int) -> _Trace:
+    """The rays through the pixel centres (flat, H * W): the middle sub-ray of each pixel when
+    ``s`` is odd, else traced anew."""
+    if s % 2 == 0:
+        XC, YC = np.meshgrid(rig.column_x_mm(), rig.row_y_mm())
+        return _trace(rig, scene, XC.ravel(), YC.ravel())
+    c = s // 2
+
+    def centre(a: npt.NDArray[Any]) -> npt.NDArray[Any]:
+        return np.ascontiguousarray(a.reshape(H, s, W, s)[:, c, :, c]).ravel()
+
+    return _Trace(
+        z=centre(sub.z),
+        X=centre(sub.X),
+        Y=centre(sub.Y),
+        codes=centre(sub.codes),
+        illuminated=centre(sub.illuminated),
+        in_field=centre(sub.in_field),
+    )
 
 
 def _capture(clean: _CleanRender, rng: np.random.Generator) -> RenderedStack:

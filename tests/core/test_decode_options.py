@@ -30,6 +30,9 @@ RIG = Rig(L_mm=1022.0, d_mm=352.0, alpha_rad=0.332, fw_mm=500.0, nlp=128, width_
         ("min_visibility_ratio", -0.2),
         ("blur_variance_px2", 100.0),
         ("blur_variance_px2", -1.0),
+        ("max_blur_bias_codes", -0.01),
+        ("max_blur_bias_codes", 1.0),
+        ("max_blur_bias_codes", float("nan")),
     ],
 )
 def test_bad_option_raises_naming_it(name, value):
