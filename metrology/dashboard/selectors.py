@@ -101,6 +101,17 @@ def stage_sessions(user, rig):
     )
 
 
+def capture_origin(capture) -> str:
+    """Where a capture came from, in words: the uploaded file's name, the virtual scene's name, or the source.
+
+    Uploads carry empty ``parameters``; virtual captures carry ``{"scene": {"name": ...}, ...}``.
+    """
+    parameters = capture.parameters if isinstance(capture.parameters, dict) else {}
+    scene = parameters.get("scene")
+    scene_name = scene.get("name", "") if isinstance(scene, dict) else ""
+    return str(capture.original_name or scene_name or capture.source)
+
+
 def ready_captures(user, rig):
     """The user's stored captures of ``rig`` (newest first), for the forms' choices."""
     from metrology.captures.selectors import captures_for

@@ -164,6 +164,49 @@ def test_upload_form_stores_a_stack(client_alice, rig, alice):
     assert rig.captures.filter(role="reference").exclude(file="").count() == 1
 
 
+def capture_listing_pages(rig_id: int, reference: int, obj: int) -> dict[str, list[str]]:
+    """Every page that lists a user's captures, with what it must show of the two uploads."""
+    table = [f"<td>#{reference}</td>", f"<td>#{obj}</td>", "plane-r.zip", "block-o.zip"]
+    return {
+        "/captures/": table,
+        f"/rigs/{rig_id}/captures/": table,
+        f"/rigs/{rig_id}/": [f"#{reference} reference", f"#{obj} object"],
+        f"/measurements/new/?rig={rig_id}": [f"#{reference} reference (plane-r.zip)", f"#{obj} object (block-o.zip)"],
+        f"/calibrations/new/?rig={rig_id}": [f"#{reference} reference (plane-r.zip)", f"#{obj} object (block-o.zip)"],
+        f"/characterizations/new/?rig={rig_id}": [f"#{reference} reference (plane-r.zip)"],
+    }
+
+
+def test_uploaded_captures_are_listed_on_every_capture_page(client_alice, rig, alice):
+    """Uploads carry no scene parameters: every page that lists captures must still render them."""
+    from django.core.files.uploadedfile import SimpleUploadedFile
+
+    from metrology.captures.models import Capture
+    from metrology.captures.services import create_session
+    from tests.app.stacks import SMALL_RIG, plane_zip
+
+    for name, role, z_mm in (("plane-r.zip", "reference", 0.0), ("block-o.zip", "object", 10.0)):
+        data = {
+            "action": "upload",
+            "upload-role": role,
+            "upload-file": SimpleUploadedFile(name, plane_zip(SMALL_RIG, z_mm)),
+        }
+        response = client_alice.post(f"/rigs/{rig.pk}/captures/", data, follow=True)
+        assert response.status_code == 200 and name.encode() in response.content  # the page it redirects to
+    reference = Capture.objects.get(rig=rig, role="reference")
+    obj = Capture.objects.get(rig=rig, role="object")
+    assert reference.parameters == {} and obj.parameters == {}
+    session = create_session(owner=alice, rig=rig, name="stage")  # so that the characterization form shows
+    for z in (0.0, 4.0):
+        upload(alice, rig, z, "stage", z_in_mm=z, session_id=session.pk)
+    for url, expected in capture_listing_pages(rig.pk, reference.pk, obj.pk).items():
+        page = client_alice.get(url)
+        assert page.status_code == 200, url
+        text = page.content.decode()
+        for marker in expected:
+            assert marker in text, (url, marker)
+
+
 def test_measurement_form_runs_a_measurement_and_shows_its_figures(client_alice, rig, captures, run_jobs):
     reference, obj = captures
     form = client_alice.get(f"/measurements/new/?rig={rig.pk}")

@@ -8,6 +8,7 @@ from django import template
 from django.utils.html import format_html
 from django.utils.safestring import mark_safe
 
+from metrology.dashboard.selectors import capture_origin
 from metrology.figures import figure_json, plot_config
 
 register = template.Library()
@@ -48,6 +49,12 @@ def plotly_figure(fig, name: str, label: str = ""):
 def job_progress(job, next_url: str = ""):
     """A progress bar for ``job`` that polls ``/api/jobs/<id>/`` and goes to ``next_url`` when done."""
     return {"job": job, "next_url": next_url}
+
+
+@register.filter
+def origin(capture) -> str:
+    """Where a capture came from: uploaded file name, virtual scene name, or source (uploads have no scene)."""
+    return capture_origin(capture)
 
 
 @register.filter
