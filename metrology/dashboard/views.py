@@ -361,6 +361,7 @@ def calibration_detail(request: HttpRequest, calibration_id: int) -> HttpRespons
             "job": calibration.job,
             "figures": figures,
             "result": calibration.result or {},
+            "summary": pages.calibration_summary(calibration),
             "error": request.GET.get("error", ""),
         },
     )
@@ -382,6 +383,7 @@ def calibration_apply(request: HttpRequest, calibration_id: int) -> HttpResponse
                 "job": calibration.job,
                 "figures": {},
                 "result": calibration.result or {},
+                "summary": pages.calibration_summary(calibration),
                 "error": error_text(exc),
             },
             status=400,

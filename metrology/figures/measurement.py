@@ -136,10 +136,10 @@ def profile_figure(
 def gray_vs_gcps_figure(
     x_mm: npt.ArrayLike, z_row_mm: npt.ArrayLike, gray_row_mm: npt.ArrayLike, row: int
 ) -> go.Figure:
-    """Gray-code-only minus GCPS height along one row, in um: the staircase the phase shift removes."""
+    """Gray-code-only minus GCPS height along one row, in µm: the staircase the phase shift removes."""
     x = np.asarray(x_mm, dtype=np.float32)
     diff = (np.asarray(gray_row_mm, dtype=np.float64) - np.asarray(z_row_mm, dtype=np.float64)) * UM
-    fig = go.Figure(layout=base_layout(f"Gray code only minus GCPS, row {row}", "X (mm)", "difference (um)"))
+    fig = go.Figure(layout=base_layout(f"Gray code only minus GCPS, row {row}", "X (mm)", "difference (µm)"))
     fig.add_trace(
         go.Scattergl(x=x, y=diff.astype(np.float32), mode="lines", name="gray only - GCPS", line={"color": PALETTE[4]})
     )

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+import re
+
 import numpy as np
 import pytest
 
@@ -324,6 +327,60 @@ def test_calibration_page_and_apply(client_alice, rig, alice, run_jobs):
     rig.refresh_from_db()
     assert abs(rig.L_mm - 1022.0) < 1.0
     assert "calibration" in client_alice.get(f"/rigs/{rig.pk}/").content.decode()
+
+
+def visible_text(html: str) -> str:
+    """The text a reader sees: scripts, styles and tags removed."""
+    html = re.sub(r"<(script|style)\b.*?</\1>", " ", html, flags=re.S)
+    return re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", html))
+
+
+def figure_data(html: str, name: str) -> dict:
+    """The plotly figure JSON embedded for ``fig-<name>``."""
+    found = re.search(rf'<script type="application/json" id="fig-{name}-data">(.*?)</script>', html, flags=re.S)
+    assert found, name
+    return json.loads(found.group(1))
+
+
+def test_calibration_page_shows_start_result_and_iterations_in_plain_words(client_alice, rig, alice, run_jobs):
+    """Paper's rough start L0 = 1080 mm on a rig stored at 1022 mm: the page shows start -> result."""
+    z = np.zeros((rig.height_px, rig.width_px))
+    z[25:95, 30:130] = 40.0
+    reference = upload(alice, rig, 0.0, "reference")
+    master = upload(alice, rig, z, "master")
+    with run_jobs():
+        response = client_alice.post(
+            "/calibrations/new/",
+            {
+                "rig": rig.pk,
+                "reference": reference.pk,
+                "master": master.pk,
+                "master_height_mm": 40,
+                "method": "lsq",
+                "initial_L_mm": 1080,
+                "initial_alpha_rad": 0.4871,
+            },
+        )
+    assert response.status_code == 302
+    html = client_alice.get(response["Location"]).content.decode()
+    text = visible_text(html)
+    # the true starting values, then the result (true values 1022 mm, 0.332 rad: within 1 mm, 1 mrad)
+    start_to_result = re.search(r"L 1080\.000 mm → (\d+\.\d{3}) mm ± [\d.]+ µm", text)
+    assert start_to_result, text
+    assert abs(float(start_to_result.group(1)) - 1022.0) < 1.0
+    alpha = re.search(r"alpha 0\.48710 rad → (\d\.\d{5}) rad ± [\d.]+ µrad", text)
+    assert alpha and abs(float(alpha.group(1)) - 0.332) < 1e-3, text
+    assert "the rig's stored value was 1022.000 mm" in text
+    # the count in words equals the points drawn after the start (iteration 0)
+    count = re.search(r"after (\d+) iterations", text)
+    assert count, text
+    trace = figure_data(html, "calibration_parameters")["data"][0]
+    assert trace["x"][0] == 0 and len(trace["x"]) == int(count.group(1)) + 1
+    # plain words, no optimizer message, no long numbers, one spelling of micrometres
+    assert "`" not in text and not re.search(r"\b[fxg]tol\b", text) and "termination condition" not in text
+    assert not re.search(r"\d\.\d{7,}", text), re.findall(r"\S*\d\.\d{7,}\S*", text)
+    assert "µm" in text and not re.search(r"\bum\b", text)
+    assert "(µm)" in json.dumps(figure_data(html, "calibration_residual"), ensure_ascii=False)
 
 
 def test_sensitivity_page_draws_figs_4_to_6(client_alice, rig):

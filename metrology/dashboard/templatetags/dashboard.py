@@ -59,12 +59,32 @@ def origin(capture) -> str:
 
 @register.filter
 def um(value_mm, digits: int = 1):
-    """Millimetres shown as micrometres (``"n/a"`` for None/NaN)."""
+    """Millimetres shown as micrometres, µm (``"n/a"`` for None/NaN)."""
     try:
         number = float(value_mm)
     except (TypeError, ValueError):
         return "n/a"
-    return "n/a" if not math.isfinite(number) else f"{number * 1000:.{int(digits)}f} um"
+    return "n/a" if not math.isfinite(number) else f"{number * 1000:.{int(digits)}f} µm"
+
+
+@register.filter
+def sig(value, digits: int = 2) -> str:
+    """A number with ``digits`` significant digits, positional up to 6 decimals (``"n/a"`` for None/NaN).
+
+    For uncertainties: 0.0213 -> "0.021", 12.34 -> "12", 3.1e-9 -> "3.1e-09".
+    """
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return "n/a"
+    if not math.isfinite(number):
+        return "n/a"
+    if number == 0:
+        return "0"
+    decimals = int(digits) - 1 - math.floor(math.log10(abs(number)))
+    if decimals > 6:
+        return f"{number:.{int(digits) - 1}e}"
+    return f"{number:.{max(decimals, 0)}f}"
 
 
 @register.filter

@@ -102,7 +102,7 @@ class Command(BaseCommand):
 
         def um(key: str) -> str:
             value = overall.get(key)
-            return "n/a" if value is None else f"{1000 * value:.1f} um"
+            return "n/a" if value is None else f"{1000 * value:.1f} µm"
 
         self.stdout.write(f"report {report.pk} of rig {report.rig_id} ({report.get_source_display().lower()})")
         self.stdout.write(f"html: {where}")
