@@ -36,15 +36,35 @@ SUMMARY_DRIFT_KEYS: tuple[tuple[str, str], ...] = (
 )
 
 
-def _summary_rows(results: dict[str, Any], beyond_keys: set[str]) -> list[dict[str, Any]]:
-    """The dashboard's summary table rows, each marked ``beyond`` when its figure drifted."""
+def uncertainty_text(key: str | None, u: float | None) -> str:
+    """A standard uncertainty in the unit its figure is shown in: µm, % (of full scale) or plain (slopes)."""
+    if key is None or u is None:
+        return ""
+    if "_mm" in key:  # overall.<figure>_mm and positions.mean_error_mm@<Z_in>
+        return f"± {1000 * u:.1f} µm"
+    if key.endswith("pct_fs"):
+        return f"± {u:.3f} %"
+    return f"± {u:.1g}"
+
+
+def _summary_rows(
+    results: dict[str, Any], beyond_keys: set[str], uncertainties: dict[str, float | None]
+) -> list[dict[str, Any]]:
+    """The dashboard's summary table rows with their standard uncertainty, ``beyond`` when the figure drifted."""
     from metrology.figures.characterization import summary_rows
 
     rows = []
     for label, value in summary_rows(results):
         key = next((key for prefix, key in SUMMARY_DRIFT_KEYS if label.startswith(prefix)), None)
-        rows.append({"label": label, "value": value, "key": key, "beyond": key in beyond_keys})
+        u = uncertainties.get(key) if key else None
+        rows.append(
+            {"label": label, "value": value, "key": key, "beyond": key in beyond_keys, "u": uncertainty_text(key, u)}
+        )
     return rows
+
+
+def _scaled(value: float | None, factor: float) -> float | None:
+    return None if value is None else factor * value
 
 
 def render_report_html(
@@ -53,7 +73,10 @@ def render_report_html(
     """The self-contained HTML report: plotly.js inlined, figures, summary, rig, drift, provenance."""
     from plotly.offline import get_plotlyjs
 
+    from metrology.reports.summary import standard_uncertainties
+
     beyond_keys = {item["key"] for item in drift.get("items", []) if item["beyond"]}
+    uncertainties = summary.get("uncertainty") or standard_uncertainties(summary)
     positions = summary.get("positions", {})
     position_rows = []
     for z_in, mean, std, n in zip(
@@ -68,6 +91,7 @@ def render_report_html(
                 "z_in_mm": z_in,
                 "mean_um": None if mean is None else 1000 * mean,
                 "std_um": None if std is None else 1000 * std,
+                "u_um": _scaled(uncertainties.get(f"positions.mean_error_mm@{z_in:g}"), 1000.0),
                 "n": n,
                 "beyond": f"positions.mean_error_mm@{z_in:g}" in beyond_keys,
             }
@@ -82,8 +106,10 @@ def render_report_html(
         "characterization": characterization,
         "summary": summary,
         "drift": drift,
-        "drift_items": drift.get("items", []),
-        "summary_rows": _summary_rows(characterization.results or {}, beyond_keys),
+        "summary_rows": _summary_rows(characterization.results or {}, beyond_keys, uncertainties),
+        "drift_rows": [
+            {**item, "u": uncertainty_text(item["key"], item.get("uncertainty"))} for item in drift.get("items", [])
+        ],
         "position_rows": position_rows,
         "rig_rows": rig_rows,
         "figures": _figures_html(characterization.results or {}),
