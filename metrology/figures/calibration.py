@@ -17,7 +17,7 @@ import numpy.typing as npt
 import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
-from metrology.figures import PALETTE, base_layout, empty_figure
+from metrology.figures import PALETTE, base_layout, empty_figure, fit_image_axes
 from metrology.figures.measurement import block_factors, decimate, decimate_axis
 
 UM = 1000.0
@@ -166,8 +166,7 @@ def residual_figure(residual_mm: npt.ArrayLike | None, x_mm: npt.ArrayLike, y_mm
         ],
         layout=base_layout(title, "X (mm)", "Y (mm)", height=460),
     )
-    fig.update_yaxes(scaleanchor="x", scaleratio=1, autorange="reversed")
-    return fig
+    return fit_image_axes(fig, decimate_axis(x_mm, fc), decimate_axis(y_mm, fr))
 
 
 def calibration_figures(

@@ -14,14 +14,22 @@ from metrology.reports.models import Report
 
 def _figures_html(results: dict[str, Any]) -> list[dict[str, str]]:
     """Each plotly figure of the characterization as an HTML fragment (no plotly.js: it is inlined once)."""
-    from metrology.figures import plot_config
+    from django.utils.html import format_html
+
+    from metrology.figures import empty_message, is_empty, plot_config
     from metrology.figures.characterization import FIGURE_TITLES, characterization_figures
 
     fragments = []
     for key, figure in characterization_figures(results).items():
-        config = plot_config(f"characterization-{key}", "svg")
-        html = figure.to_html(full_html=False, include_plotlyjs=False, config=config, div_id=f"figure-{key}")
-        fragments.append({"key": key, "title": FIGURE_TITLES.get(key, key.replace("_", " ")), "html": html})
+        title = FIGURE_TITLES.get(key, key.replace("_", " "))
+        if is_empty(figure):  # nothing to draw or to save: say why
+            html = format_html(
+                '<p class="empty" id="figure-{}"><strong>{}</strong>: {}</p>', key, title, empty_message(figure)
+            )
+        else:
+            config = plot_config(f"characterization-{key}", "svg")
+            html = figure.to_html(full_html=False, include_plotlyjs=False, config=config, div_id=f"figure-{key}")
+        fragments.append({"key": key, "title": title, "html": html})
     return fragments
 
 

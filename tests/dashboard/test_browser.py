@@ -141,6 +141,10 @@ def test_measure_and_characterize_in_the_browser(live_server, alice, worker, bro
     assert page.locator("#fig-profile .main-svg").count() >= 1
     assert page.locator("#fig-gray_vs_gcps .main-svg").count() >= 1
     assert page.locator("#fig-height_map .colorbar").count() == 1
+    # the X axis spans the field (d - FW/2 .. d + FW/2 = 102 .. 602 mm), not a range padded to the square aspect
+    x_range = page.evaluate("document.getElementById('fig-height_map')._fullLayout.xaxis.range")
+    assert 101.0 <= x_range[0] <= 103.0 and 601.0 <= x_range[1] <= 603.0, x_range
+    assert "down" in page.locator("#fig-height_map .g-ytitle").text_content()
     page.wait_for_timeout(500)
     shot(page, "05-measurement")
 

@@ -83,3 +83,61 @@ def test_paper_stop_reasons_in_words():
 )
 def test_significant_digits(value, text):
     assert sig(value) == text
+
+
+def paper_rig_axes(width: int = 640, height: int = 480) -> tuple[np.ndarray, np.ndarray]:
+    """Column X and row Y of the paper's rig (d = 352 mm, FW = 500 mm): x_A = d - FW/2 + (j + 0.5) FW/N."""
+    pitch = 500.0 / width
+    x = 352.0 - 250.0 + (np.arange(width) + 0.5) * pitch
+    y = (np.arange(height) + 0.5 - height / 2) * pitch
+    return x, y
+
+
+def test_height_map_axes_span_the_data_and_say_y_runs_down():
+    from metrology.figures.measurement import height_map_figure
+
+    x, y = paper_rig_axes()
+    z = np.zeros((y.size, x.size), dtype=np.float32)
+    layout = height_map_figure(z, x, y).layout
+    half = 0.5 * (x[1] - x[0])
+    assert layout.xaxis.range == pytest.approx((x[0] - half, x[-1] + half))  # 102.0 .. 602.0 mm, not -150 .. 860
+    assert layout.xaxis.range[0] == pytest.approx(102.0) and layout.xaxis.range[1] == pytest.approx(602.0)
+    assert layout.yaxis.range == pytest.approx((y[-1] + half, y[0] - half))  # reversed: image rows run down
+    assert layout.xaxis.constrain == layout.yaxis.constrain == "domain"  # equal scale shrinks the plot, not the data
+    assert "down" in layout.yaxis.title.text
+
+
+def test_residual_map_axes_span_the_data():
+    from metrology.figures.calibration import residual_figure
+
+    x, y = paper_rig_axes(160, 120)
+    residual = np.full((120, 160), 1e-4)
+    layout = residual_figure(residual, x, y).layout
+    half = 0.5 * (x[1] - x[0])
+    assert layout.xaxis.range == pytest.approx((x[0] - half, x[-1] + half))
+    assert layout.xaxis.constrain == "domain" and "down" in layout.yaxis.title.text
+
+
+def test_surface_z_axis_has_few_ticks():
+    from metrology.figures.measurement import surface_figure
+
+    x, y = paper_rig_axes(160, 120)
+    xx, yy = np.meshgrid(x, y)
+    z = np.where((xx > 200) & (xx < 400), 40.0, 0.0)
+    zaxis = surface_figure(np.stack([xx, yy, z], axis=-1)).layout.scene.zaxis
+    assert zaxis.nticks is not None and zaxis.nticks <= 4
+
+
+def test_empty_figures_say_why_and_offer_no_download():
+    from metrology.dashboard.templatetags.dashboard import plotly_figure
+    from metrology.figures import empty_figure, is_empty
+    from metrology.figures.calibration import residual_figure
+
+    empty = residual_figure(None, *paper_rig_axes(160, 120))
+    assert is_empty(empty)
+    html = str(plotly_figure(empty, "calibration_residual", "Residual map"))
+    assert 'id="fig-calibration_residual"' in html and "This method stores no residual map" in html
+    assert "js-download" not in html and "PNG" not in html and "application/json" not in html
+    drawn = str(plotly_figure(residual_figure(np.zeros((120, 160)), *paper_rig_axes(160, 120)), "residual"))
+    assert "js-download" in drawn and "PNG" in drawn
+    assert not is_empty(empty_figure("t", "m").add_scatter(x=[1], y=[1]))  # a figure with data is not empty

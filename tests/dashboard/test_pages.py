@@ -412,3 +412,14 @@ def test_characterization_of_another_user_is_404(client_bob, rig, alice, run_job
         )
     assert client_bob.get(f"/characterizations/{characterization.pk}/").status_code == 404
     assert client_bob.get(f"/api/jobs/{characterization.job_id}/").status_code == 404
+
+
+@pytest.mark.django_db
+def test_every_page_names_a_favicon_that_is_served_without_login(client, client_alice):
+    page = client_alice.get("/rigs/").content.decode()
+    assert '<link rel="icon" href="/favicon.svg" type="image/svg+xml">' in page
+    assert '<link rel="icon"' in client.get("/login/").content.decode()
+    for url in ("/favicon.svg", "/favicon.ico"):  # browsers ask for /favicon.ico by themselves
+        response = client.get(url)
+        assert response.status_code == 200 and response["Content-Type"] == "image/svg+xml"
+        assert response.content.startswith(b"<svg") and b"</svg>" in response.content

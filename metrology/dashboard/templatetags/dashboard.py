@@ -9,7 +9,7 @@ from django.utils.html import format_html
 from django.utils.safestring import mark_safe
 
 from metrology.dashboard.selectors import capture_origin
-from metrology.figures import figure_json, plot_config
+from metrology.figures import empty_message, figure_json, is_empty, plot_config
 
 register = template.Library()
 
@@ -18,16 +18,24 @@ _ESCAPES = {ord(">"): "\\u003E", ord("<"): "\\u003C", ord("&"): "\\u0026"}
 
 @register.simple_tag
 def plotly_figure(fig, name: str, label: str = ""):
-    """A figure drawn by ``Plotly.newPlot`` with PNG and SVG download buttons.
+    """A figure drawn by ``Plotly.newPlot`` with PNG and SVG download buttons (an empty one: its message only).
 
     The figure's JSON sits in a ``<script type="application/json">`` (escaped like
     ``json_script``); the dashboard's script draws every ``.js-figure`` on load.
     """
     import json
 
+    title = label or name.replace("_", " ")
+    if is_empty(fig):  # nothing to draw or download: say why
+        return format_html(
+            '<figure class="figure" aria-label="{title}"><div class="empty figure-empty" id="fig-{name}">'
+            "<strong>{title}</strong>: {message}</div></figure>",
+            title=title,
+            name=name,
+            message=empty_message(fig) or "nothing to show.",
+        )
     data = figure_json(fig).translate(_ESCAPES)
     config = json.dumps(plot_config(name)).translate(_ESCAPES)
-    title = label or name.replace("_", " ")
     return format_html(
         '<figure class="figure" aria-label="{title}">'
         '<div class="js-figure" id="fig-{name}" data-name="{name}"></div>'
