@@ -286,6 +286,32 @@ def test_characterization_from_a_stage_session(client_alice, rig, alice, run_job
     assert "Fig. 12" in page and "Fig. 13" in page and "% of full scale" in page
 
 
+def test_result_pages_show_no_float_noise(client_alice, rig, alice, run_jobs):
+    """A calibrated rig (L = 1021.98533...) is shown rounded on the pages that list its values."""
+    from metrology.captures.services import create_session
+    from metrology.rigs.services import update_rig_geometry
+
+    update_rig_geometry(rig=rig, changes={"L_mm": 1021.9853333333333, "alpha_rad": 0.33212345678901}, source="manual")
+    rig.refresh_from_db()
+    reference = upload(alice, rig, 0.0, "reference")
+    session = create_session(owner=alice, rig=rig, name="stage")
+    for z in (0.0, 0.1 + 0.2, 8.0):  # 0.30000000000000004 mm
+        upload(alice, rig, z, "stage", z_in_mm=z, session_id=session.pk)
+    with run_jobs():
+        characterization = request_characterization(
+            owner=alice, rig=rig, reference_id=reference.pk, session_id=session.pk, options={"n_points": 5}
+        )
+    characterization.job.refresh_from_db()
+    assert characterization.job.status == "done", characterization.job.error
+    for url in (f"/characterizations/{characterization.pk}/", f"/rigs/{rig.pk}/", f"/rigs/{rig.pk}/captures/"):
+        text = visible_text(client_alice.get(url).content.decode())
+        assert not re.search(r"\d\.\d{7,}", text), (url, re.findall(r"\S*\d\.\d{7,}\S*", text))
+    page = visible_text(client_alice.get(f"/characterizations/{characterization.pk}/").content.decode())
+    assert "L_mm 1021.985333" in page, page[page.find("Rig values") :][:300]
+    rig_page = visible_text(client_alice.get(f"/rigs/{rig.pk}/").content.decode())
+    assert "Z_in 0.3 mm" in rig_page, rig_page[rig_page.find("stage") :][:300]
+
+
 def test_characterization_form_error_in_words(client_alice, rig, alice):
     from metrology.captures.services import create_session
 

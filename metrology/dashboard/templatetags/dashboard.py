@@ -106,6 +106,16 @@ def num(value, digits: int = 3):
 
 
 @register.filter
+def short(value, digits: int = 6):
+    """A number with at most ``digits`` significant digits, no trailing zeros: 0.30000000000000004 -> "0.3"."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return "" if value is None else value
+    return "n/a" if not math.isfinite(number) else f"{number:.{int(digits)}g}"
+
+
+@register.filter
 def pct(value, digits: int = 1):
     """A fraction in [0, 1] as a percentage."""
     try:
