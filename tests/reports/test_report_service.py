@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime
 import io
 import json
 import re
@@ -304,3 +305,16 @@ def test_command_refuses_an_unknown_or_ambiguous_rig(rig, alice):
         call_command("characterization_report", "nope")
     with pytest.raises(CommandError, match="z_step_mm must be positive"):
         call_command("characterization_report", str(rig.pk), "--z-step", "0")
+    with pytest.raises(CommandError, match=r"crontab '0 25 \* \* \*' is not valid: Invalid end range: 25 > 23"):
+        call_command("characterization_report", str(rig.pk), "--schedule-crontab", "0 25 * * *")
+
+
+def test_command_schedules_with_a_crontab_and_prints_the_next_run(rig):
+    out = io.StringIO()
+    before = timezone.now()
+    call_command("characterization_report", str(rig.pk), "--schedule-crontab", "15 4 * * *", stdout=out)
+    upcoming = before.replace(hour=4, minute=15, second=0, microsecond=0)
+    if upcoming <= before:
+        upcoming += datetime.timedelta(days=1)
+    assert "scheduled 15 4 * * * (UTC)" in out.getvalue()
+    assert f"next run {upcoming:%Y-%m-%d %H:%M} UTC" in out.getvalue()
