@@ -5,6 +5,7 @@ from __future__ import annotations
 from django import forms
 
 from metrology.captures.models import Capture
+from metrology.dashboard.selectors import capture_origin
 
 PAPER_RIG = {"L_mm": 1022.0, "d_mm": 352.0, "alpha_rad": 0.332, "fw_mm": 500.0, "nlp": 128}
 
@@ -111,8 +112,7 @@ class StageSeriesForm(forms.Form):
 
 def capture_choices(captures, empty: str = "choose a capture") -> list[tuple[str, str]]:
     def label(capture: Capture) -> str:
-        scene = (capture.parameters or {}).get("scene", {}).get("name", "")
-        origin = capture.original_name or scene or capture.source
+        origin = capture_origin(capture)
         z = f", Z_in {capture.z_in_mm:g} mm" if capture.z_in_mm is not None else ""
         return f"#{capture.pk} {capture.role} ({origin}{z})"
 

@@ -90,6 +90,15 @@ def plotly_js(request: HttpRequest) -> HttpResponse:
     return response
 
 
+def favicon(request: HttpRequest) -> HttpResponse:
+    """The site icon (SVG; also answered at /favicon.ico, which browsers ask for by themselves). No login."""
+    from django.template.loader import render_to_string
+
+    response = HttpResponse(render_to_string("dashboard/favicon.svg"), content_type="image/svg+xml")
+    response["Cache-Control"] = "public, max-age=604800"
+    return response
+
+
 # ----------------------------------------------------------------------------- rigs
 
 
@@ -363,6 +372,7 @@ def calibration_detail(request: HttpRequest, calibration_id: int) -> HttpRespons
             "job": calibration.job,
             "figures": figures,
             "result": calibration.result or {},
+            "summary": pages.calibration_summary(calibration),
             "error": request.GET.get("error", ""),
         },
     )
@@ -384,6 +394,7 @@ def calibration_apply(request: HttpRequest, calibration_id: int) -> HttpResponse
                 "job": calibration.job,
                 "figures": {},
                 "result": calibration.result or {},
+                "summary": pages.calibration_summary(calibration),
                 "error": error_text(exc),
             },
             status=400,
