@@ -428,53 +428,81 @@ def _decode_tile(
     h, w = tile.shape[1:]
     shape = (h, w)
     integer = stack.dtype.kind in "ui"
-    assert opts.saturation_level is not None and opts.min_modulation is not None
-    assert opts.min_inverse_contrast is not None and opts.consistency_periods is not None
+    assert opts.saturation_level is not None
 
-    # saturation flag over every used frame
-    if math.isfinite(opts.saturation_level):
-        level = opts.saturation_level
-        if integer and level > np.iinfo(stack.dtype).max:
-            n_saturated = 0
-        else:
-            peak = scratch.get("peak", shape, stack.dtype)
-            np.copyto(peak, tile[used_frames[0]])
-            for f in used_frames[1:]:
+    # saturation: the brightest value of each pixel over the phase frames (refused) and over all (flagged)
+    check_saturation = math.isfinite(opts.saturation_level) and not (
+        integer and opts.saturation_level > np.iinfo(stack.dtype).max
+    )
+    phase_frames = sorted({f for plan in plans for i in plan.used for f in plan.sequences[i].frames})
+    phase_saturated: np.ndarray | None = None
+    n_saturated = 0
+    if check_saturation:
+        level = stack.dtype.type(opts.saturation_level) if integer else np.float32(opts.saturation_level)
+        peak = scratch.get("peak", shape, stack.dtype)
+        others = [f for f in used_frames if f not in phase_frames]
+        if phase_frames:
+            _max_into(peak, tile, phase_frames)
+            phase_saturated = np.greater_equal(peak, level, out=scratch.get("phase_sat", shape, bool))
+            for f in others:
                 np.maximum(peak, tile[f], out=peak)
-            n_saturated = int(np.count_nonzero(peak >= level))
-    else:
-        n_saturated = 0
+        else:
+            _max_into(peak, tile, others)
+        n_saturated = int(np.count_nonzero(peak >= level))
 
     # white / black threshold, shared by the axes
     white_black: np.ndarray | None = None
     white_black_half: np.ndarray | None = None
     white_black_mid: np.ndarray | None = None
     if codec.white and codec.black:
-        wsum = np.zeros(shape, np.float32)
-        for f in codec.white:
-            wsum += tile[f]
-        bsum = np.zeros(shape, np.float32)
-        for f in codec.black:
-            bsum += tile[f]
-        wmean = wsum / np.float32(len(codec.white))
-        bmean = bsum / np.float32(len(codec.black))
-        mid = white_black_mid = (wmean + bmean) * np.float32(0.5)
-        white_black = np.floor(mid).astype(stack.dtype) if integer else mid
-        white_black_half = (wmean - bmean) * np.float32(0.5)
+        wmean = _mean_of(tile, codec.white, scratch.get("wmean", shape, np.float32))
+        bmean = _mean_of(tile, codec.black, scratch.get("bmean", shape, np.float32))
+        white_black_mid = np.add(wmean, bmean, out=scratch.get("wbmid", shape, np.float32))
+        white_black_mid *= np.float32(0.5)
+        white_black_half = np.subtract(wmean, bmean, out=wmean)
+        white_black_half *= np.float32(0.5)
+        white_black = np.floor(white_black_mid).astype(stack.dtype) if integer else white_black_mid
 
     for plan in plans:
         out = {key: value[rows] for key, value in outputs[plan.name].items()}
-        _decode_axis_tile(tile, plan, opts, out, integer, white_black, white_black_half, white_black_mid, scratch)
+        _decode_axis_tile(
+            tile, plan, opts, out, integer, phase_saturated, white_black, white_black_half, white_black_mid, scratch
+        )
     return n_saturated
 
 
-def _phase_tile(
-    tile: np.ndarray, seq: _SequencePlan, exact: bool, scratch: Any, tag: str
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
-    """(frac, B, sum, noise or None, max over the frames) of one sequence on a tile."""
+def _max_into(peak: np.ndarray, tile: np.ndarray, frames: list[int]) -> None:
+    np.copyto(peak, tile[frames[0]])
+    for f in frames[1:]:
+        np.maximum(peak, tile[f], out=peak)
+
+
+def _mean_of(tile: np.ndarray, frames: tuple[int, ...], out: np.ndarray) -> np.ndarray:
+    np.copyto(out, tile[frames[0]], casting="unsafe")
+    for f in frames[1:]:
+        np.add(out, tile[f], out=out, casting="unsafe")
+    if len(frames) > 1:
+        out *= np.float32(1 / len(frames))
+    return out
+
+
+@dataclass
+class _PhaseResult:
+    frac: np.ndarray  # (h, w) float32 in [0, 1): theta / 2 pi
+    modulation: np.ndarray  # B
+    total: np.ndarray  # sum of the frames (N A)
+    noise: np.ndarray | None
+
+
+def _phase_tile(tile: np.ndarray, seq: _SequencePlan, exact: bool, scratch: Any, tag: str) -> _PhaseResult:
+    """Least-squares phase, modulation, sum and (N >= 4, when asked) noise of one sequence on a tile.
+
+    The frames are converted to float32 once; ``einsum`` (numpy's own loops: OpenBLAS threads
+    busy-wait badly on a shared machine) forms ``C``, ``-S`` and the sum in one pass.
+    """
     h, w = tile.shape[1:]
     n = seq.steps
-    f = scratch.get("f32frames", (n, h, w), np.float32)
+    f = scratch.get("frames", (n, h, w), np.float32)
     frames = seq.frames
     if frames == tuple(range(frames[0], frames[0] + n)):
         np.copyto(f, tile[frames[0] : frames[0] + n], casting="unsafe")
@@ -482,26 +510,35 @@ def _phase_tile(
         for k, fi in enumerate(frames):
             np.copyto(f[k], tile[fi], casting="unsafe")
     flat = f.reshape(n, h * w)
-    res = scratch.get(f"gemm{tag}", (3, h * w), np.float32)
-    np.matmul(seq.weights, flat, out=res)
+    res = scratch.get(f"sums{tag}", (3, h * w), np.float32)
+    np.einsum("ik,kj->ij", seq.weights, flat, out=res)
     c, neg_s, total = (res[i].reshape(h, w) for i in range(3))
+    mag = scratch.get(f"mag{tag}", (h, w), np.float32)
+    angle = scratch.get(f"angle{tag}", (h, w), np.float32)
     if exact:
-        angle = np.arctan2(neg_s, c)
-        angle[angle < 0] += np.float32(TWO_PI)
-        mag = np.hypot(c, neg_s)
+        np.arctan2(neg_s, c, out=angle)
+        angle += np.float32(TWO_PI) * (angle < 0)
+        np.hypot(c, neg_s, out=mag)
     else:
-        mag, angle = cv2.cartToPolar(c, neg_s)
+        cv2.cartToPolar(c, neg_s, magnitude=mag, angle=angle)
+    # frac in [0, 1]: frac = 1 (theta = 2 pi) unwraps like 0, the rounding below absorbs it
     frac = np.multiply(angle, np.float32(1 / TWO_PI), out=angle)
-    frac[frac >= 1] -= np.float32(1)
     b = np.multiply(mag, np.float32(2 / n), out=mag)
     noise = None
     if seq.need_noise:
-        sq = np.einsum("ij,ij->j", flat, flat)
-        resid = sq - total.ravel() * total.ravel() / np.float32(n) - b.ravel() * b.ravel() * np.float32(n / 2)
-        np.maximum(resid, 0, out=resid)
-        noise = np.sqrt(resid / np.float32(n - 3)).reshape(h, w)
-    peak = f.max(axis=0)
-    return frac, b, total.copy(), noise, peak
+        sq = np.einsum("ij,ij->j", flat, flat, out=scratch.get("squares", (h * w,), np.float32))
+        # R = sum I^2 - (sum I)^2 / N - (N / 2) B^2, clipped at 0; sigma = sqrt(R / (N - 3))
+        t = np.multiply(c.ravel(), c.ravel(), out=scratch.get("resid_t", (h * w,), np.float32))
+        t += neg_s.ravel() * neg_s.ravel()
+        t *= np.float32(2 / n)
+        sq -= t
+        np.multiply(total.ravel(), total.ravel(), out=t)
+        t *= np.float32(1 / n)
+        sq -= t
+        np.maximum(sq, 0, out=sq)
+        sq *= np.float32(1 / (n - 3))
+        noise = np.sqrt(sq, out=sq).reshape(h, w)
+    return _PhaseResult(frac=frac, modulation=b, total=total, noise=noise)
 
 
 def _decode_axis_tile(
@@ -510,6 +547,7 @@ def _decode_axis_tile(
     opts: CodecDecodeOptions,
     out: dict[str, np.ndarray],
     integer: bool,
+    phase_saturated: np.ndarray | None,
     white_black: np.ndarray | None,
     white_black_half: np.ndarray | None,
     white_black_mid: np.ndarray | None,
@@ -517,137 +555,159 @@ def _decode_axis_tile(
 ) -> None:
     h, w = tile.shape[1:]
     shape = (h, w)
-    reason = out["reason"]
-    reason.fill(REASON_VALID)
-    assert opts.min_modulation is not None and opts.saturation_level is not None
-    assert opts.min_inverse_contrast is not None and opts.consistency_periods is not None
-    dark = np.zeros(shape, bool)
-    saturated = np.zeros(shape, bool)
-    fracs: dict[int, np.ndarray] = {}
-    mods: dict[int, np.ndarray] = {}
-    noise: np.ndarray | None = None
-    first_total: np.ndarray | None = None
-    first_index = 0
+    assert opts.min_modulation is not None and opts.min_inverse_contrast is not None
+    assert opts.consistency_periods is not None
+    exact = bool(opts.exact_phase)
+    min_mod = np.float32(opts.min_modulation)
+    dark = scratch.get(f"dark{plan.name}", shape, bool)
+    dark.fill(False)
+    results: dict[int, _PhaseResult] = {}
     for i in plan.used:
-        seq = plan.sequences[i]
-        frac, b, total, n_est, peak = _phase_tile(tile, seq, bool(opts.exact_phase), scratch, "")
-        fracs[i] = frac
-        mods[i] = b
-        dark |= b < np.float32(opts.min_modulation)
-        saturated |= peak >= np.float32(opts.saturation_level)
-        if n_est is not None:
-            noise = n_est
-        if i == first_index:
-            first_total = total
+        r = results[i] = _phase_tile(tile, plan.sequences[i], exact, scratch, f"{plan.name}{i}")
+        dark |= r.modulation < min_mod
+    first_total: np.ndarray | None = None
+    if plan.axis.phase:
+        first = results.get(0)
+        if first is None:  # the gray threshold (and the mean map) need the first sequence
+            first = _phase_tile(tile, plan.sequences[0], exact, scratch, f"{plan.name}0")
+        first_total = first.total
     mean = out["mean"]
-    if plan.axis.phase and 0 not in fracs:
-        # the gray threshold (or the mean output) needs the first sequence even if the chain skips it
-        _, _, first_total, _, _ = _phase_tile(tile, plan.sequences[0], bool(opts.exact_phase), scratch, "")
     if first_total is not None:
         np.multiply(first_total, np.float32(1 / plan.sequences[0].steps), out=mean)
     elif white_black_mid is not None:
-        mean[...] = white_black_mid
+        np.copyto(mean, white_black_mid)
     else:
         mean.fill(np.nan)
 
     # gray code
     centre: np.ndarray | None = None
-    low_contrast = np.zeros(shape, bool)
+    low_contrast: np.ndarray | None = None
     g = plan.axis.gray
     if g is not None:
         assert plan.gray_lut is not None
         word_dtype = np.uint8 if g.bits <= 8 else np.uint16
-        word = np.zeros(shape, word_dtype)
+        word = scratch.get(f"word{plan.name}", shape, word_dtype)
+        word.fill(0)
+        weighted = scratch.get(f"weighted{plan.name}", shape, word_dtype)
+        bit = scratch.get("bit", shape, bool)
         threshold: np.ndarray | None = None
+        min_contrast: np.ndarray | None = None
         if g.inverse_frames is None:
             if white_black is not None:
                 threshold = white_black
             else:
                 assert first_total is not None
-                n0 = plan.sequences[0].steps
+                n0 = np.float32(plan.sequences[0].steps)
                 if integer:
-                    threshold = np.floor((first_total + np.float32(0.5)) / np.float32(n0)).astype(tile.dtype)
+                    # floor((sum + 0.5) / N) = floor(A) exactly for integer sums: frame > A <=> frame > floor(A)
+                    t = (first_total + np.float32(0.5)) / n0
+                    threshold = np.floor(t, out=t).astype(tile.dtype)
                 else:
-                    threshold = first_total / np.float32(n0)
-        min_contrast_half = np.full(shape, np.inf, np.float32) if g.inverse_frames is not None else None
-        bit = np.empty(shape, bool)
+                    threshold = first_total / n0
+        else:
+            low_contrast = scratch.get(f"lowc{plan.name}", shape, bool)
+            low_contrast.fill(False)
+            min_contrast = scratch.get(f"minc{plan.name}", shape, tile.dtype)
+            min_contrast.fill(np.iinfo(tile.dtype).max if integer else np.inf)
+            contrast = scratch.get("contrast", shape, tile.dtype)
         for i, f in enumerate(g.frames):
             frame = tile[f]
             if g.inverse_frames is not None:
+                assert low_contrast is not None and min_contrast is not None
                 inverse = tile[g.inverse_frames[i]]
                 np.greater(frame, inverse, out=bit)
-                contrast = cv2.absdiff(frame, inverse)
-                low_contrast |= contrast < opts.min_inverse_contrast
-                assert min_contrast_half is not None
-                np.minimum(min_contrast_half, contrast, out=min_contrast_half)
+                cv2.absdiff(frame, inverse, dst=contrast)
+                np.minimum(min_contrast, contrast, out=min_contrast)
             else:
                 assert threshold is not None
                 np.greater(frame, threshold, out=bit)
-            word |= np.left_shift(bit.view(np.uint8).astype(word_dtype), plan.gray_positions[i], dtype=word_dtype)
-        if g.bits <= 8 and plan.gray_lut.size <= 256:
-            lut = np.zeros(256, np.float32)
+            np.multiply(bit.view(np.uint8), word_dtype(1 << plan.gray_positions[i]), out=weighted)
+            np.bitwise_or(word, weighted, out=word)
+        if min_contrast is not None and low_contrast is not None:
+            np.less(min_contrast, np.float32(opts.min_inverse_contrast), out=low_contrast)
+        if word_dtype == np.uint8:
+            lut = np.full(256, np.nan, np.float32)
             lut[: plan.gray_lut.size] = plan.gray_lut
-            centre = cv2.LUT(word, lut).reshape(shape)
+            centre = cv2.LUT(word, lut, dst=scratch.get(f"centre{plan.name}", shape, np.float32))
         else:
-            centre = plan.gray_lut[word]
-        if not plan.axis.phase or not plan.used:
-            # gray-only axis: modulation from white/black or the inverse contrast
+            centre = np.take(plan.gray_lut, word, out=scratch.get(f"centre{plan.name}", shape, np.float32))
+        if not plan.used:
+            # gray-only axis: modulation from white/black, else half the smallest inverse contrast
+            modulation = out["modulation"]
             if white_black_half is not None:
-                modulation = white_black_half
-            elif min_contrast_half is not None:
-                modulation = min_contrast_half * np.float32(0.5)
+                np.copyto(modulation, white_black_half)
+            elif min_contrast is not None:
+                np.multiply(min_contrast, np.float32(0.5), out=modulation, casting="unsafe")
             else:
-                modulation = np.full(shape, np.nan, np.float32)
-            out["modulation"][...] = modulation
-            dark |= ~(modulation >= np.float32(opts.min_modulation))
+                modulation.fill(np.nan)
+            dark |= ~(modulation >= min_mod)
 
-    # unwrapping chain
-    x: np.ndarray | None = None
-    inconsistent = np.zeros(shape, bool)
+    # unwrapping chain, coarse to fine
+    x = out["coordinate"]
+    inconsistent: np.ndarray | None = None
     previous: Stage | None = None
+    tmp = scratch.get("unwrap_tmp", shape, np.float32)
     for stage in plan.chain:
         if stage.kind == "gray":
-            x = centre
+            assert centre is not None
+            np.copyto(x, centre)
             previous = stage
             continue
         if stage.kind == "phase":
-            frac = fracs[stage.indices[0]]
+            frac = results[stage.indices[0]].frac
         else:
             i, j = stage.indices
             s_i, l_i = (i, j) if plan.sequences[i].period < plan.sequences[j].period else (j, i)
-            frac = fracs[s_i] - fracs[l_i]
-            frac[frac < 0] += np.float32(1)
+            frac = np.subtract(results[s_i].frac, results[l_i].frac, out=scratch.get("beat", shape, np.float32))
+            frac += np.float32(1) * (frac < 0)
         period = np.float32(stage.period)
-        xw = frac * period + np.float32(stage.origin)
-        coarse = x if x is not None else np.float32((plan.extent - 1) / 2)
-        k = np.rint((coarse - xw) / period)
-        x_new = xw + period * k
+        # x_w = origin + P frac; x = x_w + P round((x_c - x_w) / P) = origin + P (frac + round((x_c - origin)/P - frac))
+        if previous is None:
+            np.copyto(x, np.float32((plan.extent - 1) / 2))
+        np.subtract(x, np.float32(stage.origin), out=tmp)
+        tmp *= np.float32(1 / stage.period)
+        tmp -= frac
+        np.rint(tmp, out=tmp)
+        tmp += frac
+        tmp *= period
+        tmp += np.float32(stage.origin)
         if previous is not None and previous.kind == "gray":
             assert centre is not None and g is not None
             tolerance = np.float32(g.word / 2 + opts.consistency_periods * stage.period)
-            inconsistent |= np.abs(x_new - centre) > tolerance
-        x = x_new
+            inconsistent = scratch.get(f"incons{plan.name}", shape, bool)
+            np.subtract(tmp, centre, out=x)
+            np.abs(x, out=x)
+            np.greater(x, tolerance, out=inconsistent)
+        np.copyto(x, tmp)
         previous = stage
-    assert x is not None
-    if plan.axis.phase and plan.used:
-        mod = mods[plan.final[0]] if len(plan.final) == 1 else np.minimum(mods[plan.final[0]], mods[plan.final[1]])
-        out["modulation"][...] = mod
+
+    if plan.used:
+        final = [results[i].modulation for i in plan.final]
+        if len(final) == 1:
+            np.copyto(out["modulation"], final[0])
+        else:
+            np.minimum(final[0], final[1], out=out["modulation"])
     noise_out = out["noise"]
+    noise = next((results[i].noise for i in plan.used if results[i].noise is not None), None)
     if noise is not None:
-        noise_out[...] = noise
+        np.copyto(noise_out, noise)
     else:
         noise_out.fill(np.nan)
 
-    outside = ~((x >= np.float32(-0.5)) & (x <= np.float32(plan.extent - 0.5)))
     # reasons, lowest priority first so that the first applicable one wins
-    reason[outside] = REASON_OUTSIDE
-    reason[inconsistent] = REASON_INCONSISTENT
-    reason[low_contrast] = REASON_LOW_INVERSE_CONTRAST
-    reason[saturated] = REASON_SATURATED
+    reason = out["reason"]
+    inside = np.greater_equal(x, np.float32(-0.5), out=scratch.get("inside", shape, bool))
+    inside &= x <= np.float32(plan.extent - 0.5)
+    np.copyto(reason, np.uint8(REASON_OUTSIDE))
+    reason[inside] = REASON_VALID
+    if inconsistent is not None:
+        reason[inconsistent] = REASON_INCONSISTENT
+    if low_contrast is not None:
+        reason[low_contrast] = REASON_LOW_INVERSE_CONTRAST
+    if phase_saturated is not None and plan.used:
+        reason[phase_saturated] = REASON_SATURATED
     reason[dark] = REASON_TOO_DARK
-    coordinate = out["coordinate"]
-    np.copyto(coordinate, x)
-    coordinate[reason != REASON_VALID] = np.nan
+    x[reason != REASON_VALID] = np.nan
 
 
 def repair_slips(coordinate: np.ndarray, reason: np.ndarray, slip_period: float, final_period: float) -> int:

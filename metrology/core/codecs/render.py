@@ -17,10 +17,11 @@ Two things live here:
   plus seeded Gaussian noise of ``noise_grey`` grey levels, rounded and clipped to the bit
   depth (values above full scale saturate). These options are
   :class:`~metrology.core.simulate.SimulationOptions` fields; its
-  ``projector_defocus_codes`` becomes the blur ``projector_defocus_codes * W / 128``
-  projector pixels (the paper's 128-code field across a projector of width W), unless
-  ``projector_blur_px`` is given. ``square`` and ``smoothing_codes`` are not used: the
-  codec says which waveform each sequence has.
+  ``projector_defocus_codes`` becomes the blur ``8 * projector_defocus_codes`` projector
+  pixels (8 px per code: the built-in gcps-v1 codec's 128 codes across 1024 px; the
+  realistic preset's 0.15 codes are 1.2 px), unless ``projector_blur_px`` is given.
+  ``square`` and ``smoothing_codes`` are not used: the codec says which waveform each
+  sequence has.
 
 :func:`crossed_rig_truth` gives the true (u, v) of a render of the paper's crossed-axes
 virtual rig (:func:`metrology.core.simulate.render_stack`).
@@ -42,8 +43,10 @@ from metrology.core.simulate import RenderedStack, SimulationOptions
 
 FloatArray = npt.NDArray[np.float64]
 
-PAPER_FIELD_CODES = 128
-"""Codes across the projector width in the paper's rig: converts ``projector_defocus_codes``."""
+PIXELS_PER_CODE = 8.0
+"""Projector pixels per light code of the built-in gcps-v1 codec (1024 px, 128 codes): converts
+:class:`SimulationOptions` ``projector_defocus_codes`` to projector pixels (the realistic preset's
+0.15 codes are 1.2 projector px)."""
 
 
 @dataclass(frozen=True)
@@ -147,6 +150,23 @@ def _emitted(role: FrameRole, x: FloatArray, sigma: float, gamma: float) -> Floa
     return np.interp(x, lo + np.arange(n) * step, table)
 
 
+def square_wave_bias_px(steps: int, period: float, blur_px: float, harmonics: int = 200) -> float:
+    """First-order bound on the coordinate error of an N-step phase of a blurred square wave, px.
+
+    A 50 % square wave holds the odd harmonics m with amplitude ``1/m`` of the fundamental;
+    a Gaussian blur of sigma scales harmonic m by ``exp(-2 pi^2 sigma^2 m^2 / P^2)``. The N-step
+    least-squares phase sees harmonic m as the fundamental when ``m = k N +- 1``, so
+    ``|d theta| <= sum_{odd m = k N +- 1} (1/m) exp(-2 pi^2 sigma^2 (m^2 - 1) / P^2)`` and
+    ``|d x| <= P / (2 pi) |d theta|``.
+    """
+    total = 0.0
+    m_values = sorted({k * steps + d for k in range(1, harmonics) for d in (-1, 1)})
+    for m in m_values:
+        if m > 1 and m % 2 == 1:
+            total += math.exp(-2 * math.pi**2 * blur_px**2 * (m * m - 1) / period**2) / m
+    return period / (2 * math.pi) * total
+
+
 def codec_patterns(codec: Codec) -> npt.NDArray[np.uint8]:
     """The projector images of ``codec``: ``(frames, projector_height, projector_width)`` uint8.
 
@@ -166,9 +186,9 @@ def codec_patterns(codec: Codec) -> npt.NDArray[np.uint8]:
     return images
 
 
-def default_projector_blur_px(codec: Codec, options: SimulationOptions) -> float:
-    """The projector blur of ``options`` in projector units: ``projector_defocus_codes * W / 128``."""
-    return options.projector_defocus_codes * codec.projector_width / PAPER_FIELD_CODES
+def default_projector_blur_px(options: SimulationOptions) -> float:
+    """The projector blur of ``options`` in projector px: ``projector_defocus_codes * 8`` (:data:`PIXELS_PER_CODE`)."""
+    return options.projector_defocus_codes * PIXELS_PER_CODE
 
 
 def render_codec(
@@ -202,7 +222,7 @@ def render_codec(
         Surface reflectance, default 1.
     projector_blur_px : float, optional
         Gaussian sigma of the projector blur along the coded axis, projector units; default
-        ``options.projector_defocus_codes * projector_width / 128``.
+        ``8 * options.projector_defocus_codes`` (1.2 px for the realistic preset).
     seed : int or SeedSequence, optional
         Noise seed; default ``options.seed``.
 
@@ -244,7 +264,7 @@ def render_codec(
         with np.errstate(invalid="ignore"):
             lit &= np.isfinite(x) & (x >= -0.5) & (x <= codec.extent(name) - 0.5)
     albedo_map = np.broadcast_to(np.asarray(albedo, dtype=np.float64), shape)
-    blur = default_projector_blur_px(codec, opts) if projector_blur_px is None else float(projector_blur_px)
+    blur = default_projector_blur_px(opts) if projector_blur_px is None else float(projector_blur_px)
     if not math.isfinite(blur) or blur < 0:
         raise ValueError(f"projector_blur_px must be finite and >= 0, got {projector_blur_px!r}")
     full = float(opts.full_scale)
