@@ -497,12 +497,16 @@ class _PhaseResult:
 def _phase_tile(tile: np.ndarray, seq: _SequencePlan, exact: bool, scratch: Any, tag: str) -> _PhaseResult:
     """Least-squares phase, modulation, sum and (N >= 4, when asked) noise of one sequence on a tile.
 
-    The frames are converted to float32 once; ``einsum`` (numpy's own loops: OpenBLAS threads
-    busy-wait badly on a shared machine) forms ``C``, ``-S`` and the sum in one pass.
+    The frames are converted once (float32 for 8-bit stacks, whose sums of squares stay exact
+    integers below 2**24; float64 otherwise); ``einsum`` (numpy's own loops: OpenBLAS threads
+    busy-wait badly on a shared machine) forms ``C``, ``-S`` and the sum in one call. The noise
+    ``R = sum I^2 - (sum I)^2 / N - (N / 2) B^2`` is combined in float64 (it is a small
+    difference of large sums).
     """
     h, w = tile.shape[1:]
     n = seq.steps
-    f = scratch.get("frames", (n, h, w), np.float32)
+    work = np.float32 if tile.dtype == np.uint8 else np.float64
+    f = scratch.get(f"frames{work.__name__}", (n, h, w), work)
     frames = seq.frames
     if frames == tuple(range(frames[0], frames[0] + n)):
         np.copyto(f, tile[frames[0] : frames[0] + n], casting="unsafe")
@@ -510,15 +514,15 @@ def _phase_tile(tile: np.ndarray, seq: _SequencePlan, exact: bool, scratch: Any,
         for k, fi in enumerate(frames):
             np.copyto(f[k], tile[fi], casting="unsafe")
     flat = f.reshape(n, h * w)
-    res = scratch.get(f"sums{tag}", (3, h * w), np.float32)
-    np.einsum("ik,kj->ij", seq.weights, flat, out=res)
+    res = scratch.get(f"sums{tag}", (3, h * w), work)
+    np.einsum("ik,kj->ij", seq.weights.astype(work, copy=False), flat, out=res)
     c, neg_s, total = (res[i].reshape(h, w) for i in range(3))
     mag = scratch.get(f"mag{tag}", (h, w), np.float32)
     angle = scratch.get(f"angle{tag}", (h, w), np.float32)
     if exact:
-        np.arctan2(neg_s, c, out=angle)
+        np.copyto(angle, np.arctan2(neg_s, c), casting="unsafe")
         angle += np.float32(TWO_PI) * (angle < 0)
-        np.hypot(c, neg_s, out=mag)
+        np.copyto(mag, np.hypot(c, neg_s), casting="unsafe")
     else:
         cv2.cartToPolar(c, neg_s, magnitude=mag, angle=angle)
     # frac in [0, 1]: frac = 1 (theta = 2 pi) unwraps like 0, the rounding below absorbs it
@@ -526,19 +530,17 @@ def _phase_tile(tile: np.ndarray, seq: _SequencePlan, exact: bool, scratch: Any,
     b = np.multiply(mag, np.float32(2 / n), out=mag)
     noise = None
     if seq.need_noise:
-        sq = np.einsum("ij,ij->j", flat, flat, out=scratch.get("squares", (h * w,), np.float32))
-        # R = sum I^2 - (sum I)^2 / N - (N / 2) B^2, clipped at 0; sigma = sqrt(R / (N - 3))
-        t = np.multiply(c.ravel(), c.ravel(), out=scratch.get("resid_t", (h * w,), np.float32))
-        t += neg_s.ravel() * neg_s.ravel()
-        t *= np.float32(2 / n)
-        sq -= t
-        np.multiply(total.ravel(), total.ravel(), out=t)
-        t *= np.float32(1 / n)
-        sq -= t
-        np.maximum(sq, 0, out=sq)
-        sq *= np.float32(1 / (n - 3))
-        noise = np.sqrt(sq, out=sq).reshape(h, w)
-    return _PhaseResult(frac=frac, modulation=b, total=total, noise=noise)
+        sq = np.einsum("ij,ij->j", flat, flat, out=scratch.get(f"squares{work.__name__}", (h * w,), work))
+        r = sq.astype(np.float64)
+        cc = c.ravel().astype(np.float64)
+        ss = neg_s.ravel().astype(np.float64)
+        tt = total.ravel().astype(np.float64)
+        r -= (cc * cc + ss * ss) * (2 / n) + tt * tt * (1 / n)
+        np.maximum(r, 0, out=r)
+        r *= 1 / (n - 3)
+        noise = np.sqrt(r).astype(np.float32).reshape(h, w)
+    total32 = total if total.dtype == np.float32 else total.astype(np.float32)
+    return _PhaseResult(frac=frac, modulation=b, total=total32, noise=noise)
 
 
 def _decode_axis_tile(
