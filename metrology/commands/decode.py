@@ -82,7 +82,8 @@ def cmd_decode(args: argparse.Namespace) -> dict[str, Any]:
         np.save(tmp_uv, uv)
         if args.quality is not None:
             with atomic_path(args.quality) as tmp_q:
-                np.savez_compressed(tmp_q, **decoded.quality_arrays())
+                arrays: dict[str, Any] = decoded.quality_arrays()
+                np.savez_compressed(tmp_q, **arrays)
     summary = decoded.summary()
     summary.update(
         {
