@@ -144,12 +144,20 @@ def interleaved(funcs: dict[str, Callable[[], object]], repeats: int) -> dict[st
     return {name: statistics.median(t) for name, t in times.items()}
 
 
-def opencv_graycode(repeats: int) -> dict[str, Any] | None:
+def opencv_baselines(repeats: int) -> dict[str, Any] | None:
+    """OpenCV-contrib in its own environment: GrayCodePattern on the 42-frame layout, and the
+    3-step SinusoidalPattern (PSP) phase map at the same frame size (the 32-frame row's phase part)."""
     try:
         py = subprocess.run(
             ["bash", str(ROOT / "benchmarks" / "opencv_env.sh")], check=True, capture_output=True, text=True
         ).stdout.strip()
-        out = subprocess.run(
+        gray = subprocess.run(
+            [py, str(ROOT / "benchmarks" / "opencv_graycode_codecs.py"), "--repeats", str(repeats)],
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout
+        psp = subprocess.run(
             [
                 py,
                 str(ROOT / "benchmarks" / "opencv_baseline.py"),
@@ -157,6 +165,8 @@ def opencv_graycode(repeats: int) -> dict[str, Any] | None:
                 str(WIDTH),
                 "--height",
                 str(HEIGHT),
+                "--skip-graycode",
+                "--no-unwrap",
                 "--repeats",
                 str(repeats),
             ],
@@ -164,7 +174,7 @@ def opencv_graycode(repeats: int) -> dict[str, Any] | None:
             capture_output=True,
             text=True,
         ).stdout
-        return json.loads(out.strip().splitlines()[-1])
+        return {"graycode": json.loads(gray.strip().splitlines()[-1]), "psp": json.loads(psp.strip().splitlines()[-1])}
     except (subprocess.CalledProcessError, OSError, json.JSONDecodeError) as exc:
         print(f"OpenCV baseline unavailable: {exc}", file=sys.stderr)
         return None
@@ -213,10 +223,15 @@ def main() -> None:
             "ratio_to_memory_bound": round(medians["decode"] / medians["memory bound"], 2),
             "decoded_fraction": {name: round(float(a.valid.mean()), 4) for name, a in decoded.axes.items()},
         }
-    if not args.no_opencv and "42" in args.rows.split(","):
-        baseline = opencv_graycode(max(3, args.repeats // 2))
+    if not args.no_opencv:
+        baseline = opencv_baselines(max(1, args.repeats // 3))
         if baseline is not None:
             result["opencv"] = baseline
+            gray_rate = baseline["graycode"]["graycode_mpx_s_per_camera_frame"]
+            row = result["rows"].get("42-frame two-axis gray")
+            if row is not None:
+                row["opencv_graycode_mpx_s"] = round(gray_rate, 2)
+                row["speedup_vs_opencv_graycode"] = round(row["decode_mpx_s"] / gray_rate, 1)
     print(json.dumps(result, indent=1))
 
 

@@ -388,12 +388,22 @@ def decode_codec(
         | set(codec.black)
     )
     saturated_counts: list[int] = []
+    candidates: dict[str, list[np.ndarray]] = {plan.name: [] for plan in plans}
+    tile_starts: list[int] = []
     lock = threading.Lock()
 
     def run(rows: slice) -> None:
         n_sat = _decode_tile(stack, rows, codec, plans, opts, outputs, used_frames)
+        found = {}
+        for plan in plans:
+            if opts.repair_slips and plan.slip_period > 0:
+                found[plan.name] = slip_candidates(outputs[plan.name]["coordinate"][rows], plan.slip_period / 2)
+                found[plan.name] += (rows.start or 0) * width
         with lock:
             saturated_counts.append(n_sat)
+            tile_starts.append(rows.start or 0)
+            for name, flat in found.items():
+                candidates[name].append(flat)
 
     run_tiled(run, height, width, threads)
     axes: dict[str, AxisDecoding] = {}
@@ -402,7 +412,13 @@ def decode_codec(
         slips = 0
         if opts.repair_slips and plan.slip_period > 0:
             final_period = plan.chain[-1].period
-            slips = repair_slips(out["coordinate"], out["reason"], plan.slip_period, final_period)
+            # jumps across the tiles' first rows (each tile saw only its own rows)
+            for start in sorted(tile_starts):
+                if start > 0:
+                    pair = slip_candidates(out["coordinate"][start - 1 : start + 1], plan.slip_period / 2)
+                    candidates[plan.name].append(pair + (start - 1) * width)
+            found = np.concatenate(candidates[plan.name]) if candidates[plan.name] else np.empty(0, np.intp)
+            slips = repair_slips(out["coordinate"], out["reason"], plan.slip_period, final_period, found)
         axes[plan.name] = AxisDecoding(
             coordinate=out["coordinate"],
             modulation=out["modulation"],
@@ -531,14 +547,27 @@ def _phase_tile(tile: np.ndarray, seq: _SequencePlan, exact: bool, scratch: Any,
     noise = None
     if seq.need_noise:
         sq = np.einsum("ij,ij->j", flat, flat, out=scratch.get(f"squares{work.__name__}", (h * w,), work))
-        r = sq.astype(np.float64)
-        cc = c.ravel().astype(np.float64)
-        ss = neg_s.ravel().astype(np.float64)
-        tt = total.ravel().astype(np.float64)
-        r -= (cc * cc + ss * ss) * (2 / n) + tt * tt * (1 / n)
-        np.maximum(r, 0, out=r)
-        r *= 1 / (n - 3)
-        noise = np.sqrt(r).astype(np.float32).reshape(h, w)
+        if work is np.float32:
+            # 8-bit: sum I^2 is an exact integer below 2**24; total * (total / N) ~ 1e6 keeps ~0.1 grey^2
+            t = scratch.get("resid_t", (h * w,), np.float32)
+            cr, sr, tr = c.ravel(), neg_s.ravel(), total.ravel()
+            np.multiply(tr, np.float32(1 / n), out=t)
+            t *= tr
+            sq -= t
+            np.multiply(cr, cr, out=t)
+            t += sr * sr
+            t *= np.float32(2 / n)
+            sq -= t
+            np.maximum(sq, 0, out=sq)
+            sq *= np.float32(1 / (n - 3))
+            noise = np.sqrt(sq, out=sq).reshape(h, w)
+        else:
+            r = sq.astype(np.float64)
+            cc, ss, tt = c.ravel(), neg_s.ravel(), total.ravel()
+            r -= (cc * cc + ss * ss) * (2 / n) + tt * tt * (1 / n)
+            np.maximum(r, 0, out=r)
+            r *= 1 / (n - 3)
+            noise = np.sqrt(r).astype(np.float32).reshape(h, w)
     total32 = total if total.dtype == np.float32 else total.astype(np.float32)
     return _PhaseResult(frac=frac, modulation=b, total=total32, noise=noise)
 
@@ -701,18 +730,42 @@ def _decode_axis_tile(
     inside = np.greater_equal(x, np.float32(-0.5), out=scratch.get("inside", shape, bool))
     inside &= x <= np.float32(plan.extent - 0.5)
     np.copyto(reason, np.uint8(REASON_OUTSIDE))
-    reason[inside] = REASON_VALID
+    np.copyto(reason, np.uint8(REASON_VALID), where=inside)
     if inconsistent is not None:
-        reason[inconsistent] = REASON_INCONSISTENT
+        np.copyto(reason, np.uint8(REASON_INCONSISTENT), where=inconsistent)
     if low_contrast is not None:
-        reason[low_contrast] = REASON_LOW_INVERSE_CONTRAST
+        np.copyto(reason, np.uint8(REASON_LOW_INVERSE_CONTRAST), where=low_contrast)
     if phase_saturated is not None and plan.used:
-        reason[phase_saturated] = REASON_SATURATED
-    reason[dark] = REASON_TOO_DARK
-    x[reason != REASON_VALID] = np.nan
+        np.copyto(reason, np.uint8(REASON_SATURATED), where=phase_saturated)
+    np.copyto(reason, np.uint8(REASON_TOO_DARK), where=dark)
+    invalid = np.not_equal(reason, np.uint8(REASON_VALID), out=inside)
+    np.copyto(x, np.float32(np.nan), where=invalid)
 
 
-def repair_slips(coordinate: np.ndarray, reason: np.ndarray, slip_period: float, final_period: float) -> int:
+def slip_candidates(x: np.ndarray, half_period: float) -> np.ndarray:
+    """Flat indices (into ``x``) of pixels differing by more than ``half_period`` from a 4-neighbour.
+
+    ``x``: (h, W) float32 coordinates, NaN where invalid (NaN never counts as a jump).
+    """
+    half = np.float32(half_period)
+    jump = np.zeros(x.shape, bool)
+    with np.errstate(invalid="ignore"):
+        dx = np.abs(x[:, 1:] - x[:, :-1]) > half
+        dy = np.abs(x[1:, :] - x[:-1, :]) > half
+    jump[:, 1:] |= dx
+    jump[:, :-1] |= dx
+    jump[1:, :] |= dy
+    jump[:-1, :] |= dy
+    return np.flatnonzero(jump)
+
+
+def repair_slips(
+    coordinate: np.ndarray,
+    reason: np.ndarray,
+    slip_period: float,
+    final_period: float,
+    candidates: np.ndarray | None = None,
+) -> int:
     """Repair whole-period slips against the 5x5 median, in place; returns the number repaired.
 
     Candidates are valid pixels differing by more than ``slip_period / 2`` from a valid
@@ -723,15 +776,8 @@ def repair_slips(coordinate: np.ndarray, reason: np.ndarray, slip_period: float,
     """
     x = coordinate
     half = np.float32(slip_period / 2)
-    jump = np.zeros(x.shape, bool)
-    with np.errstate(invalid="ignore"):
-        dx = np.abs(np.diff(x, axis=1)) > half
-        dy = np.abs(np.diff(x, axis=0)) > half
-    jump[:, 1:] |= dx
-    jump[:, :-1] |= dx
-    jump[1:, :] |= dy
-    jump[:-1, :] |= dy
-    rows, cols = np.nonzero(jump)
+    flat = slip_candidates(x, slip_period / 2) if candidates is None else np.unique(candidates)
+    rows, cols = np.divmod(flat, x.shape[1])
     if rows.size == 0:
         return 0
     padded = np.pad(x, 2, mode="constant", constant_values=np.nan)
@@ -739,11 +785,13 @@ def repair_slips(coordinate: np.ndarray, reason: np.ndarray, slip_period: float,
     row_index = rows[:, None, None] + 2 + offsets[None, :, None]
     col_index = cols[:, None, None] + 2 + offsets[None, None, :]
     window = padded[row_index, col_index]
-    window = window.reshape(rows.size, 25)
-    enough = np.count_nonzero(np.isfinite(window), axis=1) >= 13
-    med = np.full(rows.size, np.nan, np.float32)
-    if enough.any():
-        med[enough] = np.nanmedian(window[enough], axis=1)
+    window = np.sort(window.reshape(rows.size, 25), axis=1)  # NaN sorts last
+    count = np.count_nonzero(np.isfinite(window), axis=1)
+    enough = count >= 13
+    index = np.arange(rows.size)
+    low = window[index, np.maximum(count - 1, 0) // 2]
+    high = window[index, np.minimum(count // 2, 24)]
+    med = np.where(enough, np.float32(0.5) * (low + high), np.float32(np.nan))
     values = x[rows, cols]
     with np.errstate(invalid="ignore"):
         slipped = enough & (np.abs(values - med) > half)
