@@ -725,21 +725,44 @@ def _decode_axis_tile(
     else:
         noise_out.fill(np.nan)
 
-    # reasons, lowest priority first so that the first applicable one wins
-    reason = out["reason"]
+    # reasons: the flags form a 5-bit index (dark 16, saturated 8, low contrast 4, inconsistent 2,
+    # outside 1) that a table turns into the first applicable reason
+    flags = scratch.get("flags", shape, np.uint8)
+    flag = scratch.get("flag", shape, np.uint8)
     inside = np.greater_equal(x, np.float32(-0.5), out=scratch.get("inside", shape, bool))
     inside &= x <= np.float32(plan.extent - 0.5)
-    np.copyto(reason, np.uint8(REASON_OUTSIDE))
-    np.copyto(reason, np.uint8(REASON_VALID), where=inside)
-    if inconsistent is not None:
-        np.copyto(reason, np.uint8(REASON_INCONSISTENT), where=inconsistent)
-    if low_contrast is not None:
-        np.copyto(reason, np.uint8(REASON_LOW_INVERSE_CONTRAST), where=low_contrast)
-    if phase_saturated is not None and plan.used:
-        np.copyto(reason, np.uint8(REASON_SATURATED), where=phase_saturated)
-    np.copyto(reason, np.uint8(REASON_TOO_DARK), where=dark)
-    invalid = np.not_equal(reason, np.uint8(REASON_VALID), out=inside)
-    np.copyto(x, np.float32(np.nan), where=invalid)
+    np.subtract(np.uint8(1), inside.view(np.uint8), out=flags)
+    for mask, weight in (
+        (inconsistent, 2),
+        (low_contrast, 4),
+        (phase_saturated if plan.used else None, 8),
+        (dark, 16),
+    ):
+        if mask is not None:
+            np.multiply(mask.view(np.uint8), np.uint8(weight), out=flag)
+            np.bitwise_or(flags, flag, out=flags)
+    reason = cv2.LUT(flags, _REASON_LUT, dst=out["reason"])
+    x += cv2.LUT(reason, _NAN_UNLESS_VALID_LUT, dst=scratch.get("nan_or_zero", shape, np.float32))
+
+
+def _reason_lut() -> np.ndarray:
+    lut = np.zeros(256, np.uint8)
+    for index in range(32):
+        for bit, code in (
+            (16, REASON_TOO_DARK),
+            (8, REASON_SATURATED),
+            (4, REASON_LOW_INVERSE_CONTRAST),
+            (2, REASON_INCONSISTENT),
+            (1, REASON_OUTSIDE),
+        ):
+            if index & bit:
+                lut[index] = code
+                break
+    return lut
+
+
+_REASON_LUT = _reason_lut()
+_NAN_UNLESS_VALID_LUT = np.where(np.arange(256) == REASON_VALID, 0, np.nan).astype(np.float32)
 
 
 def slip_candidates(x: np.ndarray, half_period: float) -> np.ndarray:
