@@ -513,26 +513,41 @@ class _PhaseResult:
 def _phase_tile(tile: np.ndarray, seq: _SequencePlan, exact: bool, scratch: Any, tag: str) -> _PhaseResult:
     """Least-squares phase, modulation, sum and (N >= 4, when asked) noise of one sequence on a tile.
 
-    The frames are converted once (float32 for 8-bit stacks, whose sums of squares stay exact
-    integers below 2**24; float64 otherwise); ``einsum`` (numpy's own loops: OpenBLAS threads
-    busy-wait badly on a shared machine) forms ``C``, ``-S`` and the sum in one call. The noise
+    The sum and the sum of squares come from OpenCV's accumulators reading the frames directly
+    (float32 for 8-bit stacks, whose sums stay exact integers below 2**24; float64 otherwise);
+    ``C`` and ``-S`` from ``einsum`` (numpy's own loops: OpenBLAS threads busy-wait badly on a
+    shared machine) over the differences of frames half a turn apart when N is even. The noise
     ``R = sum I^2 - (sum I)^2 / N - (N / 2) B^2`` is combined in float64 (it is a small
     difference of large sums).
     """
     h, w = tile.shape[1:]
     n = seq.steps
     work = np.float32 if tile.dtype == np.uint8 else np.float64
-    f = scratch.get(f"frames{work.__name__}", (n, h, w), work)
+    cv_work = cv2.CV_32F if work is np.float32 else cv2.CV_64F
     frames = seq.frames
-    if frames == tuple(range(frames[0], frames[0] + n)):
-        np.copyto(f, tile[frames[0] : frames[0] + n], casting="unsafe")
+    total = scratch.get(f"total{tag}", (h, w), work)
+    total.fill(0)
+    sq = scratch.get(f"squares{work.__name__}", (h, w), work) if seq.need_noise else None
+    if sq is not None:
+        sq.fill(0)
+    for fi in frames:  # OpenCV's accumulators read the 8/16-bit frames directly
+        cv2.accumulate(tile[fi], total)
+        if sq is not None:
+            cv2.accumulateSquare(tile[fi], sq)
+    res = scratch.get(f"sums{tag}", (2, h * w), work)
+    if n % 2 == 0:
+        # cos and sin change sign half a turn later: C = sum_{k < N/2} cos_k (I_k - I_{k + N/2}), same for S
+        half = n // 2
+        d = scratch.get(f"pairs{work.__name__}", (half, h, w), work)
+        for k in range(half):
+            cv2.subtract(tile[frames[k]], tile[frames[k + half]], dst=d[k], dtype=cv_work)
+        np.einsum("ik,kj->ij", seq.weights[:2, :half].astype(work, copy=False), d.reshape(half, h * w), out=res)
     else:
+        f = scratch.get(f"frames{work.__name__}", (n, h, w), work)
         for k, fi in enumerate(frames):
             np.copyto(f[k], tile[fi], casting="unsafe")
-    flat = f.reshape(n, h * w)
-    res = scratch.get(f"sums{tag}", (3, h * w), work)
-    np.einsum("ik,kj->ij", seq.weights.astype(work, copy=False), flat, out=res)
-    c, neg_s, total = (res[i].reshape(h, w) for i in range(3))
+        np.einsum("ik,kj->ij", seq.weights[:2].astype(work, copy=False), f.reshape(n, h * w), out=res)
+    c, neg_s = (res[i].reshape(h, w) for i in range(2))
     mag = scratch.get(f"mag{tag}", (h, w), np.float32)
     angle = scratch.get(f"angle{tag}", (h, w), np.float32)
     if exact:
@@ -545,8 +560,8 @@ def _phase_tile(tile: np.ndarray, seq: _SequencePlan, exact: bool, scratch: Any,
     frac = np.multiply(angle, np.float32(1 / TWO_PI), out=angle)
     b = np.multiply(mag, np.float32(2 / n), out=mag)
     noise = None
-    if seq.need_noise:
-        sq = np.einsum("ij,ij->j", flat, flat, out=scratch.get(f"squares{work.__name__}", (h * w,), work))
+    if sq is not None:
+        sq = sq.ravel()
         if work is np.float32:
             # 8-bit: sum I^2 is an exact integer below 2**24; total * (total / N) ~ 1e6 keeps ~0.1 grey^2
             t = scratch.get("resid_t", (h * w,), np.float32)
