@@ -15,8 +15,10 @@ mild affine map, 1.5 grey levels of noise, rendered by :func:`render_codec`'s pa
   (2048 words) and 10 bits v, white, black.
 
 Each row is timed as :func:`decode_codec` (all outputs: coordinates, modulation, mean,
-noise, reasons) and beside it ``memory bound``: ``np.copyto`` of the stack's bytes (the
-bytes decoding must read at least), in the same process, interleaved, medians of
+noise, reasons: what ``gcps decode --quality`` computes), as ``coordinates only`` (no noise
+maps: what ``gcps decode`` without ``--quality`` computes), and beside them ``memory bound``:
+``np.copyto`` of the stack's bytes (the bytes decoding must read at least), in the same
+process, interleaved, medians of
 ``--repeats`` runs. ``OpenCV GrayCodePattern`` decodes the 42-frame stack's layout
 (OpenCV's own patterns of a 1920x1080 projector, 2 cameras) with
 ``benchmarks/opencv_baseline.py`` in its own environment (``benchmarks/opencv_env.sh``).
@@ -214,6 +216,9 @@ def main() -> None:
         medians, cpu = interleaved(
             {
                 "decode": lambda stack=stack, codec=codec: decode_codec(stack, codec, threads=args.threads),
+                "coordinates only": lambda stack=stack, codec=codec: decode_codec(
+                    stack, codec, with_noise=False, threads=args.threads
+                ),
                 "memory bound": lambda stack=stack, copy=copy: np.copyto(copy, stack),
             },
             args.repeats,
@@ -225,6 +230,8 @@ def main() -> None:
             "decode_ms": round(medians["decode"] * 1e3, 2),
             "decode_mpx_s": round(px / medians["decode"] / 1e6, 1),
             "decode_cpu_ms": round(cpu["decode"] * 1e3, 2),
+            "coordinates_only_ms": round(medians["coordinates only"] * 1e3, 2),
+            "coordinates_only_mpx_s": round(px / medians["coordinates only"] / 1e6, 1),
             "memory_bound_ms": round(medians["memory bound"] * 1e3, 2),
             "memory_bound_mpx_s": round(px / medians["memory bound"] / 1e6, 1),
             "ratio_to_memory_bound": round(medians["decode"] / medians["memory bound"], 2),

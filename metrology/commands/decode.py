@@ -75,7 +75,7 @@ def cmd_decode(args: argparse.Namespace) -> dict[str, Any]:
     stack = read_codec_stack(args.stack, codec)
     read_s = time.perf_counter() - start
     start = time.perf_counter()
-    decoded = decode_codec(stack.images, stack.codec, options)
+    decoded = decode_codec(stack.images, stack.codec, options, with_noise=args.quality is not None)
     decode_s = time.perf_counter() - start
     uv = decoded.uv()
     with atomic_path(args.out) as tmp_uv:

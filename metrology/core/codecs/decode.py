@@ -265,7 +265,7 @@ class _AxisPlan:
     slip_period: float  # > 0 when slips are possible: period of the stage after the gray
 
 
-def _plan(codec: Codec) -> list[_AxisPlan]:
+def _plan(codec: Codec, with_noise: bool = True) -> list[_AxisPlan]:
     plans = []
     for name, axis in codec.axes.items():
         chain = axis.chain()
@@ -289,7 +289,7 @@ def _plan(codec: Codec) -> list[_AxisPlan]:
                     seq.steps,
                     seq.period,
                     seq.origin,
-                    need_noise=seq.steps >= 4 and i == noise_index,
+                    need_noise=with_noise and seq.steps >= 4 and i == noise_index,
                 )
             )
         lut = None
@@ -336,6 +336,7 @@ def decode_codec(
     codec: Codec,
     options: CodecDecodeOptions | None = None,
     *,
+    with_noise: bool = True,
     threads: int | None = None,
 ) -> CodecDecoding:
     """Decode a stack of ``codec`` to absolute projector coordinates.
@@ -347,6 +348,9 @@ def decode_codec(
     codec : Codec
     options : CodecDecodeOptions, optional
         Validity rules; defaults resolved per codec and bit depth (recorded in the result).
+    with_noise : bool
+        Compute the fit-residual noise maps (N >= 4); without them ``noise`` is NaN and the
+        decoding skips the sums of squares (``gcps decode`` asks for them with ``--quality``).
     threads : int, optional
         Worker threads over row tiles (default :data:`~metrology.core.tiling.DEFAULT_THREADS`).
 
@@ -365,7 +369,7 @@ def decode_codec(
         stack = stack.astype(np.float32)
     opts = (options or CodecDecodeOptions()).resolved(codec, stack.dtype)
     _, height, width = stack.shape
-    plans = _plan(codec)
+    plans = _plan(codec, with_noise)
     outputs: dict[str, dict[str, np.ndarray]] = {}
     for plan in plans:
         outputs[plan.name] = {
@@ -785,15 +789,17 @@ def slip_candidates(x: np.ndarray, half_period: float) -> np.ndarray:
 
     ``x``: (h, W) float32 coordinates, NaN where invalid (NaN never counts as a jump).
     """
-    half = np.float32(half_period)
-    jump = np.zeros(x.shape, bool)
-    with np.errstate(invalid="ignore"):
-        dx = np.abs(x[:, 1:] - x[:, :-1]) > half
-        dy = np.abs(x[1:, :] - x[:-1, :]) > half
-    jump[:, 1:] |= dx
-    jump[:, :-1] |= dx
-    jump[1:, :] |= dy
-    jump[:-1, :] |= dy
+    half = float(half_period)
+    h, w = x.shape
+    jump = np.zeros((h, w), np.uint8)
+    if w > 1:
+        mx = cv2.compare(cv2.absdiff(x[:, 1:], x[:, :-1]), half, cv2.CMP_GT)  # NaN compares false
+        cv2.bitwise_or(jump[:, 1:], mx, dst=jump[:, 1:])
+        cv2.bitwise_or(jump[:, :-1], mx, dst=jump[:, :-1])
+    if h > 1:
+        my = cv2.compare(cv2.absdiff(x[1:, :], x[:-1, :]), half, cv2.CMP_GT)
+        cv2.bitwise_or(jump[1:, :], my, dst=jump[1:, :])
+        cv2.bitwise_or(jump[:-1, :], my, dst=jump[:-1, :])
     return np.flatnonzero(jump)
 
 
@@ -818,11 +824,13 @@ def repair_slips(
     rows, cols = np.divmod(flat, x.shape[1])
     if rows.size == 0:
         return 0
-    padded = np.pad(x, 2, mode="constant", constant_values=np.nan)
+    height, width = x.shape
     offsets = np.arange(-2, 3)
-    row_index = rows[:, None, None] + 2 + offsets[None, :, None]
-    col_index = cols[:, None, None] + 2 + offsets[None, None, :]
-    window = padded[row_index, col_index]
+    row_index = rows[:, None, None] + offsets[None, :, None]
+    col_index = cols[:, None, None] + offsets[None, None, :]
+    inside = (row_index >= 0) & (row_index < height) & (col_index >= 0) & (col_index < width)
+    window = x[np.clip(row_index, 0, height - 1), np.clip(col_index, 0, width - 1)]
+    window[~inside] = np.nan  # beyond the image
     window = np.sort(window.reshape(rows.size, 25), axis=1)  # NaN sorts last
     count = np.count_nonzero(np.isfinite(window), axis=1)
     enough = count >= 13
