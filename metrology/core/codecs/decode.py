@@ -793,11 +793,11 @@ def slip_candidates(x: np.ndarray, half_period: float) -> np.ndarray:
     h, w = x.shape
     jump = np.zeros((h, w), np.uint8)
     if w > 1:
-        mx = cv2.compare(cv2.absdiff(x[:, 1:], x[:, :-1]), half, cv2.CMP_GT)  # NaN compares false
+        mx = np.greater(cv2.absdiff(x[:, 1:], x[:, :-1]), half).view(np.uint8)  # NaN compares false
         cv2.bitwise_or(jump[:, 1:], mx, dst=jump[:, 1:])
         cv2.bitwise_or(jump[:, :-1], mx, dst=jump[:, :-1])
     if h > 1:
-        my = cv2.compare(cv2.absdiff(x[1:, :], x[:-1, :]), half, cv2.CMP_GT)
+        my = np.greater(cv2.absdiff(x[1:, :], x[:-1, :]), half).view(np.uint8)
         cv2.bitwise_or(jump[1:, :], my, dst=jump[1:, :])
         cv2.bitwise_or(jump[:-1, :], my, dst=jump[:-1, :])
     return np.flatnonzero(jump)
