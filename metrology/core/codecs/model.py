@@ -201,6 +201,14 @@ class Codec:
         """Projector size along ``axis``: width for u, height for v."""
         return self.projector_width if axis == "u" else self.projector_height
 
+    def light_codes(self, u: Any, nlp: int) -> Any:
+        """The paper's light codes of projector columns ``u``: ``l = (u + 0.5) nlp / width``.
+
+        For a crossed-axes rig whose coded field spans the projector's width with ``nlp`` codes.
+        ``u``: array (or float) of projector column coordinates; returns the same shape.
+        """
+        return (u + 0.5) * (nlp / self.projector_width)
+
     def to_dict(self) -> dict[str, Any]:
         """The JSON-ready dict of the codec file (gcps-codec/1)."""
         out: dict[str, Any] = {"codec": CODEC_FORMAT}

@@ -274,3 +274,19 @@ def test_realistic_8bit_noise_matches_the_derived_limit(steps: int, word_fractio
     limit = math.sqrt(np.mean([p**2 for _, p in repeats]))
     print(f"N={steps}: measured {measured:.4f} px, limit {limit:.4f} px, ratio {measured / limit:.3f}")
     assert measured / limit < 1.2 and measured / limit > 1 / 1.2, (measured, limit)
+
+
+@pytest.mark.slow
+def test_gcps_v1_codec_agrees_with_the_gcps_v1_decoder() -> None:
+    """A realistic gcps-v1 capture of the virtual rig: the codec decoder's u, as light codes
+    ``l = (u + 0.5) nlp / width``, equals the paper decoder's codes where both decode."""
+    from metrology.core.decode import decode_stack
+
+    rendered = render_stack(PAPER_RIG, make_scene("sphere"), SimulationOptions.realistic_8bit())
+    codec = builtin_codec("gcps-v1")
+    ours = decode_codec(rendered.images, codec).axes["u"]
+    theirs = decode_stack(rendered.images, nlp=PAPER_RIG.nlp)
+    both = ours.valid & theirs.mask
+    assert both.sum() > 0.9 * theirs.mask.sum()
+    codes = codec.light_codes(ours.coordinate[both].astype(np.float64), PAPER_RIG.nlp)
+    assert np.abs(codes - theirs.codes[both]).max() < 2e-3
