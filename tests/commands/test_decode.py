@@ -208,3 +208,23 @@ def test_stacks_that_do_not_match_their_codec_exit_2(
     assert "not valid JSON" in bad(capsys, tmp_path, "--stack", str(folder), "--codec", str(tmp_path / "broken.json"))
     code = run("decode", "--stack", str(folder), "--out", str(tmp_path / "uv.txt"))
     assert code == 2 and "extension must be .npy" in capsys.readouterr().err
+
+
+def test_patterns_codec_refuses_gcps_v1_size_options(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code = run("patterns", "--codec", "gcps-v1", "--width", "64", "--out", str(tmp_path / "p"))
+    assert code == 2 and "drop --width" in capsys.readouterr().err
+    assert not (tmp_path / "p").exists()
+    assert run("patterns", "--out", str(tmp_path / "p")) == 2
+    assert "give --width and --height (gcps-v1) or --codec" in capsys.readouterr().err
+
+
+def test_capture_zip_as_an_upload_file_object(capture: tuple[Path, np.ndarray, np.ndarray], tmp_path: Path) -> None:
+    folder = capture[0]
+    archive = tmp_path / "upload.zip"
+    with zipfile.ZipFile(archive, "w") as zf:
+        for child in folder.iterdir():
+            zf.write(child, child.name)
+    with archive.open("rb") as fh:
+        stack = read_codec_stack(fh)
+    assert stack.codec_source == "codec.json" and stack.images.shape == (18, 40, 60)
+    assert stack.images.dtype == np.uint16
