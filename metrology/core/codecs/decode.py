@@ -648,7 +648,17 @@ def _decode_axis_tile(
             else:
                 assert first_total is not None
                 n0 = np.float32(plan.sequences[0].steps)
-                if integer:
+                if tile.dtype == np.uint8:
+                    # floor(S / N) = round((S - (N - 1) / 2) / N) for an integer sum S (no ties), and
+                    # frame > A <=> frame > floor(A) for integer frames; saturating 8-bit output
+                    n_steps = plan.sequences[0].steps
+                    threshold = cv2.convertScaleAbs(
+                        first_total,
+                        dst=scratch.get(f"threshold{plan.name}", shape, np.uint8),
+                        alpha=1 / n_steps,
+                        beta=-(n_steps - 1) / (2 * n_steps),
+                    )
+                elif integer:
                     # floor((sum + 0.5) / N) = floor(A) exactly for integer sums: frame > A <=> frame > floor(A)
                     t = (first_total + np.float32(0.5)) / n0
                     threshold = np.floor(t, out=t).astype(tile.dtype)
@@ -710,25 +720,19 @@ def _decode_axis_tile(
             s_i, l_i = (i, j) if plan.sequences[i].period < plan.sequences[j].period else (j, i)
             frac = np.subtract(results[s_i].frac, results[l_i].frac, out=scratch.get("beat", shape, np.float32))
             frac += np.float32(1) * (frac < 0)
-        period = np.float32(stage.period)
         # x_w = origin + P frac; x = x_w + P round((x_c - x_w) / P) = origin + P (frac + round((x_c - origin)/P - frac))
         if previous is None:
-            np.copyto(x, np.float32((plan.extent - 1) / 2))
-        np.subtract(x, np.float32(stage.origin), out=tmp)
-        tmp *= np.float32(1 / stage.period)
-        tmp -= frac
+            x.fill((plan.extent - 1) / 2)
+        # k = round((x_c - origin) / P - frac); x = origin + P (frac + k), two fused passes
+        cv2.addWeighted(x, 1 / stage.period, frac, -1.0, -stage.origin / stage.period, dst=tmp)
         np.rint(tmp, out=tmp)
-        tmp += frac
-        tmp *= period
-        tmp += np.float32(stage.origin)
+        cv2.addWeighted(tmp, stage.period, frac, stage.period, stage.origin, dst=x)
         if previous is not None and previous.kind == "gray":
             assert centre is not None and g is not None
             tolerance = np.float32(g.word / 2 + opts.consistency_periods * stage.period)
             inconsistent = scratch.get(f"incons{plan.name}", shape, bool)
-            np.subtract(tmp, centre, out=x)
-            np.abs(x, out=x)
-            np.greater(x, tolerance, out=inconsistent)
-        np.copyto(x, tmp)
+            cv2.absdiff(x, centre, dst=tmp)
+            np.greater(tmp, tolerance, out=inconsistent)
         previous = stage
 
     if plan.used:
