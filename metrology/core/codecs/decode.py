@@ -108,7 +108,10 @@ class CodecDecodeOptions:
             value = getattr(self, name)
             if value is None:
                 continue
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+            bad_type = isinstance(value, bool) or not isinstance(value, (int, float))
+            # the saturation level may be infinite (no check: float images)
+            finite_ok = name == "saturation_level" and value == math.inf
+            if bad_type or (not math.isfinite(value) and not finite_ok) or value < 0:
                 raise ValueError(f"option {name} must be a finite number >= 0, got {value!r}")
         if not isinstance(self.repair_slips, bool):
             raise ValueError(f"option repair_slips must be a bool, got {self.repair_slips!r}")
