@@ -15,6 +15,7 @@ from rest_framework.views import APIView
 from metrology.api_errors import BadInput
 from metrology.captures import selectors, services
 from metrology.captures.models import Capture, CaptureSession
+from metrology.captures.simulation import DEFAULT_PRESET, PRESETS, preset_options
 from metrology.rigs.selectors import get_rig
 
 
@@ -65,8 +66,23 @@ class CaptureUploadSerializer(serializers.Serializer):
 class SimulateSerializer(serializers.Serializer):
     role = serializers.ChoiceField(choices=Capture.Role.choices)
     scene = serializers.DictField(help_text='Scene: {"name": "...", ...scene parameters} (metrology.core.scenes)')
+    preset = serializers.ChoiceField(
+        choices=list(PRESETS),
+        default=DEFAULT_PRESET,
+        help_text=(
+            "Camera preset the options start from: realistic (default; 8-bit, 1.5 grey levels of noise, "
+            "0.7 px camera blur, 0.15 code projector blur, 3x3 sub-rays, as the dashboard's default) or "
+            "noise-free (16-bit, exact)"
+        ),
+    )
     options = serializers.DictField(
-        required=False, default=dict, help_text="Simulation options: bit_depth, noise_grey, seed, ..."
+        required=False,
+        default=dict,
+        help_text=(
+            "Simulation options overriding the preset's: bit_depth (8/16), noise_grey, ambient, projector_gain, "
+            "projector_gamma, projector_defocus_codes, camera_defocus_px, square, smoothing_codes, "
+            "supersample (1-8), seed"
+        ),
     )
     z_in_mm = serializers.FloatField(required=False, allow_null=True)
     repeat = serializers.IntegerField(required=False, min_value=0, max_value=1_000_000, default=0)
@@ -137,7 +153,7 @@ class RigCaptureSimulateApi(APIView):
             rig=rig,
             role=data["role"],
             scene=data["scene"],
-            options=data.get("options") or {},
+            options=preset_options(data["preset"], data.get("options")),
             z_in_mm=data.get("z_in_mm"),
             repeat=data.get("repeat", 0),
             session_id=data.get("session"),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from django.conf import settings
 from drf_spectacular.utils import extend_schema
 from rest_framework import serializers, status
 from rest_framework.request import Request
@@ -22,8 +23,12 @@ class RigInputSerializer(serializers.Serializer):
     alpha_rad = serializers.FloatField(help_text="Projector tilt, rad, in (0, pi/2)")
     fw_mm = serializers.FloatField(help_text="Camera field width on the reference plane, mm, > 0")
     nlp = serializers.IntegerField(min_value=1, max_value=128, help_text="Light codes across the field")
-    width_px = serializers.IntegerField(min_value=1, max_value=100_000)
-    height_px = serializers.IntegerField(min_value=1, max_value=100_000)
+    width_px = serializers.IntegerField(
+        min_value=1, max_value=settings.GCPS_MAX_IMAGE_SIDE_PX, help_text="Camera columns (GCPS_MAX_IMAGE_SIDE_PX)"
+    )
+    height_px = serializers.IntegerField(
+        min_value=1, max_value=settings.GCPS_MAX_IMAGE_SIDE_PX, help_text="Camera rows (GCPS_MAX_IMAGE_SIDE_PX)"
+    )
 
 
 class RigHistorySerializer(serializers.ModelSerializer):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from django.conf import settings
 from django.db import transaction
 
 from metrology.api_errors import BadInput
@@ -13,13 +14,21 @@ from metrology.rigs.models import GEOMETRY_FIELDS, Rig, RigParameters
 
 
 def validate_geometry(values: dict[str, Any]) -> dict[str, Any]:
-    """The seven values normalised by the core's :class:`Rig`; raises :class:`BadInput` naming the problem."""
+    """The seven values normalised by the core's :class:`Rig`; raises :class:`BadInput` naming the problem.
+
+    The image sides are also bounded by ``GCPS_MAX_IMAGE_SIDE_PX`` (every capture, measurement and
+    simulation of the rig is that size).
+    """
     try:
         core = CoreRig.from_dict(values)
     except RigError as exc:
         raise BadInput(str(exc)) from None
     except (TypeError, OverflowError) as exc:  # e.g. a list where a number belongs
         raise BadInput(f"rig values are not numbers: {exc}") from None
+    limit = settings.GCPS_MAX_IMAGE_SIDE_PX
+    for name in ("width_px", "height_px"):
+        if getattr(core, name) > limit:
+            raise BadInput(f"{name} must be at most {limit} pixels (GCPS_MAX_IMAGE_SIDE_PX), got {getattr(core, name)}")
     return {name: getattr(core, name) for name in GEOMETRY_FIELDS}
 
 

@@ -13,12 +13,13 @@ from rest_framework.authtoken.models import Token
 
 from metrology.calibrations.services import request_calibration
 from metrology.captures.services import create_session, request_simulated_capture
+from metrology.captures.simulation import PRESETS
 from metrology.characterizations.services import request_characterization
 from metrology.jobs.models import Job
 from metrology.measurements.services import request_measurement
 from metrology.rigs.services import create_rig
 
-NOISE = {"bit_depth": 8, "noise_grey": 1.5, "camera_defocus_px": 0.5}
+NOISE = PRESETS["realistic"]  # the API's and the dashboard's default
 
 
 class Command(BaseCommand):
