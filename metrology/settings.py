@@ -125,6 +125,7 @@ INSTALLED_APPS = [
 
 MIDDLEWARE = [
     "django.middleware.security.SecurityMiddleware",
+    "metrology.api_input.RequestBodyLimitMiddleware",
     "whitenoise.middleware.WhiteNoiseMiddleware",
     "django.contrib.sessions.middleware.SessionMiddleware",
     "django.middleware.common.CommonMiddleware",
@@ -211,6 +212,8 @@ DATA_UPLOAD_MAX_MEMORY_SIZE = 8 * 1024 * 1024
 # Largest image a stack may hold (width * height), guards against headers claiming huge sizes.
 GCPS_MAX_STACK_PIXELS = env_int("GCPS_MAX_STACK_PIXELS", 64 * 1024 * 1024, minimum=1)
 # Largest rig image side (width_px, height_px), pixels; and the memory a simulation may take, bytes.
+# Largest ``extra`` (the rig file's further keys) a rig may hold, bytes of JSON.
+GCPS_MAX_RIG_EXTRA_BYTES = env_int("GCPS_MAX_RIG_EXTRA_BYTES", 16 * 1024, minimum=2)
 GCPS_MAX_IMAGE_SIDE_PX = env_int("GCPS_MAX_IMAGE_SIDE_PX", 4096, minimum=1)
 GCPS_MAX_SIMULATION_BYTES = env_int("GCPS_MAX_SIMULATION_BYTES", 4 * 1024**3, minimum=1)
 
@@ -224,6 +227,11 @@ REST_FRAMEWORK = {
     "DEFAULT_SCHEMA_CLASS": "drf_spectacular.openapi.AutoSchema",
     "EXCEPTION_HANDLER": "metrology.api_errors.exception_handler",
     "DEFAULT_PAGINATION_CLASS": None,
+    "DEFAULT_PARSER_CLASSES": [
+        "metrology.api_input.BoundedJSONParser",
+        "rest_framework.parsers.FormParser",
+        "rest_framework.parsers.MultiPartParser",
+    ],
     "UNAUTHENTICATED_USER": None,
 }
 

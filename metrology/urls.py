@@ -62,5 +62,6 @@ urlpatterns = [
     path("", include("metrology.dashboard.urls")),
 ]
 
+handler400 = "metrology.api_errors.bad_request"
 handler404 = "metrology.api_errors.not_found"
 handler500 = "metrology.api_errors.server_error"

@@ -7,12 +7,13 @@ from django.http import FileResponse
 from drf_spectacular.types import OpenApiTypes
 from drf_spectacular.utils import extend_schema
 from rest_framework import serializers, status
-from rest_framework.parsers import FormParser, JSONParser, MultiPartParser
+from rest_framework.parsers import FormParser, MultiPartParser
 from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
 from metrology.api_errors import BadInput
+from metrology.api_input import BoundedJSONParser, RealNumberField
 from metrology.captures import selectors, services
 from metrology.captures.models import Capture, CaptureSession
 from metrology.captures.simulation import DEFAULT_PRESET, PRESETS, preset_options
@@ -55,7 +56,7 @@ class CaptureSerializer(serializers.ModelSerializer):
 class CaptureUploadSerializer(serializers.Serializer):
     file = serializers.FileField(help_text="Zip of GC_0..GC_6, PS_0..PS_3 images (.png/.tif/.tiff/.bmp)")
     role = serializers.ChoiceField(choices=Capture.Role.choices)
-    z_in_mm = serializers.FloatField(required=False, allow_null=True, help_text="Stage position, mm")
+    z_in_mm = RealNumberField(required=False, allow_null=True, help_text="Stage position, mm")
     repeat = serializers.IntegerField(required=False, min_value=0, max_value=1_000_000, default=0)
     session = serializers.IntegerField(required=False, allow_null=True, min_value=1, help_text="Capture session id")
     bit_depth = serializers.ChoiceField(
@@ -84,7 +85,7 @@ class SimulateSerializer(serializers.Serializer):
             "supersample (1-8), seed"
         ),
     )
-    z_in_mm = serializers.FloatField(required=False, allow_null=True)
+    z_in_mm = RealNumberField(required=False, allow_null=True)
     repeat = serializers.IntegerField(required=False, min_value=0, max_value=1_000_000, default=0)
     session = serializers.IntegerField(required=False, allow_null=True, min_value=1)
 
@@ -140,7 +141,7 @@ class RigCapturesApi(APIView):
 
 
 class RigCaptureSimulateApi(APIView):
-    parser_classes = (JSONParser,)
+    parser_classes = (BoundedJSONParser,)
 
     @extend_schema(request=SimulateSerializer, responses={202: CaptureSerializer}, operation_id="rig_captures_simulate")
     def post(self, request: Request, rig_id: int) -> Response:
@@ -163,7 +164,7 @@ class RigCaptureSimulateApi(APIView):
 
 
 class RigSessionsApi(APIView):
-    parser_classes = (JSONParser, FormParser, MultiPartParser)
+    parser_classes = (BoundedJSONParser, FormParser, MultiPartParser)
 
     @extend_schema(responses=SessionSerializer(many=True), operation_id="rig_sessions_list")
     def get(self, request: Request, rig_id: int) -> Response:
