@@ -77,6 +77,20 @@ def env_list(name: str, default: list[str]) -> list[str]:
     return items
 
 
+def env_rate(name: str, default: str) -> str | None:
+    """A rate ``N/period`` (period second, minute, hour or day, or their first letter); ``off`` for none."""
+    raw = env_str(name, default)
+    if raw.lower() in ("off", "none"):
+        return None
+    count, _, period = raw.partition("/")
+    if not count.strip().isdigit() or int(count) < 1 or period.strip().lower() not in _RATE_PERIODS:
+        raise ImproperlyConfigured(f"{name} must look like 100/minute (second, minute, hour, day) or off, got {raw!r}")
+    return raw
+
+
+_RATE_PERIODS = {"s", "sec", "second", "m", "min", "minute", "h", "hour", "d", "day"}
+
+
 def env_url(name: str, schemes: tuple[str, ...]) -> str:
     raw = os.environ.get(name, "").strip()
     if raw and not raw.startswith(tuple(f"{scheme}://" for scheme in schemes)):
@@ -126,6 +140,7 @@ INSTALLED_APPS = [
 MIDDLEWARE = [
     "django.middleware.security.SecurityMiddleware",
     "metrology.api_input.RequestBodyLimitMiddleware",
+    "metrology.throttling.LoginThrottleMiddleware",
     "whitenoise.middleware.WhiteNoiseMiddleware",
     "django.contrib.sessions.middleware.SessionMiddleware",
     "django.middleware.common.CommonMiddleware",
@@ -220,10 +235,11 @@ GCPS_MAX_SIMULATION_BYTES = env_int("GCPS_MAX_SIMULATION_BYTES", 4 * 1024**3, mi
 # ----------------------------------------------------------------------------- REST API
 REST_FRAMEWORK = {
     "DEFAULT_AUTHENTICATION_CLASSES": [
-        "rest_framework.authentication.TokenAuthentication",
+        "metrology.throttling.ThrottledTokenAuthentication",
         "rest_framework.authentication.SessionAuthentication",
     ],
-    "DEFAULT_PERMISSION_CLASSES": ["rest_framework.permissions.IsAuthenticated"],
+    "DEFAULT_PERMISSION_CLASSES": ["metrology.throttling.IsAuthenticatedAnonThrottled"],
+    "DEFAULT_THROTTLE_CLASSES": ["metrology.throttling.UserRateThrottle", "metrology.throttling.AnonRateThrottle"],
     "DEFAULT_SCHEMA_CLASS": "drf_spectacular.openapi.AutoSchema",
     "EXCEPTION_HANDLER": "metrology.api_errors.exception_handler",
     "DEFAULT_PAGINATION_CLASS": None,
@@ -233,6 +249,15 @@ REST_FRAMEWORK = {
         "rest_framework.parsers.MultiPartParser",
     ],
     "UNAUTHENTICATED_USER": None,
+}
+
+# Rate limits (metrology/throttling.py): API requests per user and per anonymous client, failed
+# log-ins and unknown API tokens per client address; past a rate the answer is 429 + Retry-After.
+GCPS_THROTTLE_RATES = {
+    "user": env_rate("GCPS_THROTTLE_USER", "1200/minute"),
+    "anon": env_rate("GCPS_THROTTLE_ANON", "60/minute"),
+    "login": env_rate("GCPS_THROTTLE_LOGIN", "10/minute"),
+    "bad_token": env_rate("GCPS_THROTTLE_BAD_TOKEN", "20/minute"),
 }
 
 SPECTACULAR_SETTINGS = {
@@ -257,6 +282,18 @@ SPECTACULAR_SETTINGS = {
 # ----------------------------------------------------------------------------- Celery
 REDIS_URL = env_url("REDIS_URL", ("redis", "rediss"))
 CELERY_BROKER_URL = env_url("CELERY_BROKER_URL", ("redis", "rediss", "amqp", "memory")) or REDIS_URL
+# The cache holds the rate-limit counters: Redis when REDIS_URL is set (shared by every web
+# process), the process's memory otherwise (the embedded default is one process).
+if REDIS_URL:
+    CACHES = {
+        "default": {
+            "BACKEND": "django.core.cache.backends.redis.RedisCache",
+            "LOCATION": REDIS_URL,
+            "KEY_PREFIX": env_str("GCPS_CACHE_KEY_PREFIX", "gcps"),
+        }
+    }
+else:
+    CACHES = {"default": {"BACKEND": "django.core.cache.backends.locmem.LocMemCache", "LOCATION": "gcps"}}
 # Without a broker, tasks run in-process when enqueued (the embedded default).
 CELERY_TASK_ALWAYS_EAGER = not CELERY_BROKER_URL
 if CELERY_TASK_ALWAYS_EAGER:
