@@ -273,6 +273,10 @@ SPECTACULAR_SETTINGS = {
     "SWAGGER_UI_FAVICON_HREF": "SIDECAR",
     "REDOC_DIST": "SIDECAR",
     "COMPONENT_SPLIT_REQUEST": True,
+    "POSTPROCESSING_HOOKS": [
+        "drf_spectacular.hooks.postprocess_schema_enums",
+        "metrology.api_schema.add_errors_and_examples",
+    ],
     "ENUM_NAME_OVERRIDES": {
         "JobStatusEnum": "metrology.jobs.models.Job.Status",
         "CaptureRoleEnum": "metrology.captures.models.Capture.Role",

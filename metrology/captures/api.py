@@ -5,7 +5,7 @@ from __future__ import annotations
 from django.conf import settings
 from django.http import FileResponse
 from drf_spectacular.types import OpenApiTypes
-from drf_spectacular.utils import extend_schema
+from drf_spectacular.utils import extend_schema, extend_schema_field
 from rest_framework import serializers, status
 from rest_framework.parsers import FormParser, MultiPartParser
 from rest_framework.request import Request
@@ -17,6 +17,7 @@ from metrology.api_input import BoundedJSONParser, RealNumberField
 from metrology.captures import selectors, services
 from metrology.captures.models import Capture, CaptureSession
 from metrology.captures.simulation import DEFAULT_PRESET, PRESETS, preset_options
+from metrology.core.scenes import SCENES
 from metrology.rigs.selectors import get_rig
 
 
@@ -64,9 +65,28 @@ class CaptureUploadSerializer(serializers.Serializer):
     )
 
 
+@extend_schema_field(
+    {
+        "type": "object",
+        "properties": {"name": {"type": "string", "enum": list(SCENES), "description": "The scene"}},
+        "required": ["name"],
+        "additionalProperties": True,
+        "description": (
+            'The scene in front of the rig: {"name": ..., plus that scene\'s parameters}, e.g. '
+            '{"name": "plane", "z_mm": 20.0}, {"name": "sphere", "radius_mm": 50.0}, '
+            '{"name": "block", "top_mm": 40.0}, {"name": "stage"} (at the capture\'s z_in_mm). Heights must lie in '
+            "the rig's depth range (-L to 0.95 L)."
+        ),
+        "example": {"name": "sphere", "radius_mm": 50.0},
+    }
+)
+class SceneField(serializers.DictField):
+    """A scene: ``{"name": ..., **parameters}`` (metrology.core.scenes)."""
+
+
 class SimulateSerializer(serializers.Serializer):
     role = serializers.ChoiceField(choices=Capture.Role.choices)
-    scene = serializers.DictField(help_text='Scene: {"name": "...", ...scene parameters} (metrology.core.scenes)')
+    scene = SceneField()
     preset = serializers.ChoiceField(
         choices=list(PRESETS),
         default=DEFAULT_PRESET,
