@@ -139,6 +139,7 @@ INSTALLED_APPS = [
 
 MIDDLEWARE = [
     "django.middleware.security.SecurityMiddleware",
+    "metrology.security_headers.ContentSecurityPolicyMiddleware",
     "metrology.api_input.RequestBodyLimitMiddleware",
     "metrology.throttling.LoginThrottleMiddleware",
     "whitenoise.middleware.WhiteNoiseMiddleware",
@@ -240,6 +241,9 @@ REST_FRAMEWORK = {
     ],
     "DEFAULT_PERMISSION_CLASSES": ["metrology.throttling.IsAuthenticatedAnonThrottled"],
     "DEFAULT_THROTTLE_CLASSES": ["metrology.throttling.UserRateThrottle", "metrology.throttling.AnonRateThrottle"],
+    # Client addresses for the rate limits: REMOTE_ADDR, or behind GCPS_NUM_PROXIES reverse proxies the
+    # address they add to X-Forwarded-For (never the header as the client sent it: it could be forged).
+    "NUM_PROXIES": env_int("GCPS_NUM_PROXIES", 1 if env_bool("GCPS_BEHIND_PROXY", False) else 0, minimum=0),
     "DEFAULT_SCHEMA_CLASS": "drf_spectacular.openapi.AutoSchema",
     "EXCEPTION_HANDLER": "metrology.api_errors.exception_handler",
     "DEFAULT_PAGINATION_CLASS": None,
@@ -348,6 +352,14 @@ SECURE_HSTS_INCLUDE_SUBDOMAINS = env_bool("SECURE_HSTS_INCLUDE_SUBDOMAINS", SECU
 SECURE_HSTS_PRELOAD = env_bool("SECURE_HSTS_PRELOAD", SECURE_HSTS_SECONDS > 0)
 SECURE_CONTENT_TYPE_NOSNIFF = True
 X_FRAME_OPTIONS = "DENY"
+# Content-Security-Policy of every response (metrology/security_headers.py says why each part);
+# GCPS_CONTENT_SECURITY_POLICY="" sends none.
+GCPS_CONTENT_SECURITY_POLICY = env_str(
+    "GCPS_CONTENT_SECURITY_POLICY",
+    "default-src 'self'; script-src 'self' 'unsafe-inline'; style-src 'self' 'unsafe-inline'; "
+    "img-src 'self' data: blob:; font-src 'self' data:; connect-src 'self'; worker-src 'self' blob:; "
+    "object-src 'none'; base-uri 'self'; form-action 'self'; frame-ancestors 'self'",
+)
 
 LOGIN_URL = "/login/"
 LOGIN_REDIRECT_URL = "/"

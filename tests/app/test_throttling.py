@@ -91,6 +91,16 @@ def test_hundred_guessed_tokens_are_throttled(settings, user_and_token):
     assert owner.get("/api/rigs/").status_code == 200
 
 
+def test_forged_forwarded_for_does_not_escape_the_limit(settings, db):
+    rates(settings, bad_token="3/minute")
+    codes = []
+    for guess in range(6):
+        client = APIClient(REMOTE_ADDR="10.0.0.20", HTTP_X_FORWARDED_FOR=f"192.0.2.{guess}")
+        client.credentials(HTTP_AUTHORIZATION=f"Token {guess:040x}")
+        codes.append(client.get("/api/rigs/").status_code)
+    assert codes == [401, 401, 401, 429, 429, 429], codes
+
+
 @pytest.mark.parametrize("path", ["/login/", "/admin/login/"])
 def test_failed_logins_past_the_rate_get_429(settings, db, path):
     rates(settings, login="5/minute")
