@@ -124,3 +124,81 @@ def test_request_examples_are_documented_and_valid(schema):
     request = schema["components"]["schemas"]["SimulateRequest"]
     assert request["properties"]["scene"]["required"] == ["name"]
     assert request["properties"]["preset"]["default"] == "realistic"
+
+
+def schema_operations(schema: dict) -> set[str]:
+    """``METHOD /path`` of every API operation in the schema (the schema and docs views excluded)."""
+    return {
+        f"{method.upper()} {path}"
+        for path, item in schema["paths"].items()
+        if path.startswith("/api/") and not path.startswith(("/api/schema", "/api/docs"))
+        for method in item
+    }
+
+
+@pytest.mark.slow
+@pytest.mark.django_db(transaction=True)
+def test_schemathesis_over_the_whole_api_authenticated_finds_no_server_error(live_server, tmp_path, settings, schema):
+    """Every operation, authenticated, with stored objects to find (ids 1, 2, ...): examples, coverage
+    and fuzzing phases; rates raised (tests/conftest.py) and simulations kept small."""
+    import xml.etree.ElementTree as ET
+
+    from tests.app.stacks import SMALL_RIG, plane_zip
+
+    settings.GCPS_MAX_SIMULATION_BYTES = 32 * 1024 * 1024  # renders the fuzzer asks for stay small
+    user, key = create_user_with_token(username="fuzzer")
+    from django.core.files.uploadedfile import SimpleUploadedFile
+
+    from metrology.captures.services import upload_capture
+    from metrology.measurements.services import request_measurement
+    from metrology.rigs.services import create_rig
+
+    rig = create_rig(owner=user, data={**SMALL_RIG, "name": "fuzzed"})
+    reference = upload_capture(
+        owner=user, rig=rig, upload=SimpleUploadedFile("r.zip", plane_zip(), "application/zip"), role="reference"
+    )
+    obj = upload_capture(
+        owner=user, rig=rig, upload=SimpleUploadedFile("o.zip", plane_zip(z_mm=10.0), "application/zip"), role="object"
+    )
+    request_measurement(owner=user, rig=rig, reference_id=reference.pk, object_id=obj.pk)
+    junit = tmp_path / "junit.xml"
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "schemathesis.cli",
+            "run",
+            f"{live_server.url}/api/schema/",
+            "--header",
+            f"Authorization: Token {key}",
+            "--checks",
+            "not_a_server_error",
+            "--phases",
+            "examples,coverage,fuzzing",
+            "--max-examples",
+            "25",
+            "--seed",
+            "9",
+            "--request-timeout",
+            "60",
+            "--workers",
+            "1",
+            "--continue-on-failure",
+            "--report",
+            "junit",
+            "--report-junit-path",
+            str(junit),
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=1500,
+    )
+    output = result.stdout + result.stderr
+    assert result.returncode == 0, output[-8000:]
+    summary = re.search(r"(\d+) generated, (\d+) passed", output)
+    assert summary and summary.group(1) == summary.group(2) and int(summary.group(1)) > 1000, output[-3000:]
+    assert re.search(r"Tested: (\d+)", output).group(1) == str(len(schema_operations(schema))), output[-3000:]
+    tested = {case.get("name", "") for case in ET.parse(junit).getroot().iter("testcase")}
+    missing = sorted(op for op in schema_operations(schema) if op not in tested)
+    assert not missing, (missing, sorted(tested))
