@@ -26,7 +26,8 @@ def empty_cache(settings):
     assert "locmem" in settings.CACHES["default"]["BACKEND"].lower(), "these tests clear the cache"
     cache.clear()
     yield
-    cache.clear()
+    if "locmem" in settings.CACHES["default"]["BACKEND"].lower():  # not the unreachable one of a test
+        cache.clear()
 
 
 def rates(settings, **changes: str) -> None:
@@ -180,3 +181,21 @@ def test_rate_is_shared_by_processes_through_redis(tmp_path):
         assert result.returncode == 0, result.stderr[-3000:]
         codes += result.stdout.split()
     assert codes[:6] == ["401"] * 6 and codes[6:] == ["429"] * 2, codes
+
+
+def test_an_unreachable_cache_does_not_take_the_api_down(settings, api, caplog):
+    """Rate limiting fails open: with the cache (Redis) down the API answers, and says so in the log."""
+    import socket
+
+    with socket.socket() as probe:  # a port nothing listens on
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    settings.CACHES = {
+        "default": {"BACKEND": "django.core.cache.backends.redis.RedisCache", "LOCATION": f"redis://127.0.0.1:{port}/0"}
+    }
+    rates(settings, user="5/minute", bad_token="5/minute")
+    assert api.get("/api/rigs/").status_code == 200
+    guesser = APIClient(REMOTE_ADDR="10.0.0.30")
+    guesser.credentials(HTTP_AUTHORIZATION="Token " + "1" * 40)
+    assert guesser.get("/api/rigs/").status_code == 401
+    assert "cache unavailable" in caplog.text
