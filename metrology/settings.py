@@ -211,6 +211,11 @@ DATA_UPLOAD_MAX_MEMORY_SIZE = 8 * 1024 * 1024
 # Largest image a stack may hold (width * height), guards against headers claiming huge sizes.
 GCPS_MAX_STACK_PIXELS = env_int("GCPS_MAX_STACK_PIXELS", 64 * 1024 * 1024, minimum=1)
 
+# ----------------------------------------------------------------------------- derived result files
+# Meshes (PLY, STL, OBJ) and TIFF height maps are built from the stored height map on request and
+# kept in MEDIA_ROOT/derived/, at most this many bytes (least recently used removed first).
+GCPS_MESH_CACHE_BYTES = env_int("GCPS_MESH_CACHE_BYTES", 2 * 1024**3, minimum=0)
+
 # ----------------------------------------------------------------------------- REST API
 REST_FRAMEWORK = {
     "DEFAULT_AUTHENTICATION_CLASSES": [
