@@ -63,22 +63,25 @@ def request_measurement(
 
 
 def run_measurement(job: Job, run: job_services.JobRun) -> None:
-    """Job handler: load both stacks, call the pipeline's measure, store the height maps, publish.
+    """Job handler: the kept reference (decoded once per process), the object's stack, the pipeline's
+    measure; store the height maps, publish.
 
     Stores ``height.npy`` and ``gray_only_height.npy`` (float32) and the statistics only; the
     TIFF and the meshes are derived on request (:mod:`metrology.measurements.derived`).
     """
+    from metrology.captures.references import kept_reference
     from metrology.core.rig import Rig as CoreRig
     from metrology.pipeline import MeasureOptions, measure
 
     measurement = Measurement.objects.select_related("reference__rig", "object__rig").get(job=job)
     rig = CoreRig.from_dict(measurement.rig_values)
     options = MeasureOptions.from_dict(measurement.options or {})
-    with run.phase("read", 5):
-        reference = load_capture_stack(measurement.reference)
+    with run.phase("reference", 5):
+        reference, _kept = kept_reference(measurement.reference, measurement.rig_values, options.decode)
+    with run.phase("read", 10):
         obj = load_capture_stack(measurement.object)
     with run.phase("measure", 20):
-        result = measure(rig, reference.images, obj.images, options)
+        result = measure(rig, reference, obj.images, options)
     for name, seconds in result.timings_s.items():
         if name != "measure":
             run.timings[name] = round(float(seconds), 4)
