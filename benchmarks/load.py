@@ -19,7 +19,8 @@ through the API and reports:
 ``--faults`` repeats the run on this checkout with a worker killed (SIGKILL of its process group;
 a replacement started at once, as a supervisor would) and with redis-server killed and restarted
 empty after a third of the jobs are done, and reports jobs lost (not done within ``--fault-timeout``
-seconds of the submissions), jobs run more than once (attempts > 1), and recovery time (from the
+seconds of the submissions), jobs attempted more than once (attempts > 1: a killed attempt and
+its redelivery; the result is published once), and recovery time (from the
 fault until every job that was queued or running at the fault is done).
 
 ``--embedded`` also measures one measurement at a time on the embedded default (SQLite,
@@ -436,7 +437,7 @@ def run_load(stack: Stack, args: argparse.Namespace, inputs: tuple, fault: str =
                 "fault": fault,
                 "fault_after_s": fault_at - start,
                 "jobs_lost": len(lost),
-                "jobs_run_more_than_once": sum(1 for s in state.values() if s["attempts"] > 1),
+                "jobs_attempted_more_than_once": sum(1 for s in state.values() if s["attempts"] > 1),
                 "queued_or_running_at_fault": len(at_fault),
                 "recovery_s": (max(pending) - fault_at) if pending and len(pending) == len(at_fault) else None,
             }

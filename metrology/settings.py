@@ -216,7 +216,7 @@ GCPS_MAX_STACK_PIXELS = env_int("GCPS_MAX_STACK_PIXELS", 64 * 1024 * 1024, minim
 # kept in MEDIA_ROOT/derived/, at most this many bytes (least recently used removed first).
 GCPS_MESH_CACHE_BYTES = env_int("GCPS_MESH_CACHE_BYTES", 2 * 1024**3, minimum=0)
 # Each worker process keeps decoded reference planes for the next jobs, at most this many bytes
-# (about 40 MB per 1280x1024 reference), least recently used evicted first.
+# (about 34 MB per 1280x1024 reference), least recently used evicted first.
 GCPS_REFERENCE_CACHE_BYTES = env_int("GCPS_REFERENCE_CACHE_BYTES", 256 * 1024**2, minimum=0)
 
 # ----------------------------------------------------------------------------- REST API
