@@ -15,9 +15,9 @@ from typing import Any
 
 
 def _bad(message: str) -> Exception:
-    from metrology.cli import BadInputError
-
-    return BadInputError(message)
+    """A user error: ``gcps`` prints it as one line and exits with status 2 (ValueError, so that
+    ``python -m metrology.cli`` catches it too)."""
+    return ValueError(message)
 
 
 def _json_option(value: str | None, option: str) -> dict[str, Any] | None:

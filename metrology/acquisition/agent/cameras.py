@@ -315,7 +315,7 @@ class FaultyCamera:
         self.name = f"{inner.name}+faults(latency_every={latency_every},saturate_every={saturate_every})"
         self.grabs = 0
         self.injected: list[tuple[int, str]] = []
-        self._last: tuple[int, np.ndarray] | None = None  # (seq, frame) of the last shown pattern
+        self._last: tuple[tuple[str, int], np.ndarray] | None = None  # (pattern, frame) of the last pattern
         self._previous: np.ndarray | None = None  # the frame of the pattern shown before it
 
     def open(self) -> None:
@@ -330,9 +330,10 @@ class FaultyCamera:
 
     def grab(self, shown: Shown) -> np.ndarray:
         frame = self.inner.grab(shown)
-        if self._last is None or self._last[0] != shown.seq:
+        pattern = (shown.kind, shown.frame)
+        if self._last is None or self._last[0] != pattern:
             self._previous = self._last[1] if self._last is not None else None
-            self._last = (shown.seq, frame)
+            self._last = (pattern, frame)
         self.grabs += 1
         if self.latency_every and self.grabs % self.latency_every == 0 and self._previous is not None:
             self.injected.append((self.grabs, "latency"))

@@ -121,8 +121,20 @@ class FrameChecker:
         self._basic(check, image)
         return check
 
-    def check_white(self, white: np.ndarray, black: np.ndarray, name: str = "white", grab: int = 1) -> FrameCheck:
-        """The white frame against the black one: lit fraction, saturation. Sets the reference frames if ok."""
+    def check_white(
+        self,
+        white: np.ndarray,
+        black: np.ndarray,
+        name: str = "white",
+        grab: int = 1,
+        black_after: np.ndarray | None = None,
+    ) -> FrameCheck:
+        """The white frame against the black one: lit fraction, saturation. Sets the reference frames if ok.
+
+        ``black_after``, a black frame grabbed after the white one, must agree with ``black``: on more
+        than ``max_out_of_range`` of the lit pixels ``|B_after - B| > change_level * C`` refuses the
+        pair (one of the black frames was late or saturated).
+        """
         if white.shape != black.shape or white.dtype != black.dtype:
             raise ValueError(f"white and black frames differ: {white.shape} {white.dtype}, {black.shape} {black.dtype}")
         check = FrameCheck(name=name, kind="white", frame=-1, grab=grab)
@@ -140,6 +152,17 @@ class FrameChecker:
                 f"white frame saturated: {100 * check.saturated_fraction:.2f} % of the pixels at full scale "
                 "(lower the exposure)"
             )
+        elif black_after is not None:
+            differ = np.abs(black_after.astype(np.float32) - black.astype(np.float32)) > self.options.change_level * (
+                np.maximum(contrast, 1.0)
+            )
+            disagree = float(differ[lit].mean())
+            check.out_of_range_fraction = disagree
+            if disagree > self.options.max_out_of_range:
+                check.refuse(
+                    f"the black frames before and after the white one disagree on {100 * disagree:.1f} % of the lit "
+                    "pixels (a late or saturated black frame)"
+                )
         if check.ok:
             self.white, self.black, self.lit, self.contrast = white, black, lit, np.maximum(contrast, 1.0)
             self.white_saturated = check.saturated_fraction

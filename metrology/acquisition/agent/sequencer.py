@@ -1,7 +1,7 @@
 """One acquisition: show each pattern, wait for the projector's confirmation and the settle time, grab, check, re-grab.
 
-Order: black, white (the checks' references and the auto-exposure's frame), then the codec's
-frames in order. A frame that fails its checks (:mod:`.checks`) is grabbed again after another
+Order: black, white, black again (the checks' references: the two black frames must agree; the
+white one is also the auto-exposure's frame), then the codec's frames in order. A frame that fails its checks (:mod:`.checks`) is grabbed again after another
 settle time, up to ``max_grabs`` grabs; a frame still failing then stops the acquisition with
 :class:`AcquisitionError` naming the frame and the reasons, and nothing is kept.
 """
@@ -121,7 +121,8 @@ def run_sequence(
         black_check = checker.check_black(black, grab=attempt)
         checks.append(black_check)
         white = grab("white")[1]
-        white_check = checker.check_white(white, black, grab=attempt)
+        black_after = grab("black")[1]
+        white_check = checker.check_white(white, black, grab=attempt, black_after=black_after)
         checks.append(white_check)
         if white_check.ok:
             break
