@@ -1,8 +1,9 @@
 """One acquisition: show each pattern, wait for the projector's confirmation and the settle time, grab, check, re-grab.
 
 Order: black, white, black again (the checks' references: the two black frames must agree; the
-white one is also the auto-exposure's frame), then the codec's frames in order. A frame that fails its checks (:mod:`.checks`) is grabbed again after another
-settle time, up to ``max_grabs`` grabs; a frame still failing then stops the acquisition with
+white one is also the auto-exposure's frame), then the codec's frames in order. A frame that
+fails its checks (:mod:`.checks`) is grabbed again after another settle time, up to
+``max_grabs`` grabs; a frame still failing then stops the acquisition with
 :class:`AcquisitionError` naming the frame and the reasons, and nothing is kept.
 """
 
