@@ -16,10 +16,33 @@ from metrology.rigs.selectors import get_rig
 
 @login_required
 def projector_page(request: HttpRequest, rig_id: int) -> HttpResponse:
-    """Full-screen, pixel-exact pattern display for the rig's projector (JS: static/acquisition/projector.js)."""
+    """Full-screen, pixel-exact pattern display for the rig's projector (JS: static/acquisition/projector.js).
+
+    ``?webcam=1`` is the zero-install webcam mode (static/acquisition/webcam.js): the page is also
+    the rig's capture agent, grabbing frames from a webcam through the browser (``?settle=MS``).
+    """
     rig = get_rig(request.user, rig_id)
     services.projector_state(rig)
     frame_url = reverse("acquisition:projector-frame", args=[rig.pk, 999999001, 999999002])
+    mode = "webcam" if request.GET.get("webcam") else "projector"
+    try:
+        settle_ms = max(0, min(10_000, int(request.GET.get("settle", "300"))))
+    except ValueError:
+        settle_ms = 300
+    acq = 999999001
+
+    def acquisition_url(name: str) -> str:
+        return reverse(name, args=[acq]).replace(str(acq), "{id}")
+
+    agent_urls = {
+        "register": reverse("api-rig-agent-register", args=[rig.pk]),
+        "heartbeat": reverse("api-rig-agent-heartbeat", args=[rig.pk]),
+        "take": reverse("api-rig-agent-take", args=[rig.pk]),
+        "disconnect": reverse("api-rig-agent-disconnect", args=[rig.pk]),
+        "progress": acquisition_url("api-acquisition-progress"),
+        "fail": acquisition_url("api-acquisition-fail"),
+        "upload": acquisition_url("api-acquisition-upload"),
+    }
     return render(
         request,
         "acquisition/projector.html",
@@ -29,6 +52,9 @@ def projector_page(request: HttpRequest, rig_id: int) -> HttpResponse:
             "shown_url": reverse("api-rig-projector-shown", args=[rig.pk]),
             "frame_url": frame_url.replace("999999001", "{acquisition}").replace("999999002", "{frame}"),
             "csrf": get_token(request),
+            "mode": mode,
+            "settle_ms": settle_ms,
+            "agent_urls": agent_urls,
         },
     )
 

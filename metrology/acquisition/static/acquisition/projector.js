@@ -5,7 +5,8 @@
  * requestAnimationFrame callbacks (the first runs before the paint of the drawn frame, the
  * second after it). The canvas has one canvas pixel per device pixel (CSS size x devicePixelRatio)
  * and images are drawn at their own size at the top-left corner: no scaling, no smoothing.
- * Click (or press f) to go full screen; t shows the test pattern.
+ * Click (or press f) to go full screen; t shows the test pattern. With data-mode="webcam" the page
+ * does not follow the server: webcam.js drives it (window.gcpsProjector).
  */
 (function () {
   "use strict";
@@ -150,6 +151,19 @@
     }
   }
 
+  // the webcam mode (webcam.js) drives the page itself instead of following the server's state
+  window.gcpsProjector = {
+    show: async function (state) {
+      var size = await draw(state);
+      await afterPaint();
+      return size;
+    },
+    setStatus: function (text) {
+      status = text;
+      if (current.kind === "test") draw(current);
+    },
+  };
+
   document.addEventListener("click", fullScreen);
   document.addEventListener("keydown", function (event) {
     if (event.key === "f") fullScreen();
@@ -157,5 +171,5 @@
   });
   window.addEventListener("resize", function () { draw(current); });
   draw(current);
-  loop();
+  if (root.dataset.mode !== "webcam") loop();
 })();
