@@ -148,7 +148,7 @@ class RegisterSerializer(serializers.Serializer):
     software_version = serializers.CharField(max_length=64, required=False, allow_blank=True, default="")
 
 
-class SessionSerializer(serializers.Serializer):
+class AgentSessionSerializer(serializers.Serializer):
     session = serializers.UUIDField()
     reason = serializers.CharField(max_length=2000, required=False, allow_blank=True, default="")
 
@@ -181,7 +181,7 @@ class RigAgentRegisterApi(APIView):
 
 
 def _agent(request: Request, rig, data=None) -> Agent:
-    serializer = SessionSerializer(data=data if data is not None else request.data)
+    serializer = AgentSessionSerializer(data=data if data is not None else request.data)
     serializer.is_valid(raise_exception=True)
     return services.agent_for_session(owner=request.user, rig=rig, session=serializer.validated_data["session"])
 
@@ -189,7 +189,7 @@ def _agent(request: Request, rig, data=None) -> Agent:
 class RigAgentHeartbeatApi(APIView):
     parser_classes = (JSONParser,)
 
-    @extend_schema(request=SessionSerializer, responses=dict, operation_id="rig_agent_heartbeat")
+    @extend_schema(request=AgentSessionSerializer, responses=dict, operation_id="rig_agent_heartbeat")
     def post(self, request: Request, rig_id: int) -> Response:
         rig = get_rig(request.user, rig_id)
         return Response(agent_data(_agent(request, rig)))
@@ -198,7 +198,7 @@ class RigAgentHeartbeatApi(APIView):
 class RigAgentDisconnectApi(APIView):
     parser_classes = (JSONParser,)
 
-    @extend_schema(request=SessionSerializer, responses=dict, operation_id="rig_agent_disconnect")
+    @extend_schema(request=AgentSessionSerializer, responses=dict, operation_id="rig_agent_disconnect")
     def post(self, request: Request, rig_id: int) -> Response:
         rig = get_rig(request.user, rig_id)
         agent = _agent(request, rig)
@@ -211,7 +211,7 @@ class RigAgentDisconnectApi(APIView):
 class RigAgentTakeApi(APIView):
     parser_classes = (JSONParser,)
 
-    @extend_schema(request=SessionSerializer, responses={200: dict, 204: None}, operation_id="rig_agent_take")
+    @extend_schema(request=AgentSessionSerializer, responses={200: dict, 204: None}, operation_id="rig_agent_take")
     def post(self, request: Request, rig_id: int) -> Response:
         rig = get_rig(request.user, rig_id)
         agent = _agent(request, rig)
@@ -221,7 +221,7 @@ class RigAgentTakeApi(APIView):
         return Response(acquisition_data(acquisition))
 
 
-class ProgressSerializer(SessionSerializer):
+class ProgressSerializer(AgentSessionSerializer):
     percent = serializers.IntegerField(min_value=0, max_value=100, required=False, default=0)
     phase = serializers.CharField(max_length=64, required=False, allow_blank=True, default="")
     frames = serializers.JSONField(required=False, allow_null=True)
@@ -262,7 +262,7 @@ class AcquisitionFailApi(APIView):
     @extend_schema(request=ProgressSerializer, responses=dict, operation_id="acquisitions_fail")
     def post(self, request: Request, acquisition_id: int) -> Response:
         acquisition = _get_acquisition(request.user, acquisition_id)
-        serializer = SessionSerializer(data=request.data)
+        serializer = AgentSessionSerializer(data=request.data)
         serializer.is_valid(raise_exception=True)
         data = serializer.validated_data
         agent = services.agent_for_session(owner=request.user, rig=acquisition.rig, session=data["session"])
@@ -307,7 +307,7 @@ class AcquisitionUploadApi(APIView):
 
 
 # ----------------------------------------------------------------------------- projector
-class ShowSerializer(SessionSerializer):
+class ShowSerializer(AgentSessionSerializer):
     kind = serializers.ChoiceField(choices=services.PROJECTOR_KINDS)
     frame = serializers.IntegerField(required=False, default=-1)
     acquisition = serializers.IntegerField(required=False, allow_null=True)

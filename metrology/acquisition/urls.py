@@ -28,6 +28,13 @@ api_patterns = [
 app_name = "acquisition"
 
 urlpatterns = [
+    path("rigs/<int:rig_id>/acquire/", views.acquire_page, name="acquire"),
+    path("acquisitions/<int:acquisition_id>/", views.acquisition_page, name="acquisition"),
+    path(
+        "acquisitions/<int:acquisition_id>/frames/<int:frame>.png",
+        views.acquisition_thumbnail,
+        name="acquisition-thumbnail",
+    ),
     path("rigs/<int:rig_id>/projector/", views.projector_page, name="projector"),
     path(
         "rigs/<int:rig_id>/projector/acquisitions/<int:acquisition_id>/frames/<int:frame>.png",
