@@ -198,9 +198,10 @@ class VirtualCamera:
 
     Scenes: a reference capture sees the reference plane, a stage capture the stage plane at
     ``z_in_mm``, an object or master capture ``object_scene`` (``{"name": ..., ...}``,
-    :func:`metrology.core.scenes.make_scene`). Pattern frames are those of
+    :func:`metrology.core.scenes.make_scene`). gcps-v1 frames are those of
     :func:`metrology.core.simulate.render_stack` with ``options`` (same noise seed: the same
-    images as a direct simulation at the nominal exposure); white and black frames come from
+    images as a direct simulation at the nominal exposure); other codecs' frames are
+    :func:`metrology.core.codecs.render_codec` at the render's true projector coordinates; white and black frames come from
     :func:`metrology.core.simulate.render_flat_frames` plus the same camera noise. Exposure scales
     all light linearly: ``ambient`` and ``projector_gain`` times ``exposure / nominal_exposure_ms``.
     """
@@ -227,8 +228,8 @@ class VirtualCamera:
     def prepare(self, target: AcquisitionTarget) -> None:
         if not target.rig_geometry:
             raise CameraError("the virtual camera needs the rig's geometry")
-        if target.codec is not None and not target.codec.is_gcps_v1:
-            raise CameraError("the virtual camera renders gcps-v1 stacks only")
+        if target.codec is not None and not target.codec.is_gcps_v1 and self.base_options.supersample != 1:
+            raise CameraError("the virtual camera renders codec stacks with supersample 1 only")
         self.target = target
         self._cache = {}
 
@@ -276,12 +277,34 @@ class VirtualCamera:
         stack = render_stack(rig, scene, opts)
         clean = render_stack(rig, scene, opts.with_changes(noise_grey=0.0))
         white, black = render_flat_frames(rig, scene, opts)
+        codec = self.target.codec
+        if codec is not None and not codec.is_gcps_v1:
+            return self._render_codec(stack, rig, opts, white, black)
         rng = np.random.default_rng([opts.seed, 4242])
         flats = {}
         for key, grey in (("white", white), ("black", black)):
             noisy = grey + opts.noise_grey * rng.standard_normal(grey.shape) if opts.noise_grey > 0 else grey
             flats[key] = np.clip(np.rint(noisy), 0, opts.full_scale).astype(opts.dtype)
         self._cache = {"stack": stack.images, "clean": clean.images, "flats": flats, "full": opts.full_scale}
+        return self._cache
+
+    def _render_codec(self, stack, rig, opts, white, black) -> dict[str, Any]:
+        """Frames of any codec (issue 11's renderer) from the true projector coordinates of the render."""
+        import json
+
+        from metrology.core.codecs import codec_from_dict, crossed_rig_truth, render_codec
+
+        assert self.target is not None and self.target.codec is not None
+        codec = codec_from_dict(json.loads(self.target.codec.spec))
+        u, v = crossed_rig_truth(stack, rig, codec.projector_width, codec.projector_height)
+        images = render_codec(codec, u, v, opts)
+        clean = render_codec(codec, u, v, opts.with_changes(noise_grey=0.0))
+        rng = np.random.default_rng([opts.seed, 4242])
+        flats = {}
+        for key, grey in (("white", white), ("black", black)):
+            noisy = grey + opts.noise_grey * rng.standard_normal(grey.shape) if opts.noise_grey > 0 else grey
+            flats[key] = np.clip(np.rint(noisy), 0, opts.full_scale).astype(opts.dtype)
+        self._cache = {"stack": images, "clean": clean, "flats": flats, "full": opts.full_scale}
         return self._cache
 
     def grab(self, shown: Shown) -> np.ndarray:

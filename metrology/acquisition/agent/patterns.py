@@ -1,8 +1,8 @@
 """The codec an acquisition projects, and its projector images.
 
 A codec is given by name (``gcps-v1`` or ``gcps-v1:WIDTHxHEIGHT``: the paper's eleven patterns on a
-projector of that size, default 1024x768) or, once the codec package (issue 11) is present, as a
-gcps-codec/1 document. This module is the one place that turns a codec into projector images, so
+projector of that size, default 1024x768), as a gcps-codec/1 document (docs/codecs.md), or as the
+path of a codec file (``.json``). This module is the one place that turns a codec into projector images, so
 switching to the codec package is a change here only.
 """
 
@@ -57,6 +57,18 @@ def resolve_codec(codec: Any) -> ProjectedCodec:
         codec = DEFAULT_CODEC
     if isinstance(codec, dict) and set(codec) == {"name"}:
         codec = codec["name"]
+    if isinstance(codec, str) and codec.strip().lower().endswith(".json"):
+        import json
+        from pathlib import Path
+
+        path = Path(codec.strip())
+        try:
+            document = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"codec file {codec}: {exc}") from None
+        if not isinstance(document, dict):
+            raise ValueError(f"codec file {codec}: a gcps-codec/1 JSON object is needed")
+        return _document_codec(document)
     if isinstance(codec, str):
         m = re.fullmatch(r"gcps-v1(?::(\d+)x(\d+))?", codec.strip())
         if m is None:
