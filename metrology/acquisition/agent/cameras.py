@@ -201,8 +201,9 @@ class VirtualCamera:
     :func:`metrology.core.scenes.make_scene`). gcps-v1 frames are those of
     :func:`metrology.core.simulate.render_stack` with ``options`` (same noise seed: the same
     images as a direct simulation at the nominal exposure); other codecs' frames are
-    :func:`metrology.core.codecs.render_codec` at the render's true projector coordinates; white and black frames come from
-    :func:`metrology.core.simulate.render_flat_frames` plus the same camera noise. Exposure scales
+    :func:`metrology.core.codecs.render_codec` at the render's true projector coordinates; white
+    and black frames come from :func:`metrology.core.simulate.render_flat_frames` plus the same
+    camera noise. Exposure scales
     all light linearly: ``ambient`` and ``projector_gain`` times ``exposure / nominal_exposure_ms``.
     """
 
