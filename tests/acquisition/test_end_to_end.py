@@ -269,3 +269,26 @@ def test_projector_page_is_pixel_exact_at_device_pixel_ratio_2(server):
         np.testing.assert_array_equal(shot[1:100, 1:100], np.where((xx + yy) % 2 == 1, 255, 0))
         context.close()
         browser.close()
+
+
+def test_agent_stopped_with_sigterm_fails_the_running_acquisition_with_the_reason(server, projector):
+    agent = start_agent(server, "--settle", "0.3")
+    try:
+        wait_registered(server)
+        queued = acquire(server, role="reference", exposure=10)
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            body = server["api"].get(f"{server['url']}/api/acquisitions/{queued['id']}/").json()
+            if body["status"] == "running" and body["progress"] >= 20:
+                break
+            time.sleep(0.1)
+        agent.send_signal(signal.SIGTERM)
+        out, err = agent.communicate(timeout=30)
+        failed = wait_finished(server, queued["id"], timeout_s=10)
+    finally:
+        if agent.poll() is None:
+            agent.kill()
+    assert agent.returncode == 0, err
+    assert json.loads(out)["stopped"] == "agent stopped (SIGTERM)"
+    assert failed["status"] == "failed" and failed["error"] == "agent stopped (SIGTERM); no capture was stored"
+    assert Capture.objects.count() == 0
