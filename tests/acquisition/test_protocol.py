@@ -185,3 +185,19 @@ def test_projector_page_and_frames(client_alice, api, rig):
     np.testing.assert_array_equal(image, projector_patterns(640, 480)[8])
     assert client_alice.get(f"/rigs/{rig.pk}/projector/acquisitions/{acq}/frames/11.png").status_code == 404
     assert Client().get(f"/rigs/{rig.pk}/projector/").status_code == 302  # login required
+
+
+def test_stale_acquisition_requeued_by_the_sweep_fails_with_a_reason(api, rig, monkeypatch):
+    """If the jobs' stale sweep sees a running acquisition first, the worker fails it with words."""
+    from metrology.jobs import services as job_services
+
+    session = register(api, rig)
+    queued = post(api, f"/api/rigs/{rig.pk}/captures/acquire/", {"role": "object"}).json()
+    post(api, f"/api/rigs/{rig.pk}/agent/take/", {"session": session})
+    Job.objects.filter(pk=queued["job"]).update(heartbeat_at=timezone.now() - timedelta(hours=1))
+    monkeypatch.setattr(job_services, "_send", lambda job_id: None)  # the test runs the requeued job itself
+    assert job_services.sweep_stale_jobs()["requeued"] == 1
+    assert job_services.execute_job(queued["job"]) == "failed"
+    job = Job.objects.get(pk=queued["job"])
+    assert job.status == "failed" and "capture agent running this acquisition stopped responding" in job.error
+    assert Capture.objects.count() == 0
