@@ -145,12 +145,18 @@
 
   async function acquire(acquisition) {
     var id = acquisition.id, checks = [];
-    var stream = await navigator.mediaDevices.getUserMedia({ video: true, audio: false });
+    // ask for the rig's camera size: the server refuses frames of another size
+    var size = { width: { ideal: Number(root.dataset.cameraWidth) }, height: { ideal: Number(root.dataset.cameraHeight) } };
+    var stream = await navigator.mediaDevices.getUserMedia({ video: size, audio: false });
     try {
       var track = stream.getVideoTracks()[0];
       cameraLabel = "browser:" + (track && track.label ? track.label : "webcam");
       video.srcObject = stream;
       await video.play();
+      if (video.videoWidth !== Number(root.dataset.cameraWidth) || video.videoHeight !== Number(root.dataset.cameraHeight)) {
+        throw new Error("the webcam gives " + video.videoWidth + "x" + video.videoHeight + " frames, the rig's camera is " +
+                        root.dataset.cameraWidth + "x" + root.dataset.cameraHeight + ": set the rig's width_px and height_px to the webcam's");
+      }
       var sequence = [{ kind: "black", name: "black" }, { kind: "white", name: "white" }, { kind: "black", name: "black" }];
       acquisition.frame_names.forEach(function (name, k) { sequence.push({ kind: "frame", frame: k, name: name }); });
       var previous = null, frames = [];
