@@ -559,6 +559,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--z-mm", type=float, default=40.0, help="constant height of the study, mm (default 40)")
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_sensitivity)
+    from metrology.commands.agent import register as acquisition_commands
+
+    acquisition_commands(sub)
     return parser
 
 
