@@ -53,12 +53,8 @@ def _time(fn: Callable[[], object], repeats: int) -> float:
 
 def _rig(width: int, height: int, projector_dist: tuple[float, ...]) -> PinholeRig:
     f = 1.2 * width
-    camera = PinholeCamera(
-        width,
-        height,
-        ((f, 0.0, (width - 1) / 2), (0.0, f, (height - 1) / 2), (0.0, 0.0, 1.0)),
-        (-0.1, 0.03, 0.001, -0.0005, 0.0),
-    )
+    K = ((f, 0.0, (width - 1) / 2), (0.0, f, (height - 1) / 2), (0.0, 0.0, 1.0))
+    camera = PinholeCamera(width, height, K, (-0.1, 0.03, 0.001, -0.0005, 0.0))
     projector = PinholeProjector(
         1280, 800, ((1500.0, 0.0, 640.0), (0.0, 1500.0, 400.0), (0.0, 0.0, 1.0)), projector_dist
     )
