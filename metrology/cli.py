@@ -549,6 +549,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--z-mm", type=float, default=40.0, help="constant height of the study, mm (default 40)")
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_sensitivity)
+
+    from metrology.commands import rig as rig_command
+
+    rig_command.register(sub)
     return parser
 
 
