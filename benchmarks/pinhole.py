@@ -87,9 +87,11 @@ def main() -> None:
     t0 = time.perf_counter()
     prep_plain = plain.prepare()
     prep_plain.tables()
-    report("prepare tables (once per rig)", time.perf_counter() - t0)
+    report("prepare tables, no projector distortion", time.perf_counter() - t0)
+    t0 = time.perf_counter()
     prep = distorted.prepare()
     prep.tables()
+    report("prepare tables, projector distortion", time.perf_counter() - t0)
     threads = args.threads
 
     report(

@@ -75,6 +75,14 @@ PROJECTOR_TOL = 1e-6
 """Convergence tolerance of the projector coordinate's undistortion, projector units."""
 PROJECTOR_MAX_ITER = 30
 
+POLY_DEGREE = 9
+"""Degree of the per-pixel polynomial ``x_p(u)`` along the epipolar line (projector distortion, one axis)."""
+POLY_NODES = 14
+"""Chebyshev nodes at which each pixel's ``x_p(u)`` is solved exactly (Newton) to build the polynomial."""
+POLY_TOL = 5e-6
+"""A pixel's polynomial is used when its Chebyshev tail (the truncated terms) is below this, in
+projector units; other pixels are solved by Newton on the epipolar line at every frame."""
+
 Matrix3 = tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
 
 
@@ -331,14 +339,23 @@ def _prepare_cached(rig: PinholeRig, axis: str, method: str) -> PreparedPinhole:
 def _camera_tables(rig_camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
     """Undistorted normalized coordinates ``(x_n, y_n)`` of every camera pixel, ``(H, W)`` float64 each."""
     h, w = rig_camera.height_px, rig_camera.width_px
-    jj, kk = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    res = undistort_pixels(np.asarray(rig_camera.K), rig_camera.distortion, jj, kk)
-    if res.n_failed:
+    xn, yn = np.empty((h, w)), np.empty((h, w))
+    K, dist = np.asarray(rig_camera.K), rig_camera.distortion
+    failed = 0
+    step = max(1, (1 << 15) // max(w, 1))  # row blocks of ~32k pixels: temporaries stay in cache
+    cols = np.arange(w, dtype=np.float64)
+    for r0 in range(0, h, step):
+        rows = np.arange(r0, min(h, r0 + step), dtype=np.float64)
+        jj, kk = np.meshgrid(cols, rows)
+        res = undistort_pixels(K, dist, jj, kk)
+        xn[r0 : r0 + step], yn[r0 : r0 + step] = res.x, res.y
+        failed += res.n_failed
+    if failed:
         raise GeometryError(
-            f"camera dist: {res.n_failed} pixel(s) of the {w}x{h} frame cannot be undistorted "
+            f"camera dist: {failed} pixel(s) of the {w}x{h} frame cannot be undistorted "
             "(the distortion folds over inside the image)"
         )
-    return res.x, res.y
+    return xn, yn
 
 
 @dataclass(frozen=True)
@@ -429,7 +446,14 @@ class PreparedPinhole(PreparedGeometry):
             else:  # x = -(ly y + lz) / lx
                 c0, c1 = -lz / lx, -ly / lx
         norm_d = np.sqrt(xn * xn + yn * yn + 1.0)
+        extra: dict[str, np.ndarray] = {}
+        if self._p_distorted:
+            extra = self._build_polynomials(c0, c1)
+            rdi = rd[0] if self.axis == "u" else rd[1]
+            extra["rdi32"] = rdi.astype(np.float32)
+            extra["rdz32"] = rd[2].astype(np.float32)
         return {
+            **extra,
             "xn": xn,
             "yn": yn,
             "xn32": xn.astype(np.float32),
@@ -444,6 +468,54 @@ class PreparedPinhole(PreparedGeometry):
             "c0": c0,
             "c1": c1,
         }
+
+    def _coded_domain(self) -> tuple[float, float]:
+        """``(mid, half)``: the polynomial's variable is ``omega = (w - mid) / half`` in [-1, 1]."""
+        size = self.rig.projector.width if self.axis == "u" else self.rig.projector.height
+        return (size - 1) / 2, size / 2 + 1.0
+
+    def _build_polynomials(self, c0: np.ndarray, c1: np.ndarray) -> dict[str, np.ndarray]:
+        """Per pixel, the undistorted normalized coordinate ``q`` of the coded axis along the
+        pixel's epipolar line as a polynomial of ``omega`` (degree :data:`POLY_DEGREE`, monomial
+        coefficients, float32, shape ``(POLY_DEGREE + 1, H, W)``): Chebyshev interpolation of
+        ``q`` solved by Newton at :data:`POLY_NODES` nodes, truncated; ``poly_exact`` marks the
+        pixels whose truncated tail exceeds :data:`POLY_TOL` (they are solved exactly per frame)."""
+        from numpy.polynomial import chebyshev
+
+        Kp = self._Kp
+        fx, s, cx, fy, cy = Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]
+        scale = fx if self.axis == "u" else fy
+        mid, half = self._coded_domain()
+        n, deg = POLY_NODES, POLY_DEGREE
+        theta = np.pi * (np.arange(n) + 0.5) / n
+        nodes = np.cos(theta)
+        cheb_t = np.cos(np.outer(np.arange(n), theta))  # T_k(omega_j)
+        to_mono = np.zeros((deg + 1, deg + 1))  # column k: monomial coefficients of T_k
+        for k in range(deg + 1):
+            mono = chebyshev.cheb2poly(np.eye(deg + 1)[k])
+            to_mono[: len(mono), k] = mono
+        h, w = c0.shape
+        coeffs = np.empty((deg + 1, h, w), np.float32)
+        exact = np.zeros((h, w), bool)
+        step = max(1, (1 << 14) // max(w, 1))
+        for r0 in range(0, h, step):
+            rows = slice(r0, min(h, r0 + step))
+            q = np.empty((n, *c0[rows].shape))
+            guess: np.ndarray | None = None
+            with np.errstate(all="ignore"):
+                for j in range(n):  # nodes in increasing order of w; each starts from the previous one
+                    target = np.full(c0[rows].shape, mid + half * nodes[n - 1 - j])
+                    xp, yp, dqdw = self._solve_on_line(target, c0[rows], c1[rows], fx, s, cx, fy, cy, guess)
+                    q[n - 1 - j] = xp if self.axis == "u" else yp
+                    if j + 1 < n:
+                        guess = q[n - 1 - j] + dqdw * half * (nodes[n - 2 - j] - nodes[n - 1 - j])
+            shape = q.shape[1:]
+            cheb = (cheb_t @ q.reshape(n, -1)) * (2.0 / n)
+            cheb[0] *= 0.5
+            tail = np.abs(cheb[deg + 1 :]).sum(axis=0) * scale
+            exact[rows] = ~(tail <= POLY_TOL).reshape(shape)
+            coeffs[:, rows] = (to_mono @ cheb[: deg + 1]).reshape(deg + 1, *shape).astype(np.float32)
+        return {"poly": coeffs, "poly_exact": exact}
 
     def camera_rays(self) -> CameraRays:
         t = self.tables()
@@ -543,8 +615,64 @@ class PreparedPinhole(PreparedGeometry):
                     sigma_out *= sigma_in
             t[~(t > 0)] = np.nan
             return t, None
+        if other is None and self.method == "plane":
+            return self._plane_from_polynomial(rows, coded, sigma_in, sigma_out), None
         xp, yp, dxp_dw = self._projector_normalized(rows, coded, other)
         return self._intersect(rows, xp, yp, dxp_dw, sigma_in, sigma_out)
+
+    def _coded_from_polynomial(self, rows: slice, coded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``q`` (float32, undistorted normalized coordinate of the coded axis) and ``omega``."""
+        tab = self.tables()
+        mid, half = self._coded_domain()
+        poly = tab["poly"][:, rows]
+        omega = np.asarray(coded, dtype=np.float32) - np.float32(mid)
+        omega *= np.float32(1.0 / half)
+        q = poly[POLY_DEGREE] * omega
+        for k in range(POLY_DEGREE - 1, 0, -1):
+            q += poly[k]
+            q *= omega
+        q += poly[0]
+        exact = tab["poly_exact"][rows]
+        if exact.any():
+            sel = exact & np.isfinite(omega)
+            if sel.any():
+                Kp = self._Kp
+                w = np.asarray(coded, dtype=np.float64)[sel]
+                c0, c1 = tab["c0"][rows][sel], tab["c1"][rows][sel]
+                with np.errstate(all="ignore"):
+                    xp, yp, _ = self._solve_on_line(w, c0, c1, Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2])
+                q[sel] = xp if self.axis == "u" else yp
+        return q, omega
+
+    def _plane_from_polynomial(
+        self, rows: slice, coded: np.ndarray, sigma_in: np.ndarray | None, sigma_out: np.ndarray | None
+    ) -> np.ndarray:
+        """One coded axis through a distorted projector: ``q`` from the per-pixel polynomial, then
+        the plane ``t = (q T_z - T_i) / (Rd_i - q Rd_z)``; float32 ``(n, W)``."""
+        tab = self.tables()
+        T = self._T
+        Ti = T[0] if self.axis == "u" else T[1]
+        q, omega = self._coded_from_polynomial(rows, coded)
+        rdi, rdz = tab["rdi32"][rows], tab["rdz32"][rows]
+        num = q * np.float32(T[2])
+        num -= np.float32(Ti)
+        den = q * rdz
+        np.subtract(rdi, den, out=den)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = num / den
+            if sigma_in is not None and sigma_out is not None:
+                # dq/dw from the polynomial's derivative; dt/dq = (T_z den + num Rd_z) / den^2
+                half = self._coded_domain()[1]
+                poly = tab["poly"][:, rows]
+                dq = POLY_DEGREE * poly[POLY_DEGREE]
+                for k in range(POLY_DEGREE - 1, 0, -1):
+                    dq = dq * omega + k * poly[k]
+                dq *= np.float32(1.0 / half)
+                dtdq = (np.float32(T[2]) * den + num * rdz) / (den * den)
+                np.multiply(np.abs(dtdq * dq), tab["norm_d"][rows], out=sigma_out)
+                sigma_out *= sigma_in
+        t[~((t > 0) & (np.abs(omega) <= 1))] = np.nan
+        return t
 
     def _projector_normalized(
         self, rows: slice, coded: np.ndarray, other: np.ndarray | None
@@ -579,14 +707,19 @@ class PreparedPinhole(PreparedGeometry):
         cx: float,
         fy: float,
         cy: float,
+        q0: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Newton on the epipolar line: the coded normalized coordinate ``q`` with
-        ``pixel(q, c0 + c1 q) = w`` to :data:`PROJECTOR_TOL`; NaN where it does not converge."""
+        ``pixel(q, c0 + c1 q) = w`` to :data:`PROJECTOR_TOL`, from ``q0`` (default: the
+        undistorted guess); NaN where it does not converge. Returns ``x_p, y_p, dq/dw``."""
         dist = self._pdist
         axis_u = self.axis == "u"
-        q = (w - cx) / fx if axis_u else (w - cy) / fy
-        if axis_u:  # pixel on the line ignoring distortion: fx q + s (c0 + c1 q) + cx
+        if q0 is not None:
+            q = np.where(np.isfinite(q0), q0, (w - cx) / fx if axis_u else (w - cy) / fy)
+        elif axis_u:  # pixel on the line ignoring distortion: fx q + s (c0 + c1 q) + cx
             q = (w - cx - s * c0) / (fx + s * c1)
+        else:
+            q = (w - cy) / fy
         dq = np.ones_like(q)
         done = ~np.isfinite(q)
         for _ in range(PROJECTOR_MAX_ITER):
