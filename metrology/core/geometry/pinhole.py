@@ -85,6 +85,13 @@ projector units; other pixels are solved by Newton on the epipolar line at every
 
 Matrix3 = tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
 
+GRID_TOL = 2e-5
+"""Largest bilinear-interpolation error (projector units, estimated from the grid's second
+differences) accepted for the projector's undistortion grid (both axes decoded)."""
+GRID_STEPS: tuple[float, ...] = (1.0, 0.5, 0.25)
+"""Grid spacings tried, projector units, coarsest first; without one that meets
+:data:`GRID_TOL` both-axes pixels are undistorted by Newton at every frame."""
+
 
 class PinholeRigError(GeometryError):
     """A pinhole rig file is malformed (the message names the key)."""
@@ -359,6 +366,81 @@ def _camera_tables(rig_camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
 
 
 @dataclass(frozen=True)
+class UndistortionGrid:
+    """The projector's undistortion sampled on a grid, for bilinear look-ups.
+
+    ``(x_p, y_p) = K^-1 (u, v) + (dx, dy)(u, v)``: the corrections ``dx, dy`` (float32
+    ``(n_v, n_u)``) at ``u = -1 + step i``, ``v = -1 + step k``, exact (Newton, 1e-9 units).
+    ``error`` is the estimated worst bilinear error (projector units).
+    """
+
+    step: float
+    dx: np.ndarray
+    dy: np.ndarray
+    error: float
+
+    @classmethod
+    def build(cls, K: np.ndarray, dist: Distortion, width: float, height: float) -> UndistortionGrid | None:
+        """The coarsest grid of :data:`GRID_STEPS` meeting :data:`GRID_TOL`, or None."""
+        fx, s, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
+        for step in GRID_STEPS:
+            gu = -1.0 + step * np.arange(math.ceil((width + 1) / step) + 2)
+            gv = -1.0 + step * np.arange(math.ceil((height + 1) / step) + 2)
+            uu, vv = np.meshgrid(gu, gv)
+            res = undistort_pixels(K, dist, uu, vv, tol_px=1e-9, max_iter=PROJECTOR_MAX_ITER)
+            if res.n_failed:
+                return None
+            y_lin = (vv - cy) / fy
+            x_lin = (uu - cx - s * y_lin) / fx
+            dx, dy = res.x - x_lin, res.y - y_lin
+            # bilinear error at a cell centre ~ (|F_uu| + |F_vv|) step^2 / 8 = (|D2_u F| + |D2_v F|) / 8
+            err = 0.0
+            for f, scale in ((dx, fx), (dy, fy)):
+                d2u = np.abs(f[:, 2:] - 2 * f[:, 1:-1] + f[:, :-2]).max()
+                d2v = np.abs(f[2:] - 2 * f[1:-1] + f[:-2]).max()
+                err = max(err, float(d2u + d2v) / 8 * scale)
+            if err <= GRID_TOL:
+                return cls(step=step, dx=dx.astype(np.float32), dy=dy.astype(np.float32), error=err)
+        return None
+
+    def lookup(self, table: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bilinear value of ``table`` (``dx`` or ``dy``) at ``(u, v)`` and its derivative along
+        ``u`` (``dx``) or ``v`` (``dy``); float32; NaN outside the grid."""
+        n_v, n_u = table.shape
+        inv = np.float32(1.0 / self.step)
+        gu = (np.asarray(u, np.float32) + np.float32(1.0)) * inv
+        gv = (np.asarray(v, np.float32) + np.float32(1.0)) * inv
+        with np.errstate(invalid="ignore"):
+            outside = ~((gu >= 0) & (gu < n_u - 1) & (gv >= 0) & (gv < n_v - 1))
+        gu[outside] = 0.0
+        gv[outside] = 0.0
+        iu = gu.astype(np.int32)
+        iv = gv.astype(np.int32)
+        au = gu - iu
+        av = gv - iv
+        idx = iv * n_u
+        idx += iu
+        flat = table.ravel()
+        f00 = flat.take(idx)
+        f01 = flat.take(idx + 1)
+        idx += n_u
+        f10 = flat.take(idx)
+        f11 = flat.take(idx + 1)
+        top = f01 - f00
+        bottom = f11 - f10
+        slope_u = top + av * (bottom - top)  # d/d(gu)
+        value = f00 + av * (f10 - f00) + au * slope_u
+        if table is self.dx:
+            deriv = slope_u * inv
+        else:
+            left = f10 - f00
+            right = f11 - f01
+            deriv = (left + au * (right - left)) * inv
+        value[outside] = np.nan
+        return value, deriv
+
+
+@dataclass(frozen=True)
 class PinholeReference(ReferenceSurface):
     """The total-least-squares plane through a reference capture's points, normal towards the camera.
 
@@ -400,6 +482,7 @@ class PreparedPinhole(PreparedGeometry):
         self._pdist = rig.projector.distortion
         self._p_distorted = not self._pdist.is_identity
         self._C_p = -R.T @ T
+        self._grid: UndistortionGrid | None = None
 
     # ------------------------------------------------------------------ interface
     @property
@@ -424,16 +507,19 @@ class PreparedPinhole(PreparedGeometry):
         rd = [R[i, 0] * xn + R[i, 1] * yn + R[i, 2] for i in range(3)]
         fx, s, cx, fy, cy = Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]
         if self.axis == "u":
-            # Column u (no distortion): fx X + s Y - (u - cx) Z = 0 in the projector frame: n = (fx, s, cx) - u e_z.
-            A = fx * rd[0] + s * rd[1] + cx * rd[2]
+            # Column u (no distortion): fx X + s Y - (u - cx) Z = 0 in the projector frame, i.e.
+            # n = (fx, s, 0) - w e_z with the centred coordinate w = u - cx (smaller float32 terms).
+            A = fx * rd[0] + s * rd[1]
             B = -rd[2]
-            a = fx * T[0] + s * T[1] + cx * T[2]
+            a = fx * T[0] + s * T[1]
             b = -T[2]
+            centre = cx
         else:
-            A = fy * rd[1] + cy * rd[2]
+            A = fy * rd[1]
             B = -rd[2]
-            a = fy * T[1] + cy * T[2]
+            a = fy * T[1]
             b = -T[2]
+            centre = cy
         # Epipolar line in undistorted normalized projector coordinates: the points t Rd + T of
         # the pixel's ray project onto l . (x_p, y_p, 1) = 0 with l = (Rd) x T; written as
         # y_p = c0 + c1 x_p for axis u (x_p = c0 + c1 y_p for axis v).
@@ -452,6 +538,7 @@ class PreparedPinhole(PreparedGeometry):
             rdi = rd[0] if self.axis == "u" else rd[1]
             extra["rdi32"] = rdi.astype(np.float32)
             extra["rdz32"] = rd[2].astype(np.float32)
+            self._grid = UndistortionGrid.build(Kp, self._pdist, self.rig.projector.width, self.rig.projector.height)
         return {
             **extra,
             "xn": xn,
@@ -461,7 +548,7 @@ class PreparedPinhole(PreparedGeometry):
             "norm_d": norm_d.astype(np.float32),
             "A": A.astype(np.float32),
             "B": B.astype(np.float32),
-            "ab": np.array([a, b]),
+            "ab": np.array([a, b, centre]),
             "rdx": rd[0],
             "rdy": rd[1],
             "rdz": rd[2],
@@ -597,10 +684,10 @@ class PreparedPinhole(PreparedGeometry):
         assert coded is not None
         other = v if self.axis == "u" else u
         if not self._p_distorted and (self.method == "plane" or other is None):
-            # Mobius map of the coded coordinate: t = -(a + b w) / (A + B w).
-            a, b = (np.float32(x) for x in tab["ab"])
+            # Mobius map of the centred coded coordinate w = u - cx (or v - cy): t = -(a + b w) / (A + B w).
+            a, b, centre = (np.float32(x) for x in tab["ab"])
             A, B = tab["A"][rows], tab["B"][rows]
-            w = np.asarray(coded, dtype=np.float32)
+            w = np.asarray(coded, dtype=np.float32) - centre
             den = B * w
             den += A
             num = b * w
@@ -617,8 +704,57 @@ class PreparedPinhole(PreparedGeometry):
             return t, None
         if other is None and self.method == "plane":
             return self._plane_from_polynomial(rows, coded, sigma_in, sigma_out), None
+        if other is not None and self.method == "plane" and self._grid is not None:
+            return self._plane_from_grid(rows, coded, other, sigma_in, sigma_out), None
         xp, yp, dxp_dw = self._projector_normalized(rows, coded, other)
         return self._intersect(rows, xp, yp, dxp_dw, sigma_in, sigma_out)
+
+    def _plane_from_grid(
+        self,
+        rows: slice,
+        coded: np.ndarray,
+        other: np.ndarray,
+        sigma_in: np.ndarray | None,
+        sigma_out: np.ndarray | None,
+    ) -> np.ndarray:
+        """Both axes through a distorted projector: ``(u, v)`` undistorted by the grid (bilinear,
+        error below :data:`GRID_TOL`), then the plane of the coded axis; float32 ``(n, W)``."""
+        grid = self._grid
+        assert grid is not None
+        tab = self.tables()
+        Kp, T = self._Kp, self._T
+        fx, s, cx, fy, cy = (np.float32(x) for x in (Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]))
+        u, v = (coded, other) if self.axis == "u" else (other, coded)
+        u = np.asarray(u, np.float32)
+        v = np.asarray(v, np.float32)
+        y_lin = (v - cy) / fy
+        if self.axis == "u":
+            q = u - cx
+            if s != 0:
+                q -= s * y_lin
+            q /= fx
+            corr, dcorr = grid.lookup(grid.dx, u, v)
+            scale = np.float32(1.0) / fx
+        else:
+            q = y_lin
+            corr, dcorr = grid.lookup(grid.dy, u, v)
+            scale = np.float32(1.0) / fy
+        q += corr
+        Ti = T[0] if self.axis == "u" else T[1]
+        rdi, rdz = tab["rdi32"][rows], tab["rdz32"][rows]
+        num = q * np.float32(T[2])
+        num -= np.float32(Ti)
+        den = q * rdz
+        np.subtract(rdi, den, out=den)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = num / den
+            if sigma_in is not None and sigma_out is not None:
+                dq = dcorr + scale
+                dtdq = (np.float32(T[2]) * den + num * rdz) / (den * den)
+                np.multiply(np.abs(dtdq * dq), tab["norm_d"][rows], out=sigma_out)
+                sigma_out *= sigma_in
+            t[~(t > 0)] = np.nan
+        return t
 
     def _coded_from_polynomial(self, rows: slice, coded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``q`` (float32, undistorted normalized coordinate of the coded axis) and ``omega``."""
