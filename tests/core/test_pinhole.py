@@ -256,3 +256,42 @@ def test_undistortion_grid_matches_newton() -> None:
     dx, _ = grid.lookup(grid.dx, u, v)
     x = (u.astype(np.float64) - K[0, 2]) / K[0, 0] + dx
     assert np.abs(x - exact.x).max() * K[0, 0] < 2 * GRID_TOL
+
+
+def test_measure_pinhole_depth_heights_and_sigma() -> None:
+    from metrology.core.pinhole_measure import measure_pinhole
+
+    rig = _rig("u")
+    obj = _truth("u", "sphere")
+    ref = cast_truth(rig, PlacedScene(make_scene("plane", z_mm=0.0), Z0))
+    u = obj.u.astype(np.float32)
+    sigma_u = np.full(u.shape, 0.02, np.float32)
+    depth = measure_pinhole(rig, u, None, sigma=sigma_u, projector_size=(320, 200))
+    assert depth.axis == "u" and depth.reference is None
+    valid = obj.valid
+    assert np.abs(depth.z_mm[valid] - obj.points_mm[..., 2][valid]).max() < TOL_MM
+    assert depth.sigma_mm is not None
+    assert np.all(np.isnan(depth.sigma_mm[np.isnan(depth.z_mm)]))
+    assert np.all(depth.sigma_mm[valid] > 0)
+    heights = measure_pinhole(rig, u, None, reference_uv=(ref.u.astype(np.float32), None))
+    # the scene's own heights above its reference plane Z = Z0
+    assert np.abs(heights.z_mm[valid] - (Z0 - obj.points_mm[..., 2][valid])).max() < TOL_MM
+    with pytest.raises(GeometryError, match="codec's projector is 1280x800"):
+        measure_pinhole(rig, u, None, projector_size=(1280, 800))
+
+
+def test_coordinate_sigma_matches_monte_carlo() -> None:
+    """sigma_x = P / (2 pi) sqrt(2 / N) sigma_I / B against the scatter of least-squares phases."""
+    from metrology.core.pinhole_measure import coordinate_sigma
+
+    rng = np.random.default_rng(11)
+    n, period, b, noise = 8, 16.0, 40.0, 1.5
+    x_true = rng.uniform(0, period, 200000)
+    k = np.arange(n)[:, None]
+    delta = 2 * np.pi * k / n
+    images = 100 + b * np.cos(2 * np.pi * x_true / period + delta) + noise * rng.standard_normal((n, x_true.size))
+    theta = np.arctan2(-(images * np.sin(delta)).sum(0), (images * np.cos(delta)).sum(0))
+    x = period * (theta / (2 * np.pi)) % period
+    err = (x - x_true + period / 2) % period - period / 2
+    predicted = float(coordinate_sigma(period, n, noise, b))
+    assert abs(err.std() / predicted - 1) < 0.02
