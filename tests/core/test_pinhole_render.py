@@ -17,6 +17,7 @@ from metrology.core.scenes import make_scene
 from metrology.core.simulate_pinhole import PlacedScene, cast_truth, look_at_rig
 
 codecs = pytest.importorskip("metrology.core.codecs", reason="the codec package (issue 11) is not in this tree")
+decode_codec = pytest.importorskip("metrology.core.codecs.decode").decode_codec
 
 PROJ_W, PROJ_H = 1280, 800
 CAMERA = PinholeCamera(
@@ -62,8 +63,6 @@ def _codec(axis: str) -> Any:
 @pytest.mark.parametrize("scene", ["plane", "sphere", "staircase"])
 @pytest.mark.parametrize("axis", ["u", "v"])
 def test_render_decode_triangulate(scene: str, axis: str) -> None:
-    from metrology.core.codecs.decode import decode_codec
-
     rig = look_at_rig(CAMERA, PROJECTOR, BASELINES[axis], (0.0, 0.0, Z0))
     truth = cast_truth(rig, PlacedScene(make_scene(scene), Z0))
     codec = _codec(axis)
@@ -82,3 +81,52 @@ def test_render_decode_triangulate(scene: str, axis: str) -> None:
     print(f"{scene} {axis}: {valid.sum()} px, coordinate error max {coord_err.max():.2e}, point error max "
           f"{err.max() * 1e3:.3f} um, median {np.median(err) * 1e3:.3f} um")  # fmt: skip
     assert err.max() < 1e-3
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("axis", ["u", "v"])
+def test_predicted_sigma_matches_scatter_of_realistic_renders(axis: str) -> None:
+    """30 realistic 8-bit renders of a plane: the predicted per-point sigma (decoder noise and
+    modulation -> coordinate sigma -> triangulation) matches the observed per-pixel scatter of
+    the points within 15 % (median over pixels)."""
+    from metrology.core.pinhole_measure import coordinate_sigma, measure_pinhole
+    from metrology.core.simulate import SimulationOptions
+
+    rig = look_at_rig(CAMERA, PROJECTOR, BASELINES[axis], (0.0, 0.0, Z0))
+    options = SimulationOptions.realistic_8bit()
+    s = options.supersample
+    # the same camera sampled s times finer (sub-pixel centres): K scaled, c' = s c + (s - 1) / 2
+    (fx, _, cx), (_, fy, cy), _ = CAMERA.K
+    fine = PinholeCamera(
+        CAMERA.width_px * s,
+        CAMERA.height_px * s,
+        ((fx * s, 0.0, cx * s + (s - 1) / 2), (0.0, fy * s, cy * s + (s - 1) / 2), (0.0, 0.0, 1.0)),
+        CAMERA.dist,
+    )
+    truth = cast_truth(
+        look_at_rig(fine, PROJECTOR, BASELINES[axis], (0.0, 0.0, Z0)), PlacedScene(make_scene("plane", z_mm=0.0), Z0)
+    )
+    codec = _codec(axis)
+    n = 30
+    points = np.empty((n, *rig.shape, 3), np.float32)
+    predicted = np.empty((n, *rig.shape), np.float32)
+    for i in range(n):
+        images = codecs.render_codec(
+            codec, truth.u if axis == "u" else None, truth.v if axis == "v" else None, options, seed=1000 + i
+        )
+        dec = decode_codec(images, codec).axes[axis]
+        coord = np.where(dec.valid, dec.coordinate, np.nan).astype(np.float32)
+        sigma = coordinate_sigma(16.0, 8, dec.noise, dec.modulation)
+        m = measure_pinhole(rig, coord if axis == "u" else None, coord if axis == "v" else None, sigma=sigma, axis=axis)
+        points[i] = m.points_mm
+        assert m.sigma_mm is not None
+        predicted[i] = m.sigma_mm
+    ok = np.isfinite(points[..., 2]).all(axis=0)
+    assert ok.mean() > 0.5
+    # scatter along the camera ray: the spread of the distance from the camera centre
+    dist = np.linalg.norm(points[:, ok].astype(np.float64), axis=-1)
+    observed = dist.std(axis=0, ddof=1)
+    ratio = np.median(predicted[:, ok], axis=0) / observed
+    print(f"{axis}: median predicted/observed {np.median(ratio):.3f} over {ok.sum()} px, "
+          f"median sigma {np.median(observed) * 1e3:.1f} um")  # fmt: skip
+    assert abs(np.median(ratio) - 1) < 0.15
