@@ -63,6 +63,7 @@ from metrology.core.geometry.base import (
     check_axes,
     check_frame,
 )
+from metrology.core.tiling import run_tiled
 
 MODEL_NAME = "pinhole"
 TOP_KEYS: tuple[str, ...] = ("model", "camera", "projector", "R", "T")
@@ -348,15 +349,17 @@ def _camera_tables(rig_camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
     h, w = rig_camera.height_px, rig_camera.width_px
     xn, yn = np.empty((h, w)), np.empty((h, w))
     K, dist = np.asarray(rig_camera.K), rig_camera.distortion
-    failed = 0
-    step = max(1, (1 << 15) // max(w, 1))  # row blocks of ~32k pixels: temporaries stay in cache
     cols = np.arange(w, dtype=np.float64)
-    for r0 in range(0, h, step):
-        rows = np.arange(r0, min(h, r0 + step), dtype=np.float64)
-        jj, kk = np.meshgrid(cols, rows)
+    failed_rows: list[int] = []
+
+    def run(rows: slice) -> None:  # row blocks of ~32k pixels: temporaries stay in cache
+        jj, kk = np.meshgrid(cols, np.arange(rows.start, rows.stop, dtype=np.float64))
         res = undistort_pixels(K, dist, jj, kk)
-        xn[r0 : r0 + step], yn[r0 : r0 + step] = res.x, res.y
-        failed += res.n_failed
+        xn[rows], yn[rows] = res.x, res.y
+        failed_rows.append(res.n_failed)
+
+    run_tiled(run, h, w, tile_px=1 << 15)
+    failed = sum(failed_rows)
     if failed:
         raise GeometryError(
             f"camera dist: {failed} pixel(s) of the {w}x{h} frame cannot be undistorted "
@@ -584,9 +587,8 @@ class PreparedPinhole(PreparedGeometry):
         h, w = c0.shape
         coeffs = np.empty((deg + 1, h, w), np.float32)
         exact = np.zeros((h, w), bool)
-        step = max(1, (1 << 14) // max(w, 1))
-        for r0 in range(0, h, step):
-            rows = slice(r0, min(h, r0 + step))
+
+        def run(rows: slice) -> None:
             q = np.empty((n, *c0[rows].shape))
             guess: np.ndarray | None = None
             with np.errstate(all="ignore"):
@@ -597,11 +599,14 @@ class PreparedPinhole(PreparedGeometry):
                     if j + 1 < n:
                         guess = q[n - 1 - j] + dqdw * half * (nodes[n - 2 - j] - nodes[n - 1 - j])
             shape = q.shape[1:]
-            cheb = (cheb_t @ q.reshape(n, -1)) * (2.0 / n)
+            cheb = np.einsum("jk,kp->jp", cheb_t, q.reshape(n, -1)) * (2.0 / n)  # no BLAS threads in threads
             cheb[0] *= 0.5
             tail = np.abs(cheb[deg + 1 :]).sum(axis=0) * scale
             exact[rows] = ~(tail <= POLY_TOL).reshape(shape)
-            coeffs[:, rows] = (to_mono @ cheb[: deg + 1]).reshape(deg + 1, *shape).astype(np.float32)
+            mono = np.einsum("ij,jp->ip", to_mono, cheb[: deg + 1])
+            coeffs[:, rows] = mono.reshape(deg + 1, *shape).astype(np.float32)
+
+        run_tiled(run, h, w, tile_px=1 << 14)  # threads over row blocks of ~16k pixels (cache-sized)
         return {"poly": coeffs, "poly_exact": exact}
 
     def camera_rays(self) -> CameraRays:
