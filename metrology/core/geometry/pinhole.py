@@ -406,22 +406,27 @@ class UndistortionGrid:
                 return cls(step=step, dx=dx.astype(np.float32), dy=dy.astype(np.float32), error=err)
         return None
 
-    def lookup(self, table: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Bilinear value of ``table`` (``dx`` or ``dy``) at ``(u, v)`` and its derivative along
-        ``u`` (``dx``) or ``v`` (``dy``); float32; NaN outside the grid."""
+    def lookup(
+        self, table: np.ndarray, u: np.ndarray, v: np.ndarray, derivative: bool = True
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Bilinear value of ``table`` (``dx`` or ``dy``) at ``(u, v)`` and, with ``derivative``,
+        its derivative along ``u`` (``dx``) or ``v`` (``dy``); float32. Coordinates outside the
+        grid (beyond one unit outside the projector) are clamped to its border; NaN
+        coordinates look up the corner (the caller's NaN propagates through ``K^-1 (u, v)``)."""
         n_v, n_u = table.shape
         inv = np.float32(1.0 / self.step)
-        gu = (np.asarray(u, np.float32) + np.float32(1.0)) * inv
-        gv = (np.asarray(v, np.float32) + np.float32(1.0)) * inv
-        with np.errstate(invalid="ignore"):
-            outside = ~((gu >= 0) & (gu < n_u - 1) & (gv >= 0) & (gv < n_v - 1))
-        gu[outside] = 0.0
-        gv[outside] = 0.0
+        gu = np.asarray(u, np.float32) + np.float32(1.0)
+        gu *= inv
+        gv = np.asarray(v, np.float32) + np.float32(1.0)
+        gv *= inv
+        # fmax/fmin map NaN to the bound, so every index is valid
+        np.fmin(np.fmax(gu, np.float32(0.0), out=gu), np.float32(n_u - 1.001), out=gu)
+        np.fmin(np.fmax(gv, np.float32(0.0), out=gv), np.float32(n_v - 1.001), out=gv)
         iu = gu.astype(np.int32)
         iv = gv.astype(np.int32)
         au = gu - iu
         av = gv - iv
-        idx = iv * n_u
+        idx = iv * np.int32(n_u)
         idx += iu
         flat = table.ravel()
         f00 = flat.take(idx)
@@ -430,16 +435,23 @@ class UndistortionGrid:
         f10 = flat.take(idx)
         f11 = flat.take(idx + 1)
         top = f01 - f00
-        bottom = f11 - f10
-        slope_u = top + av * (bottom - top)  # d/d(gu)
-        value = f00 + av * (f10 - f00) + au * slope_u
-        if table is self.dx:
-            deriv = slope_u * inv
-        else:
-            left = f10 - f00
-            right = f11 - f01
-            deriv = (left + au * (right - left)) * inv
-        value[outside] = np.nan
+        slope_u = f11 - f10
+        slope_u -= top
+        slope_u *= av
+        slope_u += top  # d/d(gu)
+        value = f10 - f00
+        value *= av
+        value += f00
+        deriv = None
+        if derivative:
+            if table is self.dx:
+                deriv = slope_u * inv
+            else:
+                left = f10 - f00
+                right = f11 - f01
+                deriv = (left + au * (right - left)) * inv
+        slope_u *= au
+        value += slope_u
         return value, deriv
 
 
@@ -729,6 +741,7 @@ class PreparedPinhole(PreparedGeometry):
         tab = self.tables()
         Kp, T = self._Kp, self._T
         fx, s, cx, fy, cy = (np.float32(x) for x in (Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]))
+        want_sigma = sigma_in is not None and sigma_out is not None
         u, v = (coded, other) if self.axis == "u" else (other, coded)
         u = np.asarray(u, np.float32)
         v = np.asarray(v, np.float32)
@@ -738,11 +751,11 @@ class PreparedPinhole(PreparedGeometry):
             if s != 0:
                 q -= s * y_lin
             q /= fx
-            corr, dcorr = grid.lookup(grid.dx, u, v)
+            corr, dcorr = grid.lookup(grid.dx, u, v, want_sigma)
             scale = np.float32(1.0) / fx
         else:
             q = y_lin
-            corr, dcorr = grid.lookup(grid.dy, u, v)
+            corr, dcorr = grid.lookup(grid.dy, u, v, want_sigma)
             scale = np.float32(1.0) / fy
         q += corr
         Ti = T[0] if self.axis == "u" else T[1]
@@ -753,7 +766,7 @@ class PreparedPinhole(PreparedGeometry):
         np.subtract(rdi, den, out=den)
         with np.errstate(divide="ignore", invalid="ignore"):
             t = num / den
-            if sigma_in is not None and sigma_out is not None:
+            if sigma_in is not None and sigma_out is not None and dcorr is not None:
                 dq = dcorr + scale
                 dtdq = (np.float32(T[2]) * den + num * rdz) / (den * den)
                 np.multiply(np.abs(dtdq * dq), tab["norm_d"][rows], out=sigma_out)
