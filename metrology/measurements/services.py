@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import tempfile
+import io
 import time
-from pathlib import Path
+from typing import Any
 
 import numpy as np
 from django.core.files import File
@@ -21,12 +21,29 @@ from metrology.jobs.results import json_safe
 from metrology.measurements.models import Measurement
 from metrology.rigs.models import Rig
 
-MESH_FORMATS = ("ply", "stl", "obj")
+
+def measure_options(options: dict[str, Any] | None) -> dict[str, Any]:
+    """The full pipeline options (defaults filled in) of a request's ``options`` object; BadInput naming a bad one."""
+    from metrology.pipeline import MeasureOptions
+
+    if options is not None and not isinstance(options, dict):
+        raise BadInput(f"options must be an object, got {options!r}")
+    try:
+        return MeasureOptions.from_dict(options or {}).to_dict()
+    except (TypeError, ValueError) as exc:
+        raise BadInput(f"options: {exc}") from exc
 
 
 @transaction.atomic
-def request_measurement(*, owner, rig: Rig, reference_id: int, object_id: int) -> Measurement:
-    """Create a measurement of ``object`` against ``reference`` on ``rig`` and queue its job."""
+def request_measurement(
+    *, owner, rig: Rig, reference_id: int, object_id: int, options: dict[str, Any] | None = None
+) -> Measurement:
+    """Create a measurement of ``object`` against ``reference`` on ``rig`` and queue its job.
+
+    ``options``: :class:`metrology.pipeline.MeasureOptions` as an object (``{"decode": {...}}``);
+    default the pipeline's defaults. Stored, with the defaults filled in, on the measurement.
+    """
+    checked = measure_options(options)
     if reference_id == object_id:
         raise BadInput("object: the object capture must differ from the reference capture")
     reference = capture_for_job(owner, rig, reference_id, field="reference", roles=(Capture.Role.REFERENCE,))
@@ -37,7 +54,7 @@ def request_measurement(*, owner, rig: Rig, reference_id: int, object_id: int) -
         parameters={"rig": rig.pk, "reference": reference.pk, "object": obj.pk, "rig_values": rig.geometry()},
     )
     measurement = Measurement.objects.create(
-        owner=owner, rig=rig, reference=reference, object=obj, job=job, rig_values=rig.geometry()
+        owner=owner, rig=rig, reference=reference, object=obj, job=job, rig_values=rig.geometry(), options=checked
     )
     job.parameters["measurement"] = measurement.pk
     job.save(update_fields=["parameters"])
@@ -46,57 +63,54 @@ def request_measurement(*, owner, rig: Rig, reference_id: int, object_id: int) -
 
 
 def run_measurement(job: Job, run: job_services.JobRun) -> None:
-    """Job handler: decode both stacks, compute heights, write height map and meshes, publish."""
-    from metrology.core.io import write_height_tiff
-    from metrology.core.measure import height_statistics, measure_height
-    from metrology.core.mesh import mesh_from_heights, write_mesh
+    """Job handler: the kept reference (decoded once per process), the object's stack, the pipeline's
+    measure; store the height maps, publish.
+
+    Stores ``height.npy`` and ``gray_only_height.npy`` (float32) and the statistics only; the
+    TIFF and the meshes are derived on request (:mod:`metrology.measurements.derived`).
+    """
+    from metrology.captures.references import kept_reference
     from metrology.core.rig import Rig as CoreRig
+    from metrology.pipeline import MeasureOptions, measure
 
     measurement = Measurement.objects.select_related("reference__rig", "object__rig").get(job=job)
     rig = CoreRig.from_dict(measurement.rig_values)
-    with run.phase("read", 5):
-        reference = load_capture_stack(measurement.reference)
+    options = MeasureOptions.from_dict(measurement.options or {})
+    with run.phase("reference", 5):
+        reference, _kept = kept_reference(measurement.reference, measurement.rig_values, options.decode)
+    with run.phase("read", 10):
         obj = load_capture_stack(measurement.object)
     with run.phase("measure", 20):
-        result = measure_height(rig, reference.images, obj.images)
+        result = measure(rig, reference, obj.images, options)
     for name, seconds in result.timings_s.items():
-        run.timings[f"measure.{name}"] = round(float(seconds), 4)
+        if name != "measure":
+            run.timings[name] = round(float(seconds), 4)
     z_mm = np.asarray(result.z_mm, dtype=np.float32)
     prefix = f"measurements/{measurement.pk}/{run.token.hex}"
     names: dict[str, str] = {}
-    with tempfile.TemporaryDirectory(prefix="gcps-measurement-") as tmp:
-        folder = Path(tmp)
-        with run.phase("write height", 50):
-            np.save(folder / "height.npy", z_mm)
-            write_height_tiff(z_mm, folder / "height.tiff")
-            if result.gray_z_mm is not None:
-                np.save(folder / "gray_only_height.npy", np.asarray(result.gray_z_mm, dtype=np.float32))
-        with run.phase("mesh", 60):
-            mesh = mesh_from_heights(rig, z_mm)
-            for fmt in MESH_FORMATS:
-                write_mesh(mesh, folder / f"mesh.{fmt}")
-        with run.phase("store", 90):
-            for path in sorted(folder.iterdir()):
-                with path.open("rb") as handle:
-                    names[path.name] = run.save_file(default_storage, f"{prefix}/{path.name}", File(handle))
-    statistics = json_safe(result.statistics())
+    arrays = {"height.npy": z_mm}
     if result.gray_z_mm is not None:
-        statistics["gray_only"] = json_safe(height_statistics(np.asarray(result.gray_z_mm)))
+        arrays["gray_only_height.npy"] = np.asarray(result.gray_z_mm, dtype=np.float32)
+    with run.phase("store", 80):
+        for filename, array in arrays.items():
+            buffer = io.BytesIO()
+            np.save(buffer, array)
+            buffer.seek(0)
+            names[filename] = run.save_file(default_storage, f"{prefix}/{filename}", File(buffer, name=filename))
+    statistics = json_safe(result.statistics())
     statistics["shape"] = list(z_mm.shape)
-    start = time.perf_counter()
 
-    def publish(_job: Job) -> None:
+    def publish(job_row: Job) -> None:
+        start = time.perf_counter()
         Measurement.objects.filter(pk=measurement.pk).update(
             height_npy=names.get("height.npy", ""),
-            height_tiff=names.get("height.tiff", ""),
             gray_only_npy=names.get("gray_only_height.npy", ""),
-            mesh_ply=names.get("mesh.ply", ""),
-            mesh_stl=names.get("mesh.stl", ""),
-            mesh_obj=names.get("mesh.obj", ""),
             statistics=statistics,
+            options=result.options.to_dict(),
         )
+        job_row.software_version = result.software_version  # the code that computed it, not the requester's
+        run.timings["publish"] = round(time.perf_counter() - start, 4)
 
-    run.timings["publish"] = round(time.perf_counter() - start, 4)
     run.commit(publish)
     _remove_other_attempts(prefix)
 

@@ -19,7 +19,7 @@ def imported_roots(path: Path) -> set[str]:
     return roots
 
 
-@pytest.mark.parametrize("path", sorted(CORE.glob("*.py")), ids=lambda p: p.name)
+@pytest.mark.parametrize("path", sorted(CORE.rglob("*.py")), ids=lambda p: str(p.relative_to(CORE)))
 def test_core_module_imports_no_application_layer(path):
     roots = imported_roots(path)
     assert not roots & FORBIDDEN, f"{path.name} imports {sorted(roots & FORBIDDEN)}"
