@@ -105,3 +105,24 @@ def test_measure_with_pinhole_rig(tmp_path: Path) -> None:
     assert cmd_measure_pinhole(args)["valid_pixels"] == 0
     with pytest.raises(ValueError, match="--max-sigma must be > 0"):
         cmd_measure_pinhole(_args(tmp_path, object=tmp_path / "sphere", out=tmp_path / "z3.npy", max_sigma=-1))
+
+
+def test_gcps_measure_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`gcps measure --rig PINHOLE.json` without --reference: depth, points and sigma; a crossed-axes
+    rig still needs --reference (exit 2, one line)."""
+    from metrology.cli import main
+
+    (tmp_path / "rig.json").write_text(RIG.to_json())
+    truth = _capture(tmp_path / "plane", "plane", z_mm=30.0)
+    argv = ["measure", "--rig", str(tmp_path / "rig.json"), "--object", str(tmp_path / "plane")]
+    argv += ["--out", str(tmp_path / "z.npy"), "--xyz", str(tmp_path / "xyz.npy"), "--sigma", str(tmp_path / "s.npy")]
+    assert main([*argv, "--triangulate", "u", "--method", "midpoint"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["model"] == "pinhole" and summary["method"] == "midpoint"
+    z = np.load(tmp_path / "z.npy")
+    ok = np.isfinite(z)
+    assert np.mean(np.abs(z[ok] - truth[..., 2][ok]) < 1e-3) > 0.999
+    crossed = Path(__file__).resolve().parents[1] / "examples" / "rig.json"
+    argv = ["measure", "--rig", str(crossed), "--object", str(tmp_path / "plane"), "--out", str(tmp_path / "c.npy")]
+    assert main(argv) == 2
+    assert "--reference is required for a crossed-axes rig" in capsys.readouterr().err

@@ -34,6 +34,10 @@ def add_pinhole_measure_arguments(parser: argparse.ArgumentParser) -> None:
         "--method", dest="triangulation_method", choices=["plane", "midpoint"], default="plane", help="default plane"
     )
     group.add_argument("--max-sigma", type=float, metavar="MM", help="drop points whose sigma exceeds this, mm")
+    if "--codec" not in parser._option_string_actions:  # the codec commands may add it already
+        group.add_argument(
+            "--codec", help="codec file (gcps-codec/1) or built-in name; default: the capture's codec.json"
+        )
 
 
 def is_pinhole_rig(path: str) -> bool:
@@ -79,7 +83,7 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
     """Read, decode, triangulate and write the outputs of a pinhole ``gcps measure``; the summary."""
     import numpy as np
 
-    from metrology.core.codecs import read_codec
+    from metrology.core.codecs import builtin_codec, read_codec
     from metrology.core.codecs.decode import decode_codec
     from metrology.core.codecs.stack import read_codec_stack
     from metrology.core.geometry.pinhole import PinholeRig
@@ -96,7 +100,9 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
         raise ValueError(f"--max-sigma must be > 0 mm, got {max_sigma!r}")
     started = time.perf_counter()
     rig = PinholeRig.from_json(Path(args.rig).read_text(encoding="utf-8"))
-    codec = read_codec(args.codec) if getattr(args, "codec", None) else None
+    codec = None
+    if getattr(args, "codec", None):
+        codec = read_codec(args.codec) if Path(args.codec).is_file() else builtin_codec(args.codec)
     obj = read_codec_stack(args.object, codec)
     ref = read_codec_stack(args.reference, obj.codec) if getattr(args, "reference", None) else None
     read_s = time.perf_counter() - started
