@@ -92,7 +92,21 @@ def test_measure_with_pinhole_rig(tmp_path: Path) -> None:
     assert np.mean(err < 1e-3) > 0.999
     sigma = np.load(tmp_path / "s.npy")
     assert np.isfinite(sigma[ok]).all() and np.all(sigma[ok] >= 0)
-    assert (tmp_path / "m.ply").stat().st_size > 0
+    # the PLY carries each vertex's sigma_mm (one vertex per measured pixel, row-major)
+    raw = (tmp_path / "m.ply").read_bytes()
+    head, _, body = raw.partition(b"end_header\n")
+    assert b"property float sigma_mm" in head
+    n_vertices = int(head.split(b"element vertex ")[1].split(b"\n")[0])
+    assert n_vertices == ok.sum()
+    vdtype = np.dtype([("xyz", "<f8", (3,)), ("n", "<f4", (3,)), ("s", "<f4")])
+    vertices = np.frombuffer(body[: n_vertices * vdtype.itemsize], vdtype)
+    assert np.array_equal(vertices["s"], sigma[ok])
+    assert np.allclose(vertices["xyz"], xyz[ok])
+    assert np.median(vertices["n"][:, 2]) < -0.5  # normals face the camera (-Z)
+    import open3d as o3d
+
+    mesh = o3d.io.read_triangle_mesh(str(tmp_path / "m.ply"))
+    assert len(mesh.vertices) == n_vertices and len(mesh.triangles) > n_vertices // 2
     stats = json.loads((tmp_path / "stats.json").read_text())
     assert stats["rig"]["model"] == "pinhole"
     # heights above the reference plate (Z = 600): the sphere's own heights

@@ -153,6 +153,7 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
         sigma_mm[drop] = np.nan
     triangulate_s = time.perf_counter() - started
     mesh = _mesh(points) if getattr(args, "mesh", None) else None
+    sigma_ply = mesh is not None and sigma_mm is not None and Path(args.mesh).suffix.lower() == ".ply"
     with atomic_path(args.out) as tmp:
         np.save(tmp, z)
     if getattr(args, "xyz", None):
@@ -161,7 +162,11 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
     if getattr(args, "sigma", None) and sigma_mm is not None:
         with atomic_path(args.sigma) as tmp:
             np.save(tmp, sigma_mm)
-    if mesh is not None:
+    if mesh is not None and sigma_ply:
+        assert sigma_mm is not None
+        with atomic_path(args.mesh) as tmp:
+            write_ply_with_sigma(mesh, sigma_mm[np.isfinite(points[..., 2])], tmp)
+    elif mesh is not None:
         from metrology.core.mesh import write_mesh
 
         write_mesh(mesh, args.mesh)
@@ -200,6 +205,42 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
         with atomic_path(args.json) as tmp:
             tmp.write_text(json.dumps(details, indent=2, allow_nan=False) + "\n", encoding="utf-8")
     return stats
+
+
+def write_ply_with_sigma(mesh: Any, sigma_mm: Any, path: Path) -> None:
+    """Binary little-endian PLY of ``mesh`` with a per-vertex ``sigma_mm`` float property.
+
+    Vertices: ``double x y z``, ``float nx ny nz``, ``float sigma_mm`` (the point's standard
+    uncertainty, mm, NaN where unknown); faces: ``list uchar int vertex_indices``.
+    """
+    import numpy as np
+
+    vertices = np.asarray(mesh.vertices)
+    normals = np.asarray(mesh.vertex_normals) if mesh.has_vertex_normals() else np.zeros_like(vertices)
+    triangles = np.asarray(mesh.triangles, dtype=np.int32)
+    sigma = np.asarray(sigma_mm, dtype=np.float32).ravel()
+    if sigma.size != len(vertices):
+        raise ValueError(f"sigma_mm has {sigma.size} values for {len(vertices)} vertices")
+    vdtype = np.dtype(
+        [("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4"), ("s", "<f4")]
+    )
+    vrec = np.empty(len(vertices), vdtype)
+    vrec["x"], vrec["y"], vrec["z"] = vertices.T
+    vrec["nx"], vrec["ny"], vrec["nz"] = normals.T
+    vrec["s"] = sigma
+    frec = np.empty(len(triangles), np.dtype([("n", "u1"), ("i", "<i4", (3,))]))
+    frec["n"] = 3
+    frec["i"] = triangles
+    header = (
+        "ply\nformat binary_little_endian 1.0\ncomment gcps-lab pinhole measurement, camera frame, mm\n"
+        f"element vertex {len(vertices)}\nproperty double x\nproperty double y\nproperty double z\n"
+        "property float nx\nproperty float ny\nproperty float nz\nproperty float sigma_mm\n"
+        f"element face {len(triangles)}\nproperty list uchar int vertex_indices\nend_header\n"
+    )
+    with open(path, "wb") as f:
+        f.write(header.encode("ascii"))
+        f.write(vrec.tobytes())
+        f.write(frec.tobytes())
 
 
 def _mesh(points: Any) -> Any:
