@@ -112,7 +112,9 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
             cam = f"{rig.camera.width_px}x{rig.camera.height_px}"
             raise ValueError(f"the {label} frames are {w}x{h} px but the rig's camera is {cam} px")
     started = time.perf_counter()
-    want_sigma = bool(getattr(args, "sigma", None)) or max_sigma is not None
+    asked_sigma = bool(getattr(args, "sigma", None)) or max_sigma is not None
+    ply_mesh = bool(getattr(args, "mesh", None)) and Path(args.mesh).suffix.lower() == ".ply"
+    want_sigma = asked_sigma or ply_mesh  # a PLY mesh carries sigma_mm per vertex when it can
     dec = decode_codec(obj.images, obj.codec, with_noise=want_sigma)
     ref_dec = decode_codec(ref.images, ref.codec, with_noise=False) if ref is not None else None
     decode_s = time.perf_counter() - started
@@ -130,7 +132,7 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
     if want_sigma and resolved in dec.axes:
         ax = dec.axes[resolved]
         sigma_u = final_stage_sigma(obj.codec, resolved, ax.noise, ax.modulation)
-        if sigma_u is None:
+        if sigma_u is None and asked_sigma:
             raise ValueError(f"--sigma needs a phase-coded {resolved} axis with N >= 4 steps (a noise estimate)")
     started = time.perf_counter()
     result = measure_pinhole(
