@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import os
 from pathlib import Path
+from typing import Any
 
 import dj_database_url
 from django.core.exceptions import ImproperlyConfigured
@@ -189,9 +190,10 @@ with contextlib.suppress(OSError):  # WhiteNoise warns on every request while th
 
 # ----------------------------------------------------------------------------- database
 _database_url = env_url("DATABASE_URL", ("postgres", "postgresql", "pgsql", "sqlite"))
+DATABASES: dict[str, dict[str, Any]]  # the type Django's settings declare (the sqlite NAME below is a Path)
 if _database_url:
     try:
-        DATABASES = {"default": dj_database_url.parse(_database_url, conn_max_age=60)}
+        DATABASES = {"default": dict(dj_database_url.parse(_database_url, conn_max_age=60))}
     except ValueError as exc:
         raise ImproperlyConfigured(f"DATABASE_URL is not a valid database URL: {exc}") from None
 else:
