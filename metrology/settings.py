@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -190,10 +191,11 @@ with contextlib.suppress(OSError):  # WhiteNoise warns on every request while th
 
 # ----------------------------------------------------------------------------- database
 _database_url = env_url("DATABASE_URL", ("postgres", "postgresql", "pgsql", "sqlite"))
-DATABASES: dict[str, dict[str, Any]]  # the type Django's settings declare (the sqlite NAME below is a Path)
+# read-only here: dj_database_url's typed configuration or the sqlite one below (whose NAME is a Path)
+DATABASES: dict[str, Mapping[str, Any]]
 if _database_url:
     try:
-        DATABASES = {"default": dict(dj_database_url.parse(_database_url, conn_max_age=60))}
+        DATABASES = {"default": dj_database_url.parse(_database_url, conn_max_age=60)}
     except ValueError as exc:
         raise ImproperlyConfigured(f"DATABASE_URL is not a valid database URL: {exc}") from None
 else:
