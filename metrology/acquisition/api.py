@@ -313,10 +313,14 @@ class ShowSerializer(AgentSessionSerializer):
     acquisition = serializers.IntegerField(required=False, allow_null=True)
 
 
+#: Largest value an integer column holds (PostgreSQL ``integer``); larger numbers are refused with 400.
+INTEGER_COLUMN_MAX = 2**31 - 1
+
+
 class ShownSerializer(serializers.Serializer):
-    seq = serializers.IntegerField(min_value=0)
+    seq = serializers.IntegerField(min_value=0, max_value=INTEGER_COLUMN_MAX)
     kind = serializers.CharField(max_length=16)
-    frame = serializers.IntegerField()
+    frame = serializers.IntegerField(min_value=-1, max_value=INTEGER_COLUMN_MAX)
     screen = serializers.JSONField(required=False, default=dict)
 
 

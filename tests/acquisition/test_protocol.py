@@ -169,6 +169,15 @@ def test_projector_state_show_and_confirm(api, client_alice, rig):
     assert shown.status_code == 200
     state = api.get(f"/api/rigs/{rig.pk}/projector/?shown={seq}&wait=1").json()
     assert state["shown_seq"] == seq and state["shown_frame"] == 3
+    # numbers past an integer column are refused (they were a 500 from the database)
+    for field, value in (("seq", 2**31), ("frame", 2**63), ("frame", -2)):
+        refused = client_alice.post(
+            f"/api/rigs/{rig.pk}/projector/shown/",
+            json.dumps({"seq": seq, "kind": "frame", "frame": 3} | {field: value}),
+            content_type="application/json",
+        )
+        assert refused.status_code == 400 and field in refused.json()["error"], (field, value)
+    assert api.get(f"/api/rigs/{rig.pk}/projector/").json()["shown_frame"] == 3
 
 
 def test_projector_page_and_frames(client_alice, api, rig):
