@@ -563,6 +563,9 @@ def build_parser() -> argparse.ArgumentParser:
     from metrology.commands import rig as rig_command
 
     rig_command.register(sub)
+    from metrology.commands import procam as procam_command
+
+    procam_command.register(sub)
     return parser
 
 
