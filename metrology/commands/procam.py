@@ -39,6 +39,7 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--min-decoded", type=float, default=0.25, metavar="FRACTION", help="decoded fraction a corner's window needs"
     )
+    p.add_argument("--fix-k3", action="store_true", help="hold the radial distortion coefficient k3 at 0")
     p.add_argument("--min-modulation", type=float, metavar="GREY", help="decoder: smallest fringe amplitude")
     p.add_argument("--min-inverse-contrast", type=float, metavar="GREY", help="decoder: smallest |bit - inverse|")
     p.set_defaults(func=cmd_calibrate_procam)
@@ -125,6 +126,7 @@ def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
         projector_size,
         min_decoded_fraction=args.min_decoded,
         codec_gamma_precompensated=precompensated,
+        fix_k3=args.fix_k3,
     )
     report = dict(result.report)
     report["software_version"] = software_version()

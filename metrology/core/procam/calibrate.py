@@ -145,13 +145,13 @@ def _std_dict(std: FloatArray, n_dist: int) -> dict[str, Any]:
 
 
 def _calibrate_device(
-    obj: list[FloatArray], img: list[FloatArray], size: tuple[int, int]
+    obj: list[FloatArray], img: list[FloatArray], size: tuple[int, int], flags: int = 0
 ) -> tuple[float, FloatArray, FloatArray, list[FloatArray], list[FloatArray], FloatArray, FloatArray]:
     o = [x.astype(np.float32).reshape(-1, 1, 3) for x in obj]
     i = [x.astype(np.float32).reshape(-1, 1, 2) for x in img]
     criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
     rms, K, dist, rvecs, tvecs, std_int, _std_ext, per_view = cv2.calibrateCameraExtended(  # type: ignore[call-overload]
-        o, i, size, None, None, flags=0, criteria=criteria
+        o, i, size, None, None, flags=flags, criteria=criteria
     )
     return float(rms), K, dist.ravel()[:5], list(rvecs), list(tvecs), std_int.ravel(), per_view.ravel()
 
@@ -200,6 +200,7 @@ def calibrate_procam(
     *,
     min_decoded_fraction: float = MIN_DECODED_FRACTION,
     codec_gamma_precompensated: bool = False,
+    fix_k3: bool = False,
 ) -> ProcamCalibration:
     """Calibrate camera, projector and their pose from board poses; explain the result.
 
@@ -213,6 +214,8 @@ def calibrate_procam(
     projector_size : (width, height) projector units
     min_decoded_fraction : float
         A corner is used when this fraction of its window is decoded.
+    fix_k3 : bool
+        Hold the radial coefficient k3 at 0 for both devices (few poses, or mild distortion).
 
     Returns
     -------
@@ -244,7 +247,7 @@ def calibrate_procam(
             p.reason, p.cause = "no projector points", "poorly_decoded"
             continue
         n = p.camera_px.shape[0]
-        ok: npt.NDArray[np.bool_] = np.isfinite(p.projector_px).all(axis=1) & np.isfinite(p.camera_px).all(axis=1)
+            ok = np.asarray(ok & (p.decoded_fraction >= min_decoded_fraction), dtype=bool)
         if p.decoded_fraction is not None:
             ok = ok & np.asarray(p.decoded_fraction >= min_decoded_fraction, dtype=bool)
         if ok.sum() < max(MIN_USABLE_CORNERS * n, 6):
@@ -271,8 +274,9 @@ def calibrate_procam(
         obj = [p.object_mm[used_mask[p.name]] for p in act]  # type: ignore[index]
         cam = [p.camera_px[used_mask[p.name]] for p in act]  # type: ignore[index]
         prj = [p.projector_px[used_mask[p.name]] for p in act]  # type: ignore[index]
-        c = _calibrate_device(obj, cam, (cam_w, cam_h))
-        q = _calibrate_device(obj, prj, (proj_w, proj_h))
+        flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
+        c = _calibrate_device(obj, cam, (cam_w, cam_h), flags)
+        q = _calibrate_device(obj, prj, (proj_w, proj_h), flags)
         return c, q
 
     cam_cal, proj_cal = run_devices()

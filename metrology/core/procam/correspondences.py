@@ -38,7 +38,7 @@ def _size(value: Any, key: str) -> tuple[int, int]:
         or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in value)
     ):
         raise ValueError(f"--correspondences: {key} must be [width, height] (positive numbers), got {value!r}")
-    return int(round(value[0])), int(round(value[1]))
+    return round(value[0]), round(value[1])
 
 
 def _points(value: Any, n_cols: int, where: str, allow_null: bool = False) -> np.ndarray:
@@ -99,7 +99,8 @@ def read_correspondences(
         n = board.count if obj is None else obj.shape[0]
         if cam.shape[0] != n or prj.shape[0] != n:
             raise ValueError(
-                f"--correspondences: poses[{i}] ({name}) has {cam.shape[0]} camera and {prj.shape[0]} projector points; "
+                f"--correspondences: poses[{i}] ({name}) has {cam.shape[0]} camera and "
+                f"{prj.shape[0]} projector points; "
                 f"expected {n} (the board {board.spec()} has {board.count})"
             )
         poses.append(PoseObservation(name=name, camera_px=cam, projector_px=prj, object_mm=obj))
