@@ -247,9 +247,9 @@ def calibrate_procam(
             p.reason, p.cause = "no projector points", "poorly_decoded"
             continue
         n = p.camera_px.shape[0]
-            ok = np.asarray(ok & (p.decoded_fraction >= min_decoded_fraction), dtype=bool)
+        ok = np.isfinite(p.projector_px).all(axis=1) & np.isfinite(p.camera_px).all(axis=1)
         if p.decoded_fraction is not None:
-            ok = ok & np.asarray(p.decoded_fraction >= min_decoded_fraction, dtype=bool)
+            ok = np.asarray(ok & (p.decoded_fraction >= min_decoded_fraction), dtype=bool)
         if ok.sum() < max(MIN_USABLE_CORNERS * n, 6):
             p.reason = (
                 f"only {int(ok.sum())} of {n} corners have >= {min_decoded_fraction:.0%} of their window decoded "
