@@ -257,7 +257,7 @@ def calibrate_procam(
             )
             p.cause = "poorly_decoded"
             continue
-        used_mask[p.name] = ok
+        used_mask[p.name] = np.asarray(ok, dtype=bool)
     _pose_checks(poses, board.cols, warnings)
 
     def active() -> list[PoseObservation]:
