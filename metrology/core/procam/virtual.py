@@ -71,12 +71,28 @@ def board_truth(
         t = float(n @ pose.t) / (d @ n)
     X = d * t[..., None]
     Xb = (X - pose.t) @ pose.R  # R^T (X - t) for row vectors
+    # anti-aliased squares: each sub-sample covers a box of about fp mm on the board; the
+    # fraction of it on either side of the nearest edge line in x and in y weighs the four squares
+    fx = float(np.asarray(rig.camera.K)[0, 0])
+    fp = np.abs(t) / (fx * s)
     sq = board.size_mm
-    c = np.floor(Xb[..., 0] / sq)
-    r = np.floor(Xb[..., 1] / sq)
-    inside = (c >= -1) & (c <= board.cols - 1) & (r >= -1) & (r <= board.rows - 1)
-    dark = inside & ((c + r) % 2 == 0)
-    albedo = np.where(dark, DARK_ALBEDO, LIGHT_ALBEDO)
+
+    def dark(c: FloatArray, r: FloatArray) -> FloatArray:
+        inside = (c >= -1) & (c <= board.cols - 1) & (r >= -1) & (r <= board.rows - 1)
+        return (inside & ((c + r) % 2 == 0)).astype(np.float64)
+
+    k = np.round(Xb[..., 0] / sq)
+    m = np.round(Xb[..., 1] / sq)
+    with np.errstate(invalid="ignore"):
+        a = np.clip(0.5 + (Xb[..., 0] - k * sq) / fp, 0.0, 1.0)
+        b = np.clip(0.5 + (Xb[..., 1] - m * sq) / fp, 0.0, 1.0)
+    dark_fraction = (
+        a * b * dark(k, m)
+        + a * (1 - b) * dark(k, m - 1)
+        + (1 - a) * b * dark(k - 1, m)
+        + (1 - a) * (1 - b) * dark(k - 1, m - 1)
+    )
+    albedo = LIGHT_ALBEDO + (DARK_ALBEDO - LIGHT_ALBEDO) * dark_fraction
     Rr = np.asarray(rig.R)
     Xp = X @ Rr.T + np.asarray(rig.T)
     front = (t > 0) & (Xp[..., 2] > 0)

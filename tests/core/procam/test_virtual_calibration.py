@@ -136,8 +136,8 @@ def test_corners_found_and_mapped_into_the_projector(rendered) -> None:  # type:
         # the detector may number a 180-degree-symmetric grid from the other end
         if np.abs(p.camera_px - cam).max() > np.abs(p.camera_px[::-1] - cam).max():
             cam, prj = cam[::-1], prj[::-1]
-        assert np.abs(p.camera_px - cam).max() < 0.3, i
-        assert np.abs(p.projector_px - prj).max() < 0.4, i
+        assert np.abs(p.camera_px - cam).max() < 0.1, i
+        assert np.abs(p.projector_px - prj).max() < 0.15, i
 
 
 def test_recovers_the_rig(rendered) -> None:  # type: ignore[no-untyped-def]
@@ -152,11 +152,11 @@ def test_recovers_the_rig(rendered) -> None:  # type: ignore[no-untyped-def]
     for got, truth, name in ((rig.camera, CAMERA, "camera"), (rig.projector, PROJECTOR, "projector")):
         K, Kt = np.asarray(got.K), np.asarray(truth.K)
         assert abs(K[0, 0] / Kt[0, 0] - 1) < 0.002 and abs(K[1, 1] / Kt[1, 1] - 1) < 0.002, (name, K)
-        pp_tolerance = 1.0 if name == "camera" else 1.5  # projector: 1.3 px measured (1 px asked, see below)
-        assert abs(K[0, 2] - Kt[0, 2]) < pp_tolerance and abs(K[1, 2] - Kt[1, 2]) < pp_tolerance, (name, K)
+        assert abs(K[0, 2] - Kt[0, 2]) < 1.0 and abs(K[1, 2] - Kt[1, 2]) < 1.0, (name, K)
         points = [p.camera_px if name == "camera" else p.projector_px for p in observations]
-        # camera 0.1 px as asked; projector 0.11 px measured inside its corners' hull (gap noted below)
-        assert distortion_error_px(got, truth, points) < (0.1 if name == "camera" else 0.12), name
+        # the camera over its whole image; the projector inside the hull of its corners (the part
+        # of its image the boards reached: 0.44 px at its far corners, extrapolated)
+        assert distortion_error_px(got, truth, points, whole_image=name == "camera") < 0.1, name
     R, Rt = np.asarray(rig.R), np.asarray(RIG.R)
     angle = math.degrees(math.acos(min(1.0, (np.trace(R @ Rt.T) - 1) / 2)))
     assert angle < 0.05
@@ -230,16 +230,3 @@ def test_gamma_is_found() -> None:
     assert p.gamma is not None and abs(p.gamma - 2.2) < 0.2
     linear = observe_pose("linear", render_board(RIG, BOARD, pose(0), CODEC, OPTIONS, seed=41), CODEC, BOARD)
     assert linear.gamma is not None and abs(linear.gamma - 1.0) < 0.1
-
-
-@pytest.mark.xfail(
-    strict=True,
-    reason="known gap: with these 8 poses (camera coverage 56 %) the camera distortion extrapolated to the image "
-    "corners differs from the truth by 0.38 px (0.1 px asked; the projector's 0.83 px), "
-    "and the projector's cy is 1.3 px off (1 px asked)",
-)
-def test_distortion_over_the_whole_camera_image_and_projector_principal_point(rendered) -> None:  # type: ignore[no-untyped-def]
-    result = calibrate(rendered[0])
-    Kp = np.asarray(result.rig.projector.K)
-    assert abs(Kp[1, 2] - PROJECTOR.K[1][2]) < 1.0
-    assert distortion_error_px(result.rig.camera, CAMERA, whole_image=True) < 0.1
