@@ -295,3 +295,27 @@ def test_coordinate_sigma_matches_monte_carlo() -> None:
     err = (x - x_true + period / 2) % period - period / 2
     predicted = float(coordinate_sigma(period, n, noise, b))
     assert abs(err.std() / predicted - 1) < 0.02
+
+
+def test_threaded_frame_of_a_fresh_rig_completes() -> None:
+    """A frame of several tiles on two threads, the rig prepared afresh: the tables are built on the
+    caller's thread (built lazily inside a tile worker, their own threaded build would wait forever
+    for the busy pool)."""
+    import threading
+
+    from metrology.core.geometry.pinhole import _prepare_cached
+
+    big = PinholeCamera(512, 384, ((640.0, 0.0, 255.5), (0.0, 641.0, 191.5), (0.0, 0.0, 1.0)), CAMERA.dist)
+    rig = look_at_rig(big, PROJECTOR, BASELINES["u"], (0.0, 0.0, Z0))
+    _prepare_cached.cache_clear()
+    u = np.full(rig.shape, 160.0, np.float32)
+    out: dict[str, Any] = {}
+
+    def run() -> None:
+        out["res"] = triangulate_frame(rig.prepare(), u, None, heights=False, threads=2)
+
+    worker = threading.Thread(target=run, daemon=True)
+    worker.start()
+    worker.join(timeout=120)
+    assert not worker.is_alive(), "triangulation did not finish"
+    assert np.isfinite(out["res"].points_mm[..., 2]).mean() > 0.5

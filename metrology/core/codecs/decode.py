@@ -108,7 +108,10 @@ class CodecDecodeOptions:
             value = getattr(self, name)
             if value is None:
                 continue
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+            bad_type = isinstance(value, bool) or not isinstance(value, (int, float))
+            # the saturation level may be infinite (no check: float images)
+            finite_ok = name == "saturation_level" and value == math.inf
+            if bad_type or (not math.isfinite(value) and not finite_ok) or value < 0:
                 raise ValueError(f"option {name} must be a finite number >= 0, got {value!r}")
         if not isinstance(self.repair_slips, bool):
             raise ValueError(f"option repair_slips must be a bool, got {self.repair_slips!r}")
@@ -616,6 +619,7 @@ def _decode_axis_tile(
         r = results[i] = _phase_tile(tile, plan.sequences[i], exact, scratch, f"{plan.name}{i}")
         dark |= r.modulation < min_mod
     first_total: np.ndarray | None = None
+    first: _PhaseResult | None = None
     if plan.axis.phase:
         first = results.get(0)
         if first is None:  # the gray threshold (and the mean map) need the first sequence
@@ -692,14 +696,16 @@ def _decode_axis_tile(
         else:
             centre = np.take(plan.gray_lut, word, out=scratch.get(f"centre{plan.name}", shape, np.float32))
         if not plan.used:
-            # gray-only axis: modulation from white/black, else half the smallest inverse contrast
+            # gray-only chain: modulation from white/black, else half the smallest inverse contrast,
+            # else the B of the phase sequence that gives the threshold
             modulation = out["modulation"]
             if white_black_half is not None:
                 np.copyto(modulation, white_black_half)
             elif min_contrast is not None:
                 np.multiply(min_contrast, np.float32(0.5), out=modulation, casting="unsafe")
             else:
-                modulation.fill(np.nan)
+                assert first is not None  # validation: a gray code has a threshold source
+                np.copyto(modulation, first.modulation)
             dark |= ~(modulation >= min_mod)
 
     # unwrapping chain, coarse to fine

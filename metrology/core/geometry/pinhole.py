@@ -338,6 +338,12 @@ class PinholeRig(GeometryModel):
         return _prepare_cached(self, resolved, method)
 
 
+def _table_threads() -> int | None:
+    """Threads for building tables: one inside a tile worker (a nested run_tiled on the same
+    pool would wait for workers that are all busy), the default elsewhere."""
+    return 1 if threading.current_thread().name.startswith("gcps-tile") else None
+
+
 @functools.lru_cache(maxsize=2)  # tables of a 2048x1536 rig with distortion: ~400 MB
 def _prepare_cached(rig: PinholeRig, axis: str, method: str) -> PreparedPinhole:
     return PreparedPinhole(rig, axis, method)
@@ -358,7 +364,7 @@ def _camera_tables(rig_camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
         xn[rows], yn[rows] = res.x, res.y
         failed_rows.append(res.n_failed)
 
-    run_tiled(run, h, w, tile_px=1 << 15)
+    run_tiled(run, h, w, threads=_table_threads(), tile_px=1 << 15)
     failed = sum(failed_rows)
     if failed:
         raise GeometryError(
@@ -504,6 +510,7 @@ class PreparedPinhole(PreparedGeometry):
         self._p_distorted = not self._pdist.is_identity
         self._C_p = -R.T @ T
         self._grid: UndistortionGrid | None = None
+        self.tables()  # now, on the caller's thread: never lazily inside a tile worker
 
     # ------------------------------------------------------------------ interface
     @property
@@ -624,7 +631,8 @@ class PreparedPinhole(PreparedGeometry):
             mono = np.einsum("ij,jp->ip", to_mono, cheb[: deg + 1])
             coeffs[:, rows] = mono.reshape(deg + 1, *shape).astype(np.float32)
 
-        run_tiled(run, h, w, tile_px=1 << 14)  # threads over row blocks of ~16k pixels (cache-sized)
+        # threads over row blocks of ~16k pixels (cache-sized)
+        run_tiled(run, h, w, threads=_table_threads(), tile_px=1 << 14)
         return {"poly": coeffs, "poly_exact": exact}
 
     def camera_rays(self) -> CameraRays:

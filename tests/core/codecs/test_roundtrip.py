@@ -290,3 +290,24 @@ def test_gcps_v1_codec_agrees_with_the_gcps_v1_decoder() -> None:
     assert both.sum() > 0.9 * theirs.mask.sum()
     codes = codec.light_codes(ours.coordinate[both].astype(np.float64), PAPER_RIG.nlp)
     assert np.abs(codes - theirs.codes[both]).max() < 2e-3
+
+
+def test_float_stacks_decode_like_integer_ones() -> None:
+    u_spec, n = axis_spec(0, 4, 16.0, bits=bits_for(8.0), word=8.0, inverse=True)
+    codec = make_codec(u_spec, None, n)
+    images = render_codec(codec, U, None).astype(np.float32) / np.float32(65535)  # [0, 1] grey
+    axis = decode_codec(images, codec).axes["u"]
+    lit = np.isfinite(U)
+    assert axis.valid[lit].all() and not axis.valid[~lit].any()
+    assert np.abs(axis.coordinate[lit] - U[lit]).max() < 0.01
+    assert decode_codec(images, codec).options.saturation_level == np.inf
+
+
+def test_gray_only_chain_thresholded_at_a_phase_mean() -> None:
+    u_spec, n = axis_spec(0, 4, 16.0, bits=bits_for(2.0), word=2.0)
+    u_spec["unwrap"] = ["gray"]
+    codec = make_codec(u_spec, None, n)
+    axis = decode_codec(render_codec(codec, U, None), codec).axes["u"]
+    lit = np.isfinite(U)
+    assert axis.valid[lit].all()
+    np.testing.assert_allclose(axis.coordinate[lit], 2.0 * np.floor((U[lit] + 0.5) / 2.0) + 0.5, atol=1e-4)
