@@ -230,3 +230,36 @@ def test_gamma_is_found() -> None:
     assert p.gamma is not None and abs(p.gamma - 2.2) < 0.2
     linear = observe_pose("linear", render_board(RIG, BOARD, pose(0), CODEC, OPTIONS, seed=41), CODEC, BOARD)
     assert linear.gamma is not None and abs(linear.gamma - 1.0) < 0.1
+
+
+def plane_flatness_mm(rig: PinholeRig, u: np.ndarray, v: np.ndarray) -> float:
+    """RMS distance of the triangulated points to their total-least-squares plane, mm, after
+    dropping points more than 5 robust sigmas (1.4826 MAD) off (the field's edge pixels)."""
+    from metrology.core.pinhole_measure import measure_pinhole
+
+    pts = measure_pinhole(rig, u, v).points_mm.reshape(-1, 3).astype(np.float64)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    for _ in range(3):
+        centred = pts - pts.mean(axis=0)
+        normal = np.linalg.svd(centred, full_matrices=False)[2][2]
+        r = centred @ normal
+        robust = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+        pts = pts[np.abs(r - np.median(r)) < 5 * robust]
+    return float(np.sqrt(np.mean(r**2)))
+
+
+def test_a_plane_measured_with_the_calibrated_rig_is_flat(rendered) -> None:  # type: ignore[no-untyped-def]
+    """A tilted plane (no board in view) measured with the calibrated rig is flat within 2x the
+    flatness it has with the true rig (its noise)."""
+    from metrology.core.codecs.decode import decode_codec
+
+    calibrated = calibrate(rendered[0]).rig
+    tilted = BoardPose.from_angles(12, -8, 0, (0, 0, 500))
+    far = BoardPose(R=tilted.R, t=tilted.t - tilted.R @ np.array([5000.0, 5000.0, 0.0]))  # squares out of view
+    images = render_board(RIG, BOARD, far, CODEC, OPTIONS, seed=50)
+    decoded = decode_codec(images, CODEC)
+    u, v = decoded.axes["u"].coordinate, decoded.axes["v"].coordinate
+    noise = plane_flatness_mm(RIG, u, v)
+    flatness = plane_flatness_mm(calibrated, u, v)
+    assert 0 < noise < 0.2
+    assert flatness < 2 * noise, (flatness, noise)
