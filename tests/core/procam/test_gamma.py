@@ -91,6 +91,7 @@ def test_gamma_22_plane_error_drops_tenfold() -> None:
     dl = decode_codec(linear, codec)
     floor = plane_flatness_mm(RIG, dl.axes["u"].coordinate, dl.axes["v"].coordinate)
     print(
-        f"plane flatness RMS: gamma 2.2 {before * 1000:.1f} um, corrected {after * 1000:.1f} um, linear {floor * 1000:.1f} um"
+        f"plane flatness RMS: gamma 2.2 {before * 1000:.1f} um, corrected {after * 1000:.1f} um, "
+        f"linear {floor * 1000:.1f} um"
     )
     assert before > 10 * after, (before, after, floor)
