@@ -22,6 +22,28 @@ from metrology.core.simulate import noise_free_16bit
 from .test_virtual_calibration import BOARD, RIG, plane_flatness_mm
 
 
+def gamma_codec():  # type: ignore[no-untyped-def]
+    return codec_from_dict(
+        {
+            "codec": "gcps-codec/1",
+            "frames": 22,
+            "projector": {"width": 1024, "height": 768},
+            "white": [20],
+            "black": [21],
+            "axes": {
+                "u": {
+                    "phase": [{"frames": [0, 1, 2, 3], "period": 32.0}],
+                    "gray": {"frames": [4, 5, 6, 7, 8], "word": 32.0, "origin": -0.5},
+                },
+                "v": {
+                    "phase": [{"frames": [10, 11, 12, 13], "period": 32.0}],
+                    "gray": {"frames": [14, 15, 16, 17, 18], "word": 32.0, "origin": -0.5},
+                },
+            },
+        }
+    )
+
+
 def test_gamma_from_a_grey_ramp() -> None:
     levels = np.arange(0, 256, 15)
     rng = np.random.default_rng(1)
@@ -51,25 +73,7 @@ def test_phase_error_vanishes_for_gamma_one_and_matches_harmonics() -> None:
 
 @pytest.mark.slow
 def test_gamma_22_plane_error_drops_tenfold() -> None:
-    codec = codec_from_dict(
-        {
-            "codec": "gcps-codec/1",
-            "frames": 22,
-            "projector": {"width": 1024, "height": 768},
-            "white": [20],
-            "black": [21],
-            "axes": {
-                "u": {
-                    "phase": [{"frames": [0, 1, 2, 3], "period": 32.0}],
-                    "gray": {"frames": [4, 5, 6, 7, 8], "word": 32.0, "origin": -0.5},
-                },
-                "v": {
-                    "phase": [{"frames": [10, 11, 12, 13], "period": 32.0}],
-                    "gray": {"frames": [14, 15, 16, 17, 18], "word": 32.0, "origin": -0.5},
-                },
-            },
-        }
-    )
+    codec = gamma_codec()
     blur = 1.2
     options = noise_free_16bit(supersample=2, projector_gamma=2.2, projector_defocus_codes=blur / 8)
     tilted = BoardPose.from_angles(12, -8, 0, (0, 0, 500))
@@ -95,3 +99,35 @@ def test_gamma_22_plane_error_drops_tenfold() -> None:
         f"linear {floor * 1000:.1f} um"
     )
     assert before > 10 * after, (before, after, floor)
+
+
+@pytest.mark.slow
+def test_gamma_correct_command(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """gcps gamma-correct on a capture folder: the corrected coordinates give a flat plane, and
+    the summary reports the depth change in micrometres."""
+    import json
+
+    import cv2
+
+    from metrology.cli import main
+
+    codec = gamma_codec()
+    options = noise_free_16bit(supersample=2, projector_gamma=2.2, projector_defocus_codes=0.15)
+    tilted = BoardPose.from_angles(12, -8, 0, (0, 0, 500))
+    plane = BoardPose(R=tilted.R, t=tilted.t - tilted.R @ np.array([5000.0, 5000.0, 0.0]))
+    images = render_board(RIG, BOARD, plane, codec, options, seed=4)
+    stack = tmp_path / "plane"
+    stack.mkdir()
+    for k, image in enumerate(images):
+        cv2.imwrite(str(stack / f"f{k:02d}.png"), image)
+    (stack / "codec.json").write_text(json.dumps(codec.to_dict()))
+    (tmp_path / "rig.json").write_text(RIG.to_json())
+    out = tmp_path / "uv.npy"
+    args = ["gamma-correct", "--stack", str(stack), "--gamma", "2.2", "--blur-px", "1.2", "--out", str(out)]
+    assert main([*args, "--rig", str(tmp_path / "rig.json")]) == 0
+    uv = np.load(out)
+    after = plane_flatness_mm(RIG, uv[..., 0], uv[..., 1])
+    decoded = decode_codec(images, codec)
+    before = plane_flatness_mm(RIG, decoded.axes["u"].coordinate, decoded.axes["v"].coordinate)
+    assert before > 10 * after
+    assert main(["gamma-correct", "--stack", str(stack), "--gamma", "9", "--out", str(out)]) == 2
