@@ -32,6 +32,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--out", required=True, help="pinhole rig file to write (.json)")
     p.add_argument("--report", required=True, help="calibration report to write (.json)")
+    p.add_argument("--figures", metavar="DIR", help="write one residual arrow plot per used pose (SVG) into DIR")
     p.add_argument("--save-correspondences", metavar="FILE", help="also write the poses' points (.json)")
     p.add_argument(
         "--window", type=int, metavar="PX", help="half-size of each corner's homography window (default auto)"
@@ -84,6 +85,8 @@ def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
         raise ValueError(f"{', '.join(outs)} must be different files")
     if not 0.0 <= args.min_decoded <= 1.0:
         raise ValueError(f"--min-decoded must be within 0..1, got {args.min_decoded}")
+    if args.figures and not Path(args.figures).is_dir():
+        raise ValueError(f"--figures {args.figures}: folder does not exist")
     if args.window is not None and not 1 <= args.window <= 200:
         raise ValueError(f"--window must be 1..200 pixels, got {args.window}")
     if bool(args.poses) == bool(args.correspondences):
@@ -135,6 +138,13 @@ def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
     if args.save_correspondences:
         corr = correspondences_dict(poses, camera_size, projector_size)
         write_text_atomic(json.dumps(_finite(corr), indent=2) + "\n", outs["--save-correspondences"])
+    if args.figures:
+        from metrology.core.procam.figures import residual_svg
+
+        for pose in report["poses"]:
+            if pose["used"]:
+                safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in pose["name"])
+                write_text_atomic(residual_svg(report, pose["name"]), Path(args.figures) / f"residuals_{safe}.svg")
     write_text_atomic(result.rig.to_json(), outs["--out"])
     write_text_atomic(report_text, outs["--report"])
     return {

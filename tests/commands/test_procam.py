@@ -49,7 +49,12 @@ def run(tmp_path: Path, data: dict | None, *extra: str) -> int:  # type: ignore[
 
 
 def test_correspondences_calibrate_the_rig(tmp_path: Path) -> None:
-    assert run(tmp_path, correspondences(), "--fix-k3") == 0
+    (tmp_path / "fig").mkdir()
+    assert run(tmp_path, correspondences(), "--fix-k3", "--figures", str(tmp_path / "fig")) == 0
+    svgs = sorted(p.name for p in (tmp_path / "fig").iterdir())
+    assert svgs == [f"residuals_p{i}.svg" for i in range(7)]
+    svg = (tmp_path / "fig" / "residuals_p0.svg").read_text()
+    assert svg.startswith("<svg") and svg.count("<line") == 2 * BOARD.count
     rig = PinholeRig.from_json((tmp_path / "rig.json").read_text())
     report = json.loads((tmp_path / "report.json").read_text())
     assert abs(rig.camera.K[0][0] / 1000.0 - 1) < 0.002 and abs(rig.projector.K[0][0] / 1300.0 - 1) < 0.002
