@@ -92,7 +92,21 @@ def test_measure_with_pinhole_rig(tmp_path: Path) -> None:
     assert np.mean(err < 1e-3) > 0.999
     sigma = np.load(tmp_path / "s.npy")
     assert np.isfinite(sigma[ok]).all() and np.all(sigma[ok] >= 0)
-    assert (tmp_path / "m.ply").stat().st_size > 0
+    # the PLY carries each vertex's sigma_mm (one vertex per measured pixel, row-major)
+    raw = (tmp_path / "m.ply").read_bytes()
+    head, _, body = raw.partition(b"end_header\n")
+    assert b"property float sigma_mm" in head
+    n_vertices = int(head.split(b"element vertex ")[1].split(b"\n")[0])
+    assert n_vertices == ok.sum()
+    vdtype = np.dtype([("xyz", "<f8", (3,)), ("n", "<f4", (3,)), ("s", "<f4")])
+    vertices = np.frombuffer(body[: n_vertices * vdtype.itemsize], vdtype)
+    assert np.array_equal(vertices["s"], sigma[ok])
+    assert np.allclose(vertices["xyz"], xyz[ok])
+    assert np.median(vertices["n"][:, 2]) < -0.5  # normals face the camera (-Z)
+    import open3d as o3d
+
+    mesh = o3d.io.read_triangle_mesh(str(tmp_path / "m.ply"))
+    assert len(mesh.vertices) == n_vertices and len(mesh.triangles) > n_vertices // 2
     stats = json.loads((tmp_path / "stats.json").read_text())
     assert stats["rig"]["model"] == "pinhole"
     # heights above the reference plate (Z = 600): the sphere's own heights
@@ -105,3 +119,24 @@ def test_measure_with_pinhole_rig(tmp_path: Path) -> None:
     assert cmd_measure_pinhole(args)["valid_pixels"] == 0
     with pytest.raises(ValueError, match="--max-sigma must be > 0"):
         cmd_measure_pinhole(_args(tmp_path, object=tmp_path / "sphere", out=tmp_path / "z3.npy", max_sigma=-1))
+
+
+def test_gcps_measure_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`gcps measure --rig PINHOLE.json` without --reference: depth, points and sigma; a crossed-axes
+    rig still needs --reference (exit 2, one line)."""
+    from metrology.cli import main
+
+    (tmp_path / "rig.json").write_text(RIG.to_json())
+    truth = _capture(tmp_path / "plane", "plane", z_mm=30.0)
+    argv = ["measure", "--rig", str(tmp_path / "rig.json"), "--object", str(tmp_path / "plane")]
+    argv += ["--out", str(tmp_path / "z.npy"), "--xyz", str(tmp_path / "xyz.npy"), "--sigma", str(tmp_path / "s.npy")]
+    assert main([*argv, "--triangulate", "u", "--method", "midpoint"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["model"] == "pinhole" and summary["method"] == "midpoint"
+    z = np.load(tmp_path / "z.npy")
+    ok = np.isfinite(z)
+    assert np.mean(np.abs(z[ok] - truth[..., 2][ok]) < 1e-3) > 0.999
+    crossed = Path(__file__).resolve().parents[1] / "examples" / "rig.json"
+    argv = ["measure", "--rig", str(crossed), "--object", str(tmp_path / "plane"), "--out", str(tmp_path / "c.npy")]
+    assert main(argv) == 2
+    assert "--reference is required for a crossed-axes rig" in capsys.readouterr().err

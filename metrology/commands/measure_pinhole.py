@@ -34,6 +34,10 @@ def add_pinhole_measure_arguments(parser: argparse.ArgumentParser) -> None:
         "--method", dest="triangulation_method", choices=["plane", "midpoint"], default="plane", help="default plane"
     )
     group.add_argument("--max-sigma", type=float, metavar="MM", help="drop points whose sigma exceeds this, mm")
+    if "--codec" not in parser._option_string_actions:  # the codec commands may add it already
+        group.add_argument(
+            "--codec", help="codec file (gcps-codec/1) or built-in name; default: the capture's codec.json"
+        )
 
 
 def is_pinhole_rig(path: str) -> bool:
@@ -79,7 +83,7 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
     """Read, decode, triangulate and write the outputs of a pinhole ``gcps measure``; the summary."""
     import numpy as np
 
-    from metrology.core.codecs import read_codec
+    from metrology.core.codecs import builtin_codec, read_codec
     from metrology.core.codecs.decode import decode_codec
     from metrology.core.codecs.stack import read_codec_stack
     from metrology.core.geometry.pinhole import PinholeRig
@@ -96,7 +100,9 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
         raise ValueError(f"--max-sigma must be > 0 mm, got {max_sigma!r}")
     started = time.perf_counter()
     rig = PinholeRig.from_json(Path(args.rig).read_text(encoding="utf-8"))
-    codec = read_codec(args.codec) if getattr(args, "codec", None) else None
+    codec = None
+    if getattr(args, "codec", None):
+        codec = read_codec(args.codec) if Path(args.codec).is_file() else builtin_codec(args.codec)
     obj = read_codec_stack(args.object, codec)
     ref = read_codec_stack(args.reference, obj.codec) if getattr(args, "reference", None) else None
     read_s = time.perf_counter() - started
@@ -106,7 +112,9 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
             cam = f"{rig.camera.width_px}x{rig.camera.height_px}"
             raise ValueError(f"the {label} frames are {w}x{h} px but the rig's camera is {cam} px")
     started = time.perf_counter()
-    want_sigma = bool(getattr(args, "sigma", None)) or max_sigma is not None
+    asked_sigma = bool(getattr(args, "sigma", None)) or max_sigma is not None
+    ply_mesh = bool(getattr(args, "mesh", None)) and Path(args.mesh).suffix.lower() == ".ply"
+    want_sigma = asked_sigma or ply_mesh  # a PLY mesh carries sigma_mm per vertex when it can
     dec = decode_codec(obj.images, obj.codec, with_noise=want_sigma)
     ref_dec = decode_codec(ref.images, ref.codec, with_noise=False) if ref is not None else None
     decode_s = time.perf_counter() - started
@@ -124,7 +132,7 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
     if want_sigma and resolved in dec.axes:
         ax = dec.axes[resolved]
         sigma_u = final_stage_sigma(obj.codec, resolved, ax.noise, ax.modulation)
-        if sigma_u is None:
+        if sigma_u is None and asked_sigma:
             raise ValueError(f"--sigma needs a phase-coded {resolved} axis with N >= 4 steps (a noise estimate)")
     started = time.perf_counter()
     result = measure_pinhole(
@@ -147,6 +155,7 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
         sigma_mm[drop] = np.nan
     triangulate_s = time.perf_counter() - started
     mesh = _mesh(points) if getattr(args, "mesh", None) else None
+    sigma_ply = mesh is not None and sigma_mm is not None and Path(args.mesh).suffix.lower() == ".ply"
     with atomic_path(args.out) as tmp:
         np.save(tmp, z)
     if getattr(args, "xyz", None):
@@ -155,7 +164,11 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
     if getattr(args, "sigma", None) and sigma_mm is not None:
         with atomic_path(args.sigma) as tmp:
             np.save(tmp, sigma_mm)
-    if mesh is not None:
+    if mesh is not None and sigma_ply:
+        assert sigma_mm is not None
+        with atomic_path(args.mesh) as tmp:
+            write_ply_with_sigma(mesh, sigma_mm[np.isfinite(points[..., 2])], tmp)
+    elif mesh is not None:
         from metrology.core.mesh import write_mesh
 
         write_mesh(mesh, args.mesh)
@@ -194,6 +207,42 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
         with atomic_path(args.json) as tmp:
             tmp.write_text(json.dumps(details, indent=2, allow_nan=False) + "\n", encoding="utf-8")
     return stats
+
+
+def write_ply_with_sigma(mesh: Any, sigma_mm: Any, path: Path) -> None:
+    """Binary little-endian PLY of ``mesh`` with a per-vertex ``sigma_mm`` float property.
+
+    Vertices: ``double x y z``, ``float nx ny nz``, ``float sigma_mm`` (the point's standard
+    uncertainty, mm, NaN where unknown); faces: ``list uchar int vertex_indices``.
+    """
+    import numpy as np
+
+    vertices = np.asarray(mesh.vertices)
+    normals = np.asarray(mesh.vertex_normals) if mesh.has_vertex_normals() else np.zeros_like(vertices)
+    triangles = np.asarray(mesh.triangles, dtype=np.int32)
+    sigma = np.asarray(sigma_mm, dtype=np.float32).ravel()
+    if sigma.size != len(vertices):
+        raise ValueError(f"sigma_mm has {sigma.size} values for {len(vertices)} vertices")
+    vdtype = np.dtype(
+        [("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4"), ("s", "<f4")]
+    )
+    vrec = np.empty(len(vertices), vdtype)
+    vrec["x"], vrec["y"], vrec["z"] = vertices.T
+    vrec["nx"], vrec["ny"], vrec["nz"] = normals.T
+    vrec["s"] = sigma
+    frec = np.empty(len(triangles), np.dtype([("n", "u1"), ("i", "<i4", (3,))]))
+    frec["n"] = 3
+    frec["i"] = triangles
+    header = (
+        "ply\nformat binary_little_endian 1.0\ncomment gcps-lab pinhole measurement, camera frame, mm\n"
+        f"element vertex {len(vertices)}\nproperty double x\nproperty double y\nproperty double z\n"
+        "property float nx\nproperty float ny\nproperty float nz\nproperty float sigma_mm\n"
+        f"element face {len(triangles)}\nproperty list uchar int vertex_indices\nend_header\n"
+    )
+    with open(path, "wb") as f:
+        f.write(header.encode("ascii"))
+        f.write(vrec.tobytes())
+        f.write(frec.tobytes())
 
 
 def _mesh(points: Any) -> Any:

@@ -29,7 +29,7 @@ from metrology.dashboard import selectors as pages
 from metrology.jobs import selectors as job_selectors
 from metrology.measurements import selectors as measurement_selectors
 from metrology.measurements import services as measurement_services
-from metrology.measurements.models import RESULT_FILES
+from metrology.measurements.derived import available_files
 from metrology.rigs import selectors as rig_selectors
 from metrology.rigs import services as rig_services
 from metrology.version import software_version
@@ -87,6 +87,15 @@ def job_detail(request: HttpRequest, job_id: int) -> HttpResponse:
 def plotly_js(request: HttpRequest) -> HttpResponse:
     response = HttpResponse(pages.plotly_js(), content_type="application/javascript; charset=utf-8")
     response["Cache-Control"] = "private, max-age=86400"
+    return response
+
+
+def favicon(request: HttpRequest) -> HttpResponse:
+    """The site icon (SVG; also answered at /favicon.ico, which browsers ask for by themselves). No login."""
+    from django.template.loader import render_to_string
+
+    response = HttpResponse(render_to_string("dashboard/favicon.svg"), content_type="image/svg+xml")
+    response["Cache-Control"] = "public, max-age=604800"
     return response
 
 
@@ -289,8 +298,7 @@ def measurement_detail(request: HttpRequest, measurement_id: int) -> HttpRespons
         )
     files = [
         (name, reverse(f"measurement-{name}", kwargs={"measurement_id": measurement.pk}))
-        for name, field in RESULT_FILES.items()
-        if getattr(measurement, field)
+        for name in available_files(measurement)
     ]
     return render(
         request,
@@ -363,6 +371,7 @@ def calibration_detail(request: HttpRequest, calibration_id: int) -> HttpRespons
             "job": calibration.job,
             "figures": figures,
             "result": calibration.result or {},
+            "summary": pages.calibration_summary(calibration),
             "error": request.GET.get("error", ""),
         },
     )
@@ -384,6 +393,7 @@ def calibration_apply(request: HttpRequest, calibration_id: int) -> HttpResponse
                 "job": calibration.job,
                 "figures": {},
                 "result": calibration.result or {},
+                "summary": pages.calibration_summary(calibration),
                 "error": error_text(exc),
             },
             status=400,

@@ -319,3 +319,15 @@ def test_threaded_frame_of_a_fresh_rig_completes() -> None:
     worker.join(timeout=120)
     assert not worker.is_alive(), "triangulation did not finish"
     assert np.isfinite(out["res"].points_mm[..., 2]).mean() > 0.5
+
+
+def test_example_pinhole_rig_loads() -> None:
+    """examples/pinhole-rig.json (shown to users in docs/) is a valid pinhole rig."""
+    from pathlib import Path
+
+    from metrology.core.geometry import model_from_dict
+
+    path = Path(__file__).resolve().parents[2] / "examples" / "pinhole-rig.json"
+    rig = model_from_dict(json.loads(path.read_text()))
+    assert isinstance(rig, PinholeRig)
+    assert rig.shape == (1536, 2048) and rig.auto_axis() == "u"
