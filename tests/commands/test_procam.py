@@ -156,3 +156,15 @@ def test_missing_capture_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[s
         ]
     )
     assert code == 2 and "--poses" in capsys.readouterr().err
+
+
+def test_example_correspondence_file_calibrates(tmp_path: Path) -> None:
+    """examples/procam-correspondences.json (7 poses of a 9x6 board, 20 mm squares, exact projections of
+    this module's rig plus 0.02 px noise, rounded to 0.001 px) gives that rig back."""
+    example = Path(__file__).resolve().parents[2] / "examples" / "procam-correspondences.json"
+    args = ["--quiet", "calibrate-procam", "--board", "chessboard:9x6:20", "--correspondences", str(example)]
+    assert main([*args, "--fix-k3", "--out", str(tmp_path / "rig.json"), "--report", str(tmp_path / "r.json")]) == 0
+    rig = PinholeRig.from_json((tmp_path / "rig.json").read_text())
+    assert (
+        abs(rig.camera.K[0][0] / 1000.0 - 1) < 0.002 and abs(np.linalg.norm(rig.T) / np.linalg.norm(RIG.T) - 1) < 0.001
+    )
