@@ -116,6 +116,7 @@ def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
                 )
             shape = (int(stack.images.shape[1]), int(stack.images.shape[2]))
             projector_size = (stack.codec.projector_width, stack.codec.projector_height)
+            precompensated = precompensated or stack.codec.precompensated_gamma is not None
             poses.append(
                 observe_pose(name, stack.images, stack.codec, board, half_window=args.window, decode_options=options)
             )
