@@ -144,3 +144,22 @@ def test_calibration_writes_the_measured_gamma_unless_precompensated() -> None:
         pose.gamma = 2.1
     kept = calibrate_procam(poses, board, camera_size, projector_size, fix_k3=True, codec_gamma_precompensated=True)
     assert kept.rig.projector.gamma is None and "gamma" not in kept.rig.to_dict()["projector"]
+
+
+def test_patterns_command_writes_precompensated_patterns(tmp_path: Path) -> None:
+    """``gcps patterns --codec`` with ``precompensated_gamma``: the PNGs hold ``round(255 s**(1/g))``
+    and the written codec.json keeps the key, so the capture documents its pre-compensation."""
+    import cv2
+
+    from metrology.cli import main
+
+    spec = tmp_path / "codec.json"
+    spec.write_text(json.dumps({**CODEC_DICT, "precompensated_gamma": 2.0}))
+    assert main(["--quiet", "patterns", "--codec", str(spec), "--out", str(tmp_path / "out")]) == 0
+    written = codec_from_json((tmp_path / "out" / "codec.json").read_text())
+    assert written.precompensated_gamma == 2.0
+    first = sorted(p for p in (tmp_path / "out").iterdir() if p.suffix == ".png")[0]
+    image = cv2.imread(str(first), cv2.IMREAD_GRAYSCALE).astype(np.float64)
+    s = codec_patterns(codec_from_dict(CODEC_DICT))[0].astype(np.float64) / 255
+    assert np.abs((image / 255) ** 2.0 - s).max() <= 3 * 0.5 / 255
+    assert np.abs(image / 255 - s).max() > 0.2
