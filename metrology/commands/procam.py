@@ -69,12 +69,11 @@ def _finite(value: Any) -> Any:
 def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
     """Observe the poses, calibrate, write ``--out`` and ``--report`` atomically; returns a summary."""
     from metrology.core.codecs import read_codec
-    from metrology.core.codecs.decode import CodecDecodeOptions
     from metrology.core.codecs.stack import read_codec_stack
     from metrology.core.io import write_text_atomic
     from metrology.core.procam import calibrate_procam, parse_board
     from metrology.core.procam.correspondences import correspondences_dict, read_correspondences
-    from metrology.core.procam.observe import observe_pose
+    from metrology.pipeline.calibrate_procam import ProcamOptions, ProcamPose, calibrate_procam_stacks
     from metrology.version import software_version
 
     board = parse_board(args.board)
@@ -92,48 +91,45 @@ def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
     if bool(args.poses) == bool(args.correspondences):
         raise ValueError("give either --poses (with --codec or each capture's codec.json) or --correspondences")
     start = time.perf_counter()
-    precompensated = False
     if args.correspondences:
         poses, camera_size, projector_size = read_correspondences(args.correspondences, board)
+        result = calibrate_procam(
+            poses, board, camera_size, projector_size, min_decoded_fraction=args.min_decoded, fix_k3=args.fix_k3
+        )
+        rig = result.rig
+        report = dict(result.report)
+        report["software_version"] = software_version()
+        report["timings_s"] = {"total": round(time.perf_counter() - start, 3)}
     else:
+        options = ProcamOptions(
+            board=args.board,
+            window=args.window,
+            min_decoded=args.min_decoded,
+            fix_k3=args.fix_k3,
+            min_modulation=args.min_modulation,
+            min_inverse_contrast=args.min_inverse_contrast,
+        )
         codec = read_codec(args.codec) if args.codec else None
-        options = CodecDecodeOptions(min_modulation=args.min_modulation, min_inverse_contrast=args.min_inverse_contrast)
         names = [Path(p).name or str(p) for p in args.poses]
         if len(set(names)) != len(names):
             names = [str(p) for p in args.poses]
-        poses = []
-        shape: tuple[int, int] | None = None
-        projector_size = (0, 0)
+        stacks = []
         for name, source in zip(names, args.poses, strict=True):
             if not Path(source).exists():
                 raise ValueError(f"--poses {source}: no such folder or file")
             stack = read_codec_stack(source, codec)
             if stack.images.ndim != 3:
                 raise ValueError(f"--poses {source}: not a stack of images")
-            if shape is not None and stack.images.shape[1:] != shape:
+            if stacks and stack.images.shape[1:] != stacks[0].images.shape[1:]:
                 raise ValueError(
-                    f"--poses {source}: image size {stack.images.shape[1:]} differs from the first pose's {shape}"
+                    f"--poses {source}: image size {stack.images.shape[1:]} differs from the first pose's "
+                    f"{stacks[0].images.shape[1:]}"
                 )
-            shape = (int(stack.images.shape[1]), int(stack.images.shape[2]))
-            projector_size = (stack.codec.projector_width, stack.codec.projector_height)
-            poses.append(
-                observe_pose(name, stack.images, stack.codec, board, half_window=args.window, decode_options=options)
-            )
-        assert shape is not None
-        camera_size = (shape[1], shape[0])
-    observe_s = time.perf_counter() - start
-    result = calibrate_procam(
-        poses,
-        board,
-        camera_size,
-        projector_size,
-        min_decoded_fraction=args.min_decoded,
-        codec_gamma_precompensated=precompensated,
-        fix_k3=args.fix_k3,
-    )
-    report = dict(result.report)
-    report["software_version"] = software_version()
-    report["timings_s"] = {"observe": round(observe_s, 3), "total": round(time.perf_counter() - start, 3)}
+            stacks.append(ProcamPose(name=name, images=stack.images, codec=stack.codec))
+        outcome = calibrate_procam_stacks(stacks, options)
+        rig, report = outcome.rig, dict(outcome.report)
+        poses, camera_size, projector_size = outcome.poses, outcome.camera_size, outcome.projector_size
+        report["timings_s"] = {**report["timings_s"], "total": round(time.perf_counter() - start, 3)}
     report_text = json.dumps(_finite(report), indent=2, allow_nan=False) + "\n"
     if args.save_correspondences:
         corr = correspondences_dict(poses, camera_size, projector_size)
@@ -145,7 +141,7 @@ def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
             if pose["used"]:
                 safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in pose["name"])
                 write_text_atomic(residual_svg(report, pose["name"]), Path(args.figures) / f"residuals_{safe}.svg")
-    write_text_atomic(result.rig.to_json(), outs["--out"])
+    write_text_atomic(rig.to_json(), outs["--out"])
     write_text_atomic(report_text, outs["--report"])
     return {
         "out": args.out,

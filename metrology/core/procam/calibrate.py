@@ -20,14 +20,14 @@ both devices for the stereo fit.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, PinholeRig
+from metrology.core.geometry.pinhole import PROJECTOR_GAMMA_RANGE, PinholeCamera, PinholeProjector, PinholeRig
 from metrology.core.procam.board import BoardSpec
 
 FloatArray = npt.NDArray[np.float64]
@@ -214,6 +214,10 @@ def calibrate_procam(
     projector_size : (width, height) projector units
     min_decoded_fraction : float
         A corner is used when this fraction of its window is decoded.
+    codec_gamma_precompensated : bool
+        The patterns were pre-compensated for the projector's gamma (the codec's
+        ``precompensated_gamma``): no gamma warning, and the rig's ``projector.gamma`` is not set.
+        Otherwise a gamma estimated from the fringes (0.2..5) is written as ``projector.gamma``.
     fix_k3 : bool
         Hold the radial coefficient k3 at 0 for both devices (few poses, or mild distortion).
 
@@ -523,6 +527,10 @@ def calibrate_procam(
             "Set the projector to a linear (gamma 1) mode, or pre-compensate the patterns for this gamma, or use "
             "gray codes with inverse images or more phase steps.",
         )
+    lo_g, hi_g = PROJECTOR_GAMMA_RANGE
+    if gamma_estimate is not None and not codec_gamma_precompensated and lo_g <= gamma_estimate <= hi_g:
+        # the measured response goes into the rig file (projector.gamma) for pre-compensation later
+        rig = replace(rig, projector=replace(rig.projector, gamma=round(gamma_estimate, 4)))
     cam_rms, proj_rms = float(cam_cal[0]), float(proj_cal[0])
     if proj_rms > HIGH_RMS_PX or cam_rms > HIGH_RMS_PX:
         causes = sorted({w["cause"] for w in warnings})
