@@ -128,14 +128,15 @@ def set_choices(form: forms.Form, name: str, choices: list[tuple[str, str]]) -> 
 
 
 class MeasurementForm(forms.Form):
+    fields: dict[str, Any]  # choice fields, set up per instance below (BaseForm types them as Field: no choices)
     reference = forms.TypedChoiceField(coerce=int, label="Reference capture")
     object = forms.TypedChoiceField(coerce=int, label="Object capture")
 
     def __init__(self, *args, captures=(), **kwargs):
         super().__init__(*args, **kwargs)
         captures = list(captures)
-        set_choices(self, "reference", capture_choices([c for c in captures if c.role == "reference"]))
-        set_choices(self, "object", capture_choices([c for c in captures if c.role != "reference"]))
+        self.fields["reference"].choices = capture_choices([c for c in captures if c.role == "reference"])
+        self.fields["object"].choices = capture_choices([c for c in captures if c.role != "reference"])
 
 
 class CalibrationForm(forms.Form):

@@ -292,9 +292,9 @@ def measurement_new(request: HttpRequest) -> HttpResponse:
 
 @login_required
 def measurement_detail(request: HttpRequest, measurement_id: int) -> HttpResponse:
+    figures: dict[str, Any]
     measurement = measurement_selectors.get_measurement(request.user, measurement_id)
-    figures: dict[str, Any] = {}
-    row, height = 0, measurement.rig_values.get("height_px", 0)
+    figures, row, height = {}, 0, measurement.rig_values.get("height_px", 0)
     if measurement.job.status == "done":
         requested = request.GET.get("row")
         figures, row, height = pages.measurement_figures(
