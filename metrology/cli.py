@@ -135,7 +135,38 @@ def cmd_patterns(args: argparse.Namespace) -> dict[str, Any]:
     return {"out": args.out, "patterns": int(images.shape[0])}
 
 
+def _stacks_codec(codec_option: str | None, captures: Sequence[tuple[str, str]]) -> Any:
+    """The codec of ``gcps measure``'s captures: ``--codec`` (a file or a built-in name), else the
+    captures' own ``codec.json`` (they must agree), else None (gcps-v1 named patterns)."""
+    from metrology.core.codecs import read_codec
+    from metrology.core.codecs.stack import read_capture_codec
+
+    if codec_option:
+        return read_codec(codec_option)
+    found: dict[str, Any] = {}
+    for what, path in captures:
+        if Path(path).exists():
+            codec = read_capture_codec(path)
+            if codec is not None:
+                found[what] = codec
+    if len({json.dumps(codec.to_dict(), sort_keys=True) for codec in found.values()}) > 1:
+        raise BadInputError(f"the {' and '.join(found)} captures hold different codec.json files; give --codec")
+    return next(iter(found.values()), None)
+
+
+def _load_codec_stack(path: str, codec: Any, what: str) -> Any:
+    from metrology.core.codecs.stack import read_codec_stack
+
+    if not Path(path).exists():
+        raise BadInputError(f"{what} stack {path}: not found")
+    try:
+        return read_codec_stack(path, codec).images
+    except ValueError as exc:
+        raise BadInputError(f"{what} stack: {exc}") from exc
+
+
 def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
+    from metrology.core.codec_measure import is_gcps_v1
     from metrology.pipeline import MeasureOptions, measure
 
     _check_parent(args.out, "--out")
@@ -148,10 +179,16 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     options = MeasureOptions(decode=_decode_options(args), gray_only=bool(args.json))
     started = time.perf_counter()
     rig = _load_rig(args.rig)
-    reference = _load_stack(args.reference, rig, "reference")
-    obj = _load_stack(args.object, rig, "object")
+    codec = _stacks_codec(args.codec, [("reference", args.reference), ("object", args.object)])
+    if is_gcps_v1(codec):  # the paper's eleven named patterns: today's path
+        codec = None
+        reference = _load_stack(args.reference, rig, "reference")
+        obj = _load_stack(args.object, rig, "object")
+    else:
+        reference = _load_codec_stack(args.reference, codec, "reference")
+        obj = _load_codec_stack(args.object, codec, "object")
     read_s = time.perf_counter() - started
-    result = measure(rig, reference, obj, options)
+    result = measure(rig, reference, obj, options, codec=codec)
     mesh = None
     if args.mesh:
         from metrology.core.mesh import mesh_from_heights
@@ -176,7 +213,10 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
             "options": result.options.to_dict(),
             "software_version": result.software_version,
             "rig": rig.to_dict(),
+            "codec": result.codec if codec is None else codec.to_dict(),
         }
+        if result.decoding is not None:
+            report["decoding"] = result.decoding.summary()
         _write_json(report, args.json)
     return {"out": args.out, **{k: v for k, v in stats.items() if k.endswith(("pixels", "fraction"))}}
 
@@ -497,6 +537,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="height map, float32 mm, NaN where not measured (.npy)")
     p.add_argument("--mesh", help="mesh output (.ply, .stl or .obj)")
     p.add_argument("--json", help="statistics and timings (.json)")
+    p.add_argument(
+        "--codec",
+        help="codec file (gcps-codec/1) or built-in name of both captures (default: their codec.json, else gcps-v1); "
+        "it must code the u axis",
+    )
     _add_decode_options(p)
     p.set_defaults(func=cmd_measure)
 

@@ -1,5 +1,12 @@
 """Measure: reference and object capture stacks to a height map (the ``gcps measure`` command and
-the measurement job)."""
+the measurement job).
+
+gcps-v1 stacks (no codec, or the built-in ``gcps-v1``) take the paper's fused decoder
+(:func:`metrology.core.measure.measure_height`), unchanged; a stack of any other codec that
+codes the projector's u axis is decoded by the codec decoder, mapped to light codes
+``l = (u + 0.5) nlp / width`` and triangulated through the same crossed-axes geometry with the
+same filters (:mod:`metrology.core.codec_measure`).
+"""
 
 from __future__ import annotations
 
@@ -12,6 +19,9 @@ import numpy as np
 import numpy.typing as npt
 
 from metrology.core import measure as core_measure
+from metrology.core.codec_measure import CodecReference, is_gcps_v1, measure_codec_height
+from metrology.core.codecs.decode import CodecDecoding
+from metrology.core.codecs.model import Codec
 from metrology.core.decode import DecodedStack
 from metrology.core.measure import DecodeOptions, Reference, height_statistics
 from metrology.core.rig import Rig
@@ -63,6 +73,10 @@ class MeasureResult:
     software_version : str
     timings_s : dict
         Seconds per phase: ``measure`` (the whole call) and the core's sub-phases.
+    codec : str
+        ``"gcps-v1"``, or ``"gcps-codec/1"`` for a codec file's stacks.
+    decoding : CodecDecoding or None
+        The object's codec decoding (u/v maps, modulation, reasons) for a non-gcps-v1 codec.
     """
 
     z_mm: np.ndarray
@@ -71,6 +85,8 @@ class MeasureResult:
     options: MeasureOptions
     software_version: str
     timings_s: dict[str, float]
+    codec: str = "gcps-v1"
+    decoding: CodecDecoding | None = None
 
     def statistics(self) -> dict[str, Any]:
         """Valid pixels and min/max/mean/std of the heights (and of the gray-code-only heights)."""
@@ -80,21 +96,27 @@ class MeasureResult:
         return stats
 
     def to_dict(self) -> dict[str, Any]:
-        """Statistics, options, software version and timings (JSON-ready)."""
-        return {
+        """Statistics, options, software version and timings (JSON-ready); the codec, and for a
+        codec other than gcps-v1 the decoding summary (pixels per reason, slips, validity rules)."""
+        data: dict[str, Any] = {
             "statistics": self.statistics(),
             "options": self.options.to_dict(),
             "software_version": self.software_version,
             "timings_s": dict(self.timings_s),
+            "codec": self.codec,
         }
+        if self.decoding is not None:
+            data["decoding"] = self.decoding.summary()
+        return data
 
 
 def measure(
     rig: Rig,
-    reference: npt.ArrayLike | DecodedStack | Reference,
+    reference: npt.ArrayLike | DecodedStack | Reference | CodecReference,
     obj: npt.ArrayLike,
     options: MeasureOptions | None = None,
     *,
+    codec: Codec | None = None,
     threads: int | None = None,
 ) -> MeasureResult:
     """Height map of an object (Eqs. 1-17): decode, filter, correct the blur bias, triangulate.
@@ -102,21 +124,46 @@ def measure(
     Parameters
     ----------
     rig : Rig
-    reference : (11, H, W) image stack, DecodedStack or Reference
-        The reference plane (a :class:`~metrology.core.measure.Reference` is reused as is).
-    obj : (11, H, W) image stack
+    reference : image stack, DecodedStack, Reference or CodecReference
+        The reference plane: ``(11, H, W)`` for gcps-v1 (a :class:`~metrology.core.measure.Reference`
+        is reused as is), ``(frames, H, W)`` of ``codec`` otherwise (or a kept
+        :class:`~metrology.core.codec_measure.CodecReference`).
+    obj : (11, H, W) or (frames, H, W) image stack
     options : MeasureOptions, optional
+    codec : Codec, optional
+        The stacks' codec; None or the built-in gcps-v1: the paper's decoder, as before. Any
+        other codec must code the u axis (no gray-code-only comparison heights then).
     threads : int, optional
         Threads over row tiles (does not change the result).
 
     Raises
     ------
     ValueError
-        On a malformed stack, a shape that differs from the rig's, or a bad option.
+        On a malformed stack, a stack that does not match its codec, a codec without u, a shape
+        that differs from the rig's, or a bad option.
     """
     options = options or MeasureOptions()
     timer = PhaseTimer()
     start = time.perf_counter()
+    if not is_gcps_v1(codec):
+        assert codec is not None
+        if isinstance(reference, (DecodedStack, Reference)):
+            raise ValueError("a gcps-v1 reference cannot serve a stack of another codec")
+        codec_result = measure_codec_height(rig, reference, obj, codec, options.decode, threads=threads)
+        timer.timings_s["measure"] = time.perf_counter() - start
+        timer.add(codec_result.timings_s, "measure.")
+        return MeasureResult(
+            z_mm=codec_result.z_mm,
+            gray_z_mm=None,
+            obj_codes=codec_result.obj_codes,
+            options=options,
+            software_version=software_version(),
+            timings_s=timer.timings_s,
+            codec="gcps-codec/1",
+            decoding=codec_result.decoding,
+        )
+    if isinstance(reference, CodecReference):
+        raise ValueError("a reference decoded with a codec cannot serve a gcps-v1 stack")
     result = core_measure.measure_height(
         rig, reference, obj, options.decode, gray_only=options.gray_only, threads=threads
     )

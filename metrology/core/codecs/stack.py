@@ -257,6 +257,37 @@ def read_codec_stack(
         return _read(_zip_source(label, archive, max_bytes, max_ratio), codec, max_pixels)
 
 
+def read_capture_codec(
+    source: str | os.PathLike[str], *, max_bytes: int = DEFAULT_MAX_BYTES, max_ratio: float = DEFAULT_MAX_RATIO
+) -> Codec | None:
+    """The codec of a capture folder or zip's own ``codec.json`` (None when it has none), without
+    reading its images.
+
+    Raises
+    ------
+    StackError
+        If the capture does not exist, is not a folder nor a zip, or is unsafe.
+    CodecError
+        If its ``codec.json`` is invalid.
+    """
+    path = Path(source)
+    label = repr(path.name or str(path))
+    if path.is_dir():
+        src = _folder_source(label, path)
+        if CODEC_FILE_NAME not in src.names:
+            return None
+        return codec_from_json(src.read(CODEC_FILE_NAME), label=f"capture {label} {CODEC_FILE_NAME}")
+    if not path.is_file():
+        raise StackError(f"capture {label} does not exist")
+    if not zipfile.is_zipfile(path):
+        raise StackError(f"capture {label} is not a zip file (nor a folder)")
+    with zipfile.ZipFile(path) as archive:
+        src = _zip_source(label, archive, max_bytes, max_ratio)
+        if CODEC_FILE_NAME not in src.names:
+            return None
+        return codec_from_json(src.read(CODEC_FILE_NAME), label=f"capture {label} {CODEC_FILE_NAME}")
+
+
 def _read(src: _Source, codec: Codec | None, max_pixels: int) -> CodecStack:
     label = src.label
     origin = "given"
@@ -301,4 +332,4 @@ def _read(src: _Source, codec: Codec | None, max_pixels: int) -> CodecStack:
     return CodecStack(images=images, codec=codec, names=tuple(names), codec_source=origin)
 
 
-__all__ = ["CODEC_FILE_NAME", "CodecError", "CodecStack", "read_codec_stack", "select_frames"]
+__all__ = ["CODEC_FILE_NAME", "CodecError", "CodecStack", "read_capture_codec", "read_codec_stack", "select_frames"]
