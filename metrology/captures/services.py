@@ -130,7 +130,9 @@ def upload_capture(
     if session_id is not None:  # fail early on a bad session, before reading the stack
         _session_for(owner=owner, rig=rig, session_id=session_id)
     upload.seek(0)
-    stack = read_capture_stack(upload, rig, expected_bit_depth=bit_depth)
+    from metrology.captures.codecs import read_upload_stack  # the zip's codec.json, else the rig's default
+
+    codec, stack = read_upload_stack(upload, rig, expected_bit_depth=bit_depth)
     checksum, size = _sha256(upload)
     stored = default_storage.save(_new_stack_name(rig), upload)
     try:
@@ -152,6 +154,7 @@ def upload_capture(
                 bit_depth=int(stack.bit_depth),
                 height_px=height_px,
                 width_px=width_px,
+                codec=codec,
             )
     except BaseException:
         default_storage.delete(stored)
@@ -194,6 +197,7 @@ def request_simulated_capture(
         source=Capture.Source.VIRTUAL,
         parameters={"source": source, "scene": scene, "options": options},
         job=job,
+        codec="gcps-v1",  # the virtual rig renders the eleven gcps-v1 patterns
     )
     job.parameters["capture"] = capture.pk
     job.save(update_fields=["parameters"])

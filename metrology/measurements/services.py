@@ -51,10 +51,19 @@ def request_measurement(
         raise BadInput("object: the object capture must differ from the reference capture")
     reference = capture_for_job(owner, rig, reference_id, field="reference", roles=(Capture.Role.REFERENCE,))
     obj = capture_for_job(owner, rig, object_id, field="object")
+    from metrology.measurements.codecs import stacks_codec_value  # codecapp: the captures' codec
+
+    codec = stacks_codec_value(reference, obj)
     job = job_services.create_job(
         owner=owner,
         kind=Job.Kind.MEASUREMENT,
-        parameters={"rig": rig.pk, "reference": reference.pk, "object": obj.pk, "rig_values": rig.geometry()},
+        parameters={
+            "rig": rig.pk,
+            "reference": reference.pk,
+            "object": obj.pk,
+            "rig_values": rig.geometry(),
+            "codec": codec,
+        },
     )
     measurement = Measurement.objects.create(
         owner=owner, rig=rig, reference=reference, object=obj, job=job, rig_values=rig.geometry(), options=checked
@@ -73,6 +82,12 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
     from metrology.pipeline import MeasureOptions, measure
 
     measurement = Measurement.objects.select_related("reference__rig", "object__rig").get(job=job)
+    from metrology.measurements.codecs import job_codec, run_codec_measurement  # codecapp
+
+    codec = job_codec(job)
+    if codec is not None:  # captures of a codec other than gcps-v1
+        run_codec_measurement(job, run, codec)
+        return
     rig = CoreRig.from_dict(measurement.rig_values)
     options = MeasureOptions.from_dict(measurement.options or {})
     with run.phase("read", 5):

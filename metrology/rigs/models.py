@@ -7,6 +7,13 @@ from django.db import models
 
 GEOMETRY_FIELDS: tuple[str, ...] = ("L_mm", "d_mm", "alpha_rad", "fw_mm", "nlp", "width_px", "height_px")
 
+DEFAULT_CODEC = "gcps-v1"
+"""A rig's default codec: the paper's eleven named patterns (docs/codecs.md)."""
+
+
+def default_codec() -> str:
+    return DEFAULT_CODEC
+
 
 class Rig(models.Model):
     owner = models.ForeignKey(settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="rigs")
@@ -20,6 +27,10 @@ class Rig(models.Model):
     width_px = models.PositiveIntegerField()
     height_px = models.PositiveIntegerField()
     extra = models.JSONField(default=dict, blank=True, help_text="Further keys of the rig file")
+    codec = models.JSONField(
+        default=default_codec,
+        help_text="Default codec of its captures: built-in name or gcps-codec/1 object",
+    )
     created_at = models.DateTimeField(auto_now_add=True)
     updated_at = models.DateTimeField(auto_now=True)
 

@@ -11,7 +11,7 @@ from django.db import transaction
 from metrology.api_errors import BadInput
 from metrology.core.rig import Rig as CoreRig
 from metrology.core.rig import RigError
-from metrology.rigs.models import GEOMETRY_FIELDS, Rig, RigParameters
+from metrology.rigs.models import DEFAULT_CODEC, GEOMETRY_FIELDS, Rig, RigParameters
 
 
 def validate_geometry(values: dict[str, Any]) -> dict[str, Any]:
@@ -63,13 +63,22 @@ def validate_extra(extra: dict[str, Any]) -> dict[str, Any]:
 
 @transaction.atomic
 def create_rig(*, owner, data: dict[str, Any]) -> Rig:
-    """Create a rig from the rig-file JSON (docs/file-formats.md); ``name`` and ``notes`` are optional keys."""
+    """Create a rig from the rig-file JSON (docs/file-formats.md); ``name``, ``notes`` and ``codec`` (its
+    captures' default codec, docs/codecs.md; gcps-v1 when absent) are optional keys."""
+    from metrology.captures.codecs import validate_codec
+
     geometry = validate_geometry({name: data.get(name) for name in GEOMETRY_FIELDS if name in data})
     extra = validate_extra(
-        {key: value for key, value in data.items() if key not in (*GEOMETRY_FIELDS, "name", "notes")}
+        {key: value for key, value in data.items() if key not in (*GEOMETRY_FIELDS, "name", "notes", "codec")}
     )
+    codec = validate_codec(data["codec"]) if data.get("codec") is not None else DEFAULT_CODEC
     rig = Rig.objects.create(
-        owner=owner, name=str(data.get("name") or ""), notes=str(data.get("notes") or ""), extra=extra, **geometry
+        owner=owner,
+        name=str(data.get("name") or ""),
+        notes=str(data.get("notes") or ""),
+        extra=extra,
+        codec=codec,
+        **geometry,
     )
     RigParameters.objects.create(rig=rig, values=rig.geometry(), source=RigParameters.Source.CREATED)
     return rig
@@ -84,4 +93,16 @@ def update_rig_geometry(*, rig: Rig, changes: dict[str, Any], source: str, calib
         setattr(rig, name, value)
     rig.save()
     RigParameters.objects.create(rig=rig, values=rig.geometry(), source=source, calibration=calibration)
+    return rig
+
+
+@transaction.atomic
+def set_rig_codec(*, rig: Rig, codec: Any) -> Rig:
+    """Set the default codec of a rig's captures (a built-in name or a gcps-codec/1 object), validated;
+    :class:`BadInput` naming the problem. Stored captures keep the codec they were validated with."""
+    from metrology.captures.codecs import validate_codec
+
+    value = validate_codec(codec)
+    Rig.objects.filter(pk=rig.pk).update(codec=value)
+    rig.refresh_from_db()
     return rig

@@ -258,10 +258,13 @@ def read_codec_stack(
 
 
 def read_capture_codec(
-    source: str | os.PathLike[str], *, max_bytes: int = DEFAULT_MAX_BYTES, max_ratio: float = DEFAULT_MAX_RATIO
+    source: str | os.PathLike[str] | IO[bytes],
+    *,
+    max_bytes: int = DEFAULT_MAX_BYTES,
+    max_ratio: float = DEFAULT_MAX_RATIO,
 ) -> Codec | None:
     """The codec of a capture folder or zip's own ``codec.json`` (None when it has none), without
-    reading its images.
+    decoding its images. A binary file object holding a zip is read and rewound to its start.
 
     Raises
     ------
@@ -270,22 +273,36 @@ def read_capture_codec(
     CodecError
         If its ``codec.json`` is invalid.
     """
-    path = Path(source)
-    label = repr(path.name or str(path))
-    if path.is_dir():
-        src = _folder_source(label, path)
-        if CODEC_FILE_NAME not in src.names:
-            return None
-        return codec_from_json(src.read(CODEC_FILE_NAME), label=f"capture {label} {CODEC_FILE_NAME}")
-    if not path.is_file():
-        raise StackError(f"capture {label} does not exist")
-    if not zipfile.is_zipfile(path):
-        raise StackError(f"capture {label} is not a zip file (nor a folder)")
-    with zipfile.ZipFile(path) as archive:
-        src = _zip_source(label, archive, max_bytes, max_ratio)
-        if CODEC_FILE_NAME not in src.names:
-            return None
-        return codec_from_json(src.read(CODEC_FILE_NAME), label=f"capture {label} {CODEC_FILE_NAME}")
+    if isinstance(source, (str, os.PathLike)):
+        path = Path(source)
+        label = repr(path.name or str(path))
+        if path.is_dir():
+            return _own_codec(_folder_source(label, path))
+        if not path.is_file():
+            raise StackError(f"capture {label} does not exist")
+        if not zipfile.is_zipfile(path):
+            raise StackError(f"capture {label} is not a zip file (nor a folder)")
+        with zipfile.ZipFile(path) as archive:
+            return _own_codec(_zip_source(label, archive, max_bytes, max_ratio))
+    name = getattr(source, "name", None)
+    label = repr(Path(name).name) if isinstance(name, str) and name else "upload"
+    start = source.tell()
+    data = source.read(max_bytes + 1)
+    source.seek(start)
+    if len(data) > max_bytes:
+        raise StackError(f"capture {label} is larger than the limit of {max_bytes} bytes")
+    try:
+        archive = zipfile.ZipFile(io.BytesIO(data))
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError) as exc:
+        raise StackError(f"capture {label} is not a zip file ({exc})") from None
+    with archive:
+        return _own_codec(_zip_source(label, archive, max_bytes, max_ratio))
+
+
+def _own_codec(src: _Source) -> Codec | None:
+    if CODEC_FILE_NAME not in src.names:
+        return None
+    return codec_from_json(src.read(CODEC_FILE_NAME), label=f"capture {src.label} {CODEC_FILE_NAME}")
 
 
 def _read(src: _Source, codec: Codec | None, max_pixels: int) -> CodecStack:
