@@ -44,8 +44,34 @@ class RigForm(forms.Form):
     notes = forms.CharField(widget=forms.Textarea(attrs={"rows": 2}), required=False)
 
 
+class RigCodecForm(forms.Form):
+    codec = forms.CharField(
+        label="Default codec",
+        widget=forms.Textarea(attrs={"rows": 6, "spellcheck": "false"}),
+        max_length=200_000,
+        help_text=(
+            "A built-in name (gcps-v1, gcps-v1:1280x800) or a gcps-codec/1 codec file's JSON (docs/codecs.md); "
+            "used for uploads that carry no codec.json"
+        ),
+    )
+
+    def clean_codec(self):
+        import json
+
+        text = self.cleaned_data["codec"].strip()
+        if text.startswith("{"):
+            try:
+                return json.loads(text)
+            except json.JSONDecodeError as exc:
+                raise forms.ValidationError(f"not valid JSON: {exc.msg} at line {exc.lineno}") from None
+        return text
+
+
 class UploadCaptureForm(forms.Form):
-    file = forms.FileField(label="Stack (.zip)", help_text="A zip of GC_0..GC_6 and PS_0..PS_3 images")
+    file = forms.FileField(
+        label="Stack (.zip)",
+        help_text="A zip of GC_0..GC_6 and PS_0..PS_3 images, or of any codec's frames with its codec.json",
+    )
     role = forms.ChoiceField(choices=Capture.Role.choices, initial=Capture.Role.OBJECT)
     z_in_mm = forms.FloatField(label="Z_in (mm)", required=False, help_text="Stage position (stage captures only)")
     repeat = forms.IntegerField(min_value=0, initial=0, required=False)

@@ -214,3 +214,22 @@ def plotly_js() -> bytes:
     from plotly.offline import get_plotlyjs
 
     return get_plotlyjs().encode("utf-8")
+
+
+def capture_decoding(capture) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Figures of a stored capture's decoding with its codec (u/v maps, modulation, reasons) and the
+    decoding summary; ``({}, {"error": ...})`` when the stack cannot be read or decoded."""
+    from metrology.captures.codecs import load_codec_stack
+    from metrology.core.codecs.decode import decode_codec
+    from metrology.figures.capture import decoding_figures
+
+    try:
+        stack = load_codec_stack(capture)
+        decoding = decode_codec(stack.images, stack.codec, with_noise=False)
+    except (ValueError, OSError) as exc:
+        return {}, {"error": str(exc)}
+    arrays = {
+        name: {"coordinate": axis.coordinate, "modulation": axis.modulation, "reason": axis.reason}
+        for name, axis in decoding.axes.items()
+    }
+    return decoding_figures(arrays), decoding.summary()

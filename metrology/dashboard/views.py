@@ -120,13 +120,29 @@ def rig_list(request: HttpRequest) -> HttpResponse:
 
 
 @login_required
+@require_http_methods(["GET", "POST"])
 def rig_detail(request: HttpRequest, rig_id: int) -> HttpResponse:
+    import json
+
+    from metrology.captures.codecs import codec_label
+
     rig = rig_selectors.get_rig(request.user, rig_id)
     user = request.user
+    initial = rig.codec if isinstance(rig.codec, str) else json.dumps(rig.codec, indent=1)
+    codec_form = forms.RigCodecForm(request.POST or None, initial={"codec": initial})
+    if request.method == "POST" and codec_form.is_valid():
+        try:
+            rig_services.set_rig_codec(rig=rig, codec=codec_form.cleaned_data["codec"])
+        except SERVICE_ERRORS as exc:
+            codec_form.add_error(None, error_text(exc))
+        else:
+            return redirect("dashboard:rig", rig.pk)
     return render(
         request,
         "dashboard/rig.html",
         {
+            "codec_form": codec_form,
+            "codec_label": codec_label(rig.codec),
             "rig": rig,
             "history": list(reversed(rig_selectors.rig_history(rig))),
             "captures": capture_selectors.captures_for(user, rig).order_by("-id")[:10],
@@ -134,6 +150,7 @@ def rig_detail(request: HttpRequest, rig_id: int) -> HttpResponse:
             "calibrations": calibration_selectors.calibrations_for(user).filter(rig=rig)[:10],
             "characterizations": characterization_selectors.characterizations_for(user).filter(rig=rig)[:10],
         },
+        status=400 if request.method == "POST" else 200,
     )
 
 
@@ -166,6 +183,25 @@ def capture_list(request: HttpRequest) -> HttpResponse:
         {
             "rigs": rig_selectors.rigs_for(request.user),
             "captures": capture_selectors.captures_for(request.user).select_related("rig").order_by("-id")[:200],
+        },
+    )
+
+
+@login_required
+def capture_detail(request: HttpRequest, capture_id: int) -> HttpResponse:
+    """A capture: its provenance and codec; once stored, its decoding (u/v maps, modulation, reasons)."""
+    from metrology.captures.codecs import capture_codec_value, codec_label
+
+    capture = capture_selectors.get_capture(request.user, capture_id)
+    figures, summary = pages.capture_decoding(capture) if capture.ready else ({}, {})
+    return render(
+        request,
+        "dashboard/capture.html",
+        {
+            "capture": capture,
+            "codec_label": codec_label(capture_codec_value(capture)),
+            "figures": figures,
+            "summary": summary,
         },
     )
 

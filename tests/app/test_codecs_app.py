@@ -30,7 +30,12 @@ CODEC = {
     "axes": {
         "u": {
             "phase": [{"frames": list(range(12)), "period": 32.0, "origin": -0.5}],
-            "gray": {"frames": list(range(12, 17)), "word": 32.0, "origin": -0.5, "inverse_frames": list(range(17, 22))},
+            "gray": {
+                "frames": list(range(12, 17)),
+                "word": 32.0,
+                "origin": -0.5,
+                "inverse_frames": list(range(17, 22)),
+            },
         }
     },
 }
