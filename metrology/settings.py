@@ -233,6 +233,14 @@ GCPS_MAX_RIG_EXTRA_BYTES = env_int("GCPS_MAX_RIG_EXTRA_BYTES", 16 * 1024, minimu
 GCPS_MAX_IMAGE_SIDE_PX = env_int("GCPS_MAX_IMAGE_SIDE_PX", 4096, minimum=1)
 GCPS_MAX_SIMULATION_BYTES = env_int("GCPS_MAX_SIMULATION_BYTES", 4 * 1024**3, minimum=1)
 
+# ----------------------------------------------------------------------------- derived result files
+# Meshes (PLY, STL, OBJ) and TIFF height maps are built from the stored height map on request and
+# kept in MEDIA_ROOT/derived/, at most this many bytes (least recently used removed first).
+GCPS_MESH_CACHE_BYTES = env_int("GCPS_MESH_CACHE_BYTES", 2 * 1024**3, minimum=0)
+# Each worker process keeps decoded reference planes for the next jobs, at most this many bytes
+# (about 34 MB per 1280x1024 reference), least recently used evicted first.
+GCPS_REFERENCE_CACHE_BYTES = env_int("GCPS_REFERENCE_CACHE_BYTES", 256 * 1024**2, minimum=0)
+
 # ----------------------------------------------------------------------------- REST API
 REST_FRAMEWORK = {
     "DEFAULT_AUTHENTICATION_CLASSES": [
