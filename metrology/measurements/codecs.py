@@ -3,17 +3,17 @@ share, and the job handler's branch that decodes them with the codec decoder.
 
 gcps-v1 measurements keep the handler of :mod:`metrology.measurements.services` unchanged; a
 measurement whose captures have another codec (coding the projector's u axis) is computed here
-by the same pipeline function, :func:`metrology.pipeline.measure`, with ``codec=``, and stored
-the same way (height map, TIFF, meshes, statistics), the statistics holding the codec and the
-decoding summary (pixels per reason, repaired slips, the validity rules used).
+by the same pipeline function, :func:`metrology.pipeline.measure`, with ``codec=``, against a
+reference kept per worker, and stored the same way (the height map and statistics; TIFF and
+meshes derived on request), the statistics holding the codec and the decoding summary (pixels
+per reason, repaired slips, the validity rules used).
 """
 
 from __future__ import annotations
 
+import io
 import json
-import tempfile
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -26,8 +26,6 @@ from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.jobs.results import json_safe
 from metrology.measurements.models import Measurement
-
-MESH_FORMATS = ("ply", "stl", "obj")
 
 
 def stacks_codec_value(reference: Any, obj: Any) -> Any:
@@ -59,42 +57,50 @@ def job_codec(job: Job) -> Any:
     return None if is_gcps_v1(codec) else codec
 
 
-def run_codec_measurement(job: Job, run: job_services.JobRun, codec: Any) -> None:
-    """Job handler for captures of ``codec``: read both stacks in codec order, the pipeline's measure,
-    write height map, TIFF and meshes, publish (as the gcps-v1 handler does)."""
+def kept_codec_reference(capture: Any, rig_values: dict[str, Any], decode: Any, codec: Any) -> tuple[Any, bool]:
+    """The decoded reference plane of a capture of ``codec`` (a
+    :class:`~metrology.core.codec_measure.CodecReference`), kept per worker like the gcps-v1 ones
+    (:mod:`metrology.captures.references`); and whether it was kept (no decode)."""
     from metrology.captures.codecs import load_codec_stack
-    from metrology.core.io import write_height_tiff
-    from metrology.core.mesh import mesh_from_heights, write_mesh
+    from metrology.captures.references import kept_references, reference_key
+    from metrology.core.codec_measure import prepare_codec_reference
     from metrology.core.rig import Rig as CoreRig
+
+    def prepare() -> Any:
+        return prepare_codec_reference(CoreRig.from_dict(rig_values), load_codec_stack(capture).images, codec, decode)
+
+    key = (*reference_key(capture, rig_values, decode), json.dumps(codec.to_dict(), sort_keys=True))
+    return kept_references().get(key, prepare)
+
+
+def run_codec_measurement(job: Job, run: job_services.JobRun, codec: Any) -> None:
+    """Job handler for captures of ``codec``: the kept reference, the object's stack in codec order, the
+    pipeline's measure; store the height map and publish, as the gcps-v1 handler does (the TIFF and
+    the meshes are derived on request)."""
+    from metrology.captures.codecs import load_codec_stack
+    from metrology.core.rig import Rig as CoreRig
+    from metrology.measurements.services import _remove_other_attempts
     from metrology.pipeline import MeasureOptions, measure
 
     measurement = Measurement.objects.select_related("reference__rig", "object__rig").get(job=job)
     rig = CoreRig.from_dict(measurement.rig_values)
     options = MeasureOptions.from_dict(measurement.options or {})
-    with run.phase("read", 5):
-        reference = load_codec_stack(measurement.reference)
+    with run.phase("reference", 5):
+        reference, _kept = kept_codec_reference(measurement.reference, measurement.rig_values, options.decode, codec)
+    with run.phase("read", 10):
         obj = load_codec_stack(measurement.object)
     with run.phase("measure", 20):
-        result = measure(rig, reference.images, obj.images, options, codec=codec)
+        result = measure(rig, reference, obj.images, options, codec=codec)
     for name, seconds in result.timings_s.items():
         if name != "measure":
             run.timings[name] = round(float(seconds), 4)
     z_mm = np.asarray(result.z_mm, dtype=np.float32)
     prefix = f"measurements/{measurement.pk}/{run.token.hex}"
-    names: dict[str, str] = {}
-    with tempfile.TemporaryDirectory(prefix="gcps-measurement-") as tmp:
-        folder = Path(tmp)
-        with run.phase("write height", 50):
-            np.save(folder / "height.npy", z_mm)
-            write_height_tiff(z_mm, folder / "height.tiff")
-        with run.phase("mesh", 60):
-            mesh = mesh_from_heights(rig, z_mm)
-            for fmt in MESH_FORMATS:
-                write_mesh(mesh, folder / f"mesh.{fmt}")
-        with run.phase("store", 90):
-            for path in sorted(folder.iterdir()):
-                with path.open("rb") as handle:
-                    names[path.name] = run.save_file(default_storage, f"{prefix}/{path.name}", File(handle))
+    with run.phase("store", 80):
+        buffer = io.BytesIO()
+        np.save(buffer, z_mm)
+        buffer.seek(0)
+        height_name = run.save_file(default_storage, f"{prefix}/height.npy", File(buffer, name="height.npy"))
     statistics = json_safe(result.statistics())
     statistics["shape"] = list(z_mm.shape)
     statistics["codec"] = json.loads(json.dumps(job.parameters.get("codec")))
@@ -104,16 +110,10 @@ def run_codec_measurement(job: Job, run: job_services.JobRun, codec: Any) -> Non
     def publish(job_row: Job) -> None:
         start = time.perf_counter()
         Measurement.objects.filter(pk=measurement.pk).update(
-            height_npy=names.get("height.npy", ""),
-            height_tiff=names.get("height.tiff", ""),
-            gray_only_npy="",
-            mesh_ply=names.get("mesh.ply", ""),
-            mesh_stl=names.get("mesh.stl", ""),
-            mesh_obj=names.get("mesh.obj", ""),
-            statistics=statistics,
-            options=result.options.to_dict(),
+            height_npy=height_name, gray_only_npy="", statistics=statistics, options=result.options.to_dict()
         )
         job_row.software_version = result.software_version
         run.timings["publish"] = round(time.perf_counter() - start, 4)
 
     run.commit(publish)
+    _remove_other_attempts(prefix)

@@ -155,6 +155,17 @@ def test_a_job_measures_uploads_of_another_codec_to_the_exact_heights(api, rig, 
     # noise-free exact model: within 1 um of the block and the plane
     assert np.abs(z[ok] - truth[ok]).max() < 1e-3
     assert Measurement.objects.get(pk=body["id"]).rig_values == {**SMALL_RIG}
+    # a second measurement against the same reference reuses the kept (decoded) codec reference
+    from metrology.captures.references import kept_references
+
+    hits = kept_references().stats.hits
+    again = api.post(
+        "/api/measurements/",
+        {"rig": rig["id"], "reference": reference.json()["id"], "object": obj.json()["id"]},
+        format="json",
+    )
+    assert api.get(f"/api/measurements/{again.json()['id']}/").json()["status"] == "done"
+    assert kept_references().stats.hits == hits + 1
 
 
 def test_a_measurement_of_captures_of_two_codecs_is_refused(api, rig):
