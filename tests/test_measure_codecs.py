@@ -15,6 +15,7 @@ import pytest
 
 from metrology.core.codecs import Codec, builtin_codec, codec_from_dict, crossed_rig_truth, render_codec
 from metrology.core.rig import PAPER_RIG as RIG
+from metrology.core.rig import Rig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_stack
 from metrology.pipeline import MeasureOptions, measure
@@ -198,3 +199,71 @@ def test_cli_refuses_a_codec_without_u_and_mismatched_stacks(tmp_path, noise_fre
     assert main([*base, "--object", short, "--codec", str(tmp_path / "codec.json")]) == 2
     assert "holds 23 image files but the codec describes 24 frames" in capsys.readouterr().err
     assert not out.exists()
+
+
+# ------------------------------------------------------------------ per-point uncertainty
+SMALL = Rig(L_mm=1022.0, d_mm=352.0, alpha_rad=0.332, fw_mm=500.0, nlp=128, width_px=160, height_px=120)
+
+
+def sigma_against_scatter(use_codec: bool, renders: int = 30) -> tuple[float, float, int]:
+    """Median predicted sigma and median observed per-pixel scatter of ``renders`` realistic 8-bit
+    renders of a plane 30 mm high (one ray per pixel), against one kept reference."""
+    from metrology.core.codec_measure import prepare_codec_reference
+    from metrology.core.measure import prepare_reference
+
+    opts = SimulationOptions.realistic_8bit(supersample=1)
+    scene = make_scene("plane", SMALL, z_mm=30.0)
+    ref = render_stack(SMALL, make_scene("reference", SMALL), opts.with_changes(seed=999))
+    if use_codec:
+        u, _ = crossed_rig_truth(ref, SMALL, PROJ_W, PROJ_H)
+        reference: Any = prepare_codec_reference(SMALL, render_codec(CODEC, u, None, opts, seed=999), CODEC)
+    else:
+        reference = prepare_reference(SMALL, ref.images)
+    options = MeasureOptions(gray_only=False, sigma=True)
+    heights, sigmas = [], []
+    for seed in range(renders):
+        rendered = render_stack(SMALL, scene, opts.with_changes(seed=seed))
+        if use_codec:
+            u, _ = crossed_rig_truth(rendered, SMALL, PROJ_W, PROJ_H)
+            result = measure(SMALL, reference, render_codec(CODEC, u, None, opts, seed=seed), options, codec=CODEC)
+        else:
+            result = measure(SMALL, reference, rendered.images, options)
+        assert result.sigma_mm is not None
+        assert np.array_equal(np.isfinite(result.sigma_mm), np.isfinite(result.z_mm))
+        heights.append(result.z_mm)
+        sigmas.append(result.sigma_mm)
+    z, s = np.array(heights), np.array(sigmas)
+    everywhere = np.isfinite(z).all(axis=0)
+    observed = z[:, everywhere].std(axis=0, ddof=1)
+    predicted = s[:, everywhere].mean(axis=0)
+    return float(np.median(predicted)), float(np.median(observed)), int(everywhere.sum())
+
+
+def test_gcps_v1_sigma_matches_the_scatter_of_30_realistic_renders():
+    predicted, observed, pixels = sigma_against_scatter(use_codec=False)
+    assert pixels > 0.8 * SMALL.width_px * SMALL.height_px
+    # measured: 0.997 (0.1087 mm predicted, 0.1090 mm observed); issue 12 asks for 15 %
+    assert abs(predicted / observed - 1) < 0.15, (predicted, observed)
+
+
+@pytest.mark.slow
+def test_codec_sigma_matches_the_scatter_of_30_realistic_renders():
+    predicted, observed, pixels = sigma_against_scatter(use_codec=True)
+    assert pixels > 0.8 * SMALL.width_px * SMALL.height_px
+    # measured: 1.000 (0.0630 mm both); 12 steps at gcps-v1's period: sqrt(3) below gcps-v1's 0.109 mm
+    assert abs(predicted / observed - 1) < 0.15, (predicted, observed)
+    assert 0.45 < observed / 0.109 < 0.70
+
+
+def test_sigma_needs_a_noise_estimate(noise_free_reference):
+    three = CODEC.to_dict()
+    three["axes"]["u"]["phase"][0]["frames"] = [0, 1, 2]
+    three["axes"]["u"]["gray"]["frames"] = [3, 4, 5, 6, 7]
+    three["axes"]["u"]["gray"]["inverse_frames"] = [8, 9, 10, 11, 12]
+    three.update(frames=15, white=[13], black=[14])
+    codec = codec_from_dict(three)
+    rendered = render_stack(RIG, make_scene("reference"), SimulationOptions.noise_free_16bit())
+    u, _ = crossed_rig_truth(rendered, RIG, PROJ_W, PROJ_H)
+    images = render_codec(codec, u, None)
+    with pytest.raises(ValueError, match="N >= 4 steps"):
+        measure(RIG, images, images, MeasureOptions(sigma=True), codec=codec)

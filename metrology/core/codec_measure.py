@@ -209,6 +209,7 @@ def measure_codec_height(
     codec: Codec,
     options: DecodeOptions | None = None,
     *,
+    with_noise: bool = False,
     threads: int | None = None,
 ) -> CodecHeightResult:
     """Height map of an object captured with ``codec`` (module docstring), Eqs. 14, 16, 17.
@@ -221,6 +222,8 @@ def measure_codec_height(
     codec : Codec
         Must code the u axis; the reference kept in a :class:`CodecReference` must have the same codec.
     options : DecodeOptions, optional
+    with_noise : bool
+        Compute the object's noise maps (for the per-point uncertainty).
 
     Raises
     ------
@@ -239,7 +242,7 @@ def measure_codec_height(
     elif reference.codec != codec:
         raise ValueError("the kept reference was captured with another codec than the object")
     start = time.perf_counter()
-    decoded = codec_codes(rig, obj, codec, options, what="object", threads=threads)
+    decoded = codec_codes(rig, obj, codec, options, what="object", with_noise=with_noise, threads=threads)
     codes = decoded.codes
     timings["object_decode_s"] = time.perf_counter() - start
     start = time.perf_counter()

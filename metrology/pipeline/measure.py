@@ -20,13 +20,17 @@ import numpy.typing as npt
 
 from metrology.core import measure as core_measure
 from metrology.core.codec_measure import CodecReference, is_gcps_v1, measure_codec_height
-from metrology.core.codecs.decode import CodecDecoding
-from metrology.core.codecs.model import Codec
+from metrology.core.codecs.decode import CodecDecoding, decode_codec
+from metrology.core.codecs.model import Codec, gcps_v1_codec
 from metrology.core.decode import DecodedStack
 from metrology.core.measure import DecodeOptions, Reference, height_statistics
 from metrology.core.rig import Rig
+from metrology.core.uncertainty import axis_coordinate_sigma, height_sigma
 from metrology.pipeline.common import PhaseTimer, check_bool, check_keys, decode_options
 from metrology.version import software_version
+
+GCPS_V1_NLP = 128
+"""Light codes across the built-in gcps-v1 codec's projector (its phase period is 4 of them)."""
 
 
 @dataclass(frozen=True)
@@ -39,21 +43,27 @@ class MeasureOptions:
         Decoding and mixed-pixel options (:class:`~metrology.core.measure.DecodeOptions`).
     gray_only : bool
         Also compute the gray-code-only comparison heights (default True).
+    sigma : bool
+        Also compute each height's standard uncertainty from the object's phase noise
+        (default False; :mod:`metrology.core.uncertainty`); needs a final phase sequence of
+        N >= 4 steps.
     """
 
     decode: DecodeOptions = field(default_factory=DecodeOptions)
     gray_only: bool = True
+    sigma: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "decode", decode_options(self.decode))
         check_bool("gray_only", self.gray_only)
+        check_bool("sigma", self.sigma)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"decode": self.decode.to_dict(), "gray_only": self.gray_only}
+        return {"decode": self.decode.to_dict(), "gray_only": self.gray_only, "sigma": self.sigma}
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> MeasureOptions:
-        check_keys("measure", data, {"decode", "gray_only"})
+        check_keys("measure", data, {"decode", "gray_only", "sigma"})
         return cls(**data)
 
 
@@ -77,6 +87,9 @@ class MeasureResult:
         ``"gcps-v1"``, or ``"gcps-codec/1"`` for a codec file's stacks.
     decoding : CodecDecoding or None
         The object's codec decoding (u/v maps, modulation, reasons) for a non-gcps-v1 codec.
+    sigma_mm : (H, W) float32 array or None
+        Per-point standard uncertainty of the heights, mm (``MeasureOptions(sigma=True)``;
+        :mod:`metrology.core.uncertainty`), NaN where not measured.
     """
 
     z_mm: np.ndarray
@@ -87,6 +100,11 @@ class MeasureResult:
     timings_s: dict[str, float]
     codec: str = "gcps-v1"
     decoding: CodecDecoding | None = None
+    sigma_mm: np.ndarray | None = None
+
+    def points_mm(self, rig: Rig) -> np.ndarray:
+        """``(H, W, 3)`` float32 points, mm, in the paper's frame ``(X_H, Y_H, z)``; NaN where not measured."""
+        return rig.prepare().points_from_heights(self.z_mm).astype(np.float32)
 
     def statistics(self) -> dict[str, Any]:
         """Valid pixels and min/max/mean/std of the heights (and of the gray-code-only heights)."""
@@ -143,13 +161,27 @@ def measure(
         that differs from the rig's, or a bad option.
     """
     options = options or MeasureOptions()
+    sigma = options.sigma
     timer = PhaseTimer()
     start = time.perf_counter()
     if not is_gcps_v1(codec):
         assert codec is not None
         if isinstance(reference, (DecodedStack, Reference)):
             raise ValueError("a gcps-v1 reference cannot serve a stack of another codec")
-        codec_result = measure_codec_height(rig, reference, obj, codec, options.decode, threads=threads)
+        codec_result = measure_codec_height(
+            rig, reference, obj, codec, options.decode, with_noise=sigma, threads=threads
+        )
+        sigma_mm = None
+        if sigma:
+            with timer.phase("measure.sigma_s"):
+                sigma_u = axis_coordinate_sigma(codec, "u", codec_result.decoding.axes["u"])
+                sigma_mm = height_sigma(
+                    rig.prepare(),
+                    codec_result.obj_codes,
+                    sigma_u * np.float32(rig.nlp / codec.projector_width),
+                    codec_result.reference.surface,
+                    threads,
+                )
         timer.timings_s["measure"] = time.perf_counter() - start
         timer.add(codec_result.timings_s, "measure.")
         return MeasureResult(
@@ -161,12 +193,20 @@ def measure(
             timings_s=timer.timings_s,
             codec="gcps-codec/1",
             decoding=codec_result.decoding,
+            sigma_mm=sigma_mm,
         )
     if isinstance(reference, CodecReference):
         raise ValueError("a reference decoded with a codec cannot serve a gcps-v1 stack")
+    if sigma and not isinstance(reference, Reference):  # kept for the uncertainty's dz/dl
+        reference = core_measure.prepare_reference(rig, reference, options.decode)
     result = core_measure.measure_height(
         rig, reference, obj, options.decode, gray_only=options.gray_only, threads=threads
     )
+    sigma_mm = None
+    if sigma:
+        assert isinstance(reference, Reference)
+        with timer.phase("measure.sigma_s"):
+            sigma_mm = _gcps_v1_sigma(rig, reference, obj, result.obj_codes, threads)
     timer.timings_s["measure"] = time.perf_counter() - start
     timer.add(result.timings_s, "measure.")
     return MeasureResult(
@@ -176,4 +216,17 @@ def measure(
         options=options,
         software_version=software_version(),
         timings_s=timer.timings_s,
+        sigma_mm=sigma_mm,
     )
+
+
+def _gcps_v1_sigma(
+    rig: Rig, reference: Reference, obj: npt.ArrayLike, codes: np.ndarray, threads: int | None
+) -> np.ndarray:
+    """Height uncertainty of a gcps-v1 measurement: the object's noise and modulation from the codec
+    decoder's built-in gcps-v1 (4-step phase, period 4 codes), then |dz/dl| sigma_l."""
+    codec = gcps_v1_codec()
+    decoding = decode_codec(np.asarray(obj), codec, with_noise=True, threads=threads)
+    sigma_u = axis_coordinate_sigma(codec, "u", decoding.axes["u"])
+    sigma_l = sigma_u * np.float32(GCPS_V1_NLP / codec.projector_width)  # period 4 codes whatever the rig's nlp
+    return height_sigma(rig.prepare(), codes, sigma_l, reference.surface, threads)
