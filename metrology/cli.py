@@ -166,6 +166,8 @@ def _load_codec_stack(path: str, codec: Any, what: str) -> Any:
 
 
 def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
+    import numpy as np
+
     from metrology.core.codec_measure import is_gcps_v1
     from metrology.pipeline import MeasureOptions, measure
 
@@ -176,7 +178,14 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
         _check_parent(args.mesh, "--mesh")
     if args.json:
         _check_parent(args.json, "--json")
-    options = MeasureOptions(decode=_decode_options(args), gray_only=bool(args.json))
+    for option, path in (("--xyz", args.xyz), ("--sigma", args.sigma)):
+        if path:
+            _check_out_suffix(path, (".npy",), option)
+            _check_parent(path, option)
+    if args.max_sigma is not None and not (args.max_sigma > 0 and args.max_sigma < float("inf")):
+        raise BadInputError(f"--max-sigma must be a positive number of mm, got {args.max_sigma!r}")
+    want_sigma = bool(args.sigma) or args.max_sigma is not None
+    options = MeasureOptions(decode=_decode_options(args), gray_only=bool(args.json), sigma=want_sigma)
     started = time.perf_counter()
     rig = _load_rig(args.rig)
     codec = _stacks_codec(args.codec, [("reference", args.reference), ("object", args.object)])
@@ -189,20 +198,36 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
         obj = _load_codec_stack(args.object, codec, "object")
     read_s = time.perf_counter() - started
     result = measure(rig, reference, obj, options, codec=codec)
+    dropped = 0
+    if args.max_sigma is not None and result.sigma_mm is not None:
+        drop = np.isfinite(result.z_mm) & ~(result.sigma_mm <= np.float32(args.max_sigma))
+        dropped = int(drop.sum())
+        result.z_mm[drop] = np.nan
+        result.sigma_mm[drop] = np.nan
     mesh = None
     if args.mesh:
         from metrology.core.mesh import mesh_from_heights
 
         mesh = mesh_from_heights(rig, result.z_mm)
 
-    from metrology.core.io import write_height_npy
+    from metrology.core.io import atomic_path, write_height_npy
 
     write_height_npy(result.z_mm, args.out)
+    if args.xyz:
+        with atomic_path(args.xyz) as tmp:
+            np.save(tmp, result.points_mm(rig))
+    if args.sigma and result.sigma_mm is not None:
+        with atomic_path(args.sigma) as tmp:
+            np.save(tmp, result.sigma_mm)
     if mesh is not None:
         from metrology.core.mesh import write_mesh
 
         write_mesh(mesh, args.mesh)
     stats = result.statistics()
+    if result.sigma_mm is not None:
+        finite = result.sigma_mm[np.isfinite(result.sigma_mm)]
+        stats["sigma_mm_median"] = float(np.median(finite)) if finite.size else None
+        stats["dropped_by_max_sigma"] = dropped
     if args.json:
         gray = stats.get("gray_only") or {}
         report = {
@@ -218,7 +243,8 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
         if result.decoding is not None:
             report["decoding"] = result.decoding.summary()
         _write_json(report, args.json)
-    return {"out": args.out, **{k: v for k, v in stats.items() if k.endswith(("pixels", "fraction"))}}
+    keep = ("pixels", "fraction", "sigma_mm_median", "dropped_by_max_sigma")
+    return {"out": args.out, **{k: v for k, v in stats.items() if k.endswith(keep)}}
 
 
 Z_PARAMETER = {"plane": "z_mm", "stage": "z_in_mm", "block": "top_mm"}
@@ -542,6 +568,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="codec file (gcps-codec/1) or built-in name of both captures (default: their codec.json, else gcps-v1); "
         "it must code the u axis",
     )
+    p.add_argument("--xyz", help="points (H, W, 3) float32 mm, the paper's frame (X_H, Y_H, z), NaN where not measured")
+    p.add_argument("--sigma", help="per-point standard uncertainty of the heights (H, W) float32 mm (.npy)")
+    p.add_argument("--max-sigma", type=float, metavar="MM", help="drop points whose uncertainty exceeds this, mm")
     _add_decode_options(p)
     p.set_defaults(func=cmd_measure)
 

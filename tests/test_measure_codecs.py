@@ -267,3 +267,31 @@ def test_sigma_needs_a_noise_estimate(noise_free_reference):
     images = render_codec(codec, u, None)
     with pytest.raises(ValueError, match="N >= 4 steps"):
         measure(RIG, images, images, MeasureOptions(sigma=True), codec=codec)
+
+
+def test_cli_writes_points_and_sigma_and_drops_points_above_max_sigma(tmp_path):
+    from metrology.cli import main
+    from metrology.core.geometry.crossed_axes import points_from_heights
+    from metrology.core.io import write_rig, write_stack
+
+    opts = SimulationOptions.realistic_8bit(supersample=1)
+    rig = str(tmp_path / "rig.json")
+    write_rig(SMALL, rig)
+    write_stack(render_stack(SMALL, make_scene("reference", SMALL), opts.with_changes(seed=5)).images, tmp_path / "r")
+    write_stack(render_stack(SMALL, make_scene("sphere", SMALL), opts.with_changes(seed=6)).images, tmp_path / "o")
+    z_path, xyz_path, sigma_path = tmp_path / "z.npy", tmp_path / "xyz.npy", tmp_path / "s.npy"
+    base = ["--quiet", "measure", "--rig", rig, "--reference", str(tmp_path / "r"), "--object", str(tmp_path / "o")]
+    assert main([*base, "--out", str(z_path), "--xyz", str(xyz_path), "--sigma", str(sigma_path)]) == 0
+    z, xyz, sigma = np.load(z_path), np.load(xyz_path), np.load(sigma_path)
+    assert xyz.shape == (*SMALL.shape, 3) and xyz.dtype == np.float32 and sigma.dtype == np.float32
+    valid = np.isfinite(z)
+    assert valid.mean() > 0.5 and np.array_equal(np.isfinite(sigma), valid)
+    np.testing.assert_allclose(xyz[valid], points_from_heights(SMALL, z)[valid], atol=1e-4)
+    # 8-bit, 1.5 grey levels: about 0.1 mm per point (the plane's measured scatter, test above)
+    assert 0.05 < np.median(sigma[valid]) < 0.2
+    limit = float(np.median(sigma[valid]))
+    kept_path = tmp_path / "kept.npy"
+    assert main([*base, "--out", str(kept_path), "--max-sigma", str(limit)]) == 0
+    kept = np.load(kept_path)
+    assert np.isfinite(kept).sum() == (valid & (sigma <= np.float32(limit))).sum()
+    assert main([*base, "--out", str(kept_path), "--max-sigma", "-1"]) == 2
