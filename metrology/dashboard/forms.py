@@ -146,6 +146,11 @@ def capture_choices(captures, empty: str = "choose a capture") -> list[tuple[str
 class MeasurementForm(forms.Form):
     reference = forms.TypedChoiceField(coerce=int, label="Reference capture")
     object = forms.TypedChoiceField(coerce=int, label="Object capture")
+    sigma = forms.BooleanField(
+        required=False,
+        label="Per-point uncertainty",
+        help_text="Also compute each point's standard uncertainty (mm) from the object's phase noise",
+    )
 
     def __init__(self, *args, captures=(), **kwargs):
         super().__init__(*args, **kwargs)

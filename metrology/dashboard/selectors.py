@@ -48,6 +48,11 @@ def measurement_figures(measurement, row: int | None = None) -> tuple[dict[str, 
         y_mm=rig.row_y_mm(),
         max_jump_mm=default_max_jump_mm(rig),
     )
+    sigma = load_npy(measurement.sigma_npy)
+    if sigma is not None:  # the per-point uncertainty (options.sigma)
+        from metrology.figures.uncertainty import sigma_map_figure
+
+        figures["sigma_map"] = sigma_map_figure(sigma, rig.column_x_mm(), rig.row_y_mm())
     return figures, row, height
 
 

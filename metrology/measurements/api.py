@@ -26,6 +26,7 @@ CONTENT_TYPES = {
     "mesh.ply": "application/octet-stream",
     "mesh.stl": "model/stl",
     "mesh.obj": "model/obj",
+    "sigma.npy": "application/octet-stream",
 }
 
 

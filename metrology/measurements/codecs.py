@@ -96,13 +96,21 @@ def run_codec_measurement(job: Job, run: job_services.JobRun, codec: Any) -> Non
             run.timings[name] = round(float(seconds), 4)
     z_mm = np.asarray(result.z_mm, dtype=np.float32)
     prefix = f"measurements/{measurement.pk}/{run.token.hex}"
+    arrays = {"height.npy": z_mm}
+    if result.sigma_mm is not None:  # options.sigma
+        arrays["sigma.npy"] = np.asarray(result.sigma_mm, dtype=np.float32)
+    names: dict[str, str] = {}
     with run.phase("store", 80):
-        buffer = io.BytesIO()
-        np.save(buffer, z_mm)
-        buffer.seek(0)
-        height_name = run.save_file(default_storage, f"{prefix}/height.npy", File(buffer, name="height.npy"))
+        for filename, array in arrays.items():
+            buffer = io.BytesIO()
+            np.save(buffer, array)
+            buffer.seek(0)
+            names[filename] = run.save_file(default_storage, f"{prefix}/{filename}", File(buffer, name=filename))
     statistics = json_safe(result.statistics())
     statistics["shape"] = list(z_mm.shape)
+    if result.sigma_mm is not None:
+        finite_sigma = result.sigma_mm[np.isfinite(result.sigma_mm)]
+        statistics["sigma_mm_median"] = float(np.median(finite_sigma)) if finite_sigma.size else None
     statistics["codec"] = json.loads(json.dumps(job.parameters.get("codec")))
     if result.decoding is not None:
         statistics["decoding"] = json_safe(result.decoding.summary())
@@ -110,7 +118,11 @@ def run_codec_measurement(job: Job, run: job_services.JobRun, codec: Any) -> Non
     def publish(job_row: Job) -> None:
         start = time.perf_counter()
         Measurement.objects.filter(pk=measurement.pk).update(
-            height_npy=height_name, gray_only_npy="", statistics=statistics, options=result.options.to_dict()
+            height_npy=names["height.npy"],
+            gray_only_npy="",
+            sigma_npy=names.get("sigma.npy", ""),
+            statistics=statistics,
+            options=result.options.to_dict(),
         )
         job_row.software_version = result.software_version
         run.timings["publish"] = round(time.perf_counter() - start, 4)

@@ -28,7 +28,7 @@ from metrology.measurements.models import RESULT_FILES, Measurement
 DERIVED_FILES: tuple[str, ...] = ("height.tiff", "mesh.ply", "mesh.stl", "mesh.obj")
 """Result files built from the stored height map on request."""
 
-STORED_FILES: tuple[str, ...] = ("height.npy", "gray_only_height.npy")
+STORED_FILES: tuple[str, ...] = ("height.npy", "gray_only_height.npy", "sigma.npy")
 """Result files a measurement job stores."""
 
 CACHE_PREFIX = "derived"

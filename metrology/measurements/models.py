@@ -12,6 +12,7 @@ RESULT_FILES: dict[str, str] = {
     "mesh.ply": "mesh_ply",
     "mesh.stl": "mesh_stl",
     "mesh.obj": "mesh_obj",
+    "sigma.npy": "sigma_npy",
 }
 
 
@@ -28,6 +29,9 @@ class Measurement(models.Model):
     mesh_ply = models.FileField(max_length=300, blank=True)
     mesh_stl = models.FileField(max_length=300, blank=True)
     mesh_obj = models.FileField(max_length=300, blank=True)
+    sigma_npy = models.FileField(
+        max_length=300, blank=True, help_text="Per-point height uncertainty, mm (options.sigma)"
+    )
     statistics = models.JSONField(default=dict, blank=True)
     options = models.JSONField(
         default=dict, blank=True, help_text="Pipeline options the result was computed with (decoding included)"

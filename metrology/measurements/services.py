@@ -106,6 +106,8 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
     arrays = {"height.npy": z_mm}
     if result.gray_z_mm is not None:
         arrays["gray_only_height.npy"] = np.asarray(result.gray_z_mm, dtype=np.float32)
+    if result.sigma_mm is not None:  # options.sigma
+        arrays["sigma.npy"] = np.asarray(result.sigma_mm, dtype=np.float32)
     with run.phase("store", 80):
         for filename, array in arrays.items():
             buffer = io.BytesIO()
@@ -114,12 +116,16 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
             names[filename] = run.save_file(default_storage, f"{prefix}/{filename}", File(buffer, name=filename))
     statistics = json_safe(result.statistics())
     statistics["shape"] = list(z_mm.shape)
+    if result.sigma_mm is not None:
+        finite_sigma = result.sigma_mm[np.isfinite(result.sigma_mm)]
+        statistics["sigma_mm_median"] = float(np.median(finite_sigma)) if finite_sigma.size else None
 
     def publish(job_row: Job) -> None:
         start = time.perf_counter()
         Measurement.objects.filter(pk=measurement.pk).update(
             height_npy=names.get("height.npy", ""),
             gray_only_npy=names.get("gray_only_height.npy", ""),
+            sigma_npy=names.get("sigma.npy", ""),
             statistics=statistics,
             options=result.options.to_dict(),
         )

@@ -179,3 +179,30 @@ def test_a_measurement_of_captures_of_two_codecs_is_refused(api, rig):
     assert response.status_code == 400
     assert "another codec than the reference capture" in response.json()["error"]
     assert Measurement.objects.count() == 0
+
+
+def test_measurement_with_sigma_stores_and_serves_the_uncertainty(api, rig):
+    """options.sigma: the job stores sigma.npy (mm), finite exactly where heights are; 8-bit noise."""
+    core = Rig.from_dict(SMALL_RIG)
+    rng = np.random.default_rng(3)
+
+    def noisy(z: float | np.ndarray) -> bytes:
+        images = render_images(core, z).astype(np.float64) + rng.normal(0, 1.5, (11, *core.shape))
+        return stack_zip(np.clip(np.rint(images), 0, 255).astype(np.uint8))
+
+    reference = upload(api, rig["id"], noisy(0.0), "reference").json()["id"]
+    obj = upload(api, rig["id"], noisy(block_heights()), "object").json()["id"]
+    body = {"rig": rig["id"], "reference": reference, "object": obj, "options": {"sigma": True}}
+    response = api.post("/api/measurements/", body, format="json")
+    assert response.status_code == 202, response.content
+    result = api.get(f"/api/measurements/{response.json()['id']}/").json()
+    assert result["status"] == "done", result
+    assert result["options"]["sigma"] is True and "sigma.npy" in result["files"]
+    z = np.load(io.BytesIO(b"".join(api.get(result["files"]["height.npy"]).streaming_content)))
+    sigma = np.load(io.BytesIO(b"".join(api.get(result["files"]["sigma.npy"]).streaming_content)))
+    assert sigma.dtype == np.float32 and np.array_equal(np.isfinite(sigma), np.isfinite(z))
+    # 1.5 grey levels on fringes of amplitude 0.4 x 255: tenths of a code, ~0.1 mm on the paper's rig
+    assert 0.02 < result["statistics"]["sigma_mm_median"] < 0.3
+    assert abs(np.nanmedian(sigma) - result["statistics"]["sigma_mm_median"]) < 1e-6
+    bad = api.post("/api/measurements/", {**body, "options": {"sigma": "yes"}}, format="json")
+    assert bad.status_code == 400 and "sigma must be true or false" in bad.json()["error"]

@@ -72,3 +72,20 @@ def test_capture_page_of_a_gcps_v1_capture(client_alice, rig, captures):
 def test_capture_page_of_another_user_is_not_found(client_bob, rig, captures):
     reference, _ = captures
     assert client_bob.get(f"/captures/{reference.pk}/").status_code == 404
+
+
+def test_measurement_page_shows_the_sigma_map(client_alice, rig, captures, run_jobs):
+    from metrology.measurements.services import request_measurement
+
+    reference, obj = captures
+    with run_jobs():
+        measurement = request_measurement(
+            owner=reference.owner, rig=rig, reference_id=reference.pk, object_id=obj.pk, options={"sigma": True}
+        )
+    html = client_alice.get(f"/measurements/{measurement.pk}/").content.decode()
+    assert "Per-point uncertainty" in html
+    assert figure_data(html, "sigma_map")["data"][0]["type"] == "heatmap"
+    assert "sigma.npy" in html  # the download
+    # the form offers it
+    form = client_alice.get(f"/measurements/new/?rig={rig.pk}").content.decode()
+    assert 'name="sigma"' in form
