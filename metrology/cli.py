@@ -168,9 +168,14 @@ def _load_codec_stack(path: str, codec: Any, what: str) -> Any:
 def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     import numpy as np
 
+    from metrology.commands.measure_pinhole import cmd_measure_pinhole, is_pinhole_rig
     from metrology.core.codec_measure import is_gcps_v1
     from metrology.pipeline import MeasureOptions, measure
 
+    if is_pinhole_rig(args.rig):
+        return cmd_measure_pinhole(args)
+    if args.reference is None:
+        raise BadInputError("--reference is required for a crossed-axes rig (a pinhole rig measures without one)")
     _check_parent(args.out, "--out")
     _check_out_suffix(args.out, (".npy",), "--out")
     if args.mesh:
@@ -558,7 +563,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("measure", help="height map (and mesh) of an object")
     p.add_argument("--rig", required=True)
-    p.add_argument("--reference", required=True, help="capture stack of the reference plane (folder or .zip)")
+    p.add_argument(
+        "--reference", help="capture stack of the reference plane (folder or .zip); optional for pinhole rigs"
+    )
     p.add_argument("--object", required=True, help="capture stack of the object (folder or .zip)")
     p.add_argument("--out", required=True, help="height map, float32 mm, NaN where not measured (.npy)")
     p.add_argument("--mesh", help="mesh output (.ply, .stl or .obj)")
@@ -566,12 +573,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--codec",
         help="codec file (gcps-codec/1) or built-in name of both captures (default: their codec.json, else gcps-v1); "
-        "it must code the u axis",
+        "a crossed-axes rig needs it to code the u axis",
     )
-    p.add_argument("--xyz", help="points (H, W, 3) float32 mm, the paper's frame (X_H, Y_H, z), NaN where not measured")
-    p.add_argument("--sigma", help="per-point standard uncertainty of the heights (H, W) float32 mm (.npy)")
-    p.add_argument("--max-sigma", type=float, metavar="MM", help="drop points whose uncertainty exceeds this, mm")
     _add_decode_options(p)
+    from metrology.commands.measure_pinhole import add_pinhole_measure_arguments
+
+    add_pinhole_measure_arguments(p)
     p.set_defaults(func=cmd_measure)
 
     p = sub.add_parser("calibrate", help="calibrate L and alpha on a master block")
@@ -633,6 +640,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--z-mm", type=float, default=40.0, help="constant height of the study, mm (default 40)")
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_sensitivity)
+    from metrology.commands import rig as rig_command
+    from metrology.commands.agent import register as acquisition_commands
+
+    acquisition_commands(sub)
+    rig_command.register(sub)
     return parser
 
 

@@ -134,6 +134,7 @@ INSTALLED_APPS = [
     "metrology.calibrations",
     "metrology.characterizations",
     "metrology.reports",
+    "metrology.acquisition",
     "metrology.dashboard",
 ]
 
@@ -341,6 +342,10 @@ GCPS_JOB_MAX_ATTEMPTS = env_int("GCPS_JOB_MAX_ATTEMPTS", 3, minimum=1)
 GCPS_JOB_SWEEP_SECONDS = env_int("GCPS_JOB_SWEEP_SECONDS", 60, minimum=1)
 # Fault injection for tests: pause between the phases of a job (0 in production).
 GCPS_JOB_PHASE_PAUSE_SECONDS = float(env_int("GCPS_JOB_PHASE_PAUSE_MS", 0, minimum=0)) / 1000.0
+
+# Capture agents (issue 14): an agent not heard from for this long is disconnected and its
+# running acquisition failed; agents beat every third of it.
+GCPS_AGENT_TIMEOUT_SECONDS = env_float("GCPS_AGENT_TIMEOUT_SECONDS", 15.0, minimum=0.5)
 
 # Characterization reports: a figure "drifted" when it moved by more than its tolerance since the
 # previous report of the same rig. Errors in mm, percentages of full scale, in-out slopes (unitless).

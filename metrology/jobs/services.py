@@ -44,6 +44,7 @@ HANDLERS: dict[str, str] = {
     Job.Kind.CALIBRATION: "metrology.calibrations.services:run_calibration",
     Job.Kind.CHARACTERIZATION: "metrology.characterizations.services:run_characterization",
     Job.Kind.REPORT: "metrology.reports.services:run_report",
+    "acquire_capture": "metrology.acquisition.services:run_acquisition_job",
 }
 
 

@@ -6,7 +6,7 @@ from django.db import migrations, models
 
 class Migration(migrations.Migration):
     dependencies = [
-        ("captures", "0001_initial"),
+        ("captures", "0002_capture_source_rig"),
     ]
 
     operations = [
