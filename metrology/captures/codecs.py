@@ -84,8 +84,9 @@ def read_upload_stack(upload: Any, rig: Any, *, expected_bit_depth: int | None =
     The codec is the zip's own ``codec.json``, else the rig's default. gcps-v1 stacks are read by
     the gcps-v1 reader as before (the eleven named patterns); any other codec by the codec reader,
     which checks the frames against the codec; the frames must be the rig's camera size and the
-    codec must code the projector's u axis (what the crossed-axes rig triangulates). ``stack``
-    has ``images`` ``(frames, H, W)`` and ``bit_depth``.
+    codec must code the projector's u axis (what the crossed-axes rig triangulates). A pinhole
+    rig's uploads are all read by the codec reader (gcps-v1 too), and the codec's projector size
+    must be the rig's. ``stack`` has ``images`` ``(frames, H, W)`` and ``bit_depth``.
 
     Raises
     ------
@@ -104,9 +105,18 @@ def read_upload_stack(upload: Any, rig: Any, *, expected_bit_depth: int | None =
         raise BadInput(f"capture stack refused: {exc}") from None
     value = validate_codec(own.to_dict()) if own is not None else capture_default(rig)
     codec = codec_of(value)
-    if is_gcps_v1(codec):
+    pinhole = bool(getattr(rig, "is_pinhole", False))
+    if is_gcps_v1(codec) and not pinhole:
         return value, read_capture_stack(upload, rig, expected_bit_depth=expected_bit_depth)
-    if "u" not in codec.axes:
+    if pinhole:
+        projector = (rig.pinhole or {}).get("projector", {})
+        size = (float(projector.get("width", 0)), float(projector.get("height", 0)))
+        if (float(codec.projector_width), float(codec.projector_height)) != size:
+            raise BadInput(
+                f"capture codec refused: its projector is {codec.projector_width}x{codec.projector_height} "
+                f"but the rig's projector is {size[0]:g}x{size[1]:g}"
+            )
+    elif "u" not in codec.axes:
         raise BadInput("capture codec refused: it does not code the projector's u axis, which the rig triangulates")
     upload.seek(0)
     limits = codec_stack_limits(rig, codec.n_frames)

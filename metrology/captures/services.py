@@ -182,6 +182,9 @@ def request_simulated_capture(
     source: str = "virtual",
 ) -> Capture:
     """Create a capture that a worker renders with the virtual rig; returns it with its queued job."""
+    from metrology.rigs.services import require_crossed_axes  # codecapp: pinhole rigs
+
+    require_crossed_axes(rig, "the virtual rig's gcps-v1 capture")
     _check_stage(role, z_in_mm)
     request = CaptureRequest(role=role, scene=scene, options=options, z_in_mm=z_in_mm, repeat=repeat)
     try:

@@ -327,7 +327,7 @@ def measurement_new(request: HttpRequest) -> HttpResponse:
 @login_required
 def measurement_detail(request: HttpRequest, measurement_id: int) -> HttpResponse:
     measurement = measurement_selectors.get_measurement(request.user, measurement_id)
-    figures, row, height = {}, 0, measurement.rig_values.get("height_px", 0)
+    figures, row, height = {}, 0, measurement.rig_values.get("height_px", measurement.rig.height_px)
     if measurement.job.status == "done":
         requested = request.GET.get("row")
         figures, row, height = pages.measurement_figures(

@@ -36,13 +36,22 @@ def measure_options(options: dict[str, Any] | None) -> dict[str, Any]:
 
 @transaction.atomic
 def request_measurement(
-    *, owner, rig: Rig, reference_id: int, object_id: int, options: dict[str, Any] | None = None
+    *, owner, rig: Rig, reference_id: int | None, object_id: int, options: dict[str, Any] | None = None
 ) -> Measurement:
     """Create a measurement of ``object`` against ``reference`` on ``rig`` and queue its job.
 
     ``options``: :class:`metrology.pipeline.MeasureOptions` as an object (``{"decode": {...}}``);
     default the pipeline's defaults. Stored, with the defaults filled in, on the measurement.
+    A pinhole rig's measurement (reference optional) is :mod:`metrology.measurements.pinhole`'s.
     """
+    if rig.is_pinhole:  # codecapp: pinhole rigs
+        from metrology.measurements.pinhole import request_pinhole_measurement
+
+        return request_pinhole_measurement(
+            owner=owner, rig=rig, reference_id=reference_id, object_id=object_id, options=options
+        )
+    if reference_id is None:
+        raise BadInput("reference: a crossed-axes rig measures against a capture of the reference plane")
     checked = measure_options(options)
     if reference_id == object_id:
         raise BadInput("object: the object capture must differ from the reference capture")
@@ -85,6 +94,11 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
     measurement = Measurement.objects.select_related("reference__rig", "object__rig").get(job=job)
     from metrology.measurements.codecs import job_codec, run_codec_measurement  # codecapp
 
+    if measurement.rig_values.get("model") == "pinhole":
+        from metrology.measurements.pinhole import run_pinhole_measurement
+
+        run_pinhole_measurement(job, run)
+        return
     codec = job_codec(job)
     if codec is not None:  # captures of a codec other than gcps-v1
         run_codec_measurement(job, run, codec)

@@ -9,6 +9,7 @@ from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
+from metrology.api_errors import BadInput
 from metrology.api_input import BoundedJSONParser, RealNumberField
 from metrology.rigs import selectors, services
 from metrology.rigs.models import Rig, RigParameters
@@ -32,7 +33,8 @@ class CodecField(serializers.JSONField):
 
 
 class RigInputSerializer(serializers.Serializer):
-    """The rig file of docs/file-formats.md; further keys are kept in ``extra``."""
+    """The rig file of docs/file-formats.md; further keys are kept in ``extra``. A pinhole rig file
+    (``"model": "pinhole"``, docs/pinhole.md) is read by the core's pinhole model instead."""
 
     name = serializers.CharField(required=False, allow_blank=True, max_length=200)
     notes = serializers.CharField(required=False, allow_blank=True, max_length=10000)
@@ -65,6 +67,7 @@ class RigSerializer(serializers.ModelSerializer):
             "id",
             "name",
             "notes",
+            "model",
             "L_mm",
             "d_mm",
             "alpha_rad",
@@ -74,6 +77,7 @@ class RigSerializer(serializers.ModelSerializer):
             "height_px",
             "extra",
             "codec",
+            "pinhole",
             "created_at",
             "updated_at",
             "history",
@@ -86,7 +90,7 @@ class RigSummarySerializer(serializers.ModelSerializer):
 
     class Meta:
         model = Rig
-        fields = tuple(name for name in RigSerializer.Meta.fields if name not in ("extra", "history"))
+        fields = tuple(name for name in RigSerializer.Meta.fields if name not in ("extra", "history", "pinhole"))
         read_only_fields = fields
 
 
@@ -99,9 +103,14 @@ class RigListCreateApi(APIView):
     def post(self, request: Request) -> Response:
         if not isinstance(request.data, dict):
             raise serializers.ValidationError({"non_field_errors": ["Send the rig as a JSON object."]})
+        if request.data.get("model") == "pinhole":  # a pinhole rig file (docs/pinhole.md)
+            rig = services.create_pinhole_rig(owner=request.user, data=dict(request.data))
+            return Response(RigSerializer(rig).data, status=status.HTTP_201_CREATED)
+        if request.data.get("model", "crossed_axes") != "crossed_axes":
+            raise BadInput(f"model must be crossed_axes or pinhole, got {request.data.get('model')!r}")
         serializer = RigInputSerializer(data=request.data)
         serializer.is_valid(raise_exception=True)
-        extra = {key: value for key, value in request.data.items() if key not in serializer.fields}
+        extra = {key: value for key, value in request.data.items() if key not in serializer.fields and key != "model"}
         rig = services.create_rig(owner=request.user, data={**extra, **serializer.validated_data})
         return Response(RigSerializer(rig).data, status=status.HTTP_201_CREATED)
 
