@@ -44,6 +44,28 @@ class RigForm(forms.Form):
     notes = forms.CharField(widget=forms.Textarea(attrs={"rows": 2}), required=False)
 
 
+class PinholeRigForm(forms.Form):
+    name = forms.CharField(max_length=200, required=False, help_text="A name you will recognise")
+    rig_file = forms.FileField(
+        label="Pinhole rig file (.json)",
+        help_text='A rig file with "model": "pinhole" (docs/pinhole.md; `gcps rig import` writes one)',
+    )
+
+    def clean_rig_file(self):
+        import json
+
+        upload = self.cleaned_data["rig_file"]
+        if upload.size is not None and upload.size > 1_000_000:
+            raise forms.ValidationError("a rig file is at most 1 MB")
+        try:
+            data = json.loads(upload.read().decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise forms.ValidationError(f"not a JSON rig file: {exc}") from None
+        if not isinstance(data, dict) or data.get("model") != "pinhole":
+            raise forms.ValidationError('the rig file must be a JSON object with "model": "pinhole"')
+        return data
+
+
 class RigCodecForm(forms.Form):
     codec = forms.CharField(
         label="Default codec",
@@ -152,11 +174,17 @@ class MeasurementForm(forms.Form):
         help_text="Also compute each point's standard uncertainty (mm) from the object's phase noise",
     )
 
-    def __init__(self, *args, captures=(), **kwargs):
+    def __init__(self, *args, captures=(), pinhole: bool = False, **kwargs):
         super().__init__(*args, **kwargs)
         captures = list(captures)
         self.fields["reference"].choices = capture_choices([c for c in captures if c.role == "reference"])
         self.fields["object"].choices = capture_choices([c for c in captures if c.role != "reference"])
+        if pinhole:  # a pinhole rig measures depths without a reference
+            self.fields["reference"].required = False
+            self.fields["reference"].choices = capture_choices(
+                [c for c in captures if c.role == "reference"], empty="none: depths (camera Z)"
+            )
+            self.fields["reference"].empty_value = None
 
 
 class CalibrationForm(forms.Form):

@@ -105,8 +105,20 @@ def favicon(request: HttpRequest) -> HttpResponse:
 @login_required
 @require_http_methods(["GET", "POST"])
 def rig_list(request: HttpRequest) -> HttpResponse:
-    form = forms.RigForm(request.POST or None)
-    if request.method == "POST" and form.is_valid():
+    pinhole_post = request.method == "POST" and request.POST.get("action") == "pinhole"
+    form = forms.RigForm(None if pinhole_post else (request.POST or None))
+    pinhole_form = forms.PinholeRigForm(
+        request.POST if pinhole_post else None, request.FILES if pinhole_post else None, prefix="pinhole"
+    )
+    if pinhole_post and pinhole_form.is_valid():
+        try:
+            data = {**pinhole_form.cleaned_data["rig_file"], "name": pinhole_form.cleaned_data.get("name") or ""}
+            rig = rig_services.create_pinhole_rig(owner=request.user, data=data)
+        except SERVICE_ERRORS as exc:
+            pinhole_form.add_error(None, error_text(exc))
+        else:
+            return redirect("dashboard:rig", rig.pk)
+    if request.method == "POST" and not pinhole_post and form.is_valid():
         try:
             rig = rig_services.create_rig(owner=request.user, data=form.cleaned_data)
         except SERVICE_ERRORS as exc:
@@ -115,7 +127,10 @@ def rig_list(request: HttpRequest) -> HttpResponse:
             return redirect("dashboard:rig", rig.pk)
     status = 400 if request.method == "POST" else 200
     return render(
-        request, "dashboard/rigs.html", {"rigs": rig_selectors.rigs_for(request.user), "form": form}, status=status
+        request,
+        "dashboard/rigs.html",
+        {"rigs": rig_selectors.rigs_for(request.user), "form": form, "pinhole_form": pinhole_form},
+        status=status,
     )
 
 
@@ -302,13 +317,15 @@ def measurement_new(request: HttpRequest) -> HttpResponse:
     rig = _rig_from_query(request)
     if rig is None:
         return render(request, "dashboard/choose_rig.html", _choose_rig(request, "measurement"))
-    form = forms.MeasurementForm(request.POST or None, captures=pages.ready_captures(request.user, rig))
+    form = forms.MeasurementForm(
+        request.POST or None, captures=pages.ready_captures(request.user, rig), pinhole=rig.is_pinhole
+    )
     if request.method == "POST" and form.is_valid():
         try:
             measurement = measurement_services.request_measurement(
                 owner=request.user,
                 rig=rig,
-                reference_id=form.cleaned_data["reference"],
+                reference_id=form.cleaned_data.get("reference"),
                 object_id=form.cleaned_data["object"],
                 options={"sigma": True} if form.cleaned_data.get("sigma") else None,
             )
