@@ -174,6 +174,8 @@ def rig_sensitivity(request: HttpRequest, rig_id: int) -> HttpResponse:
     from metrology.figures.sensitivity import sensitivity_figures
 
     rig = rig_selectors.get_rig(request.user, rig_id)
+    if rig.is_pinhole:  # Figs. 4-6 are the crossed-axes model's
+        return redirect("dashboard:rig", rig.pk)
     error = ""
     try:
         z_mm = float(request.GET.get("z_mm", 40.0))

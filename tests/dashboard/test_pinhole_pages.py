@@ -45,3 +45,19 @@ def test_import_a_pinhole_rig_then_measure_depths(client_alice, alice, run_jobs)
     assert figure_data(html, "surface")["data"][0]["type"] in ("mesh3d", "surface")
     assert figure_data(html, "sigma_map")["data"][0]["type"] == "heatmap"
     assert "points.npy" in html and "mesh.ply" in html
+
+
+def test_crossed_axes_pages_of_a_pinhole_rig_do_not_fail(client_alice, alice):
+    from metrology.rigs.services import create_pinhole_rig
+
+    rig = create_pinhole_rig(owner=alice, data={**RIG.to_dict(), "name": "p"})
+    for url in (
+        f"/rigs/{rig.pk}/captures/",
+        f"/calibrations/new/?rig={rig.pk}",
+        f"/characterizations/new/?rig={rig.pk}",
+        f"/rigs/{rig.pk}/sensitivity/",
+        "/rigs/",
+        f"/rigs/{rig.pk}/",
+    ):
+        response = client_alice.get(url, follow=True)
+        assert response.status_code == 200, url
