@@ -30,7 +30,10 @@ Slips: where the gray word is at least as wide as the period of the stage after 
 bit misread at a cell edge moves a pixel by whole periods while staying consistent. Such
 pixels are found against the median of the valid coordinates of their 5x5 neighbourhood
 (at least 13 of 25 valid): where ``|x - median| > P / 2`` the pixel is moved by
-``P * round((median - x) / P)`` (re-snapped onto the final stage's phase) and kept with reason 6.
+``P * round((median - x) / P)`` (re-snapped onto the final stage's phase) and kept with reason 6,
+provided the moved coordinate lies within the gray/phase tolerance of its decoded word's cell
+(a misread bit puts the true coordinate at that word's edge); a pixel whose 5x5 neighbourhood
+straddles a depth edge is otherwise left as decoded.
 """
 
 from __future__ import annotations
@@ -382,6 +385,8 @@ def decode_codec(
             "noise": np.empty((height, width), np.float32),
             "reason": np.empty((height, width), np.uint8),
         }
+        if opts.repair_slips and plan.slip_period > 0:  # the decoded gray words bound the repair
+            outputs[plan.name]["centre"] = np.empty((height, width), np.float32)
     used_frames = sorted(
         {f for plan in plans for s in plan.used for f in plan.sequences[s].frames}
         | {f for plan in plans if plan.axis.gray is not None for f in plan.axis.gray.frames}
@@ -425,7 +430,11 @@ def decode_codec(
                     pair = slip_candidates(out["coordinate"][start - 1 : start + 1], plan.slip_period / 2)
                     candidates[plan.name].append(pair + (start - 1) * width)
             found = np.concatenate(candidates[plan.name]) if candidates[plan.name] else np.empty(0, np.intp)
-            slips = repair_slips(out["coordinate"], out["reason"], plan.slip_period, final_period, found)
+            assert plan.axis.gray is not None and opts.consistency_periods is not None
+            reach = plan.axis.gray.word / 2 + opts.consistency_periods * plan.slip_period
+            slips = repair_slips(
+                out["coordinate"], out["reason"], plan.slip_period, final_period, found, out["centre"], reach
+            )
         axes[plan.name] = AxisDecoding(
             coordinate=out["coordinate"],
             modulation=out["modulation"],
@@ -695,6 +704,8 @@ def _decode_axis_tile(
             centre = cv2.LUT(word, lut, dst=scratch.get(f"centre{plan.name}", shape, np.float32))
         else:
             centre = np.take(plan.gray_lut, word, out=scratch.get(f"centre{plan.name}", shape, np.float32))
+        if "centre" in out:
+            np.copyto(out["centre"], centre)
         if not plan.used:
             # gray-only chain: modulation from white/black, else half the smallest inverse contrast,
             # else the B of the phase sequence that gives the threshold
@@ -819,14 +830,20 @@ def repair_slips(
     slip_period: float,
     final_period: float,
     candidates: np.ndarray | None = None,
+    centre: np.ndarray | None = None,
+    cell_reach: float = math.inf,
 ) -> int:
     """Repair whole-period slips against the 5x5 median, in place; returns the number repaired.
 
     Candidates are valid pixels differing by more than ``slip_period / 2`` from a valid
     4-neighbour. A candidate whose 5x5 neighbourhood holds at least 13 valid coordinates and
     lies more than ``slip_period / 2`` from their median ``m`` is moved to
-    ``x + P_f round(P round((m - x) / P) / P_f)`` (P the slip period, P_f the final stage's)
-    and given reason 6.
+    ``x' = x + P_f round(P round((m - x) / P) / P_f)`` (P the slip period, P_f the final stage's)
+    and given reason 6, provided ``x'`` could have been read as the pixel's gray word: a bit
+    misread at a word edge puts the true coordinate at that edge, so ``|x' - centre| <= cell_reach``
+    (``centre``: (H, W) float32 centres of the decoded gray words; ``cell_reach``: half the word
+    plus the gray/phase tolerance). Without that bound a neighbourhood straddling a depth edge
+    (two surfaces, the median on the other one) would move correct pixels by whole words.
     """
     x = coordinate
     half = np.float32(slip_period / 2)
@@ -856,6 +873,10 @@ def repair_slips(
     r, c = rows[slipped], cols[slipped]
     shift = slip_period * np.rint((med[slipped] - values[slipped]) / slip_period)
     snapped = final_period * np.rint(shift / final_period)
-    x[r, c] = values[slipped] + snapped.astype(np.float32)
+    moved = values[slipped] + snapped.astype(np.float32)
+    if centre is not None:
+        reachable = np.abs(moved - centre[r, c]) <= np.float32(cell_reach)
+        r, c, moved = r[reachable], c[reachable], moved[reachable]
+    x[r, c] = moved
     reason[r, c] = REASON_SLIP_REPAIRED
-    return int(slipped.sum())
+    return int(r.size)

@@ -103,3 +103,23 @@ def test_slip_repaired_and_kept() -> None:
     assert abs(axis.coordinate[7, col] - u[7, col]) < 0.01
     unrepaired = decode_codec(images, c, CodecDecodeOptions(repair_slips=False)).axes["u"]
     assert abs(unrepaired.coordinate[7, col] - (u[7, col] - 16.0)) < 0.01
+
+
+def test_depth_edge_is_not_taken_for_a_slip() -> None:
+    """A pixel on the near side of a step whose 5x5 neighbourhood lies mostly on the far side (the
+    median on the other surface, 30 px away) is correct as decoded: the repair would move it by two
+    words, far outside the cell of the gray word it read, so it is left alone (found in a pinhole
+    render of a sphere, pixel (97, 88), moved by 32 px)."""
+    c = codec(word=16.0)
+    u = truth()
+    row, col = 10, 20
+    far = np.zeros((H, W), bool)  # the far surface: rows above the step and the rest of its row
+    far[:row, :48] = True
+    far[row, :48] = np.arange(48) != col
+    u[far] += 30.0
+    images = render_codec(c, u, None)
+    axis = decode_codec(images, c).axes["u"]
+    valid = axis.valid
+    assert valid[row - 2 : row + 3, col - 2 : col + 3].all()
+    assert axis.slips_repaired == 0 and axis.reason[row, col] == REASON_VALID
+    assert np.abs(axis.coordinate[valid] - u[valid]).max() < 0.01
