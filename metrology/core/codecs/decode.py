@@ -22,7 +22,9 @@ Reason codes (uint8, one per pixel and axis; the first that applies wins, in thi
 half the white-black difference, or half the smallest inverse contrast), 2 saturated (a
 phase frame at or above ``saturation_level``), 5 low inverse contrast (``|frame - inverse|``
 below ``min_inverse_contrast`` for some bit), 4 gray/phase inconsistent (the first phase
-stage lies more than ``consistency_periods`` of its period outside the gray word's cell),
+stage lies more than ``consistency_periods`` of its period outside the gray word's cell, or a
+phase stage lies more than ``unwrap_consistency_periods`` of its period from the coarser phase
+stage it was unwrapped from),
 3 outside the projector (``x`` outside ``[-0.5, size - 0.5]``), 6 slip repaired but kept, 0
 valid. Coordinates are NaN unless the reason is 0 or 6.
 
@@ -89,6 +91,11 @@ class CodecDecodeOptions:
     consistency_periods : float, optional
         How far, in periods of the first phase stage, its coordinate may lie outside the gray
         word's cell. Default 0.25; gcps-v1 keeps today's 0.35 words = 0.0875 periods.
+    unwrap_consistency_periods : float, optional
+        How far, in periods of a phase stage unwrapped from another phase (or beat) stage, its
+        coordinate may lie from that coarser stage's: ``|x - x_c| <= tol * P``, else the pixel is
+        refused as inconsistent (unwrapping fails at half a period; pixels whose coarse
+        coordinate is that noisy are refused before they slip). Default 1/3.
     saturation_level : float, optional
         Grey level at or above which a frame is saturated. Default the full scale of the
         dtype (255, 65535); no check for float images.
@@ -102,12 +109,19 @@ class CodecDecodeOptions:
     min_modulation: float | None = None
     min_inverse_contrast: float | None = None
     consistency_periods: float | None = None
+    unwrap_consistency_periods: float | None = None
     saturation_level: float | None = None
     repair_slips: bool = True
     exact_phase: bool | None = None
 
     def __post_init__(self) -> None:
-        for name in ("min_modulation", "min_inverse_contrast", "consistency_periods", "saturation_level"):
+        for name in (
+            "min_modulation",
+            "min_inverse_contrast",
+            "consistency_periods",
+            "unwrap_consistency_periods",
+            "saturation_level",
+        ):
             value = getattr(self, name)
             if value is None:
                 continue
@@ -134,6 +148,9 @@ class CodecDecodeOptions:
         consistency = self.consistency_periods
         if consistency is None:
             consistency = 0.35 / 4 if gcps_v1 else 0.25
+        unwrap = self.unwrap_consistency_periods
+        if unwrap is None:
+            unwrap = 1 / 3
         saturation = self.saturation_level
         if saturation is None:
             saturation = full if integer else math.inf
@@ -142,6 +159,7 @@ class CodecDecodeOptions:
             min_modulation=float(min_mod),
             min_inverse_contrast=float(contrast),
             consistency_periods=float(consistency),
+            unwrap_consistency_periods=float(unwrap),
             saturation_level=float(saturation),
             repair_slips=self.repair_slips,
             exact_phase=bool(exact),
@@ -618,7 +636,7 @@ def _decode_axis_tile(
     h, w = tile.shape[1:]
     shape = (h, w)
     assert opts.min_modulation is not None and opts.min_inverse_contrast is not None
-    assert opts.consistency_periods is not None
+    assert opts.consistency_periods is not None and opts.unwrap_consistency_periods is not None
     exact = bool(opts.exact_phase)
     min_mod = np.float32(opts.min_modulation)
     dark = scratch.get(f"dark{plan.name}", shape, bool)
@@ -742,14 +760,26 @@ def _decode_axis_tile(
             x.fill((plan.extent - 1) / 2)
         # k = round((x_c - origin) / P - frac); x = origin + P (frac + k), two fused passes
         cv2.addWeighted(x, 1 / stage.period, frac, -1.0, -stage.origin / stage.period, dst=tmp)
+        if previous is not None and previous.kind != "gray":
+            # a phase stage unwrapped from another: |x - x_c| = P |t - round(t)| must stay within
+            # the tolerance (a coarse coordinate that far off is too close to a wrong period)
+            if inconsistent is None:
+                inconsistent = scratch.get(f"incons{plan.name}", shape, bool)
+                inconsistent.fill(False)
+            deviation = scratch.get("unwrap_dev", shape, np.float32)
+            cv2.absdiff(tmp, np.rint(tmp, out=deviation), dst=deviation)
+            inconsistent |= deviation > np.float32(opts.unwrap_consistency_periods)
         np.rint(tmp, out=tmp)
         cv2.addWeighted(tmp, stage.period, frac, stage.period, stage.origin, dst=x)
-        if previous is not None and previous.kind == "gray":
-            assert centre is not None and g is not None
+        if centre is not None and g is not None:
+            # every phase stage (not only the first: a beat wider than the word is unwrapped by
+            # the word almost vacuously, and its noise can move the finer stages by whole periods)
             tolerance = np.float32(g.word / 2 + opts.consistency_periods * stage.period)
-            inconsistent = scratch.get(f"incons{plan.name}", shape, bool)
+            if inconsistent is None:
+                inconsistent = scratch.get(f"incons{plan.name}", shape, bool)
+                inconsistent.fill(False)
             cv2.absdiff(x, centre, dst=tmp)
-            np.greater(tmp, tolerance, out=inconsistent)
+            inconsistent |= tmp > tolerance
         previous = stage
 
     if plan.used:
