@@ -273,6 +273,27 @@ class _SequencePlan:
     period: float
     origin: float
     need_noise: bool
+    # 8-bit stacks: C and -S by running weighted averages (OpenCV's accumulateWeighted reads the
+    # uint8 frames directly): x_k = (1 - a_k) x_{k-1} + a_k I_k ends at K sum_k w_k I_k when
+    # a_k = K w_k / prod_{j > k} (1 - a_j); rows: cos, -sin; K = recursive_scale
+    recursive: np.ndarray = field(default_factory=lambda: np.zeros((2, 0)))
+    recursive_scale: float = 1.0
+
+
+def _recursive_alphas(weights: np.ndarray) -> tuple[np.ndarray, float]:
+    """The running-average factors ``a`` (2, N) float64 and the scale K of :class:`_SequencePlan`.
+
+    K = 1 / (2 max_row sum |w|) keeps every product ``prod (1 - a_j)`` >= 1/2.
+    """
+    w = np.asarray(weights, np.float64)
+    scale = 1.0 / (2.0 * float(np.abs(w).sum(axis=1).max()))
+    alphas = np.zeros_like(w)
+    for row in range(w.shape[0]):
+        product = 1.0
+        for k in range(w.shape[1] - 1, -1, -1):
+            alphas[row, k] = scale * w[row, k] / product
+            product *= 1.0 - alphas[row, k]
+    return alphas, scale
 
 
 @dataclass(frozen=True)
@@ -314,6 +335,8 @@ def _plan(codec: Codec, with_noise: bool = True) -> list[_AxisPlan]:
                     seq.period,
                     seq.origin,
                     need_noise=with_noise and seq.steps >= 4 and i == noise_index,
+                    recursive=_recursive_alphas(np.stack([np.cos(delta), -np.sin(delta)]))[0],
+                    recursive_scale=_recursive_alphas(np.stack([np.cos(delta), -np.sin(delta)]))[1],
                 )
             )
         lut = None
@@ -544,15 +567,28 @@ class _PhaseResult:
     noise: np.ndarray | None
 
 
-def _phase_tile(tile: np.ndarray, seq: _SequencePlan, exact: bool, scratch: Any, tag: str) -> _PhaseResult:
+def _phase_tile(
+    tile: np.ndarray,
+    seq: _SequencePlan,
+    exact: bool,
+    scratch: Any,
+    tag: str,
+    modulation_dst: np.ndarray | None = None,
+    noise_dst: np.ndarray | None = None,
+) -> _PhaseResult:
     """Least-squares phase, modulation, sum and (N >= 4, when asked) noise of one sequence on a tile.
 
     The sum and the sum of squares come from OpenCV's accumulators reading the frames directly
-    (float32 for 8-bit stacks, whose sums stay exact integers below 2**24; float64 otherwise);
-    ``C`` and ``-S`` from ``einsum`` (numpy's own loops: OpenBLAS threads busy-wait badly on a
-    shared machine) over the differences of frames half a turn apart when N is even. The noise
-    ``R = sum I^2 - (sum I)^2 / N - (N / 2) B^2`` is combined in float64 (it is a small
-    difference of large sums).
+    (float32 for 8-bit stacks, whose sums stay exact integers below 2**24; float64 otherwise).
+    8-bit stacks: ``K C`` and ``-K S`` are running weighted averages over the uint8 frames
+    (``cv2.accumulateWeighted``, one in-cache pass per frame and sum, factors from
+    :func:`_recursive_alphas`), the scale K divided out of B and the noise. Other stacks: ``C``
+    and ``-S`` from ``einsum`` in float64 (numpy's own loops: OpenBLAS threads busy-wait badly
+    on a shared machine) over the differences of frames half a turn apart when N is even. The
+    noise ``R = sum I^2 - (sum I)^2 / N - (N / 2) B^2`` with ``(N / 2) B^2 = (2 / N)(C^2 + S^2)``.
+
+    ``modulation_dst`` and ``noise_dst`` (h, w) float32, optional: where B and the noise are
+    written (else scratch arrays).
     """
     h, w = tile.shape[1:]
     n = seq.steps
@@ -569,7 +605,18 @@ def _phase_tile(tile: np.ndarray, seq: _SequencePlan, exact: bool, scratch: Any,
         if sq is not None:
             cv2.accumulateSquare(tile[fi], sq)
     res = scratch.get(f"sums{tag}", (2, h * w), work)
-    if n % 2 == 0:
+    scale = 1.0  # c and neg_s below are K C and -K S
+    if work is np.float32:
+        # 8-bit: one running weighted average per sum, reading the uint8 frames directly
+        scale = seq.recursive_scale
+        sums = res.reshape(2, h, w)
+        sums.fill(0)
+        for row in range(2):
+            for k, fi in enumerate(frames):
+                alpha = float(seq.recursive[row, k])
+                if abs(alpha) > 1e-9:  # sin 0 and cos(pi / 2) ~ 6e-17 leave the average as it is
+                    cv2.accumulateWeighted(tile[fi], sums[row], alpha)
+    elif n % 2 == 0:
         # cos and sin change sign half a turn later: C = sum_{k < N/2} cos_k (I_k - I_{k + N/2}), same for S
         half = n // 2
         d = scratch.get(f"pairs{work.__name__}", (half, h, w), work)
@@ -592,31 +639,28 @@ def _phase_tile(tile: np.ndarray, seq: _SequencePlan, exact: bool, scratch: Any,
         cv2.cartToPolar(c, neg_s, magnitude=mag, angle=angle)
     # frac in [0, 1]: frac = 1 (theta = 2 pi) unwraps like 0, the rounding below absorbs it
     frac = np.multiply(angle, np.float32(1 / TWO_PI), out=angle)
-    b = np.multiply(mag, np.float32(2 / n), out=mag)
     noise = None
-    if sq is not None:
-        sq = sq.ravel()
-        if work is np.float32:
-            # 8-bit: sum I^2 is an exact integer below 2**24; total * (total / N) ~ 1e6 keeps ~0.1 grey^2
-            t = scratch.get("resid_t", (h * w,), np.float32)
-            cr, sr, tr = c.ravel(), neg_s.ravel(), total.ravel()
-            np.multiply(tr, np.float32(1 / n), out=t)
-            t *= tr
-            sq -= t
-            np.multiply(cr, cr, out=t)
-            t += sr * sr
-            t *= np.float32(2 / n)
-            sq -= t
-            np.maximum(sq, 0, out=sq)
-            sq *= np.float32(1 / (n - 3))
-            noise = np.sqrt(sq, out=sq).reshape(h, w)
-        else:
-            r = sq.astype(np.float64)
-            cc, ss, tt = c.ravel(), neg_s.ravel(), total.ravel()
-            r -= (cc * cc + ss * ss) * (2 / n) + tt * tt * (1 / n)
-            np.maximum(r, 0, out=r)
-            r *= 1 / (n - 3)
-            noise = np.sqrt(r).astype(np.float32).reshape(h, w)
+    if sq is not None and work is np.float32:
+        # 8-bit: sum I^2 is an exact integer below 2**24; (sum I)^2 / N ~ 1e6 keeps ~0.1 grey^2;
+        # (C^2 + S^2) (2 / N) from the magnitude, in fused OpenCV passes
+        t = scratch.get("resid_t", (h, w), np.float32)
+        cv2.multiply(total, total, dst=t, scale=1 / n)
+        cv2.subtract(sq, t, dst=sq)
+        cv2.multiply(mag, mag, dst=t, scale=2 / n / scale**2)
+        cv2.subtract(sq, t, dst=sq)
+        np.maximum(sq, 0, out=sq)
+        sq *= np.float32(1 / (n - 3))
+        noise = np.sqrt(sq, out=noise_dst if noise_dst is not None else sq)
+    b = np.multiply(mag, np.float32(2 / n / scale), out=modulation_dst if modulation_dst is not None else mag)
+    if sq is not None and work is not np.float32:
+        # 16-bit and float: combined in float64 (a small difference of large sums)
+        r = sq.ravel().astype(np.float64)
+        cc, ss, tt = c.ravel(), neg_s.ravel(), total.ravel()
+        r -= (cc * cc + ss * ss) * (2 / n) + tt * tt * (1 / n)
+        np.maximum(r, 0, out=r)
+        r *= 1 / (n - 3)
+        noise = noise_dst if noise_dst is not None else np.empty((h, w), np.float32)
+        np.copyto(noise, np.sqrt(r).reshape(h, w), casting="unsafe")
     total32 = total if total.dtype == np.float32 else total.astype(np.float32)
     return _PhaseResult(frac=frac, modulation=b, total=total32, noise=noise)
 
@@ -643,7 +687,16 @@ def _decode_axis_tile(
     dark.fill(False)
     results: dict[int, _PhaseResult] = {}
     for i in plan.used:
-        r = results[i] = _phase_tile(tile, plan.sequences[i], exact, scratch, f"{plan.name}{i}")
+        # the final sequence's B and noise go straight into the outputs
+        r = results[i] = _phase_tile(
+            tile,
+            plan.sequences[i],
+            exact,
+            scratch,
+            f"{plan.name}{i}",
+            modulation_dst=out["modulation"] if plan.final == (i,) else None,
+            noise_dst=out["noise"] if plan.sequences[i].need_noise else None,
+        )
         dark |= r.modulation < min_mod
     first_total: np.ndarray | None = None
     first: _PhaseResult | None = None
@@ -785,13 +838,15 @@ def _decode_axis_tile(
     if plan.used:
         final = [results[i].modulation for i in plan.final]
         if len(final) == 1:
-            np.copyto(out["modulation"], final[0])
+            if final[0] is not out["modulation"]:
+                np.copyto(out["modulation"], final[0])
         else:
             np.minimum(final[0], final[1], out=out["modulation"])
     noise_out = out["noise"]
     noise = next((results[i].noise for i in plan.used if results[i].noise is not None), None)
     if noise is not None:
-        np.copyto(noise_out, noise)
+        if noise is not noise_out:
+            np.copyto(noise_out, noise)
     else:
         noise_out.fill(np.nan)
 
@@ -842,13 +897,16 @@ def slip_candidates(x: np.ndarray, half_period: float) -> np.ndarray:
     """
     half = float(half_period)
     h, w = x.shape
+    # 1 where a jump (NaN compares false); a tile without any needs no index search
+    mx = np.greater(cv2.absdiff(x[:, 1:], x[:, :-1]), half).view(np.uint8) if w > 1 else None
+    my = np.greater(cv2.absdiff(x[1:, :], x[:-1, :]), half).view(np.uint8) if h > 1 else None
+    if not any(m is not None and cv2.countNonZero(m) for m in (mx, my)):
+        return np.empty(0, np.intp)
     jump = np.zeros((h, w), np.uint8)
-    if w > 1:
-        mx = np.greater(cv2.absdiff(x[:, 1:], x[:, :-1]), half).view(np.uint8)  # NaN compares false
+    if mx is not None:
         cv2.bitwise_or(jump[:, 1:], mx, dst=jump[:, 1:])
         cv2.bitwise_or(jump[:, :-1], mx, dst=jump[:, :-1])
-    if h > 1:
-        my = np.greater(cv2.absdiff(x[1:, :], x[:-1, :]), half).view(np.uint8)
+    if my is not None:
         cv2.bitwise_or(jump[1:, :], my, dst=jump[1:, :])
         cv2.bitwise_or(jump[:-1, :], my, dst=jump[:-1, :])
     return np.flatnonzero(jump)
