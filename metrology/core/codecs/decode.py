@@ -816,23 +816,24 @@ def _decode_axis_tile(
         if previous is not None and previous.kind != "gray":
             # a phase stage unwrapped from another: |x - x_c| = P |t - round(t)| must stay within
             # the tolerance (a coarse coordinate that far off is too close to a wrong period)
-            if inconsistent is None:
-                inconsistent = scratch.get(f"incons{plan.name}", shape, bool)
-                inconsistent.fill(False)
             deviation = scratch.get("unwrap_dev", shape, np.float32)
             cv2.absdiff(tmp, np.rint(tmp, out=deviation), dst=deviation)
-            inconsistent |= deviation > np.float32(opts.unwrap_consistency_periods)
+            limit = np.float32(opts.unwrap_consistency_periods)
+            if inconsistent is None:
+                inconsistent = np.greater(deviation, limit, out=scratch.get(f"incons{plan.name}", shape, bool))
+            else:
+                inconsistent |= deviation > limit
         np.rint(tmp, out=tmp)
         cv2.addWeighted(tmp, stage.period, frac, stage.period, stage.origin, dst=x)
         if centre is not None and g is not None:
             # every phase stage (not only the first: a beat wider than the word is unwrapped by
             # the word almost vacuously, and its noise can move the finer stages by whole periods)
             tolerance = np.float32(g.word / 2 + opts.consistency_periods * stage.period)
-            if inconsistent is None:
-                inconsistent = scratch.get(f"incons{plan.name}", shape, bool)
-                inconsistent.fill(False)
             cv2.absdiff(x, centre, dst=tmp)
-            inconsistent |= tmp > tolerance
+            if inconsistent is None:
+                inconsistent = np.greater(tmp, tolerance, out=scratch.get(f"incons{plan.name}", shape, bool))
+            else:
+                inconsistent |= tmp > tolerance
         previous = stage
 
     if plan.used:
