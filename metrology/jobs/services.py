@@ -25,26 +25,18 @@ import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from datetime import timedelta
-from importlib import import_module
 
 from django.conf import settings
+from django.core.files import File
+from django.core.files.storage import Storage
 from django.db import close_old_connections, connection, transaction
 from django.utils import timezone
 
+from metrology.jobs.handlers import JobHandler, handler_for
 from metrology.jobs.models import Job
 from metrology.version import software_version
 
 logger = logging.getLogger(__name__)
-
-# kind -> "module:function" taking (job, run) and computing the job; imported lazily so that
-# jobs depend on no other app.
-HANDLERS: dict[str, str] = {
-    Job.Kind.SIMULATE_CAPTURE: "metrology.captures.services:run_simulate_capture",
-    Job.Kind.MEASUREMENT: "metrology.measurements.services:run_measurement",
-    Job.Kind.CALIBRATION: "metrology.calibrations.services:run_calibration",
-    Job.Kind.CHARACTERIZATION: "metrology.characterizations.services:run_characterization",
-    Job.Kind.REPORT: "metrology.reports.services:run_report",
-}
 
 
 class SupersededError(Exception):
@@ -69,7 +61,7 @@ def enqueue_job(job: Job) -> None:
 
 
 def _send(job_id: int) -> None:
-    from workers.tasks import run_job
+    from metrology.jobs.tasks import run_job
 
     result = run_job.apply_async(args=[job_id])
     if not settings.CELERY_TASK_ALWAYS_EAGER:
@@ -86,7 +78,7 @@ class JobRun:
     job_id: int
     token: uuid.UUID
     timings: dict[str, float] = field(default_factory=dict)
-    written: list[tuple[object, str]] = field(default_factory=list)  # (storage, name) to delete if superseded
+    written: list[tuple[Storage, str]] = field(default_factory=list)  # (storage, name) to delete if superseded
 
     def progress(self, percent: int, phase: str = "") -> None:
         """Record progress (0-100) and what the job is doing; raises :class:`SupersededError` if taken over."""
@@ -108,7 +100,7 @@ class JobRun:
         finally:
             self.timings[name] = round(self.timings.get(name, 0.0) + time.perf_counter() - start, 4)
 
-    def save_file(self, storage, name: str, content) -> str:
+    def save_file(self, storage: Storage, name: str, content: File) -> str:
         """Save ``content`` (a django File) under ``name``; remembered for cleanup. Returns the stored name."""
         stored = storage.save(name, content)
         self.written.append((storage, stored))
@@ -228,9 +220,8 @@ class _Heartbeat(threading.Thread):
         self.join(timeout=5)
 
 
-def _handler(kind: str) -> Callable[[Job, JobRun], None]:
-    module, _, name = HANDLERS[kind].partition(":")
-    return getattr(import_module(module), name)
+def _handler(kind: str) -> JobHandler:
+    return handler_for(kind)
 
 
 def execute_job(job_id: int, *, task_id: str = "", transient: tuple[type[BaseException], ...] = ()) -> str:
@@ -244,7 +235,7 @@ def execute_job(job_id: int, *, task_id: str = "", transient: tuple[type[BaseExc
     run = claim_job(job_id, task_id)
     if run is None:
         return "skipped"
-    if run == BUSY:
+    if not isinstance(run, JobRun):
         return BUSY
     job = Job.objects.get(pk=job_id)
     heartbeat = None if settings.CELERY_TASK_ALWAYS_EAGER else _Heartbeat(run)

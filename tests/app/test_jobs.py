@@ -139,7 +139,7 @@ def test_transient_errors_release_the_job_for_a_retry(job, handler):
 
 
 def test_task_options():
-    from workers.tasks import TRANSIENT_ERRORS, run_job
+    from metrology.jobs.tasks import TRANSIENT_ERRORS, run_job
 
     assert run_job.acks_late and run_job.reject_on_worker_lost
     assert set(run_job.autoretry_for) == set(TRANSIENT_ERRORS)
@@ -148,3 +148,26 @@ def test_task_options():
 
     assert app.conf.task_soft_time_limit and app.conf.task_time_limit > app.conf.task_soft_time_limit
     assert "sweep-stale-jobs" in app.conf.beat_schedule
+
+
+def test_tasks_keep_their_registered_names_and_are_autodiscovered():
+    """Messages already queued and beat entries name the tasks by these strings."""
+    from workers import app
+
+    app.loader.import_default_modules()  # what a worker does at start: autodiscovery over the installed apps
+    names = {"workers.tasks.run_job", "workers.tasks.sweep_stale_jobs"}
+    names.add("metrology.reports.tasks.scheduled_characterization_report")
+    assert names <= set(app.tasks), sorted(name for name in app.tasks if not name.startswith("celery."))
+    assert app.tasks["workers.tasks.run_job"].__module__ == "metrology.jobs.tasks"
+
+
+def test_every_job_kind_has_a_registered_handler():
+    from metrology.jobs.handlers import handler_for, register_handler, registered_kinds
+    from metrology.measurements.services import run_measurement
+
+    assert registered_kinds() == set(Job.Kind)
+    assert handler_for("measurement") is run_measurement
+    with pytest.raises(LookupError, match="'nonsense'"):
+        handler_for("nonsense")
+    with pytest.raises(ValueError, match="already has the handler"):
+        register_handler(Job.Kind.MEASUREMENT, lambda job, run: None)

@@ -1,10 +1,20 @@
-"""Thin Celery tasks: they take ids and call services (metrology.jobs.services)."""
+"""Celery tasks of the jobs: thin, they take ids and call :mod:`metrology.jobs.services`.
+
+Found by the Celery app's autodiscovery (``workers/celery.py``). The registered names are the ones
+these tasks had when they lived in ``workers/tasks.py``, so messages already queued and beat entries
+keep resolving.
+"""
 
 from __future__ import annotations
 
 from celery import shared_task
+from celery.signals import worker_ready
+from django.conf import settings
 from django.db import InterfaceError, OperationalError
 from kombu.exceptions import OperationalError as BrokerOperationalError
+
+from metrology.jobs.services import BUSY, execute_job
+from metrology.jobs.services import sweep_stale_jobs as _sweep_jobs
 
 # Errors known to be transient: the database or the broker was briefly unreachable.
 TRANSIENT_ERRORS: tuple[type[BaseException], ...] = (
@@ -28,13 +38,9 @@ RETRY_ON_TRANSIENT_ERRORS: dict[str, object] = {
 exponential back-off (5 s to 2 min, 5 times) when the broker or database blips."""
 
 
-@shared_task(bind=True, **RETRY_ON_TRANSIENT_ERRORS)
+@shared_task(bind=True, name="workers.tasks.run_job", **RETRY_ON_TRANSIENT_ERRORS)
 def run_job(self, job_id: int) -> str:
     """Run (or skip, when already done or taken) the job ``job_id``."""
-    from django.conf import settings
-
-    from metrology.jobs.services import BUSY, execute_job
-
     outcome = execute_job(job_id, task_id=self.request.id or "", transient=TRANSIENT_ERRORS)
     if outcome == BUSY:
         # This message came back while its job still looks running: the worker that had it died
@@ -43,9 +49,13 @@ def run_job(self, job_id: int) -> str:
     return outcome
 
 
-@shared_task(acks_late=True, ignore_result=True)
+@shared_task(name="workers.tasks.sweep_stale_jobs", acks_late=True, ignore_result=True)
 def sweep_stale_jobs() -> dict[str, int]:
-    """Requeue or fail jobs whose worker stopped sending heartbeats."""
-    from metrology.jobs.services import sweep_stale_jobs as sweep
+    """Requeue or fail jobs whose worker stopped sending heartbeats, and resend queued jobs nobody claimed."""
+    return _sweep_jobs()
 
-    return sweep()
+
+@worker_ready.connect
+def _sweep_on_start(sender: object = None, **_: object) -> None:
+    """A fresh worker looks for jobs left running by a worker that died."""
+    sweep_stale_jobs.delay()
