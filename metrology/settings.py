@@ -126,6 +126,8 @@ INSTALLED_APPS = [
 MIDDLEWARE = [
     "django.middleware.security.SecurityMiddleware",
     "whitenoise.middleware.WhiteNoiseMiddleware",
+    # a request whose database connection broke is retried once; 503 (not 500) when it stays down
+    "metrology.unavailable.TransientErrorMiddleware",
     "django.contrib.sessions.middleware.SessionMiddleware",
     "django.middleware.common.CommonMiddleware",
     "django.middleware.csrf.CsrfViewMiddleware",
@@ -173,7 +175,13 @@ with contextlib.suppress(OSError):  # WhiteNoise warns on every request while th
 _database_url = env_url("DATABASE_URL", ("postgres", "postgresql", "pgsql", "sqlite"))
 if _database_url:
     try:
-        DATABASES = {"default": dj_database_url.parse(_database_url, conn_max_age=60)}
+        # connections are kept 60 s and checked before reuse (one killed while idle is reopened);
+        # GCPS_DB_HEALTH_CHECKS=0 leaves only the in-request retry (metrology/unavailable.py)
+        DATABASES = {
+            "default": dj_database_url.parse(
+                _database_url, conn_max_age=60, conn_health_checks=env_bool("GCPS_DB_HEALTH_CHECKS", True)
+            )
+        }
     except ValueError as exc:
         raise ImproperlyConfigured(f"DATABASE_URL is not a valid database URL: {exc}") from None
 else:
@@ -248,6 +256,9 @@ REDIS_URL = env_url("REDIS_URL", ("redis", "rediss"))
 CELERY_BROKER_URL = env_url("CELERY_BROKER_URL", ("redis", "rediss", "amqp", "memory")) or REDIS_URL
 # Without a broker, tasks run in-process when enqueued (the embedded default).
 CELERY_TASK_ALWAYS_EAGER = not CELERY_BROKER_URL
+if CELERY_BROKER_URL.startswith(("redis://", "rediss://")):
+    # kombu's Redis transport, made to survive a Redis restart while messages are unacknowledged
+    CELERY_BROKER_TRANSPORT = "workers.broker:Transport"
 if CELERY_TASK_ALWAYS_EAGER:
     CELERY_BROKER_URL = "memory://localhost/"
 CELERY_TASK_EAGER_PROPAGATES = False
@@ -270,11 +281,15 @@ CELERY_BEAT_SCHEDULER = env_str("CELERY_BEAT_SCHEDULER", "django_celery_beat.sch
 CELERY_TIMEZONE = TIME_ZONE
 
 # Jobs: a running job writes a heartbeat every GCPS_JOB_HEARTBEAT_SECONDS; one whose heartbeat is
-# older than GCPS_JOB_STALE_SECONDS is taken over by a redelivered message or by the sweep.
-GCPS_JOB_HEARTBEAT_SECONDS = env_int("GCPS_JOB_HEARTBEAT_SECONDS", 10, minimum=1)
-GCPS_JOB_STALE_SECONDS = env_int("GCPS_JOB_STALE_SECONDS", 120, minimum=2)
+# older than GCPS_JOB_STALE_SECONDS is taken over by a redelivered message or by the sweep, which
+# every worker runs every GCPS_JOB_SWEEP_SECONDS (beat too, when it runs): a dead worker's job is
+# taken over within about STALE + 1.2 x SWEEP seconds (20 + 6 = 26 s by default). The sweep also
+# sends again the jobs queued for GCPS_JOB_RESEND_SECONDS without being claimed (a lost message).
+GCPS_JOB_HEARTBEAT_SECONDS = env_int("GCPS_JOB_HEARTBEAT_SECONDS", 4, minimum=1)
+GCPS_JOB_STALE_SECONDS = env_int("GCPS_JOB_STALE_SECONDS", 20, minimum=2)
 GCPS_JOB_MAX_ATTEMPTS = env_int("GCPS_JOB_MAX_ATTEMPTS", 3, minimum=1)
-GCPS_JOB_SWEEP_SECONDS = env_int("GCPS_JOB_SWEEP_SECONDS", 60, minimum=1)
+GCPS_JOB_SWEEP_SECONDS = env_int("GCPS_JOB_SWEEP_SECONDS", 5, minimum=1)
+GCPS_JOB_RESEND_SECONDS = env_int("GCPS_JOB_RESEND_SECONDS", 120, minimum=1)
 # Fault injection for tests: pause between the phases of a job (0 in production).
 GCPS_JOB_PHASE_PAUSE_SECONDS = float(env_int("GCPS_JOB_PHASE_PAUSE_MS", 0, minimum=0)) / 1000.0
 

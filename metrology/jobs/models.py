@@ -35,6 +35,9 @@ class Job(models.Model):
     created_at = models.DateTimeField(auto_now_add=True)
     started_at = models.DateTimeField(null=True, blank=True)
     heartbeat_at = models.DateTimeField(null=True, blank=True)
+    enqueued_at = models.DateTimeField(
+        null=True, blank=True, help_text="When the job's message was last sent to the workers"
+    )
     finished_at = models.DateTimeField(null=True, blank=True)
 
     class Meta:

@@ -8,13 +8,14 @@ keep resolving.
 from __future__ import annotations
 
 from celery import shared_task
-from celery.signals import worker_ready
+from celery.signals import worker_ready, worker_shutdown
 from django.conf import settings
 from django.db import InterfaceError, OperationalError
 from kombu.exceptions import OperationalError as BrokerOperationalError
 
 from metrology.jobs.services import BUSY, execute_job
-from metrology.jobs.services import sweep_stale_jobs as _sweep_jobs
+from metrology.jobs.services import sweep_jobs as _sweep_jobs
+from metrology.jobs.sweeper import PeriodicSweep
 
 # Errors known to be transient: the database or the broker was briefly unreachable.
 TRANSIENT_ERRORS: tuple[type[BaseException], ...] = (
@@ -55,7 +56,23 @@ def sweep_stale_jobs() -> dict[str, int]:
     return _sweep_jobs()
 
 
+_periodic_sweep: PeriodicSweep | None = None
+
+
 @worker_ready.connect
 def _sweep_on_start(sender: object = None, **_: object) -> None:
-    """A fresh worker looks for jobs left running by a worker that died."""
+    """A fresh worker looks for jobs left by a worker that died, then keeps sweeping on a timer
+    (recovery does not depend on beat)."""
+    global _periodic_sweep
     sweep_stale_jobs.delay()
+    if _periodic_sweep is None:
+        _periodic_sweep = PeriodicSweep()
+        _periodic_sweep.start()
+
+
+@worker_shutdown.connect
+def _stop_sweeping(sender: object = None, **_: object) -> None:
+    global _periodic_sweep
+    if _periodic_sweep is not None:
+        _periodic_sweep.stop()
+        _periodic_sweep = None

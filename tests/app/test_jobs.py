@@ -113,18 +113,26 @@ def test_the_sweep_requeues_stale_jobs_and_fails_exhausted_ones(user_and_token, 
     [
         (ValueError("reference stack has no valid pixel"), "reference stack has no valid pixel"),
         (SoftTimeLimitExceeded(), "stopped at the time limit of"),
-        (KeyError("boom"), "internal error (KeyError): 'boom'"),
+        (KeyError("boom"), "internal error during the 'measure' phase: the job stopped on an unexpected KeyError"),
+        (MemoryError(), "the worker ran out of memory during the 'measure' phase"),
+        # a library's message that names its source files is not shown: it is logged instead
+        (
+            ValueError('File "/usr/lib/python3/dist-packages/scipy/optimize/_lsq.py", line 3, in f'),
+            "internal error during the 'measure' phase: the job stopped on an unexpected ValueError",
+        ),
     ],
 )
 def test_errors_fail_the_job_with_a_reason_and_leave_no_file(job, handler, media_root, error, reason):
     def compute(job, run):
+        run.progress(10, "measure")
         run.save_file(default_storage, f"measurements/{job.pk}/{run.token.hex}/height.npy", ContentFile(b"partial"))
         raise error
 
     handler(compute)
     assert services.execute_job(job.pk) == "failed"
     job.refresh_from_db()
-    assert job.status == "failed" and reason in job.error
+    assert job.status == "failed" and reason in job.error, job.error
+    assert "boom" not in job.error and "Traceback" not in job.error and ".py" not in job.error
     assert stored_files(media_root) == []
 
 
@@ -171,3 +179,32 @@ def test_every_job_kind_has_a_registered_handler():
         handler_for("nonsense")
     with pytest.raises(ValueError, match="already has the handler"):
         register_handler(Job.Kind.MEASUREMENT, lambda job, run: None)
+
+
+def test_the_sweep_resends_jobs_queued_too_long_and_a_job_sent_twice_runs_once(
+    user_and_token, settings, handler, django_capture_on_commit_callbacks
+):
+    """A lost message (broker restarted without persistence) leaves the job queued: it is sent again."""
+    calls = handler(lambda job, run: run.commit(lambda _job: None))
+    owner = user_and_token[0]
+    long_ago = timezone.now() - timedelta(seconds=settings.GCPS_JOB_RESEND_SECONDS + 5)
+    lost = services.create_job(owner=owner, kind="measurement", parameters={})
+    never_sent = services.create_job(owner=owner, kind="measurement", parameters={})
+    recent = services.create_job(owner=owner, kind="measurement", parameters={})
+    running = services.create_job(owner=owner, kind="measurement", parameters={})
+    Job.objects.filter(pk=lost.pk).update(enqueued_at=long_ago)
+    Job.objects.filter(pk=never_sent.pk).update(created_at=long_ago)
+    Job.objects.filter(pk=recent.pk).update(enqueued_at=timezone.now())
+    Job.objects.filter(pk=running.pk).update(status="running", enqueued_at=long_ago, heartbeat_at=timezone.now())
+    # embedded mode: "sending" runs the job in-process, so a resent job is done afterwards
+    with django_capture_on_commit_callbacks(execute=True):
+        assert services.resend_unclaimed_jobs() == {"resent": 2}
+    assert Job.objects.get(pk=lost.pk).status == Job.Status.DONE
+    assert Job.objects.get(pk=never_sent.pk).status == Job.Status.DONE
+    assert Job.objects.get(pk=recent.pk).status == Job.Status.QUEUED
+    assert Job.objects.get(pk=running.pk).status == Job.Status.RUNNING
+    assert len(calls) == 2
+    # the original message of the lost job turns up after all: the job is not run again
+    assert services.execute_job(lost.pk) == "skipped"
+    assert services.sweep_jobs() == {"requeued": 0, "failed": 0, "resent": 0}
+    assert len(calls) == 2 and Job.objects.get(pk=lost.pk).attempts == 1
