@@ -251,3 +251,35 @@ def test_broker_down_submissions_answer_503_and_nothing_half_made_remains(privat
     assert response.status_code == 202, response.text
     body = wait_for(http, f"/api/jobs/{response.json()['job']}/", finished, timeout=60)
     assert body["status"] == "done", body
+
+
+def test_database_unreachable_submissions_answer_503_and_nothing_half_made_remains(stack):
+    """The test's own database refuses connections (ALLOW_CONNECTIONS false, backends terminated)."""
+    http = session_for(stack)
+    base = stack.base_url
+    rig = http.post(f"{base}/api/rigs/", json={**SMALL_RIG, "name": "before"})
+    assert rig.status_code == 201, rig.text
+    name = stack.env["DATABASE_URL"].rsplit("/", 1)[1]
+    with psycopg.connect(PG_ADMIN_URL, autocommit=True) as admin:
+        admin.execute(f'ALTER DATABASE "{name}" ALLOW_CONNECTIONS false')
+    try:
+        terminate_connections(stack.env["DATABASE_URL"])
+        for method, path, body in [
+            ("POST", "/api/rigs/", {**SMALL_RIG, "name": "while down"}),
+            (
+                "POST",
+                f"/api/rigs/{rig.json()['id']}/captures/simulate/",
+                {"role": "reference", "scene": {"name": "reference"}},
+            ),
+            ("GET", "/api/jobs/", None),
+        ]:
+            response = http.request(method, f"{base}{path}", json=body)
+            assert response.status_code == 503, (path, response.status_code, response.text[:300])
+            assert int(response.headers["Retry-After"]) > 0
+            assert "database is unreachable" in response.json()["error"]
+    finally:
+        with psycopg.connect(PG_ADMIN_URL, autocommit=True) as admin:
+            admin.execute(f'ALTER DATABASE "{name}" ALLOW_CONNECTIONS true')
+    assert [r["name"] for r in http.get(f"{base}/api/rigs/").json()] == ["before"]
+    assert http.get(f"{base}/api/jobs/").json() == []
+    assert sql(stack, "SELECT count(*) FROM captures_capture") == [(0,)]
