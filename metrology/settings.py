@@ -268,6 +268,9 @@ CELERY_TASK_ACKS_LATE = True
 CELERY_TASK_REJECT_ON_WORKER_LOST = True
 CELERY_WORKER_PREFETCH_MULTIPLIER = 1
 CELERY_BROKER_CONNECTION_RETRY_ON_STARTUP = True
+# A job running when the broker connection drops keeps running (its row, not its message, says
+# whether it is done); its message, left unacknowledged, is dropped as done when redelivered.
+CELERY_WORKER_CANCEL_LONG_RUNNING_TASKS_ON_CONNECTION_LOSS = False
 # A message whose worker died unacknowledged is redelivered after this many seconds (Redis).
 CELERY_BROKER_TRANSPORT_OPTIONS = {
     "visibility_timeout": env_int("GCPS_BROKER_VISIBILITY_TIMEOUT", 3600, minimum=1),
@@ -283,10 +286,10 @@ CELERY_TIMEZONE = TIME_ZONE
 # Jobs: a running job writes a heartbeat every GCPS_JOB_HEARTBEAT_SECONDS; one whose heartbeat is
 # older than GCPS_JOB_STALE_SECONDS is taken over by a redelivered message or by the sweep, which
 # every worker runs every GCPS_JOB_SWEEP_SECONDS (beat too, when it runs): a dead worker's job is
-# taken over within about STALE + 1.2 x SWEEP seconds (20 + 6 = 26 s by default). The sweep also
+# taken over within about STALE + 1.2 x SWEEP seconds (15 + 6 = 21 s by default). The sweep also
 # sends again the jobs queued for GCPS_JOB_RESEND_SECONDS without being claimed (a lost message).
-GCPS_JOB_HEARTBEAT_SECONDS = env_int("GCPS_JOB_HEARTBEAT_SECONDS", 4, minimum=1)
-GCPS_JOB_STALE_SECONDS = env_int("GCPS_JOB_STALE_SECONDS", 20, minimum=2)
+GCPS_JOB_HEARTBEAT_SECONDS = env_int("GCPS_JOB_HEARTBEAT_SECONDS", 3, minimum=1)
+GCPS_JOB_STALE_SECONDS = env_int("GCPS_JOB_STALE_SECONDS", 15, minimum=2)
 GCPS_JOB_MAX_ATTEMPTS = env_int("GCPS_JOB_MAX_ATTEMPTS", 3, minimum=1)
 GCPS_JOB_SWEEP_SECONDS = env_int("GCPS_JOB_SWEEP_SECONDS", 5, minimum=1)
 GCPS_JOB_RESEND_SECONDS = env_int("GCPS_JOB_RESEND_SECONDS", 120, minimum=1)
