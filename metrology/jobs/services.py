@@ -31,7 +31,8 @@ from django.conf import settings
 from django.core.files import File
 from django.core.files.storage import Storage
 from django.db import close_old_connections, connection, transaction
-from django.db.models import Q
+from django.db.models import F, Q
+from django.db.models.functions import Greatest
 from django.utils import timezone
 
 from metrology.jobs.handlers import JobHandler, handler_for
@@ -231,9 +232,13 @@ def fail_job(run: JobRun, reason: str) -> None:
 
 
 def release_job(run: JobRun) -> None:
-    """Give the job back to the queue (before a retry of a transient failure)."""
+    """Give the job back to the queue (before a retry of a transient failure).
+
+    The attempt is not counted: ``GCPS_JOB_MAX_ATTEMPTS`` bounds the attempts that ended with their
+    worker gone, not the database or broker blips a retry gets through.
+    """
     Job.objects.filter(pk=run.job_id, run_token=run.token, status=Job.Status.RUNNING).update(
-        status=Job.Status.QUEUED, run_token=None, phase="waiting to retry"
+        status=Job.Status.QUEUED, run_token=None, phase="waiting to retry", attempts=Greatest(F("attempts") - 1, 0)
     )
 
 
@@ -254,6 +259,7 @@ class _Heartbeat(threading.Thread):
                     )
                 except Exception:  # a lost database must not kill the computation; the sweep will see it
                     logger.warning("heartbeat of job %s failed", self.run_.job_id, exc_info=True)
+                    connection.close()  # a broken connection stays broken: open a new one next time
         finally:
             connection.close()
 
@@ -292,8 +298,11 @@ def execute_job(job_id: int, *, task_id: str = "", transient: tuple[type[BaseExc
         return "superseded"
     except transient:
         run.discard_files()
+        if not connection.in_atomic_block:  # the connection that failed stays broken: open a new one
+            with contextlib.suppress(Exception):
+                connection.close()
         with contextlib.suppress(Exception):
-            release_job(run)
+            release_job(run)  # queued again at once, so that the task's retry can claim it
         raise
     except Exception as exc:
         run.discard_files()

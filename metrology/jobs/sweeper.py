@@ -13,7 +13,7 @@ import random
 import threading
 
 from django.conf import settings
-from django.db import connection
+from django.db import close_old_connections, connection
 
 logger = logging.getLogger(__name__)
 
@@ -33,6 +33,7 @@ class PeriodicSweep(threading.Thread):
         try:
             while not self.stop_event.wait(self.interval_s * (1.0 + 0.2 * random.random())):
                 try:
+                    close_old_connections()  # drop one past its age or broken, as a request would
                     sweep_jobs()
                     self.runs += 1
                 except Exception:  # the database or broker may be away for a while: try again next time

@@ -142,8 +142,11 @@ def test_transient_errors_release_the_job_for_a_retry(job, handler):
         services.execute_job(job.pk, transient=(OperationalError,))
     job.refresh_from_db()
     assert job.status == "queued" and job.run_token is None
+    assert job.attempts == 0  # a transient failure does not use up one of the attempts
     handler(lambda job, run: run.commit(lambda _job: None))
     assert services.execute_job(job.pk) == "done"
+    job.refresh_from_db()
+    assert job.attempts == 1
 
 
 def test_task_options():

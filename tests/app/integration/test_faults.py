@@ -283,3 +283,28 @@ def test_database_unreachable_submissions_answer_503_and_nothing_half_made_remai
     assert [r["name"] for r in http.get(f"{base}/api/rigs/").json()] == ["before"]
     assert http.get(f"{base}/api/jobs/").json() == []
     assert sql(stack, "SELECT count(*) FROM captures_capture") == [(0,)]
+
+
+def test_database_connections_terminated_while_a_job_runs_no_500_and_the_job_ends_done(stack):
+    """pg_terminate_backend on every connection, every 0.3 s for 6 s, while a worker runs a job and a
+    client polls the API: no answer is a 500 and the job ends done."""
+    http = session_for(stack)
+    http.base = stack.base_url  # type: ignore[attr-defined]
+    stack.start_worker("worker-1", {"GCPS_JOB_PHASE_PAUSE_MS": "700"})
+    rig_id, reference, obj = measurement_inputs(stack, http, "plane", z_mm=15.0)
+    request = {"rig": rig_id, "reference": reference, "object": obj}
+    measurement = http.post(url(http, "/api/measurements/"), json=request)
+    assert measurement.status_code == 202, measurement.text
+    job_id = measurement.json()["job"]
+    statuses = []
+    killed = 0
+    deadline = time.monotonic() + 6.0
+    while time.monotonic() < deadline:
+        killed += terminate_connections(stack.env["DATABASE_URL"])
+        for path in (f"/api/jobs/{job_id}/", f"/api/measurements/{measurement.json()['id']}/", "/api/rigs/"):
+            statuses.append(http.get(url(http, path)).status_code)
+        time.sleep(0.3)
+    assert killed > 10 and 500 not in statuses, (killed, sorted(set(statuses)))
+    assert statuses.count(200) > 0.9 * len(statuses), statuses
+    body = wait_for(http, f"/api/jobs/{job_id}/", finished, timeout=120)
+    assert body["status"] == "done", body
