@@ -96,7 +96,7 @@ def test_the_cycle_finder_finds_a_planted_cycle():
     assert find_cycle({"a": {"b"}, "b": set()}) is None
 
 
-def test_the_graph_sees_imports_inside_functions_and_relative_ones(tmp_path):
+def test_the_graph_sees_imports_inside_functions():
     graph = package_graph()
     assert "metrology.jobs" in graph["metrology.measurements"]  # a service creates jobs
     assert "metrology.core" in graph["workers"]  # worker_init: metrology.core.allocation, inside a function
