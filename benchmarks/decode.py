@@ -11,8 +11,10 @@ noisy shared machine affects all rows alike, each after flushing the caches):
   reference plane, many objects). Decode (Eqs. 1-3) + Eq. 14 + Eq. 17, fused per
   tile, with the mixed-pixel filter and the blur correction turned off.
 * ``full pipeline``: the defaults, i.e. also the mixed-pixel filter (code jumps,
-  visibility dips, 2-px band) and the camera-blur bias correction; ``both stacks``
-  decodes the reference inside the timed call too (and estimates its blur).
+  visibility dips, 2-px band, blur-bias bound) and the camera-blur bias correction;
+  ``both stacks`` decodes the reference inside the timed call too (and estimates its
+  blur); ``no blur-bias bound`` leaves out the filter's crease test
+  (``max_blur_bias_codes=0``), the cost of that test by difference.
 * ``memory bound``: ``np.copyto`` of the bytes the job must touch (11 uint8
   images in, one float32 out: 15 bytes per pixel) -- the floor.
 * ``OpenCV GrayCodePattern``/``PSP``: OpenCV-contrib's structured_light
@@ -52,7 +54,7 @@ from metrology.core.measure import DecodeOptions, measure_height, prepare_refere
 from metrology.core.patterns import PATTERN_NAMES, pattern_intensity  # noqa: E402
 from metrology.core.rig import Rig  # noqa: E402
 from metrology.core.tiling import scratch_nbytes  # noqa: E402
-from metrology.core.triangulate import codes_from_abscissa  # noqa: E402
+from metrology.core.triangulate import camera_ray_point, codes_of_points  # noqa: E402
 
 
 def synthetic_pair(width: int, height: int, seed: int = 0) -> tuple[Rig, np.ndarray, np.ndarray]:
@@ -62,8 +64,8 @@ def synthetic_pair(width: int, height: int, seed: int = 0) -> tuple[Rig, np.ndar
     x_a = rig.column_x_mm()
 
     def stack(z_mm: float) -> np.ndarray:
-        x_h = rig.d_mm + (1 - z_mm / rig.L_mm) * (x_a - rig.d_mm)
-        codes = codes_from_abscissa(rig, x_h * rig.L_mm / (rig.L_mm - z_mm))
+        x_h, _ = camera_ray_point(rig, x_a, 0.0, z_mm)
+        codes = codes_of_points(rig, x_h, z_mm)
         rows = np.stack([12 + 200 * pattern_intensity(codes, n) for n in PATTERN_NAMES])
         images = np.broadcast_to(rows[:, None, :], (11, height, width)) + rng.normal(0, 1.5, (11, height, width))
         return np.clip(np.round(images), 0, 255).astype(np.uint8)
@@ -106,6 +108,7 @@ def run_size(width: int, height: int, repeats: int, with_opencv: bool) -> dict:
     touched_out = np.empty_like(touched)
 
     bare = DecodeOptions(edge_band_px=0, blur_variance_px2=0.0)
+    no_bound = DecodeOptions(max_blur_bias_codes=0.0)  # the mixed-pixel filter without its crease test
     bare_reference = prepare_reference(rig, ref_stack, bare)
     rows = {
         "memory bound (copy 15 B/px)": lambda: np.copyto(touched_out, touched),
@@ -117,6 +120,7 @@ def run_size(width: int, height: int, repeats: int, with_opencv: bool) -> dict:
             rig, ref_stack, obj_stack, bare, gray_only=False
         ),
         "full pipeline vs kept reference": lambda: measure_height(rig, reference, obj_stack, options, gray_only=False),
+        "  same, no blur-bias bound": lambda: measure_height(rig, reference, obj_stack, no_bound, gray_only=False),
         "full pipeline, both stacks decoded": lambda: measure_height(
             rig, ref_stack, obj_stack, options, gray_only=False
         ),

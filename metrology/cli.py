@@ -1,4 +1,4 @@
-"""The ``gcps`` command line (DESIGN.md 1.6): a user-facing tool and the contract of external checks.
+"""The ``gcps`` command line (docs/command-line.md): a user-facing tool and the contract of external checks.
 
 Exit status 0 on success, 2 with a one-line message on bad input. Outputs are
 written only once everything has been computed, each atomically, so a failed
@@ -14,7 +14,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 EXIT_BAD_INPUT = 2
 
@@ -130,9 +130,7 @@ def cmd_patterns(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
-    import numpy as np
-
-    from metrology.core.measure import measure_height
+    from metrology.pipeline import MeasureOptions, measure
 
     _check_parent(args.out, "--out")
     _check_out_suffix(args.out, (".npy",), "--out")
@@ -141,12 +139,13 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
         _check_parent(args.mesh, "--mesh")
     if args.json:
         _check_parent(args.json, "--json")
+    options = MeasureOptions(decode=_decode_options(args), gray_only=bool(args.json))
     started = time.perf_counter()
     rig = _load_rig(args.rig)
     reference = _load_stack(args.reference, rig, "reference")
     obj = _load_stack(args.object, rig, "object")
     read_s = time.perf_counter() - started
-    result = measure_height(rig, reference, obj, _decode_options(args), gray_only=bool(args.json))
+    result = measure(rig, reference, obj, options)
     mesh = None
     if args.mesh:
         from metrology.core.mesh import mesh_from_heights
@@ -162,14 +161,17 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
         write_mesh(mesh, args.mesh)
     stats = result.statistics()
     if args.json:
-        gray = result.gray_z_mm
-        stats = {
-            **stats,
-            "gray_only_valid_pixels": int(np.isfinite(gray).sum()) if gray is not None else None,
+        gray = stats.get("gray_only") or {}
+        report = {
+            **{key: value for key, value in stats.items() if key != "gray_only"},
+            "gray_only_valid_pixels": gray.get("valid_pixels"),
+            "gray_only": gray or None,
             "timings_s": {"read_s": read_s, **result.timings_s},
+            "options": result.options.to_dict(),
+            "software_version": result.software_version,
             "rig": rig.to_dict(),
         }
-        _write_json(stats, args.json)
+        _write_json(report, args.json)
     return {"out": args.out, **{k: v for k, v in stats.items() if k.endswith(("pixels", "fraction"))}}
 
 
@@ -199,16 +201,17 @@ def _parse_scene_params(items: Sequence[str]) -> dict[str, Any]:
 
 
 def _parse_positions(text: str) -> list[float]:
+    from metrology.core.simulate import stage_positions
+
     try:
         if ":" in text:
             start, stop, step = (float(v) for v in text.split(":"))
-            if step <= 0 or stop < start:
-                raise ValueError
-            count = round((stop - start) / step) + 1
-            return [round(start + i * step, 9) for i in range(count)]
+            return stage_positions(start, stop, step)
         return [float(v) for v in text.split(",")]
     except ValueError as exc:
-        raise BadInputError(f"--z-in {text!r}: expected '0,4,8' or 'START:STOP:STEP' with STEP > 0") from exc
+        raise BadInputError(
+            f"--z-in {text!r}: expected '0,4,8' or 'START:STOP:STEP' (inclusive stop) with STEP > 0"
+        ) from exc
 
 
 def _simulation_options(args: argparse.Namespace) -> Any:
@@ -223,6 +226,7 @@ def _simulation_options(args: argparse.Namespace) -> Any:
         "projector_gamma": args.gamma,
         "ambient": args.ambient,
         "supersample": args.supersample,
+        "camera_sampling": args.camera_sampling,
         "seed": args.seed,
     }
     changes = {key: value for key, value in overrides.items() if value is not None}
@@ -270,6 +274,7 @@ def cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
             "series": str(out / "series.json"),
             "positions": len(positions),
             "repeats": args.repeats,
+            "options": options.to_dict(),
         }
 
     if args.z_in is not None:
@@ -288,7 +293,13 @@ def cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
 
         write_height_npy(rendered.truth_mm, args.truth)
     valid = int(np.isfinite(rendered.truth_mm).sum())
-    return {"out": args.out, "scene": args.scene, "bit_depth": options.bit_depth, "truth_valid_pixels": valid}
+    return {
+        "out": args.out,
+        "scene": args.scene,
+        "bit_depth": options.bit_depth,
+        "truth_valid_pixels": valid,
+        "options": options.to_dict(),
+    }
 
 
 def _parse_roi(text: str | None) -> tuple[slice, slice] | None:
@@ -305,41 +316,37 @@ def _parse_roi(text: str | None) -> tuple[slice, slice] | None:
     return slice(r0, r1), slice(c0, c1)
 
 
+def _calibrate_options(args: argparse.Namespace) -> Any:
+    from metrology.pipeline import CalibrateOptions
+
+    roi = _parse_roi(args.roi)
+    return CalibrateOptions(
+        master_height_mm=args.master_height,
+        method=args.method,
+        decode=_decode_options(args),
+        roi=None if roi is None else ((roi[0].start, roi[0].stop), (roi[1].start, roi[1].stop)),
+        fit_d=args.fit_d,
+        max_iterations=args.max_iterations or None,
+        delta_z_mm=args.delta_z,
+        m_hat=args.m_hat,
+    )
+
+
 def cmd_calibrate(args: argparse.Namespace) -> dict[str, Any]:
-    from metrology.core.calibrate import MasterCapture, calibrate_lsq, calibrate_paper
-    from metrology.core.measure import prepare_reference
+    from metrology.pipeline import calibrate
 
     if not args.master_height > 0:
         raise BadInputError(f"--master-height must be positive, got {args.master_height}")
     if args.method == "paper" and len(args.master) > 1:
         raise BadInputError("--method paper takes one --master capture")
     _check_parent(args.out, "--out")
-    roi = _parse_roi(args.roi)
+    options = _calibrate_options(args)
     rig = _load_rig(args.rig)
-    options = _decode_options(args)
-    reference = prepare_reference(rig, _load_stack(args.reference, rig, "reference"), options)
-    ref_codes = reference.decoded.codes
-    masters = []
-    for path in args.master:
-        result = _measure(rig, reference, _load_stack(path, rig, "master"), options)
-        masters.append(MasterCapture(ref_codes, result.obj_codes, args.master_height, roi=roi))
-    if args.method == "paper":
-        kwargs = {"max_iterations": args.max_iterations} if args.max_iterations else {}
-        calibration = calibrate_paper(
-            rig,
-            ref_codes,
-            masters[0].master_codes,
-            args.master_height,
-            roi=roi,
-            delta_z_mm=args.delta_z,
-            m_hat=args.m_hat,
-            **kwargs,
-        )
-    else:
-        kwargs = {"max_iterations": args.max_iterations} if args.max_iterations else {}
-        calibration = calibrate_lsq(rig, masters, fit_d=args.fit_d, **kwargs)
-    report = calibration.to_dict()
-    _write_json({**calibration.rig.to_dict(), "calibration": report}, args.out)
+    reference = _load_stack(args.reference, rig, "reference")
+    masters = [_load_stack(path, rig, "master") for path in args.master]
+    result = calibrate(rig, reference, masters, options)
+    report = {**result.calibration.to_dict(), "options": options.to_dict(), "software_version": result.software_version}
+    _write_json({**result.rig.to_dict(), "calibration": report}, args.out)
     return {
         "out": args.out,
         "method": report["method"],
@@ -350,69 +357,53 @@ def cmd_calibrate(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
-def _measure(rig: Any, reference: Any, stack: Any, options: Any) -> Any:
-    from metrology.core.measure import measure_height
-
-    return measure_height(rig, reference, stack, options, gray_only=False)
-
-
 def cmd_characterize(args: argparse.Namespace) -> dict[str, Any]:
-    from metrology.core.characterize import characterize
     from metrology.core.io import read_series
-    from metrology.core.measure import prepare_reference
+    from metrology.pipeline import CharacterizeOptions, characterize
 
     _check_parent(args.out, "--out")
     rows = None
     if args.rows:
         try:
-            rows = [int(v) for v in args.rows.split(",")]
+            rows = tuple(int(v) for v in args.rows.split(","))
         except ValueError as exc:
             raise BadInputError(f"--rows {args.rows!r}: expected comma-separated row indices") from exc
+    options = CharacterizeOptions(decode=_decode_options(args), n_points=args.points, rows=rows, patch_px=args.patch)
     rig = _load_rig(args.rig)
     series = read_series(args.series)
-    options = _decode_options(args)
-    reference = prepare_reference(rig, _load_stack(args.reference, rig, "reference"), options)
+    reference = _load_stack(args.reference, rig, "reference")
 
-    def heights() -> Any:  # streamed: a bad capture stops the run before any output is written
+    def stacks() -> Any:  # streamed: a bad capture stops the run before any output is written
         for position in series.positions:
             for repeat, capture in enumerate(position.captures):
-                stack = _load_stack(str(capture), rig, f"series capture {capture}")
-                yield position.z_in_mm, repeat, _measure(rig, reference, stack, options).z_mm
+                yield position.z_in_mm, repeat, _load_stack(str(capture), rig, f"series capture {capture}")
 
-    report = characterize(rig, heights(), n_points=args.points, rows=rows, patch_px=args.patch)
-    report["rig"] = rig.to_dict()
-    report["decode_options"] = options.to_dict()
+    result = characterize(rig, reference, stacks(), options)
+    report = {**result.to_dict(), "rig": rig.to_dict()}
     _write_json(report, args.out)
     overall = report["overall"]
     return {"out": args.out, "positions": len(series.positions), **overall}
 
 
 def cmd_acceptance(args: argparse.Namespace) -> dict[str, Any]:
-    from metrology.core import acceptance
-    from metrology.core.measure import measure_height
+    from metrology.pipeline import AcceptanceOptions, acceptance
 
     needs = {"probing": "diameter", "spacing": "spacing"}
     if args.test in needs and getattr(args, needs[args.test]) is None:
         raise BadInputError(f"--test {args.test} needs --{needs[args.test]}")
     _check_parent(args.out, "--out")
+    options = AcceptanceOptions(
+        test=args.test,
+        diameter_mm=args.diameter,
+        spacing_mm=args.spacing,
+        min_height_mm=args.min_height,
+        decode=_decode_options(args),
+    )
     rig = _load_rig(args.rig)
     reference = _load_stack(args.reference, rig, "reference")
     obj = _load_stack(args.object, rig, "object")
-    z_mm = measure_height(rig, reference, obj, _decode_options(args), gray_only=False).z_mm
-    if args.test == "flatness":
-        result = acceptance.flatness_error(acceptance.points_from_height_map(rig, z_mm))
-    elif args.test == "probing":
-        (sphere,) = acceptance.segment_objects(z_mm, 1, args.min_height)
-        result = acceptance.probing_error(acceptance.points_from_height_map(rig, z_mm, sphere), args.diameter)
-    else:
-        first, second = acceptance.segment_objects(z_mm, 2, args.min_height)
-        result = acceptance.sphere_spacing_error(
-            acceptance.points_from_height_map(rig, z_mm, first),
-            acceptance.points_from_height_map(rig, z_mm, second),
-            args.spacing,
-        )
-    report = {"test": args.test, "standard": "VDI/VDE 2634 part 2", "rig": rig.to_dict(), **result}
-    _write_json(report, args.out)
+    result = acceptance(rig, reference, obj, options)
+    _write_json({**result.to_dict(), "rig": rig.to_dict()}, args.out)
     return {"out": args.out, "test": args.test}
 
 
@@ -420,10 +411,13 @@ def cmd_sensitivity(args: argparse.Namespace) -> dict[str, Any]:
     from metrology.core.sensitivity import sensitivity_curves
 
     rig = _load_rig(args.rig)
-    params = [args.param] if args.param else ["L", "d", "alpha"]
+    params: list[Literal["L", "d", "alpha"]] = [args.param] if args.param else ["L", "d", "alpha"]
     curves = {param: sensitivity_curves(rig, param, z_mm=args.z_mm) for param in params}
     _check_parent(args.out, "--out")
-    _write_json({"rig": rig.to_dict(), "z_mm": args.z_mm, "curves": curves}, args.out)
+    from metrology.version import software_version
+
+    report = {"rig": rig.to_dict(), "z_mm": args.z_mm, "curves": curves, "software_version": software_version()}
+    _write_json(report, args.out)
     return {"out": args.out, "params": params}
 
 
@@ -445,7 +439,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_patterns)
 
     p = sub.add_parser("simulate", help="render a capture stack with the virtual rig")
-    p.add_argument("--rig", required=True, help="rig JSON (DESIGN.md 1.2)")
+    p.add_argument("--rig", required=True, help="rig JSON (docs/file-formats.md)")
     p.add_argument(
         "--scene",
         required=True,
@@ -477,6 +471,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ambient", type=float, help="ambient light, fraction of full scale")
     p.add_argument("--square", action="store_true", help="square-wave phase patterns")
     p.add_argument("--supersample", type=int, help="sub-pixel samples per axis")
+    p.add_argument(
+        "--camera-sampling",
+        metavar="area|centre",
+        help="area: a pixel averages its sub-rays (default); centre: it takes its centre ray, then the Gaussian blur",
+    )
     p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     p.set_defaults(func=cmd_simulate)
 

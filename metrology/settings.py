@@ -1,4 +1,4 @@
-"""Django settings for GCPS Lab, read from the environment (DESIGN.md 2).
+"""Django settings for GCPS Lab, read from the environment (see README.md, "Running on PostgreSQL").
 
 With nothing set the app runs on the embedded default: SQLite and media under ``./var/``, Celery
 tasks executed in-process. ``DATABASE_URL`` and ``REDIS_URL`` (or ``CELERY_BROKER_URL``) switch to

@@ -1,14 +1,82 @@
-"""The software version recorded with every result."""
+"""The software version recorded with every result: the package version and the git commit of the code.
+
+``software_version()`` is ``"gcps-lab 0.1.0 3f2a9c1b7d4e"`` in a clean checkout,
+``"gcps-lab 0.1.0 3f2a9c1b7d4e+dirty"`` when the working tree differs from that commit
+(tracked files modified, or files that git does not ignore added), and
+``"gcps-lab 0.1.0 unknown commit"`` outside a git checkout (an installed wheel, a container
+built without ``.git``) unless the environment variable ``GCPS_GIT_COMMIT`` names the commit.
+
+The commit is read from git at run time, from the folder the running ``metrology`` package
+was imported from, so an editable install reports the commit of the code it actually runs,
+never the one it was installed at. It is computed once per process (a worker runs the code
+it imported at start-up).
+"""
 
 from __future__ import annotations
 
+import os
+import subprocess
 from functools import cache
 from importlib import metadata
+from pathlib import Path
+
+PACKAGE = "gcps-lab"
+SOURCE_ROOT = Path(__file__).resolve().parents[1]
+"""The folder holding the ``metrology`` package (a git checkout's root, in development)."""
+COMMIT_CHARS = 12
+"""Hex digits of the commit hash recorded (as ``git rev-parse --short=12``)."""
+GIT_TIMEOUT_S = 5.0
+
+
+def package_version() -> str:
+    """The installed distribution's version, or ``"0+unknown"`` when it is not installed."""
+    try:
+        return metadata.version(PACKAGE)
+    except metadata.PackageNotFoundError:
+        return "0+unknown"
+
+
+def git_revision(root: Path = SOURCE_ROOT) -> str | None:
+    """``"<12 hex digits>"`` or ``"<12 hex digits>+dirty"`` of the checkout at ``root``; None outside one
+    (or when git is missing)."""
+    try:
+        head = _git(root, "rev-parse", "--verify", "HEAD")
+        if head is None:
+            return None
+        # the checkout's top level must be root itself, not a repository that merely contains it
+        top = _git(root, "rev-parse", "--show-toplevel")
+        if top is None or Path(top).resolve() != root.resolve():
+            return None
+        status = _git(root, "status", "--porcelain")
+    except (OSError, subprocess.SubprocessError):
+        return None
+    commit = head[:COMMIT_CHARS]
+    return f"{commit}+dirty" if status else commit
+
+
+def _git(root: Path, *args: str) -> str | None:
+    done = subprocess.run(
+        ["git", "-C", str(root), *args],
+        capture_output=True,
+        text=True,
+        timeout=GIT_TIMEOUT_S,
+        check=False,
+        env={**os.environ, "GIT_OPTIONAL_LOCKS": "0", "LC_ALL": "C"},
+    )
+    if done.returncode != 0:
+        return None
+    return done.stdout.strip()
+
+
+def describe(root: Path = SOURCE_ROOT) -> str:
+    """The version string of the code under ``root`` (see the module docstring); not cached."""
+    revision = git_revision(root)
+    if revision is None:
+        revision = os.environ.get("GCPS_GIT_COMMIT", "").strip()[:COMMIT_CHARS] or "unknown commit"
+    return f"{PACKAGE} {package_version()} {revision}"
 
 
 @cache
 def software_version() -> str:
-    try:
-        return f"gcps-lab {metadata.version('gcps-lab')}"
-    except metadata.PackageNotFoundError:
-        return "gcps-lab (not installed)"
+    """The version string of the running code, computed once per process (see the module docstring)."""
+    return describe()

@@ -1,4 +1,4 @@
-"""The gcps command line (DESIGN.md 1.6): round trips and every bad input (exit 2, one line, no output)."""
+"""The gcps command line (docs/command-line.md): round trips and every bad input (exit 2, one line, no output)."""
 
 import json
 import shutil
@@ -359,3 +359,28 @@ def test_acceptance_needs_its_calibrated_value(captures, tmp_path, capsys):
     assert main(probing_the_bare_plane) == 2 and "--diameter" in capsys.readouterr().err
     assert main([*probing_the_bare_plane, "--diameter", "100"]) == 2
     assert "found 0 region" in capsys.readouterr().err and not out.exists()
+
+
+def test_stage_range_stops_at_the_inclusive_stop(captures, tmp_path):
+    out = tmp_path / "series"
+    args = ["simulate", "--rig", str(captures / "rig.json"), "--scene", "stage", "--z-in", "0:8:3"]
+    assert run(*args, "--preset", "noise-free", "--out", str(out)) == 0
+    series = json.loads((out / "series.json").read_text())
+    assert [p["z_in_mm"] for p in series["positions"]] == [0.0, 3.0, 6.0]
+
+
+def test_simulate_camera_sampling(captures, tmp_path, capsys):
+    """--camera-sampling centre renders the centre ray of each pixel, reported with the options;
+    a value other than area/centre exits 2."""
+    rig = str(captures / "rig.json")
+    common = ["simulate", "--rig", rig, "--scene", "block", "--z-mm", "40", "--preset", "noise-free"]
+    assert main([*common, "--supersample", "3", "--camera-sampling", "centre", "--out", str(tmp_path / "c")]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["options"]["camera_sampling"] == "centre" and summary["options"]["supersample"] == 3
+    # the centre ray of a 3x3 pixel is the one ray of an unsupersampled render: same images
+    np.testing.assert_array_equal(read_stack(tmp_path / "c").images, read_stack(captures / "block.zip").images)
+    capsys.readouterr()
+    assert run(*common, "--camera-sampling", "center", "--out", str(tmp_path / "x")) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "camera_sampling" in err and "'center'" in err
+    assert not (tmp_path / "x").exists()

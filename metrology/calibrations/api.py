@@ -42,6 +42,7 @@ class CalibrationSerializer(JobStateMixin, serializers.ModelSerializer):
             "master_height_mm",
             "method",
             "parameters",
+            "options",
             "rig_values",
             "iterations",
             "result",

@@ -19,6 +19,9 @@ class Calibration(models.Model):
     method = models.CharField(max_length=16, choices=Method.choices, default=Method.PAPER)
     parameters = models.JSONField(default=dict, blank=True, help_text="Starting values and options")
     rig_values = models.JSONField(default=dict, blank=True, help_text="Rig geometry before calibration")
+    options = models.JSONField(
+        default=dict, blank=True, help_text="Pipeline options the result was computed with (decoding included)"
+    )
     iterations = models.JSONField(default=list, blank=True, help_text="Every iteration of the fit")
     result = models.JSONField(default=dict, blank=True, help_text="The calibrated values and residuals")
     residual_npy = models.FileField(max_length=300, blank=True, help_text="Residual map of the master, mm (.npy)")

@@ -84,6 +84,7 @@ def request_calibration(
         raise BadInput(f"initial: unknown key(s) {', '.join(unknown)}; accepted: {', '.join(INITIAL_KEYS)}")
     start = validate_geometry({**rig.geometry(), **initial})
     options = _check_options(method, dict(options or {}))
+    used = _pipeline_options(method, master_height_mm, options).to_dict()
     if reference_id == master_id:
         raise BadInput("master: the master capture must differ from the reference capture")
     reference = capture_for_job(owner, rig, reference_id, field="reference", roles=(Capture.Role.REFERENCE,))
@@ -103,6 +104,7 @@ def request_calibration(
         method=method,
         parameters=parameters,
         rig_values=rig.geometry(),
+        options=used,
         apply=apply,
         job=job,
     )
@@ -112,29 +114,37 @@ def request_calibration(
     return calibration
 
 
+def _pipeline_options(method: str, master_height_mm: float, options: dict[str, Any]) -> Any:
+    """:class:`metrology.pipeline.CalibrateOptions` of a request (BadInput naming a bad value)."""
+    from metrology.pipeline import CalibrateOptions
+
+    try:
+        return CalibrateOptions(master_height_mm=master_height_mm, method=method, **options)
+    except (TypeError, ValueError) as exc:
+        raise BadInput(f"options: {exc}") from exc
+
+
 def run_calibration(job: Job, run: job_services.JobRun) -> None:
-    """Job handler: decode reference and master, run the chosen method, publish (and apply if asked)."""
-    from metrology.core.calibrate import MasterCapture, calibrate_lsq, calibrate_paper
-    from metrology.core.decode import decode_stack
+    """Job handler: load reference and master, call the pipeline's calibrate, publish (and apply if asked)."""
     from metrology.core.rig import Rig as CoreRig
+    from metrology.pipeline import CalibrateOptions, calibrate
 
     calibration = Calibration.objects.select_related("reference__rig", "master__rig", "rig").get(job=job)
     start_rig = CoreRig.from_dict(calibration.parameters["initial"])
-    options = dict(calibration.parameters.get("options") or {})
+    if calibration.options:
+        options = CalibrateOptions.from_dict(calibration.options)
+    else:  # requested before options were stored
+        options = _pipeline_options(
+            calibration.method, calibration.master_height_mm, dict(calibration.parameters.get("options") or {})
+        )
     with run.phase("read", 5):
         reference = load_capture_stack(calibration.reference)
         master = load_capture_stack(calibration.master)
-    with run.phase("decode", 15):
-        ref_codes = decode_stack(reference.images, start_rig.nlp).codes
-        master_codes = decode_stack(master.images, start_rig.nlp).codes
-    with run.phase("fit", 40):
-        if calibration.method == Calibration.Method.PAPER:
-            result = calibrate_paper(start_rig, ref_codes, master_codes, calibration.master_height_mm, **options)
-        else:
-            capture = MasterCapture(
-                ref_codes=ref_codes, master_codes=master_codes, height_mm=calibration.master_height_mm
-            )
-            result = calibrate_lsq(start_rig, capture, **options)
+    with run.phase("calibrate", 15):
+        outcome = calibrate(start_rig, reference.images, [master.images], options)
+    for name, seconds in outcome.timings_s.items():
+        run.timings[f"calibrate.{name}"] = round(float(seconds), 4)
+    result = outcome.calibration
     summary = json_safe(result.to_dict())
     iterations = summary.pop("history", [])
     residual_name = ""
@@ -147,10 +157,11 @@ def run_calibration(job: Job, run: job_services.JobRun) -> None:
                     default_storage, f"calibrations/{calibration.pk}/{run.token.hex}/residual.npy", File(handle)
                 )
 
-    def publish(_job: Job) -> None:
+    def publish(job_row: Job) -> None:
         Calibration.objects.filter(pk=calibration.pk).update(
-            iterations=iterations, result=summary, residual_npy=residual_name
+            iterations=iterations, result=summary, residual_npy=residual_name, options=outcome.options.to_dict()
         )
+        job_row.software_version = outcome.software_version  # the code that computed it
         if calibration.apply:
             apply_calibration(calibration=Calibration.objects.get(pk=calibration.pk), require_done=False)
 

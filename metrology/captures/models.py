@@ -1,4 +1,4 @@
-"""Capture sessions and captures: stored image stacks (DESIGN.md 1.3) with their provenance."""
+"""Capture sessions and captures: stored image stacks (docs/file-formats.md) with their provenance."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Where image stacks come from: one small interface, the virtual rig today.
 
 A real camera/projector driver implements :class:`CaptureSource` (project the eleven patterns of
-DESIGN.md 1.3, grab one frame each) and is registered in :data:`SOURCES`; nothing else changes.
+docs/conventions.md, grab one frame each) and is registered in :data:`SOURCES`; nothing else changes.
 """
 
 from __future__ import annotations

@@ -44,6 +44,7 @@ class CharacterizationSerializer(JobStateMixin, serializers.ModelSerializer):
             "session",
             "series",
             "parameters",
+            "options",
             "rig_values",
             "results",
             "overall_mean_error_mm",

@@ -18,6 +18,9 @@ class Characterization(models.Model):
     )
     parameters = models.JSONField(default=dict, blank=True)
     rig_values = models.JSONField(default=dict, blank=True)
+    options = models.JSONField(
+        default=dict, blank=True, help_text="Pipeline options the result was computed with (decoding included)"
+    )
     results = models.JSONField(default=dict, blank=True, help_text="Every figure of the paper's section 5")
     overall_mean_error_mm = models.FloatField(null=True, blank=True)
     overall_std_error_mm = models.FloatField(null=True, blank=True)

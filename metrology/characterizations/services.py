@@ -69,6 +69,7 @@ def request_characterization(
     if session_id is not None:
         series = _series_from_session(owner, rig, session_id)
     options = _check_options(dict(options or {}))
+    used = _pipeline_options(options).to_dict()
     reference = capture_for_job(owner, rig, reference_id, field="reference", roles=(Capture.Role.REFERENCE,))
     checked: list[dict[str, Any]] = []
     seen: set[int] = set()
@@ -100,6 +101,7 @@ def request_characterization(
         series=checked,
         parameters={"options": options},
         rig_values=rig.geometry(),
+        options=used,
         job=job,
     )
     job.parameters["characterization"] = characterization.pk
@@ -108,37 +110,54 @@ def request_characterization(
     return characterization
 
 
+def _pipeline_options(options: dict[str, Any]) -> Any:
+    """:class:`metrology.pipeline.CharacterizeOptions` of a request's options (BadInput naming a bad value)."""
+    from metrology.pipeline import CharacterizeOptions
+
+    try:
+        return CharacterizeOptions(**options)
+    except (TypeError, ValueError) as exc:
+        raise BadInput(f"options: {exc}") from exc
+
+
 def run_characterization(job: Job, run: job_services.JobRun) -> None:
-    """Job handler: measure every stage capture against the reference and compute section 5's figures."""
-    from metrology.core.characterize import characterize
-    from metrology.core.measure import measure_height, prepare_reference
+    """Job handler: load the stacks, call the pipeline's characterize (section 5's figures), publish."""
     from metrology.core.rig import Rig as CoreRig
+    from metrology.pipeline import CharacterizeOptions, characterize
 
     characterization = Characterization.objects.select_related("reference__rig").get(job=job)
     rig = CoreRig.from_dict(characterization.rig_values)
+    if characterization.options:
+        options = CharacterizeOptions.from_dict(characterization.options)
+    else:  # requested before options were stored
+        options = _pipeline_options(dict(characterization.parameters.get("options") or {}))
     items = [
         (p["z_in_mm"], r, capture_id) for p in characterization.series for r, capture_id in enumerate(p["captures"])
     ]
-    with run.phase("reference", 2):
-        reference = prepare_reference(rig, load_capture_stack(characterization.reference).images)
+    with run.phase("read reference", 2):
+        reference = load_capture_stack(characterization.reference).images
     captures = Capture.objects.select_related("rig").in_bulk([capture_id for _z, _r, capture_id in items])
 
-    def heights():
+    def stacks():
         for done, (z_in, repeat, capture_id) in enumerate(items):
             run.progress(5 + int(85 * done / len(items)), f"stage {done + 1}/{len(items)}")
-            stack = load_capture_stack(captures[capture_id])
-            yield z_in, repeat, measure_height(rig, reference, stack.images, gray_only=False).z_mm
+            yield z_in, repeat, load_capture_stack(captures[capture_id]).images
 
-    with run.phase("measure series", 5):
-        results = json_safe(characterize(rig, heights(), **characterization.parameters.get("options", {})))
+    with run.phase("characterize", 5):
+        outcome = characterize(rig, reference, stacks(), options)
+    for name, seconds in outcome.timings_s.items():
+        run.timings[f"characterize.{name}"] = round(float(seconds), 4)
+    results = json_safe(outcome.report)
     overall = results.get("overall", {})
 
-    def publish(_job: Job) -> None:
+    def publish(job_row: Job) -> None:
         Characterization.objects.filter(pk=characterization.pk).update(
             results=results,
+            options=outcome.options.to_dict(),
             overall_mean_error_mm=overall.get("mean_error_mm"),
             overall_std_error_mm=overall.get("std_error_mm"),
         )
+        job_row.software_version = outcome.software_version  # the code that computed it
 
     run.commit(publish)
 

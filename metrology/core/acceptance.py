@@ -66,7 +66,7 @@ class SphereFit:
 
 
 def points_from_height_map(rig: Rig, z_mm: npt.ArrayLike, mask: npt.ArrayLike | None = None) -> np.ndarray:
-    """The valid pixels of a height map as 3D points (DESIGN.md 1.1).
+    """The valid pixels of a height map as 3D points (docs/conventions.md).
 
     Parameters
     ----------

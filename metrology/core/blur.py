@@ -100,6 +100,61 @@ def code_laplacian(codes: npt.ArrayLike) -> np.ndarray:
     return laplacian
 
 
+def blur_bias_exceeds(
+    codes: np.ndarray,
+    blur_variance_px2: float,
+    max_bias_codes: float,
+    out: np.ndarray,
+    laplacian_out: np.ndarray | None = None,
+) -> np.ndarray:
+    """Where the blur's first-order bias ``|s2 / 2 * laplacian(l)|`` exceeds ``max_bias_codes``.
+
+    :func:`correct_blur_bias` removes ``s2 / 2 * laplacian(l)`` with the Laplacian averaged
+    over 1.5 px: right where the code surface is smooth over the blur's support, where that
+    bias is a few thousandths of a code (below 0.01, noise included, at 1.5 grey levels on the
+    virtual rig's spheres, face, flowerpot and the treads of steps). At a crease of the code
+    surface -- a riser seen edge-on between two treads, the code's slope tripling within a
+    pixel -- the blur mixes codes from both sides of the crease, the bias reaches 0.03 code
+    (0.4 mm) at the pixels beside it, and the expansion behind the correction fails: its
+    higher terms are as large as the first, and the averaged Laplacian, of opposite signs on
+    the two sides, cancels. A depth step whose code jump is too small to be seen as one (a
+    few tenths of a code: a 5 mm step) looks the same to the Laplacian, which peaks a pixel
+    either side of the step. Such pixels cannot be corrected; they are marked here to be
+    dropped.
+
+    Parameters
+    ----------
+    codes : (h, W) float32 array
+        A block of rows of decoded codes, code units, NaN where invalid.
+    blur_variance_px2 : float
+        The camera blur's variance ``s2``, px^2 (:func:`estimate_blur_variance`), >= 0.
+    max_bias_codes : float
+        Largest bias accepted, code units, > 0.
+    out : (h, W) bool array
+        Receives the mask: True where the bias exceeds the bound. False where the 5x5 window
+        holds an invalid pixel and on the two rows and columns at each edge of the block, whose
+        window leaves it: a caller working on tiles gives each two rows of context.
+    laplacian_out : (h, W) float32 array, optional
+        Scratch for the Laplacian (the 5x5 Savitzky-Golay one of :func:`code_laplacian`).
+
+    Returns
+    -------
+    out
+    """
+    if blur_variance_px2 <= 0 or max_bias_codes <= 0:
+        out[...] = False
+        return out
+    l = np.asarray(codes, dtype=np.float32)
+    laplacian: np.ndarray = cv2.filter2D(
+        l, cv2.CV_32F, _LAPLACIAN_5X5, dst=laplacian_out, borderType=cv2.BORDER_CONSTANT
+    )
+    np.abs(laplacian, out=laplacian)
+    np.greater(laplacian, np.float32(2 * max_bias_codes / blur_variance_px2), out=out)  # NaN: False
+    out[:2] = out[-2:] = False
+    out[:, :2] = out[:, -2:] = False
+    return out
+
+
 def correct_blur_bias(codes: np.ndarray, blur_variance_px2: float) -> np.ndarray:
     """Remove the blur's phase bias: ``l - s2 / 2 * laplacian(l)``, in place where defined.
 

@@ -58,8 +58,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage, optimize
 
+from metrology.core.geometry.crossed_axes import camera_ray_point, height_from_codes
 from metrology.core.rig import Rig, RigError
-from metrology.core.triangulate import height_from_codes
 
 Roi = tuple[slice, slice]
 
@@ -240,7 +240,7 @@ def find_top_face(
 def fit_master_profile(rig: Rig, z_mm: np.ndarray, face: np.ndarray) -> tuple[float, float, float]:
     """Mean height, regression slope along X and residual RMS of the master's top face.
 
-    The profile's abscissa is ``X_H`` of each pixel (DESIGN.md 1.1).
+    The profile's abscissa is ``X_H`` of each pixel (docs/conventions.md).
 
     Returns
     -------
@@ -254,7 +254,7 @@ def fit_master_profile(rig: Rig, z_mm: np.ndarray, face: np.ndarray) -> tuple[fl
     x_a = np.broadcast_to(rig.column_x_mm()[None, :], z_mm.shape)[face]
     ok = np.isfinite(z)
     z, x_a = z[ok], x_a[ok]
-    x = rig.d_mm + (1.0 - z / rig.L_mm) * (x_a - rig.d_mm)
+    x, _ = camera_ray_point(rig, x_a, 0.0, z)
     xc = x - x.mean()
     slope = float(np.dot(xc, z - z.mean()) / np.dot(xc, xc))
     resid = z - z.mean() - slope * xc

@@ -18,7 +18,7 @@ mean of its valid pixels. From them:
   ``error_pct_fs`` follows that reading, and the mean and std shares are given too.
 
 Test-point coordinates ``x_mm``, ``y_mm`` are those of point A on R seen by the
-patch's centre (``x_A``, ``Y_A`` of DESIGN.md 1.1): the paper chooses its test
+patch's centre (``x_A``, ``Y_A`` of docs/conventions.md): the paper chooses its test
 points "on reference R", and this keeps them fixed while the plane moves
 (``X_H`` would drift towards ``d`` by ``z/L`` of the distance).
 

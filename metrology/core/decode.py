@@ -1,4 +1,4 @@
-"""Decoding of a gcps-v1 capture stack into light codes (Eqs. 1-3, DESIGN.md 1.4).
+"""Decoding of a gcps-v1 capture stack into light codes (Eqs. 1-3, docs/conventions.md).
 
 Per pixel:
 

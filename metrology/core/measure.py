@@ -1,22 +1,25 @@
 """Measurement pipeline: reference + object capture stacks to a height map.
 
 The reference plane is shared by many measurements, so it is decoded once into a
-:class:`Reference` (its codes and their abscissae on R, Eq. 14) and kept. Each
-object stack is then decoded and triangulated tile by tile (Eqs. 1-3, 14, 16,
-17) without materialising full-size temporaries.
+:class:`Reference` (its codes, prepared as the rig model's reference surface) and kept.
+Each object stack is then decoded and triangulated tile by tile (Eqs. 1-3 here; the
+geometry, Eqs. 14, 16, 17, is the rig model's: :mod:`metrology.core.geometry`) without
+materialising full-size temporaries.
 """
 
 from __future__ import annotations
 
+import math
 import time
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-from metrology.core.blur import correct_blur_bias, estimate_blur_variance
+from metrology.core.blur import blur_bias_exceeds, correct_blur_bias, estimate_blur_variance
 from metrology.core.decode import (
     DecodedStack,
     decode_rows,
@@ -26,10 +29,27 @@ from metrology.core.decode import (
     smooth_fringes,
     validate_stack,
 )
+from metrology.core.geometry.base import PreparedGeometry, ReferenceSurface, triangulate_frame
 from metrology.core.patterns import N_GRAY_BITS
 from metrology.core.rig import Rig
 from metrology.core.tiling import run_tiled, thread_scratch
-from metrology.core.triangulate import reference_slope_mm
+
+MAX_NLP = 128
+"""Most light codes a gcps-v1 rig may have (7-bit gray code)."""
+MAX_SMOOTHING_PX = 50.0
+"""Largest Gaussian smoothing sigma accepted, px."""
+
+
+def _check_number(name: str, value: Any, *, allow_none: bool = False, upper: float | None = None) -> None:
+    """ValueError naming ``name`` and ``value`` unless ``value`` is a finite number in [0, upper) (or None)."""
+    if value is None and allow_none:
+        return
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    ok = ok and math.isfinite(value) and value >= 0 and (upper is None or value < upper)
+    if not ok:
+        bound = f"[0, {upper:g})" if upper is not None else "[0, inf)"
+        extra = " or None" if allow_none else ""
+        raise ValueError(f"{name} must be a finite number in {bound}{extra}, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -53,6 +73,14 @@ class DecodeOptions:
     ``edge_band_px``: valid pixels closer than this (4-connected steps) to an
     invalid pixel or a discontinuity are dropped as possibly mixed (shadow edges,
     the coded field's edges, depth steps); 0 keeps them.
+    ``max_blur_bias_codes``: object pixels where the camera blur's first-order bias
+    ``|s2/2 laplacian(l)|`` exceeds this many code units sit at a crease of the code
+    surface (a riser seen edge-on) or beside a depth step too small for
+    ``discontinuity_codes``, where the blur correction cannot hold: they are dropped with
+    their 4-neighbours (:func:`unreliable_mask`, :func:`~metrology.core.blur.blur_bias_exceeds`).
+    0 disables the test, as do a blur variance of 0 and ``edge_band_px = 0``. The default,
+    0.015 code (about 0.2 mm of height on the paper's rig), is twice the largest bias on
+    smooth surfaces at 1.5 grey levels of noise and half the bias beside a 10 mm riser.
     """
 
     min_modulation: float | None = None
@@ -63,16 +91,38 @@ class DecodeOptions:
     field_margin_codes: float = 0.25
     min_visibility_ratio: float = 0.85
     blur_variance_px2: float | None = None
+    max_blur_bias_codes: float = 0.015
 
     def __post_init__(self) -> None:
-        if self.discontinuity_codes < 0:
-            raise ValueError(f"discontinuity_codes must be >= 0, got {self.discontinuity_codes}")
-        if self.blur_variance_px2 is not None and not 0 <= self.blur_variance_px2 < 100:
-            raise ValueError(f"blur_variance_px2 must be in [0, 100) px^2 or None, got {self.blur_variance_px2}")
-        if not 0 <= self.min_visibility_ratio < 1:
-            raise ValueError(f"min_visibility_ratio must be in [0, 1), got {self.min_visibility_ratio}")
-        if not isinstance(self.edge_band_px, int) or self.edge_band_px < 0:
-            raise ValueError(f"edge_band_px must be a non-negative integer, got {self.edge_band_px!r}")
+        _check_number("min_modulation", self.min_modulation, allow_none=True)
+        _check_number("consistency_codes", self.consistency_codes)
+        _check_number("smoothing_px", self.smoothing_px, upper=MAX_SMOOTHING_PX)
+        _check_number("discontinuity_codes", self.discontinuity_codes)
+        edge_band = self.edge_band_px
+        if isinstance(edge_band, bool) or not isinstance(edge_band, (int, np.integer)) or not 0 <= edge_band <= 100:
+            raise ValueError(f"edge_band_px must be an integer in [0, 100], got {edge_band!r}")
+        object.__setattr__(self, "edge_band_px", int(edge_band))
+        _check_number("field_margin_codes", self.field_margin_codes, upper=MAX_NLP / 2)
+        _check_number("min_visibility_ratio", self.min_visibility_ratio, upper=1.0)
+        _check_number("blur_variance_px2", self.blur_variance_px2, allow_none=True, upper=100.0)
+        _check_number("max_blur_bias_codes", self.max_blur_bias_codes, upper=1.0)
+
+    def check_nlp(self, nlp: int) -> None:
+        """Raise ValueError when ``field_margin_codes`` leaves no coded field for ``nlp`` light codes
+        (the margin must be below ``nlp / 2``)."""
+        if not self.field_margin_codes < nlp / 2:
+            raise ValueError(
+                f"field_margin_codes must be below nlp/2 = {nlp / 2:g} (a wider margin leaves no coded field), "
+                f"got {self.field_margin_codes!r}"
+            )
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> DecodeOptions:
+        """Options from :meth:`to_dict`'s object; unknown keys are refused, naming them."""
+        unknown = sorted(set(data) - {f.name for f in fields(cls)})
+        if unknown:
+            raise ValueError(f"unknown decode option(s): {', '.join(unknown)}")
+        return cls(**data)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -84,6 +134,7 @@ class DecodeOptions:
             "field_margin_codes": self.field_margin_codes,
             "min_visibility_ratio": self.min_visibility_ratio,
             "blur_variance_px2": self.blur_variance_px2,
+            "max_blur_bias_codes": self.max_blur_bias_codes,
         }
 
 
@@ -95,12 +146,10 @@ class Reference:
     ----------
     decoded : DecodedStack
         Codes of the reference plane (REF of Eq. 16).
-    slope_mm : (H, W) float32 array
-        ``L (p - t q) / (1 + q r)`` of each reference code ``r`` (Eq. 14 as the Mobius map
-        ``x = L (t + p l) / (1 + q l)``), mm per code; NaN where invalid. Times
-        ``(l - r) / (1 + q l)`` it gives the displacement ``D_R = x(l) - x(r)`` on R
-        without subtracting two abscissae of ~500 mm in float32 (a 0.4 um height error).
-    gray_slope_mm : (H, W) float32 array
+    surface : ReferenceSurface
+        The rig model's reference surface prepared from ``decoded.codes``
+        (:meth:`~metrology.core.geometry.base.PreparedGeometry.reference`).
+    gray_surface : ReferenceSurface
         The same for the gray-code-only codes (the comparison heights).
     unreliable : (H, W) bool array
         Valid reference pixels dropped as possibly mixed (:func:`unreliable_mask`).
@@ -109,8 +158,8 @@ class Reference:
     """
 
     decoded: DecodedStack
-    slope_mm: np.ndarray
-    gray_slope_mm: np.ndarray
+    surface: ReferenceSurface
+    gray_surface: ReferenceSurface
     unreliable: np.ndarray
     blur_variance_px2: float = 0.0
 
@@ -176,10 +225,12 @@ def prepare_reference(
     Reference
     """
     options = options or DecodeOptions()
+    options.check_nlp(rig.nlp)
     decoded = reference if isinstance(reference, DecodedStack) else _decode(rig, reference, options)
     _check_shape(rig, decoded.codes.shape, "reference")
-    slope_mm = _slope_map(rig, decoded.codes)
-    gray_slope_mm = _slope_map(rig, decoded.gray_codes)
+    prepared = rig.prepare()
+    surface = prepared.reference(decoded.codes, None)
+    gray_surface = prepared.reference(decoded.gray_codes, None)
     unreliable = unreliable_mask(decoded.codes, options.discontinuity_codes, options.edge_band_px)
     blur = options.blur_variance_px2
     if blur is None:
@@ -188,7 +239,7 @@ def prepare_reference(
         except ValueError:
             blur = 0.0  # too small a field to tell: no correction
     return Reference(
-        decoded=decoded, slope_mm=slope_mm, gray_slope_mm=gray_slope_mm, unreliable=unreliable, blur_variance_px2=blur
+        decoded=decoded, surface=surface, gray_surface=gray_surface, unreliable=unreliable, blur_variance_px2=blur
     )
 
 
@@ -227,6 +278,9 @@ def measure_height(
         If a stack is malformed or its shape differs from the rig's.
     """
     options = options or DecodeOptions()
+    if not isinstance(options, DecodeOptions):
+        raise TypeError(f"options must be DecodeOptions, got {type(options).__name__}")
+    options.check_nlp(rig.nlp)
     timings: dict[str, float] = {}
     start = time.perf_counter()
     if not isinstance(reference, Reference):
@@ -248,6 +302,8 @@ def measure_height(
             visibility,
             options.min_visibility_ratio,
             threads,
+            blur_variance_px2=reference.blur_variance_px2,
+            max_blur_bias_codes=options.max_blur_bias_codes,
         )
         del visibility
         drop |= reference.unreliable
@@ -258,15 +314,14 @@ def measure_height(
         del drop, keep
     if correct_blur:
         correct_blur_bias(obj_codes, reference.blur_variance_px2)
-        z_mm = _height_map(_RowTriangulation(rig, reference.decoded.codes, reference.slope_mm, obj_codes), threads)
+        z_mm = _height_map(rig.prepare(), obj_codes, reference.surface, threads)
     assert z_mm is not None
     timings["object_decode_triangulate_s"] = time.perf_counter() - start
 
     gray_z = None
     if gray_codes is not None:
         start = time.perf_counter()
-        gray_rows = _RowTriangulation(rig, reference.decoded.gray_codes, reference.gray_slope_mm, gray_codes)
-        gray_z = _height_map(gray_rows, threads)
+        gray_z = _height_map(rig.prepare(), gray_codes, reference.gray_surface, threads)
         timings["gray_only_s"] = time.perf_counter() - start
     return HeightResult(z_mm=z_mm, gray_z_mm=gray_z, obj_codes=obj_codes, timings_s=timings)
 
@@ -282,8 +337,12 @@ def unreliable_mask(
     visibility: np.ndarray | None = None,
     min_visibility_ratio: float = 0.0,
     threads: int | None = None,
+    *,
+    blur_variance_px2: float = 0.0,
+    max_blur_bias_codes: float = 0.0,
 ) -> np.ndarray:
-    """Valid pixels that may be mixed: near an invalid pixel, a depth step or a visibility dip.
+    """Valid pixels that may be mixed: near an invalid pixel, a depth step or a visibility dip,
+    or at a crease of the codes.
 
     Parameters
     ----------
@@ -305,6 +364,16 @@ def unreliable_mask(
         a 10 mm step keeps ~77 % of it).
     threads : int, optional
         Threads over row tiles.
+    blur_variance_px2, max_blur_bias_codes : float
+        The camera blur's variance (px^2) and the largest first-order blur bias
+        ``|s2/2 laplacian(l)|`` (code units) of a reported pixel: beyond it the pixel lies
+        at a crease of the code surface, e.g. beside a riser seen edge-on, where the blur
+        blends codes from both sides and no correction holds
+        (:func:`~metrology.core.blur.blur_bias_exceeds`). The same bound finds small depth
+        steps, whose code jump is below ``max_step_codes``: the Laplacian of a blurred step
+        peaks about a pixel either side of it and vanishes on it. Such pixels are marked with
+        their 4-neighbours (a band of one pixel, whatever ``band_px``), which covers the
+        pixels on the step. 0 for either: no such test.
 
     Returns
     -------
@@ -321,9 +390,13 @@ def unreliable_mask(
     limit = np.float32(max_step_codes)
     ratio = np.float32(min_visibility_ratio)
     use_visibility = visibility is not None and min_visibility_ratio > 0
+    use_creases = blur_variance_px2 > 0 and max_blur_bias_codes > 0
+    creases = np.empty(codes.shape, bool) if use_creases else None
+    # rows of context: the code steps' reach, or the 5x5 Laplacian's plus the creases' band
+    context = 3 if use_creases else 1
 
     def run(rows: slice) -> None:
-        top, bottom = max(rows.start - 1, 0), min(rows.stop + 1, height)  # one row of context
+        top, bottom = max(rows.start - context, 0), min(rows.stop + context, height)
         c = codes[top:bottom]
         scratch = thread_scratch()
         s = np.isfinite(c, out=scratch.get("seeds", c.shape, bool))
@@ -344,10 +417,22 @@ def unreliable_mask(
             )
             local_max *= ratio
             s |= np.less(v, local_max, out=scratch.get("dip", c.shape, bool))
+        if creases is not None:
+            crease = blur_bias_exceeds(
+                c,
+                blur_variance_px2,
+                max_blur_bias_codes,
+                scratch.get("crease", c.shape, bool),
+                scratch.get("laplacian", c.shape, np.float32),
+            )
+            band = cv2.dilate(crease.view(np.uint8), _CROSS, dst=scratch.get("crease_band", c.shape, np.uint8))
+            creases[rows] = band[rows.start - top : rows.stop - top].view(bool)  # with their 4-neighbours
         seeds[rows] = s[rows.start - top : rows.stop - top].view(np.uint8)
 
     run_tiled(run, height, width, threads)
     dropped = cv2.dilate(seeds, _CROSS, iterations=band_px).view(bool)
+    if creases is not None:
+        dropped |= creases
     dropped &= np.isfinite(codes)
     return dropped
 
@@ -406,7 +491,8 @@ def _fused_height(
     needs_visibility = options.edge_band_px > 0 and options.min_visibility_ratio > 0
     visibility = np.empty((height, width), np.float32) if needs_visibility else None
 
-    triangulate_rows = _RowTriangulation(rig, reference.decoded.codes, reference.slope_mm, codes)
+    prepared = rig.prepare()
+    surface = reference.surface
 
     def run(rows: slice) -> None:
         l = codes[rows]
@@ -422,49 +508,16 @@ def _fused_height(
             visibility_out=None if visibility is None else visibility[rows],
         )
         if z_mm is not None:
-            triangulate_rows(rows, z_mm[rows])
+            prepared.triangulate_rows(rows, l, None, reference=surface, height_out=z_mm[rows])
 
     run_tiled(run, height, width, threads)
     return _FusedPass(codes=codes, z_mm=z_mm, visibility=visibility, gray_codes=gray_codes)
 
 
-class _RowTriangulation:
-    """Eqs. 14, 16 and 17 for a tile of rows of object ``codes`` against reference codes: the
-    in-place form of :func:`~metrology.core.triangulate.displacement_from_codes` and
-    :func:`~metrology.core.triangulate.height_from_displacement`, temporaries in the thread's
-    scratch."""
-
-    def __init__(self, rig: Rig, ref_codes: np.ndarray, slope_mm: np.ndarray, codes: np.ndarray) -> None:
-        self.L, self.q, self.d = (np.float32(v) for v in (rig.mobius.L_mm, rig.mobius.q, rig.d_mm))
-        self.ref_codes = ref_codes
-        self.slope_mm = slope_mm
-        self.codes = codes
-        self.shape = codes.shape
-
-    def __call__(self, rows: slice, z_out: np.ndarray) -> None:
-        l = self.codes[rows]
-        scratch = thread_scratch()
-        den = np.multiply(l, self.q, out=scratch.get("denominator", l.shape, np.float32))
-        den += np.float32(1)
-        num = np.subtract(l, self.ref_codes[rows], out=scratch.get("numerator", l.shape, np.float32))
-        num *= self.slope_mm[rows]
-        num /= den  # D_R, mm
-        np.add(num, self.d, out=den)
-        num *= self.L
-        np.divide(num, den, out=z_out)  # NaN codes give NaN heights
-
-
-def _height_map(triangulate_rows: _RowTriangulation, threads: int | None) -> np.ndarray:
-    """Heights (H, W) float32 mm, tile by tile."""
-    height, width = triangulate_rows.shape
-    z_mm = np.empty((height, width), np.float32)
-    run_tiled(lambda rows: triangulate_rows(rows, z_mm[rows]), height, width, threads)
+def _height_map(
+    prepared: PreparedGeometry, codes: np.ndarray, surface: ReferenceSurface, threads: int | None
+) -> np.ndarray:
+    """Heights (H, W) float32 mm of light codes against a reference surface, tile by tile."""
+    z_mm = triangulate_frame(prepared, codes, None, reference=surface, points=False, threads=threads).height_mm
+    assert z_mm is not None
     return z_mm
-
-
-def _slope_map(rig: Rig, ref_codes: np.ndarray, threads: int | None = None) -> np.ndarray:
-    """:func:`~metrology.core.triangulate.reference_slope_mm` of (H, W) codes as float32, tile by tile."""
-    height, width = ref_codes.shape
-    slope = np.empty((height, width), np.float32)
-    run_tiled(lambda rows: reference_slope_mm(rig, ref_codes[rows], out=slope[rows]), height, width, threads)
-    return slope

@@ -1,6 +1,6 @@
-"""Point clouds and meshes of height maps (DESIGN.md 1.5), built with open3d.
+"""Point clouds and meshes of height maps (docs/file-formats.md), built with open3d.
 
-Vertices are the 3D points of the valid pixels, ``(X_H, Y_H, z)`` of DESIGN.md 1.1
+Vertices are the 3D points of the valid pixels, ``(X_H, Y_H, z)`` of docs/conventions.md
 (:func:`~metrology.core.triangulate.points_from_heights`), in row-major pixel order.
 The mesh joins neighbouring valid pixels of the image grid and does not bridge depth
 discontinuities (:func:`grid_triangles`).
@@ -171,7 +171,7 @@ def _valid_points(rig: Rig, z_mm: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray
 
 
 def mesh_from_heights(rig: Rig, z_mm: npt.ArrayLike, max_jump_mm: float | None = None) -> open3d.geometry.TriangleMesh:
-    """Triangle mesh of a height map (DESIGN.md 1.5).
+    """Triangle mesh of a height map (docs/file-formats.md).
 
     Parameters
     ----------

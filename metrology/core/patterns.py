@@ -1,4 +1,4 @@
-"""The gcps-v1 pattern set (DESIGN.md 1.3): seven gray-code and four phase-shift patterns.
+"""The gcps-v1 pattern set (docs/conventions.md): seven gray-code and four phase-shift patterns.
 
 Light codes ``l`` run linearly across the projector's columns, from 0 at the left
 edge of the coded field to ``nlp`` at its right edge. Pattern ``GC_k`` is bit k

@@ -1,4 +1,4 @@
-"""Scenes for the virtual rig: height fields over the reference plane R (gcps-v1, DESIGN.md 1.1).
+"""Scenes for the virtual rig: height fields over the reference plane R (gcps-v1, docs/conventions.md).
 
 A :class:`Scene` is a small frozen dataclass describing a surface ``Z = h(X, Y)`` in rig
 coordinates (millimetres; X from Q, the foot of the projector pupil; Y = 0 through both

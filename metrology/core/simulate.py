@@ -1,4 +1,4 @@
-"""The virtual rig: renders the eleven gcps-v1 camera images of a scene (DESIGN.md 1.1, 1.3).
+"""The virtual rig: renders the eleven gcps-v1 camera images of a scene (docs/conventions.md).
 
 The forward model is the exact crossed-optical-axes geometry of the paper (Figs. 1 and 3):
 
@@ -18,8 +18,10 @@ The forward model is the exact crossed-optical-axes geometry of the paper (Figs.
    ``E = G_sigma * (pattern(l)^gamma * [0 <= l <= nlp])`` is the light the projector emits
    (its gamma acts on the pattern value; its defocus is a Gaussian of ``sigma`` codes across
    the fringes). Shadowed points get ``albedo * ambient``.
-5. **Camera.** Each pixel averages ``supersample x supersample`` sub-rays (mixed pixels at
-   discontinuities and shadow edges), then a Gaussian camera blur, seeded Gaussian noise in
+5. **Camera.** Each pixel averages ``supersample x supersample`` sub-rays over its area
+   (``camera_sampling="area"``: mixed pixels at discontinuities and shadow edges), or takes the
+   light of the one ray through its centre (``camera_sampling="centre"``: a point sample, whose
+   only mixing is the blur that follows); then a Gaussian camera blur, seeded Gaussian noise in
    grey levels, rounding and clipping to 8 or 16 bits.
 
 Square-wave projection (``square=True``) with ``smoothing_codes > 0`` models the paper's
@@ -53,10 +55,10 @@ import numpy as np
 import numpy.typing as npt
 from scipy.ndimage import gaussian_filter1d
 
+from metrology.core.geometry.crossed_axes import camera_ray_point, codes_of_points
 from metrology.core.patterns import GRAY_NAMES, PATTERN_NAMES, PHASE_NAMES, pattern_intensity
 from metrology.core.rig import Rig
 from metrology.core.scenes import Scene, StageScene
-from metrology.core.triangulate import codes_from_abscissa
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -75,6 +77,9 @@ EDGE_JUMP_MM = 2.0
 
 CODE_GRID_STEP = 1.0 / 256.0
 """Sampling of the projector patterns in code space when they are blurred, code units."""
+
+CAMERA_SAMPLINGS = ("area", "centre")
+"""Values of :attr:`SimulationOptions.camera_sampling`: a pixel's mean over its area, or its centre ray."""
 
 
 # --------------------------------------------------------------------------- options
@@ -108,7 +113,16 @@ class SimulationOptions:
         leaves a third harmonic below 1e-3 of the fundamental), >= 0. Default 0.
     supersample : int
         Sub-rays per pixel along each axis (1 to 8); > 1 renders mixed pixels at
-        discontinuities. Default 1 (exact pixel-centre rendering).
+        discontinuities. Default 1 (exact pixel-centre rendering). With
+        ``camera_sampling="centre"`` the sub-rays only find the depth edges inside each pixel
+        (:attr:`RenderedStack.edges`); the images take the centre ray.
+    camera_sampling : {"area", "centre"}
+        How a pixel gathers light before the camera blur. ``"area"`` (default): the mean of its
+        ``supersample x supersample`` sub-rays, i.e. the pixel's area (a box of one pixel, variance
+        1/12 px^2 per axis, plus ``camera_defocus_px``). ``"centre"``: the light of the ray through
+        the pixel's centre only, then the Gaussian of ``camera_defocus_px``: a camera whose whole
+        blur is Gaussian (no box), which makes the mixing at a depth step a Gaussian-weighted blend
+        of the two sides instead of a sharp area split. With ``supersample=1`` both are the same.
     seed : int
         Seed of the camera noise, >= 0. Default 0.
 
@@ -134,6 +148,7 @@ class SimulationOptions:
     smoothing_codes: float = 0.0
     supersample: int = 1
     seed: int = 0
+    camera_sampling: str = "area"
 
     def __post_init__(self) -> None:
         if _is_bool(self.bit_depth) or self.bit_depth not in (8, 16):
@@ -152,6 +167,9 @@ class SimulationOptions:
         if not _is_int(self.seed) or self.seed < 0:
             raise ValueError(f"option seed must be a non-negative integer, got {self.seed!r}")
         object.__setattr__(self, "seed", int(self.seed))
+        if not isinstance(self.camera_sampling, str) or self.camera_sampling not in CAMERA_SAMPLINGS:
+            expected = " or ".join(repr(v) for v in CAMERA_SAMPLINGS)
+            raise ValueError(f"option camera_sampling must be {expected}, got {self.camera_sampling!r}")
 
     def _check_real(self, name: str, lower: float, strict: bool) -> None:
         value = getattr(self, name)
@@ -162,6 +180,10 @@ class SimulationOptions:
             relation = ">" if strict else ">="
             raise ValueError(f"option {name} must be finite and {relation} {lower:g}, got {value!r}")
         object.__setattr__(self, name, value)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Every option by name (JSON types); ``SimulationOptions(**d)`` rebuilds the same options."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
 
     @property
     def full_scale(self) -> int:
@@ -340,7 +362,7 @@ def render_series(
     """Render a stage series (paper section 5): ``repeats`` captures at each ``Z_in``.
 
     The noise-free geometry and radiometry are rendered once per position; each repeat only
-    draws fresh camera noise, seeded by ``SeedSequence([options.seed, position index, repeat])``
+    draws fresh camera noise, seeded by :func:`series_seed` (and the scene, as :func:`render_stack`)
     so any capture can be reproduced alone.
 
     Parameters
@@ -387,13 +409,54 @@ def _series(
         _check_inputs(rig, scene, opts)
         clean = _render_clean(rig, scene, opts)
         for repeat in range(repeats):
-            rng = np.random.default_rng(np.random.SeedSequence([opts.seed, index, repeat]))
-            yield z, repeat, _capture(clean, rng)
+            capture_opts = replace(opts, seed=series_seed(opts.seed, index, repeat))
+            yield z, repeat, _capture(clean, np.random.default_rng(stack_seed(capture_opts, scene)))
 
 
-def series_seed(options: SimulationOptions, position_index: int, repeat: int) -> np.random.SeedSequence:
-    """The noise seed :func:`render_series` uses for one capture."""
-    return np.random.SeedSequence([options.seed, position_index, repeat])
+def series_seed(seed: int, position_index: int, repeat: int) -> int:
+    """The noise seed (``SimulationOptions.seed``) of one capture of a stage series.
+
+    ``SeedSequence([seed, position index, repeat])`` reduced to one 32-bit integer: capture
+    ``(i, r)`` of a series seeded ``seed`` is :func:`render_stack` of the stage scene at
+    position ``i`` with ``options.seed = series_seed(seed, i, r)``, so a series rendered
+    capture by capture (the application's jobs) has the same images as :func:`render_series`
+    (``gcps simulate --scene stage``). The reference of a series uses ``seed`` itself.
+
+    Raises
+    ------
+    ValueError
+        If an argument is not a non-negative integer (naming it).
+    """
+    for name, value in (("seed", seed), ("position_index", position_index), ("repeat", repeat)):
+        if not _is_int(value) or value < 0:
+            raise ValueError(f"{name} must be a non-negative integer, got {value!r}")
+    state = np.random.SeedSequence([int(seed), int(position_index), int(repeat)]).generate_state(1, np.uint32)
+    return int(state[0])
+
+
+def stage_positions(start_mm: float, stop_mm: float, step_mm: float) -> list[float]:
+    """Stage positions Z_in from ``start_mm`` to ``stop_mm`` *inclusive*, every ``step_mm``, mm.
+
+    ``start + i step`` for ``i = 0, 1, ...`` while it does not pass ``stop`` (1e-9 of a step of
+    slack for rounding; values rounded to 1e-9 mm): ``0:8:3`` gives 0, 3, 6 and ``0:8:4`` gives
+    0, 4, 8. The one definition used by ``gcps simulate --z-in``, the dashboard and reports.
+
+    Raises
+    ------
+    ValueError
+        If a value is not finite, ``step_mm <= 0`` or ``stop_mm < start_mm`` (naming it).
+    """
+    for name, value in (("start_mm", start_mm), ("stop_mm", stop_mm), ("step_mm", step_mm)):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise ValueError(f"{name} must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ValueError(f"{name} must be finite, got {value!r}")
+    if step_mm <= 0:
+        raise ValueError(f"step_mm must be positive, got {step_mm!r}")
+    if stop_mm < start_mm:
+        raise ValueError(f"stop_mm ({stop_mm!r}) must not be below start_mm ({start_mm!r})")
+    count = math.floor((stop_mm - start_mm) / step_mm + 1e-9) + 1
+    return [round(start_mm + i * step_mm, 9) for i in range(count)]
 
 
 def emitted_pattern(codes: npt.ArrayLike, name: str, nlp: int, options: SimulationOptions) -> FloatArray:
@@ -492,19 +555,9 @@ def _render_clean(rig: Rig, scene: Scene, opts: SimulationOptions) -> _CleanRend
     XA, YA = np.meshgrid(xa, ya)
     sub = _trace(rig, scene, XA.ravel(), YA.ravel())
 
-    if s % 2 == 1:
-        c = s // 2
-
-        def centre(a: npt.NDArray[Any]) -> npt.NDArray[Any]:
-            return np.ascontiguousarray(a.reshape(H, s, W, s)[:, c, :, c])
-
-        z_c, codes_c = centre(sub.z), centre(sub.codes)
-        lit_c = centre(sub.illuminated & sub.in_field)
-    else:
-        XC, YC = np.meshgrid(rig.column_x_mm(), rig.row_y_mm())
-        tc = _trace(rig, scene, XC.ravel(), YC.ravel())
-        z_c, codes_c = tc.z.reshape(H, W), tc.codes.reshape(H, W)
-        lit_c = (tc.illuminated & tc.in_field).reshape(H, W)
+    centre_rays = _centre_rays(rig, scene, sub, H, W, s)
+    z_c, codes_c = centre_rays.z.reshape(H, W), centre_rays.codes.reshape(H, W)
+    lit_c = (centre_rays.illuminated & centre_rays.in_field).reshape(H, W)
 
     truth = np.where(lit_c, z_c, np.nan).astype(np.float32)
     codes = np.where(lit_c, codes_c, np.nan)
@@ -515,9 +568,11 @@ def _render_clean(rig: Rig, scene: Scene, opts: SimulationOptions) -> _CleanRend
         edges |= (z4.max(axis=(1, 3)) - z4.min(axis=(1, 3))) > EDGE_JUMP_MM
         edges |= lit4.any(axis=(1, 3)) != lit4.all(axis=(1, 3))
 
-    albedo = scene.albedo(sub.X, sub.Y).reshape(H * s, W * s)
-    illuminated = sub.illuminated.reshape(H * s, W * s)
-    sub_codes = sub.codes.reshape(H * s, W * s)
+    # the rays whose light the pixels gather: all sub-rays (area) or the centre rays (centre)
+    rays, rows, cols = (centre_rays, H, W) if opts.camera_sampling == "centre" else (sub, H * s, W * s)
+    albedo = scene.albedo(rays.X, rays.Y).reshape(rows, cols)
+    illuminated = rays.illuminated.reshape(rows, cols)
+    sub_codes = rays.codes.reshape(rows, cols)
     signal = albedo * opts.projector_gain * illuminated
     ambient = albedo * opts.ambient
     grey = np.empty((len(PATTERN_NAMES), H, W), dtype=np.float64)
@@ -531,12 +586,33 @@ def _render_clean(rig: Rig, scene: Scene, opts: SimulationOptions) -> _CleanRend
         else:
             emitted = sampler.sample(_blurred_table(name, rig.nlp, sigmas[p], opts.square, opts.projector_gamma, pad))
         intensity = ambient + signal * emitted
-        img = cv2.resize(intensity, (W, H), interpolation=cv2.INTER_AREA) if s > 1 else intensity
+        img = cv2.resize(intensity, (W, H), interpolation=cv2.INTER_AREA) if rows > H else intensity
         if opts.camera_defocus_px > 0:
             sigma = opts.camera_defocus_px
             img = cv2.GaussianBlur(img, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REPLICATE)
         grey[p] = img * full
     return _CleanRender(grey, truth, codes, lit_c, edges, z_c, scene, opts)
+
+
+def _centre_rays(rig: Rig, scene: Scene, sub: _Trace, H: int, W: int, s: int) -> _Trace:
+    """The rays through the pixel centres (flat, H * W): the middle sub-ray of each pixel when
+    ``s`` is odd, else traced anew."""
+    if s % 2 == 0:
+        XC, YC = np.meshgrid(rig.column_x_mm(), rig.row_y_mm())
+        return _trace(rig, scene, XC.ravel(), YC.ravel())
+    c = s // 2
+
+    def centre(a: npt.NDArray[Any]) -> npt.NDArray[Any]:
+        return np.ascontiguousarray(a.reshape(H, s, W, s)[:, c, :, c]).ravel()
+
+    return _Trace(
+        z=centre(sub.z),
+        X=centre(sub.X),
+        Y=centre(sub.Y),
+        codes=centre(sub.codes),
+        illuminated=centre(sub.illuminated),
+        in_field=centre(sub.in_field),
+    )
 
 
 def _capture(clean: _CleanRender, rng: np.random.Generator) -> RenderedStack:
@@ -602,13 +678,10 @@ def _blurred_table(name: str, nlp: int, sigma: float, square: bool, gamma: float
 # --------------------------------------------------------------------------- ray casting
 def _trace(rig: Rig, scene: Scene, xa: FloatArray, ya: FloatArray) -> _Trace:
     """First hits, shadows and codes of the camera rays through (xa, ya) on R (flat arrays)."""
-    L = rig.L_mm
     z = _first_hit(rig, scene, xa, ya)
-    k = 1.0 - z / L
-    X = rig.d_mm + k * (xa - rig.d_mm)
-    Y = k * ya
+    X, Y = (np.asarray(a, dtype=np.float64) for a in camera_ray_point(rig, xa, ya, z))
     illuminated = ~_shadowed(rig, scene, X, Y, z)
-    codes = np.asarray(codes_from_abscissa(rig, X * L / (L - z)), dtype=np.float64)
+    codes = np.asarray(codes_of_points(rig, X, z), dtype=np.float64)
     in_field = illuminated & (codes >= 0.0) & (codes <= rig.nlp)
     return _Trace(z=z, X=X, Y=Y, codes=codes, illuminated=illuminated, in_field=in_field)
 

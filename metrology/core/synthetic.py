@@ -2,7 +2,7 @@
 
 Calibration and characterization work on decoded light-code maps, and a code
 map depends only on the *true* geometry, never on the rig's parameter estimates.
-For pixel ``(k, j)`` looking at point A of R (abscissa ``x_A``, DESIGN.md 1.1):
+For pixel ``(k, j)`` looking at point A of R (abscissa ``x_A``, docs/conventions.md):
 
 - the reference code is the code of the light plane landing at ``x_A``:
   ``l_ref = codes_from_abscissa(rig, x_A)`` (inverse of Eq. 14);
@@ -31,8 +31,13 @@ from collections.abc import Iterator, Sequence
 import numpy as np
 import numpy.typing as npt
 
+from metrology.core.geometry.crossed_axes import (
+    camera_ray_point,
+    codes_from_abscissa,
+    codes_of_points,
+    height_from_codes,
+)
 from metrology.core.rig import Rig
-from metrology.core.triangulate import codes_from_abscissa, height_from_codes
 
 REALISTIC_SIGMA_CODE = 0.007
 """Code noise per pixel per capture stack, code units (1.5 grey levels on 8-bit fringes)."""
@@ -92,10 +97,8 @@ def exact_codes(rig: Rig, z_mm: npt.ArrayLike) -> np.ndarray:
     True
     """
     z = _check_z(rig, z_mm)
-    x_a = rig.column_x_mm()[None, :]
-    x_h = rig.d_mm + (1.0 - z / rig.L_mm) * (x_a - rig.d_mm)
-    x_b = x_h * rig.L_mm / (rig.L_mm - z)
-    codes = codes_from_abscissa(rig, x_b)
+    x_h, _ = camera_ray_point(rig, rig.column_x_mm()[None, :], 0.0, z)
+    codes = codes_of_points(rig, x_h, z)
     with np.errstate(invalid="ignore"):
         outside = ~((codes >= 0.0) & (codes <= rig.nlp))
     codes[outside] = np.nan

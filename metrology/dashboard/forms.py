@@ -5,6 +5,7 @@ from __future__ import annotations
 from django import forms
 
 from metrology.captures.models import Capture
+from metrology.dashboard.selectors import capture_origin
 
 PAPER_RIG = {"L_mm": 1022.0, "d_mm": 352.0, "alpha_rad": 0.332, "fw_mm": 500.0, "nlp": 128}
 
@@ -92,24 +93,26 @@ class StageSeriesForm(forms.Form):
     MAX_CAPTURES = 400
 
     def clean(self):
+        from metrology.core.simulate import stage_positions
+
         data = super().clean()
         lo, hi, step = data.get("z_from_mm"), data.get("z_to_mm"), data.get("z_step_mm")
         if None not in (lo, hi, step):
             if hi <= lo:
                 raise forms.ValidationError("'to Z_in' must be above 'from Z_in'.")
-            count = int((hi - lo) / step + 1e-9) + 1
+            positions = stage_positions(lo, hi, step)
+            count = len(positions)
             if count < 2:
                 raise forms.ValidationError("The series needs at least two stage positions: reduce the step.")
             if count * (data.get("repeats") or 1) > self.MAX_CAPTURES:
                 raise forms.ValidationError(f"That makes more than {self.MAX_CAPTURES} captures: widen the step.")
-            data["positions"] = [lo + i * step for i in range(count)]
+            data["positions"] = positions
         return data
 
 
 def capture_choices(captures, empty: str = "choose a capture") -> list[tuple[str, str]]:
     def label(capture: Capture) -> str:
-        scene = (capture.parameters or {}).get("scene", {}).get("name", "")
-        origin = capture.original_name or scene or capture.source
+        origin = capture_origin(capture)
         z = f", Z_in {capture.z_in_mm:g} mm" if capture.z_in_mm is not None else ""
         return f"#{capture.pk} {capture.role} ({origin}{z})"
 

@@ -53,7 +53,96 @@ def calibration_figures(calibration) -> dict[str, Any]:
         residual_mm=load_npy(calibration.residual_npy),
         x_mm=rig.column_x_mm(),
         y_mm=rig.row_y_mm(),
+        result=calibration.result or {},
     )
+
+
+_CALIBRATED = (("L_mm", "L", "mm"), ("alpha_rad", "alpha", "rad"), ("d_mm", "d", "mm"))
+
+
+def _finite(value: Any) -> float | None:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return None
+    return number if np.isfinite(number) else None
+
+
+def calibration_stop_reason(method: str, result: dict[str, Any]) -> str:
+    """Why the fit stopped, in plain words (scipy's and the paper loop's messages translated).
+
+    scipy's ``least_squares`` reports ``"`ftol` termination condition is satisfied."`` and the
+    like; the paper's loop ``"converged"`` or ``"not converged after N iterations"``.
+    """
+    message = str(result.get("message") or "")
+    options = result.get("parameters") or {}
+    tolerance = _finite(options.get("tolerance"))
+    limit = options.get("max_iterations")
+    within = f" (relative tolerance {tolerance:g})" if tolerance is not None else ""
+    if method == "paper":
+        if result.get("converged"):
+            dz, m_hat = _finite(options.get("delta_z_mm")), _finite(options.get("m_hat"))
+            if dz is not None and m_hat is not None:
+                return f"the master's mean height is within {dz * 1000:g} µm of H and its slope within {m_hat:g}"
+            return "the master's mean height and slope are within tolerance"
+        return f"stopped at the iteration limit ({limit}) before the master's height and slope were within tolerance"
+    if "`ftol`" in message and "`xtol`" in message:
+        return f"both the residuals and the fitted values stopped changing{within}"
+    if "`ftol`" in message:
+        return f"the sum of squared height residuals stopped decreasing{within}"
+    if "`xtol`" in message:
+        return f"the fitted values stopped changing{within}"
+    if "`gtol`" in message:
+        return f"the fit reached a minimum: its gradient vanished{within}"
+    if "maximum number of function evaluations" in message:
+        return f"stopped at the iteration limit ({limit}) before converging"
+    return "the fit converged" if result.get("converged") else "the fit stopped before converging"
+
+
+def calibration_summary(calibration) -> dict[str, Any]:
+    """What the calibration page states: start -> result per value, iteration count, stop reason.
+
+    ``start`` is the fit's true starting point (``parameters["initial"]``: the rig's values with
+    the form's start L and alpha), not the rig's stored values, which are given separately when
+    they differ. Uncertainties (least squares only) are one-sigma, in µm for lengths and µrad
+    for angles. ``iterations`` is the number of points drawn after the start (iteration 0).
+    """
+    from metrology.figures.calibration import iteration_points
+
+    result = calibration.result or {}
+    stored = calibration.rig_values or {}
+    start = {**stored, **((calibration.parameters or {}).get("initial") or {})}
+    sigma = result.get("std_errors") or {}
+    rows = []
+    for key, name, unit in _CALIBRATED:
+        before, after, stored_value = _finite(start.get(key)), _finite(result.get(key)), _finite(stored.get(key))
+        if after is None:
+            continue
+        u = _finite(sigma.get(key))
+        rows.append(
+            {
+                "name": name,
+                "unit": unit,
+                "digits": 5 if unit == "rad" else 3,
+                "start": before,
+                "result": after,
+                "changed": before is not None and not np.isclose(before, after, rtol=0.0, atol=1e-9),
+                "uncertainty": None if u is None else u * 1e6 if unit == "rad" else u * 1e3,
+                "uncertainty_unit": "µrad" if unit == "rad" else "µm",
+                "stored": stored_value
+                if stored_value is not None and before is not None and not np.isclose(stored_value, before)
+                else None,
+            }
+        )
+    points = iteration_points(calibration.iterations or [], result)
+    return {
+        "values": rows,
+        "iterations": max(len(points) - 1, 0),
+        "converged": bool(result.get("converged")),
+        "stop_reason": calibration_stop_reason(calibration.method, result),
+        "residual_rms_mm": _finite(result.get("residual_rms_mm")),
+        "n_pixels": result.get("n_pixels"),
+    }
 
 
 @functools.lru_cache(maxsize=32)
@@ -99,6 +188,17 @@ def stage_sessions(user, rig):
         .filter(n_stage__gt=0)
         .order_by("-id")
     )
+
+
+def capture_origin(capture) -> str:
+    """Where a capture came from, in words: the uploaded file's name, the virtual scene's name, or the source.
+
+    Uploads carry empty ``parameters``; virtual captures carry ``{"scene": {"name": ...}, ...}``.
+    """
+    parameters = capture.parameters if isinstance(capture.parameters, dict) else {}
+    scene = parameters.get("scene")
+    scene_name = scene.get("name", "") if isinstance(scene, dict) else ""
+    return str(capture.original_name or scene_name or capture.source)
 
 
 def ready_captures(user, rig):

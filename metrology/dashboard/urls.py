@@ -13,6 +13,8 @@ urlpatterns = [
     path("", views.home, name="home"),
     path("jobs/<int:job_id>/", views.job_detail, name="job"),
     path("assets/plotly.min.js", views.plotly_js, name="plotly-js"),
+    path("favicon.svg", views.favicon, name="favicon"),
+    path("favicon.ico", views.favicon),
     path("rigs/", views.rig_list, name="rigs"),
     path("rigs/<int:rig_id>/", views.rig_detail, name="rig"),
     path("rigs/<int:rig_id>/captures/", views.rig_captures, name="rig-captures"),

@@ -90,6 +90,15 @@ def plotly_js(request: HttpRequest) -> HttpResponse:
     return response
 
 
+def favicon(request: HttpRequest) -> HttpResponse:
+    """The site icon (SVG; also answered at /favicon.ico, which browsers ask for by themselves). No login."""
+    from django.template.loader import render_to_string
+
+    response = HttpResponse(render_to_string("dashboard/favicon.svg"), content_type="image/svg+xml")
+    response["Cache-Control"] = "public, max-age=604800"
+    return response
+
+
 # ----------------------------------------------------------------------------- rigs
 
 
@@ -212,6 +221,8 @@ def _start_capture(request: HttpRequest, rig, action: str, form) -> str:
     if action == "simulate":
         capture = capture_services.request_simulated_capture(owner=request.user, rig=rig, **form.request_kwargs())
         return reverse("dashboard:job", args=[capture.job_id])
+    from metrology.core.simulate import series_seed
+
     options = forms.NOISE_PRESETS[data["noise"]][1]
     with transaction.atomic():
         session = capture_services.create_session(
@@ -225,7 +236,7 @@ def _start_capture(request: HttpRequest, rig, action: str, form) -> str:
                     rig=rig,
                     role="stage",
                     scene={"name": "stage"},
-                    options={**options, "seed": 100 + index * data["repeats"] + repeat},
+                    options={**options, "seed": series_seed(100, index, repeat)},
                     z_in_mm=z_in,
                     repeat=repeat,
                     session_id=session.pk,
@@ -361,6 +372,7 @@ def calibration_detail(request: HttpRequest, calibration_id: int) -> HttpRespons
             "job": calibration.job,
             "figures": figures,
             "result": calibration.result or {},
+            "summary": pages.calibration_summary(calibration),
             "error": request.GET.get("error", ""),
         },
     )
@@ -382,6 +394,7 @@ def calibration_apply(request: HttpRequest, calibration_id: int) -> HttpResponse
                 "job": calibration.job,
                 "figures": {},
                 "result": calibration.result or {},
+                "summary": pages.calibration_summary(calibration),
                 "error": error_text(exc),
             },
             status=400,

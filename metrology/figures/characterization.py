@@ -104,14 +104,14 @@ def in_out_figure(result: dict[str, Any]) -> go.Figure:
 
 
 def error_vs_z_figure(result: dict[str, Any]) -> go.Figure:
-    """Fig. 13: mean of dz = Z_out - Z_in (with +-sigma bars) and sigma, in um, versus Z_in."""
+    """Fig. 13: mean of dz = Z_out - Z_in (with +-sigma bars) and sigma, in µm, versus Z_in."""
     z_in = [_num(z) for z in result.get("z_in_mm") or []]
     title = FIGURE_TITLES["error_vs_z"]
     if not z_in:
         return empty_figure(title, "No stage positions in this result.")
     mean_um = [_num(v) * UM for v in result.get("mean_error_mm") or [None] * len(z_in)]
     std_um = [_num(v) * UM for v in result.get("std_error_mm") or [None] * len(z_in)]
-    fig = go.Figure(layout=base_layout(title, "Z_in (mm)", "error (um)"))
+    fig = go.Figure(layout=base_layout(title, "Z_in (mm)", "error (µm)"))
     fig.add_trace(
         go.Scatter(
             x=z_in,
@@ -120,7 +120,7 @@ def error_vs_z_figure(result: dict[str, Any]) -> go.Figure:
             name="mean error",
             line={"color": PALETTE[0]},
             error_y={"type": "data", "array": std_um, "visible": True, "thickness": 1},
-            hovertemplate="Z_in = %{x:.3f} mm<br>mean error = %{y:.1f} um<extra></extra>",
+            hovertemplate="Z_in = %{x:.3f} mm<br>mean error = %{y:.1f} µm<extra></extra>",
         )
     )
     fig.add_trace(
@@ -130,7 +130,7 @@ def error_vs_z_figure(result: dict[str, Any]) -> go.Figure:
             mode="lines+markers",
             name="sigma",
             line={"color": PALETTE[1], "dash": "dot"},
-            hovertemplate="Z_in = %{x:.3f} mm<br>sigma = %{y:.1f} um<extra></extra>",
+            hovertemplate="Z_in = %{x:.3f} mm<br>sigma = %{y:.1f} µm<extra></extra>",
         )
     )
     fig.add_hline(y=0, line={"color": "#888", "width": 1})
@@ -171,21 +171,21 @@ def slope_vs_x_figure(result: dict[str, Any]) -> go.Figure:
 
 
 def intercept_vs_x_figure(result: dict[str, Any]) -> go.Figure:
-    """Intercept of each test point's in-out line versus its X, in um (ideal 0)."""
+    """Intercept of each test point's in-out line versus its X, in µm (ideal 0)."""
     return _per_x_figure(
         result,
         "intercept_vs_x",
         lambda p: _num(p.get("intercept_mm")) * UM,
-        "intercept (um)",
+        "intercept (µm)",
         0.0,
-        "intercept = %{y:.1f} um",
+        "intercept = %{y:.1f} µm",
     )
 
 
 def sigma_vs_x_figure(result: dict[str, Any]) -> go.Figure:
-    """Repeatability of each test point versus its X, in um: it grows towards the field edges."""
+    """Repeatability of each test point versus its X, in µm: it grows towards the field edges."""
     fig = _per_x_figure(
-        result, "sigma_vs_x", lambda p: _num(p.get("sigma_mm")) * UM, "sigma (um)", None, "sigma = %{y:.1f} um"
+        result, "sigma_vs_x", lambda p: _num(p.get("sigma_mm")) * UM, "sigma (µm)", None, "sigma = %{y:.1f} µm"
     )
     ratio = _num(result.get("edge_sigma_ratio"))
     if math.isfinite(ratio) and fig.data:
@@ -213,8 +213,8 @@ def characterization_figures(result: dict[str, Any]) -> dict[str, go.Figure]:
     Returns
     -------
     dict of str -> plotly.graph_objects.Figure
-        ``in_out`` (Fig. 12), ``error_vs_z`` (Fig. 13, um), ``slope_vs_x``,
-        ``intercept_vs_x`` (um), ``sigma_vs_x`` (um, edge growth).
+        ``in_out`` (Fig. 12), ``error_vs_z`` (Fig. 13, µm), ``slope_vs_x``,
+        ``intercept_vs_x`` (µm), ``sigma_vs_x`` (µm, edge growth).
     """
     result = result or {}
     return {
@@ -228,7 +228,7 @@ def characterization_figures(result: dict[str, Any]) -> dict[str, go.Figure]:
 
 def _um(value: Any) -> str:
     number = _num(value)
-    return "n/a" if math.isnan(number) else f"{number * UM:.1f} um"
+    return "n/a" if math.isnan(number) else f"{number * UM:.1f} µm"
 
 
 def _pct(value: Any) -> str:

@@ -13,7 +13,7 @@ import numpy as np
 import numpy.typing as npt
 import plotly.graph_objects as go
 
-from metrology.figures import PALETTE, base_layout, empty_figure
+from metrology.figures import PALETTE, base_layout, empty_figure, fit_image_axes
 
 MAX_ROWS = 320
 MAX_COLS = 400
@@ -102,8 +102,7 @@ def height_map_figure(z_mm: npt.ArrayLike, x_mm: npt.ArrayLike, y_mm: npt.ArrayL
         ],
         layout=base_layout(title, "X (mm)", "Y (mm)", height=480),
     )
-    fig.update_yaxes(scaleanchor="x", scaleratio=1, autorange="reversed")
-    return fig
+    return fit_image_axes(fig, x_mm, y_mm)
 
 
 def profile_figure(
@@ -136,13 +135,14 @@ def profile_figure(
 def gray_vs_gcps_figure(
     x_mm: npt.ArrayLike, z_row_mm: npt.ArrayLike, gray_row_mm: npt.ArrayLike, row: int
 ) -> go.Figure:
-    """Gray-code-only minus GCPS height along one row, in um: the staircase the phase shift removes."""
+    """Gray-code-only minus GCPS height along one row, in µm: the staircase the phase shift removes."""
     x = np.asarray(x_mm, dtype=np.float32)
     diff = (np.asarray(gray_row_mm, dtype=np.float64) - np.asarray(z_row_mm, dtype=np.float64)) * UM
-    fig = go.Figure(layout=base_layout(f"Gray code only minus GCPS, row {row}", "X (mm)", "difference (um)"))
+    fig = go.Figure(layout=base_layout(f"Gray code only minus GCPS, row {row}", "X (mm)", "difference (µm)"))
     fig.add_trace(
         go.Scattergl(x=x, y=diff.astype(np.float32), mode="lines", name="gray only - GCPS", line={"color": PALETTE[4]})
     )
+    fig.update_yaxes(tickformat=",.0f")  # "-10,000 µm", not "-10k µm"
     return fig
 
 
@@ -160,7 +160,7 @@ def surface_figure(xyz_mm: npt.ArrayLike, title: str = "3D view") -> go.Figure:
     layout["scene"] = {
         "xaxis": {"title": {"text": "X (mm)"}},
         "yaxis": {"title": {"text": "Y (mm)"}},
-        "zaxis": {"title": {"text": "z (mm)"}},
+        "zaxis": {"title": {"text": "z (mm)"}, "nticks": 4, "tickformat": ".4~g"},  # a flat box: few z labels
         "aspectmode": "manual",
         "aspectratio": {"x": span[0] / biggest, "y": span[1] / biggest, "z": max(0.15, min(1.0, span[2] / biggest))},
     }

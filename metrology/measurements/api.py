@@ -32,6 +32,10 @@ class MeasurementRequestSerializer(serializers.Serializer):
     rig = serializers.IntegerField(min_value=1)
     reference = serializers.IntegerField(min_value=1, help_text="Capture of the reference plane")
     object = serializers.IntegerField(min_value=1, help_text="Capture of the object")
+    options = serializers.JSONField(
+        required=False,
+        help_text='Pipeline options, e.g. {"decode": {"edge_band_px": 3}} (docs/command-line.md); default the defaults',
+    )
 
 
 class MeasurementSerializer(JobStateMixin, serializers.ModelSerializer):
@@ -50,6 +54,7 @@ class MeasurementSerializer(JobStateMixin, serializers.ModelSerializer):
             "phase",
             "error",
             "statistics",
+            "options",
             "rig_values",
             "timings",
             "software_version",
@@ -83,7 +88,11 @@ class MeasurementListCreateApi(APIView):
         data = serializer.validated_data
         rig = get_rig_for_body(request.user, data["rig"])
         measurement = services.request_measurement(
-            owner=request.user, rig=rig, reference_id=data["reference"], object_id=data["object"]
+            owner=request.user,
+            rig=rig,
+            reference_id=data["reference"],
+            object_id=data["object"],
+            options=data.get("options"),
         )
         measurement = selectors.get_measurement(request.user, measurement.pk)
         return Response(MeasurementSerializer(measurement).data, status=status.HTTP_202_ACCEPTED)

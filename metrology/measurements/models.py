@@ -29,6 +29,9 @@ class Measurement(models.Model):
     mesh_stl = models.FileField(max_length=300, blank=True)
     mesh_obj = models.FileField(max_length=300, blank=True)
     statistics = models.JSONField(default=dict, blank=True)
+    options = models.JSONField(
+        default=dict, blank=True, help_text="Pipeline options the result was computed with (decoding included)"
+    )
     created_at = models.DateTimeField(auto_now_add=True)
 
     class Meta:

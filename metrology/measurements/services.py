@@ -5,6 +5,7 @@ from __future__ import annotations
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from django.core.files import File
@@ -24,9 +25,28 @@ from metrology.rigs.models import Rig
 MESH_FORMATS = ("ply", "stl", "obj")
 
 
+def measure_options(options: dict[str, Any] | None) -> dict[str, Any]:
+    """The full pipeline options (defaults filled in) of a request's ``options`` object; BadInput naming a bad one."""
+    from metrology.pipeline import MeasureOptions
+
+    if options is not None and not isinstance(options, dict):
+        raise BadInput(f"options must be an object, got {options!r}")
+    try:
+        return MeasureOptions.from_dict(options or {}).to_dict()
+    except (TypeError, ValueError) as exc:
+        raise BadInput(f"options: {exc}") from exc
+
+
 @transaction.atomic
-def request_measurement(*, owner, rig: Rig, reference_id: int, object_id: int) -> Measurement:
-    """Create a measurement of ``object`` against ``reference`` on ``rig`` and queue its job."""
+def request_measurement(
+    *, owner, rig: Rig, reference_id: int, object_id: int, options: dict[str, Any] | None = None
+) -> Measurement:
+    """Create a measurement of ``object`` against ``reference`` on ``rig`` and queue its job.
+
+    ``options``: :class:`metrology.pipeline.MeasureOptions` as an object (``{"decode": {...}}``);
+    default the pipeline's defaults. Stored, with the defaults filled in, on the measurement.
+    """
+    checked = measure_options(options)
     if reference_id == object_id:
         raise BadInput("object: the object capture must differ from the reference capture")
     reference = capture_for_job(owner, rig, reference_id, field="reference", roles=(Capture.Role.REFERENCE,))
@@ -37,7 +57,7 @@ def request_measurement(*, owner, rig: Rig, reference_id: int, object_id: int) -
         parameters={"rig": rig.pk, "reference": reference.pk, "object": obj.pk, "rig_values": rig.geometry()},
     )
     measurement = Measurement.objects.create(
-        owner=owner, rig=rig, reference=reference, object=obj, job=job, rig_values=rig.geometry()
+        owner=owner, rig=rig, reference=reference, object=obj, job=job, rig_values=rig.geometry(), options=checked
     )
     job.parameters["measurement"] = measurement.pk
     job.save(update_fields=["parameters"])
@@ -46,21 +66,23 @@ def request_measurement(*, owner, rig: Rig, reference_id: int, object_id: int) -
 
 
 def run_measurement(job: Job, run: job_services.JobRun) -> None:
-    """Job handler: decode both stacks, compute heights, write height map and meshes, publish."""
+    """Job handler: load both stacks, call the pipeline's measure, write height map and meshes, publish."""
     from metrology.core.io import write_height_tiff
-    from metrology.core.measure import height_statistics, measure_height
     from metrology.core.mesh import mesh_from_heights, write_mesh
     from metrology.core.rig import Rig as CoreRig
+    from metrology.pipeline import MeasureOptions, measure
 
     measurement = Measurement.objects.select_related("reference__rig", "object__rig").get(job=job)
     rig = CoreRig.from_dict(measurement.rig_values)
+    options = MeasureOptions.from_dict(measurement.options or {})
     with run.phase("read", 5):
         reference = load_capture_stack(measurement.reference)
         obj = load_capture_stack(measurement.object)
     with run.phase("measure", 20):
-        result = measure_height(rig, reference.images, obj.images)
+        result = measure(rig, reference.images, obj.images, options)
     for name, seconds in result.timings_s.items():
-        run.timings[f"measure.{name}"] = round(float(seconds), 4)
+        if name != "measure":
+            run.timings[name] = round(float(seconds), 4)
     z_mm = np.asarray(result.z_mm, dtype=np.float32)
     prefix = f"measurements/{measurement.pk}/{run.token.hex}"
     names: dict[str, str] = {}
@@ -80,12 +102,10 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
                 with path.open("rb") as handle:
                     names[path.name] = run.save_file(default_storage, f"{prefix}/{path.name}", File(handle))
     statistics = json_safe(result.statistics())
-    if result.gray_z_mm is not None:
-        statistics["gray_only"] = json_safe(height_statistics(np.asarray(result.gray_z_mm)))
     statistics["shape"] = list(z_mm.shape)
-    start = time.perf_counter()
 
-    def publish(_job: Job) -> None:
+    def publish(job_row: Job) -> None:
+        start = time.perf_counter()
         Measurement.objects.filter(pk=measurement.pk).update(
             height_npy=names.get("height.npy", ""),
             height_tiff=names.get("height.tiff", ""),
@@ -94,9 +114,11 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
             mesh_stl=names.get("mesh.stl", ""),
             mesh_obj=names.get("mesh.obj", ""),
             statistics=statistics,
+            options=result.options.to_dict(),
         )
+        job_row.software_version = result.software_version  # the code that computed it, not the requester's
+        run.timings["publish"] = round(time.perf_counter() - start, 4)
 
-    run.timings["publish"] = round(time.perf_counter() - start, 4)
     run.commit(publish)
     _remove_other_attempts(prefix)
 

@@ -62,15 +62,36 @@ def reference_for_session(session: CaptureSession) -> Capture | None:
 
 
 def report_schedules(user) -> list[dict]:
-    """The user's scheduled reports: ``{"task": PeriodicTask, "rig": Rig, "when": str}`` per schedule."""
+    """The user's scheduled reports, one dict per schedule.
+
+    ``task`` (the PeriodicTask), ``rig``, ``when`` (crontab or interval in words), ``source``,
+    ``options`` (what the report will be asked for) and ``next_run`` (None when disabled).
+    """
+    from metrology.reports.schedules import next_run_at, when_text  # schedules reads REPORT_TASK from here
+
     tasks = PeriodicTask.objects.filter(task=REPORT_TASK).select_related("interval", "crontab")
     rigs = {rig.pk: rig for rig in Rig.objects.filter(owner=user)}
     schedules = []
     for task in tasks:
         try:
-            rig_id = json.loads(task.kwargs or "{}").get("rig_id")
+            kwargs = json.loads(task.kwargs or "{}")
         except ValueError:
             continue
+        rig_id = kwargs.get("rig_id") if isinstance(kwargs, dict) else None
         if rig_id in rigs:
-            schedules.append({"task": task, "rig": rigs[rig_id], "when": str(task.scheduler or "no schedule")})
+            schedules.append(
+                {
+                    "task": task,
+                    "rig": rigs[rig_id],
+                    "when": when_text(task),
+                    "source": kwargs.get("source", "auto"),
+                    "options": kwargs.get("options") or {},
+                    "next_run": next_run_at(task),
+                }
+            )
     return schedules
+
+
+def report_schedule(user, rig: Rig) -> dict | None:
+    """The schedule of ``rig`` (one of the user's), as in :func:`report_schedules`, or None."""
+    return next((item for item in report_schedules(user) if item["rig"].pk == rig.pk), None)

@@ -13,7 +13,7 @@ from metrology.rigs.models import Rig, RigParameters
 
 
 class RigInputSerializer(serializers.Serializer):
-    """The rig file of DESIGN.md 1.2; further keys are kept in ``extra``."""
+    """The rig file of docs/file-formats.md; further keys are kept in ``extra``."""
 
     name = serializers.CharField(required=False, allow_blank=True, max_length=200)
     notes = serializers.CharField(required=False, allow_blank=True, max_length=10000)

@@ -1,4 +1,4 @@
-"""A Rig: the seven geometric values of DESIGN.md 1.2 and the history of its calibrated values."""
+"""A Rig: the seven geometric values of docs/file-formats.md and the history of its calibrated values."""
 
 from __future__ import annotations
 

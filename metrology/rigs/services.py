@@ -25,7 +25,7 @@ def validate_geometry(values: dict[str, Any]) -> dict[str, Any]:
 
 @transaction.atomic
 def create_rig(*, owner, data: dict[str, Any]) -> Rig:
-    """Create a rig from the rig-file JSON (DESIGN.md 1.2); ``name`` and ``notes`` are optional keys."""
+    """Create a rig from the rig-file JSON (docs/file-formats.md); ``name`` and ``notes`` are optional keys."""
     geometry = validate_geometry({name: data.get(name) for name in GEOMETRY_FIELDS if name in data})
     extra = {key: value for key, value in data.items() if key not in (*GEOMETRY_FIELDS, "name", "notes")}
     rig = Rig.objects.create(

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from metrology.core.blur import code_laplacian, correct_blur_bias, estimate_blur_variance
+from metrology.core.blur import blur_bias_exceeds, code_laplacian, correct_blur_bias, estimate_blur_variance
 from metrology.core.decode import decode_stack
 from metrology.core.rig import Rig
 from metrology.core.scenes import make_scene
@@ -32,6 +32,35 @@ def test_blur_variance_from_the_reference(blur_px):
     decoded = decode_stack(render_stack(RIG, make_scene("reference", RIG), options).images)
     expected = effective_blur_variance(blur_px)
     assert estimate_blur_variance(decoded.codes, decoded.visibility) == pytest.approx(expected, rel=0.12)
+
+
+@pytest.mark.parametrize("blur_px", [0.5, 0.7])
+def test_blur_variance_of_a_centre_sampled_camera(blur_px):
+    """camera_sampling="centre": no pixel area, the blur is the Gaussian alone (0.49 px^2 at 0.7 px)."""
+    options = SimulationOptions.realistic_8bit(camera_defocus_px=blur_px, camera_sampling="centre", seed=5)
+    decoded = decode_stack(render_stack(RIG, make_scene("reference", RIG), options).images)
+    expected = effective_blur_variance(blur_px, supersample=1)
+    assert estimate_blur_variance(decoded.codes, decoded.visibility) == pytest.approx(expected, rel=0.12)
+
+
+def test_blur_bias_bound_on_a_quadratic_and_at_a_crease():
+    y, x = np.mgrid[0:40, 0:50].astype(np.float64)
+    out = np.empty((40, 50), bool)
+    # a quadratic: laplacian 0.008 code/px^2 everywhere, bias s2/2 * 0.008 = 0.002 code at s2 = 0.5
+    codes = (0.2 * x + 0.003 * x**2 + 0.001 * y**2).astype(np.float32)
+    assert blur_bias_exceeds(codes, 0.5, 0.0019, out)[2:-2, 2:-2].all()
+    assert not out[:2].any() and not out[-2:].any() and not out[:, :2].any() and not out[:, -2:].any()
+    assert not blur_bias_exceeds(codes, 0.5, 0.0021, out).any()
+    assert not blur_bias_exceeds(codes, 0.0, 0.0019, out).any()  # no blur, no bias
+    # a crease: the slope goes from 0.2 to 0.7 code/px at x = 20.5. The 5x5 Savitzky-Golay
+    # second derivative [2, -1, -2, -1, 2] / 7 sees it in columns 19-22 only (0.179 code/px^2
+    # in columns 20 and 21: bias 0.045 code at s2 = 0.5); a plane on each side of it
+    crease = (0.2 * x + 0.5 * np.maximum(x - 20.5, 0)).astype(np.float32)
+    mask = blur_bias_exceeds(crease, 0.5, 0.015, out)
+    assert mask[2:-2, 19:23].all() and not mask[:, :19].any() and not mask[:, 23:].any()
+    holed = crease.copy()
+    holed[20, 20] = np.nan  # its 5x5 window is incomplete: not tested
+    assert not blur_bias_exceeds(holed, 0.5, 0.015, out)[18:23, 18:23].any()
 
 
 def test_laplacian_of_a_quadratic_and_the_correction():

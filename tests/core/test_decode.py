@@ -1,4 +1,4 @@
-"""Decoding (Eqs. 1-3, DESIGN.md 1.4), against ideal stacks rendered from exact codes."""
+"""Decoding (Eqs. 1-3, docs/conventions.md), against ideal stacks rendered from exact codes."""
 
 import itertools
 
@@ -30,7 +30,7 @@ def ideal_stack(codes: np.ndarray, bits: int = 16, noise: float = 0.0, seed: int
 
 
 def test_dphi_table_follows_from_the_principle():
-    """Combined code = the phase period nearest the gray cell centre l^ + 0.5 (DESIGN.md 1.4)."""
+    """Combined code = the phase period nearest the gray cell centre l^ + 0.5 (docs/conventions.md)."""
     rng = np.random.default_rng(3)
     for _ in range(2000):
         true_code = rng.uniform(8, 120)

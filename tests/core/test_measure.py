@@ -58,3 +58,25 @@ def test_unreliable_mask_drops_a_band_at_jumps_and_holes():
     assert not unreliable_mask(codes, 0.0, 1)[:, 17:].any()  # no jump seeds: only the hole's band
     with pytest.raises(ValueError, match="edge_band_px"):
         DecodeOptions(edge_band_px=-1)
+
+
+def test_unreliable_mask_drops_a_crease_with_a_one_pixel_band():
+    """Beside a crease of the codes (the slope goes from 0.2 to 0.7 code/px at x = 20.5, steps of
+    0.7 code: no jump seed), the blur's bias s2/2 laplacian(l) reaches 0.045 code at s2 = 0.5:
+    the four columns whose 5x5 window sees the crease (19-22) are marked, with their
+    4-neighbours (18-23), whatever the edge band; nothing else."""
+    x = np.arange(40, dtype=np.float32)
+    codes = np.tile(0.2 * x + 0.5 * np.maximum(x - 20.5, 0), (12, 1)).astype(np.float32)
+    for band in (1, 3):
+        drop = unreliable_mask(codes, 1.0, band, blur_variance_px2=0.5, max_blur_bias_codes=0.015)
+        assert drop[2:-2, 18:24].all() and not drop[:, :18].any() and not drop[:, 24:].any()
+        assert drop[1, 19:23].all() and not drop[0].any()  # rows 0-1 are not tested: band from row 2
+    assert not unreliable_mask(codes, 1.0, 2).any()  # the test off (no blur variance given)
+    assert not unreliable_mask(codes, 1.0, 2, blur_variance_px2=0.5, max_blur_bias_codes=0.05).any()
+    tall = np.tile(codes, (170, 1))  # 2040 x 40 px: three row tiles on two threads
+    tiled = unreliable_mask(tall, 1.0, 2, threads=2, blur_variance_px2=0.5, max_blur_bias_codes=0.015)
+    expected = unreliable_mask(tall, 1.0, 2, threads=1, blur_variance_px2=0.5, max_blur_bias_codes=0.015)
+    np.testing.assert_array_equal(tiled, expected)
+    assert tiled[2:-2, 18:24].all() and not tiled[:, 24:].any()  # tiles see their neighbours' rows
+    with pytest.raises(ValueError, match="max_blur_bias_codes"):
+        DecodeOptions(max_blur_bias_codes=-0.01)

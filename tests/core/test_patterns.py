@@ -1,4 +1,4 @@
-"""The gcps-v1 pattern set (DESIGN.md 1.3) and the paper's Table 1."""
+"""The gcps-v1 pattern set (docs/conventions.md) and the paper's Table 1."""
 
 import numpy as np
 import pytest

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
 from metrology.core.patterns import PATTERN_NAMES, pattern_intensity
 from metrology.core.rig import PAPER_RIG, Rig
-from metrology.core.scenes import SCENES, make_scene
+from metrology.core.scenes import SCENES, StageScene, make_scene
 from metrology.core.simulate import (
     RenderedStack,
     SimulationOptions,
@@ -17,6 +18,8 @@ from metrology.core.simulate import (
     realistic_8bit,
     render_series,
     render_stack,
+    series_seed,
+    stage_positions,
 )
 from metrology.core.triangulate import codes_from_abscissa, points_from_heights
 
@@ -255,6 +258,35 @@ def test_supersampling_keeps_the_truth_and_mixes_edge_pixels() -> None:
     assert np.abs(err).max() < 5e-3
 
 
+def test_centre_sampling_takes_the_centre_ray_then_the_gaussian_blur() -> None:
+    """camera_sampling="centre": a pixel's light is its centre ray's (the exact one-ray render),
+    blurred by a Gaussian of camera_defocus_px; the sub-rays still mark depth edges in a pixel."""
+    scene = make_scene("block")
+    exact = render_stack(SMALL, scene)
+    for supersample in (2, 3):
+        centre = render_stack(SMALL, scene, SimulationOptions(supersample=supersample, camera_sampling="centre"))
+        np.testing.assert_array_equal(centre.images, exact.images)
+        np.testing.assert_array_equal(centre.truth_mm, exact.truth_mm)
+    area = render_stack(SMALL, scene, SimulationOptions(supersample=3))
+    centre = render_stack(SMALL, scene, SimulationOptions(supersample=3, camera_sampling="centre"))
+    np.testing.assert_array_equal(centre.edges, area.edges)
+    assert np.any(area.images != exact.images)  # area sampling mixes the pixels on the block's edges
+
+    # the blur: a Gaussian of sigma 0.7 px on the exact images (float, before rounding to 16 bits)
+    sharp_centre = SimulationOptions(supersample=3, camera_sampling="centre")
+    blurred = render_stack(SMALL, scene, sharp_centre.with_changes(camera_defocus_px=0.7))
+    grey = exact.images.astype(np.float64)
+    expected = np.stack([cv2.GaussianBlur(g, (0, 0), 0.7, borderType=cv2.BORDER_REPLICATE) for g in grey])
+    # within the two roundings to 16 bits (of the exact images here, of the blurred ones there);
+    # without the blur the pixels at the block's edges would be off by thousands of grey levels
+    assert np.abs(blurred.images - expected).max() <= 1.0 + 1e-6
+
+    options = realistic_8bit(camera_sampling="centre")
+    assert options.to_dict()["camera_sampling"] == "centre"
+    assert SimulationOptions(**options.to_dict()) == options
+    assert SimulationOptions().camera_sampling == "area"
+
+
 def test_render_series_shares_geometry_and_draws_fresh_noise() -> None:
     options = realistic_8bit(seed=3, supersample=1)
     frames = list(render_series(SMALL, [0.0, 4.0], repeats=2, options=options))
@@ -285,6 +317,8 @@ def test_render_series_shares_geometry_and_draws_fresh_noise() -> None:
         ({"supersample": 0}, "supersample"),
         ({"supersample": 2.0}, "supersample"),
         ({"seed": -1}, "seed"),
+        ({"camera_sampling": "center"}, "camera_sampling"),
+        ({"camera_sampling": None}, "camera_sampling"),
         ({"colour": 1}, "colour"),
     ],
 )
@@ -310,3 +344,30 @@ def test_full_size_realistic_render(name: str) -> None:
     stack = render_stack(PAPER_RIG, make_scene(name), SimulationOptions.realistic_8bit())
     assert stack.images.shape == (11, 480, 640) and stack.images.dtype == np.uint8
     assert np.isfinite(stack.truth_mm).mean() > 0.95
+
+
+def test_stage_positions_stop_inclusive_and_never_past_it() -> None:
+    assert stage_positions(0.0, 8.0, 3.0) == [0.0, 3.0, 6.0]
+    assert stage_positions(0.0, 8.0, 4.0) == [0.0, 4.0, 8.0]
+    assert stage_positions(0.0, 0.3, 0.1) == [0.0, 0.1, 0.2, 0.3]  # 0.3/0.1 = 2.9999999999999996
+    assert stage_positions(2.0, 2.0, 1.0) == [2.0]
+    for args, name in (
+        ((0.0, 8.0, 0.0), "step_mm"),
+        ((8.0, 0.0, 1.0), "stop_mm"),
+        ((float("nan"), 1.0, 1.0), "start_mm"),
+    ):
+        with pytest.raises(ValueError, match=name):
+            stage_positions(*args)
+
+
+def test_a_series_capture_is_render_stack_with_series_seed() -> None:
+    options = realistic_8bit(seed=5, supersample=1)
+    frames = list(render_series(SMALL, [0.0, 4.0], repeats=2, options=options))
+    for index, z in enumerate((0.0, 4.0)):
+        for repeat in range(2):
+            alone = render_stack(SMALL, StageScene(z_in_mm=z), options.with_changes(seed=series_seed(5, index, repeat)))
+            np.testing.assert_array_equal(frames[2 * index + repeat][2].images, alone.images)
+    seeds = {series_seed(5, i, r) for i in range(10) for r in range(10)}
+    assert len(seeds) == 100 and 5 not in seeds
+    with pytest.raises(ValueError, match="repeat"):
+        series_seed(5, 0, -1)

@@ -1,4 +1,4 @@
-"""Eq. 14 (code to abscissa), Eqs. 16-17 (heights) and the 3D points of DESIGN.md 1.1."""
+"""Eq. 14 (code to abscissa), Eqs. 16-17 (heights) and the 3D points of docs/conventions.md."""
 
 import math
 

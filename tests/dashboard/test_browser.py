@@ -141,6 +141,10 @@ def test_measure_and_characterize_in_the_browser(live_server, alice, worker, bro
     assert page.locator("#fig-profile .main-svg").count() >= 1
     assert page.locator("#fig-gray_vs_gcps .main-svg").count() >= 1
     assert page.locator("#fig-height_map .colorbar").count() == 1
+    # the X axis spans the field (d - FW/2 .. d + FW/2 = 102 .. 602 mm), not a range padded to the square aspect
+    x_range = page.evaluate("document.getElementById('fig-height_map')._fullLayout.xaxis.range")
+    assert 101.0 <= x_range[0] <= 103.0 and 601.0 <= x_range[1] <= 603.0, x_range
+    assert "down" in page.locator("#fig-height_map .g-ytitle").text_content()
     page.wait_for_timeout(500)
     shot(page, "05-measurement")
 
@@ -213,4 +217,57 @@ def test_measure_and_characterize_in_the_browser(live_server, alice, worker, bro
 
     statuses = {status for _job, status in worker}
     assert statuses <= {"done", "skipped"}, worker  # a report runs its sub-jobs inline; their queued copies skip
+    assert not page.js_errors, page.js_errors
+
+
+def log_in(page, base: str) -> None:
+    page.goto(f"{base}/login/")
+    page.fill("#id_username", "alice")
+    page.fill("#id_password", PASSWORD)
+    page.click("button[type=submit]")
+    page.wait_for_url(f"{base}/")
+
+
+def test_uploaded_captures_appear_on_every_page_that_lists_captures(
+    live_server, alice, rig, browser_page, tmp_path, monkeypatch
+):
+    """Upload two zips through the captures page (uploads carry no scene), then open every capture list."""
+    from metrology.captures.models import Capture
+    from metrology.captures.services import create_session
+    from tests.app.stacks import SMALL_RIG, plane_zip
+    from tests.dashboard.conftest import upload
+    from tests.dashboard.test_pages import capture_listing_pages
+
+    page = browser_page
+    base = live_server.url
+    log_in(page, base)
+    rig_url = f"{base}/rigs/{rig.pk}/captures/"
+    for name, role, z_mm in (("plane-r.zip", "reference", 0.0), ("block-o.zip", "object", 10.0)):
+        path = tmp_path / name
+        path.write_bytes(plane_zip(SMALL_RIG, z_mm))
+        page.goto(rig_url)
+        page.set_input_files("#id_upload-file", str(path))
+        assert name in page.locator(".js-file-name").inner_text()  # the drop zone names the chosen file
+        page.select_option("#id_upload-role", role)
+        page.click("form:has(input[value=upload]) button[type=submit]")
+        page.wait_for_url(rig_url)
+        assert page.locator("table", has_text=name).count() == 1, name
+    shot(page, "09-uploaded-captures")
+
+    monkeypatch.setenv("DJANGO_ALLOW_ASYNC_UNSAFE", "true")  # ORM calls beside Playwright's event loop
+    reference = Capture.objects.get(rig=rig, role="reference")
+    obj = Capture.objects.get(rig=rig, role="object")
+    assert reference.parameters == {} and obj.parameters == {}
+    session = create_session(owner=alice, rig=rig, name="stage")  # so that the characterization form shows
+    for z in (0.0, 4.0):
+        upload(alice, rig, z, "stage", z_in_mm=z, session_id=session.pk)
+
+    for url, expected in capture_listing_pages(rig.pk, reference.pk, obj.pk).items():
+        response = page.goto(f"{base}{url}")
+        assert response is not None and response.status == 200, url
+        html = page.content()
+        for marker in expected:
+            assert marker in html, (url, marker)
+    page.goto(f"{base}/captures/")
+    shot(page, "10-all-captures")
     assert not page.js_errors, page.js_errors

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+import re
+
 import numpy as np
 import pytest
 
@@ -164,6 +167,49 @@ def test_upload_form_stores_a_stack(client_alice, rig, alice):
     assert rig.captures.filter(role="reference").exclude(file="").count() == 1
 
 
+def capture_listing_pages(rig_id: int, reference: int, obj: int) -> dict[str, list[str]]:
+    """Every page that lists a user's captures, with what it must show of the two uploads."""
+    table = [f"<td>#{reference}</td>", f"<td>#{obj}</td>", "plane-r.zip", "block-o.zip"]
+    return {
+        "/captures/": table,
+        f"/rigs/{rig_id}/captures/": table,
+        f"/rigs/{rig_id}/": [f"#{reference} reference", f"#{obj} object"],
+        f"/measurements/new/?rig={rig_id}": [f"#{reference} reference (plane-r.zip)", f"#{obj} object (block-o.zip)"],
+        f"/calibrations/new/?rig={rig_id}": [f"#{reference} reference (plane-r.zip)", f"#{obj} object (block-o.zip)"],
+        f"/characterizations/new/?rig={rig_id}": [f"#{reference} reference (plane-r.zip)"],
+    }
+
+
+def test_uploaded_captures_are_listed_on_every_capture_page(client_alice, rig, alice):
+    """Uploads carry no scene parameters: every page that lists captures must still render them."""
+    from django.core.files.uploadedfile import SimpleUploadedFile
+
+    from metrology.captures.models import Capture
+    from metrology.captures.services import create_session
+    from tests.app.stacks import SMALL_RIG, plane_zip
+
+    for name, role, z_mm in (("plane-r.zip", "reference", 0.0), ("block-o.zip", "object", 10.0)):
+        data = {
+            "action": "upload",
+            "upload-role": role,
+            "upload-file": SimpleUploadedFile(name, plane_zip(SMALL_RIG, z_mm)),
+        }
+        response = client_alice.post(f"/rigs/{rig.pk}/captures/", data, follow=True)
+        assert response.status_code == 200 and name.encode() in response.content  # the page it redirects to
+    reference = Capture.objects.get(rig=rig, role="reference")
+    obj = Capture.objects.get(rig=rig, role="object")
+    assert reference.parameters == {} and obj.parameters == {}
+    session = create_session(owner=alice, rig=rig, name="stage")  # so that the characterization form shows
+    for z in (0.0, 4.0):
+        upload(alice, rig, z, "stage", z_in_mm=z, session_id=session.pk)
+    for url, expected in capture_listing_pages(rig.pk, reference.pk, obj.pk).items():
+        page = client_alice.get(url)
+        assert page.status_code == 200, url
+        text = page.content.decode()
+        for marker in expected:
+            assert marker in text, (url, marker)
+
+
 def test_measurement_form_runs_a_measurement_and_shows_its_figures(client_alice, rig, captures, run_jobs):
     reference, obj = captures
     form = client_alice.get(f"/measurements/new/?rig={rig.pk}")
@@ -240,6 +286,32 @@ def test_characterization_from_a_stage_session(client_alice, rig, alice, run_job
     assert "Fig. 12" in page and "Fig. 13" in page and "% of full scale" in page
 
 
+def test_result_pages_show_no_float_noise(client_alice, rig, alice, run_jobs):
+    """A calibrated rig (L = 1021.98533...) is shown rounded on the pages that list its values."""
+    from metrology.captures.services import create_session
+    from metrology.rigs.services import update_rig_geometry
+
+    update_rig_geometry(rig=rig, changes={"L_mm": 1021.9853333333333, "alpha_rad": 0.33212345678901}, source="manual")
+    rig.refresh_from_db()
+    reference = upload(alice, rig, 0.0, "reference")
+    session = create_session(owner=alice, rig=rig, name="stage")
+    for z in (0.0, 0.1 + 0.2, 8.0):  # 0.30000000000000004 mm
+        upload(alice, rig, z, "stage", z_in_mm=z, session_id=session.pk)
+    with run_jobs():
+        characterization = request_characterization(
+            owner=alice, rig=rig, reference_id=reference.pk, session_id=session.pk, options={"n_points": 5}
+        )
+    characterization.job.refresh_from_db()
+    assert characterization.job.status == "done", characterization.job.error
+    for url in (f"/characterizations/{characterization.pk}/", f"/rigs/{rig.pk}/", f"/rigs/{rig.pk}/captures/"):
+        text = visible_text(client_alice.get(url).content.decode())
+        assert not re.search(r"\d\.\d{7,}", text), (url, re.findall(r"\S*\d\.\d{7,}\S*", text))
+    page = visible_text(client_alice.get(f"/characterizations/{characterization.pk}/").content.decode())
+    assert "L_mm 1021.985333" in page, page[page.find("Rig values") :][:300]
+    rig_page = visible_text(client_alice.get(f"/rigs/{rig.pk}/").content.decode())
+    assert "Z_in 0.3 mm" in rig_page, rig_page[rig_page.find("stage") :][:300]
+
+
 def test_characterization_form_error_in_words(client_alice, rig, alice):
     from metrology.captures.services import create_session
 
@@ -283,6 +355,60 @@ def test_calibration_page_and_apply(client_alice, rig, alice, run_jobs):
     assert "calibration" in client_alice.get(f"/rigs/{rig.pk}/").content.decode()
 
 
+def visible_text(html: str) -> str:
+    """The text a reader sees: scripts, styles and tags removed."""
+    html = re.sub(r"<(script|style)\b.*?</\1>", " ", html, flags=re.S)
+    return re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", html))
+
+
+def figure_data(html: str, name: str) -> dict:
+    """The plotly figure JSON embedded for ``fig-<name>``."""
+    found = re.search(rf'<script type="application/json" id="fig-{name}-data">(.*?)</script>', html, flags=re.S)
+    assert found, name
+    return json.loads(found.group(1))
+
+
+def test_calibration_page_shows_start_result_and_iterations_in_plain_words(client_alice, rig, alice, run_jobs):
+    """Paper's rough start L0 = 1080 mm on a rig stored at 1022 mm: the page shows start -> result."""
+    z = np.zeros((rig.height_px, rig.width_px))
+    z[25:95, 30:130] = 40.0
+    reference = upload(alice, rig, 0.0, "reference")
+    master = upload(alice, rig, z, "master")
+    with run_jobs():
+        response = client_alice.post(
+            "/calibrations/new/",
+            {
+                "rig": rig.pk,
+                "reference": reference.pk,
+                "master": master.pk,
+                "master_height_mm": 40,
+                "method": "lsq",
+                "initial_L_mm": 1080,
+                "initial_alpha_rad": 0.4871,
+            },
+        )
+    assert response.status_code == 302
+    html = client_alice.get(response["Location"]).content.decode()
+    text = visible_text(html)
+    # the true starting values, then the result (true values 1022 mm, 0.332 rad: within 1 mm, 1 mrad)
+    start_to_result = re.search(r"L 1080\.000 mm → (\d+\.\d{3}) mm ± [\d.]+ µm", text)
+    assert start_to_result, text
+    assert abs(float(start_to_result.group(1)) - 1022.0) < 1.0
+    alpha = re.search(r"alpha 0\.48710 rad → (\d\.\d{5}) rad ± [\d.]+ µrad", text)
+    assert alpha and abs(float(alpha.group(1)) - 0.332) < 1e-3, text
+    assert "the rig's stored value was 1022.000 mm" in text
+    # the count in words equals the points drawn after the start (iteration 0)
+    count = re.search(r"after (\d+) iterations", text)
+    assert count, text
+    trace = figure_data(html, "calibration_parameters")["data"][0]
+    assert trace["x"][0] == 0 and len(trace["x"]) == int(count.group(1)) + 1
+    # plain words, no optimizer message, no long numbers, one spelling of micrometres
+    assert "`" not in text and not re.search(r"\b[fxg]tol\b", text) and "termination condition" not in text
+    assert not re.search(r"\d\.\d{7,}", text), re.findall(r"\S*\d\.\d{7,}\S*", text)
+    assert "µm" in text and not re.search(r"\bum\b", text)
+    assert "(µm)" in json.dumps(figure_data(html, "calibration_residual"), ensure_ascii=False)
+
+
 def test_sensitivity_page_draws_figs_4_to_6(client_alice, rig):
     page = client_alice.get(f"/rigs/{rig.pk}/sensitivity/?z_mm=30").content.decode()
     for key in ("L", "d", "alpha"):
@@ -312,3 +438,14 @@ def test_characterization_of_another_user_is_404(client_bob, rig, alice, run_job
         )
     assert client_bob.get(f"/characterizations/{characterization.pk}/").status_code == 404
     assert client_bob.get(f"/api/jobs/{characterization.job_id}/").status_code == 404
+
+
+@pytest.mark.django_db
+def test_every_page_names_a_favicon_that_is_served_without_login(client, client_alice):
+    page = client_alice.get("/rigs/").content.decode()
+    assert '<link rel="icon" href="/favicon.svg" type="image/svg+xml">' in page
+    assert '<link rel="icon"' in client.get("/login/").content.decode()
+    for url in ("/favicon.svg", "/favicon.ico"):  # browsers ask for /favicon.ico by themselves
+        response = client.get(url)
+        assert response.status_code == 200 and response["Content-Type"] == "image/svg+xml"
+        assert response.content.startswith(b"<svg") and b"</svg>" in response.content

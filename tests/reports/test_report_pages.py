@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import datetime
+import html
+
 import pytest
 from django.core.files.base import ContentFile
 from django.core.files.storage import default_storage
@@ -121,3 +124,83 @@ def test_run_now_form_queues_a_report_and_lands_on_its_page(rig, alice):
     assert report.job.status == Job.Status.QUEUED  # no commit in this test: the job was not sent
     refused = client_for(alice).post("/reports/run/", {"rig": rig.pk, "source": "uploaded_series"}, follow=True)
     assert "has no uploaded stage captures" in refused.content.decode()
+
+
+def expected_next_daily(hour: int, minute: int, now: datetime.datetime) -> datetime.datetime:
+    """The next hh:mm (UTC) strictly after ``now``."""
+    candidate = now.replace(hour=hour, minute=minute, second=0, microsecond=0)
+    return candidate if candidate > now else candidate + datetime.timedelta(days=1)
+
+
+def test_schedule_a_report_from_the_reports_page_and_see_its_next_run(rig, alice, settings):
+    from django.utils import timezone
+    from django_celery_beat.models import PeriodicTask
+
+    client = client_for(alice)
+    before = timezone.now()
+    response = client.post("/reports/schedule/", {"rig": rig.pk, "crontab": "30 6 * * *", "source": "virtual_stage"})
+    assert response.status_code == 302 and response.url == "/reports/"
+    task = PeriodicTask.objects.get(name=f"characterization report of rig {rig.pk}")
+    assert (task.crontab.minute, task.crontab.hour, task.enabled) == ("30", "6", True)
+    text = client.get("/reports/").content.decode()
+    assert 'id="schedules"' in text and "30 6 * * *" in text
+    expected = expected_next_daily(6, 30, before)
+    assert f"{expected:%Y-%m-%d %H:%M} UTC" in text, text[text.index('id="schedules"') :][:1500]
+    # the demo (embedded default) runs no beat: the page says so and offers to run the schedule now
+    settings.CELERY_TASK_ALWAYS_EAGER = True
+    text = client.get("/reports/").content.decode()
+    assert "no beat process" in text and f'action="/reports/schedule/{rig.pk}/run/"' in text
+    settings.CELERY_TASK_ALWAYS_EAGER = False  # with a broker: say what must run for the schedule to fire
+    text = client.get("/reports/").content.decode()
+    assert "no beat process" not in text and "celery -A workers beat" in text
+
+
+@pytest.mark.parametrize(
+    ("crontab", "words"),
+    [
+        ("99 * * * *", "Invalid end range: 99 > 59"),
+        ("0 25 * * *", "Invalid end range: 25 > 23"),
+        ("daily", "five fields"),
+        ("0 6 31 2 *", "never occurs"),
+        ("", "five fields"),
+    ],
+)
+def test_a_bad_crontab_is_refused_in_words_and_nothing_is_stored(rig, alice, crontab, words):
+    from django_celery_beat.models import PeriodicTask
+
+    response = client_for(alice).post("/reports/schedule/", {"rig": rig.pk, "crontab": crontab, "source": "auto"})
+    assert response.status_code == 400
+    text = html.unescape(response.content.decode())
+    assert 'class="alert"' in text and "crontab" in text and words in text
+    assert not PeriodicTask.objects.filter(name=f"characterization report of rig {rig.pk}").exists()
+
+
+def test_run_a_schedule_now_and_remove_it(rig, alice, bob):
+    from django_celery_beat.models import PeriodicTask
+
+    options = {"z_start_mm": 0.0, "z_stop_mm": 16.0, "z_step_mm": 8.0, "repeats": 2}
+    schedule_report(rig, crontab="0 6 * * *", source="virtual_stage", options=options)
+    assert client_for(bob).post(f"/reports/schedule/{rig.pk}/run/").status_code == 404  # not bob's rig
+    response = client_for(alice).post(f"/reports/schedule/{rig.pk}/run/")
+    report = Report.objects.get()
+    assert response.status_code == 302 and response.url == f"/reports/{report.pk}/"
+    assert report.source == "virtual_stage" and report.parameters["z_stop_mm"] == 16.0  # the schedule's options
+    assert client_for(bob).post(f"/reports/schedule/{rig.pk}/delete/").status_code == 404
+    removed = client_for(alice).post(f"/reports/schedule/{rig.pk}/delete/")
+    assert removed.status_code == 302 and not PeriodicTask.objects.filter(task__endswith="characterization_report")
+    assert client_for(alice).post(f"/reports/schedule/{rig.pk}/run/").status_code == 404  # no schedule any more
+
+
+def test_next_run_of_crontab_and_interval_schedules(rig):
+    from metrology.reports.schedules import next_run_at
+
+    now = datetime.datetime(2026, 11, 30, 7, 0, tzinfo=datetime.UTC)
+    daily = schedule_report(rig, crontab="30 6 * * *")
+    assert next_run_at(daily, now=now) == datetime.datetime(2026, 12, 1, 6, 30, tzinfo=datetime.UTC)
+    weekdays = schedule_report(rig, crontab="0 9 * * 1-5")  # 2026-11-30 is a Monday
+    assert next_run_at(weekdays, now=now) == datetime.datetime(2026, 11, 30, 9, 0, tzinfo=datetime.UTC)
+    hourly = schedule_report(rig, every_s=3600)
+    hourly.last_run_at = now - datetime.timedelta(minutes=10)
+    assert next_run_at(hourly, now=now) == now + datetime.timedelta(minutes=50)
+    hourly.last_run_at = None  # beat runs a new interval schedule at once
+    assert next_run_at(hourly, now=now) == now

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime
 import io
 import json
 import re
@@ -66,6 +67,9 @@ def test_virtual_stage_report_is_stored_self_contained_and_summarized(rig, media
     assert abs(summary["overall"]["mean_error_mm"]) < 0.02
     assert 0.001 < summary["overall"]["std_error_mm"] < 0.1
     assert report.drift["previous"] is None and report.drift["beyond"] == 0
+    # every compared figure carries its standard uncertainty, and the report shows it
+    assert summary["uncertainty"] and all(u is not None and u > 0 for u in summary["uncertainty"].values())
+    assert "Standard uncertainty (1σ)" in html and "Its standard uncertainty (µm)" in html
     job = report.job
     assert job.progress == 100 and set(job.timings) >= {"stage series", "characterization", "render"}
 
@@ -117,6 +121,88 @@ def test_drift_against_an_injected_previous_report_respects_the_tolerances():
     assert drift["beyond"] == 2
     assert drift["rig_changes"] == [{"name": "L_mm", "previous": 1022.0, "current": 1030.0}]
     assert services.compute_drift(previous, summary, {"mm": 0.05})["beyond"] == 0
+
+
+def stage_summary(means_um: list[float], sigma_um: float, n: int) -> dict:
+    """A report summary with positions 0, 28, 56 mm (2 repeats): mean errors, their scatter and sample counts."""
+    means = [m / 1000 for m in means_um]
+    return {
+        "repeats": 2,
+        "overall": {"mean_error_mm": sum(means) / 3, "std_error_mm": sigma_um / 1000},
+        "positions": {
+            "z_in_mm": [0.0, 28.0, 56.0],
+            "mean_error_mm": means,
+            "std_error_mm": [sigma_um / 1000] * 3,
+            "n_samples": [n] * 3,
+        },
+        "rig": {"L_mm": 1022.0},
+    }
+
+
+def test_drift_flags_a_change_only_beyond_its_own_uncertainty():
+    """Issue 9: 8.1 -> -2.6 um at Z_in = 56 mm with sigma 25 um over 42 samples is noise, not drift."""
+    previous = SimpleNamespace(pk=3, created_at=timezone.now(), summary=stage_summary([1.0, 4.0, 8.1], 25.0, 42))
+    drift = services.compute_drift(previous, stage_summary([1.5, 3.0, -2.6], 25.0, 42), {"mm": 0.010})
+    item = {item["key"]: item for item in drift["items"]}["positions.mean_error_mm@56"]
+    # 42 samples = 21 test points x 2 repeats sharing one reference: 21 independent units per report;
+    # standard uncertainty of the difference of two means: sqrt(2) * 25 um / sqrt(21) = 7.7 um
+    assert item["uncertainty"] == pytest.approx(2**0.5 * 0.025 / 21**0.5, rel=1e-9)
+    assert abs(item["change"]) > item["tolerance"]  # beyond the 10 um tolerance...
+    assert not item["beyond"]  # ...but within 3 sigma (23 um): not drift
+    assert drift["coverage_factor"] == 3 and drift["beyond"] == 0
+    # a real move of 40 um is beyond both
+    moved = services.compute_drift(previous, stage_summary([1.5, 3.0, 48.1], 25.0, 42), {"mm": 0.010})
+    beyond = {item["key"] for item in moved["items"] if item["beyond"]}
+    assert beyond == {"positions.mean_error_mm@56"}  # 40 um; the overall mean moved 13.3 um, within 3 x 7.7 um
+    # with many samples the uncertainty is small and the tolerance decides
+    precise = services.compute_drift(
+        SimpleNamespace(pk=3, created_at=timezone.now(), summary=stage_summary([1.0, 4.0, 8.1], 25.0, 4200)),
+        stage_summary([1.5, 3.0, -2.6], 25.0, 4200),
+        {"mm": 0.010},
+    )
+    assert {item["key"]: item for item in precise["items"]}["positions.mean_error_mm@56"]["beyond"]
+
+
+def test_standard_uncertainties_of_the_summary_figures():
+    """u(mean) = s / sqrt(n / R), u(s) = s / sqrt(2 (N_eff - 1)), and the RMS, % FS and slope from them."""
+    from metrology.reports.summary import standard_uncertainties
+
+    summary = stage_summary([10.0, -20.0, 30.0], 30.0, 50)
+    summary["overall"].update(
+        {
+            "mean_error_mm": 0.004,
+            "std_error_mm": 0.030,
+            "rms_error_mm": (0.004**2 + 0.030**2) ** 0.5,
+            "full_scale_mm": 56.0,
+        }
+    )
+    summary["slope_uncertainty"] = 2e-4
+    u = standard_uncertainties(summary)
+    # 50 samples per position, 2 repeats: 25 test points, the independent units (one shared reference)
+    assert u["positions.mean_error_mm@28"] == pytest.approx(0.030 / 25**0.5)
+    assert u["overall.mean_error_mm"] == pytest.approx(0.030 / 25**0.5)  # N_eff = 150 / (2 x 3)
+    u_m, u_s = 0.030 / 25**0.5, 0.030 / (2 * 24) ** 0.5
+    assert u["overall.std_error_mm"] == pytest.approx(u_s)
+    rms = summary["overall"]["rms_error_mm"]
+    u_rms = ((0.004 * u_m) ** 2 + (0.030 * u_s) ** 2) ** 0.5 / rms
+    assert u["overall.rms_error_mm"] == pytest.approx(u_rms)
+    assert u["overall.error_pct_fs"] == pytest.approx(100 * u_rms / 56.0)
+    assert u["overall.max_abs_mean_error_mm"] == pytest.approx(0.030 / 25**0.5)  # at Z_in = 56 mm (30 um)
+    assert u["overall.max_abs_slope_deviation"] == 2e-4
+    assert standard_uncertainties({"overall": {"mean_error_mm": 0.01}})["overall.mean_error_mm"] is None
+
+
+def test_slope_uncertainty_at_the_worst_test_point():
+    """u(slope) = sigma_tp / sqrt(R sum (Z_i - mean Z)^2) at the point of largest |slope - 1|."""
+    from metrology.reports.summary import slope_uncertainty
+
+    results = {
+        "z_in_mm": [0.0, 8.0, 16.0],
+        "repeats": 2,
+        "test_points": [{"slope": 1.0002, "sigma_mm": 0.01}, {"slope": 0.9990, "sigma_mm": 0.02}, {"slope": None}],
+    }
+    assert slope_uncertainty(results) == pytest.approx(0.02 / (2 * 128) ** 0.5)  # sum of squares 64 + 0 + 64
+    assert slope_uncertainty({"z_in_mm": [0.0], "repeats": 2, "test_points": results["test_points"]}) is None
 
 
 def test_auto_source_takes_the_newest_uploaded_stage_series(rig, alice):
@@ -219,3 +305,16 @@ def test_command_refuses_an_unknown_or_ambiguous_rig(rig, alice):
         call_command("characterization_report", "nope")
     with pytest.raises(CommandError, match="z_step_mm must be positive"):
         call_command("characterization_report", str(rig.pk), "--z-step", "0")
+    with pytest.raises(CommandError, match=r"crontab '0 25 \* \* \*' is not valid: Invalid end range: 25 > 23"):
+        call_command("characterization_report", str(rig.pk), "--schedule-crontab", "0 25 * * *")
+
+
+def test_command_schedules_with_a_crontab_and_prints_the_next_run(rig):
+    out = io.StringIO()
+    before = timezone.now()
+    call_command("characterization_report", str(rig.pk), "--schedule-crontab", "15 4 * * *", stdout=out)
+    upcoming = before.replace(hour=4, minute=15, second=0, microsecond=0)
+    if upcoming <= before:
+        upcoming += datetime.timedelta(days=1)
+    assert "scheduled 15 4 * * * (UTC)" in out.getvalue()
+    assert f"next run {upcoming:%Y-%m-%d %H:%M} UTC" in out.getvalue()

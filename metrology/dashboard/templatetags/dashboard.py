@@ -8,7 +8,8 @@ from django import template
 from django.utils.html import format_html
 from django.utils.safestring import mark_safe
 
-from metrology.figures import figure_json, plot_config
+from metrology.dashboard.selectors import capture_origin
+from metrology.figures import empty_message, figure_json, is_empty, plot_config
 
 register = template.Library()
 
@@ -17,16 +18,24 @@ _ESCAPES = {ord(">"): "\\u003E", ord("<"): "\\u003C", ord("&"): "\\u0026"}
 
 @register.simple_tag
 def plotly_figure(fig, name: str, label: str = ""):
-    """A figure drawn by ``Plotly.newPlot`` with PNG and SVG download buttons.
+    """A figure drawn by ``Plotly.newPlot`` with PNG and SVG download buttons (an empty one: its message only).
 
     The figure's JSON sits in a ``<script type="application/json">`` (escaped like
     ``json_script``); the dashboard's script draws every ``.js-figure`` on load.
     """
     import json
 
+    title = label or name.replace("_", " ")
+    if is_empty(fig):  # nothing to draw or download: say why
+        return format_html(
+            '<figure class="figure" aria-label="{title}"><div class="empty figure-empty" id="fig-{name}">'
+            "<strong>{title}</strong>: {message}</div></figure>",
+            title=title,
+            name=name,
+            message=empty_message(fig) or "nothing to show.",
+        )
     data = figure_json(fig).translate(_ESCAPES)
     config = json.dumps(plot_config(name)).translate(_ESCAPES)
-    title = label or name.replace("_", " ")
     return format_html(
         '<figure class="figure" aria-label="{title}">'
         '<div class="js-figure" id="fig-{name}" data-name="{name}"></div>'
@@ -51,13 +60,39 @@ def job_progress(job, next_url: str = ""):
 
 
 @register.filter
+def origin(capture) -> str:
+    """Where a capture came from: uploaded file name, virtual scene name, or source (uploads have no scene)."""
+    return capture_origin(capture)
+
+
+@register.filter
 def um(value_mm, digits: int = 1):
-    """Millimetres shown as micrometres (``"n/a"`` for None/NaN)."""
+    """Millimetres shown as micrometres, µm (``"n/a"`` for None/NaN)."""
     try:
         number = float(value_mm)
     except (TypeError, ValueError):
         return "n/a"
-    return "n/a" if not math.isfinite(number) else f"{number * 1000:.{int(digits)}f} um"
+    return "n/a" if not math.isfinite(number) else f"{number * 1000:.{int(digits)}f} µm"
+
+
+@register.filter
+def sig(value, digits: int = 2) -> str:
+    """A number with ``digits`` significant digits, positional up to 6 decimals (``"n/a"`` for None/NaN).
+
+    For uncertainties: 0.0213 -> "0.021", 12.34 -> "12", 3.1e-9 -> "3.1e-09".
+    """
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return "n/a"
+    if not math.isfinite(number):
+        return "n/a"
+    if number == 0:
+        return "0"
+    decimals = int(digits) - 1 - math.floor(math.log10(abs(number)))
+    if decimals > 6:
+        return f"{number:.{int(digits) - 1}e}"
+    return f"{number:.{max(decimals, 0)}f}"
 
 
 @register.filter
@@ -68,6 +103,16 @@ def num(value, digits: int = 3):
     except (TypeError, ValueError):
         return "n/a" if value in (None, "") else value
     return "n/a" if not math.isfinite(number) else f"{number:.{int(digits)}f}"
+
+
+@register.filter
+def short(value, digits: int = 6):
+    """A number with at most ``digits`` significant digits, no trailing zeros: 0.30000000000000004 -> "0.3"."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return "" if value is None else value
+    return "n/a" if not math.isfinite(number) else f"{number:.{int(digits)}g}"
 
 
 @register.filter

@@ -81,7 +81,14 @@ class Command(BaseCommand):
                     source=opts["source"],
                     options=options,
                 )
-                self.stdout.write(f"rig {rig.pk}: scheduled {task} (periodic task {task.pk}; run celery beat)")
+                from metrology.reports.schedules import next_run_at, when_text
+
+                upcoming = next_run_at(task)
+                when = f"{upcoming:%Y-%m-%d %H:%M %Z}" if upcoming else "never (disabled)"
+                self.stdout.write(
+                    f"rig {rig.pk}: scheduled {when_text(task)} (periodic task {task.pk}), next run {when}; "
+                    "it fires where celery beat and a worker run"
+                )
                 return
             report = services.run_characterization_report(
                 rig, source=opts["source"], options=options, timeout_s=opts["timeout"]
@@ -102,7 +109,7 @@ class Command(BaseCommand):
 
         def um(key: str) -> str:
             value = overall.get(key)
-            return "n/a" if value is None else f"{1000 * value:.1f} um"
+            return "n/a" if value is None else f"{1000 * value:.1f} µm"
 
         self.stdout.write(f"report {report.pk} of rig {report.rig_id} ({report.get_source_display().lower()})")
         self.stdout.write(f"html: {where}")

@@ -1,0 +1,55 @@
+"""Atomic writes: a temporary file beside the destination, renamed into place (``os.replace``),
+so no partial output is ever visible under the final name."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+from collections.abc import Iterator
+from pathlib import Path
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success rename it to ``path``.
+
+    The temporary file is hidden (leading dot), lives in the destination folder (so the
+    final ``os.replace`` is atomic) and keeps ``path``'s extension (so writers that pick a
+    format by extension, like ``cv2.imwrite`` or open3d, work). If the body raises, the
+    temporary file is removed and ``path`` is left untouched. The parent folder must exist.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> out = pathlib.Path(tempfile.mkdtemp()) / "a.txt"
+    >>> with atomic_path(out) as tmp:
+    ...     _ = tmp.write_text("done")
+    >>> out.read_text()
+    'done'
+    """
+    final = Path(path)
+    if not final.parent.is_dir():
+        raise FileNotFoundError(f"output folder {str(final.parent)!r} does not exist")
+    tmp = final.with_name(f".{final.stem}.{secrets.token_hex(6)}.tmp{final.suffix}")
+    try:
+        yield tmp
+        if not tmp.exists():
+            raise OSError(f"writing {final.name} produced no file")
+        os.replace(tmp, final)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+
+
+def _write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
+    with atomic_path(path) as tmp:
+        # os.open honours the umask, unlike mkstemp's 0600.
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+
+
+def write_text_atomic(text: str, path: str | os.PathLike[str]) -> None:
+    """Write UTF-8 ``text`` to ``path`` atomically (a reader sees the old file or the whole new one)."""
+    _write_bytes_atomic(path, text.encode("utf-8"))

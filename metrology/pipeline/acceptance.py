@@ -1,0 +1,124 @@
+"""Acceptance: VDI/VDE 2634 part 2 quantities from a capture of a plane, a sphere or a ball bar
+(the ``gcps acceptance`` command)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy.typing as npt
+
+from metrology.core import acceptance as core
+from metrology.core import measure as core_measure
+from metrology.core.measure import DecodeOptions
+from metrology.core.rig import Rig
+from metrology.pipeline.common import PhaseTimer, check_keys, check_positive, decode_options
+from metrology.version import software_version
+
+TESTS = ("flatness", "probing", "spacing")
+
+
+@dataclass(frozen=True)
+class AcceptanceOptions:
+    """Options of :func:`acceptance`.
+
+    Attributes
+    ----------
+    test : {'flatness', 'probing', 'spacing'}
+        Flatness of a plane; probing error (form, size) of a sphere; spacing of two spheres.
+    diameter_mm : float or None
+        probing: the sphere's calibrated diameter, mm (required).
+    spacing_mm : float or None
+        spacing: the calibrated centre distance, mm (required).
+    min_height_mm : float
+        probing/spacing: pixels this high above R belong to the spheres, mm (default 1).
+    decode : DecodeOptions
+    """
+
+    test: str
+    diameter_mm: float | None = None
+    spacing_mm: float | None = None
+    min_height_mm: float = 1.0
+    decode: DecodeOptions = field(default_factory=DecodeOptions)
+
+    def __post_init__(self) -> None:
+        if self.test not in TESTS:
+            raise ValueError(f"test must be one of {', '.join(TESTS)}, got {self.test!r}")
+        check_positive("diameter_mm", self.diameter_mm, allow_none=self.test != "probing")
+        check_positive("spacing_mm", self.spacing_mm, allow_none=self.test != "spacing")
+        check_positive("min_height_mm", self.min_height_mm)
+        object.__setattr__(self, "decode", decode_options(self.decode))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "test": self.test,
+            "diameter_mm": self.diameter_mm,
+            "spacing_mm": self.spacing_mm,
+            "min_height_mm": self.min_height_mm,
+            "decode": self.decode.to_dict(),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> AcceptanceOptions:
+        check_keys("acceptance", data, {f for f in cls.__dataclass_fields__})
+        return cls(**data)
+
+
+@dataclass(frozen=True)
+class AcceptanceResult:
+    """Output of :func:`acceptance`: the test's quantities (with and without the 0.3 % outlier
+    rejection), the options, the software version and per-phase timings (``measure``, ``fit``)."""
+
+    report: dict[str, Any]
+    options: AcceptanceOptions
+    software_version: str
+    timings_s: dict[str, float]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "test": self.options.test,
+            "standard": "VDI/VDE 2634 part 2",
+            **self.report,
+            "options": self.options.to_dict(),
+            "software_version": self.software_version,
+            "timings_s": dict(self.timings_s),
+        }
+
+
+def acceptance(
+    rig: Rig,
+    reference: npt.ArrayLike,
+    obj: npt.ArrayLike,
+    options: AcceptanceOptions,
+    *,
+    threads: int | None = None,
+) -> AcceptanceResult:
+    """Measure ``obj`` and compute the VDI/VDE 2634-2 quantity of ``options.test``.
+
+    Raises
+    ------
+    ValueError
+        On a bad option or stack, or when the spheres cannot be segmented.
+    """
+    timer = PhaseTimer()
+    with timer.phase("measure"):
+        z_mm = core_measure.measure_height(rig, reference, obj, options.decode, gray_only=False, threads=threads).z_mm
+    with timer.phase("fit"):
+        if options.test == "flatness":
+            report = core.flatness_error(core.points_from_height_map(rig, z_mm))
+        elif options.test == "probing":
+            assert options.diameter_mm is not None
+            (sphere,) = core.segment_objects(z_mm, 1, options.min_height_mm)
+            report = core.probing_error(core.points_from_height_map(rig, z_mm, sphere), options.diameter_mm)
+        else:
+            assert options.spacing_mm is not None
+            first, second = core.segment_objects(z_mm, 2, options.min_height_mm)
+            report = core.sphere_spacing_error(
+                core.points_from_height_map(rig, z_mm, first),
+                core.points_from_height_map(rig, z_mm, second),
+                options.spacing_mm,
+            )
+    return AcceptanceResult(
+        report=report, options=options, software_version=software_version(), timings_s=timer.timings_s
+    )
