@@ -91,7 +91,8 @@ def _keep_body(request: HttpRequest) -> None:
         return
     limit = settings.DATA_UPLOAD_MAX_MEMORY_SIZE
     if length > 0 and (limit is None or length <= limit):
-        _ = request.body
+        with contextlib.suppress(OSError):  # a client gone mid-body: the view meets the same error
+            _ = request.body
 
 
 class TransientErrorMiddleware:
