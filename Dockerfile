@@ -8,9 +8,9 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
     MEDIA_ROOT=/data/media \
     STATIC_ROOT=/app/var/static
 
-# libgomp1: OpenMP runtime of open3d; libgl1/libglib2.0-0: needed by open3d's import.
+# libgomp1: OpenMP runtime of open3d; libgl1/libglib2.0-0/libusb-1.0-0: needed by open3d's import.
 RUN apt-get update \
-    && apt-get install -y --no-install-recommends libgomp1 libgl1 libglib2.0-0 \
+    && apt-get install -y --no-install-recommends libgomp1 libgl1 libglib2.0-0 libusb-1.0-0 \
     && rm -rf /var/lib/apt/lists/*
 
 WORKDIR /app
@@ -19,7 +19,7 @@ COPY metrology ./metrology
 COPY workers ./workers
 COPY templates ./templates
 COPY manage.py ./
-RUN pip install . gunicorn>=23 \
+RUN pip install . \
     && useradd --system --uid 1000 --home /app gcps \
     && mkdir -p /data/media /app/var \
     && SECRET_KEY=build-only-not-secret-build-only-not-secret-build-only DEBUG=1 \

@@ -56,6 +56,16 @@ def exception_handler(exc: Exception, context: dict) -> Response | None:
     return response
 
 
+def bad_request(request, exception=None):
+    """400 outside any API view (e.g. a body over DATA_UPLOAD_MAX_MEMORY_SIZE): JSON under /api/."""
+    from django.http import JsonResponse
+    from django.views.defaults import bad_request as default_bad_request
+
+    if request.path.startswith("/api/"):
+        return JsonResponse({"error": f"Bad request: {exception or 'the request could not be read'}."}, status=400)
+    return default_bad_request(request, exception)
+
+
 def not_found(request, exception=None):
     """404 outside any API view: JSON under /api/, Django's page elsewhere."""
     from django.http import JsonResponse

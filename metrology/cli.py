@@ -122,6 +122,12 @@ def cmd_patterns(args: argparse.Namespace) -> dict[str, Any]:
     from metrology.core.io import write_stack
     from metrology.core.patterns import projector_patterns
 
+    if args.codec is not None:
+        from metrology.commands.patterns import cmd_codec_patterns
+
+        return cmd_codec_patterns(args)
+    if args.width is None or args.height is None:
+        raise BadInputError("give --width and --height (gcps-v1) or --codec")
     if args.width <= 0 or args.height <= 0:
         raise BadInputError(f"--width and --height must be positive, got {args.width}x{args.height}")
     images = projector_patterns(args.width, args.height, nlp=args.nlp, square=args.square)
@@ -423,6 +429,9 @@ def cmd_sensitivity(args: argparse.Namespace) -> dict[str, Any]:
 
 # ------------------------------------------------------------------ parser
 def build_parser() -> argparse.ArgumentParser:
+    from metrology.commands.decode import register as decode_command
+    from metrology.commands.patterns import add_codec_option as codec_patterns_option
+
     parser = argparse.ArgumentParser(
         prog="gcps",
         description="Gray-code + phase-shift fringe-projection profilometer (gcps-v1 conventions).",
@@ -430,13 +439,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--quiet", action="store_true", help="print nothing on success")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser("patterns", help="write the eleven projector images as PNG")
-    p.add_argument("--width", type=int, required=True, help="projector width, px")
-    p.add_argument("--height", type=int, required=True, help="projector height, px")
+    p = sub.add_parser("patterns", help="write the eleven projector images (or a codec's) as PNG")
+    p.add_argument("--width", type=int, help="projector width, px (gcps-v1)")
+    p.add_argument("--height", type=int, help="projector height, px (gcps-v1)")
     p.add_argument("--nlp", type=int, default=128, help="light codes across the width (default 128)")
     p.add_argument("--square", action="store_true", help="square-wave phase patterns (smooth on decoding)")
     p.add_argument("--out", required=True, help="output folder or .zip")
+    codec_patterns_option(p)
     p.set_defaults(func=cmd_patterns)
+    decode_command(sub)
 
     p = sub.add_parser("simulate", help="render a capture stack with the virtual rig")
     p.add_argument("--rig", required=True, help="rig JSON (docs/file-formats.md)")

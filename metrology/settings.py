@@ -77,6 +77,20 @@ def env_list(name: str, default: list[str]) -> list[str]:
     return items
 
 
+def env_rate(name: str, default: str) -> str | None:
+    """A rate ``N/period`` (period second, minute, hour or day, or their first letter); ``off`` for none."""
+    raw = env_str(name, default)
+    if raw.lower() in ("off", "none"):
+        return None
+    count, _, period = raw.partition("/")
+    if not count.strip().isdigit() or int(count) < 1 or period.strip().lower() not in _RATE_PERIODS:
+        raise ImproperlyConfigured(f"{name} must look like 100/minute (second, minute, hour, day) or off, got {raw!r}")
+    return raw
+
+
+_RATE_PERIODS = {"s", "sec", "second", "m", "min", "minute", "h", "hour", "d", "day"}
+
+
 def env_url(name: str, schemes: tuple[str, ...]) -> str:
     raw = os.environ.get(name, "").strip()
     if raw and not raw.startswith(tuple(f"{scheme}://" for scheme in schemes)):
@@ -125,6 +139,9 @@ INSTALLED_APPS = [
 
 MIDDLEWARE = [
     "django.middleware.security.SecurityMiddleware",
+    "metrology.security_headers.ContentSecurityPolicyMiddleware",
+    "metrology.api_input.RequestBodyLimitMiddleware",
+    "metrology.throttling.LoginThrottleMiddleware",
     "whitenoise.middleware.WhiteNoiseMiddleware",
     # a request whose database connection broke is retried once; 503 (not 500) when it stays down
     "metrology.unavailable.TransientErrorMiddleware",
@@ -218,18 +235,41 @@ FILE_UPLOAD_MAX_MEMORY_SIZE = 8 * 1024 * 1024
 DATA_UPLOAD_MAX_MEMORY_SIZE = 8 * 1024 * 1024
 # Largest image a stack may hold (width * height), guards against headers claiming huge sizes.
 GCPS_MAX_STACK_PIXELS = env_int("GCPS_MAX_STACK_PIXELS", 64 * 1024 * 1024, minimum=1)
+# Largest rig image side (width_px, height_px), pixels; and the memory a simulation may take, bytes.
+# Largest ``extra`` (the rig file's further keys) a rig may hold, bytes of JSON.
+GCPS_MAX_RIG_EXTRA_BYTES = env_int("GCPS_MAX_RIG_EXTRA_BYTES", 16 * 1024, minimum=2)
+GCPS_MAX_IMAGE_SIDE_PX = env_int("GCPS_MAX_IMAGE_SIDE_PX", 4096, minimum=1)
+GCPS_MAX_SIMULATION_BYTES = env_int("GCPS_MAX_SIMULATION_BYTES", 4 * 1024**3, minimum=1)
 
 # ----------------------------------------------------------------------------- REST API
 REST_FRAMEWORK = {
     "DEFAULT_AUTHENTICATION_CLASSES": [
-        "rest_framework.authentication.TokenAuthentication",
+        "metrology.throttling.ThrottledTokenAuthentication",
         "rest_framework.authentication.SessionAuthentication",
     ],
-    "DEFAULT_PERMISSION_CLASSES": ["rest_framework.permissions.IsAuthenticated"],
+    "DEFAULT_PERMISSION_CLASSES": ["metrology.throttling.IsAuthenticatedAnonThrottled"],
+    "DEFAULT_THROTTLE_CLASSES": ["metrology.throttling.UserRateThrottle", "metrology.throttling.AnonRateThrottle"],
+    # Client addresses for the rate limits: REMOTE_ADDR, or behind GCPS_NUM_PROXIES reverse proxies the
+    # address they add to X-Forwarded-For (never the header as the client sent it: it could be forged).
+    "NUM_PROXIES": env_int("GCPS_NUM_PROXIES", 1 if env_bool("GCPS_BEHIND_PROXY", False) else 0, minimum=0),
     "DEFAULT_SCHEMA_CLASS": "drf_spectacular.openapi.AutoSchema",
     "EXCEPTION_HANDLER": "metrology.api_errors.exception_handler",
     "DEFAULT_PAGINATION_CLASS": None,
+    "DEFAULT_PARSER_CLASSES": [
+        "metrology.api_input.BoundedJSONParser",
+        "rest_framework.parsers.FormParser",
+        "rest_framework.parsers.MultiPartParser",
+    ],
     "UNAUTHENTICATED_USER": None,
+}
+
+# Rate limits (metrology/throttling.py): API requests per user and per anonymous client, failed
+# log-ins and unknown API tokens per client address; past a rate the answer is 429 + Retry-After.
+GCPS_THROTTLE_RATES = {
+    "user": env_rate("GCPS_THROTTLE_USER", "1200/minute"),
+    "anon": env_rate("GCPS_THROTTLE_ANON", "60/minute"),
+    "login": env_rate("GCPS_THROTTLE_LOGIN", "10/minute"),
+    "bad_token": env_rate("GCPS_THROTTLE_BAD_TOKEN", "20/minute"),
 }
 
 SPECTACULAR_SETTINGS = {
@@ -245,6 +285,10 @@ SPECTACULAR_SETTINGS = {
     "SWAGGER_UI_FAVICON_HREF": "SIDECAR",
     "REDOC_DIST": "SIDECAR",
     "COMPONENT_SPLIT_REQUEST": True,
+    "POSTPROCESSING_HOOKS": [
+        "drf_spectacular.hooks.postprocess_schema_enums",
+        "metrology.api_schema.add_errors_and_examples",
+    ],
     "ENUM_NAME_OVERRIDES": {
         "JobStatusEnum": "metrology.jobs.models.Job.Status",
         "CaptureRoleEnum": "metrology.captures.models.Capture.Role",
@@ -254,6 +298,18 @@ SPECTACULAR_SETTINGS = {
 # ----------------------------------------------------------------------------- Celery
 REDIS_URL = env_url("REDIS_URL", ("redis", "rediss"))
 CELERY_BROKER_URL = env_url("CELERY_BROKER_URL", ("redis", "rediss", "amqp", "memory")) or REDIS_URL
+# The cache holds the rate-limit counters: Redis when REDIS_URL is set (shared by every web
+# process), the process's memory otherwise (the embedded default is one process).
+if REDIS_URL:
+    CACHES = {
+        "default": {
+            "BACKEND": "django.core.cache.backends.redis.RedisCache",
+            "LOCATION": REDIS_URL,
+            "KEY_PREFIX": env_str("GCPS_CACHE_KEY_PREFIX", "gcps"),
+        }
+    }
+else:
+    CACHES = {"default": {"BACKEND": "django.core.cache.backends.locmem.LocMemCache", "LOCATION": "gcps"}}
 # Without a broker, tasks run in-process when enqueued (the embedded default).
 CELERY_TASK_ALWAYS_EAGER = not CELERY_BROKER_URL
 if CELERY_BROKER_URL.startswith(("redis://", "rediss://")):
@@ -314,6 +370,14 @@ SECURE_HSTS_INCLUDE_SUBDOMAINS = env_bool("SECURE_HSTS_INCLUDE_SUBDOMAINS", SECU
 SECURE_HSTS_PRELOAD = env_bool("SECURE_HSTS_PRELOAD", SECURE_HSTS_SECONDS > 0)
 SECURE_CONTENT_TYPE_NOSNIFF = True
 X_FRAME_OPTIONS = "DENY"
+# Content-Security-Policy of every response (metrology/security_headers.py says why each part);
+# GCPS_CONTENT_SECURITY_POLICY="" sends none.
+GCPS_CONTENT_SECURITY_POLICY = env_str(
+    "GCPS_CONTENT_SECURITY_POLICY",
+    "default-src 'self'; script-src 'self' 'unsafe-inline'; style-src 'self' 'unsafe-inline'; "
+    "img-src 'self' data: blob:; font-src 'self' data:; connect-src 'self'; worker-src 'self' blob:; "
+    "object-src 'none'; base-uri 'self'; form-action 'self'; frame-ancestors 'self'",
+)
 
 LOGIN_URL = "/login/"
 LOGIN_REDIRECT_URL = "/"

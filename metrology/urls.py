@@ -2,7 +2,7 @@
 
 from django.contrib import admin
 from django.urls import include, path
-from drf_spectacular.views import SpectacularAPIView, SpectacularSwaggerView
+from drf_spectacular.views import SpectacularAPIView, SpectacularSwaggerSplitView
 
 from metrology.calibrations import api as calibrations
 from metrology.captures import api as captures
@@ -52,7 +52,7 @@ api_patterns = [
         for table in ("positions", "test_points")
     ],
     path("schema/", SpectacularAPIView.as_view(), name="schema"),
-    path("docs/", SpectacularSwaggerView.as_view(url_name="schema"), name="docs"),
+    path("docs/", SpectacularSwaggerSplitView.as_view(url_name="schema"), name="docs"),  # no inline script
 ]
 
 urlpatterns = [
@@ -62,5 +62,6 @@ urlpatterns = [
     path("", include("metrology.dashboard.urls")),
 ]
 
+handler400 = "metrology.api_errors.bad_request"
 handler404 = "metrology.api_errors.not_found"
 handler500 = "metrology.api_errors.server_error"

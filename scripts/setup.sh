@@ -12,12 +12,16 @@ fi
 if [ ! -x .venv/bin/python ]; then
   "$PYTHON" -m venv .venv
 fi
+# The stamp records what is installed: a hash of pyproject.toml, plus "[dev]" with the test extras.
+# The dev install also satisfies the plain one, so switching between scripts/demo.sh and
+# scripts/test.sh installs nothing until pyproject.toml changes.
 stamp=.venv/.gcps-installed
 extras=""
 [ "${1:-}" = "--dev" ] && extras="[dev]"
-want="$(sha256sum pyproject.toml | cut -c1-16)${extras}"
-if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+hash="$(sha256sum pyproject.toml | cut -c1-16)"
+have="$(cat "$stamp" 2>/dev/null || true)"
+if [ "$have" != "${hash}${extras}" ] && [ "$have" != "${hash}[dev]" ]; then
   .venv/bin/python -m pip install --quiet --upgrade pip
   .venv/bin/python -m pip install --quiet -e ".${extras}"
-  echo "$want" > "$stamp"
+  echo "${hash}${extras}" > "$stamp"
 fi

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from drf_spectacular.utils import extend_schema
 from rest_framework import serializers, status
-from rest_framework.parsers import JSONParser
 from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
+from metrology.api_input import BoundedJSONParser, RealNumberField
 from metrology.calibrations import selectors, services
 from metrology.calibrations.models import Calibration
 from metrology.jobs.serializers import JobStateMixin
@@ -19,10 +19,10 @@ class CalibrationRequestSerializer(serializers.Serializer):
     rig = serializers.IntegerField(min_value=1)
     reference = serializers.IntegerField(min_value=1, help_text="Capture of the reference plane")
     master = serializers.IntegerField(min_value=1, help_text="Capture of the master block on the reference plane")
-    master_height_mm = serializers.FloatField(help_text="Known height of the master's top face, mm")
+    master_height_mm = RealNumberField(help_text="Known height of the master's top face, mm")
     method = serializers.ChoiceField(choices=Calibration.Method.choices, default=Calibration.Method.LSQ.value)
     initial = serializers.DictField(
-        child=serializers.FloatField(), required=False, help_text="Starting values: L_mm, alpha_rad, d_mm"
+        child=RealNumberField(), required=False, help_text="Starting values: L_mm, alpha_rad, d_mm"
     )
     options = serializers.DictField(
         required=False,
@@ -56,7 +56,7 @@ class CalibrationSerializer(JobStateMixin, serializers.ModelSerializer):
 
 
 class CalibrationListCreateApi(APIView):
-    parser_classes = (JSONParser,)
+    parser_classes = (BoundedJSONParser,)
 
     @extend_schema(responses=CalibrationSerializer(many=True), operation_id="calibrations_list")
     def get(self, request: Request) -> Response:

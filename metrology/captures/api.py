@@ -5,16 +5,19 @@ from __future__ import annotations
 from django.conf import settings
 from django.http import FileResponse
 from drf_spectacular.types import OpenApiTypes
-from drf_spectacular.utils import extend_schema
+from drf_spectacular.utils import extend_schema, extend_schema_field
 from rest_framework import serializers, status
-from rest_framework.parsers import FormParser, JSONParser, MultiPartParser
+from rest_framework.parsers import FormParser, MultiPartParser
 from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
 from metrology.api_errors import BadInput
+from metrology.api_input import BoundedJSONParser, RealNumberField
 from metrology.captures import selectors, services
 from metrology.captures.models import Capture, CaptureSession
+from metrology.captures.simulation import DEFAULT_PRESET, PRESETS, preset_options
+from metrology.core.scenes import SCENES
 from metrology.rigs.selectors import get_rig
 
 
@@ -54,7 +57,7 @@ class CaptureSerializer(serializers.ModelSerializer):
 class CaptureUploadSerializer(serializers.Serializer):
     file = serializers.FileField(help_text="Zip of GC_0..GC_6, PS_0..PS_3 images (.png/.tif/.tiff/.bmp)")
     role = serializers.ChoiceField(choices=Capture.Role.choices)
-    z_in_mm = serializers.FloatField(required=False, allow_null=True, help_text="Stage position, mm")
+    z_in_mm = RealNumberField(required=False, allow_null=True, help_text="Stage position, mm")
     repeat = serializers.IntegerField(required=False, min_value=0, max_value=1_000_000, default=0)
     session = serializers.IntegerField(required=False, allow_null=True, min_value=1, help_text="Capture session id")
     bit_depth = serializers.ChoiceField(
@@ -62,13 +65,47 @@ class CaptureUploadSerializer(serializers.Serializer):
     )
 
 
+@extend_schema_field(
+    {
+        "type": "object",
+        "properties": {"name": {"type": "string", "enum": list(SCENES), "description": "The scene"}},
+        "required": ["name"],
+        "additionalProperties": True,
+        "description": (
+            'The scene in front of the rig: {"name": ..., plus that scene\'s parameters}, e.g. '
+            '{"name": "plane", "z_mm": 20.0}, {"name": "sphere", "radius_mm": 50.0}, '
+            '{"name": "block", "top_mm": 40.0}, {"name": "stage"} (at the capture\'s z_in_mm). Heights must lie in '
+            "the rig's depth range (-L to 0.95 L)."
+        ),
+        "example": {"name": "sphere", "radius_mm": 50.0},
+    }
+)
+class SceneField(serializers.DictField):
+    """A scene: ``{"name": ..., **parameters}`` (metrology.core.scenes)."""
+
+
 class SimulateSerializer(serializers.Serializer):
     role = serializers.ChoiceField(choices=Capture.Role.choices)
-    scene = serializers.DictField(help_text='Scene: {"name": "...", ...scene parameters} (metrology.core.scenes)')
-    options = serializers.DictField(
-        required=False, default=dict, help_text="Simulation options: bit_depth, noise_grey, seed, ..."
+    scene = SceneField()
+    preset = serializers.ChoiceField(
+        choices=list(PRESETS),
+        default=DEFAULT_PRESET,
+        help_text=(
+            "Camera preset the options start from: realistic (default; 8-bit, 1.5 grey levels of noise, "
+            "0.7 px camera blur, 0.15 code projector blur, 3x3 sub-rays, as the dashboard's default) or "
+            "noise-free (16-bit, exact)"
+        ),
     )
-    z_in_mm = serializers.FloatField(required=False, allow_null=True)
+    options = serializers.DictField(
+        required=False,
+        default=dict,
+        help_text=(
+            "Simulation options overriding the preset's: bit_depth (8/16), noise_grey, ambient, projector_gain, "
+            "projector_gamma, projector_defocus_codes, camera_defocus_px, square, smoothing_codes, "
+            "supersample (1-8), seed"
+        ),
+    )
+    z_in_mm = RealNumberField(required=False, allow_null=True)
     repeat = serializers.IntegerField(required=False, min_value=0, max_value=1_000_000, default=0)
     session = serializers.IntegerField(required=False, allow_null=True, min_value=1)
 
@@ -124,7 +161,7 @@ class RigCapturesApi(APIView):
 
 
 class RigCaptureSimulateApi(APIView):
-    parser_classes = (JSONParser,)
+    parser_classes = (BoundedJSONParser,)
 
     @extend_schema(request=SimulateSerializer, responses={202: CaptureSerializer}, operation_id="rig_captures_simulate")
     def post(self, request: Request, rig_id: int) -> Response:
@@ -137,7 +174,7 @@ class RigCaptureSimulateApi(APIView):
             rig=rig,
             role=data["role"],
             scene=data["scene"],
-            options=data.get("options") or {},
+            options=preset_options(data["preset"], data.get("options")),
             z_in_mm=data.get("z_in_mm"),
             repeat=data.get("repeat", 0),
             session_id=data.get("session"),
@@ -147,7 +184,7 @@ class RigCaptureSimulateApi(APIView):
 
 
 class RigSessionsApi(APIView):
-    parser_classes = (JSONParser, FormParser, MultiPartParser)
+    parser_classes = (BoundedJSONParser, FormParser, MultiPartParser)
 
     @extend_schema(responses=SessionSerializer(many=True), operation_id="rig_sessions_list")
     def get(self, request: Request, rig_id: int) -> Response:

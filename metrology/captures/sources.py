@@ -12,6 +12,13 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from metrology.captures.simulation import (
+    check_option_values,
+    check_render_memory,
+    check_scene_depth,
+    check_scene_values,
+)
+
 
 @dataclass(frozen=True)
 class CaptureRequest:
@@ -62,18 +69,25 @@ class VirtualRigSource:
             raise ValueError('scene.name is required, e.g. {"name": "plane", ...}')
         if scene_name == "stage" and request.z_in_mm is not None:
             scene_spec.setdefault("z_in_mm", request.z_in_mm)
+        check_scene_values(rig, scene_name, scene_spec)
         try:
             scene = make_scene(scene_name, rig=rig, **scene_spec)
         except TypeError as exc:
             raise ValueError(f"scene {scene_name!r}: {exc}") from None
+        check_scene_depth(rig, scene_name, scene)
         try:
             options = SimulationOptions(**dict(request.options))
         except TypeError as exc:
             raise ValueError(f"simulation options: {exc}") from None
+        check_option_values(options)
         return scene, options
 
     def check(self, rig, request: CaptureRequest) -> None:
-        self._build(rig, request)
+        """Build the scene and options, and bound their values and the render's memory."""
+        from django.conf import settings
+
+        _scene, options = self._build(rig, request)
+        check_render_memory(rig, options, settings.GCPS_MAX_SIMULATION_BYTES)
 
     def acquire(self, rig, request: CaptureRequest) -> AcquiredStack:
         from metrology.core.simulate import render_stack

@@ -6,11 +6,11 @@ from django.http import Http404, HttpResponse
 from drf_spectacular.types import OpenApiTypes
 from drf_spectacular.utils import extend_schema
 from rest_framework import serializers, status
-from rest_framework.parsers import JSONParser
 from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
+from metrology.api_input import BoundedJSONParser, RealNumberField
 from metrology.characterizations import selectors, services
 from metrology.characterizations.models import Characterization
 from metrology.jobs.serializers import JobStateMixin
@@ -18,7 +18,7 @@ from metrology.measurements.api import get_rig_for_body
 
 
 class SeriesPositionSerializer(serializers.Serializer):
-    z_in_mm = serializers.FloatField(help_text="Stage position, mm")
+    z_in_mm = RealNumberField(help_text="Stage position, mm")
     captures = serializers.ListField(
         child=serializers.IntegerField(min_value=1), max_length=10_000, help_text="Stage capture ids (repeats)"
     )
@@ -56,7 +56,7 @@ class CharacterizationSerializer(JobStateMixin, serializers.ModelSerializer):
 
 
 class CharacterizationListCreateApi(APIView):
-    parser_classes = (JSONParser,)
+    parser_classes = (BoundedJSONParser,)
 
     @extend_schema(responses=CharacterizationSerializer(many=True), operation_id="characterizations_list")
     def get(self, request: Request) -> Response:

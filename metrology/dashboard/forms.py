@@ -5,6 +5,7 @@ from __future__ import annotations
 from django import forms
 
 from metrology.captures.models import Capture
+from metrology.captures.simulation import PRESETS
 from metrology.dashboard.selectors import capture_origin
 
 PAPER_RIG = {"L_mm": 1022.0, "d_mm": 352.0, "alpha_rad": 0.332, "fw_mm": 500.0, "nlp": 128}
@@ -25,10 +26,7 @@ SCENE_CHOICES = [
 NOISE_PRESETS: dict[str, tuple[str, dict]] = {
     "none": ("noise free, 16 bit", {"bit_depth": 16}),
     "low": ("low noise, 8 bit (0.5 grey levels)", {"bit_depth": 8, "noise_grey": 0.5}),
-    "demo": (
-        "realistic, 8 bit (1.5 grey levels, slight blur)",
-        {"bit_depth": 8, "noise_grey": 1.5, "camera_defocus_px": 0.5},
-    ),
+    "demo": ("realistic, 8 bit (1.5 grey levels, slight blur; the API's default)", PRESETS["realistic"]),
     "high": ("noisy, 8 bit (4 grey levels, blur)", {"bit_depth": 8, "noise_grey": 4.0, "camera_defocus_px": 0.8}),
 }
 DEFAULT_ROLE_FOR_SCENE = {"reference": "reference", "block": "master", "stage": "stage"}

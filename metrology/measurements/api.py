@@ -7,12 +7,13 @@ from django.urls import reverse
 from drf_spectacular.types import OpenApiTypes
 from drf_spectacular.utils import extend_schema
 from rest_framework import serializers, status
-from rest_framework.parsers import FormParser, JSONParser, MultiPartParser
+from rest_framework.parsers import FormParser, MultiPartParser
 from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
 from metrology.api_errors import BadInput
+from metrology.api_input import BoundedJSONParser
 from metrology.jobs.serializers import JobStateMixin
 from metrology.measurements import selectors, services
 from metrology.measurements.models import RESULT_FILES, Measurement
@@ -73,7 +74,7 @@ class MeasurementSerializer(JobStateMixin, serializers.ModelSerializer):
 
 
 class MeasurementListCreateApi(APIView):
-    parser_classes = (JSONParser, FormParser, MultiPartParser)
+    parser_classes = (BoundedJSONParser, FormParser, MultiPartParser)
 
     @extend_schema(responses=MeasurementSerializer(many=True), operation_id="measurements_list")
     def get(self, request: Request) -> Response:

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from django.conf import settings
 from drf_spectacular.utils import extend_schema
 from rest_framework import serializers, status
 from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
+from metrology.api_input import RealNumberField
 from metrology.rigs import selectors, services
 from metrology.rigs.models import Rig, RigParameters
 
@@ -17,13 +19,17 @@ class RigInputSerializer(serializers.Serializer):
 
     name = serializers.CharField(required=False, allow_blank=True, max_length=200)
     notes = serializers.CharField(required=False, allow_blank=True, max_length=10000)
-    L_mm = serializers.FloatField(help_text="Height of the pupils above the reference plane, mm, > 0")
-    d_mm = serializers.FloatField(help_text="Projector-camera baseline, mm, > 0")
-    alpha_rad = serializers.FloatField(help_text="Projector tilt, rad, in (0, pi/2)")
-    fw_mm = serializers.FloatField(help_text="Camera field width on the reference plane, mm, > 0")
+    L_mm = RealNumberField(help_text="Height of the pupils above the reference plane, mm, > 0")
+    d_mm = RealNumberField(help_text="Projector-camera baseline, mm, > 0")
+    alpha_rad = RealNumberField(help_text="Projector tilt, rad, in (0, pi/2)")
+    fw_mm = RealNumberField(help_text="Camera field width on the reference plane, mm, > 0")
     nlp = serializers.IntegerField(min_value=1, max_value=128, help_text="Light codes across the field")
-    width_px = serializers.IntegerField(min_value=1, max_value=100_000)
-    height_px = serializers.IntegerField(min_value=1, max_value=100_000)
+    width_px = serializers.IntegerField(
+        min_value=1, max_value=settings.GCPS_MAX_IMAGE_SIDE_PX, help_text="Camera columns (GCPS_MAX_IMAGE_SIDE_PX)"
+    )
+    height_px = serializers.IntegerField(
+        min_value=1, max_value=settings.GCPS_MAX_IMAGE_SIDE_PX, help_text="Camera rows (GCPS_MAX_IMAGE_SIDE_PX)"
+    )
 
 
 class RigHistorySerializer(serializers.ModelSerializer):
@@ -56,10 +62,19 @@ class RigSerializer(serializers.ModelSerializer):
         read_only_fields = fields
 
 
+class RigSummarySerializer(serializers.ModelSerializer):
+    """A rig in a list: its geometry, without ``extra`` and ``history`` (see the rig's own URL)."""
+
+    class Meta:
+        model = Rig
+        fields = tuple(name for name in RigSerializer.Meta.fields if name not in ("extra", "history"))
+        read_only_fields = fields
+
+
 class RigListCreateApi(APIView):
-    @extend_schema(responses=RigSerializer(many=True), operation_id="rigs_list")
+    @extend_schema(responses=RigSummarySerializer(many=True), operation_id="rigs_list")
     def get(self, request: Request) -> Response:
-        return Response(RigSerializer(selectors.rigs_for(request.user), many=True).data)
+        return Response(RigSummarySerializer(selectors.rigs_for(request.user), many=True).data)
 
     @extend_schema(request=RigInputSerializer, responses={201: RigSerializer}, operation_id="rigs_create")
     def post(self, request: Request) -> Response:

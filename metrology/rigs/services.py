@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
+from django.conf import settings
 from django.db import transaction
 
 from metrology.api_errors import BadInput
@@ -13,21 +15,59 @@ from metrology.rigs.models import GEOMETRY_FIELDS, Rig, RigParameters
 
 
 def validate_geometry(values: dict[str, Any]) -> dict[str, Any]:
-    """The seven values normalised by the core's :class:`Rig`; raises :class:`BadInput` naming the problem."""
+    """The seven values normalised by the core's :class:`Rig`; raises :class:`BadInput` naming the problem.
+
+    The image sides are also bounded by ``GCPS_MAX_IMAGE_SIDE_PX`` (every capture, measurement and
+    simulation of the rig is that size).
+    """
     try:
         core = CoreRig.from_dict(values)
     except RigError as exc:
         raise BadInput(str(exc)) from None
     except (TypeError, OverflowError) as exc:  # e.g. a list where a number belongs
         raise BadInput(f"rig values are not numbers: {exc}") from None
+    limit = settings.GCPS_MAX_IMAGE_SIDE_PX
+    for name in ("width_px", "height_px"):
+        if getattr(core, name) > limit:
+            raise BadInput(f"{name} must be at most {limit} pixels (GCPS_MAX_IMAGE_SIDE_PX), got {getattr(core, name)}")
     return {name: getattr(core, name) for name in GEOMETRY_FIELDS}
+
+
+def validate_extra(extra: dict[str, Any]) -> dict[str, Any]:
+    """The rig file's further keys: no NUL character anywhere, at most ``GCPS_MAX_RIG_EXTRA_BYTES`` of JSON.
+
+    Raises :class:`BadInput` naming the key (PostgreSQL refuses NUL in JSON; a large blob would be
+    stored and sent back with the rig).
+    """
+    stack: list[tuple[str, Any]] = [("", extra)]
+    while stack:
+        where, value = stack.pop()
+        if isinstance(value, dict):
+            for key, item in value.items():
+                if "\x00" in str(key):
+                    raise BadInput(f"extra key {key!r} contains a NUL character")
+                stack.append((f"{where}.{key}" if where else str(key), item))
+        elif isinstance(value, list):
+            stack.extend((f"{where}[{index}]", item) for index, item in enumerate(value))
+        elif isinstance(value, str) and "\x00" in value:
+            raise BadInput(f"extra value {where} contains a NUL character")
+    size = len(json.dumps(extra, ensure_ascii=False).encode())
+    limit = settings.GCPS_MAX_RIG_EXTRA_BYTES
+    if size > limit:
+        raise BadInput(
+            f"extra (the rig file's further keys) holds {size} bytes of JSON, more than the limit of {limit} bytes "
+            "(GCPS_MAX_RIG_EXTRA_BYTES)"
+        )
+    return extra
 
 
 @transaction.atomic
 def create_rig(*, owner, data: dict[str, Any]) -> Rig:
     """Create a rig from the rig-file JSON (docs/file-formats.md); ``name`` and ``notes`` are optional keys."""
     geometry = validate_geometry({name: data.get(name) for name in GEOMETRY_FIELDS if name in data})
-    extra = {key: value for key, value in data.items() if key not in (*GEOMETRY_FIELDS, "name", "notes")}
+    extra = validate_extra(
+        {key: value for key, value in data.items() if key not in (*GEOMETRY_FIELDS, "name", "notes")}
+    )
     rig = Rig.objects.create(
         owner=owner, name=str(data.get("name") or ""), notes=str(data.get("notes") or ""), extra=extra, **geometry
     )

@@ -101,3 +101,25 @@ def test_unknown_api_paths_answer_json_404(api):
     response = api.get("/api/measurements/abc/")
     assert response.status_code == 404
     assert response.json() == {"error": "No API endpoint at /api/measurements/abc/; see /api/docs/."}
+
+
+@pytest.mark.django_db
+@pytest.mark.parametrize(("flag", "superuser"), [("--staff", False), ("--superuser", True)])
+def test_createuser_makes_staff_who_can_edit_schedules_in_the_admin(flag, superuser):
+    from django.contrib.auth import get_user_model
+    from django.test import Client
+
+    call_command("createuser", "erin", flag, "--password", "a-long-admin-password-7", stdout=io.StringIO())
+    user = get_user_model().objects.get(username="erin")
+    assert user.is_staff and user.is_superuser == superuser
+    client = Client()
+    assert client.login(username="erin", password="a-long-admin-password-7")
+    assert client.get("/admin/django_celery_beat/periodictask/").status_code == 200
+    assert client.get("/admin/django_celery_beat/periodictask/add/").status_code == 200
+    assert client.get("/admin/rigs/rig/").status_code == (200 if superuser else 403)
+
+
+@pytest.mark.django_db
+def test_createuser_staff_without_password_is_refused():
+    with pytest.raises(CommandError, match="need --password"):
+        call_command("createuser", "frank", "--staff", stdout=io.StringIO())

@@ -69,3 +69,136 @@ def test_schemathesis_finds_no_server_error(live_server, tmp_path):
     assert result.returncode == 0, output[-6000:]
     summary = re.search(r"(\d+) generated, (\d+) passed", output)
     assert summary and summary.group(1) == summary.group(2) and int(summary.group(1)) > 100, output[-3000:]
+
+
+@pytest.fixture
+def schema(db) -> dict:
+    from rest_framework.test import APIClient
+
+    response = APIClient().get("/api/schema/", HTTP_ACCEPT="application/vnd.oai.openapi+json")
+    assert response.status_code == 200
+    return response.json()
+
+
+def test_every_operation_documents_its_error_answers(schema):
+    assert schema["components"]["schemas"]["Error"]["required"] == ["error"]
+    operations = [
+        (path, method, operation)
+        for path, item in schema["paths"].items()
+        if path.startswith("/api/") and not path.startswith(("/api/schema", "/api/docs"))
+        for method, operation in item.items()
+    ]
+    assert len(operations) > 20
+    for path, method, operation in operations:
+        responses = operation["responses"]
+        expected = {"401", "429"} | ({"404"} if "{" in path else set())
+        expected |= {"400", "413"} if method == "post" else set()
+        assert expected <= set(responses), (path, method, sorted(responses))
+        assert "Retry-After" in responses["429"]["headers"]
+        assert responses["401"]["content"]["application/json"]["schema"] == {"$ref": "#/components/schemas/Error"}
+
+
+def test_request_examples_are_documented_and_valid(schema):
+    from metrology.calibrations.api import CalibrationRequestSerializer
+    from metrology.captures.api import SessionSerializer, SimulateSerializer
+    from metrology.characterizations.api import CharacterizationRequestSerializer
+    from metrology.measurements.api import MeasurementRequestSerializer
+    from metrology.rigs.api import RigInputSerializer
+
+    serializers = {
+        ("/api/rigs/", "post"): RigInputSerializer,
+        ("/api/rigs/{rig_id}/captures/simulate/", "post"): SimulateSerializer,
+        ("/api/rigs/{rig_id}/sessions/", "post"): SessionSerializer,
+        ("/api/measurements/", "post"): MeasurementRequestSerializer,
+        ("/api/calibrations/", "post"): CalibrationRequestSerializer,
+        ("/api/characterizations/", "post"): CharacterizationRequestSerializer,
+    }
+    for (path, method), serializer in serializers.items():
+        body = schema["paths"][path][method]["requestBody"]["content"]["application/json"]
+        assert body["examples"], path
+        for name, example in body["examples"].items():
+            checked = serializer(data=example["value"])
+            assert checked.is_valid(), (path, name, checked.errors)
+    simulate = schema["paths"]["/api/rigs/{rig_id}/captures/simulate/"]["post"]["requestBody"]["content"]
+    assert all("name" in example["value"]["scene"] for example in simulate["application/json"]["examples"].values())
+    request = schema["components"]["schemas"]["SimulateRequest"]
+    assert request["properties"]["scene"]["required"] == ["name"]
+    assert request["properties"]["preset"]["default"] == "realistic"
+
+
+def schema_operations(schema: dict) -> set[str]:
+    """``METHOD /path`` of every API operation in the schema (the schema and docs views excluded)."""
+    return {
+        f"{method.upper()} {path}"
+        for path, item in schema["paths"].items()
+        if path.startswith("/api/") and not path.startswith(("/api/schema", "/api/docs"))
+        for method in item
+    }
+
+
+@pytest.mark.slow
+@pytest.mark.django_db(transaction=True)
+def test_schemathesis_over_the_whole_api_authenticated_finds_no_server_error(live_server, tmp_path, settings, schema):
+    """Every operation, authenticated, with stored objects to find (ids 1, 2, ...): examples, coverage
+    and fuzzing phases; rates raised (tests/conftest.py) and simulations kept small."""
+    import xml.etree.ElementTree as ET
+
+    from tests.app.stacks import SMALL_RIG, plane_zip
+
+    settings.GCPS_MAX_SIMULATION_BYTES = 32 * 1024 * 1024  # renders the fuzzer asks for stay small
+    user, key = create_user_with_token(username="fuzzer")
+    from django.core.files.uploadedfile import SimpleUploadedFile
+
+    from metrology.captures.services import upload_capture
+    from metrology.measurements.services import request_measurement
+    from metrology.rigs.services import create_rig
+
+    rig = create_rig(owner=user, data={**SMALL_RIG, "name": "fuzzed"})
+    reference = upload_capture(
+        owner=user, rig=rig, upload=SimpleUploadedFile("r.zip", plane_zip(), "application/zip"), role="reference"
+    )
+    obj = upload_capture(
+        owner=user, rig=rig, upload=SimpleUploadedFile("o.zip", plane_zip(z_mm=10.0), "application/zip"), role="object"
+    )
+    request_measurement(owner=user, rig=rig, reference_id=reference.pk, object_id=obj.pk)
+    junit = tmp_path / "junit.xml"
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "schemathesis.cli",
+            "run",
+            f"{live_server.url}/api/schema/",
+            "--header",
+            f"Authorization: Token {key}",
+            "--checks",
+            "not_a_server_error",
+            "--phases",
+            "examples,coverage,fuzzing",
+            "--max-examples",
+            "25",
+            "--seed",
+            "9",
+            "--request-timeout",
+            "60",
+            "--workers",
+            "1",
+            "--continue-on-failure",
+            "--report",
+            "junit",
+            "--report-junit-path",
+            str(junit),
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=1500,
+    )
+    output = result.stdout + result.stderr
+    assert result.returncode == 0, output[-8000:]
+    summary = re.search(r"(\d+) generated, (\d+) passed", output)
+    assert summary and summary.group(1) == summary.group(2) and int(summary.group(1)) > 1000, output[-3000:]
+    assert re.search(r"Tested: (\d+)", output).group(1) == str(len(schema_operations(schema))), output[-3000:]
+    tested = {case.get("name", "") for case in ET.parse(junit).getroot().iter("testcase")}
+    missing = sorted(op for op in schema_operations(schema) if op not in tested)
+    assert not missing, (missing, sorted(tested))

@@ -140,6 +140,17 @@ def test_bad_stack_is_refused_and_nothing_is_stored(api, rig, media_root, case):
     assert stored_files(media_root) == []
 
 
+def test_stack_larger_than_the_rig_says_it_does_not_match_the_rig(api, rig, media_root):
+    """A stack bigger than the rig is a mismatch, not a size-limit problem (issue 9 item 2)."""
+    response = upload(api, rig["id"], plane_zip({**SMALL_RIG, "width_px": 320, "height_px": 240}))
+    assert response.status_code == 400, response.content
+    message = response.json()["error"]
+    assert "does not match the rig" in message, message
+    assert "expected 160x120 from the rig, got 320x240" in message, message
+    assert "limit" not in message, message
+    assert Capture.objects.count() == 0 and stored_files(media_root) == []
+
+
 def test_oversized_upload_is_refused(api, rig, media_root, settings):
     settings.GCPS_MAX_UPLOAD_BYTES = 1000
     response = upload(api, rig["id"], plane_zip())

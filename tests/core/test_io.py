@@ -253,8 +253,16 @@ def test_mismatched_shapes_name_both_files() -> None:
 
 
 def test_shape_unlike_the_rig_says_both() -> None:
-    with pytest.raises(StackError, match=r"GC_0.png has shape \(24, 32\) .* rig expects \(480, 640\)"):
+    with pytest.raises(StackError, match=r"GC_0.png does not match the rig: expected 640x480 from the rig, got 32x24"):
         read_zip_members(stack_members(), rig=PAPER_RIG)
+
+
+def test_stack_larger_than_the_rig_is_a_mismatch_not_a_size_limit() -> None:
+    """With a rig, the rig's shape is the limit: a bigger image does not match it (issue 9 item 2)."""
+    small_rig = Rig.from_dict({**PAPER_RIG.to_dict(), "width_px": 16, "height_px": 12})
+    with pytest.raises(StackError, match=r"does not match the rig: expected 16x12 from the rig, got 32x24") as info:
+        read_zip_members(stack_members(), rig=small_rig, max_pixels=16 * 12)
+    assert "limit" not in str(info.value)
 
 
 def test_sixteen_bit_where_eight_declared() -> None:

@@ -108,18 +108,33 @@ def _tiff_size(data: bytes) -> tuple[int, int]:
     return found[256], found[257]
 
 
-def checked_header(data: bytes, name: str, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> tuple[str, int, int]:
+def checked_header(
+    data: bytes,
+    name: str,
+    *,
+    max_pixels: int = DEFAULT_MAX_PIXELS,
+    expected_shape: tuple[int, int] | None = None,
+) -> tuple[str, int, int]:
     """Format, width and height from an image's header, refusing sizes above ``max_pixels``.
+
+    ``expected_shape`` (height_px, width_px), e.g. a rig's, is checked first: an image of another
+    size does not match it, whatever the pixel limit.
 
     Raises
     ------
     StackError
-        If the header is unreadable or claims more than ``max_pixels`` pixels.
+        If the header is unreadable, differs from ``expected_shape`` or claims more than
+        ``max_pixels`` pixels.
     """
     try:
         fmt, width, height = image_header_size(data)
     except ValueError as exc:
         raise StackError(f"{name} is not a readable PNG, TIFF or BMP image ({exc})") from None
+    if expected_shape is not None and (height, width) != tuple(expected_shape):
+        raise StackError(
+            f"{name} does not match the rig: expected {expected_shape[1]}x{expected_shape[0]} from the rig, "
+            f"got {width}x{height} (image shape as width x height, pixels)"
+        )
     if width * height > max_pixels:
         raise StackError(
             f"{name} claims {width}x{height} pixels, more than the limit of {max_pixels} pixels; "

@@ -175,12 +175,8 @@ def _decode_stack(
         entry, data = files[pattern]
         name = f"{label}/{entry}" if label != "upload" else entry
         names.append(name)
-        _, width, height = checked_header(data, name, max_pixels=max_pixels)
+        _, width, height = checked_header(data, name, max_pixels=max_pixels, expected_shape=expected_shape)
         shape = (height, width)
-        if expected_shape is not None and shape != expected_shape:
-            raise StackError(
-                f"{name} has shape {shape} (height, width) but the rig expects {expected_shape} (height_px, width_px)"
-            )
         if first_shape is not None and shape != first_shape[1]:
             raise StackError(
                 f"{name} has shape {shape} but {first_shape[0]} has shape {first_shape[1]} (height, width)"

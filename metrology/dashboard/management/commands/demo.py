@@ -1,24 +1,33 @@
 """``python manage.py demo``: a virtual rig, simulated captures, a measurement, a calibration, a characterization.
 
 Works on the embedded default (jobs run in-process) and with workers (it waits for their jobs).
+Running it again adds nothing once a run has finished: it finds the demo rig and its results and
+prints them again (a run stopped part-way is completed on the same rig).
 """
 
 from __future__ import annotations
 
+import os
 import time
 
 from django.contrib.auth import get_user_model
 from django.core.management.base import BaseCommand, CommandError
 from rest_framework.authtoken.models import Token
 
+from metrology.calibrations.models import Calibration
 from metrology.calibrations.services import request_calibration
 from metrology.captures.services import create_session, request_simulated_capture
+from metrology.captures.simulation import PRESETS
+from metrology.characterizations.models import Characterization
 from metrology.characterizations.services import request_characterization
 from metrology.jobs.models import Job
+from metrology.measurements.models import Measurement
 from metrology.measurements.services import request_measurement
+from metrology.rigs.models import Rig
 from metrology.rigs.services import create_rig
 
-NOISE = {"bit_depth": 8, "noise_grey": 1.5, "camera_defocus_px": 0.5}
+NOISE = PRESETS["realistic"]  # the API's and the dashboard's default
+RIG_NAME = "virtual rig (paper geometry)"
 
 
 class Command(BaseCommand):
@@ -38,10 +47,23 @@ class Command(BaseCommand):
             self.say(f"created user {user!r} with password {user!r} (for the dashboard's login page)")
         token, _ = Token.objects.get_or_create(user=owner)
         self.timeout = timeout
+        rig = Rig.objects.filter(owner=owner, name=RIG_NAME, width_px=width, height_px=height).order_by("pk").first()
+        if rig is not None:
+            finished = self.finished_results(rig)
+            if finished is not None:
+                self.say(f"the demo has run before: rig {rig.pk} and its results are kept, nothing added")
+                self.report(*finished, token=token)
+                return
+            self.say(f"rig {rig.pk}: completing an earlier demo run that did not finish")
+        else:
+            rig = self.create_demo_rig(owner, width, height)
+        self.run_demo(owner, rig, token)
+
+    def create_demo_rig(self, owner, width: int, height: int) -> Rig:
         rig = create_rig(
             owner=owner,
             data={
-                "name": "virtual rig (paper geometry)",
+                "name": RIG_NAME,
                 "L_mm": 1022.0,
                 "d_mm": 352.0,
                 "alpha_rad": 0.332,
@@ -52,7 +74,22 @@ class Command(BaseCommand):
             },
         )
         self.say(f"rig {rig.pk}: {rig.width_px}x{rig.height_px} px, L = {rig.L_mm} mm, alpha = {rig.alpha_rad} rad")
+        return rig
 
+    @staticmethod
+    def finished_results(rig: Rig) -> tuple[Measurement, Calibration, Characterization] | None:
+        """The latest finished measurement, calibration and characterization of ``rig``, if all exist."""
+        done = Job.Status.DONE
+        found = (
+            Measurement.objects.filter(rig=rig, job__status=done).order_by("-pk").first(),
+            Calibration.objects.filter(rig=rig, job__status=done).order_by("-pk").first(),
+            Characterization.objects.filter(rig=rig, job__status=done).order_by("-pk").first(),
+        )
+        if found[0] is None or found[1] is None or found[2] is None:
+            return None
+        return found[0], found[1], found[2]
+
+    def run_demo(self, owner, rig: Rig, token: Token) -> None:
         def simulate(role, scene, seed, **extra):
             return request_simulated_capture(
                 owner=owner, rig=rig, role=role, scene=scene, options={**NOISE, "seed": seed}, **extra
@@ -89,6 +126,12 @@ class Command(BaseCommand):
         measurement.refresh_from_db()
         calibration.refresh_from_db()
         characterization.refresh_from_db()
+        self.report(measurement, calibration, characterization, token=token)
+
+    def report(
+        self, measurement: Measurement, calibration: Calibration, characterization: Characterization, *, token: Token
+    ) -> None:
+        owner = token.user
         stats = measurement.statistics
         self.say(
             f"measurement {measurement.pk}: {100 * stats.get('valid_fraction', 0):.1f} % of pixels measured, "
@@ -104,9 +147,9 @@ class Command(BaseCommand):
         sigma_um = 1000 * (characterization.overall_std_error_mm or 0)
         self.say(f"characterization {characterization.pk}: mean error {mean_um:.1f} um, sigma {sigma_um:.1f} um")
         self.say(f"API token of user {owner.username!r}: {token.key}")
-        self.say(
-            f"try: curl -H 'Authorization: Token {token.key}' http://127.0.0.1:8000/api/measurements/{measurement.pk}/"
-        )
+        base = f"http://127.0.0.1:{os.environ.get('PORT') or 8000}"
+        self.say(f"dashboard: {base}/ (log in as {owner.username!r}; password {owner.username!r} if the demo made it)")
+        self.say(f"try: curl -H 'Authorization: Token {token.key}' {base}/api/measurements/{measurement.pk}/")
 
     def wait(self, job_ids: list[int], what: str) -> None:
         deadline = time.monotonic() + self.timeout

@@ -1,0 +1,123 @@
+"""What the API accepts as a request body: bounded size, bounded JSON nesting, numbers that are numbers.
+
+- :class:`RequestBodyLimitMiddleware` answers 413 JSON under ``/api/`` before a body larger than
+  its limit is read: ``DATA_UPLOAD_MAX_MEMORY_SIZE`` for JSON and forms, ``GCPS_MAX_UPLOAD_BYTES``
+  (plus room for the form's other fields) for multipart uploads.
+- :class:`BoundedJSONParser` reads at most ``DATA_UPLOAD_MAX_MEMORY_SIZE`` bytes (bodies sent
+  without a length too) and refuses JSON nested deeper than :data:`MAX_JSON_DEPTH` levels, or so
+  deep that Python's parser gives up, with a 400 instead of a ``RecursionError``; and NUL
+  characters in strings (PostgreSQL refuses them: a 500 at the first write otherwise).
+- :class:`RealNumberField` is DRF's ``FloatField`` without ``true``/``false`` (``float(True)`` is 1.0).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from typing import Any, ClassVar
+
+from django.conf import settings
+from django.http import HttpRequest, HttpResponse, JsonResponse
+from rest_framework import exceptions, serializers, status
+from rest_framework.parsers import JSONParser
+
+#: Deepest nesting of arrays and objects a request body may have.
+MAX_JSON_DEPTH = 32
+#: Room for a multipart upload's other fields and boundaries, bytes.
+MULTIPART_OVERHEAD_BYTES = 64 * 1024
+
+
+class PayloadTooLarge(exceptions.APIException):
+    """413: the request body is larger than the limit."""
+
+    status_code = status.HTTP_413_REQUEST_ENTITY_TOO_LARGE
+    default_detail = "The request body is too large."
+    default_code = "payload_too_large"
+
+
+def body_limit(content_type: str) -> tuple[int, str]:
+    """Largest accepted body for ``content_type``, bytes, and the setting that sets it."""
+    if content_type.lower().startswith("multipart/"):
+        return settings.GCPS_MAX_UPLOAD_BYTES + MULTIPART_OVERHEAD_BYTES, "GCPS_MAX_UPLOAD_BYTES"
+    return settings.DATA_UPLOAD_MAX_MEMORY_SIZE, "DATA_UPLOAD_MAX_MEMORY_SIZE"
+
+
+def too_large_message(size: int | str, limit: int, setting: str) -> str:
+    return f"request body of {size} bytes is larger than the limit of {limit} bytes ({setting})"
+
+
+class RequestBodyLimitMiddleware:
+    """413 JSON under ``/api/`` for a declared ``Content-Length`` above :func:`body_limit`."""
+
+    def __init__(self, get_response: Callable[[HttpRequest], HttpResponse]) -> None:
+        self.get_response = get_response
+
+    def __call__(self, request: HttpRequest) -> HttpResponse:
+        if request.path.startswith("/api/"):
+            try:
+                length = int(request.META.get("CONTENT_LENGTH") or 0)
+            except ValueError:
+                return JsonResponse({"error": "Content-Length is not a number of bytes."}, status=400)
+            limit, setting = body_limit(request.META.get("CONTENT_TYPE", ""))
+            if length > limit:
+                return JsonResponse({"error": too_large_message(length, limit, setting)}, status=413)
+        return self.get_response(request)
+
+
+def json_problem(value: Any, max_depth: int) -> str | None:
+    """What is wrong with a parsed JSON ``value``, or None: arrays/objects nested deeper than
+    ``max_depth`` levels, or a NUL character in a key or string (PostgreSQL cannot store it).
+    Iterative, so it cannot itself run out of stack."""
+    stack: list[tuple[Any, int]] = [(value, 1)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, str):
+            if "\x00" in item:
+                return "a string holds a NUL character (\\u0000)"
+        elif isinstance(item, dict | list):
+            if depth > max_depth:
+                return f"nested deeper than {max_depth} levels"
+            if isinstance(item, dict):
+                stack.extend((key, depth) for key in item)
+                stack.extend((child, depth + 1) for child in item.values())
+            else:
+                stack.extend((child, depth + 1) for child in item)
+    return None
+
+
+class BoundedJSONParser(JSONParser):
+    """DRF's JSON parser with a size bound and a nesting bound (400, never a RecursionError)."""
+
+    def parse(self, stream, media_type=None, parser_context=None):
+        parser_context = parser_context or {}
+        encoding = parser_context.get("encoding", settings.DEFAULT_CHARSET)
+        limit, setting = body_limit("application/json")
+        data = stream.read(limit + 1) if stream is not None else b""
+        if len(data) > limit:
+            raise PayloadTooLarge(too_large_message(f"more than {limit}", limit, setting))
+        try:
+            text = data.decode(encoding)
+            value = json.loads(text, parse_constant=_refuse_constant) if self.strict else json.loads(text)
+        except RecursionError:
+            raise exceptions.ParseError(f"JSON parse error - nested deeper than {MAX_JSON_DEPTH} levels") from None
+        except ValueError as exc:
+            raise exceptions.ParseError(f"JSON parse error - {exc}") from None
+        problem = json_problem(value, MAX_JSON_DEPTH)
+        if problem:
+            raise exceptions.ParseError(f"JSON refused - {problem}")
+        return value
+
+
+def _refuse_constant(name: str) -> float:
+    raise ValueError(f"{name} is not valid JSON")
+
+
+class RealNumberField(serializers.FloatField):
+    """A finite real number; ``true``/``false`` are refused (they are not numbers)."""
+
+    default_error_messages: ClassVar[dict[str, str]] = {"boolean": "A number is required, not true or false."}
+
+    def to_internal_value(self, data: Any) -> float:
+        if isinstance(data, bool):
+            self.fail("boolean")
+        return super().to_internal_value(data)

@@ -1,0 +1,127 @@
+"""What the virtual rig may be asked to render: the shared presets and the bounds of a request.
+
+The API, the pages and the demo start from the same presets (:data:`PRESETS`; the default is
+``realistic``, the core's :meth:`SimulationOptions.realistic_8bit`). A request is checked here
+before its job is queued, so a worker never receives a render it cannot finish: every scene
+value finite and of a physical size, the scene's heights within the rig's depth range, every
+option within a range where it still means something, and the render's memory below
+``GCPS_MAX_SIMULATION_BYTES``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+#: Options of :class:`metrology.core.simulate.SimulationOptions` that differ from its defaults.
+PRESETS: dict[str, dict[str, Any]] = {
+    # 8-bit, 1.5 grey levels of noise, 0.7 px camera and 0.15 code projector blur, 3 x 3 sub-rays
+    "realistic": {
+        "bit_depth": 8,
+        "noise_grey": 1.5,
+        "camera_defocus_px": 0.7,
+        "projector_defocus_codes": 0.15,
+        "supersample": 3,
+    },
+    # exact rendering: 16-bit, no noise, no blur, one ray per pixel
+    "noise-free": {"bit_depth": 16},
+}
+DEFAULT_PRESET = "realistic"
+
+#: Upper bounds of the real-valued options (lower bounds are the core's): name -> (bound, why).
+OPTION_MAXIMA: dict[str, tuple[float, str]] = {
+    "ambient": (1.0, "fraction of full scale; 1 saturates every pixel"),
+    "projector_gain": (2.0, "fraction of full scale; above 1 saturates"),
+    "projector_gamma": (5.0, "projector response exponent"),
+    "projector_defocus_codes": (8.0, "code units; two fringe periods blur every fringe away"),
+    "camera_defocus_px": (20.0, "pixels"),
+    "smoothing_codes": (8.0, "code units; two fringe periods"),
+}
+#: Camera noise above this fraction of full scale leaves no fringe to measure.
+NOISE_MAX_FRACTION_OF_FULL_SCALE = 0.25
+SEED_MAX = 2**32 - 1
+#: No scene value (sizes, positions, heights) may exceed this multiple of the rig's size.
+SCENE_SIZE_FACTOR = 10.0
+#: Heights the renderer accepts: below R down to -L, above R up to 95 % of L (the pupils).
+DEPTH_BELOW_FRACTION_OF_L = 1.0
+DEPTH_ABOVE_FRACTION_OF_L = 0.95
+
+# Peak memory of render_stack, bytes per camera pixel and per sub-ray (measured with tracemalloc:
+# 286 B/px at one ray per pixel, 152 B per further sub-ray, 374 B/px with noise and blur), with margin.
+_BYTES_PER_PIXEL = 400
+_BYTES_PER_SUBRAY = 170
+
+
+def preset_options(preset: str, overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The options of ``preset`` with ``overrides`` applied; raises ``ValueError`` on an unknown preset."""
+    if preset not in PRESETS:
+        raise ValueError(f"preset must be one of {', '.join(PRESETS)}, got {preset!r}")
+    return {**PRESETS[preset], **dict(overrides or {})}
+
+
+def depth_range_mm(rig: Any) -> tuple[float, float]:
+    """Heights (mm above R) a scene may reach for ``rig``: ``(-L, 0.95 L)``."""
+    return -DEPTH_BELOW_FRACTION_OF_L * rig.L_mm, DEPTH_ABOVE_FRACTION_OF_L * rig.L_mm
+
+
+def estimated_render_bytes(rig: Any, options: Any) -> int:
+    """Peak memory of rendering a stack for ``rig`` with ``options``, bytes.
+
+    ``H W (400 + 170 s^2)`` with ``s`` the sub-rays per pixel along each axis: the traced peak
+    is 286 + 152 (s^2 - 1) bytes per pixel noise-free and ~90 more with noise and blur.
+    """
+    subrays = int(options.supersample) ** 2
+    return int(rig.width_px) * int(rig.height_px) * (_BYTES_PER_PIXEL + _BYTES_PER_SUBRAY * subrays)
+
+
+def check_scene_values(rig: Any, name: str, params: Mapping[str, Any]) -> None:
+    """Every numeric scene parameter finite and within ``SCENE_SIZE_FACTOR`` times the rig's size."""
+    limit = SCENE_SIZE_FACTOR * max(rig.L_mm, rig.fw_mm, rig.d_mm)
+    for key, value in params.items():
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            continue  # the scene itself refuses what is not a number
+        if not math.isfinite(value) or abs(value) > limit:
+            raise ValueError(
+                f"scene.{key} must be a finite number of magnitude at most {limit:g} "
+                f"({SCENE_SIZE_FACTOR:g} times the rig's largest dimension), got {value!r}"
+            )
+
+
+def check_scene_depth(rig: Any, name: str, scene: Any) -> None:
+    """The scene's heights within :func:`depth_range_mm`."""
+    low, high = depth_range_mm(rig)
+    z_min, z_max = float(scene.z_min_mm), float(scene.z_max_mm)
+    if not (low <= z_min and z_max < high):
+        raise ValueError(
+            f"scene {name!r} reaches heights {z_min:g} to {z_max:g} mm, outside the rig's depth range "
+            f"{low:g} to {high:g} mm (below R down to -L, above R up to 0.95 L)"
+        )
+
+
+def check_option_values(options: Any) -> None:
+    """Upper bounds of the options (the core already refused non-finite and negative values)."""
+    for key, (maximum, why) in OPTION_MAXIMA.items():
+        value = getattr(options, key, None)
+        if value is not None and value > maximum:
+            raise ValueError(f"options.{key} must be at most {maximum:g} ({why}), got {value!r}")
+    noise_max = NOISE_MAX_FRACTION_OF_FULL_SCALE * options.full_scale
+    if options.noise_grey > noise_max:
+        raise ValueError(
+            f"options.noise_grey must be at most {noise_max:g} grey levels (a quarter of the "
+            f"{options.bit_depth}-bit full scale), got {options.noise_grey!r}"
+        )
+    if options.seed > SEED_MAX:
+        raise ValueError(f"options.seed must be at most {SEED_MAX}, got {options.seed!r}")
+
+
+def check_render_memory(rig: Any, options: Any, limit_bytes: int) -> None:
+    """Refuse a render whose :func:`estimated_render_bytes` exceeds ``limit_bytes``."""
+    needed = estimated_render_bytes(rig, options)
+    if needed > limit_bytes:
+        gib = 1024**3
+        raise ValueError(
+            f"simulating a {rig.width_px}x{rig.height_px} px rig with supersample {options.supersample} needs "
+            f"about {needed / gib:.2f} GiB, more than the limit of {limit_bytes / gib:.2f} GiB "
+            "(GCPS_MAX_SIMULATION_BYTES); use a smaller rig or a lower supersample"
+        )

@@ -1,0 +1,1 @@
+"""``gcps`` subcommands that live in their own modules; each has ``register(subparsers)``."""

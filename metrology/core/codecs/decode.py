@@ -1,0 +1,861 @@
+"""Decoding a stack of any codec to absolute projector coordinates.
+
+Per coded axis (u = projector columns, v = rows) and camera pixel:
+
+* every phase sequence of N >= 3 frames gives, by least squares,
+  ``C = sum_k I_k cos(2 pi shift k / N)``, ``S = sum_k I_k sin(2 pi shift k / N)``,
+  the phase ``theta = atan2(-S, C)``, the modulation ``B = (2/N) hypot(C, S)``, the mean
+  ``A = (1/N) sum_k I_k`` and, for N >= 4, the noise estimate ``sigma = sqrt(R / (N - 3))``
+  from the residual ``R = sum_k I_k^2 - N A^2 - (N/2) B^2`` of the three-parameter fit;
+  its wrapped coordinate is ``x_w = origin + period * ((theta / 2 pi) mod 1)``;
+* the gray code: bit = frame > threshold (strictly), with the threshold the bit's inverse
+  frame, else the mean of the white and black frames, else the mean A of the axis's first
+  phase sequence; ``inverted`` flips the bits; the word's centre is ``origin + (n + 0.5) word``;
+* the unwrapping chain, coarse to fine: a stage of period P turns the previous stage's
+  coordinate ``x_c`` into ``x = x_w + P * round((x_c - x_w) / P)``; a beat of two sequences
+  has ``theta_b = theta_s - theta_l`` and ``P_b = P_s P_l / (P_l - P_s)``; a first stage
+  without gray code is unwrapped against the projector's centre (its period covers the
+  projector); a gray-only axis gives the word's centre.
+
+Reason codes (uint8, one per pixel and axis; the first that applies wins, in this order):
+1 too dark (B of a phase sequence in the chain below ``min_modulation``; gray-only axes:
+half the white-black difference, or half the smallest inverse contrast), 2 saturated (a
+phase frame at or above ``saturation_level``), 5 low inverse contrast (``|frame - inverse|``
+below ``min_inverse_contrast`` for some bit), 4 gray/phase inconsistent (the first phase
+stage lies more than ``consistency_periods`` of its period outside the gray word's cell),
+3 outside the projector (``x`` outside ``[-0.5, size - 0.5]``), 6 slip repaired but kept, 0
+valid. Coordinates are NaN unless the reason is 0 or 6.
+
+Slips: where the gray word is at least as wide as the period of the stage after it, a gray
+bit misread at a cell edge moves a pixel by whole periods while staying consistent. Such
+pixels are found against the median of the valid coordinates of their 5x5 neighbourhood
+(at least 13 of 25 valid): where ``|x - median| > P / 2`` the pixel is moved by
+``P * round((median - x) / P)`` (re-snapped onto the final stage's phase) and kept with reason 6.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from metrology.core.codecs.model import Axis, Codec, Stage
+from metrology.core.patterns import binary_from_gray
+from metrology.core.tiling import run_tiled, thread_scratch
+
+REASON_VALID = 0
+REASON_TOO_DARK = 1
+REASON_SATURATED = 2
+REASON_OUTSIDE = 3
+REASON_INCONSISTENT = 4
+REASON_LOW_INVERSE_CONTRAST = 5
+REASON_SLIP_REPAIRED = 6
+REASONS: dict[int, str] = {
+    REASON_VALID: "valid",
+    REASON_TOO_DARK: "too dark",
+    REASON_SATURATED: "saturated",
+    REASON_OUTSIDE: "outside the projector",
+    REASON_INCONSISTENT: "gray/phase inconsistent",
+    REASON_LOW_INVERSE_CONTRAST: "low inverse contrast",
+    REASON_SLIP_REPAIRED: "slip repaired but kept",
+}
+"""Reason codes of the quality maps."""
+
+TWO_PI = 2 * math.pi
+
+
+@dataclass(frozen=True)
+class CodecDecodeOptions:
+    """Validity rules of :func:`decode_codec` (None: the default, resolved per codec and bit depth).
+
+    Parameters
+    ----------
+    min_modulation : float, optional
+        Smallest accepted modulation B (fringe amplitude), grey levels of the input. Default
+        4 grey levels at 8 bits, scaled with the bit depth (``4 * full_scale / 255``); for the
+        built-in gcps-v1 codec today's 2 % of full scale (4 % on the old ``hypot`` scale).
+    min_inverse_contrast : float, optional
+        Smallest accepted ``|frame - inverse|`` of a gray bit with an inverse frame, grey levels.
+        Default 4 grey levels at 8 bits, scaled with the bit depth.
+    consistency_periods : float, optional
+        How far, in periods of the first phase stage, its coordinate may lie outside the gray
+        word's cell. Default 0.25; gcps-v1 keeps today's 0.35 words = 0.0875 periods.
+    saturation_level : float, optional
+        Grey level at or above which a frame is saturated. Default the full scale of the
+        dtype (255, 65535); no check for float images.
+    repair_slips : bool
+        Repair gray-code slips against the 5x5 median where the word is at least a period wide.
+    exact_phase : bool, optional
+        Use numpy's exact ``arctan2``; default True except for 8-bit stacks, which take
+        OpenCV's ``cartToPolar`` (max error 1.7e-4 rad, far below 8-bit quantisation noise).
+    """
+
+    min_modulation: float | None = None
+    min_inverse_contrast: float | None = None
+    consistency_periods: float | None = None
+    saturation_level: float | None = None
+    repair_slips: bool = True
+    exact_phase: bool | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("min_modulation", "min_inverse_contrast", "consistency_periods", "saturation_level"):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            bad_type = isinstance(value, bool) or not isinstance(value, (int, float))
+            # the saturation level may be infinite (no check: float images)
+            finite_ok = name == "saturation_level" and value == math.inf
+            if bad_type or (not math.isfinite(value) and not finite_ok) or value < 0:
+                raise ValueError(f"option {name} must be a finite number >= 0, got {value!r}")
+        if not isinstance(self.repair_slips, bool):
+            raise ValueError(f"option repair_slips must be a bool, got {self.repair_slips!r}")
+
+    def resolved(self, codec: Codec, dtype: npt.DTypeLike) -> CodecDecodeOptions:
+        """The options with every default filled in for ``codec`` and images of ``dtype``."""
+        dt = np.dtype(dtype)
+        integer = dt.kind in "ui"
+        full = float(np.iinfo(dt).max) if integer else 1.0
+        gcps_v1 = codec.name == "gcps-v1"
+        min_mod = self.min_modulation
+        if min_mod is None:
+            min_mod = 0.02 * full if gcps_v1 else 4.0 * full / 255.0
+        contrast = self.min_inverse_contrast
+        if contrast is None:
+            contrast = 4.0 * full / 255.0
+        consistency = self.consistency_periods
+        if consistency is None:
+            consistency = 0.35 / 4 if gcps_v1 else 0.25
+        saturation = self.saturation_level
+        if saturation is None:
+            saturation = full if integer else math.inf
+        exact = self.exact_phase if self.exact_phase is not None else dt != np.uint8
+        return CodecDecodeOptions(
+            min_modulation=float(min_mod),
+            min_inverse_contrast=float(contrast),
+            consistency_periods=float(consistency),
+            saturation_level=float(saturation),
+            repair_slips=self.repair_slips,
+            exact_phase=bool(exact),
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """The options as a JSON-ready dict (inf as None)."""
+        return {k: (None if isinstance(v, float) and math.isinf(v) else v) for k, v in asdict(self).items()}
+
+
+@dataclass(frozen=True, eq=False)
+class AxisDecoding:
+    """The decoding of one coded axis.
+
+    Attributes
+    ----------
+    coordinate : (H, W) float32
+        Absolute projector coordinate, projector units; NaN where not decoded.
+    modulation : (H, W) float32
+        B of the chain's final phase sequence (a beat: the smaller of its two), grey levels;
+        gray-only axes: half the white-black difference (or the smallest inverse contrast).
+    mean : (H, W) float32
+        A of the axis's first phase sequence, or the white/black mean, grey levels (NaN if none).
+    noise : (H, W) float32
+        Fit-residual noise of the final phase sequence, grey levels; NaN for N = 3 or gray only.
+    reason : (H, W) uint8
+        Reason codes (:data:`REASONS`).
+    slips_repaired : int
+        Pixels moved by the slip repair (reason 6).
+    """
+
+    coordinate: np.ndarray
+    modulation: np.ndarray
+    mean: np.ndarray
+    noise: np.ndarray
+    reason: np.ndarray
+    slips_repaired: int = 0
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(H, W) bool: decoded (reason 0 or 6)."""
+        return (self.reason == REASON_VALID) | (self.reason == REASON_SLIP_REPAIRED)
+
+    def reason_counts(self) -> dict[str, int]:
+        """Pixels per reason name."""
+        counts = np.bincount(self.reason.ravel(), minlength=len(REASONS))
+        return {REASONS[i]: int(counts[i]) for i in REASONS}
+
+
+@dataclass(frozen=True, eq=False)
+class CodecDecoding:
+    """Decoded projector coordinates of a stack (one :class:`AxisDecoding` per coded axis).
+
+    Attributes
+    ----------
+    axes : mapping of str to AxisDecoding
+    options : CodecDecodeOptions
+        The resolved validity rules used.
+    saturated_pixels : int
+        Pixels at or above the saturation level in at least one frame of the codec (flagged;
+        refused only where a phase frame is saturated).
+    shape : (H, W)
+    """
+
+    axes: Mapping[str, AxisDecoding]
+    options: CodecDecodeOptions
+    saturated_pixels: int
+    shape: tuple[int, int]
+    stats: dict[str, Any] = field(default_factory=dict)
+
+    def uv(self) -> np.ndarray:
+        """``(H, W, 2)`` float32: u and v, NaN for an axis that is not coded or a pixel not decoded."""
+        out = np.full((*self.shape, 2), np.nan, np.float32)
+        for index, name in enumerate(("u", "v")):
+            if name in self.axes:
+                out[..., index] = self.axes[name].coordinate
+        return out
+
+    def quality_arrays(self) -> dict[str, np.ndarray]:
+        """The quality file's arrays: ``modulation_a``, ``noise_a`` (float32) and ``reason_a`` (uint8)."""
+        arrays: dict[str, np.ndarray] = {}
+        for name, axis in self.axes.items():
+            arrays[f"modulation_{name}"] = axis.modulation.astype(np.float32, copy=False)
+            arrays[f"noise_{name}"] = axis.noise.astype(np.float32, copy=False)
+            arrays[f"reason_{name}"] = axis.reason.astype(np.uint8, copy=False)
+        return arrays
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready counts per axis and reason, slips, saturated pixels, the options."""
+        return {
+            "shape": list(self.shape),
+            "axes": {
+                name: {
+                    "decoded": int(axis.valid.sum()),
+                    "slips_repaired": axis.slips_repaired,
+                    "reasons": axis.reason_counts(),
+                }
+                for name, axis in self.axes.items()
+            },
+            "saturated_pixels": self.saturated_pixels,
+            "options": self.options.to_dict(),
+        }
+
+
+# ----------------------------------------------------------------------------- plan
+@dataclass(frozen=True)
+class _SequencePlan:
+    frames: tuple[int, ...]
+    weights: np.ndarray  # (3, N) float32: cos, -sin (so row 1 gives -S), ones
+    steps: int
+    period: float
+    origin: float
+    need_noise: bool
+
+
+@dataclass(frozen=True)
+class _AxisPlan:
+    name: str
+    axis: Axis
+    extent: int
+    sequences: tuple[_SequencePlan, ...]
+    chain: tuple[Stage, ...]
+    used: tuple[int, ...]  # phase sequences used by the chain
+    final: tuple[int, ...]  # sequences whose B is the modulation (the final stage's)
+    gray_lut: np.ndarray | None  # gray word -> centre, float32
+    gray_positions: tuple[int, ...]  # bit position of each gray frame
+    slip_period: float  # > 0 when slips are possible: period of the stage after the gray
+
+
+def _plan(codec: Codec, with_noise: bool = True) -> list[_AxisPlan]:
+    plans = []
+    for name, axis in codec.axes.items():
+        chain = axis.chain()
+        used: list[int] = []
+        for stage in chain:
+            for i in stage.indices:
+                if i not in used:
+                    used.append(i)
+        last = chain[-1]
+        final = last.indices
+        noise_index = min(final, key=lambda j: axis.phase[j].period) if final else -1
+        sequences = []
+        for i, seq in enumerate(axis.phase):
+            k = np.arange(seq.steps)
+            delta = 2 * np.pi * seq.shift * k / seq.steps
+            weights = np.stack([np.cos(delta), -np.sin(delta), np.ones(seq.steps)]).astype(np.float32)
+            sequences.append(
+                _SequencePlan(
+                    seq.frames,
+                    weights,
+                    seq.steps,
+                    seq.period,
+                    seq.origin,
+                    need_noise=with_noise and seq.steps >= 4 and i == noise_index,
+                )
+            )
+        lut = None
+        positions: tuple[int, ...] = ()
+        slip = 0.0
+        g = axis.gray
+        if g is not None:
+            bits = g.bits
+            positions = tuple(bits - 1 - i if g.order == "msb_first" else i for i in range(bits))
+            words = np.arange(2**bits, dtype=np.int64)
+            if g.inverted:
+                words = words ^ (2**bits - 1)
+            binary = binary_from_gray(words, n_bits=bits)
+            lut = (g.origin + (binary + 0.5) * g.word).astype(np.float32)
+            if len(chain) > 1 and chain[0].kind == "gray" and g.word >= chain[1].period:
+                slip = chain[1].period
+        plans.append(
+            _AxisPlan(name, axis, codec.extent(name), tuple(sequences), chain, tuple(used), final, lut, positions, slip)
+        )
+    return plans
+
+
+# ----------------------------------------------------------------------------- decoding
+def validate_codec_stack(images: np.ndarray, codec: Codec) -> np.ndarray:
+    """Check that ``images`` is a ``(frames, H, W)`` stack of ``codec``: returns it as an ndarray.
+
+    Raises
+    ------
+    ValueError
+        If the frame count differs from the codec's or the dtype is unsupported.
+    """
+    stack = np.asarray(images)
+    if stack.ndim != 3 or 0 in stack.shape:
+        raise ValueError(f"images must be a non-empty (frames, H, W) array, got shape {stack.shape}")
+    if stack.shape[0] != codec.n_frames:
+        raise ValueError(f"the stack holds {stack.shape[0]} frames but the codec describes {codec.n_frames}")
+    if stack.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
+        raise ValueError(f"images must be uint8, uint16 or float, got dtype {stack.dtype}")
+    return stack
+
+
+def decode_codec(
+    images: npt.ArrayLike,
+    codec: Codec,
+    options: CodecDecodeOptions | None = None,
+    *,
+    with_noise: bool = True,
+    threads: int | None = None,
+) -> CodecDecoding:
+    """Decode a stack of ``codec`` to absolute projector coordinates.
+
+    Parameters
+    ----------
+    images : (frames, H, W) array of uint8, uint16 or float
+        Camera images in the codec's frame order, grey levels.
+    codec : Codec
+    options : CodecDecodeOptions, optional
+        Validity rules; defaults resolved per codec and bit depth (recorded in the result).
+    with_noise : bool
+        Compute the fit-residual noise maps (N >= 4); without them ``noise`` is NaN and the
+        decoding skips the sums of squares (``gcps decode`` asks for them with ``--quality``).
+    threads : int, optional
+        Worker threads over row tiles (default :data:`~metrology.core.tiling.DEFAULT_THREADS`).
+
+    Returns
+    -------
+    CodecDecoding
+        Per coded axis: coordinate, modulation, mean, noise (float32) and reason (uint8) maps.
+
+    Raises
+    ------
+    ValueError
+        If the stack does not match the codec.
+    """
+    stack = validate_codec_stack(np.asarray(images), codec)
+    if stack.dtype == np.float64:
+        stack = stack.astype(np.float32)
+    opts = (options or CodecDecodeOptions()).resolved(codec, stack.dtype)
+    _, height, width = stack.shape
+    plans = _plan(codec, with_noise)
+    outputs: dict[str, dict[str, np.ndarray]] = {}
+    for plan in plans:
+        outputs[plan.name] = {
+            "coordinate": np.empty((height, width), np.float32),
+            "modulation": np.empty((height, width), np.float32),
+            "mean": np.empty((height, width), np.float32),
+            "noise": np.empty((height, width), np.float32),
+            "reason": np.empty((height, width), np.uint8),
+        }
+    used_frames = sorted(
+        {f for plan in plans for s in plan.used for f in plan.sequences[s].frames}
+        | {f for plan in plans if plan.axis.gray is not None for f in plan.axis.gray.frames}
+        | {
+            f
+            for plan in plans
+            if plan.axis.gray is not None and plan.axis.gray.inverse_frames
+            for f in plan.axis.gray.inverse_frames
+        }
+        | set(codec.white)
+        | set(codec.black)
+    )
+    saturated_counts: list[int] = []
+    candidates: dict[str, list[np.ndarray]] = {plan.name: [] for plan in plans}
+    tile_starts: list[int] = []
+    lock = threading.Lock()
+
+    def run(rows: slice) -> None:
+        n_sat = _decode_tile(stack, rows, codec, plans, opts, outputs, used_frames)
+        found = {}
+        for plan in plans:
+            if opts.repair_slips and plan.slip_period > 0:
+                found[plan.name] = slip_candidates(outputs[plan.name]["coordinate"][rows], plan.slip_period / 2)
+                found[plan.name] += (rows.start or 0) * width
+        with lock:
+            saturated_counts.append(n_sat)
+            tile_starts.append(rows.start or 0)
+            for name, flat in found.items():
+                candidates[name].append(flat)
+
+    run_tiled(run, height, width, threads)
+    axes: dict[str, AxisDecoding] = {}
+    for plan in plans:
+        out = outputs[plan.name]
+        slips = 0
+        if opts.repair_slips and plan.slip_period > 0:
+            final_period = plan.chain[-1].period
+            # jumps across the tiles' first rows (each tile saw only its own rows)
+            for start in sorted(tile_starts):
+                if start > 0:
+                    pair = slip_candidates(out["coordinate"][start - 1 : start + 1], plan.slip_period / 2)
+                    candidates[plan.name].append(pair + (start - 1) * width)
+            found = np.concatenate(candidates[plan.name]) if candidates[plan.name] else np.empty(0, np.intp)
+            slips = repair_slips(out["coordinate"], out["reason"], plan.slip_period, final_period, found)
+        axes[plan.name] = AxisDecoding(
+            coordinate=out["coordinate"],
+            modulation=out["modulation"],
+            mean=out["mean"],
+            noise=out["noise"],
+            reason=out["reason"],
+            slips_repaired=slips,
+        )
+    return CodecDecoding(axes=axes, options=opts, saturated_pixels=int(sum(saturated_counts)), shape=(height, width))
+
+
+def _decode_tile(
+    stack: np.ndarray,
+    rows: slice,
+    codec: Codec,
+    plans: list[_AxisPlan],
+    opts: CodecDecodeOptions,
+    outputs: dict[str, dict[str, np.ndarray]],
+    used_frames: list[int],
+) -> int:
+    scratch = thread_scratch()
+    tile = stack[:, rows]
+    h, w = tile.shape[1:]
+    shape = (h, w)
+    integer = stack.dtype.kind in "ui"
+    assert opts.saturation_level is not None
+
+    # saturation: the brightest value of each pixel over the phase frames (refused) and over all (flagged)
+    check_saturation = math.isfinite(opts.saturation_level) and not (
+        integer and opts.saturation_level > np.iinfo(stack.dtype).max
+    )
+    phase_frames = sorted({f for plan in plans for i in plan.used for f in plan.sequences[i].frames})
+    phase_saturated: np.ndarray | None = None
+    n_saturated = 0
+    if check_saturation:
+        level = stack.dtype.type(opts.saturation_level) if integer else np.float32(opts.saturation_level)
+        peak = scratch.get("peak", shape, stack.dtype)
+        others = [f for f in used_frames if f not in phase_frames]
+        if phase_frames:
+            _max_into(peak, tile, phase_frames)
+            phase_saturated = np.greater_equal(peak, level, out=scratch.get("phase_sat", shape, bool))
+            for f in others:
+                np.maximum(peak, tile[f], out=peak)
+        else:
+            _max_into(peak, tile, others)
+        n_saturated = int(np.count_nonzero(peak >= level))
+
+    # white / black threshold, shared by the axes
+    white_black: np.ndarray | None = None
+    white_black_half: np.ndarray | None = None
+    white_black_mid: np.ndarray | None = None
+    if codec.white and codec.black:
+        wmean = _mean_of(tile, codec.white, scratch.get("wmean", shape, np.float32))
+        bmean = _mean_of(tile, codec.black, scratch.get("bmean", shape, np.float32))
+        white_black_mid = np.add(wmean, bmean, out=scratch.get("wbmid", shape, np.float32))
+        white_black_mid *= np.float32(0.5)
+        white_black_half = np.subtract(wmean, bmean, out=wmean)
+        white_black_half *= np.float32(0.5)
+        white_black = np.floor(white_black_mid).astype(stack.dtype) if integer else white_black_mid
+
+    for plan in plans:
+        out = {key: value[rows] for key, value in outputs[plan.name].items()}
+        _decode_axis_tile(
+            tile, plan, opts, out, integer, phase_saturated, white_black, white_black_half, white_black_mid, scratch
+        )
+    return n_saturated
+
+
+def _max_into(peak: np.ndarray, tile: np.ndarray, frames: list[int]) -> None:
+    np.copyto(peak, tile[frames[0]])
+    for f in frames[1:]:
+        np.maximum(peak, tile[f], out=peak)
+
+
+def _mean_of(tile: np.ndarray, frames: tuple[int, ...], out: np.ndarray) -> np.ndarray:
+    np.copyto(out, tile[frames[0]], casting="unsafe")
+    for f in frames[1:]:
+        np.add(out, tile[f], out=out, casting="unsafe")
+    if len(frames) > 1:
+        out *= np.float32(1 / len(frames))
+    return out
+
+
+@dataclass
+class _PhaseResult:
+    frac: np.ndarray  # (h, w) float32 in [0, 1): theta / 2 pi
+    modulation: np.ndarray  # B
+    total: np.ndarray  # sum of the frames (N A)
+    noise: np.ndarray | None
+
+
+def _phase_tile(tile: np.ndarray, seq: _SequencePlan, exact: bool, scratch: Any, tag: str) -> _PhaseResult:
+    """Least-squares phase, modulation, sum and (N >= 4, when asked) noise of one sequence on a tile.
+
+    The sum and the sum of squares come from OpenCV's accumulators reading the frames directly
+    (float32 for 8-bit stacks, whose sums stay exact integers below 2**24; float64 otherwise);
+    ``C`` and ``-S`` from ``einsum`` (numpy's own loops: OpenBLAS threads busy-wait badly on a
+    shared machine) over the differences of frames half a turn apart when N is even. The noise
+    ``R = sum I^2 - (sum I)^2 / N - (N / 2) B^2`` is combined in float64 (it is a small
+    difference of large sums).
+    """
+    h, w = tile.shape[1:]
+    n = seq.steps
+    work = np.float32 if tile.dtype == np.uint8 else np.float64
+    cv_work = cv2.CV_32F if work is np.float32 else cv2.CV_64F
+    frames = seq.frames
+    total = scratch.get(f"total{tag}", (h, w), work)
+    total.fill(0)
+    sq = scratch.get(f"squares{work.__name__}", (h, w), work) if seq.need_noise else None
+    if sq is not None:
+        sq.fill(0)
+    for fi in frames:  # OpenCV's accumulators read the 8/16-bit frames directly
+        cv2.accumulate(tile[fi], total)
+        if sq is not None:
+            cv2.accumulateSquare(tile[fi], sq)
+    res = scratch.get(f"sums{tag}", (2, h * w), work)
+    if n % 2 == 0:
+        # cos and sin change sign half a turn later: C = sum_{k < N/2} cos_k (I_k - I_{k + N/2}), same for S
+        half = n // 2
+        d = scratch.get(f"pairs{work.__name__}", (half, h, w), work)
+        for k in range(half):
+            cv2.subtract(tile[frames[k]], tile[frames[k + half]], dst=d[k], dtype=cv_work)
+        np.einsum("ik,kj->ij", seq.weights[:2, :half].astype(work, copy=False), d.reshape(half, h * w), out=res)
+    else:
+        f = scratch.get(f"frames{work.__name__}", (n, h, w), work)
+        for k, fi in enumerate(frames):
+            np.copyto(f[k], tile[fi], casting="unsafe")
+        np.einsum("ik,kj->ij", seq.weights[:2].astype(work, copy=False), f.reshape(n, h * w), out=res)
+    c, neg_s = (res[i].reshape(h, w) for i in range(2))
+    mag = scratch.get(f"mag{tag}", (h, w), np.float32)
+    angle = scratch.get(f"angle{tag}", (h, w), np.float32)
+    if exact:
+        np.copyto(angle, np.arctan2(neg_s, c), casting="unsafe")
+        angle += np.float32(TWO_PI) * (angle < 0)
+        np.copyto(mag, np.hypot(c, neg_s), casting="unsafe")
+    else:
+        cv2.cartToPolar(c, neg_s, magnitude=mag, angle=angle)
+    # frac in [0, 1]: frac = 1 (theta = 2 pi) unwraps like 0, the rounding below absorbs it
+    frac = np.multiply(angle, np.float32(1 / TWO_PI), out=angle)
+    b = np.multiply(mag, np.float32(2 / n), out=mag)
+    noise = None
+    if sq is not None:
+        sq = sq.ravel()
+        if work is np.float32:
+            # 8-bit: sum I^2 is an exact integer below 2**24; total * (total / N) ~ 1e6 keeps ~0.1 grey^2
+            t = scratch.get("resid_t", (h * w,), np.float32)
+            cr, sr, tr = c.ravel(), neg_s.ravel(), total.ravel()
+            np.multiply(tr, np.float32(1 / n), out=t)
+            t *= tr
+            sq -= t
+            np.multiply(cr, cr, out=t)
+            t += sr * sr
+            t *= np.float32(2 / n)
+            sq -= t
+            np.maximum(sq, 0, out=sq)
+            sq *= np.float32(1 / (n - 3))
+            noise = np.sqrt(sq, out=sq).reshape(h, w)
+        else:
+            r = sq.astype(np.float64)
+            cc, ss, tt = c.ravel(), neg_s.ravel(), total.ravel()
+            r -= (cc * cc + ss * ss) * (2 / n) + tt * tt * (1 / n)
+            np.maximum(r, 0, out=r)
+            r *= 1 / (n - 3)
+            noise = np.sqrt(r).astype(np.float32).reshape(h, w)
+    total32 = total if total.dtype == np.float32 else total.astype(np.float32)
+    return _PhaseResult(frac=frac, modulation=b, total=total32, noise=noise)
+
+
+def _decode_axis_tile(
+    tile: np.ndarray,
+    plan: _AxisPlan,
+    opts: CodecDecodeOptions,
+    out: dict[str, np.ndarray],
+    integer: bool,
+    phase_saturated: np.ndarray | None,
+    white_black: np.ndarray | None,
+    white_black_half: np.ndarray | None,
+    white_black_mid: np.ndarray | None,
+    scratch: Any,
+) -> None:
+    h, w = tile.shape[1:]
+    shape = (h, w)
+    assert opts.min_modulation is not None and opts.min_inverse_contrast is not None
+    assert opts.consistency_periods is not None
+    exact = bool(opts.exact_phase)
+    min_mod = np.float32(opts.min_modulation)
+    dark = scratch.get(f"dark{plan.name}", shape, bool)
+    dark.fill(False)
+    results: dict[int, _PhaseResult] = {}
+    for i in plan.used:
+        r = results[i] = _phase_tile(tile, plan.sequences[i], exact, scratch, f"{plan.name}{i}")
+        dark |= r.modulation < min_mod
+    first_total: np.ndarray | None = None
+    first: _PhaseResult | None = None
+    if plan.axis.phase:
+        first = results.get(0)
+        if first is None:  # the gray threshold (and the mean map) need the first sequence
+            first = _phase_tile(tile, plan.sequences[0], exact, scratch, f"{plan.name}0")
+        first_total = first.total
+    mean = out["mean"]
+    if first_total is not None:
+        np.multiply(first_total, np.float32(1 / plan.sequences[0].steps), out=mean)
+    elif white_black_mid is not None:
+        np.copyto(mean, white_black_mid)
+    else:
+        mean.fill(np.nan)
+
+    # gray code
+    centre: np.ndarray | None = None
+    low_contrast: np.ndarray | None = None
+    g = plan.axis.gray
+    if g is not None:
+        assert plan.gray_lut is not None
+        word_dtype = np.uint8 if g.bits <= 8 else np.uint16
+        word = scratch.get(f"word{plan.name}", shape, word_dtype)
+        word.fill(0)
+        weighted = scratch.get(f"weighted{plan.name}", shape, word_dtype)
+        bit = scratch.get("bit", shape, bool)
+        threshold: np.ndarray | None = None
+        min_contrast: np.ndarray | None = None
+        if g.inverse_frames is None:
+            if white_black is not None:
+                threshold = white_black
+            else:
+                assert first_total is not None
+                n0 = np.float32(plan.sequences[0].steps)
+                if tile.dtype == np.uint8:
+                    # floor(S / N) = round((S - (N - 1) / 2) / N) for an integer sum S (no ties), and
+                    # frame > A <=> frame > floor(A) for integer frames; saturating 8-bit output
+                    n_steps = plan.sequences[0].steps
+                    threshold = cv2.convertScaleAbs(
+                        first_total,
+                        dst=scratch.get(f"threshold{plan.name}", shape, np.uint8),
+                        alpha=1 / n_steps,
+                        beta=-(n_steps - 1) / (2 * n_steps),
+                    )
+                elif integer:
+                    # floor((sum + 0.5) / N) = floor(A) exactly for integer sums: frame > A <=> frame > floor(A)
+                    t = (first_total + np.float32(0.5)) / n0
+                    threshold = np.floor(t, out=t).astype(tile.dtype)
+                else:
+                    threshold = first_total / n0
+        else:
+            low_contrast = scratch.get(f"lowc{plan.name}", shape, bool)
+            low_contrast.fill(False)
+            min_contrast = scratch.get(f"minc{plan.name}", shape, tile.dtype)
+            min_contrast.fill(np.iinfo(tile.dtype).max if integer else np.inf)
+            contrast = scratch.get("contrast", shape, tile.dtype)
+        for i, f in enumerate(g.frames):
+            frame = tile[f]
+            if g.inverse_frames is not None:
+                assert low_contrast is not None and min_contrast is not None
+                inverse = tile[g.inverse_frames[i]]
+                np.greater(frame, inverse, out=bit)
+                cv2.absdiff(frame, inverse, dst=contrast)
+                np.minimum(min_contrast, contrast, out=min_contrast)
+            else:
+                assert threshold is not None
+                np.greater(frame, threshold, out=bit)
+            np.multiply(bit.view(np.uint8), word_dtype(1 << plan.gray_positions[i]), out=weighted)
+            np.bitwise_or(word, weighted, out=word)
+        if min_contrast is not None and low_contrast is not None:
+            np.less(min_contrast, np.float32(opts.min_inverse_contrast), out=low_contrast)
+        if word_dtype == np.uint8:
+            lut = np.full(256, np.nan, np.float32)
+            lut[: plan.gray_lut.size] = plan.gray_lut
+            centre = cv2.LUT(word, lut, dst=scratch.get(f"centre{plan.name}", shape, np.float32))
+        else:
+            centre = np.take(plan.gray_lut, word, out=scratch.get(f"centre{plan.name}", shape, np.float32))
+        if not plan.used:
+            # gray-only chain: modulation from white/black, else half the smallest inverse contrast,
+            # else the B of the phase sequence that gives the threshold
+            modulation = out["modulation"]
+            if white_black_half is not None:
+                np.copyto(modulation, white_black_half)
+            elif min_contrast is not None:
+                np.multiply(min_contrast, np.float32(0.5), out=modulation, casting="unsafe")
+            else:
+                assert first is not None  # validation: a gray code has a threshold source
+                np.copyto(modulation, first.modulation)
+            dark |= ~(modulation >= min_mod)
+
+    # unwrapping chain, coarse to fine
+    x = out["coordinate"]
+    inconsistent: np.ndarray | None = None
+    previous: Stage | None = None
+    tmp = scratch.get("unwrap_tmp", shape, np.float32)
+    for stage in plan.chain:
+        if stage.kind == "gray":
+            assert centre is not None
+            np.copyto(x, centre)
+            previous = stage
+            continue
+        if stage.kind == "phase":
+            frac = results[stage.indices[0]].frac
+        else:
+            i, j = stage.indices
+            s_i, l_i = (i, j) if plan.sequences[i].period < plan.sequences[j].period else (j, i)
+            frac = np.subtract(results[s_i].frac, results[l_i].frac, out=scratch.get("beat", shape, np.float32))
+            frac += np.float32(1) * (frac < 0)
+        # x_w = origin + P frac; x = x_w + P round((x_c - x_w) / P) = origin + P (frac + round((x_c - origin)/P - frac))
+        if previous is None:
+            x.fill((plan.extent - 1) / 2)
+        # k = round((x_c - origin) / P - frac); x = origin + P (frac + k), two fused passes
+        cv2.addWeighted(x, 1 / stage.period, frac, -1.0, -stage.origin / stage.period, dst=tmp)
+        np.rint(tmp, out=tmp)
+        cv2.addWeighted(tmp, stage.period, frac, stage.period, stage.origin, dst=x)
+        if previous is not None and previous.kind == "gray":
+            assert centre is not None and g is not None
+            tolerance = np.float32(g.word / 2 + opts.consistency_periods * stage.period)
+            inconsistent = scratch.get(f"incons{plan.name}", shape, bool)
+            cv2.absdiff(x, centre, dst=tmp)
+            np.greater(tmp, tolerance, out=inconsistent)
+        previous = stage
+
+    if plan.used:
+        final = [results[i].modulation for i in plan.final]
+        if len(final) == 1:
+            np.copyto(out["modulation"], final[0])
+        else:
+            np.minimum(final[0], final[1], out=out["modulation"])
+    noise_out = out["noise"]
+    noise = next((results[i].noise for i in plan.used if results[i].noise is not None), None)
+    if noise is not None:
+        np.copyto(noise_out, noise)
+    else:
+        noise_out.fill(np.nan)
+
+    # reasons: the flags form a 5-bit index (dark 16, saturated 8, low contrast 4, inconsistent 2,
+    # outside 1) that a table turns into the first applicable reason
+    flags = scratch.get("flags", shape, np.uint8)
+    flag = scratch.get("flag", shape, np.uint8)
+    inside = np.greater_equal(x, np.float32(-0.5), out=scratch.get("inside", shape, bool))
+    inside &= x <= np.float32(plan.extent - 0.5)
+    np.subtract(np.uint8(1), inside.view(np.uint8), out=flags)
+    for mask, weight in (
+        (inconsistent, 2),
+        (low_contrast, 4),
+        (phase_saturated if plan.used else None, 8),
+        (dark, 16),
+    ):
+        if mask is not None:
+            np.multiply(mask.view(np.uint8), np.uint8(weight), out=flag)
+            np.bitwise_or(flags, flag, out=flags)
+    reason = cv2.LUT(flags, _REASON_LUT, dst=out["reason"])
+    x += cv2.LUT(reason, _NAN_UNLESS_VALID_LUT, dst=scratch.get("nan_or_zero", shape, np.float32))
+
+
+def _reason_lut() -> np.ndarray:
+    lut = np.zeros(256, np.uint8)
+    for index in range(32):
+        for bit, code in (
+            (16, REASON_TOO_DARK),
+            (8, REASON_SATURATED),
+            (4, REASON_LOW_INVERSE_CONTRAST),
+            (2, REASON_INCONSISTENT),
+            (1, REASON_OUTSIDE),
+        ):
+            if index & bit:
+                lut[index] = code
+                break
+    return lut
+
+
+_REASON_LUT = _reason_lut()
+_NAN_UNLESS_VALID_LUT = np.where(np.arange(256) == REASON_VALID, 0, np.nan).astype(np.float32)
+
+
+def slip_candidates(x: np.ndarray, half_period: float) -> np.ndarray:
+    """Flat indices (into ``x``) of pixels differing by more than ``half_period`` from a 4-neighbour.
+
+    ``x``: (h, W) float32 coordinates, NaN where invalid (NaN never counts as a jump).
+    """
+    half = float(half_period)
+    h, w = x.shape
+    jump = np.zeros((h, w), np.uint8)
+    if w > 1:
+        mx = np.greater(cv2.absdiff(x[:, 1:], x[:, :-1]), half).view(np.uint8)  # NaN compares false
+        cv2.bitwise_or(jump[:, 1:], mx, dst=jump[:, 1:])
+        cv2.bitwise_or(jump[:, :-1], mx, dst=jump[:, :-1])
+    if h > 1:
+        my = np.greater(cv2.absdiff(x[1:, :], x[:-1, :]), half).view(np.uint8)
+        cv2.bitwise_or(jump[1:, :], my, dst=jump[1:, :])
+        cv2.bitwise_or(jump[:-1, :], my, dst=jump[:-1, :])
+    return np.flatnonzero(jump)
+
+
+def repair_slips(
+    coordinate: np.ndarray,
+    reason: np.ndarray,
+    slip_period: float,
+    final_period: float,
+    candidates: np.ndarray | None = None,
+) -> int:
+    """Repair whole-period slips against the 5x5 median, in place; returns the number repaired.
+
+    Candidates are valid pixels differing by more than ``slip_period / 2`` from a valid
+    4-neighbour. A candidate whose 5x5 neighbourhood holds at least 13 valid coordinates and
+    lies more than ``slip_period / 2`` from their median ``m`` is moved to
+    ``x + P_f round(P round((m - x) / P) / P_f)`` (P the slip period, P_f the final stage's)
+    and given reason 6.
+    """
+    x = coordinate
+    half = np.float32(slip_period / 2)
+    flat = slip_candidates(x, slip_period / 2) if candidates is None else np.unique(candidates)
+    rows, cols = np.divmod(flat, x.shape[1])
+    if rows.size == 0:
+        return 0
+    height, width = x.shape
+    offsets = np.arange(-2, 3)
+    row_index = rows[:, None, None] + offsets[None, :, None]
+    col_index = cols[:, None, None] + offsets[None, None, :]
+    inside = (row_index >= 0) & (row_index < height) & (col_index >= 0) & (col_index < width)
+    window = x[np.clip(row_index, 0, height - 1), np.clip(col_index, 0, width - 1)]
+    window[~inside] = np.nan  # beyond the image
+    window = np.sort(window.reshape(rows.size, 25), axis=1)  # NaN sorts last
+    count = np.count_nonzero(np.isfinite(window), axis=1)
+    enough = count >= 13
+    index = np.arange(rows.size)
+    low = window[index, np.maximum(count - 1, 0) // 2]
+    high = window[index, np.minimum(count // 2, 24)]
+    med = np.where(enough, np.float32(0.5) * (low + high), np.float32(np.nan))
+    values = x[rows, cols]
+    with np.errstate(invalid="ignore"):
+        slipped = enough & (np.abs(values - med) > half)
+    if not slipped.any():
+        return 0
+    r, c = rows[slipped], cols[slipped]
+    shift = slip_period * np.rint((med[slipped] - values[slipped]) / slip_period)
+    snapped = final_period * np.rint(shift / final_period)
+    x[r, c] = values[slipped] + snapped.astype(np.float32)
+    reason[r, c] = REASON_SLIP_REPAIRED
+    return int(slipped.sum())

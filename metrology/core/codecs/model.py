@@ -1,0 +1,651 @@
+"""The codec model (gcps-codec/1): a pattern sequence described as data.
+
+A codec says which camera frame shows which pattern and how the frames decode to absolute
+projector coordinates, per coded axis: ``u`` (projector columns) and ``v`` (projector rows).
+Coordinates are in projector units: ``x = j`` is the centre of projector column (or row) ``j``
+and a projector pixel spans ``[j - 0.5, j + 0.5)``, as in OpenCV. docs/codecs.md describes the
+JSON format; this module holds its dataclasses, their validation (every bad field is named),
+JSON reading and writing, the natural order of frame files, and the built-in ``gcps-v1``.
+
+Phase sequence (N >= 3 frames): frame k shows
+``I_k = A + B cos(2 pi (x - origin) / period + 2 pi shift k / N)``.
+Gray code (``bits`` frames): word n (reflected gray code ``g = n ^ (n >> 1)``) covers
+``[origin + n word, origin + (n + 1) word)``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+CODEC_FORMAT = "gcps-codec/1"
+"""Value of the ``codec`` key of every codec file."""
+
+AXES: tuple[str, ...] = ("u", "v")
+"""Coded axes: ``u`` = projector columns (x), ``v`` = projector rows (y)."""
+
+WAVEFORMS: tuple[str, ...] = ("sine", "square")
+GRAY_ORDERS: tuple[str, ...] = ("msb_first", "lsb_first")
+MAX_GRAY_BITS = 16
+"""Largest number of gray-code bits of one axis (65536 words)."""
+
+BUILTIN_NAMES: tuple[str, ...] = ("gcps-v1",)
+"""Names accepted by :func:`builtin_codec` (``gcps-v1`` or ``gcps-v1:WIDTHxHEIGHT``)."""
+
+
+class CodecError(ValueError):
+    """A codec is malformed; the one-line message names the field and the problem."""
+
+
+@dataclass(frozen=True)
+class PhaseSequence:
+    """One N-step phase-shift sequence along an axis.
+
+    Attributes
+    ----------
+    frames : tuple of int
+        Frame indices, in shift order k = 0 .. N-1; N >= 3.
+    period : float
+        Fringe period, projector units, > 0.
+    shift : {+1, -1}
+        Sign of the phase step ``2 pi shift k / N``.
+    origin : float
+        Projector coordinate where the phase ``theta = 2 pi (x - origin) / period`` is 0.
+    waveform : {"sine", "square"}
+        Square is a 50 % duty square wave, 1 where the cosine is >= 0.
+    """
+
+    frames: tuple[int, ...]
+    period: float
+    shift: int = 1
+    origin: float = 0.0
+    waveform: str = "sine"
+
+    @property
+    def steps(self) -> int:
+        """N, the number of frames."""
+        return len(self.frames)
+
+
+@dataclass(frozen=True)
+class GrayCode:
+    """A reflected binary gray code along an axis.
+
+    Attributes
+    ----------
+    frames : tuple of int
+        One frame per bit, in projection order (``order`` says which bit comes first).
+    word : float
+        Width of one code word, projector units, > 0.
+    order : {"msb_first", "lsb_first"}
+    origin : float
+        Left (top) edge of word 0; an OpenCV-style single-pixel code (word 1) has origin -0.5.
+    inverse_frames : tuple of int or None
+        Each bit's inverse image (same length as ``frames``): the bit's threshold.
+    inverted : bool
+        Flip every bit after thresholding.
+    """
+
+    frames: tuple[int, ...]
+    word: float
+    order: str = "msb_first"
+    origin: float = 0.0
+    inverse_frames: tuple[int, ...] | None = None
+    inverted: bool = False
+
+    @property
+    def bits(self) -> int:
+        """Number of bit frames."""
+        return len(self.frames)
+
+    def centre(self, n: int) -> float:
+        """Projector coordinate of the centre of word ``n``: ``origin + (n + 0.5) word``."""
+        return self.origin + (n + 0.5) * self.word
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One stage of an unwrapping chain.
+
+    ``kind`` is ``"gray"``, ``"phase"`` (``indices = (i,)``) or ``"beat"`` (``indices = (i, j)``).
+    ``period`` and ``origin`` are the stage's (for a beat: ``P_b = P_s P_l / (P_l - P_s)``,
+    ``o_b = P_b (o_s / P_s - o_l / P_l)``, with s the shorter and l the longer period);
+    a gray stage has period 0.
+    """
+
+    kind: str
+    indices: tuple[int, ...]
+    period: float
+    origin: float
+
+    @property
+    def label(self) -> str:
+        if self.kind == "gray":
+            return "gray"
+        return f"{self.kind}:{','.join(str(i) for i in self.indices)}"
+
+
+@dataclass(frozen=True)
+class Axis:
+    """How one projector axis is coded.
+
+    Attributes
+    ----------
+    phase : tuple of PhaseSequence
+        Zero or more phase sequences.
+    gray : GrayCode or None
+    unwrap : tuple of str or None
+        Explicit chain (``"gray"``, ``"phase:i"``, ``"beat:i,j"``), coarse to fine; None for
+        the default chain (gray, then the phase sequences from the longest period to the shortest).
+    """
+
+    phase: tuple[PhaseSequence, ...] = ()
+    gray: GrayCode | None = None
+    unwrap: tuple[str, ...] | None = None
+
+    def chain(self) -> tuple[Stage, ...]:
+        """The unwrapping chain as stages (the explicit ``unwrap`` or the default one)."""
+        if self.unwrap is None:
+            labels: list[str] = ["gray"] if self.gray is not None else []
+            order = sorted(range(len(self.phase)), key=lambda i: -self.phase[i].period)
+            labels += [f"phase:{i}" for i in order]
+        else:
+            labels = list(self.unwrap)
+        return tuple(_parse_stage(label, self.phase) for label in labels)
+
+
+@dataclass(frozen=True)
+class Codec:
+    """A complete pattern sequence (gcps-codec/1).
+
+    Attributes
+    ----------
+    frames : int or tuple of str
+        Number of frames (files taken in natural order, optionally filtered by ``files``) or
+        the frame file names in frame order.
+    projector_width, projector_height : int
+        Projector size, projector units (pixels).
+    axes : mapping of str to Axis
+        Coded axes, keys among ``"u"``, ``"v"``.
+    white, black : tuple of int
+        Frames of full white and full black (averaged when several).
+    files : str or None
+        Glob selecting the frame files when ``frames`` is a number (e.g. ``"pat*.png"``).
+    name : str or None
+        Name of a built-in codec (not part of the file format).
+    """
+
+    frames: int | tuple[str, ...]
+    projector_width: int
+    projector_height: int
+    axes: Mapping[str, Axis]
+    white: tuple[int, ...] = ()
+    black: tuple[int, ...] = ()
+    files: str | None = None
+    name: str | None = field(default=None, compare=False)
+
+    def __post_init__(self) -> None:
+        validate_codec(self)
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames of a matching stack."""
+        return self.frames if isinstance(self.frames, int) else len(self.frames)
+
+    def extent(self, axis: str) -> int:
+        """Projector size along ``axis``: width for u, height for v."""
+        return self.projector_width if axis == "u" else self.projector_height
+
+    def light_codes(self, u: Any, nlp: int) -> Any:
+        """The paper's light codes of projector columns ``u``: ``l = (u + 0.5) nlp / width``.
+
+        For a crossed-axes rig whose coded field spans the projector's width with ``nlp`` codes.
+        ``u``: array (or float) of projector column coordinates; returns the same shape.
+        """
+        return (u + 0.5) * (nlp / self.projector_width)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON-ready dict of the codec file (gcps-codec/1)."""
+        out: dict[str, Any] = {"codec": CODEC_FORMAT}
+        out["frames"] = self.frames if isinstance(self.frames, int) else list(self.frames)
+        if self.files is not None:
+            out["files"] = self.files
+        out["projector"] = {"width": self.projector_width, "height": self.projector_height}
+        if self.white:
+            out["white"] = list(self.white)
+        if self.black:
+            out["black"] = list(self.black)
+        axes: dict[str, Any] = {}
+        for name in AXES:
+            if name not in self.axes:
+                continue
+            axis = self.axes[name]
+            entry: dict[str, Any] = {}
+            if axis.phase:
+                entry["phase"] = [
+                    {
+                        "frames": list(p.frames),
+                        "period": p.period,
+                        "shift": p.shift,
+                        "origin": p.origin,
+                        "waveform": p.waveform,
+                    }
+                    for p in axis.phase
+                ]
+            if axis.gray is not None:
+                g = axis.gray
+                entry["gray"] = {
+                    "frames": list(g.frames),
+                    "order": g.order,
+                    "word": g.word,
+                    "origin": g.origin,
+                    "inverse_frames": None if g.inverse_frames is None else list(g.inverse_frames),
+                    "inverted": g.inverted,
+                }
+            if axis.unwrap is not None:
+                entry["unwrap"] = list(axis.unwrap)
+            axes[name] = entry
+        out["axes"] = axes
+        return out
+
+    def to_json(self) -> str:
+        """The codec file's text (indented JSON, trailing newline)."""
+        return json.dumps(self.to_dict(), indent=1) + "\n"
+
+
+# ----------------------------------------------------------------------------- parsing
+def _parse_stage(label: str, phase: Sequence[PhaseSequence]) -> Stage:
+    """A chain entry as a :class:`Stage` (indices already validated by :func:`validate_codec`)."""
+    if label == "gray":
+        return Stage("gray", (), 0.0, 0.0)
+    kind, _, rest = label.partition(":")
+    indices = tuple(int(t) for t in rest.split(","))
+    if kind == "phase":
+        p = phase[indices[0]]
+        return Stage("phase", indices, p.period, p.origin)
+    a, b = phase[indices[0]], phase[indices[1]]
+    short, long_ = (a, b) if a.period < b.period else (b, a)
+    period = short.period * long_.period / (long_.period - short.period)
+    origin = period * (short.origin / short.period - long_.origin / long_.period)
+    return Stage("beat", indices, period, origin)
+
+
+_STAGE_RE = re.compile(r"^(gray|phase:(\d+)|beat:(\d+),(\d+))$")
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_real(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _check_keys(where: str, data: Any, allowed: Sequence[str], required: Sequence[str]) -> None:
+    if not isinstance(data, Mapping):
+        raise CodecError(f"codec field {where} must be an object, got {type(data).__name__}")
+    unknown = [key for key in data if key not in allowed]
+    if unknown:
+        raise CodecError(f"codec field {where} has unknown key {unknown[0]!r}; allowed keys: {', '.join(allowed)}")
+    missing = [key for key in required if key not in data]
+    if missing:
+        raise CodecError(f"codec field {where} is missing the required key {missing[0]!r}")
+
+
+def _int_list(where: str, value: Any, *, min_length: int = 0) -> tuple[int, ...]:
+    if not isinstance(value, list) or not all(_is_int(v) for v in value):
+        raise CodecError(f"codec field {where} must be a list of frame indices (integers), got {value!r}")
+    if len(value) < min_length:
+        raise CodecError(f"codec field {where} must hold at least {min_length} frame(s), got {len(value)}")
+    return tuple(int(v) for v in value)
+
+
+def _real(where: str, value: Any) -> float:
+    if not _is_real(value):
+        raise CodecError(f"codec field {where} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _phase_from_dict(where: str, data: Any) -> PhaseSequence:
+    _check_keys(where, data, ("frames", "period", "shift", "origin", "waveform"), ("frames", "period"))
+    frames = _int_list(f"{where}.frames", data["frames"])
+    period = _real(f"{where}.period", data["period"])
+    shift = data.get("shift", 1)
+    origin = _real(f"{where}.origin", data.get("origin", 0.0))
+    waveform = data.get("waveform", "sine")
+    return PhaseSequence(frames=frames, period=period, shift=shift, origin=origin, waveform=waveform)
+
+
+def _gray_from_dict(where: str, data: Any) -> GrayCode:
+    _check_keys(where, data, ("frames", "order", "word", "origin", "inverse_frames", "inverted"), ("frames", "word"))
+    frames = _int_list(f"{where}.frames", data["frames"])
+    word = _real(f"{where}.word", data["word"])
+    origin = _real(f"{where}.origin", data.get("origin", 0.0))
+    inverse = data.get("inverse_frames")
+    inverse_frames = None if inverse is None else _int_list(f"{where}.inverse_frames", inverse)
+    return GrayCode(
+        frames=frames,
+        word=word,
+        order=data.get("order", "msb_first"),
+        origin=origin,
+        inverse_frames=inverse_frames,
+        inverted=data.get("inverted", False),
+    )
+
+
+def codec_from_dict(data: Any) -> Codec:
+    """Build and validate a :class:`Codec` from the parsed JSON of a codec file.
+
+    Raises
+    ------
+    CodecError
+        Naming the first bad field (unknown key, wrong type, value out of range, frame index
+        out of range, overlapping frame use, bad unwrap chain, missing threshold source...).
+    """
+    _check_keys(
+        "(top level)",
+        data,
+        ("codec", "frames", "files", "projector", "white", "black", "axes"),
+        ("codec", "frames", "projector", "axes"),
+    )
+    if data["codec"] != CODEC_FORMAT:
+        raise CodecError(f"codec field codec must be {CODEC_FORMAT!r}, got {data['codec']!r}")
+    frames_value = data["frames"]
+    frames: int | tuple[str, ...]
+    if _is_int(frames_value):
+        frames = int(frames_value)
+    elif isinstance(frames_value, list) and all(isinstance(f, str) for f in frames_value):
+        frames = tuple(frames_value)
+    else:
+        raise CodecError(f"codec field frames must be a number of frames or a list of file names, got {frames_value!r}")
+    files = data.get("files")
+    if files is not None and not isinstance(files, str):
+        raise CodecError(f"codec field files must be a glob string such as 'pat*.png', got {files!r}")
+    projector = data["projector"]
+    _check_keys("projector", projector, ("width", "height"), ("width", "height"))
+    width, height = projector["width"], projector["height"]
+    for key, value in (("width", width), ("height", height)):
+        if not _is_int(value) or value <= 0:
+            raise CodecError(f"codec field projector.{key} must be a positive integer, got {value!r}")
+    white = _int_list("white", data.get("white", []))
+    black = _int_list("black", data.get("black", []))
+    axes_data = data["axes"]
+    _check_keys("axes", axes_data, AXES, ())
+    axes: dict[str, Axis] = {}
+    for name, axis_data in axes_data.items():
+        where = f"axes.{name}"
+        _check_keys(where, axis_data, ("phase", "gray", "unwrap"), ())
+        phase_data = axis_data.get("phase", [])
+        if not isinstance(phase_data, list):
+            raise CodecError(f"codec field {where}.phase must be a list of phase sequences, got {phase_data!r}")
+        phase = tuple(_phase_from_dict(f"{where}.phase[{i}]", p) for i, p in enumerate(phase_data))
+        gray_data = axis_data.get("gray")
+        gray = None if gray_data is None else _gray_from_dict(f"{where}.gray", gray_data)
+        unwrap = axis_data.get("unwrap")
+        if unwrap is not None:
+            if not isinstance(unwrap, list) or not all(isinstance(s, str) for s in unwrap):
+                raise CodecError(f"codec field {where}.unwrap must be a list of strings, got {unwrap!r}")
+            unwrap = tuple(unwrap)
+        axes[name] = Axis(phase=phase, gray=gray, unwrap=unwrap)
+    return Codec(
+        frames=frames,
+        projector_width=int(width),
+        projector_height=int(height),
+        axes=axes,
+        white=white,
+        black=black,
+        files=files,
+    )
+
+
+def codec_from_json(text: str | bytes, label: str = "codec") -> Codec:
+    """Parse and validate the text of a codec file.
+
+    Raises
+    ------
+    CodecError
+        If the text is not JSON (naming ``label``) or the codec is invalid.
+    """
+    try:
+        data = json.loads(text)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise CodecError(f"{label} is not valid JSON ({exc})") from None
+    return codec_from_dict(data)
+
+
+def read_codec(path: str | Path) -> Codec:
+    """Read a codec file, or resolve a built-in name (``gcps-v1``, ``gcps-v1:WIDTHxHEIGHT``).
+
+    Raises
+    ------
+    CodecError
+        If the file does not exist, is not JSON, or the codec is invalid.
+    """
+    text = str(path)
+    if text.split(":", 1)[0] in BUILTIN_NAMES and not Path(text).exists():
+        return builtin_codec(text)
+    p = Path(path)
+    if not p.is_file():
+        raise CodecError(f"codec {text}: no such file (nor a built-in codec: {', '.join(BUILTIN_NAMES)})")
+    try:
+        raw = p.read_bytes()
+    except OSError as exc:
+        raise CodecError(f"codec {text}: cannot read ({exc.strerror or exc})") from None
+    return codec_from_json(raw, label=f"codec {p.name}")
+
+
+def write_codec(codec: Codec, path: str | Path) -> None:
+    """Write ``codec`` as a codec file (atomic: temporary file, then rename)."""
+    from metrology.core.io import write_text_atomic
+
+    write_text_atomic(codec.to_json(), path)
+
+
+# ----------------------------------------------------------------------------- validation
+def validate_codec(codec: Codec) -> None:
+    """Check every field of ``codec`` and their consistency.
+
+    Raises
+    ------
+    CodecError
+        Naming the field: N < 3, period <= 0, shift not +-1, unknown waveform or order, word
+        <= 0, more than 16 gray bits, inverse list of the wrong length, frame index out of range,
+        a frame used twice, a gray code with no threshold source, a bad unwrap chain, an axis
+        with nothing coded, a first stage that does not cover the projector, no axis at all.
+    """
+    if isinstance(codec.frames, int):
+        if codec.frames < 1:
+            raise CodecError(f"codec field frames must be a positive number, got {codec.frames}")
+    else:
+        if not codec.frames:
+            raise CodecError("codec field frames must not be an empty list")
+        for i, name in enumerate(codec.frames):
+            if not name or "/" in name or "\\" in name:
+                raise CodecError(f"codec field frames[{i}] must be a plain file name, got {name!r}")
+        seen: dict[str, int] = {}
+        for i, name in enumerate(codec.frames):
+            if name in seen:
+                raise CodecError(f"codec field frames lists {name!r} twice (frames[{seen[name]}] and frames[{i}])")
+            seen[name] = i
+        if codec.files is not None:
+            raise CodecError("codec field files applies only when frames is a number, not a list of names")
+    if codec.files is not None and not codec.files:
+        raise CodecError("codec field files must not be empty")
+    for key, value in (("projector.width", codec.projector_width), ("projector.height", codec.projector_height)):
+        if not _is_int(value) or value <= 0:
+            raise CodecError(f"codec field {key} must be a positive integer, got {value!r}")
+    if not codec.axes:
+        raise CodecError("codec field axes must code at least one axis (u or v)")
+    n = codec.n_frames
+    users: dict[int, str] = {}
+
+    def use(where: str, frames: Sequence[int]) -> None:
+        for k, f in enumerate(frames):
+            if not 0 <= f < n:
+                raise CodecError(f"codec field {where}[{k}] = {f} is out of range: frames are 0..{n - 1}")
+            if f in users:
+                raise CodecError(f"codec field {where}[{k}] uses frame {f}, already used by {users[f]}")
+            users[f] = f"{where}[{k}]"
+
+    use("white", codec.white)
+    use("black", codec.black)
+    for name, axis in codec.axes.items():
+        where = f"axes.{name}"
+        if name not in AXES:
+            raise CodecError(f"codec field axes has unknown axis {name!r}; axes are u and v")
+        if not axis.phase and axis.gray is None:
+            raise CodecError(f"codec field {where} codes nothing: give phase and/or gray")
+        for i, p in enumerate(axis.phase):
+            pw = f"{where}.phase[{i}]"
+            if len(p.frames) < 3:
+                raise CodecError(f"codec field {pw}.frames must hold N >= 3 frames, got N = {len(p.frames)}")
+            if not _is_real(p.period) or p.period <= 0:
+                raise CodecError(f"codec field {pw}.period must be > 0, got {p.period!r}")
+            if not _is_int(p.shift) or p.shift not in (1, -1):
+                raise CodecError(f"codec field {pw}.shift must be 1 or -1, got {p.shift!r}")
+            if not _is_real(p.origin):
+                raise CodecError(f"codec field {pw}.origin must be a finite number, got {p.origin!r}")
+            if p.waveform not in WAVEFORMS:
+                raise CodecError(f"codec field {pw}.waveform must be one of {', '.join(WAVEFORMS)}, got {p.waveform!r}")
+            use(f"{pw}.frames", p.frames)
+        g = axis.gray
+        if g is not None:
+            gw = f"{where}.gray"
+            if not 1 <= len(g.frames) <= MAX_GRAY_BITS:
+                raise CodecError(f"codec field {gw}.frames must hold 1..{MAX_GRAY_BITS} bits, got {len(g.frames)}")
+            if not _is_real(g.word) or g.word <= 0:
+                raise CodecError(f"codec field {gw}.word must be > 0, got {g.word!r}")
+            if not _is_real(g.origin):
+                raise CodecError(f"codec field {gw}.origin must be a finite number, got {g.origin!r}")
+            if g.order not in GRAY_ORDERS:
+                raise CodecError(f"codec field {gw}.order must be one of {', '.join(GRAY_ORDERS)}, got {g.order!r}")
+            if not isinstance(g.inverted, bool):
+                raise CodecError(f"codec field {gw}.inverted must be true or false, got {g.inverted!r}")
+            use(f"{gw}.frames", g.frames)
+            if g.inverse_frames is not None:
+                if len(g.inverse_frames) != len(g.frames):
+                    raise CodecError(
+                        f"codec field {gw}.inverse_frames must hold one frame per bit ({len(g.frames)}), "
+                        f"got {len(g.inverse_frames)}"
+                    )
+                use(f"{gw}.inverse_frames", g.inverse_frames)
+            elif not (codec.white and codec.black) and not axis.phase:
+                raise CodecError(
+                    f"codec field {gw} has no threshold source: give inverse_frames, white and black frames, "
+                    "or a phase sequence on the axis"
+                )
+        _validate_chain(where, axis, codec.extent(name))
+
+
+def _validate_chain(where: str, axis: Axis, extent: int) -> None:
+    labels = list(axis.unwrap) if axis.unwrap is not None else None
+    if labels is not None:
+        if not labels:
+            raise CodecError(f"codec field {where}.unwrap must not be empty")
+        for k, label in enumerate(labels):
+            m = _STAGE_RE.match(label) if isinstance(label, str) else None
+            if m is None:
+                raise CodecError(f"codec field {where}.unwrap[{k}] = {label!r} is not 'gray', 'phase:I' or 'beat:I,J'")
+            if label == "gray":
+                if axis.gray is None:
+                    raise CodecError(f"codec field {where}.unwrap[{k}] is 'gray' but the axis has no gray code")
+                if k != 0:
+                    raise CodecError(f"codec field {where}.unwrap[{k}]: 'gray' can only be the first stage")
+                continue
+            indices = [int(t) for t in (m.group(2), m.group(3), m.group(4)) if t is not None]
+            for i in indices:
+                if i >= len(axis.phase):
+                    raise CodecError(
+                        f"codec field {where}.unwrap[{k}] = {label!r}: the axis has {len(axis.phase)} phase sequence(s)"
+                    )
+            if len(indices) == 2:
+                a, b = (axis.phase[i].period for i in indices)
+                if indices[0] == indices[1] or a == b:
+                    raise CodecError(f"codec field {where}.unwrap[{k}] = {label!r}: a beat needs two different periods")
+        if len(set(labels)) != len(labels):
+            raise CodecError(f"codec field {where}.unwrap repeats a stage: {labels}")
+    chain = axis.chain()
+    previous: Stage | None = None
+    for stage in chain:
+        if stage.kind == "gray":
+            previous = stage
+            continue
+        if previous is None and stage.period < extent:
+            raise CodecError(
+                f"codec field {where}: the first unwrapping stage {stage.label} has period {stage.period:g}, "
+                f"shorter than the projector's {extent} px, and there is no gray code to unwrap it"
+            )
+        if previous is not None and previous.kind != "gray" and stage.period >= previous.period:
+            raise CodecError(
+                f"codec field {where}: unwrapping stage {stage.label} (period {stage.period:g}) must have a shorter "
+                f"period than the stage before it, {previous.label} (period {previous.period:g})"
+            )
+        previous = stage
+    if not chain:
+        raise CodecError(f"codec field {where} has an empty unwrapping chain")
+
+
+# ----------------------------------------------------------------------------- frame files
+_RUNS = re.compile(r"(\d+)")
+
+
+def natural_key(name: str) -> tuple[tuple[tuple[int, int, str], ...], str]:
+    """Sort key of the natural order: digit runs as integers, text case-folded, ties on the raw name.
+
+    >>> sorted(["10.bmp", "2.bmp", "01.bmp", "00.Bmp"], key=natural_key)
+    ['00.Bmp', '01.bmp', '2.bmp', '10.bmp']
+    """
+    runs = tuple((0, int(run), "") if run.isdigit() else (1, 0, run.casefold()) for run in _RUNS.split(name) if run)
+    return runs, name
+
+
+# ----------------------------------------------------------------------------- built-in codecs
+def gcps_v1_codec(width: int = 1024, height: int = 768, nlp: int = 128) -> Codec:
+    """The paper's eleven patterns GC_0..GC_6, PS_0..PS_3 as a codec of projector columns.
+
+    With ``l = (u + 0.5) nlp / width`` (code units): GC_k is bit k (MSB first) of the gray
+    code of ``floor(l)``, so a word is ``width / nlp`` wide with origin -0.5; ``PS_i =
+    0.5 + 0.5 cos(pi/2 l - i pi/2)``, so the phase has period ``4 width / nlp``, origin -0.5
+    and shift -1. The gray bits are thresholded at the phase frames' mean A (no white or
+    black frames). Frames are the eleven named files in that order.
+    """
+    if width <= 0 or height <= 0 or not 1 <= nlp <= 128:
+        raise CodecError(f"gcps-v1 needs a positive projector size and nlp in 1..128, got {width}x{height}, {nlp}")
+    word = width / nlp
+    from metrology.core.patterns import PATTERN_NAMES
+
+    axis = Axis(
+        phase=(PhaseSequence(frames=(7, 8, 9, 10), period=4 * word, shift=-1, origin=-0.5),),
+        gray=GrayCode(frames=tuple(range(7)), word=word, order="msb_first", origin=-0.5),
+    )
+    return Codec(
+        frames=tuple(PATTERN_NAMES),
+        projector_width=width,
+        projector_height=height,
+        axes={"u": axis},
+        name="gcps-v1",
+    )
+
+
+def builtin_codec(name: str) -> Codec:
+    """A built-in codec by name: ``gcps-v1`` (1024x768 projector, 128 codes) or ``gcps-v1:WIDTHxHEIGHT``.
+
+    Raises
+    ------
+    CodecError
+        For an unknown name or a malformed size.
+    """
+    base, _, size = name.partition(":")
+    if base != "gcps-v1":
+        raise CodecError(f"unknown built-in codec {name!r}; built-in codecs: {', '.join(BUILTIN_NAMES)}")
+    if not size:
+        return gcps_v1_codec()
+    m = re.fullmatch(r"(\d+)x(\d+)", size)
+    if m is None:
+        raise CodecError(f"built-in codec {name!r}: the size must be WIDTHxHEIGHT, e.g. gcps-v1:1280x800")
+    return gcps_v1_codec(int(m.group(1)), int(m.group(2)))

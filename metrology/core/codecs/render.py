@@ -1,0 +1,322 @@
+"""Projector patterns of any codec, and the virtual rig's camera images of any codec.
+
+Two things live here:
+
+* :func:`codec_patterns`: the projector images of a codec (what a user projects), uint8,
+  ``(frames, projector_height, projector_width)``, each pattern sampled at the centres of the
+  projector pixels (``x = j``).
+* :func:`render_codec`: the camera images of a codec, given for every camera pixel the TRUE
+  projector coordinates ``u`` (column) and ``v`` (row) of the surface point it sees. The
+  projector is modelled as continuous (no pixel quantisation): frame ``f`` lights the point
+  with the ideal pattern value ``E_f(x)`` at ``x = u`` (u-axis frames) or ``x = v`` (v-axis
+  frames), ``E = G_sigma * pattern^gamma``, a Gaussian blur of ``sigma`` projector units
+  along the coded axis (square waves and gray bits are rendered as steps, then blurred).
+  White frames emit 1, black frames 0 (frames the codec does not use: 0 too). The camera
+  sees ``I = albedo (ambient + gain E)`` (fractions of full scale), area-averaged over
+  ``supersample x supersample`` sub-samples, blurred by a Gaussian of ``camera_defocus_px``,
+  plus seeded Gaussian noise of ``noise_grey`` grey levels, rounded and clipped to the bit
+  depth (values above full scale saturate). These options are
+  :class:`~metrology.core.simulate.SimulationOptions` fields; its
+  ``projector_defocus_codes`` becomes the blur ``8 * projector_defocus_codes`` projector
+  pixels (8 px per code: the built-in gcps-v1 codec's 128 codes across 1024 px; the
+  realistic preset's 0.15 codes are 1.2 px), unless ``projector_blur_px`` is given.
+  ``square`` and ``smoothing_codes`` are not used: the codec says which waveform each
+  sequence has.
+
+:func:`crossed_rig_truth` gives the true (u, v) of a render of the paper's crossed-axes
+virtual rig (:func:`metrology.core.simulate.render_stack`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+from scipy.ndimage import gaussian_filter1d
+
+from metrology.core.codecs.model import Codec, GrayCode, PhaseSequence
+from metrology.core.rig import Rig
+from metrology.core.simulate import RenderedStack, SimulationOptions
+
+FloatArray = npt.NDArray[np.float64]
+
+PIXELS_PER_CODE = 8.0
+"""Projector pixels per light code of the built-in gcps-v1 codec (1024 px, 128 codes): converts
+:class:`SimulationOptions` ``projector_defocus_codes`` to projector pixels (the realistic preset's
+0.15 codes are 1.2 projector px)."""
+
+
+@dataclass(frozen=True)
+class FrameRole:
+    """What one frame shows: ``kind`` in white, black, unused, phase, gray.
+
+    For ``phase``: ``axis``, ``sequence`` (the :class:`PhaseSequence`) and ``step`` k.
+    For ``gray``: ``axis``, ``gray`` (the :class:`GrayCode`), ``bit`` (0 = least significant)
+    and ``inverse`` (True for the bit's inverse frame).
+    """
+
+    kind: str
+    axis: str = ""
+    sequence: PhaseSequence | None = None
+    step: int = 0
+    gray: GrayCode | None = None
+    bit: int = 0
+    inverse: bool = False
+
+
+def frame_roles(codec: Codec) -> list[FrameRole]:
+    """The role of every frame of ``codec``, in frame order."""
+    roles = [FrameRole("unused") for _ in range(codec.n_frames)]
+    for f in codec.white:
+        roles[f] = FrameRole("white")
+    for f in codec.black:
+        roles[f] = FrameRole("black")
+    for axis_name, axis in codec.axes.items():
+        for seq in axis.phase:
+            for k, f in enumerate(seq.frames):
+                roles[f] = FrameRole("phase", axis=axis_name, sequence=seq, step=k)
+        g = axis.gray
+        if g is not None:
+            for i, f in enumerate(g.frames):
+                bit = g.bits - 1 - i if g.order == "msb_first" else i
+                roles[f] = FrameRole("gray", axis=axis_name, gray=g, bit=bit)
+                if g.inverse_frames is not None:
+                    roles[g.inverse_frames[i]] = FrameRole("gray", axis=axis_name, gray=g, bit=bit, inverse=True)
+    return roles
+
+
+def pattern_value(role: FrameRole, x: npt.ArrayLike) -> FloatArray:
+    """Ideal (unblurred) pattern value in [0, 1] of a frame at projector coordinates ``x``.
+
+    Phase: ``0.5 + 0.5 cos(2 pi (x - origin) / period + 2 pi shift k / N)``, or for a square
+    waveform 1 where that cosine is >= 0, else 0. Gray bit b of word
+    ``n = clip(floor((x - origin) / word), 0, 2**bits - 1)``: ``(g >> b) & 1`` with
+    ``g = n ^ (n >> 1)``, complemented when the code is ``inverted`` and again for an inverse
+    frame. White 1, black and unused 0.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if role.kind == "white":
+        return np.ones_like(x)
+    if role.kind in ("black", "unused"):
+        return np.zeros_like(x)
+    if role.kind == "phase":
+        seq = role.sequence
+        assert seq is not None
+        c = np.cos(2 * np.pi * (x - seq.origin) / seq.period + 2 * np.pi * seq.shift * role.step / seq.steps)
+        if seq.waveform == "square":
+            return (c >= 0).astype(np.float64)
+        return 0.5 + 0.5 * c
+    g = role.gray
+    assert g is not None
+    with np.errstate(invalid="ignore"):
+        n = np.floor((np.nan_to_num(x) - g.origin) / g.word)
+    words = np.clip(n, 0, 2**g.bits - 1).astype(np.int64)
+    bit = ((words ^ (words >> 1)) >> role.bit) & 1
+    flip = int(g.inverted) ^ int(role.inverse)
+    return (bit ^ flip).astype(np.float64)
+
+
+def _emitted(role: FrameRole, x: FloatArray, sigma: float, gamma: float) -> FloatArray:
+    """``E = G_sigma * pattern^gamma`` at ``x`` (finite values), sigma in projector units."""
+    if sigma <= 0 or role.kind in ("white", "black", "unused"):
+        value = pattern_value(role, x)
+        return value if gamma == 1.0 else value**gamma
+    if role.kind == "phase" and role.sequence is not None and role.sequence.waveform == "sine" and gamma == 1.0:
+        # a Gaussian blur scales a sinusoid by exp(-2 pi^2 sigma^2 / P^2)
+        seq = role.sequence
+        damp = math.exp(-2 * math.pi**2 * sigma**2 / seq.period**2)
+        c = np.cos(2 * np.pi * (x - seq.origin) / seq.period + 2 * np.pi * seq.shift * role.step / seq.steps)
+        return 0.5 + 0.5 * damp * c
+    # tabulate the stepped pattern on a fine grid (cell means of 8 sub-samples), blur, interpolate
+    if x.size == 0:
+        return np.zeros_like(x)
+    smallest = role.gray.word if role.gray is not None else (role.sequence.period if role.sequence else 1.0)
+    step = min(1.0 / 64.0, smallest / 256.0, sigma / 8.0)
+    pad = 8.0 * sigma + 2 * step
+    lo, hi = float(x.min()) - pad, float(x.max()) + pad
+    n = math.ceil((hi - lo) / step) + 1
+    if n > 2**24:
+        raise ValueError(f"projector blur table too large ({n} samples); reduce the coordinate range or the blur")
+    sub = (np.arange(8) + 0.5) / 8 - 0.5
+    fine = (lo + np.arange(n)[:, None] * step + sub[None, :] * step).ravel()
+    table = pattern_value(role, fine)
+    if gamma != 1.0:
+        table = table**gamma
+    table = table.reshape(n, 8).mean(axis=1)
+    table = gaussian_filter1d(table, sigma / step, mode="nearest", truncate=6.0)
+    return np.interp(x, lo + np.arange(n) * step, table)
+
+
+def square_wave_bias_px(steps: int, period: float, blur_px: float, harmonics: int = 200) -> float:
+    """First-order bound on the coordinate error of an N-step phase of a blurred square wave, px.
+
+    A 50 % square wave holds the odd harmonics m with amplitude ``1/m`` of the fundamental;
+    a Gaussian blur of sigma scales harmonic m by ``exp(-2 pi^2 sigma^2 m^2 / P^2)``. The N-step
+    least-squares phase sees harmonic m as the fundamental when ``m = k N +- 1``, so
+    ``|d theta| <= sum_{odd m = k N +- 1} (1/m) exp(-2 pi^2 sigma^2 (m^2 - 1) / P^2)`` and
+    ``|d x| <= P / (2 pi) |d theta|``.
+    """
+    total = 0.0
+    m_values = sorted({k * steps + d for k in range(1, harmonics) for d in (-1, 1)})
+    for m in m_values:
+        if m > 1 and m % 2 == 1:
+            total += math.exp(-2 * math.pi**2 * blur_px**2 * (m * m - 1) / period**2) / m
+    return period / (2 * math.pi) * total
+
+
+def codec_patterns(codec: Codec) -> npt.NDArray[np.uint8]:
+    """The projector images of ``codec``: ``(frames, projector_height, projector_width)`` uint8.
+
+    Each image is :func:`pattern_value` at the projector pixel centres (``x = column`` for
+    u frames, ``x = row`` for v frames), scaled to 0..255 and rounded.
+    """
+    width, height = codec.projector_width, codec.projector_height
+    images = np.zeros((codec.n_frames, height, width), np.uint8)
+    columns = np.arange(width, dtype=np.float64)
+    rows = np.arange(height, dtype=np.float64)
+    for f, role in enumerate(frame_roles(codec)):
+        if role.kind == "white":
+            images[f] = 255
+        elif role.kind in ("phase", "gray"):
+            line = np.round(pattern_value(role, columns if role.axis == "u" else rows) * 255).astype(np.uint8)
+            images[f] = line[None, :] if role.axis == "u" else line[:, None]
+    return images
+
+
+def default_projector_blur_px(options: SimulationOptions) -> float:
+    """The projector blur of ``options`` in projector px: ``projector_defocus_codes * 8`` (:data:`PIXELS_PER_CODE`)."""
+    return options.projector_defocus_codes * PIXELS_PER_CODE
+
+
+def render_codec(
+    codec: Codec,
+    u: npt.ArrayLike | None,
+    v: npt.ArrayLike | None = None,
+    options: SimulationOptions | None = None,
+    *,
+    albedo: npt.ArrayLike = 1.0,
+    projector_blur_px: float | None = None,
+    seed: int | np.random.SeedSequence | None = None,
+) -> np.ndarray:
+    """Camera images of ``codec`` for a scene given by its true projector coordinates.
+
+    Parameters
+    ----------
+    codec : Codec
+    u, v : (H s, W s) float64 arrays or None
+        True projector column (u) and row (v) coordinate of the surface point each camera
+        (sub-)pixel sees, projector units (``x = j`` is the centre of column/row ``j``); NaN
+        where the projector does not reach (shadow, background). Needed for each axis the
+        codec codes (either may be None when the codec does not code it). With
+        ``options.supersample = s > 1`` they are sampled on an ``s`` times finer grid (sub-pixel
+        centres) and the images are area-averaged to ``(H, W)``; otherwise ``s = 1``.
+        A pixel is lit where every coded axis's coordinate is finite and inside the
+        projector, ``[-0.5, size - 0.5]``.
+    options : SimulationOptions, optional
+        Bit depth, noise (grey levels), ambient, projector gain, projector gamma, camera
+        defocus (px), supersample and seed; default noise-free 16-bit.
+    albedo : float or (H s, W s) array
+        Surface reflectance, default 1.
+    projector_blur_px : float, optional
+        Gaussian sigma of the projector blur along the coded axis, projector units; default
+        ``8 * options.projector_defocus_codes`` (1.2 px for the realistic preset).
+    seed : int or SeedSequence, optional
+        Noise seed; default ``options.seed``.
+
+    Returns
+    -------
+    images : (frames, H, W) uint8 or uint16 array
+        ``round(full_scale * albedo * (ambient + gain * E_f)) + noise``, clipped to
+        ``[0, full_scale]``.
+
+    Raises
+    ------
+    ValueError
+        If a coded axis has no coordinates or the shapes disagree.
+    """
+    opts = options if options is not None else SimulationOptions()
+    coords: dict[str, FloatArray] = {}
+    shape: tuple[int, ...] | None = None
+    for name, value in (("u", u), ("v", v)):
+        if value is None:
+            if name in codec.axes:
+                raise ValueError(f"the codec codes axis {name}: give its true coordinates")
+            continue
+        array = np.asarray(value, dtype=np.float64)
+        if array.ndim != 2:
+            raise ValueError(f"{name} must be an (H, W) array, got shape {array.shape}")
+        if shape is not None and array.shape != shape:
+            raise ValueError(f"u and v must have one shape, got {shape} and {array.shape}")
+        shape = array.shape
+        coords[name] = array
+    if shape is None:
+        raise ValueError("give u and/or v")
+    s = opts.supersample
+    if shape[0] % s or shape[1] % s:
+        raise ValueError(f"with supersample {s}, u and v must have a shape divisible by {s}, got {shape}")
+    height, width = shape[0] // s, shape[1] // s
+    lit = np.ones(shape, bool)
+    for name in codec.axes:
+        x = coords[name]
+        with np.errstate(invalid="ignore"):
+            lit &= np.isfinite(x) & (x >= -0.5) & (x <= codec.extent(name) - 0.5)
+    albedo_map = np.broadcast_to(np.asarray(albedo, dtype=np.float64), shape)
+    blur = default_projector_blur_px(opts) if projector_blur_px is None else float(projector_blur_px)
+    if not math.isfinite(blur) or blur < 0:
+        raise ValueError(f"projector_blur_px must be finite and >= 0, got {projector_blur_px!r}")
+    full = float(opts.full_scale)
+    lit_index = np.flatnonzero(lit)
+    lit_coords = {name: x.ravel()[lit_index] for name, x in coords.items()}
+    base = albedo_map * opts.ambient
+    gain = (albedo_map * opts.projector_gain).ravel()[lit_index]
+    rng = np.random.default_rng(opts.seed if seed is None else seed)
+    images = np.empty((codec.n_frames, height, width), opts.dtype)
+    for f, role in enumerate(frame_roles(codec)):
+        intensity = base.copy()
+        if role.kind in ("phase", "gray"):
+            emitted = _emitted(role, lit_coords[role.axis], blur, opts.projector_gamma)
+        else:
+            emitted = _emitted(role, np.zeros(lit_index.size), 0.0, opts.projector_gamma)
+        intensity.ravel()[lit_index] += gain * emitted
+        img = cv2.resize(intensity, (width, height), interpolation=cv2.INTER_AREA) if s > 1 else intensity
+        if opts.camera_defocus_px > 0:
+            sigma = opts.camera_defocus_px
+            img = cv2.GaussianBlur(img, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REPLICATE)
+        grey = img * full
+        if opts.noise_grey > 0:
+            grey = grey + opts.noise_grey * rng.standard_normal(grey.shape)
+        images[f] = np.clip(np.rint(grey), 0, full).astype(opts.dtype)
+    return images
+
+
+def crossed_rig_truth(
+    rendered: RenderedStack, rig: Rig, projector_width: int, projector_height: int
+) -> tuple[FloatArray, FloatArray]:
+    """True projector coordinates (u, v) of a render of the paper's crossed-axes virtual rig.
+
+    ``u = l * width / nlp - 0.5`` from the true light code ``l`` of each pixel
+    (:attr:`RenderedStack.codes`, the inverse of ``l = (u + 0.5) nlp / width``).
+    ``v``: the projector of the paper's rig sits at P = (0, 0, L), beside the camera at
+    C = (d, 0, L) along X, so projector rows are epipolar with camera rows: a point (X, Y, z)
+    projects from P onto R at ``Y_R = Y L / (L - z)``, which for the point seen by camera
+    row k equals the row's ordinate on R, ``Y_A = (k + 0.5 - H/2) FW / W``. We define
+    ``v = (Y_R / FH + 0.5) * height - 0.5`` with ``FH = FW H / W`` the camera field's height on
+    R: the camera field's rows span the projector rows. Both are NaN where the pixel is not lit.
+
+    Returns
+    -------
+    u, v : (H, W) float64 arrays, projector units
+    """
+    codes = rendered.codes
+    H, W = codes.shape
+    u = codes * (projector_width / rig.nlp) - 0.5
+    fw_mm = rig.fw_mm
+    pitch = fw_mm / W
+    y_a = (np.arange(H) + 0.5 - H / 2) * pitch
+    field_h = fw_mm * H / W
+    v_row = (y_a / field_h + 0.5) * projector_height - 0.5
+    v = np.where(np.isfinite(codes), v_row[:, None], np.nan)
+    return u, v

@@ -1,0 +1,304 @@
+"""Reading the frames of a capture folder or zip in a codec's frame order.
+
+A capture of any codec is a folder or a ``.zip`` of image files (``.png .bmp .tif .tiff``,
+8- or 16-bit, grey or colour converted to grey), possibly inside one single sub-folder,
+possibly with its ``codec.json``. Which files are the frames, and in what order, the codec says:
+
+* ``"frames": [names]``: exactly these files (a name without an image extension matches the
+  file of that stem with any accepted extension); other files are ignored;
+* ``"frames": N``: the image files matching the glob ``"files"`` (default: every image
+  file), in natural order (:func:`~metrology.core.codecs.model.natural_key`); their count
+  must be N.
+
+Operating-system junk (``__MACOSX/``, ``._*``, ``.DS_Store``, ``Thumbs.db``, ``desktop.ini``)
+is ignored. Zips are read in memory with the safety limits of :mod:`metrology.core.io`
+(member names, total size, compression ratio), and every image header is checked for size
+and shape before anything is decoded.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import io
+import os
+import zipfile
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+from typing import IO
+
+import numpy as np
+
+from metrology.core.codecs.model import Codec, CodecError, builtin_codec, codec_from_json, natural_key
+from metrology.core.io import (
+    DEFAULT_MAX_BYTES,
+    DEFAULT_MAX_PIXELS,
+    DEFAULT_MAX_RATIO,
+    IMAGE_EXTENSIONS,
+    JUNK_NAMES,
+    MAX_ARCHIVE_MEMBERS,
+    StackError,
+    checked_header,
+    decode_grey_image,
+)
+from metrology.core.patterns import PATTERN_NAMES
+
+CODEC_FILE_NAME = "codec.json"
+"""Name of the codec file inside a capture folder or zip."""
+
+
+@dataclass(frozen=True, eq=False)
+class CodecStack:
+    """The frames of a capture, in codec order.
+
+    Attributes
+    ----------
+    images : (frames, H, W) uint8 or uint16 array
+    codec : Codec
+        The codec used (given, the capture's ``codec.json``, or gcps-v1 for a stack of the
+        eleven named patterns).
+    names : tuple of str
+        The file of each frame (relative to the capture's root).
+    codec_source : str
+        ``"given"``, ``"codec.json"`` or ``"gcps-v1 names"``.
+    """
+
+    images: np.ndarray
+    codec: Codec
+    names: tuple[str, ...]
+    codec_source: str
+
+    @property
+    def bit_depth(self) -> int:
+        return 8 if self.images.dtype == np.uint8 else 16
+
+
+def _is_junk(relpath: str) -> bool:
+    parts = relpath.split("/")
+    return parts[0] == "__MACOSX" or parts[-1] in JUNK_NAMES or parts[-1].startswith("._")
+
+
+def _strip_single_folder(entries: list[str]) -> tuple[str, list[str]]:
+    tops = {entry.split("/", 1)[0] for entry in entries}
+    if len(tops) == 1 and entries and all("/" in entry for entry in entries):
+        top = tops.pop()
+        inner = [entry.split("/", 1)[1] for entry in entries if entry.split("/", 1)[1]]
+        if inner:
+            return top + "/", inner
+    return "", entries
+
+
+class _Source:
+    """Files of a folder or zip: top-level names and a reader of their bytes."""
+
+    def __init__(self, label: str, names: list[str], read: Callable[[str], bytes], size: Callable[[str], int]):
+        self.label = label
+        self.names = names
+        self.read = read
+        self.size = size
+
+
+def _folder_source(label: str, folder: Path) -> _Source:
+    entries = sorted(
+        child.name + ("/" if child.is_dir() else "") for child in folder.iterdir() if not _is_junk(child.name)
+    )
+    root = folder
+    if len(entries) == 1 and entries[0].endswith("/"):
+        root = folder / entries[0].rstrip("/")
+        entries = sorted(
+            child.name + ("/" if child.is_dir() else "") for child in root.iterdir() if not _is_junk(child.name)
+        )
+    files = [e for e in entries if not e.endswith("/")]
+
+    def read(name: str) -> bytes:
+        try:
+            return (root / name).read_bytes()
+        except OSError as exc:
+            raise StackError(f"capture {label}: cannot read {name} ({exc.strerror or exc})") from None
+
+    return _Source(label, files, read, lambda name: (root / name).stat().st_size)
+
+
+def _zip_source(label: str, archive: zipfile.ZipFile, max_bytes: int, max_ratio: float) -> _Source:
+    infos = archive.infolist()
+    if len(infos) > MAX_ARCHIVE_MEMBERS:
+        raise StackError(f"capture {label} holds {len(infos)} entries, more than {MAX_ARCHIVE_MEMBERS}")
+    for info in infos:
+        normal = info.filename.replace("\\", "/")
+        if normal.startswith("/") or (len(normal) > 1 and normal[1] == ":") or ".." in normal.split("/"):
+            raise StackError(f"capture {label} holds an unsafe member name {info.filename!r} (absolute path or '..')")
+    files = [info for info in infos if not info.is_dir() and not _is_junk(info.filename)]
+    total = sum(info.file_size for info in files)
+    if total > max_bytes:
+        raise StackError(
+            f"capture {label} expands to {total} bytes, more than the limit of {max_bytes} bytes; refused before "
+            "decompressing"
+        )
+    for info in files:
+        ratio = info.file_size / max(info.compress_size, 1)
+        if info.file_size > 2**20 and ratio > max_ratio:
+            raise StackError(
+                f"capture {label} member {info.filename} claims a compression ratio of {ratio:.0f}:1, more than "
+                f"the limit of {max_ratio:.0f}:1"
+            )
+    prefix, entries = _strip_single_folder([info.filename for info in files])
+    top = [e for e in entries if "/" not in e]
+
+    def read(name: str) -> bytes:
+        info = archive.getinfo(prefix + name)
+        try:
+            with archive.open(info) as fh:
+                data = fh.read(info.file_size + 1)
+        except (zipfile.BadZipFile, zlib.error, EOFError, OSError, RuntimeError, NotImplementedError) as exc:
+            raise StackError(f"capture {label} member {prefix + name} cannot be read ({exc})") from None
+        if len(data) > info.file_size:
+            raise StackError(f"capture {label} member {prefix + name} is larger than its declared size")
+        return data
+
+    return _Source(label, sorted(top), read, lambda name: archive.getinfo(prefix + name).file_size)
+
+
+def select_frames(codec: Codec, names: list[str], label: str = "capture") -> list[str]:
+    """The file of each frame of ``codec`` among the capture's top-level file ``names``.
+
+    Raises
+    ------
+    StackError
+        If a named frame is missing (or ambiguous), or the number of matching image files
+        differs from the codec's frame count (both named).
+    """
+    images = [n for n in names if PurePosixPath(n).suffix.lower() in IMAGE_EXTENSIONS]
+    if isinstance(codec.frames, int):
+        pattern = codec.files
+        chosen = [n for n in images if pattern is None or fnmatch.fnmatchcase(n, pattern)]
+        chosen.sort(key=natural_key)
+        if len(chosen) != codec.frames:
+            what = f"image files matching {pattern!r}" if pattern else "image files"
+            shown = ", ".join(chosen[:6]) + (" ..." if len(chosen) > 6 else "")
+            raise StackError(
+                f"capture {label} holds {len(chosen)} {what} but the codec describes {codec.frames} frames"
+                + (f" ({shown})" if chosen else "")
+            )
+        return chosen
+    selected: list[str] = []
+    missing: list[str] = []
+    for name in codec.frames:
+        if name in names:
+            selected.append(name)
+            continue
+        if PurePosixPath(name).suffix.lower() not in IMAGE_EXTENSIONS:
+            matches = [n for n in images if PurePosixPath(n).stem == name]
+            if len(matches) == 1:
+                selected.append(matches[0])
+                continue
+            if len(matches) > 1:
+                raise StackError(f"capture {label} holds frame {name} more than once: {', '.join(matches)}")
+        missing.append(name)
+    if missing:
+        shown = ", ".join(missing[:8]) + (f" and {len(missing) - 8} more" if len(missing) > 8 else "")
+        raise StackError(f"capture {label} is missing frame file(s) {shown} of its codec")
+    return selected
+
+
+def read_codec_stack(
+    source: str | os.PathLike[str] | IO[bytes],
+    codec: Codec | None = None,
+    *,
+    max_pixels: int = DEFAULT_MAX_PIXELS,
+    max_bytes: int = DEFAULT_MAX_BYTES,
+    max_ratio: float = DEFAULT_MAX_RATIO,
+) -> CodecStack:
+    """Read the frames of a capture folder or zip (or a zip file object) in codec order.
+
+    Parameters
+    ----------
+    source : path or binary file object
+        A folder, a ``.zip``, or a readable binary file object holding a zip.
+    codec : Codec, optional
+        The codec; default the capture's ``codec.json``, else gcps-v1 when the capture holds
+        the eleven named patterns GC_0..PS_3.
+
+    Returns
+    -------
+    CodecStack
+
+    Raises
+    ------
+    StackError
+        Naming the problem: no codec, frames missing or miscounted, unreadable or oversized
+        images, mixed shapes or bit depths, unsafe or oversized zips.
+    CodecError
+        If the capture's ``codec.json`` is invalid.
+    """
+    if isinstance(source, (str, os.PathLike)):
+        path = Path(source)
+        label = repr(path.name or str(path))
+        if path.is_dir():
+            return _read(_folder_source(label, path), codec, max_pixels)
+        if not path.is_file():
+            raise StackError(f"capture {label} does not exist")
+        if path.stat().st_size > max_bytes:
+            raise StackError(f"capture {label} is larger than the limit of {max_bytes} bytes")
+        if not zipfile.is_zipfile(path):
+            raise StackError(f"capture {label} is not a zip file (nor a folder)")
+        with zipfile.ZipFile(path) as archive:
+            return _read(_zip_source(label, archive, max_bytes, max_ratio), codec, max_pixels)
+    name = getattr(source, "name", None)
+    label = repr(Path(name).name) if isinstance(name, str) and name else "upload"
+    data = source.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise StackError(f"capture {label} is larger than the limit of {max_bytes} bytes")
+    try:
+        archive = zipfile.ZipFile(io.BytesIO(data))
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError) as exc:
+        raise StackError(f"capture {label} is not a zip file ({exc})") from None
+    with archive:
+        return _read(_zip_source(label, archive, max_bytes, max_ratio), codec, max_pixels)
+
+
+def _read(src: _Source, codec: Codec | None, max_pixels: int) -> CodecStack:
+    label = src.label
+    origin = "given"
+    if codec is None:
+        if CODEC_FILE_NAME in src.names:
+            codec = codec_from_json(src.read(CODEC_FILE_NAME), label=f"capture {label} {CODEC_FILE_NAME}")
+            origin = CODEC_FILE_NAME
+        else:
+            stems = {PurePosixPath(n).stem for n in src.names if PurePosixPath(n).suffix.lower() in IMAGE_EXTENSIONS}
+            if set(PATTERN_NAMES) <= stems:
+                codec = builtin_codec("gcps-v1")
+                origin = "gcps-v1 names"
+            else:
+                raise StackError(
+                    f"capture {label} has no {CODEC_FILE_NAME} and is not a gcps-v1 stack (GC_0..PS_3): "
+                    "give its codec (--codec FILE)"
+                )
+    names = select_frames(codec, src.names, label)
+    blobs = [src.read(n) for n in names]
+    first: tuple[str, tuple[int, int]] | None = None
+    for n, data in zip(names, blobs, strict=True):
+        _, width, height = checked_header(data, f"{label}/{n}", max_pixels=max_pixels)
+        if first is None:
+            first = (n, (height, width))
+        elif (height, width) != first[1]:
+            raise StackError(
+                f"{label}/{n} has shape {(height, width)} but {first[0]} has shape {first[1]} (height, width)"
+            )
+    assert first is not None
+    images: np.ndarray | None = None
+    for index, (n, data) in enumerate(zip(names, blobs, strict=True)):
+        image = decode_grey_image(data, f"{label}/{n}", max_pixels=max_pixels)
+        if images is None:
+            images = np.empty((len(names), *image.shape), image.dtype)
+        elif image.dtype != images.dtype:
+            raise StackError(
+                f"{label}/{n} is {8 * image.dtype.itemsize}-bit but {names[0]} is {8 * images.dtype.itemsize}-bit; "
+                "a capture has one bit depth"
+            )
+        images[index] = image
+    assert images is not None
+    return CodecStack(images=images, codec=codec, names=tuple(names), codec_source=origin)
+
+
+__all__ = ["CODEC_FILE_NAME", "CodecError", "CodecStack", "read_codec_stack", "select_frames"]

@@ -1,0 +1,111 @@
+"""No 500 on input (issue 9 item 4): deep JSON, NUL characters, booleans for numbers, big ``extra``,
+oversized bodies; each answers a JSON 400/413 and stores nothing."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from django.test import Client
+
+from metrology.rigs.models import Rig
+from tests.app.stacks import SMALL_RIG
+
+
+def post_raw(api, path: str, body: bytes, content_type: str = "application/json"):
+    return api.generic("POST", path, body, content_type=content_type)
+
+
+@pytest.mark.parametrize("depth", [50, 100_000])
+def test_deeply_nested_json_is_refused(api, rig, depth):
+    nested = "[" * depth + "]" * depth
+    body = ('{"role": "object", "scene": {"name": "plane", "x": ' + nested + "}}").encode()
+    response = post_raw(api, f"/api/rigs/{rig['id']}/captures/simulate/", body)
+    assert response.status_code == 400, response.content[:300]
+    assert "nested" in response.json()["error"]
+    rig_body = ('{"L_mm": 1022, "deep": ' + nested + "}").encode()
+    response = post_raw(api, "/api/rigs/", rig_body)
+    assert response.status_code == 400, response.content[:300]
+    assert "nested" in response.json()["error"]
+
+
+@pytest.mark.parametrize(
+    "extra",
+    [{"lens\x00": "25 mm"}, {"lens": "25\x00mm"}, {"lenses": [{"focal": "a\x00"}]}, {"notes2": {"k\x00": 1}}],
+)
+def test_nul_characters_in_extra_are_refused(api, extra):
+    response = api.post("/api/rigs/", {**SMALL_RIG, **extra}, format="json")
+    assert response.status_code == 400, response.content
+    assert "NUL" in response.json()["error"], response.json()
+    assert Rig.objects.count() == 0
+
+
+def test_nul_character_anywhere_in_a_json_body_is_refused(api, rig):
+    response = api.post("/api/rigs/", {**SMALL_RIG, "name": "a\x00b"}, format="json")
+    assert response.status_code == 400, response.content
+    assert "NUL" in response.json()["error"]
+    body = {"role": "object", "scene": {"name": "plane", "z\x00": 1}}
+    response = api.post(f"/api/rigs/{rig['id']}/captures/simulate/", body, format="json")
+    assert response.status_code == 400, response.content
+    assert "NUL" in response.json()["error"]
+
+
+def test_nul_character_in_extra_is_refused_by_the_service(user_and_token):
+    from metrology.api_errors import BadInput
+    from metrology.rigs.services import create_rig
+
+    with pytest.raises(BadInput, match="NUL"):
+        create_rig(owner=user_and_token[0], data={**SMALL_RIG, "lenses": [{"focal\x00": 25}]})
+    assert Rig.objects.count() == 0
+
+
+@pytest.mark.parametrize("key", ["L_mm", "d_mm", "alpha_rad", "fw_mm", "nlp", "width_px"])
+def test_booleans_are_not_numbers(api, key):
+    response = api.post("/api/rigs/", {**SMALL_RIG, key: True}, format="json")
+    assert response.status_code == 400, response.content
+    assert key in response.json()["error"]
+    assert Rig.objects.count() == 0
+
+
+def test_boolean_stage_position_is_refused(api, rig):
+    body = {"role": "stage", "scene": {"name": "stage"}, "z_in_mm": True}
+    response = api.post(f"/api/rigs/{rig['id']}/captures/simulate/", body, format="json")
+    assert response.status_code == 400, response.content
+    assert "z_in_mm" in response.json()["error"]
+
+
+def test_extra_is_bounded(api, settings):
+    limit = settings.GCPS_MAX_RIG_EXTRA_BYTES
+    assert limit == 16 * 1024
+    response = api.post("/api/rigs/", {**SMALL_RIG, "blob": "x" * (limit + 1)}, format="json")
+    assert response.status_code == 400, response.content
+    assert "extra" in response.json()["error"] and str(limit) in response.json()["error"]
+    assert Rig.objects.count() == 0
+    ok = api.post("/api/rigs/", {**SMALL_RIG, "blob": "x" * (limit - 100)}, format="json")
+    assert ok.status_code == 201, ok.content
+
+
+def test_rig_list_leaves_extra_and_history_to_the_detail(api):
+    created = api.post("/api/rigs/", {**SMALL_RIG, "blob": "x" * 10_000}, format="json").json()
+    listed = api.get("/api/rigs/").json()
+    assert [rig["id"] for rig in listed] == [created["id"]]
+    assert "extra" not in listed[0] and "history" not in listed[0]
+    assert len(json.dumps(listed)) < 2000
+    detail = api.get(f"/api/rigs/{created['id']}/").json()
+    assert detail["extra"] == {"blob": "x" * 10_000} and detail["history"]
+
+
+@pytest.mark.parametrize("path", ["/api/rigs/", "/api/measurements/", "/api/rigs/1/captures/simulate/"])
+def test_thirty_megabyte_body_gets_a_json_answer(api, path):
+    body = b'{"name": "' + b"x" * (30 * 1024 * 1024) + b'"}'
+    response = post_raw(api, path, body)
+    assert response.status_code == 413, response.content[:300]
+    assert response["Content-Type"].startswith("application/json")
+    assert "bytes" in response.json()["error"]
+    assert Rig.objects.count() == 0
+
+
+def test_thirty_megabyte_form_outside_the_api_is_refused_without_a_server_error(db):
+    body = b"a=" + b"x" * (30 * 1024 * 1024)
+    response = Client().post("/login/", body, content_type="application/x-www-form-urlencoded")
+    assert response.status_code in (400, 413)
