@@ -136,8 +136,13 @@ def cmd_patterns(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
+    from metrology.commands.measure_pinhole import cmd_measure_pinhole, is_pinhole_rig
     from metrology.pipeline import MeasureOptions, measure
 
+    if is_pinhole_rig(args.rig):
+        return cmd_measure_pinhole(args)
+    if args.reference is None:
+        raise BadInputError("--reference is required for a crossed-axes rig (a pinhole rig measures without one)")
     _check_parent(args.out, "--out")
     _check_out_suffix(args.out, (".npy",), "--out")
     if args.mesh:
@@ -492,12 +497,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("measure", help="height map (and mesh) of an object")
     p.add_argument("--rig", required=True)
-    p.add_argument("--reference", required=True, help="capture stack of the reference plane (folder or .zip)")
+    p.add_argument(
+        "--reference", help="capture stack of the reference plane (folder or .zip); optional for pinhole rigs"
+    )
     p.add_argument("--object", required=True, help="capture stack of the object (folder or .zip)")
     p.add_argument("--out", required=True, help="height map, float32 mm, NaN where not measured (.npy)")
     p.add_argument("--mesh", help="mesh output (.ply, .stl or .obj)")
     p.add_argument("--json", help="statistics and timings (.json)")
     _add_decode_options(p)
+    from metrology.commands.measure_pinhole import add_pinhole_measure_arguments
+
+    add_pinhole_measure_arguments(p)
     p.set_defaults(func=cmd_measure)
 
     p = sub.add_parser("calibrate", help="calibrate L and alpha on a master block")
@@ -559,6 +569,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--z-mm", type=float, default=40.0, help="constant height of the study, mm (default 40)")
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_sensitivity)
+    from metrology.commands import rig as rig_command
+    from metrology.commands.agent import register as acquisition_commands
+
+    acquisition_commands(sub)
+    rig_command.register(sub)
     return parser
 
 

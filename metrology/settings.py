@@ -134,6 +134,7 @@ INSTALLED_APPS = [
     "metrology.calibrations",
     "metrology.characterizations",
     "metrology.reports",
+    "metrology.acquisition",
     "metrology.dashboard",
 ]
 
@@ -240,6 +241,14 @@ GCPS_MAX_STACK_PIXELS = env_int("GCPS_MAX_STACK_PIXELS", 64 * 1024 * 1024, minim
 GCPS_MAX_RIG_EXTRA_BYTES = env_int("GCPS_MAX_RIG_EXTRA_BYTES", 16 * 1024, minimum=2)
 GCPS_MAX_IMAGE_SIDE_PX = env_int("GCPS_MAX_IMAGE_SIDE_PX", 4096, minimum=1)
 GCPS_MAX_SIMULATION_BYTES = env_int("GCPS_MAX_SIMULATION_BYTES", 4 * 1024**3, minimum=1)
+
+# ----------------------------------------------------------------------------- derived result files
+# Meshes (PLY, STL, OBJ) and TIFF height maps are built from the stored height map on request and
+# kept in MEDIA_ROOT/derived/, at most this many bytes (least recently used removed first).
+GCPS_MESH_CACHE_BYTES = env_int("GCPS_MESH_CACHE_BYTES", 2 * 1024**3, minimum=0)
+# Each worker process keeps decoded reference planes for the next jobs, at most this many bytes
+# (about 34 MB per 1280x1024 reference), least recently used evicted first.
+GCPS_REFERENCE_CACHE_BYTES = env_int("GCPS_REFERENCE_CACHE_BYTES", 256 * 1024**2, minimum=0)
 
 # ----------------------------------------------------------------------------- REST API
 REST_FRAMEWORK = {
@@ -351,6 +360,10 @@ GCPS_JOB_SWEEP_SECONDS = env_int("GCPS_JOB_SWEEP_SECONDS", 5, minimum=1)
 GCPS_JOB_RESEND_SECONDS = env_int("GCPS_JOB_RESEND_SECONDS", 120, minimum=1)
 # Fault injection for tests: pause between the phases of a job (0 in production).
 GCPS_JOB_PHASE_PAUSE_SECONDS = float(env_int("GCPS_JOB_PHASE_PAUSE_MS", 0, minimum=0)) / 1000.0
+
+# Capture agents (issue 14): an agent not heard from for this long is disconnected and its
+# running acquisition failed; agents beat every third of it.
+GCPS_AGENT_TIMEOUT_SECONDS = env_float("GCPS_AGENT_TIMEOUT_SECONDS", 15.0, minimum=0.5)
 
 # Characterization reports: a figure "drifted" when it moved by more than its tolerance since the
 # previous report of the same rig. Errors in mm, percentages of full scale, in-out slopes (unitless).

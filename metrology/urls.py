@@ -4,6 +4,7 @@ from django.contrib import admin
 from django.urls import include, path
 from drf_spectacular.views import SpectacularAPIView, SpectacularSwaggerSplitView
 
+from metrology.acquisition import urls as acquisition_urls
 from metrology.calibrations import api as calibrations
 from metrology.captures import api as captures
 from metrology.characterizations import api as characterizations
@@ -51,6 +52,7 @@ api_patterns = [
         )
         for table in ("positions", "test_points")
     ],
+    *acquisition_urls.api_patterns,
     path("schema/", SpectacularAPIView.as_view(), name="schema"),
     path("docs/", SpectacularSwaggerSplitView.as_view(url_name="schema"), name="docs"),  # no inline script
 ]
@@ -59,6 +61,7 @@ urlpatterns = [
     path("api/", include(api_patterns)),
     path("admin/", admin.site.urls),
     path("reports/", include("metrology.reports.urls")),
+    path("", include("metrology.acquisition.urls")),
     path("", include("metrology.dashboard.urls")),
 ]
 

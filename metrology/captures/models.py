@@ -32,6 +32,7 @@ class Capture(models.Model):
     class Source(models.TextChoices):
         UPLOAD = "upload", "Uploaded"
         VIRTUAL = "virtual", "Virtual rig"
+        RIG = "rig", "Rig (capture agent)"
 
     owner = models.ForeignKey(settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="captures")
     rig = models.ForeignKey("rigs.Rig", on_delete=models.CASCADE, related_name="captures")

@@ -58,12 +58,19 @@ def read_capture_stack(source: Any, rig: Rig, *, expected_bit_depth: int | None 
 
 
 def load_capture_stack(capture: Capture):
-    """The stored stack of a capture (in a worker). Raises ``ValueError`` if it is not stored."""
+    """The stored stack of a capture (in a worker). Raises ``ValueError`` if it is not stored.
+
+    A stack validated when it was stored (its sha256 recorded) is read without validating it again,
+    after checking that its hash still matches (:func:`metrology.core.io.read_verified_stack`);
+    one without a recorded hash is validated like an upload.
+    """
     if not capture.file:
         raise ValueError(f"capture {capture.pk} has no stored stack yet (its simulation has not finished)")
-    from metrology.core.io import read_stack
+    from metrology.core.io import read_stack, read_verified_stack
 
     with capture.file.open("rb") as handle:
+        if capture.checksum_sha256:
+            return read_verified_stack(handle.read(), capture.checksum_sha256, shape=capture.rig.to_core().shape)
         return read_stack(handle, rig=capture.rig.to_core(), **stack_limits(capture.rig))
 
 

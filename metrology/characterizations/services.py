@@ -6,6 +6,7 @@ import csv
 import io
 import math
 from collections import defaultdict
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 from django.db import transaction
@@ -121,7 +122,9 @@ def _pipeline_options(options: dict[str, Any]) -> Any:
 
 
 def run_characterization(job: Job, run: job_services.JobRun) -> None:
-    """Job handler: load the stacks, call the pipeline's characterize (section 5's figures), publish."""
+    """Job handler: the kept reference, the stage stacks (each read while the previous one is measured),
+    the pipeline's characterize (section 5's figures), publish."""
+    from metrology.captures.references import kept_reference
     from metrology.core.rig import Rig as CoreRig
     from metrology.pipeline import CharacterizeOptions, characterize
 
@@ -134,14 +137,20 @@ def run_characterization(job: Job, run: job_services.JobRun) -> None:
     items = [
         (p["z_in_mm"], r, capture_id) for p in characterization.series for r, capture_id in enumerate(p["captures"])
     ]
-    with run.phase("read reference", 2):
-        reference = load_capture_stack(characterization.reference).images
+    with run.phase("reference", 2):
+        reference, _kept = kept_reference(characterization.reference, characterization.rig_values, options.decode)
     captures = Capture.objects.select_related("rig").in_bulk([capture_id for _z, _r, capture_id in items])
 
     def stacks():
-        for done, (z_in, repeat, capture_id) in enumerate(items):
-            run.progress(5 + int(85 * done / len(items)), f"stage {done + 1}/{len(items)}")
-            yield z_in, repeat, load_capture_stack(captures[capture_id]).images
+        # the next stack is read (inflated and decoded, GIL released) while this one is measured
+        with ThreadPoolExecutor(max_workers=1) as reader:
+            pending = [reader.submit(load_capture_stack, captures[capture_id]) for _z, _r, capture_id in items[:1]]
+            for done, (z_in, repeat, _capture_id) in enumerate(items):
+                run.progress(5 + int(85 * done / len(items)), f"stage {done + 1}/{len(items)}")
+                stack = pending.pop().result()
+                if done + 1 < len(items):
+                    pending.append(reader.submit(load_capture_stack, captures[items[done + 1][2]]))
+                yield z_in, repeat, stack.images
 
     with run.phase("characterize", 5):
         outcome = characterize(rig, reference, stacks(), options)

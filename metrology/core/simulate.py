@@ -342,6 +342,43 @@ def render_stack(rig: Rig, scene: Scene, options: SimulationOptions | None = Non
     return _capture(clean, np.random.default_rng(stack_seed(opts, scene)))
 
 
+def render_flat_frames(
+    rig: Rig, scene: Scene, options: SimulationOptions | None = None
+) -> tuple[FloatArray, FloatArray]:
+    """The noise-free camera images of ``scene`` under a white and under a black projector frame.
+
+    The same light path as :func:`render_stack` (rays, shadows, albedo, pixel sampling, camera
+    blur) with a uniform emitted value: ``I = albedo (ambient + gain * illuminated * e)``, e = 1
+    (white) or 0 (black), times the full scale. The coded field's limits do not apply (a flat
+    frame lights the whole projector field).
+
+    Returns
+    -------
+    white, black : (H, W) float64 arrays
+        Grey levels of the output depth, unquantised and unclipped (the caller adds noise).
+    """
+    opts = _check_inputs(rig, scene, options)
+    H, W = rig.shape
+    s = 1 if opts.camera_sampling == "centre" else opts.supersample
+    pitch = rig.fw_mm / (W * s)
+    xa = rig.d_mm - rig.fw_mm / 2 + (np.arange(W * s) + 0.5) * pitch
+    ya = (np.arange(H * s) + 0.5 - H * s / 2) * pitch
+    XA, YA = np.meshgrid(xa, ya)
+    rays = _trace(rig, scene, XA.ravel(), YA.ravel())
+    albedo = scene.albedo(rays.X, rays.Y).reshape(H * s, W * s)
+    illuminated = rays.illuminated.reshape(H * s, W * s)
+    full = float(opts.full_scale)
+    frames = []
+    for emitted in (1.0, 0.0):
+        intensity = albedo * opts.ambient + albedo * opts.projector_gain * illuminated * emitted
+        img = cv2.resize(intensity, (W, H), interpolation=cv2.INTER_AREA) if s > 1 else intensity
+        if opts.camera_defocus_px > 0:
+            sigma = opts.camera_defocus_px
+            img = cv2.GaussianBlur(img, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REPLICATE)
+        frames.append(np.asarray(img, dtype=np.float64) * full)
+    return frames[0], frames[1]
+
+
 def stack_seed(options: SimulationOptions, scene: Scene) -> np.random.SeedSequence:
     """The noise seed of :func:`render_stack`: ``options.seed`` and a digest of the scene.
 

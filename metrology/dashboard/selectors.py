@@ -27,6 +27,7 @@ def load_npy(field) -> np.ndarray | None:
 
 def measurement_figures(measurement, row: int | None = None) -> tuple[dict[str, Any], int, int]:
     """Figures of a finished measurement and the profile row used; returns (figures, row, height_px)."""
+    from metrology.core.mesh import default_max_jump_mm
     from metrology.core.rig import Rig as CoreRig
     from metrology.core.triangulate import points_from_heights
     from metrology.figures.measurement import measurement_figures as build
@@ -38,7 +39,15 @@ def measurement_figures(measurement, row: int | None = None) -> tuple[dict[str, 
     gray = load_npy(measurement.gray_only_npy)
     height = z.shape[0]
     row = height // 2 if row is None else min(max(int(row), 0), height - 1)
-    figures = build(z, points_from_heights(rig, z), row, gray_z_mm=gray, x_mm=rig.column_x_mm(), y_mm=rig.row_y_mm())
+    figures = build(
+        z,
+        points_from_heights(rig, z),
+        row,
+        gray_z_mm=gray,
+        x_mm=rig.column_x_mm(),
+        y_mm=rig.row_y_mm(),
+        max_jump_mm=default_max_jump_mm(rig),
+    )
     return figures, row, height
 
 

@@ -29,7 +29,7 @@ from metrology.dashboard import selectors as pages
 from metrology.jobs import selectors as job_selectors
 from metrology.measurements import selectors as measurement_selectors
 from metrology.measurements import services as measurement_services
-from metrology.measurements.models import RESULT_FILES
+from metrology.measurements.derived import available_files
 from metrology.rigs import selectors as rig_selectors
 from metrology.rigs import services as rig_services
 from metrology.version import software_version
@@ -298,8 +298,7 @@ def measurement_detail(request: HttpRequest, measurement_id: int) -> HttpRespons
         )
     files = [
         (name, reverse(f"measurement-{name}", kwargs={"measurement_id": measurement.pk}))
-        for name, field in RESULT_FILES.items()
-        if getattr(measurement, field)
+        for name in available_files(measurement)
     ]
     return render(
         request,

@@ -146,15 +146,25 @@ def gray_vs_gcps_figure(
     return fig
 
 
-def surface_figure(xyz_mm: npt.ArrayLike, title: str = "3D view") -> go.Figure:
-    """3D surface of (decimated) points ``(h, w, 3)`` = X_H, Y_H, z in mm; NaN leaves holes."""
+def surface_figure(xyz_mm: npt.ArrayLike, title: str = "3D view", max_jump_mm: float = math.inf) -> go.Figure:
+    """3D view: the mesh of (decimated) grid points ``(h, w, 3)`` = X_H, Y_H, z in mm.
+
+    The triangles are those of the measurement's mesh files (:func:`metrology.core.mesh.grid_triangles`
+    on the decimated grid): neighbouring finite points joined, steps higher than ``max_jump_mm``
+    not bridged, NaN leaves holes. Drawn as a plotly ``Mesh3d`` coloured by z.
+    """
+    from metrology.core.mesh import grid_triangles
+
     xyz = np.asarray(xyz_mm, dtype=np.float32)
     if xyz.ndim != 3 or xyz.shape[2] != 3:
         raise ValueError(f"xyz_mm must have shape (h, w, 3), got {xyz.shape}")
-    if not np.isfinite(xyz[..., 2]).any():
+    valid = np.isfinite(xyz).all(axis=2)
+    if not valid.any():
         return empty_figure(title, "No pixel was measured.")
     z = xyz[..., 2]
-    span = [float(np.nanmax(xyz[..., i]) - np.nanmin(xyz[..., i])) or 1.0 for i in range(3)]
+    triangles = grid_triangles(valid, np.where(valid, z, 0.0), max_jump_mm)
+    points = xyz[valid]
+    span = [float(np.ptp(points[:, i])) or 1.0 for i in range(3)]
     biggest = max(span[0], span[1])
     layout = base_layout(title, "", "", height=520, margin={"l": 0, "r": 0, "t": 50, "b": 0})
     layout["scene"] = {
@@ -166,13 +176,17 @@ def surface_figure(xyz_mm: npt.ArrayLike, title: str = "3D view") -> go.Figure:
     }
     fig = go.Figure(
         data=[
-            go.Surface(
-                x=xyz[..., 0],
-                y=xyz[..., 1],
-                z=z,
-                surfacecolor=z,
+            go.Mesh3d(
+                x=points[:, 0],
+                y=points[:, 1],
+                z=points[:, 2],
+                i=triangles[:, 0],
+                j=triangles[:, 1],
+                k=triangles[:, 2],
+                intensity=points[:, 2],
                 colorscale="Viridis",
                 colorbar={"title": {"text": "z (mm)"}},
+                flatshading=False,
                 hovertemplate="X = %{x:.1f} mm<br>Y = %{y:.1f} mm<br>z = %{z:.3f} mm<extra></extra>",
             )
         ],
@@ -189,6 +203,7 @@ def measurement_figures(
     gray_z_mm: npt.ArrayLike | None = None,
     x_mm: npt.ArrayLike | None = None,
     y_mm: npt.ArrayLike | None = None,
+    max_jump_mm: float = math.inf,
 ) -> dict[str, go.Figure]:
     """Every figure of a measurement, from full-resolution data (decimated here).
 
@@ -204,6 +219,10 @@ def measurement_figures(
         Gray-code-only height map, mm.
     x_mm, y_mm : (W,), (H,) float arrays, optional
         Coordinates of columns and rows on the reference (default: pixel indices).
+    max_jump_mm : float, optional
+        Depth-discontinuity threshold of the full-resolution mesh, mm
+        (:func:`metrology.core.mesh.default_max_jump_mm`); the 3D view, decimated by blocks of
+        ``f`` pixels, joins neighbours up to ``f * max_jump_mm`` apart (default: all neighbours).
 
     Returns
     -------
@@ -234,5 +253,8 @@ def measurement_figures(
         figures["gray_vs_gcps"] = gray_vs_gcps_figure(x, z[row], gray[row], row)
     xyz = np.asarray(xyz_mm)
     xyz_small = np.stack([decimate(xyz[..., i], MAX_ROWS_3D, MAX_COLS_3D) for i in range(3)], axis=-1)
-    figures["surface"] = surface_figure(xyz_small, f"3D view (shown as {xyz_small.shape[1]} x {xyz_small.shape[0]})")
+    factor = max(block_factors(z.shape, MAX_ROWS_3D, MAX_COLS_3D))
+    figures["surface"] = surface_figure(
+        xyz_small, f"3D view (mesh of {xyz_small.shape[1]} x {xyz_small.shape[0]} points)", factor * max_jump_mm
+    )
     return figures

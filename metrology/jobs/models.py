@@ -19,6 +19,7 @@ class Job(models.Model):
         CALIBRATION = "calibration", "Calibration"
         CHARACTERIZATION = "characterization", "Characterization"
         REPORT = "report", "Characterization report"
+        ACQUIRE_CAPTURE = "acquire_capture", "Acquire capture"
 
     owner = models.ForeignKey(settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="jobs")
     kind = models.CharField(max_length=32, choices=Kind.choices)

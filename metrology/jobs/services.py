@@ -74,6 +74,9 @@ def enqueue_job(job: Job) -> None:
     if not settings.CELERY_TASK_ALWAYS_EAGER:
         check_broker()
     job_id = job.pk
+    # marks the job as one the workers run (an acquisition, run by a rig's agent, never is)
+    job.enqueued_at = timezone.now()
+    Job.objects.filter(pk=job_id).update(enqueued_at=job.enqueued_at)
     transaction.on_commit(lambda: _send(job_id))
 
 
@@ -107,7 +110,6 @@ def _send(job_id: int) -> None:
         logger.warning("job %s could not be sent; it stays queued and the sweep sends it again", job_id, exc_info=True)
         return
     if not settings.CELERY_TASK_ALWAYS_EAGER:
-        Job.objects.filter(pk=job_id, status=Job.Status.QUEUED).update(enqueued_at=timezone.now())
         Job.objects.filter(pk=job_id, celery_task_id="").update(celery_task_id=result.id or "")
 
 
@@ -404,14 +406,12 @@ def resend_unclaimed_jobs() -> dict[str, int]:
     and the other message finds it running or done and is dropped. Returns ``{"resent": n}``.
     """
     cutoff = timezone.now() - timedelta(seconds=settings.GCPS_JOB_RESEND_SECONDS)
-    waiting = Q(enqueued_at__lt=cutoff) | Q(enqueued_at__isnull=True, created_at__lt=cutoff)
+    waiting = Q(enqueued_at__lt=cutoff)  # jobs never enqueued (acquisitions, run by an agent) stay out
     resent = 0
     with transaction.atomic():
         # skip_locked: another worker's sweep may be resending the same rows right now
         jobs = list(Job.objects.select_for_update(skip_locked=True).filter(waiting, status=Job.Status.QUEUED)[:500])
-        now = timezone.now()
         for job in jobs:
-            Job.objects.filter(pk=job.pk).update(enqueued_at=now)
             enqueue_job(job)
             resent += 1
     if resent:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from django.http import FileResponse
+from django.http import FileResponse, Http404, StreamingHttpResponse
 from django.urls import reverse
 from drf_spectacular.types import OpenApiTypes
 from drf_spectacular.utils import extend_schema
@@ -15,7 +15,7 @@ from rest_framework.views import APIView
 from metrology.api_errors import BadInput
 from metrology.api_input import BoundedJSONParser
 from metrology.jobs.serializers import JobStateMixin
-from metrology.measurements import selectors, services
+from metrology.measurements import derived, selectors, services
 from metrology.measurements.models import RESULT_FILES, Measurement
 from metrology.rigs.selectors import get_rig
 
@@ -65,11 +65,10 @@ class MeasurementSerializer(JobStateMixin, serializers.ModelSerializer):
         read_only_fields = fields
 
     def get_files(self, measurement: Measurement) -> dict[str, str]:
-        """Download paths of the result files that exist (none until the job is done)."""
+        """Download paths of the result files, stored or derived on request (none until the job is done)."""
         return {
             name: reverse(f"measurement-{name}", kwargs={"measurement_id": measurement.pk})
-            for name, field in RESULT_FILES.items()
-            if getattr(measurement, field)
+            for name in derived.available_files(measurement)
         }
 
 
@@ -116,27 +115,30 @@ class MeasurementDetailApi(APIView):
 
 
 def file_view(filename: str) -> type[APIView]:
-    """A view class serving one result file of a measurement (404 until the job is done)."""
+    """A view class serving one result file of a measurement (404 until the job is done).
+
+    Stored and cached files are sent as files; a mesh not yet cached is streamed while it is built
+    (:func:`metrology.measurements.derived.open_result_file`).
+    """
     field = RESULT_FILES[filename]
     content_type = CONTENT_TYPES[filename]
     operation_id = "measurements_" + filename.replace(".", "_")
 
     class MeasurementFileApi(APIView):
         @extend_schema(responses={(200, content_type): OpenApiTypes.BINARY}, operation_id=operation_id)
-        def get(self, request: Request, measurement_id: int) -> FileResponse:
+        def get(self, request: Request, measurement_id: int) -> FileResponse | StreamingHttpResponse:
             measurement = selectors.get_measurement(request.user, measurement_id)
-            stored = getattr(measurement, field)
-            if not stored:
-                from django.http import Http404
-
+            result = derived.open_result_file(measurement, filename)
+            attachment = f"measurement-{measurement.pk}-{filename}"
+            if result is None:
                 job = measurement.job
                 raise Http404(f"{filename} of measurement {measurement.pk} is not available: its job is {job.status}")
-            return FileResponse(
-                stored.open("rb"),
-                as_attachment=True,
-                filename=f"measurement-{measurement.pk}-{filename}",
-                content_type=content_type,
-            )
+            if result.chunks is not None:
+                response = StreamingHttpResponse(result.chunks, content_type=content_type)
+                response["Content-Disposition"] = f'attachment; filename="{attachment}"'
+                return response
+            handle = result.path.open("rb") if result.path is not None else result.stored.open("rb")  # type: ignore[union-attr]
+            return FileResponse(handle, as_attachment=True, filename=attachment, content_type=content_type)
 
     MeasurementFileApi.__name__ = f"Measurement{field.title().replace('_', '')}Api"
     return MeasurementFileApi

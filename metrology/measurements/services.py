@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import tempfile
+import io
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -21,8 +20,6 @@ from metrology.jobs.models import Job
 from metrology.jobs.results import json_safe
 from metrology.measurements.models import Measurement
 from metrology.rigs.models import Rig
-
-MESH_FORMATS = ("ply", "stl", "obj")
 
 
 def measure_options(options: dict[str, Any] | None) -> dict[str, Any]:
@@ -66,41 +63,40 @@ def request_measurement(
 
 
 def run_measurement(job: Job, run: job_services.JobRun) -> None:
-    """Job handler: load both stacks, call the pipeline's measure, write height map and meshes, publish."""
-    from metrology.core.io import write_height_tiff
-    from metrology.core.mesh import mesh_from_heights, write_mesh
+    """Job handler: the kept reference (decoded once per process), the object's stack, the pipeline's
+    measure; store the height maps, publish.
+
+    Stores ``height.npy`` and ``gray_only_height.npy`` (float32) and the statistics only; the
+    TIFF and the meshes are derived on request (:mod:`metrology.measurements.derived`).
+    """
+    from metrology.captures.references import kept_reference
     from metrology.core.rig import Rig as CoreRig
     from metrology.pipeline import MeasureOptions, measure
 
     measurement = Measurement.objects.select_related("reference__rig", "object__rig").get(job=job)
     rig = CoreRig.from_dict(measurement.rig_values)
     options = MeasureOptions.from_dict(measurement.options or {})
-    with run.phase("read", 5):
-        reference = load_capture_stack(measurement.reference)
+    with run.phase("reference", 5):
+        reference, _kept = kept_reference(measurement.reference, measurement.rig_values, options.decode)
+    with run.phase("read", 10):
         obj = load_capture_stack(measurement.object)
     with run.phase("measure", 20):
-        result = measure(rig, reference.images, obj.images, options)
+        result = measure(rig, reference, obj.images, options)
     for name, seconds in result.timings_s.items():
         if name != "measure":
             run.timings[name] = round(float(seconds), 4)
     z_mm = np.asarray(result.z_mm, dtype=np.float32)
     prefix = f"measurements/{measurement.pk}/{run.token.hex}"
     names: dict[str, str] = {}
-    with tempfile.TemporaryDirectory(prefix="gcps-measurement-") as tmp:
-        folder = Path(tmp)
-        with run.phase("write height", 50):
-            np.save(folder / "height.npy", z_mm)
-            write_height_tiff(z_mm, folder / "height.tiff")
-            if result.gray_z_mm is not None:
-                np.save(folder / "gray_only_height.npy", np.asarray(result.gray_z_mm, dtype=np.float32))
-        with run.phase("mesh", 60):
-            mesh = mesh_from_heights(rig, z_mm)
-            for fmt in MESH_FORMATS:
-                write_mesh(mesh, folder / f"mesh.{fmt}")
-        with run.phase("store", 90):
-            for path in sorted(folder.iterdir()):
-                with path.open("rb") as handle:
-                    names[path.name] = run.save_file(default_storage, f"{prefix}/{path.name}", File(handle))
+    arrays = {"height.npy": z_mm}
+    if result.gray_z_mm is not None:
+        arrays["gray_only_height.npy"] = np.asarray(result.gray_z_mm, dtype=np.float32)
+    with run.phase("store", 80):
+        for filename, array in arrays.items():
+            buffer = io.BytesIO()
+            np.save(buffer, array)
+            buffer.seek(0)
+            names[filename] = run.save_file(default_storage, f"{prefix}/{filename}", File(buffer, name=filename))
     statistics = json_safe(result.statistics())
     statistics["shape"] = list(z_mm.shape)
 
@@ -108,11 +104,7 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
         start = time.perf_counter()
         Measurement.objects.filter(pk=measurement.pk).update(
             height_npy=names.get("height.npy", ""),
-            height_tiff=names.get("height.tiff", ""),
             gray_only_npy=names.get("gray_only_height.npy", ""),
-            mesh_ply=names.get("mesh.ply", ""),
-            mesh_stl=names.get("mesh.stl", ""),
-            mesh_obj=names.get("mesh.obj", ""),
             statistics=statistics,
             options=result.options.to_dict(),
         )

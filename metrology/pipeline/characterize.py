@@ -101,7 +101,7 @@ class CharacterizeResult:
 
 def characterize(
     rig: Rig,
-    reference: npt.ArrayLike,
+    reference: npt.ArrayLike | core_measure.Reference,
     series: SeriesStacks,
     options: CharacterizeOptions | None = None,
     *,
@@ -112,7 +112,9 @@ def characterize(
     Parameters
     ----------
     rig : Rig
-    reference : (11, H, W) image stack
+    reference : (11, H, W) image stack or Reference
+        The reference plane (a kept :class:`~metrology.core.measure.Reference`, prepared with
+        ``options.decode``, is reused as is).
     series : iterable of (z_in_mm, repeat, (11, H, W) image stack)
         Consumed once, capture by capture (a generator may load each stack when asked; an
         exception it raises stops the run).
@@ -126,7 +128,10 @@ def characterize(
     options = options or CharacterizeOptions()
     timer = PhaseTimer()
     with timer.phase("reference"):
-        kept = core_measure.prepare_reference(rig, reference, options.decode)
+        if isinstance(reference, core_measure.Reference):
+            kept = reference
+        else:
+            kept = core_measure.prepare_reference(rig, reference, options.decode)
 
     def heights() -> Iterable[tuple[float, int, np.ndarray]]:
         for z_in, repeat, stack in series:

@@ -192,18 +192,20 @@ def test_the_sweep_resends_jobs_queued_too_long_and_a_job_sent_twice_runs_once(
     owner = user_and_token[0]
     long_ago = timezone.now() - timedelta(seconds=settings.GCPS_JOB_RESEND_SECONDS + 5)
     lost = services.create_job(owner=owner, kind="measurement", parameters={})
-    never_sent = services.create_job(owner=owner, kind="measurement", parameters={})
+    also_lost = services.create_job(owner=owner, kind="measurement", parameters={})
+    for_an_agent = services.create_job(owner=owner, kind="acquire_capture", parameters={})  # never enqueued
     recent = services.create_job(owner=owner, kind="measurement", parameters={})
     running = services.create_job(owner=owner, kind="measurement", parameters={})
-    Job.objects.filter(pk=lost.pk).update(enqueued_at=long_ago)
-    Job.objects.filter(pk=never_sent.pk).update(created_at=long_ago)
+    Job.objects.filter(pk__in=[lost.pk, also_lost.pk]).update(enqueued_at=long_ago)
+    Job.objects.filter(pk=for_an_agent.pk).update(created_at=long_ago)
     Job.objects.filter(pk=recent.pk).update(enqueued_at=timezone.now())
     Job.objects.filter(pk=running.pk).update(status="running", enqueued_at=long_ago, heartbeat_at=timezone.now())
     # embedded mode: "sending" runs the job in-process, so a resent job is done afterwards
     with django_capture_on_commit_callbacks(execute=True):
         assert services.resend_unclaimed_jobs() == {"resent": 2}
     assert Job.objects.get(pk=lost.pk).status == Job.Status.DONE
-    assert Job.objects.get(pk=never_sent.pk).status == Job.Status.DONE
+    assert Job.objects.get(pk=also_lost.pk).status == Job.Status.DONE
+    assert Job.objects.get(pk=for_an_agent.pk).status == Job.Status.QUEUED
     assert Job.objects.get(pk=recent.pk).status == Job.Status.QUEUED
     assert Job.objects.get(pk=running.pk).status == Job.Status.RUNNING
     assert len(calls) == 2

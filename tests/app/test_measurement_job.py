@@ -57,7 +57,7 @@ def test_measurement_runs_and_serves_heights_and_meshes(api, rig, captures, medi
     assert body["progress"] == 100 and body["error"] == ""
     assert body["statistics"]["valid_fraction"] > 0.5
     assert body["software_version"].startswith("gcps-lab")
-    assert "measure" in body["timings"] and "mesh" in body["timings"]
+    assert "measure" in body["timings"] and "store" in body["timings"]
     assert set(body["files"]) == {
         "height.npy",
         "height.tiff",
@@ -80,11 +80,14 @@ def test_measurement_runs_and_serves_heights_and_meshes(api, rig, captures, medi
     assert ok.sum() > 0.8 * inner.sum()
     assert np.abs(z[ok] - truth[ok]).max() < 0.01  # 16-bit quantisation
 
-    for name, magic in (("mesh.ply", b"ply"), ("mesh.obj", b""), ("mesh.stl", b"")):
+    # only the referenced files are stored: two stacks and the two height maps (meshes and TIFF on request)
+    assert len(stored_files(media_root)) == 4
+    for name, magic in (("mesh.ply", b"ply"), ("mesh.obj", b"# GCPS"), ("mesh.stl", b"GCPS"), ("height.tiff", b"II")):
         response = api.get(f"/api/measurements/{measurement_id}/{name}")
         assert response.status_code == 200
         assert b"".join(response.streaming_content).startswith(magic)
-    # only the referenced files are stored (two stacks + six results)
+    # the derived files went to the cache folder only
+    assert len([p for p in stored_files(media_root) if p.parent.name == "derived"]) == 4
     assert len(stored_files(media_root)) == 8
 
 

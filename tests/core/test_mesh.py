@@ -9,7 +9,9 @@ import pytest
 
 from metrology.core.mesh import (
     default_max_jump_mm,
+    grid_mesh_from_heights,
     grid_triangles,
+    mesh_file_chunks,
     mesh_from_heights,
     point_cloud_from_heights,
     write_mesh,
@@ -278,3 +280,66 @@ def test_mesh_module_imports_open3d_lazily() -> None:
     code = "import sys, metrology.core.mesh; print('open3d' in sys.modules)"
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "False"
+
+
+# ------------------------------------------------------------------------ streamed files
+
+
+def body(data: bytes, fmt: str) -> bytes:
+    """A mesh file without its header comment (the writer's name)."""
+    if fmt == "ply":
+        return data[data.index(b"end_header\n") :]
+    if fmt == "stl":
+        return data[80:]
+    return data
+
+
+@pytest.mark.parametrize("fmt", ["ply", "stl", "obj"])
+def test_streamed_mesh_files_are_the_written_files(tmp_path: Path, fmt: str) -> None:
+    """The streamed writers give the bytes of write_mesh (header comments aside) and parse to its geometry."""
+    rig = SMALL_RIG
+    z = sample_heights(rig)
+    mesh = mesh_from_heights(rig, z)
+    written = write_mesh(mesh, tmp_path / f"written.{fmt}").read_bytes()
+    chunks = list(mesh_file_chunks(rig, z, fmt, chunk_rows=100))  # several chunks of each part
+    assert len(chunks) > 3
+    streamed = b"".join(chunks)
+    assert body(streamed, fmt) == body(written, fmt)
+    (tmp_path / f"streamed.{fmt}").write_bytes(streamed)
+    again = o3d.io.read_triangle_mesh(str(tmp_path / f"streamed.{fmt}"))
+    reference = o3d.io.read_triangle_mesh(str(tmp_path / f"written.{fmt}"))
+    assert len(again.triangles) == len(mesh.triangles) > 0
+    np.testing.assert_array_equal(np.asarray(again.vertices), np.asarray(reference.vertices))
+    np.testing.assert_array_equal(np.asarray(again.triangles), np.asarray(reference.triangles))
+    if fmt == "ply":  # float64 and the same order: the mesh itself, normals included
+        np.testing.assert_array_equal(np.asarray(again.vertices), np.asarray(mesh.vertices))
+        np.testing.assert_array_equal(np.asarray(again.vertex_normals), np.asarray(mesh.vertex_normals))
+
+
+def test_grid_mesh_normals_match_open3d() -> None:
+    rig = SMALL_RIG
+    z = sample_heights(rig)
+    z[2, 2] = 50.0  # a spike: its four neighbours' triangles are dropped, vertex (2, 2) is isolated
+    mesh = mesh_from_heights(rig, z)
+    grid = grid_mesh_from_heights(rig, z)
+    np.testing.assert_array_equal(grid.vertices, np.asarray(mesh.vertices))
+    np.testing.assert_array_equal(grid.triangles, np.asarray(mesh.triangles))
+    np.testing.assert_allclose(grid.triangle_normals(), np.asarray(mesh.triangle_normals), rtol=0, atol=1e-15)
+    normals = grid.vertex_normals()
+    np.testing.assert_allclose(normals, np.asarray(mesh.vertex_normals), rtol=0, atol=1e-15)
+    isolated = np.setdiff1d(np.arange(len(grid.vertices)), grid.triangles.ravel())
+    assert len(isolated) >= 1
+    np.testing.assert_array_equal(normals[isolated], np.tile([0.0, 0.0, 1.0], (len(isolated), 1)))
+
+
+def test_mesh_file_chunks_start_before_the_normals_and_check_input() -> None:
+    rig = SMALL_RIG
+    with pytest.raises(ValueError, match="fmt must be one of ply, stl, obj, got 'vrml'"):
+        mesh_file_chunks(rig, sample_heights(rig), "vrml")
+    lazy = mesh_file_chunks(rig, np.zeros((3, 3)), "ply")  # nothing computed yet
+    with pytest.raises(ValueError, match="rig's shape"):
+        next(lazy)
+    header = next(mesh_file_chunks(rig, sample_heights(rig), "ply"))
+    assert header.startswith(b"ply\n") and header.endswith(b"end_header\n")
+    n_valid = int(np.isfinite(sample_heights(rig)).sum())
+    assert f"element vertex {n_valid}\n".encode() in header

@@ -1,5 +1,7 @@
 """Geometric models of projector-camera rigs behind one interface (:mod:`.base`).
 
+- :mod:`.pinhole`: a calibrated pinhole camera and projector with lens distortion
+  (``"model": "pinhole"``, docs/pinhole.md).
 - :mod:`.crossed_axes`: the paper's crossed-optical-axes rig (``"model": "crossed_axes"``,
   the default of a rig file without a ``model`` key).
 
@@ -23,9 +25,11 @@ from metrology.core.geometry.base import (
     triangulate_frame,
 )
 from metrology.core.geometry.crossed_axes import Rig
+from metrology.core.geometry.pinhole import PinholeRig
 
 MODEL_READERS: dict[str, Callable[[Mapping[str, Any]], GeometryModel]] = {
     "crossed_axes": Rig.from_dict,
+    "pinhole": PinholeRig.from_dict,
 }
 """Rig-file reader of each model, keyed by the rig file's ``model`` value."""
 
@@ -54,6 +58,7 @@ __all__ = [
     "CameraRays",
     "GeometryError",
     "GeometryModel",
+    "PinholeRig",
     "PreparedGeometry",
     "ReferenceSurface",
     "Rig",

@@ -58,7 +58,7 @@ from metrology.core.io.heights import read_height_npy, write_height_npy, write_h
 from metrology.core.io.images import DEFAULT_MAX_PIXELS, checked_header, decode_grey_image, image_header_size
 from metrology.core.io.rigs import read_model, read_rig, write_rig
 from metrology.core.io.series import StagePosition, StageSeries, read_series, series_capture_name, write_series
-from metrology.core.io.stacks import CaptureStack, encode_stack, read_stack, write_stack
+from metrology.core.io.stacks import CaptureStack, encode_stack, read_stack, read_verified_stack, write_stack
 
 __all__ = [
     "DEFAULT_MAX_BYTES",
@@ -83,6 +83,7 @@ __all__ = [
     "read_rig",
     "read_series",
     "read_stack",
+    "read_verified_stack",
     "series_capture_name",
     "write_height_npy",
     "write_height_tiff",

@@ -1,0 +1,176 @@
+"""One acquisition: show each pattern, wait for the projector's confirmation and the settle time, grab, check, re-grab.
+
+Order: black, white, black again (the checks' references: the two black frames must agree; the
+white one is also the auto-exposure's frame), then the codec's frames in order. A frame that
+fails its checks (:mod:`.checks`) is grabbed again after another settle time, up to
+``max_grabs`` grabs; a frame still failing then stops the acquisition with
+:class:`AcquisitionError` naming the frame and the reasons, and nothing is kept.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from metrology.acquisition.agent.cameras import Camera, Shown
+from metrology.acquisition.agent.checks import FrameCheck, FrameChecker, auto_exposure, projector_change
+from metrology.acquisition.agent.patterns import ProjectedCodec
+
+
+class AcquisitionError(Exception):
+    """The acquisition cannot complete; the message is the reason reported to the job."""
+
+
+class Projector(Protocol):
+    """Shows a pattern and returns what it reports showing, once on screen (blocking)."""
+
+    def show(self, kind: str, frame: int = -1) -> Shown: ...
+
+
+@dataclass(frozen=True)
+class SequenceOptions:
+    """``settle_s``: wait after each confirmed pattern before grabbing, s; ``max_grabs`` per pattern."""
+
+    settle_s: float = 0.1
+    max_grabs: int = 4
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.settle_s <= 60:
+            raise ValueError(f"settle time must be in [0, 60] s, got {self.settle_s}")
+        if not 1 <= self.max_grabs <= 20:
+            raise ValueError(f"max grabs must be in 1..20, got {self.max_grabs}")
+
+
+@dataclass
+class AcquiredFrames:
+    """The result: ``images`` ``(n_frames, H, W)`` in codec order, the flats, every check made (incl. refused grabs)."""
+
+    images: np.ndarray
+    white: np.ndarray
+    black: np.ndarray
+    exposure_ms: float | None
+    checks: list[FrameCheck] = field(default_factory=list)
+    exposure_steps: list[dict[str, float]] = field(default_factory=list)
+
+    def frame_reports(self) -> list[dict[str, Any]]:
+        """Per pattern: its accepted check with ``regrabs`` (refused grabs before it) and their reasons."""
+        accepted: dict[str, dict[str, Any]] = {}
+        refused: dict[str, list[str]] = {}
+        for check in self.checks:
+            if not check.ok:
+                refused.setdefault(check.name, []).extend(check.reasons)
+                continue
+            data = check.to_dict()
+            data["regrabs"] = len([c for c in self.checks if c.name == check.name and not c.ok])
+            data["refused_reasons"] = refused.get(check.name, [])
+            accepted[check.name] = data  # the last accepted grab of each pattern is the one kept
+        return list(accepted.values())
+
+
+Progress = Callable[[int, str, list[dict[str, Any]]], None]
+
+
+def run_sequence(
+    projector: Projector,
+    camera: Camera,
+    codec: ProjectedCodec,
+    *,
+    exposure_ms: float | None,
+    options: SequenceOptions | None = None,
+    checker: FrameChecker | None = None,
+    progress: Progress | None = None,
+    start_exposure_ms: float = 10.0,
+) -> AcquiredFrames:
+    """Acquire one stack of ``codec`` (module docstring). ``exposure_ms`` None: auto-exposure from the white frame."""
+    opts = options or SequenceOptions()
+    checker = checker or FrameChecker()
+    projected = codec.images()
+    checks: list[FrameCheck] = []
+    total = codec.n_frames + 2
+
+    def report(done: int, phase: str) -> None:
+        if progress is not None:
+            progress(int(5 + 90 * done / total), phase[:64], [c.to_dict() for c in checks])
+
+    def grab(kind: str, frame: int = -1) -> tuple[Shown, np.ndarray]:
+        shown = projector.show(kind, frame)
+        if shown.kind != kind or (kind == "frame" and shown.frame != frame):
+            raise AcquisitionError(f"the projector reports showing {shown.kind} {shown.frame}, not {kind} {frame}")
+        time.sleep(opts.settle_s)
+        return shown, camera.grab(shown)
+
+    steps: list[dict[str, float]] = []
+    if exposure_ms is None:
+
+        def grab_white(e: float) -> np.ndarray:
+            camera.set_exposure(e)
+            return grab("white")[1]
+
+        try:
+            exposure_ms, steps = auto_exposure(grab_white, start_exposure_ms)
+        except ValueError as exc:
+            raise AcquisitionError(str(exc)) from None
+    camera.set_exposure(exposure_ms)
+
+    black = white = None
+    for attempt in range(1, opts.max_grabs + 1):
+        black = grab("black")[1]
+        black_check = checker.check_black(black, grab=attempt)
+        checks.append(black_check)
+        white = grab("white")[1]
+        black_after = grab("black")[1]
+        white_check = checker.check_white(white, black, grab=attempt, black_after=black_after)
+        checks.append(white_check)
+        if white_check.ok:
+            break
+        report(1, f"white refused ({attempt}/{opts.max_grabs})")
+    else:
+        raise AcquisitionError(f"white/black frames refused {opts.max_grabs} times: {'; '.join(white_check.reasons)}")
+    assert black is not None and white is not None
+    report(2, "black and white frames")
+
+    images: list[np.ndarray] = []
+    previous_image, previous_pattern = white, np.full_like(projected[0], 255)
+    for frame, name in enumerate(codec.frame_names):
+        expected_change = projector_change(previous_pattern, projected[frame], checker.options.change_level)
+        for attempt in range(1, opts.max_grabs + 1):
+            shown, image = grab("frame", frame)
+            check = checker.check_frame(
+                image,
+                name=name,
+                frame=frame,
+                previous_image=previous_image,
+                expected_change=expected_change,
+                expected_image=camera.expected(shown),
+                grab=attempt,
+            )
+            checks.append(check)
+            if check.ok:
+                break
+            report(frame + 2, f"re-grab {name}: {check.reasons[0]}")
+        else:
+            raise AcquisitionError(
+                f"frame {name} refused after {opts.max_grabs} grabs: {'; '.join(checks[-1].reasons)}"
+            )
+        images.append(image)
+        previous_image, previous_pattern = image, projected[frame]
+        report(frame + 3, f"grabbed {name}")
+    projector.show("black")
+    return AcquiredFrames(
+        images=np.stack(images), white=white, black=black, exposure_ms=exposure_ms, checks=checks, exposure_steps=steps
+    )
+
+
+class InstantProjector:
+    """A projector with nothing to display (the virtual rig without a page): reports each pattern as shown at once."""
+
+    def __init__(self) -> None:
+        self.seq = 0
+
+    def show(self, kind: str, frame: int = -1) -> Shown:
+        self.seq += 1
+        return Shown(kind=kind, frame=frame if kind == "frame" else -1, seq=self.seq)

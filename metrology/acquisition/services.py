@@ -1,0 +1,380 @@
+"""Writes for acquisition: agents (register, beat, disconnect), acquisition requests, the projector state.
+
+An acquisition is a :class:`~metrology.jobs.models.Job` of kind ``acquire_capture`` that no Celery
+worker runs: the rig's connected agent takes it, reports progress and per-frame checks, and
+uploads the stack; :func:`store_acquired_capture` validates it and, in one transaction, stores the
+capture (source ``rig``) and marks the job done. One agent per rig: a second one is refused while
+the first is connected. An agent not heard from for ``GCPS_AGENT_TIMEOUT_SECONDS`` is
+disconnected by :func:`expire_agents` (called by every agent, projector and status request) and its
+running acquisition failed with the reason; nothing of it is stored.
+"""
+
+from __future__ import annotations
+
+import time
+import uuid
+from datetime import timedelta
+from typing import Any
+
+from django.conf import settings
+from django.core.files.storage import default_storage
+from django.db import transaction
+from django.utils import timezone
+from rest_framework import exceptions, status
+
+from metrology.acquisition.agent.patterns import ProjectedCodec, resolve_codec
+from metrology.acquisition.models import Acquisition, Agent, ProjectorState
+from metrology.api_errors import BadInput
+from metrology.captures import services as capture_services
+from metrology.captures.models import Capture
+from metrology.jobs import services as job_services
+from metrology.jobs.models import Job
+from metrology.rigs.models import Rig
+
+ACQUIRE_KIND = "acquire_capture"
+PROJECTOR_KINDS = ("blank", "test", "white", "black", "frame")
+
+
+class Conflict(exceptions.APIException):
+    """409: refused because of the rig's state (another agent connected, a session no longer valid)."""
+
+    status_code = status.HTTP_409_CONFLICT
+    default_detail = "Refused: the rig is in another state."
+    default_code = "conflict"
+
+
+def _timeout() -> timedelta:
+    return timedelta(seconds=settings.GCPS_AGENT_TIMEOUT_SECONDS)
+
+
+# ----------------------------------------------------------------------------- agents
+def expire_agents(rig: Rig | None = None) -> int:
+    """Disconnect agents not heard from within the timeout (and fail their acquisitions). Returns how many."""
+    now = timezone.now()
+    stale = Agent.objects.filter(disconnected_at__isnull=True, last_seen_at__lt=now - _timeout())
+    if rig is not None:
+        stale = stale.filter(rig=rig)
+    count = 0
+    for agent in list(stale):
+        silent = (now - agent.last_seen_at).total_seconds()
+        disconnect_agent(
+            agent, f"the capture agent stopped responding (not heard from for {silent:.0f} s, {agent.camera})"
+        )
+        count += 1
+    return count
+
+
+def connected_agent(rig: Rig) -> Agent | None:
+    """The rig's connected agent, if any (after expiring silent ones)."""
+    expire_agents(rig)
+    return Agent.objects.filter(rig=rig, disconnected_at__isnull=True).order_by("-connected_at").first()
+
+
+@transaction.atomic
+def register_agent(*, owner, rig: Rig, camera: str, name: str = "", software_version: str = "") -> Agent:
+    """A new agent session for ``rig``. Raises :class:`Conflict` while another agent is connected."""
+    expire_agents(rig)
+    Rig.objects.select_for_update().filter(pk=rig.pk).first()  # serialise registrations of one rig
+    other = Agent.objects.filter(rig=rig, disconnected_at__isnull=True).first()
+    if other is not None:
+        seen = (timezone.now() - other.last_seen_at).total_seconds()
+        raise Conflict(
+            f"rig {rig.pk} already has a connected capture agent (agent {other.pk}, {other.camera}, "
+            f"{other.name or 'unnamed'}, seen {seen:.0f} s ago); stop it first"
+        )
+    if not camera.strip():
+        raise BadInput("camera must name the camera backend, e.g. opencv:0")
+    now = timezone.now()
+    return Agent.objects.create(
+        owner=owner,
+        rig=rig,
+        session=uuid.uuid4(),
+        camera=camera.strip()[:200],
+        name=name.strip()[:200],
+        software_version=software_version[:64],
+        last_seen_at=now,
+    )
+
+
+def agent_for_session(*, owner, rig: Rig, session: Any) -> Agent:
+    """The connected agent of ``session`` (its ``last_seen_at`` refreshed). Raises :class:`Conflict` otherwise."""
+    try:
+        key = uuid.UUID(str(session))
+    except ValueError:
+        raise BadInput(f"session must be the UUID register returned, got {session!r}") from None
+    expire_agents(rig)
+    agent = Agent.objects.filter(session=key, rig=rig, owner=owner).first()
+    if agent is None:
+        raise Conflict(f"no agent session {key} on rig {rig.pk}; register first")
+    if agent.disconnected_at is not None:
+        raise Conflict(f"agent {agent.pk} was disconnected: {agent.disconnect_reason}; register again")
+    now = timezone.now()
+    Agent.objects.filter(pk=agent.pk).update(last_seen_at=now)
+    agent.last_seen_at = now
+    running = Acquisition.objects.filter(agent=agent, job__status=Job.Status.RUNNING).values_list("job_id", flat=True)
+    Job.objects.filter(pk__in=list(running)).update(heartbeat_at=now)
+    return agent
+
+
+def disconnect_agent(agent: Agent, reason: str) -> None:
+    """Mark ``agent`` disconnected and fail its running acquisition with ``reason`` (nothing is stored)."""
+    with transaction.atomic():
+        Agent.objects.filter(pk=agent.pk, disconnected_at__isnull=True).update(
+            disconnected_at=timezone.now(), disconnect_reason=reason[:300]
+        )
+        for acquisition in Acquisition.objects.filter(agent=agent, job__status=Job.Status.RUNNING):
+            _fail_job(acquisition.job_id, f"{reason}; no capture was stored")
+
+
+def _fail_job(job_id: int, reason: str) -> None:
+    Job.objects.filter(pk=job_id, status__in=(Job.Status.QUEUED, Job.Status.RUNNING)).update(
+        status=Job.Status.FAILED, error=reason, finished_at=timezone.now()
+    )
+
+
+# ----------------------------------------------------------------------------- acquisition requests
+def request_acquisition(
+    *,
+    owner,
+    rig: Rig,
+    role: str,
+    z_in_mm: float | None = None,
+    repeat: int = 0,
+    exposure_ms: float | None = None,
+    codec: Any = None,
+    session_id: int | None = None,
+) -> Acquisition:
+    """Queue a capture for the rig's agent. Returns the acquisition with its queued job.
+
+    Raises
+    ------
+    BadInput
+        On a bad role/stage position/exposure/codec; nothing is stored.
+    """
+    if role not in Capture.Role.values:
+        raise BadInput(f"role must be one of {', '.join(Capture.Role.values)}, got {role!r}")
+    capture_services._check_stage(role, z_in_mm)
+    if exposure_ms is not None and not (0 < exposure_ms <= 60_000):
+        raise BadInput(f"exposure must be a number of milliseconds in (0, 60000], got {exposure_ms}")
+    try:
+        projected = resolve_codec(codec)
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    if not projected.is_gcps_v1:
+        raise BadInput(f"codec {projected.name!r}: the application stores gcps-v1 captures only for now")
+    with transaction.atomic():
+        session = capture_services._session_for(owner=owner, rig=rig, session_id=session_id, name="rig capture")
+        job = job_services.create_job(
+            owner=owner,
+            kind=ACQUIRE_KIND,
+            parameters={
+                "rig": rig.pk,
+                "role": role,
+                "z_in_mm": z_in_mm,
+                "repeat": repeat,
+                "exposure_ms": exposure_ms,
+                "codec": projected.spec,
+            },
+        )
+        Job.objects.filter(pk=job.pk).update(phase="waiting for the rig's capture agent")
+        acquisition = Acquisition.objects.create(
+            owner=owner,
+            rig=rig,
+            session=session,
+            role=role,
+            z_in_mm=z_in_mm,
+            repeat=repeat,
+            exposure_ms=exposure_ms,
+            codec={"name": projected.spec},
+            job=job,
+        )
+        job.parameters["acquisition"] = acquisition.pk
+        job.save(update_fields=["parameters"])
+    return acquisition
+
+
+def codec_of(acquisition: Acquisition) -> ProjectedCodec:
+    return resolve_codec(acquisition.codec)
+
+
+def take_acquisition(agent: Agent) -> Acquisition | None:
+    """The oldest queued acquisition of the agent's rig, now running under this agent; ``None`` if none."""
+    with transaction.atomic():
+        acquisition = (
+            Acquisition.objects.select_for_update()
+            .filter(rig_id=agent.rig_id, job__status=Job.Status.QUEUED)
+            .order_by("id")
+            .first()
+        )
+        if acquisition is None:
+            return None
+        now = timezone.now()
+        Job.objects.filter(pk=acquisition.job_id).update(
+            status=Job.Status.RUNNING,
+            attempts=1,
+            run_token=uuid.uuid4(),
+            started_at=now,
+            heartbeat_at=now,
+            phase=f"taken by agent {agent.pk} ({agent.camera})"[:64],
+            progress=1,
+        )
+        acquisition.agent = agent
+        acquisition.save(update_fields=["agent"])
+    acquisition.refresh_from_db()
+    return acquisition
+
+
+def _running_for(agent: Agent, acquisition: Acquisition) -> Job:
+    job = Job.objects.get(pk=acquisition.job_id)
+    if acquisition.agent_id != agent.pk:
+        raise Conflict(f"acquisition {acquisition.pk} is not taken by agent {agent.pk}")
+    if job.status != Job.Status.RUNNING:
+        raise Conflict(f"acquisition {acquisition.pk} is {job.status}: {job.error or job.phase}")
+    return job
+
+
+def report_progress(
+    agent: Agent, acquisition: Acquisition, *, percent: int, phase: str, frames: list | None = None
+) -> None:
+    """Record the agent's progress (0-99), its phase and, optionally, the per-frame checks so far."""
+    _running_for(agent, acquisition)
+    Job.objects.filter(pk=acquisition.job_id, status=Job.Status.RUNNING).update(
+        progress=max(1, min(99, int(percent))), phase=phase[:64], heartbeat_at=timezone.now()
+    )
+    if frames is not None:
+        Acquisition.objects.filter(pk=acquisition.pk).update(frames=frames)
+
+
+def fail_acquisition(agent: Agent, acquisition: Acquisition, reason: str, frames: list | None = None) -> None:
+    """The agent gives up on ``acquisition`` with ``reason``: the job fails, nothing is stored."""
+    _running_for(agent, acquisition)
+    if frames is not None:
+        Acquisition.objects.filter(pk=acquisition.pk).update(frames=frames)
+    _fail_job(acquisition.job_id, reason.strip()[:2000] or "the capture agent reported a failure")
+
+
+def store_acquired_capture(
+    agent: Agent, acquisition: Acquisition, *, upload, camera: str, exposure_ms: float | None, frames: list
+) -> Capture:
+    """Validate the uploaded stack and store it as the acquisition's capture; the job is then done.
+
+    The stack is read and checked in full by the capture reader (names, shapes, the rig's size)
+    before anything is written; the file is saved, then the rows are written in one transaction
+    that re-checks that this agent still runs the acquisition (else the file is deleted again).
+    """
+    job = _running_for(agent, acquisition)
+    rig = acquisition.rig
+    upload.seek(0)
+    stack = capture_services.read_capture_stack(upload, rig)
+    checksum, size = capture_services._sha256(upload)
+    stored = default_storage.save(capture_services._new_stack_name(rig), upload)
+    try:
+        with transaction.atomic():
+            job = Job.objects.select_for_update().get(pk=job.pk)
+            current = Acquisition.objects.select_for_update().get(pk=acquisition.pk)
+            if job.status != Job.Status.RUNNING or current.agent_id != agent.pk:
+                raise Conflict(f"acquisition {acquisition.pk} is {job.status}: {job.error or job.phase}")
+            height_px, width_px = stack.images.shape[1:]
+            capture = Capture.objects.create(
+                owner=acquisition.owner,
+                rig=rig,
+                session=acquisition.session,
+                role=acquisition.role,
+                z_in_mm=acquisition.z_in_mm,
+                repeat=acquisition.repeat,
+                source=Capture.Source.RIG,
+                file=stored,
+                original_name=f"acquisition-{acquisition.pk}.zip",
+                checksum_sha256=checksum,
+                size_bytes=size,
+                bit_depth=int(stack.bit_depth),
+                height_px=height_px,
+                width_px=width_px,
+                parameters={
+                    "source": "rig",
+                    "acquisition": acquisition.pk,
+                    "agent": agent.pk,
+                    "agent_name": agent.name,
+                    "camera": camera[:200] or agent.camera,
+                    "exposure_ms": exposure_ms,
+                    "codec": acquisition.codec,
+                    "regrabs": sum(int(f.get("regrabs", 0)) for f in frames if isinstance(f, dict)),
+                },
+                job=job,
+            )
+            current.capture = capture
+            current.frames = frames
+            current.save(update_fields=["capture", "frames"])
+            now = timezone.now()
+            job.status = Job.Status.DONE
+            job.progress = 100
+            job.phase = "done"
+            job.error = ""
+            job.finished_at = job.heartbeat_at = now
+            job.save()
+            return capture
+    except BaseException:
+        default_storage.delete(stored)
+        raise
+
+
+def run_acquisition_job(job: Job, run: job_services.JobRun) -> None:
+    """Job handler for a requeued acquisition (its agent went silent): it cannot run in a worker."""
+    raise job_services.JobFailedError(
+        "the capture agent running this acquisition stopped responding; acquisitions run on the rig's agent, "
+        "request the capture again once the agent is back"
+    )
+
+
+# ----------------------------------------------------------------------------- projector
+def projector_state(rig: Rig) -> ProjectorState:
+    state, _ = ProjectorState.objects.get_or_create(rig=rig)
+    return state
+
+
+def show_on_projector(rig: Rig, *, kind: str, frame: int = -1, acquisition: Acquisition | None = None) -> int:
+    """Tell the projector page to show a pattern; returns its sequence number."""
+    if kind not in PROJECTOR_KINDS:
+        raise BadInput(f"kind must be one of {', '.join(PROJECTOR_KINDS)}, got {kind!r}")
+    if kind == "frame":
+        if acquisition is None:
+            raise BadInput("a frame needs its acquisition")
+        n = codec_of(acquisition).n_frames
+        if not 0 <= frame < n:
+            raise BadInput(f"frame must be in 0..{n - 1} for this codec, got {frame}")
+    projector_state(rig)
+    with transaction.atomic():
+        state = ProjectorState.objects.select_for_update().get(rig=rig)
+        state.seq += 1
+        state.kind = kind
+        state.frame = frame if kind == "frame" else -1
+        state.acquisition = acquisition
+        state.save(update_fields=["seq", "kind", "frame", "acquisition"])
+        return state.seq
+
+
+def confirm_shown(rig: Rig, *, seq: int, kind: str, frame: int, screen: dict) -> ProjectorState:
+    """The page painted pattern ``seq`` (``kind``, ``frame``) on ``screen``."""
+    now = timezone.now()
+    ProjectorState.objects.filter(rig=rig, seq__gte=seq).update(
+        shown_seq=seq, shown_kind=kind[:16], shown_frame=frame, shown_at=now, screen=screen, page_seen_at=now
+    )
+    return projector_state(rig)
+
+
+def wait_for_state(rig: Rig, *, seq_above: int | None, shown_at_least: int | None, timeout_s: float) -> ProjectorState:
+    """Long-poll: the projector state once ``seq > seq_above`` or ``shown_seq >= shown_at_least``, or at the timeout."""
+    deadline = time.monotonic() + max(0.0, min(timeout_s, 25.0))
+    while True:
+        state = projector_state(rig)
+        if seq_above is not None and state.seq > seq_above:
+            return state
+        if shown_at_least is not None and state.shown_seq >= shown_at_least:
+            return state
+        if time.monotonic() >= deadline:
+            return state
+        time.sleep(0.02)
+
+
+def mark_page_seen(rig: Rig) -> None:
+    ProjectorState.objects.filter(rig=rig).update(page_seen_at=timezone.now())

@@ -1,0 +1,251 @@
+/* Zero-install webcam mode of the projector page (docs/acquisition.md): the page is the rig's
+ * capture agent. It registers with the server (the agent protocol, session-authenticated), takes
+ * queued acquisitions, shows each pattern itself (window.gcpsProjector from projector.js), grabs a
+ * webcam frame per pattern through getUserMedia, and uploads the stack as a zip of PNGs.
+ *
+ * Frame choice: after a pattern is on screen, wait until the camera image has changed from the
+ * previous grabbed frame (on at least MIN_CHANGE of the pixels by more than CHANGE_GREY levels),
+ * then the settle time, then take the next new video frame. Order: black, white, black, then the
+ * codec's frames. Per frame the page reports the saturated and dark fractions and the change.
+ */
+(function () {
+  "use strict";
+  var root = document.getElementById("projector");
+  var video = document.getElementById("webcam-video");
+  var P = window.gcpsProjector;
+  var csrf = root.dataset.csrf;
+  var settleMs = Number(root.dataset.settleMs || 300);
+  var CHANGE_GREY = 24, MIN_CHANGE = 0.08, CHANGE_TIMEOUT_MS = 8000, MAX_GRABS = 3;
+  var session = null, heartbeat = null, cameraLabel = "browser-webcam";
+
+  function sleep(ms) { return new Promise(function (r) { setTimeout(r, ms); }); }
+  function url(template, id) { return template.replace("{id}", String(id)); }
+
+  async function call(address, body) {
+    var response = await fetch(address, {
+      method: "POST", credentials: "same-origin",
+      headers: { "Content-Type": "application/json", "X-CSRFToken": csrf },
+      body: JSON.stringify(body),
+    });
+    if (response.status === 204) return null;
+    var data = await response.json().catch(function () { return {}; });
+    if (!response.ok) throw new Error(data.error || "HTTP " + response.status);
+    return data;
+  }
+
+  function nextVideoFrame() {
+    // the next frame the camera delivers (or 100 ms, where requestVideoFrameCallback is missing or idle)
+    return new Promise(function (resolve) {
+      if (video.requestVideoFrameCallback) video.requestVideoFrameCallback(function () { resolve(); });
+      setTimeout(resolve, 100);
+    });
+  }
+
+  var grabCanvas = document.createElement("canvas");
+  var grabCtx = grabCanvas.getContext("2d", { willReadFrequently: true });
+
+  function greyFrame() {
+    var w = video.videoWidth, h = video.videoHeight;
+    if (grabCanvas.width !== w || grabCanvas.height !== h) { grabCanvas.width = w; grabCanvas.height = h; }
+    grabCtx.drawImage(video, 0, 0);
+    var rgba = grabCtx.getImageData(0, 0, w, h).data;
+    var grey = new Uint8Array(w * h);
+    for (var i = 0, j = 0; i < grey.length; i++, j += 4) {
+      grey[i] = Math.round(0.299 * rgba[j] + 0.587 * rgba[j + 1] + 0.114 * rgba[j + 2]);
+    }
+    return { width: w, height: h, data: grey };
+  }
+
+  function changeFraction(a, b) {
+    var n = 0;
+    for (var i = 0; i < a.data.length; i++) if (Math.abs(a.data[i] - b.data[i]) > CHANGE_GREY) n++;
+    return n / a.data.length;
+  }
+
+  function stats(frame) {
+    var sat = 0, dark = 0, sum = 0;
+    for (var i = 0; i < frame.data.length; i++) {
+      var v = frame.data[i];
+      if (v >= 255) sat++;
+      if (v <= 5) dark++;
+      sum += v;
+    }
+    var n = frame.data.length;
+    return { saturated_fraction: sat / n, dark_fraction: dark / n, mean_grey: sum / n };
+  }
+
+  async function grabAfterChange(previous) {
+    var start = performance.now();
+    var changed = null;
+    if (previous) {
+      for (;;) {
+        await nextVideoFrame();
+        changed = changeFraction(greyFrame(), previous);
+        if (changed >= MIN_CHANGE) break;
+        if (performance.now() - start > CHANGE_TIMEOUT_MS) return { frame: null, change: changed };
+      }
+    }
+    await sleep(settleMs);
+    await nextVideoFrame();
+    var frame = greyFrame();
+    return { frame: frame, change: previous ? changeFraction(frame, previous) : null };
+  }
+
+  function pngOf(frame) {
+    var canvas = document.createElement("canvas");
+    canvas.width = frame.width; canvas.height = frame.height;
+    var ctx = canvas.getContext("2d");
+    var image = ctx.createImageData(frame.width, frame.height);
+    for (var i = 0, j = 0; i < frame.data.length; i++, j += 4) {
+      image.data[j] = image.data[j + 1] = image.data[j + 2] = frame.data[i];
+      image.data[j + 3] = 255;
+    }
+    ctx.putImageData(image, 0, 0);
+    return new Promise(function (resolve) { canvas.toBlob(resolve, "image/png"); })
+      .then(function (blob) { return blob.arrayBuffer(); })
+      .then(function (buffer) { return new Uint8Array(buffer); });
+  }
+
+  // a zip without compression ("stored"), enough for PNGs
+  var CRC = (function () {
+    var table = new Uint32Array(256);
+    for (var n = 0; n < 256; n++) {
+      var c = n;
+      for (var k = 0; k < 8; k++) c = c & 1 ? 0xedb88320 ^ (c >>> 1) : c >>> 1;
+      table[n] = c >>> 0;
+    }
+    return table;
+  })();
+  function crc32(bytes) {
+    var c = 0xffffffff;
+    for (var i = 0; i < bytes.length; i++) c = CRC[(c ^ bytes[i]) & 0xff] ^ (c >>> 8);
+    return (c ^ 0xffffffff) >>> 0;
+  }
+  function zip(files) {
+    var parts = [], central = [], offset = 0;
+    files.forEach(function (file) {
+      var name = new TextEncoder().encode(file.name), crc = crc32(file.data), size = file.data.length;
+      var local = new DataView(new ArrayBuffer(30));
+      local.setUint32(0, 0x04034b50, true); local.setUint16(4, 20, true); local.setUint32(14, crc, true);
+      local.setUint32(18, size, true); local.setUint32(22, size, true); local.setUint16(26, name.length, true);
+      parts.push(new Uint8Array(local.buffer), name, file.data);
+      var entry = new DataView(new ArrayBuffer(46));
+      entry.setUint32(0, 0x02014b50, true); entry.setUint16(4, 20, true); entry.setUint16(6, 20, true);
+      entry.setUint32(16, crc, true); entry.setUint32(20, size, true); entry.setUint32(24, size, true);
+      entry.setUint16(28, name.length, true); entry.setUint32(42, offset, true);
+      central.push(new Uint8Array(entry.buffer), name);
+      offset += 30 + name.length + size;
+    });
+    var centralSize = central.reduce(function (s, p) { return s + p.length; }, 0);
+    var end = new DataView(new ArrayBuffer(22));
+    end.setUint32(0, 0x06054b50, true); end.setUint16(8, files.length, true); end.setUint16(10, files.length, true);
+    end.setUint32(12, centralSize, true); end.setUint32(16, offset, true);
+    return new Blob(parts.concat(central, [new Uint8Array(end.buffer)]), { type: "application/zip" });
+  }
+
+  async function acquire(acquisition) {
+    var id = acquisition.id, checks = [];
+    // ask for the rig's camera size: the server refuses frames of another size
+    var size = { width: { ideal: Number(root.dataset.cameraWidth) }, height: { ideal: Number(root.dataset.cameraHeight) } };
+    var stream = await navigator.mediaDevices.getUserMedia({ video: size, audio: false });
+    try {
+      var track = stream.getVideoTracks()[0];
+      cameraLabel = "browser:" + (track && track.label ? track.label : "webcam");
+      video.srcObject = stream;
+      await video.play();
+      if (video.videoWidth !== Number(root.dataset.cameraWidth) || video.videoHeight !== Number(root.dataset.cameraHeight)) {
+        throw new Error("the webcam gives " + video.videoWidth + "x" + video.videoHeight + " frames, the rig's camera is " +
+                        root.dataset.cameraWidth + "x" + root.dataset.cameraHeight + ": set the rig's width_px and height_px to the webcam's");
+      }
+      var sequence = [{ kind: "black", name: "black" }, { kind: "white", name: "white" }, { kind: "black", name: "black" }];
+      acquisition.frame_names.forEach(function (name, k) { sequence.push({ kind: "frame", frame: k, name: name }); });
+      var previous = null, frames = [];
+      for (var s = 0; s < sequence.length; s++) {
+        var item = sequence[s], result = null;
+        await P.show({ kind: item.kind, frame: item.frame === undefined ? -1 : item.frame, acquisition: id, seq: 0 });
+        for (var attempt = 1; attempt <= MAX_GRABS; attempt++) {
+          result = await grabAfterChange(previous);
+          if (result.frame) break;
+        }
+        if (!result.frame) {
+          throw new Error("the camera image did not change after showing " + item.name + " (" + MAX_GRABS +
+                          " tries): is the webcam looking at the projection?");
+        }
+        var check = Object.assign({ name: item.name, kind: item.kind, frame: item.frame === undefined ? -1 : item.frame,
+                                    change_fraction: result.change, regrabs: 0, refused_reasons: [], ok: true },
+                                  stats(result.frame));
+        checks.push(check);
+        previous = result.frame;
+        if (item.kind === "frame") frames.push({ name: item.name + ".png", frame: result.frame });
+        await call(url(root.dataset.progressUrl, id), {
+          session: session, percent: Math.round(5 + 85 * (s + 1) / sequence.length), phase: "grabbed " + item.name,
+          frames: checks,
+        });
+      }
+      await P.show({ kind: "black", frame: -1, seq: 0 });
+      var files = [];
+      for (var f = 0; f < frames.length; f++) files.push({ name: frames[f].name, data: await pngOf(frames[f].frame) });
+      var form = new FormData();
+      form.append("session", session);
+      form.append("camera", cameraLabel);
+      form.append("frames", JSON.stringify(checks));
+      form.append("file", zip(files), "acquisition-" + id + ".zip");
+      var response = await fetch(url(root.dataset.uploadUrl, id), {
+        method: "POST", credentials: "same-origin", headers: { "X-CSRFToken": csrf }, body: form,
+      });
+      var body = await response.json().catch(function () { return {}; });
+      if (!response.ok) throw new Error(body.error || "upload: HTTP " + response.status);
+      root.dataset.lastCapture = String(body.capture);
+    } finally {
+      stream.getTracks().forEach(function (t) { t.stop(); });
+      video.srcObject = null;
+    }
+  }
+
+  async function main() {
+    for (;;) {
+      try {
+        var registered = await call(root.dataset.registerUrl, { camera: cameraLabel, name: "projector page (webcam)" });
+        session = registered.session;
+        heartbeat = setInterval(function () {
+          call(root.dataset.heartbeatUrl, { session: session }).catch(function () {});
+        }, 1000 * registered.heartbeat_seconds);
+        break;
+      } catch (err) {
+        P.setStatus("webcam agent: " + err.message);
+        await sleep(3000);
+      }
+    }
+    root.dataset.agentSession = session;
+    P.setStatus("webcam agent ready");
+    window.addEventListener("pagehide", function () {
+      var data = new Blob([JSON.stringify({ session: session, reason: "the webcam page was closed" })],
+                          { type: "application/json" });
+      navigator.sendBeacon && fetch(root.dataset.disconnectUrl, {
+        method: "POST", keepalive: true, credentials: "same-origin",
+        headers: { "Content-Type": "application/json", "X-CSRFToken": csrf }, body: data,
+      });
+    });
+    for (;;) {
+      var acquisition = null;
+      try {
+        acquisition = await call(root.dataset.takeUrl, { session: session });
+      } catch (err) {
+        P.setStatus("webcam agent: " + err.message);
+        await sleep(3000);
+        continue;
+      }
+      if (!acquisition) { await sleep(1000); continue; }
+      try {
+        await acquire(acquisition);
+      } catch (err) {
+        await call(url(root.dataset.failUrl, acquisition.id), { session: session, reason: "webcam page: " + err.message })
+          .catch(function () {});
+        await P.show({ kind: "test", frame: -1, seq: 0 });
+        P.setStatus("last acquisition failed: " + err.message);
+      }
+    }
+  }
+
+  main();
+})();

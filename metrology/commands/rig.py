@@ -1,0 +1,97 @@
+"""``gcps rig import``: write a pinhole rig file from calibration outputs (see docs/pinhole.md).
+
+::
+
+    gcps rig import --out RIG.json --camera-size W H --projector-size W H \\
+        --set camera_K=SRC --set camera_dist=SRC --set projector_K=SRC --set projector_dist=SRC \\
+        --set R=SRC --set T=SRC            # or --set rvec=SRC instead of R
+    gcps rig import --out RIG.json --projector-size W H --opencv calibration.xml
+
+``SRC`` is a text matrix file, ``FILE.yml#NODE``, ``FILE.xml#NODE``, ``FILE.npz#KEY``,
+``FILE.npy`` or ``FILE.json#dotted.key`` (:mod:`metrology.core.rig_import`). ``--set`` wins
+over what ``--opencv`` found. Prints a JSON summary naming the source of every value.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+SET_KEYS = "camera_K, camera_dist, projector_K, projector_dist, R, rvec, T"
+
+
+def register(subparsers: Any) -> None:
+    """Add ``gcps rig`` (with its ``import`` subcommand) to the ``gcps`` parser's subparsers."""
+    rig = subparsers.add_parser("rig", help="rig files: import a calibrated pinhole rig")
+    sub = rig.add_subparsers(dest="rig_command", required=True, metavar="ACTION")
+    p = sub.add_parser(
+        "import",
+        help="write a pinhole rig file from calibration matrices (text, OpenCV YAML/XML, npz, npy, JSON)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--out", required=True, help="rig file to write (.json)")
+    p.add_argument("--camera-size", type=int, nargs=2, metavar=("W", "H"), help="camera image size, px")
+    p.add_argument(
+        "--projector-size",
+        type=float,
+        nargs=2,
+        metavar=("W", "H"),
+        required=True,
+        help="projector size in projector units (the codec's)",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=SRC",
+        help=f"one value: KEY one of {SET_KEYS} (repeatable)",
+    )
+    p.add_argument("--opencv", metavar="FILE", help="OpenCV FileStorage file: values found by their node names")
+    p.set_defaults(func=cmd_rig_import)
+
+
+def cmd_rig_import(args: argparse.Namespace) -> dict[str, Any]:
+    """Read every source, validate the rig, write it atomically; return the summary."""
+    from metrology.core.io import atomic_path
+    from metrology.core.rig_import import (
+        KEYS,
+        RigImportError,
+        check_count,
+        opencv_sources,
+        read_source,
+        rig_from_values,
+    )
+
+    sources: dict[str, str] = {}
+    camera_size = tuple(args.camera_size) if args.camera_size else None
+    size_from = "--camera-size" if camera_size else None
+    if args.opencv:
+        scan = opencv_sources(args.opencv)
+        sources.update(scan.sources)
+        if camera_size is None and scan.camera_size is not None:
+            camera_size, size_from = scan.camera_size, scan.camera_size_node
+    for item in args.set:
+        key, sep, src = item.partition("=")
+        if not sep or not src:
+            raise RigImportError(f"--set takes KEY=SRC, got {item!r}")
+        if key not in KEYS:
+            raise RigImportError(f"--set: unknown key {key!r}; expected one of {', '.join(KEYS)}")
+        sources[key] = src
+    set_keys = {item.partition("=")[0] for item in args.set}
+    if "R" in set_keys and "rvec" not in set_keys:
+        sources.pop("rvec", None)  # --set R overrides a rotation vector found by --opencv
+    if "rvec" in set_keys and "R" not in set_keys:
+        sources.pop("R", None)
+    if camera_size is None:
+        raise RigImportError("--camera-size W H is required (no image size node was found)")
+    values = {key: check_count(key, read_source(src, key)) for key, src in sources.items()}
+    rig = rig_from_values(values, (int(camera_size[0]), int(camera_size[1])), tuple(args.projector_size))
+    with atomic_path(args.out) as tmp:
+        tmp.write_text(rig.to_json(), encoding="utf-8")
+    return {
+        "out": args.out,
+        "read": sources,
+        "camera_size": {"value": list(camera_size), "from": size_from},
+        "triangulate_auto": rig.auto_axis(),
+    }

@@ -1,0 +1,982 @@
+"""The pinhole model: a calibrated OpenCV pinhole camera and pinhole projector with lens distortion.
+
+Rig file (``"model": "pinhole"``; see docs/pinhole.md)::
+
+    {"model": "pinhole",
+     "camera":    {"width_px": 2048, "height_px": 1536, "K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]],
+                   "dist": [k1, k2, p1, p2, k3]},
+     "projector": {"width": 1280, "height": 800, "K": [[...]], "dist": [...]},
+     "R": [[...], [...], [...]], "T": [tx, ty, tz]}
+
+The camera frame is the model frame (mm); a point ``X_c`` of it is ``X_p = R X_c + T`` in the
+projector's frame, so ``T`` is the camera centre in the projector frame and the projector
+centre is ``C_p = -R^T T`` in the camera frame. ``K`` maps distorted normalized coordinates to
+pixels (camera) or projector units (projector), pixel centres at integers; ``dist`` holds 4, 5,
+8, 12 or 14 OpenCV coefficients (:mod:`metrology.core.distortion`), absent or empty for none.
+
+Triangulation
+-------------
+Camera pixel ``(k, j)`` sees the ray ``X = t d``, ``d = (x_n, y_n, 1)`` with ``(x_n, y_n)`` its
+undistorted normalized coordinates (computed once per rig and frame size, Newton to 1e-6 px).
+
+- **plane** (default), axis ``u``: the projector column of undistorted normalized abscissa
+  ``x_p`` is the plane ``n . X_p = 0`` with ``n = (1, 0, -x_p)``; in the camera frame the ray
+  meets it at ``t = -(T_x - x_p T_z) / ((R d)_x - x_p (R d)_z)``. Without projector distortion
+  ``x_p`` is affine in ``u`` and ``t = -(a + b u) / (A + B u)`` with per-pixel tables ``A, B``
+  (a Mobius map of ``u``, no iteration). With distortion the decoded ``u`` is a distorted
+  coordinate: with ``v`` decoded too, ``(u, v)`` is undistorted jointly; with ``u`` alone the
+  uncoded coordinate follows the pixel's epipolar line ``y_p = c0 + c1 x_p`` (exact in
+  undistorted projector coordinates) and ``x_p`` solves ``fx D_x(x_p, c0 + c1 x_p) + s D_y + cx
+  = u`` by Newton's method to 1e-6 projector units (the reprojection of the uncoded coordinate,
+  iterated to convergence in closed form). Axis ``v`` is the same with rows (``n = (0, 1, -y_p)``).
+- **midpoint**: the midpoint of the shortest segment between the camera ray and the projector
+  ray of ``(x_p, y_p)`` (both axes decoded, or one axis and its epipolar line).
+
+Which axis (``axis="auto"``): ``u`` when ``|T_x| >= |T_y|``, else ``v``: the axis whose planes
+the baseline crosses most steeply.
+
+Uncertainty: ``sigma_X = |dt/du| |d| sigma_u`` (mm), ``dt/du = dt/dx_p dx_p/du`` the analytic
+derivative of the ray-plane intersection (``dx_p/du`` the inverse of the distortion's
+derivative along the epipolar line, or ``1 / fx`` without distortion).
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import threading
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+import numpy.typing as npt
+
+from metrology.core.distortion import DIST_COUNTS, Distortion, check_dist, undistort_pixels
+from metrology.core.geometry.base import (
+    CameraRays,
+    GeometryError,
+    GeometryModel,
+    PreparedGeometry,
+    ReferenceSurface,
+    check_axes,
+    check_frame,
+)
+from metrology.core.tiling import run_tiled
+
+MODEL_NAME = "pinhole"
+TOP_KEYS: tuple[str, ...] = ("model", "camera", "projector", "R", "T")
+CAMERA_KEYS: tuple[str, ...] = ("width_px", "height_px", "K", "dist")
+PROJECTOR_KEYS: tuple[str, ...] = ("width", "height", "K", "dist")
+AXIS_CHOICES: tuple[str, ...] = ("auto", "u", "v")
+METHOD_CHOICES: tuple[str, ...] = ("plane", "midpoint")
+ROTATION_TOL = 1e-6
+PROJECTOR_TOL = 1e-6
+"""Convergence tolerance of the projector coordinate's undistortion, projector units."""
+PROJECTOR_MAX_ITER = 30
+
+POLY_DEGREE = 9
+"""Degree of the per-pixel polynomial ``x_p(u)`` along the epipolar line (projector distortion, one axis)."""
+POLY_NODES = 14
+"""Chebyshev nodes at which each pixel's ``x_p(u)`` is solved exactly (Newton) to build the polynomial."""
+POLY_TOL = 5e-6
+"""A pixel's polynomial is used when its Chebyshev tail (the truncated terms) is below this, in
+projector units; other pixels are solved by Newton on the epipolar line at every frame."""
+
+Matrix3 = tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
+
+GRID_TOL = 2e-5
+"""Largest bilinear-interpolation error (projector units, estimated from the grid's second
+differences) accepted for the projector's undistortion grid (both axes decoded)."""
+GRID_STEPS: tuple[float, ...] = (1.0, 0.5)
+"""Grid spacings tried, projector units, coarsest first; without one that meets
+:data:`GRID_TOL` both-axes pixels are undistorted by Newton at every frame."""
+
+
+class PinholeRigError(GeometryError):
+    """A pinhole rig file is malformed (the message names the key)."""
+
+
+# --------------------------------------------------------------------------- parsing helpers
+def _number(value: Any, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise PinholeRigError(f"{name} must be a number, got {value!r}")
+    f = float(value)
+    if not math.isfinite(f):
+        raise PinholeRigError(f"{name} must be finite, got {value!r}")
+    return f
+
+
+def _matrix(value: Any, name: str) -> Matrix3:
+    if not isinstance(value, (list, tuple)) or len(value) != 3:
+        raise PinholeRigError(f"{name} must be a 3x3 matrix (three rows of three numbers), got {value!r}")
+    rows = []
+    for i, row in enumerate(value):
+        if not isinstance(row, (list, tuple)) or len(row) != 3:
+            raise PinholeRigError(f"{name} row {i} must hold three numbers, got {row!r}")
+        rows.append(tuple(_number(x, f"{name}[{i}][{j}]") for j, x in enumerate(row)))
+    return (rows[0], rows[1], rows[2])  # type: ignore[return-value]
+
+
+def _check_keys(data: Any, allowed: tuple[str, ...], required: tuple[str, ...], where: str) -> Mapping[str, Any]:
+    if not isinstance(data, Mapping):
+        raise PinholeRigError(f"{where} must be a JSON object, got {type(data).__name__}")
+    unknown = [key for key in data if key not in allowed]
+    if unknown:
+        raise PinholeRigError(f"{where} has unknown key {unknown[0]!r} (allowed: {', '.join(allowed)})")
+    missing = [key for key in required if key not in data]
+    if missing:
+        raise PinholeRigError(f"{where} is missing key {missing[0]!r}")
+    return data
+
+
+def _intrinsics(value: Any, name: str) -> Matrix3:
+    k = _matrix(value, name)
+    if k[0][0] <= 0 or k[1][1] <= 0:
+        raise PinholeRigError(f"{name} must have fx > 0 and fy > 0, got fx={k[0][0]!r}, fy={k[1][1]!r}")
+    if k[1][0] != 0 or k[2][0] != 0 or k[2][1] != 0 or k[2][2] != 1:
+        raise PinholeRigError(f"{name} must have the form [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {list(k)}")
+    return k
+
+
+def _dist(value: Any, name: str) -> tuple[float, ...]:
+    if value is None:
+        return ()
+    if not isinstance(value, (list, tuple)):
+        raise PinholeRigError(f"{name} must be a list of 4, 5, 8, 12 or 14 numbers, got {value!r}")
+    coeffs = tuple(_number(x, f"{name}[{i}]") for i, x in enumerate(value))
+    if coeffs and len(coeffs) not in DIST_COUNTS:
+        raise PinholeRigError(f"{name} must hold 4, 5, 8, 12 or 14 coefficients (or none), got {len(coeffs)}")
+    return coeffs
+
+
+def _positive_int(value: Any, name: str) -> int:
+    f = _number(value, name)
+    if not f.is_integer() or f <= 0:
+        raise PinholeRigError(f"{name} must be a positive integer, got {value!r}")
+    return int(f)
+
+
+def _positive(value: Any, name: str) -> float:
+    f = _number(value, name)
+    if f <= 0:
+        raise PinholeRigError(f"{name} must be positive, got {value!r}")
+    return f
+
+
+def check_rotation(R: npt.ArrayLike, name: str = "R") -> None:
+    """Raise :class:`PinholeRigError` naming ``name`` unless ``|R^T R - I| < 1e-6`` and ``det R = +1``."""
+    r = np.asarray(R, dtype=np.float64)
+    err = float(np.abs(r.T @ r - np.eye(3)).max())
+    if not err < ROTATION_TOL:
+        raise PinholeRigError(f"{name} is not a rotation: max |R^T R - I| = {err:.3g} (must be < {ROTATION_TOL:g})")
+    det = float(np.linalg.det(r))
+    if det < 0:
+        raise PinholeRigError(f"{name} is not a rotation: det R = {det:.6g} (a reflection; must be +1)")
+
+
+# --------------------------------------------------------------------------- the rig
+@dataclass(frozen=True)
+class PinholeCamera:
+    """The camera: image size (pixels), intrinsics ``K`` and distortion (0/4/5/8/12/14 coefficients)."""
+
+    width_px: int
+    height_px: int
+    K: Matrix3
+    dist: tuple[float, ...] = ()
+
+    @property
+    def distortion(self) -> Distortion:
+        return Distortion(check_dist(self.dist, "camera dist"))
+
+
+@dataclass(frozen=True)
+class PinholeProjector:
+    """The projector: size in projector units (the codec's), intrinsics ``K`` and distortion."""
+
+    width: float
+    height: float
+    K: Matrix3
+    dist: tuple[float, ...] = ()
+
+    @property
+    def distortion(self) -> Distortion:
+        return Distortion(check_dist(self.dist, "projector dist"))
+
+
+@dataclass(frozen=True)
+class PinholeRig(GeometryModel):
+    """A calibrated pinhole projector-camera rig (see the module docstring).
+
+    Build it with :meth:`from_dict` (validates every key) or directly; immutable and hashable.
+    """
+
+    camera: PinholeCamera
+    projector: PinholeProjector
+    R: Matrix3
+    T: tuple[float, float, float]
+
+    model: ClassVar[str] = MODEL_NAME
+
+    def __post_init__(self) -> None:
+        check_rotation(self.R)
+
+    # ------------------------------------------------------------------ I/O
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> PinholeRig:
+        """Parse and validate a rig file's JSON object; :class:`PinholeRigError` names the bad key."""
+        data = _check_keys(data, TOP_KEYS, TOP_KEYS, "pinhole rig")
+        if data["model"] != MODEL_NAME:
+            raise PinholeRigError(f"rig model must be {MODEL_NAME!r} here, got {data['model']!r}")
+        cam = _check_keys(data["camera"], CAMERA_KEYS, CAMERA_KEYS[:3], "camera")
+        proj = _check_keys(data["projector"], PROJECTOR_KEYS, PROJECTOR_KEYS[:3], "projector")
+        camera = PinholeCamera(
+            width_px=_positive_int(cam["width_px"], "camera width_px"),
+            height_px=_positive_int(cam["height_px"], "camera height_px"),
+            K=_intrinsics(cam["K"], "camera K"),
+            dist=_dist(cam.get("dist"), "camera dist"),
+        )
+        projector = PinholeProjector(
+            width=_positive(proj["width"], "projector width"),
+            height=_positive(proj["height"], "projector height"),
+            K=_intrinsics(proj["K"], "projector K"),
+            dist=_dist(proj.get("dist"), "projector dist"),
+        )
+        R = _matrix(data["R"], "R")
+        t = data["T"]
+        if not isinstance(t, (list, tuple)) or len(t) != 3:
+            raise PinholeRigError(f"T must be a list of three numbers (mm), got {t!r}")
+        T = (_number(t[0], "T[0]"), _number(t[1], "T[1]"), _number(t[2], "T[2]"))
+        return cls(camera=camera, projector=projector, R=R, T=T)
+
+    @classmethod
+    def from_json(cls, text: str) -> PinholeRig:
+        """Parse a rig file's text."""
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise PinholeRigError(f"rig file is not valid JSON: {exc.msg} at line {exc.lineno}") from exc
+        return cls.from_dict(data)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The rig file's JSON object (keys in the contract's order; ``dist`` omitted when empty)."""
+
+        def size(x: float) -> float | int:
+            return int(x) if float(x).is_integer() else float(x)
+
+        camera: dict[str, Any] = {
+            "width_px": self.camera.width_px,
+            "height_px": self.camera.height_px,
+            "K": [list(row) for row in self.camera.K],
+        }
+        if self.camera.dist:
+            camera["dist"] = list(self.camera.dist)
+        projector: dict[str, Any] = {
+            "width": size(self.projector.width),
+            "height": size(self.projector.height),
+            "K": [list(row) for row in self.projector.K],
+        }
+        if self.projector.dist:
+            projector["dist"] = list(self.projector.dist)
+        return {
+            "model": MODEL_NAME,
+            "camera": camera,
+            "projector": projector,
+            "R": [list(row) for row in self.R],
+            "T": list(self.T),
+        }
+
+    def to_json(self) -> str:
+        """The rig file's text (indented JSON, full float precision, trailing newline)."""
+        return json.dumps(self.to_dict(), indent=2) + "\n"
+
+    # ------------------------------------------------------------------ geometry
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.camera.height_px, self.camera.width_px)
+
+    @property
+    def projector_center_mm(self) -> np.ndarray:
+        """``C_p = -R^T T``: the projector's centre in the camera frame, ``(3,)`` float64, mm."""
+        return np.asarray(-np.asarray(self.R).T @ np.asarray(self.T))
+
+    def auto_axis(self) -> str:
+        """``"u"`` when ``|T_x| >= |T_y|``, else ``"v"``."""
+        return "u" if abs(self.T[0]) >= abs(self.T[1]) else "v"
+
+    def prepare(
+        self,
+        shape: tuple[int, int] | None = None,
+        projector_size: tuple[float, float] | None = None,
+        *,
+        axis: str = "auto",
+        method: str = "plane",
+    ) -> PreparedPinhole:
+        """The model prepared for ``shape`` (must be the camera size) and the codec's projector size
+        (must equal the rig's), triangulating on ``axis`` (auto|u|v) by ``method`` (plane|midpoint).
+
+        Cached per (rig, sizes, axis, method); the camera rays are cached per rig.
+        """
+        if axis not in AXIS_CHOICES:
+            raise ValueError(f"triangulate must be one of {', '.join(AXIS_CHOICES)}, got {axis!r}")
+        if method not in METHOD_CHOICES:
+            raise ValueError(f"method must be one of {', '.join(METHOD_CHOICES)}, got {method!r}")
+        if shape is not None and tuple(shape) != self.shape:
+            raise GeometryError(
+                f"frames are {shape[1]}x{shape[0]} px but the rig's camera is "
+                f"{self.camera.width_px}x{self.camera.height_px} px"
+            )
+        if projector_size is not None:
+            w, h = projector_size
+            if abs(w - self.projector.width) > 1e-9 or abs(h - self.projector.height) > 1e-9:
+                raise GeometryError(
+                    f"the codec's projector is {w:g}x{h:g} but the rig's projector is "
+                    f"{self.projector.width:g}x{self.projector.height:g}"
+                )
+        resolved = self.auto_axis() if axis == "auto" else axis
+        return _prepare_cached(self, resolved, method)
+
+
+def _table_threads() -> int | None:
+    """Threads for building tables: one inside a tile worker (a nested run_tiled on the same
+    pool would wait for workers that are all busy), the default elsewhere."""
+    return 1 if threading.current_thread().name.startswith("gcps-tile") else None
+
+
+@functools.lru_cache(maxsize=2)  # tables of a 2048x1536 rig with distortion: ~400 MB
+def _prepare_cached(rig: PinholeRig, axis: str, method: str) -> PreparedPinhole:
+    return PreparedPinhole(rig, axis, method)
+
+
+@functools.lru_cache(maxsize=4)
+def _camera_tables(rig_camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
+    """Undistorted normalized coordinates ``(x_n, y_n)`` of every camera pixel, ``(H, W)`` float64 each."""
+    h, w = rig_camera.height_px, rig_camera.width_px
+    xn, yn = np.empty((h, w)), np.empty((h, w))
+    K, dist = np.asarray(rig_camera.K), rig_camera.distortion
+    cols = np.arange(w, dtype=np.float64)
+    failed_rows: list[int] = []
+
+    def run(rows: slice) -> None:  # row blocks of ~32k pixels: temporaries stay in cache
+        jj, kk = np.meshgrid(cols, np.arange(rows.start, rows.stop, dtype=np.float64))
+        res = undistort_pixels(K, dist, jj, kk)
+        xn[rows], yn[rows] = res.x, res.y
+        failed_rows.append(res.n_failed)
+
+    run_tiled(run, h, w, threads=_table_threads(), tile_px=1 << 15)
+    failed = sum(failed_rows)
+    if failed:
+        raise GeometryError(
+            f"camera dist: {failed} pixel(s) of the {w}x{h} frame cannot be undistorted "
+            "(the distortion folds over inside the image)"
+        )
+    return xn, yn
+
+
+@dataclass(frozen=True)
+class UndistortionGrid:
+    """The projector's undistortion sampled on a grid, for bilinear look-ups.
+
+    ``(x_p, y_p) = K^-1 (u, v) + (dx, dy)(u, v)``: the corrections ``dx, dy`` (float32
+    ``(n_v, n_u)``) at ``u = -1 + step i``, ``v = -1 + step k``, exact (Newton, 1e-9 units).
+    ``error`` is the estimated worst bilinear error (projector units). ``dx4``, ``dy4`` hold the
+    four corners of every cell side by side (``(n_v - 1) (n_u - 1), 4``), so that a look-up is
+    one gather of 16 bytes instead of four scattered ones.
+    """
+
+    step: float
+    dx: np.ndarray
+    dy: np.ndarray
+    error: float
+    dx4: np.ndarray = field(repr=False, default_factory=lambda: np.empty((0, 4), np.float32))
+    dy4: np.ndarray = field(repr=False, default_factory=lambda: np.empty((0, 4), np.float32))
+
+    def __post_init__(self) -> None:
+        for name in ("dx", "dy"):
+            t = getattr(self, name)
+            corners = np.stack([t[:-1, :-1], t[:-1, 1:], t[1:, :-1], t[1:, 1:]], axis=-1)
+            object.__setattr__(self, name + "4", np.ascontiguousarray(corners.reshape(-1, 4)))
+
+    @classmethod
+    def build(cls, K: np.ndarray, dist: Distortion, width: float, height: float) -> UndistortionGrid | None:
+        """The coarsest grid of :data:`GRID_STEPS` meeting :data:`GRID_TOL`, or None."""
+        fx, s, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
+        for step in GRID_STEPS:
+            gu = -1.0 + step * np.arange(math.ceil((width + 1) / step) + 2)
+            gv = -1.0 + step * np.arange(math.ceil((height + 1) / step) + 2)
+            uu, vv = np.meshgrid(gu, gv)
+            res = undistort_pixels(K, dist, uu, vv, tol_px=1e-9, max_iter=PROJECTOR_MAX_ITER)
+            if res.n_failed:
+                return None
+            y_lin = (vv - cy) / fy
+            x_lin = (uu - cx - s * y_lin) / fx
+            dx, dy = res.x - x_lin, res.y - y_lin
+            # bilinear error at a cell centre ~ (|F_uu| + |F_vv|) step^2 / 8 = (|D2_u F| + |D2_v F|) / 8
+            err = 0.0
+            for f, scale in ((dx, fx), (dy, fy)):
+                d2u = np.abs(f[:, 2:] - 2 * f[:, 1:-1] + f[:, :-2]).max()
+                d2v = np.abs(f[2:] - 2 * f[1:-1] + f[:-2]).max()
+                err = max(err, float(d2u + d2v) / 8 * scale)
+            if err <= GRID_TOL:
+                return cls(step=step, dx=dx.astype(np.float32), dy=dy.astype(np.float32), error=err)
+        return None
+
+    def lookup(
+        self, table: np.ndarray, u: np.ndarray, v: np.ndarray, derivative: bool = True
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Bilinear value of ``table`` (``dx`` or ``dy``) at ``(u, v)`` and, with ``derivative``,
+        its derivative along ``u`` (``dx``) or ``v`` (``dy``); float32. Coordinates outside the
+        grid (beyond one unit outside the projector) are clamped to its border; NaN
+        coordinates look up the corner (the caller's NaN propagates through ``K^-1 (u, v)``)."""
+        n_v, n_u = table.shape
+        inv = np.float32(1.0 / self.step)
+        gu = np.asarray(u, np.float32) + np.float32(1.0)
+        gu *= inv
+        gv = np.asarray(v, np.float32) + np.float32(1.0)
+        gv *= inv
+        # fmax/fmin map NaN to the bound, so every index is valid
+        np.fmin(np.fmax(gu, np.float32(0.0), out=gu), np.float32(n_u - 1.001), out=gu)
+        np.fmin(np.fmax(gv, np.float32(0.0), out=gv), np.float32(n_v - 1.001), out=gv)
+        iu = gu.astype(np.int32)
+        iv = gv.astype(np.int32)
+        au = gu - iu
+        av = gv - iv
+        idx = iv * np.int32(n_u - 1)
+        idx += iu
+        corners = (self.dx4 if table is self.dx else self.dy4).take(idx, axis=0)
+        f00, f01, f10, f11 = corners[..., 0], corners[..., 1], corners[..., 2], corners[..., 3]
+        top = f01 - f00
+        slope_u = f11 - f10
+        slope_u -= top
+        slope_u *= av
+        slope_u += top  # d/d(gu)
+        value = f10 - f00
+        value *= av
+        value += f00
+        deriv = None
+        if derivative:
+            if table is self.dx:
+                deriv = slope_u * inv
+            else:
+                left = f10 - f00
+                right = f11 - f01
+                deriv = (left + au * (right - left)) * inv
+        slope_u *= au
+        value += slope_u
+        return value, deriv
+
+
+@dataclass(frozen=True)
+class PinholeReference(ReferenceSurface):
+    """The total-least-squares plane through a reference capture's points, normal towards the camera.
+
+    Height of a point ``p``: ``normal . (p - centroid)`` (mm, positive towards the camera).
+    """
+
+    frame_shape: tuple[int, int]
+    centroid: np.ndarray
+    normal: np.ndarray
+    n_points: int
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.frame_shape
+
+
+class PreparedPinhole(PreparedGeometry):
+    """A :class:`PinholeRig` prepared for its camera frame (tables computed once, kept).
+
+    Per pixel (float64 for the Newton path, float32 for the closed form):
+    ``x_n, y_n`` (ray ``d = (x_n, y_n, 1)``), ``|d|``, the Mobius tables ``A, B`` of the plane
+    path without projector distortion, and the epipolar line ``c0, c1`` with projector distortion.
+    """
+
+    def __init__(self, rig: PinholeRig, axis: str, method: str) -> None:
+        self.model = rig
+        self.rig = rig
+        self.shape = rig.shape
+        self.projector_size = (rig.projector.width, rig.projector.height)
+        self.axis = axis
+        self.method = method
+        self._lock = threading.Lock()
+        self._tables: dict[str, np.ndarray] | None = None
+        R = np.asarray(rig.R, dtype=np.float64)
+        T = np.asarray(rig.T, dtype=np.float64)
+        self._R, self._T = R, T
+        Kp = np.asarray(rig.projector.K, dtype=np.float64)
+        self._Kp = Kp
+        self._pdist = rig.projector.distortion
+        self._p_distorted = not self._pdist.is_identity
+        self._C_p = -R.T @ T
+        self._grid: UndistortionGrid | None = None
+        self.tables()  # now, on the caller's thread: never lazily inside a tile worker
+
+    # ------------------------------------------------------------------ interface
+    @property
+    def required_axes(self) -> tuple[str, ...]:
+        return (self.axis,)
+
+    @property
+    def has_model_plane(self) -> bool:
+        return False
+
+    def tables(self) -> dict[str, np.ndarray]:
+        """The per-pixel tables (computed on first use, then kept)."""
+        with self._lock:
+            if self._tables is None:
+                self._tables = self._build_tables()
+            return self._tables
+
+    def _build_tables(self) -> dict[str, np.ndarray]:
+        xn, yn = _camera_tables(self.rig.camera)
+        R, T, Kp = self._R, self._T, self._Kp
+        # R d for d = (xn, yn, 1)
+        rd = [R[i, 0] * xn + R[i, 1] * yn + R[i, 2] for i in range(3)]
+        fx, s, cx, fy, cy = Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]
+        if self.axis == "u":
+            # Column u (no distortion): fx X + s Y - (u - cx) Z = 0 in the projector frame, i.e.
+            # n = (fx, s, 0) - w e_z with the centred coordinate w = u - cx (smaller float32 terms).
+            A = fx * rd[0] + s * rd[1]
+            B = -rd[2]
+            a = fx * T[0] + s * T[1]
+            b = -T[2]
+            centre = cx
+        else:
+            A = fy * rd[1]
+            B = -rd[2]
+            a = fy * T[1]
+            b = -T[2]
+            centre = cy
+        # Epipolar line in undistorted normalized projector coordinates: the points t Rd + T of
+        # the pixel's ray project onto l . (x_p, y_p, 1) = 0 with l = (Rd) x T; written as
+        # y_p = c0 + c1 x_p for axis u (x_p = c0 + c1 y_p for axis v).
+        lx = rd[1] * T[2] - rd[2] * T[1]
+        ly = rd[2] * T[0] - rd[0] * T[2]
+        lz = rd[0] * T[1] - rd[1] * T[0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            if self.axis == "u":  # y = -(lx x + lz) / ly
+                c0, c1 = -lz / ly, -lx / ly
+            else:  # x = -(ly y + lz) / lx
+                c0, c1 = -lz / lx, -ly / lx
+        norm_d = np.sqrt(xn * xn + yn * yn + 1.0)
+        extra: dict[str, np.ndarray] = {}
+        if self._p_distorted:
+            extra = self._build_polynomials(c0, c1)
+            rdi = rd[0] if self.axis == "u" else rd[1]
+            extra["rdi32"] = rdi.astype(np.float32)
+            extra["rdz32"] = rd[2].astype(np.float32)
+            self._grid = UndistortionGrid.build(Kp, self._pdist, self.rig.projector.width, self.rig.projector.height)
+        return {
+            **extra,
+            "xn": xn,
+            "yn": yn,
+            "xn32": xn.astype(np.float32),
+            "yn32": yn.astype(np.float32),
+            "norm_d": norm_d.astype(np.float32),
+            "A": A.astype(np.float32),
+            "B": B.astype(np.float32),
+            "ab": np.array([a, b, centre]),
+            "rdx": rd[0],
+            "rdy": rd[1],
+            "rdz": rd[2],
+            "c0": c0,
+            "c1": c1,
+        }
+
+    def _coded_domain(self) -> tuple[float, float]:
+        """``(mid, half)``: the polynomial's variable is ``omega = (w - mid) / half`` in [-1, 1]."""
+        size = self.rig.projector.width if self.axis == "u" else self.rig.projector.height
+        return (size - 1) / 2, size / 2 + 1.0
+
+    def _build_polynomials(self, c0: np.ndarray, c1: np.ndarray) -> dict[str, np.ndarray]:
+        """Per pixel, the undistorted normalized coordinate ``q`` of the coded axis along the
+        pixel's epipolar line as a polynomial of ``omega`` (degree :data:`POLY_DEGREE`, monomial
+        coefficients, float32, shape ``(POLY_DEGREE + 1, H, W)``): Chebyshev interpolation of
+        ``q`` solved by Newton at :data:`POLY_NODES` nodes, truncated; ``poly_exact`` marks the
+        pixels whose truncated tail exceeds :data:`POLY_TOL` (they are solved exactly per frame)."""
+        from numpy.polynomial import chebyshev
+
+        Kp = self._Kp
+        fx, s, cx, fy, cy = Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]
+        scale = fx if self.axis == "u" else fy
+        mid, half = self._coded_domain()
+        n, deg = POLY_NODES, POLY_DEGREE
+        theta = np.pi * (np.arange(n) + 0.5) / n
+        nodes = np.cos(theta)
+        cheb_t = np.cos(np.outer(np.arange(n), theta))  # T_k(omega_j)
+        to_mono = np.zeros((deg + 1, deg + 1))  # column k: monomial coefficients of T_k
+        for k in range(deg + 1):
+            mono = chebyshev.cheb2poly(np.eye(deg + 1)[k])
+            to_mono[: len(mono), k] = mono
+        h, w = c0.shape
+        coeffs = np.empty((deg + 1, h, w), np.float32)
+        exact = np.zeros((h, w), bool)
+
+        def run(rows: slice) -> None:
+            q = np.empty((n, *c0[rows].shape))
+            guess: np.ndarray | None = None
+            with np.errstate(all="ignore"):
+                for j in range(n):  # nodes in increasing order of w; each starts from the previous one
+                    target = np.full(c0[rows].shape, mid + half * nodes[n - 1 - j])
+                    xp, yp, dqdw = self._solve_on_line(target, c0[rows], c1[rows], fx, s, cx, fy, cy, guess)
+                    q[n - 1 - j] = xp if self.axis == "u" else yp
+                    if j + 1 < n:
+                        guess = q[n - 1 - j] + dqdw * half * (nodes[n - 2 - j] - nodes[n - 1 - j])
+            shape = q.shape[1:]
+            cheb = np.einsum("jk,kp->jp", cheb_t, q.reshape(n, -1)) * (2.0 / n)  # no BLAS threads in threads
+            cheb[0] *= 0.5
+            tail = np.abs(cheb[deg + 1 :]).sum(axis=0) * scale
+            exact[rows] = ~(tail <= POLY_TOL).reshape(shape)
+            mono = np.einsum("ij,jp->ip", to_mono, cheb[: deg + 1])
+            coeffs[:, rows] = mono.reshape(deg + 1, *shape).astype(np.float32)
+
+        # threads over row blocks of ~16k pixels (cache-sized)
+        run_tiled(run, h, w, threads=_table_threads(), tile_px=1 << 14)
+        return {"poly": coeffs, "poly_exact": exact}
+
+    def camera_rays(self) -> CameraRays:
+        t = self.tables()
+        d = np.stack([t["xn"], t["yn"], np.ones_like(t["xn"])], axis=-1)
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        return CameraRays(origin_mm=np.zeros(3), direction=d)
+
+    def reference(self, u: np.ndarray | None, v: np.ndarray | None, threads: int | None = None) -> PinholeReference:
+        from metrology.core.acceptance import fit_plane
+        from metrology.core.geometry.base import triangulate_frame
+
+        result = triangulate_frame(self, u, v, points=True, heights=False, threads=threads)
+        assert result.points_mm is not None
+        pts = result.points_mm.reshape(-1, 3).astype(np.float64)
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        if len(pts) < 3:
+            raise GeometryError(f"the reference capture has {len(pts)} triangulated point(s); a plane needs 3")
+        fit = fit_plane(pts)
+        normal = fit.normal
+        if float(normal @ fit.centroid) > 0:  # orient towards the camera (the origin)
+            normal = -normal
+        return PinholeReference(frame_shape=self.shape, centroid=fit.centroid, normal=normal, n_points=len(pts))
+
+    def triangulate_rows(
+        self,
+        rows: slice,
+        u: np.ndarray | None,
+        v: np.ndarray | None,
+        *,
+        reference: ReferenceSurface | None = None,
+        points_out: np.ndarray | None = None,
+        height_out: np.ndarray | None = None,
+        sigma_in: np.ndarray | None = None,
+        sigma_out: np.ndarray | None = None,
+    ) -> None:
+        """See :meth:`PreparedGeometry.triangulate_rows`; in addition, with ``sigma_in`` (the
+        ``(n, W)`` sigma of the triangulated axis's projector coordinate, projector units) it
+        writes the points' standard uncertainty (mm) to ``sigma_out``."""
+        check_axes(self, u, v)
+        if height_out is not None and reference is None:
+            raise GeometryError("the pinhole model has no model plane: heights need a reference capture")
+        if reference is not None and not isinstance(reference, PinholeReference):
+            raise GeometryError(f"reference must come from this model's reference(), got {type(reference).__name__}")
+        t_rows, mid = self._depth_rows(rows, u, v, sigma_in, sigma_out)
+        tab = self.tables()
+        xn, yn = tab["xn32"][rows], tab["yn32"][rows]
+        if mid is not None:  # midpoint method: points off the camera ray
+            px, py, pz = mid
+        if points_out is not None:
+            if mid is None:
+                np.multiply(t_rows, xn, out=points_out[..., 0])
+                np.multiply(t_rows, yn, out=points_out[..., 1])
+                points_out[..., 2] = t_rows
+            else:
+                points_out[..., 0], points_out[..., 1], points_out[..., 2] = px, py, pz
+        if height_out is not None:
+            assert isinstance(reference, PinholeReference)
+            n, c = reference.normal, reference.centroid
+            if mid is None:  # n . (t d - c) = t (n . d) - n . c
+                nd = (n[0] * xn + n[1] * yn + n[2]).astype(np.float32)
+                np.multiply(t_rows, nd, out=height_out)
+                height_out -= np.float32(n @ c)
+            else:
+                height_out[...] = n[0] * (px - c[0]) + n[1] * (py - c[1]) + n[2] * (pz - c[2])
+
+    # ------------------------------------------------------------------ kernels
+    def _depth_rows(
+        self,
+        rows: slice,
+        u: np.ndarray | None,
+        v: np.ndarray | None,
+        sigma_in: np.ndarray | None,
+        sigma_out: np.ndarray | None,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray] | None]:
+        """Ray parameter ``t`` (= camera Z, mm) of each pixel of ``rows``, ``(n, W)`` float32, and
+        for the midpoint method the midpoints' ``(X, Y, Z)`` (float64, mm; None otherwise)."""
+        tab = self.tables()
+        coded = u if self.axis == "u" else v
+        assert coded is not None
+        other = v if self.axis == "u" else u
+        if not self._p_distorted and (self.method == "plane" or other is None):
+            # Mobius map of the centred coded coordinate w = u - cx (or v - cy): t = -(a + b w) / (A + B w).
+            a, b, centre = (np.float32(x) for x in tab["ab"])
+            A, B = tab["A"][rows], tab["B"][rows]
+            w = np.asarray(coded, dtype=np.float32) - centre
+            den = B * w
+            den += A
+            num = b * w
+            num += a
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = num / den
+                np.negative(t, out=t)
+                if sigma_in is not None and sigma_out is not None:
+                    # dt/dw = -(b A - a B) / (A + B w)^2
+                    dtdw = (b * A - a * B) / (den * den)
+                    np.multiply(np.abs(dtdw), tab["norm_d"][rows], out=sigma_out)
+                    sigma_out *= sigma_in
+            t[~(t > 0)] = np.nan
+            return t, None
+        if other is None and self.method == "plane":
+            return self._plane_from_polynomial(rows, coded, sigma_in, sigma_out), None
+        if other is not None and self.method == "plane" and self._grid is not None:
+            return self._plane_from_grid(rows, coded, other, sigma_in, sigma_out), None
+        xp, yp, dxp_dw = self._projector_normalized(rows, coded, other)
+        return self._intersect(rows, xp, yp, dxp_dw, sigma_in, sigma_out)
+
+    def _plane_from_grid(
+        self,
+        rows: slice,
+        coded: np.ndarray,
+        other: np.ndarray,
+        sigma_in: np.ndarray | None,
+        sigma_out: np.ndarray | None,
+    ) -> np.ndarray:
+        """Both axes through a distorted projector: ``(u, v)`` undistorted by the grid (bilinear,
+        error below :data:`GRID_TOL`), then the plane of the coded axis; float32 ``(n, W)``."""
+        grid = self._grid
+        assert grid is not None
+        tab = self.tables()
+        Kp, T = self._Kp, self._T
+        fx, s, cx, fy, cy = (np.float32(x) for x in (Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]))
+        want_sigma = sigma_in is not None and sigma_out is not None
+        u, v = (coded, other) if self.axis == "u" else (other, coded)
+        u = np.asarray(u, np.float32)
+        v = np.asarray(v, np.float32)
+        y_lin = (v - cy) / fy
+        if self.axis == "u":
+            q = u - cx
+            if s != 0:
+                q -= s * y_lin
+            q /= fx
+            corr, dcorr = grid.lookup(grid.dx, u, v, want_sigma)
+            scale = np.float32(1.0) / fx
+        else:
+            q = y_lin
+            corr, dcorr = grid.lookup(grid.dy, u, v, want_sigma)
+            scale = np.float32(1.0) / fy
+        q += corr
+        Ti = T[0] if self.axis == "u" else T[1]
+        rdi, rdz = tab["rdi32"][rows], tab["rdz32"][rows]
+        num = q * np.float32(T[2])
+        num -= np.float32(Ti)
+        den = q * rdz
+        np.subtract(rdi, den, out=den)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = num / den
+            if sigma_in is not None and sigma_out is not None and dcorr is not None:
+                dq = dcorr + scale
+                dtdq = (np.float32(T[2]) * den + num * rdz) / (den * den)
+                np.multiply(np.abs(dtdq * dq), tab["norm_d"][rows], out=sigma_out)
+                sigma_out *= sigma_in
+            t[~(t > 0)] = np.nan
+        return t
+
+    def _coded_from_polynomial(self, rows: slice, coded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``q`` (float32, undistorted normalized coordinate of the coded axis) and ``omega``."""
+        tab = self.tables()
+        mid, half = self._coded_domain()
+        poly = tab["poly"][:, rows]
+        omega = np.asarray(coded, dtype=np.float32) - np.float32(mid)
+        omega *= np.float32(1.0 / half)
+        q = poly[POLY_DEGREE] * omega
+        for k in range(POLY_DEGREE - 1, 0, -1):
+            q += poly[k]
+            q *= omega
+        q += poly[0]
+        exact = tab["poly_exact"][rows]
+        if exact.any():
+            sel = exact & np.isfinite(omega)
+            if sel.any():
+                Kp = self._Kp
+                w = np.asarray(coded, dtype=np.float64)[sel]
+                c0, c1 = tab["c0"][rows][sel], tab["c1"][rows][sel]
+                with np.errstate(all="ignore"):
+                    xp, yp, _ = self._solve_on_line(w, c0, c1, Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2])
+                q[sel] = xp if self.axis == "u" else yp
+        return q, omega
+
+    def _plane_from_polynomial(
+        self, rows: slice, coded: np.ndarray, sigma_in: np.ndarray | None, sigma_out: np.ndarray | None
+    ) -> np.ndarray:
+        """One coded axis through a distorted projector: ``q`` from the per-pixel polynomial, then
+        the plane ``t = (q T_z - T_i) / (Rd_i - q Rd_z)``; float32 ``(n, W)``."""
+        tab = self.tables()
+        T = self._T
+        Ti = T[0] if self.axis == "u" else T[1]
+        q, omega = self._coded_from_polynomial(rows, coded)
+        rdi, rdz = tab["rdi32"][rows], tab["rdz32"][rows]
+        num = q * np.float32(T[2])
+        num -= np.float32(Ti)
+        den = q * rdz
+        np.subtract(rdi, den, out=den)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = num / den
+            if sigma_in is not None and sigma_out is not None:
+                # dq/dw from the polynomial's derivative; dt/dq = (T_z den + num Rd_z) / den^2
+                half = self._coded_domain()[1]
+                poly = tab["poly"][:, rows]
+                dq = POLY_DEGREE * poly[POLY_DEGREE]
+                for k in range(POLY_DEGREE - 1, 0, -1):
+                    dq = dq * omega + k * poly[k]
+                dq *= np.float32(1.0 / half)
+                dtdq = (np.float32(T[2]) * den + num * rdz) / (den * den)
+                np.multiply(np.abs(dtdq * dq), tab["norm_d"][rows], out=sigma_out)
+                sigma_out *= sigma_in
+        t[~((t > 0) & (np.abs(omega) <= 1))] = np.nan
+        return t
+
+    def _projector_normalized(
+        self, rows: slice, coded: np.ndarray, other: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Undistorted normalized projector coordinates of each pixel and d(coded normalized)/d(coded)."""
+        tab = self.tables()
+        Kp = self._Kp
+        fx, s, cx, fy, cy = Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]
+        w = np.asarray(coded, dtype=np.float64)
+        if other is not None:
+            o = np.asarray(other, dtype=np.float64)
+            uu, vv = (w, o) if self.axis == "u" else (o, w)
+            res = undistort_pixels(Kp, self._pdist, uu, vv, tol_px=PROJECTOR_TOL, max_iter=PROJECTOR_MAX_ITER)
+            xp, yp = res.x, res.y
+            _, _, (jxx, jxy, jyx, jyy) = self._pdist.distort_with_jacobian(xp, yp)
+            det = jxx * jyy - jxy * jyx
+            with np.errstate(divide="ignore", invalid="ignore"):
+                # d(x_p)/du with v fixed, d(y_p)/dv with u fixed (zero skew part only; skew enters via u)
+                dxp_dw = jyy / (det * fx) if self.axis == "u" else jxx / (det * fy)
+            return xp, yp, dxp_dw
+        c0, c1 = tab["c0"][rows], tab["c1"][rows]
+        with np.errstate(all="ignore"):
+            return self._solve_on_line(w, c0, c1, fx, s, cx, fy, cy)
+
+    def _solve_on_line(
+        self,
+        w: np.ndarray,
+        c0: np.ndarray,
+        c1: np.ndarray,
+        fx: float,
+        s: float,
+        cx: float,
+        fy: float,
+        cy: float,
+        q0: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Newton on the epipolar line: the coded normalized coordinate ``q`` with
+        ``pixel(q, c0 + c1 q) = w`` to :data:`PROJECTOR_TOL`, from ``q0`` (default: the
+        undistorted guess); NaN where it does not converge. Returns ``x_p, y_p, dq/dw``."""
+        dist = self._pdist
+        axis_u = self.axis == "u"
+        if q0 is not None:
+            q = np.where(np.isfinite(q0), q0, (w - cx) / fx if axis_u else (w - cy) / fy)
+        elif axis_u:  # pixel on the line ignoring distortion: fx q + s (c0 + c1 q) + cx
+            q = (w - cx - s * c0) / (fx + s * c1)
+        else:
+            q = (w - cy) / fy
+        dq = np.ones_like(q)
+        done = ~np.isfinite(q)
+        for _ in range(PROJECTOR_MAX_ITER):
+            r = c0 + c1 * q
+            x, y = (q, r) if axis_u else (r, q)
+            xd, yd, (jxx, jxy, jyx, jyy) = dist.distort_with_jacobian(x, y)
+            if axis_u:
+                g = fx * xd + s * yd + cx - w
+                dg = fx * (jxx + c1 * jxy) + s * (jyx + c1 * jyy)
+            else:
+                g = fy * yd + cy - w
+                dg = fy * (jyy + c1 * jyx)
+            step = g / dg
+            q = np.where(done, q, q - step)
+            dq = dg
+            conv = np.abs(g) <= PROJECTOR_TOL
+            done |= conv
+            if done.all():
+                break
+        bad = ~done | ~np.isfinite(q)
+        q[bad] = np.nan
+        r = c0 + c1 * q
+        xp, yp = (q, r) if axis_u else (r, q)
+        return xp, yp, 1.0 / dq
+
+    def _intersect(
+        self,
+        rows: slice,
+        xp: np.ndarray,
+        yp: np.ndarray,
+        dq_dw: np.ndarray,
+        sigma_in: np.ndarray | None,
+        sigma_out: np.ndarray | None,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray] | None]:
+        """``t`` (float32) from undistorted normalized projector coordinates, and the midpoints."""
+        tab = self.tables()
+        T = self._T
+        rdx, rdy, rdz = tab["rdx"][rows], tab["rdy"][rows], tab["rdz"][rows]
+        mid = None
+        with np.errstate(all="ignore"):
+            # Plane of the coded axis, n = (1, 0, -x_p) (u) or (0, 1, -y_p) (v):
+            # t = -(T_i - q T_z) / (Rd_i - q Rd_z)
+            q, Ti, rdi = (xp, T[0], rdx) if self.axis == "u" else (yp, T[1], rdy)
+            num = q * T[2] - Ti
+            den = rdi - q * rdz
+            t = num / den
+            if sigma_in is not None and sigma_out is not None:
+                dtdq = (T[2] * den + num * rdz) / (den * den)
+                sigma_out[...] = np.abs(dtdq * dq_dw) * tab["norm_d"][rows] * sigma_in
+            if self.method == "midpoint":
+                mid = self._midpoints(rows, xp, yp)
+                t = mid[2]
+            t[~(t > 0)] = np.nan
+        return t.astype(np.float32), mid
+
+    def _midpoints(self, rows: slice, xp: np.ndarray, yp: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Midpoints ``(X, Y, Z)`` (float64, mm) of the shortest segments between the camera rays
+        ``t d`` and the projector rays ``C_p + s e``, ``e = R^T (x_p, y_p, 1)``:
+        ``t = (dc ee - de ec) / (dd ee - de^2)``, ``s = (de dc - dd ec) / (dd ee - de^2)``."""
+        tab = self.tables()
+        R, C = self._R, self._C_p
+        d = (tab["xn"][rows], tab["yn"][rows])
+        e = [R[0, i] * xp + R[1, i] * yp + R[2, i] for i in range(3)]
+        dd = d[0] * d[0] + d[1] * d[1] + 1.0
+        ee = e[0] * e[0] + e[1] * e[1] + e[2] * e[2]
+        de = d[0] * e[0] + d[1] * e[1] + e[2]
+        dc = d[0] * C[0] + d[1] * C[1] + C[2]
+        ec = e[0] * C[0] + e[1] * C[1] + e[2] * C[2]
+        den = dd * ee - de * de
+        t = (dc * ee - de * ec) / den
+        s = (de * dc - dd * ec) / den
+        return (
+            0.5 * (t * d[0] + C[0] + s * e[0]),
+            0.5 * (t * d[1] + C[1] + s * e[1]),
+            0.5 * (t + C[2] + s * e[2]),
+        )
+
+    def points_from_heights(self, z_mm: np.ndarray, reference: ReferenceSurface | None = None) -> np.ndarray:
+        """Points on the camera rays: at depth ``z`` (camera Z) without a reference, at signed
+        distance ``z`` from the reference plane with one. ``(H, W, 3)`` float64, mm."""
+        check_frame(self, "z_mm", z_mm)
+        tab = self.tables()
+        z = np.asarray(z_mm, dtype=np.float64)
+        if reference is None:
+            t = z
+        else:
+            if not isinstance(reference, PinholeReference):
+                raise GeometryError(f"reference must come from this model, got {type(reference).__name__}")
+            n, c = reference.normal, reference.centroid
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (z + n @ c) / (n[0] * tab["xn"] + n[1] * tab["yn"] + n[2])
+        return np.stack([t * tab["xn"], t * tab["yn"], t], axis=-1)

@@ -1,0 +1,327 @@
+"""Import a pinhole rig from calibration outputs: matrices in text, OpenCV FileStorage, npz/npy, JSON.
+
+A *source* (``SRC``) names one matrix or vector:
+
+- ``FILE`` (any other extension): a plain-text matrix, numbers separated by spaces, tabs or
+  commas, one row per line (CRLF or LF; ``[ ] ;`` are ignored);
+- ``FILE.yml#NODE`` / ``FILE.yaml#NODE`` / ``FILE.xml#NODE``: a node of an OpenCV FileStorage
+  file (``!!opencv-matrix`` / ``type_id="opencv-matrix"``, or a plain (nested) sequence of
+  numbers; float or double); ``NODE`` may be a dotted path into nested maps;
+- ``FILE.npz#KEY``: an array of a NumPy ``.npz``; ``FILE.npy``: a NumPy array;
+- ``FILE.json#dotted.key``: a number list (or nested lists) inside a JSON document, each dotted
+  component a key (or a list index).
+
+A value is read by its element count whatever its shape (:data:`COUNTS`): ``camera_K`` and
+``projector_K`` 9 (row-major 3x3), ``camera_dist`` / ``projector_dist`` 4, 5, 8, 12 or 14,
+``R`` 9, ``rvec`` 3 (a Rodrigues vector, instead of ``R``), ``T`` 3 (mm); any other count is a
+``ValueError`` naming the key, the source and the count. :func:`opencv_sources` recognises the
+node names of common FileStorage layouts (:data:`OPENCV_NODE_NAMES`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from metrology.core.geometry.pinhole import PinholeRig
+
+KEYS: tuple[str, ...] = ("camera_K", "camera_dist", "projector_K", "projector_dist", "R", "rvec", "T")
+"""The values ``--set KEY=SRC`` accepts."""
+
+COUNTS: dict[str, tuple[int, ...]] = {
+    "camera_K": (9,),
+    "projector_K": (9,),
+    "camera_dist": (0, 4, 5, 8, 12, 14),
+    "projector_dist": (0, 4, 5, 8, 12, 14),
+    "R": (9,),
+    "rvec": (3,),
+    "T": (3,),
+}
+"""Element counts each key accepts."""
+
+OPENCV_NODE_NAMES: dict[str, tuple[str, ...]] = {
+    "camera_K": ("cam_int", "camera_matrix", "cameraMatrix", "cam_K", "camera_K", "K1", "M1", "cam_mtx", "mtx_cam"),
+    "camera_dist": ("cam_dist", "dist_coeffs", "distCoeffs", "camera_dist", "cam_dist_coeffs", "D1", "dist_cam"),
+    "projector_K": ("proj_int", "projector_matrix", "proj_K", "projector_K", "K2", "M2", "proj_mtx", "mtx_proj"),
+    "projector_dist": ("proj_dist", "projector_dist", "proj_dist_coeffs", "D2", "dist_proj"),
+    "R": ("rotation", "R", "rot", "rotation_matrix"),
+    "rvec": ("rvec", "rotation_vector", "om"),
+    "T": ("translation", "T", "tvec", "trans", "translation_vector"),
+}
+"""FileStorage node names recognised by ``--opencv`` for each key (exact names)."""
+
+CAMERA_SIZE_NODES: dict[str, str] = {
+    "img_shape": "HW",
+    "image_shape": "HW",
+    "image_size": "WH",
+    "imageSize": "WH",
+    "img_size": "WH",
+    "camera_size": "WH",
+}
+"""Nodes giving the camera image size: ``HW`` a NumPy shape (rows, cols), ``WH`` an OpenCV Size."""
+
+
+class RigImportError(ValueError):
+    """A source cannot be read or holds the wrong number of values (the message names both)."""
+
+
+@dataclass(frozen=True)
+class ReadValue:
+    """A value read from a source: flat float64 values and the source that gave them."""
+
+    values: np.ndarray
+    source: str
+
+
+# --------------------------------------------------------------------------- sources
+def read_source(spec: str, key: str = "value") -> ReadValue:
+    """Read the matrix or vector ``spec`` names (see the module docstring) as flat float64 values.
+
+    Raises
+    ------
+    RigImportError
+        If the file is missing or malformed, the node/key is absent, or a value is not a
+        finite number; the message names ``key`` and ``spec``.
+    """
+    path_text, _, node = spec.rpartition("#") if "#" in spec else (spec, "", "")
+    path = Path(path_text)
+    ext = path.suffix.lower()
+    where = f"{key} from {spec!r}"
+    if not path.is_file():
+        raise RigImportError(f"{where}: file {str(path)!r} does not exist")
+    try:
+        if ext in (".yml", ".yaml", ".xml"):
+            if not node:
+                raise RigImportError(f"{where}: name the FileStorage node, as {path_text}#NODE")
+            values = _read_filestorage(path, node, where)
+        elif ext == ".npz":
+            if not node:
+                raise RigImportError(f"{where}: name the array, as {path_text}#KEY")
+            with np.load(path, allow_pickle=False) as archive:
+                if node not in archive.files:
+                    raise RigImportError(f"{where}: no array {node!r} (the file has {', '.join(archive.files)})")
+                values = np.asarray(archive[node])
+        elif ext == ".npy":
+            if node:
+                raise RigImportError(f"{where}: a .npy file holds one array; drop '#{node}'")
+            values = np.asarray(np.load(path, allow_pickle=False))
+        elif ext == ".json":
+            if not node:
+                raise RigImportError(f"{where}: name the value, as {path_text}#dotted.key")
+            values = _read_json(path, node, where)
+        else:
+            if node:
+                raise RigImportError(f"{where}: a text matrix file takes no '#{node}'")
+            values = _read_text(path, where)
+    except RigImportError:
+        raise
+    except (OSError, ValueError, SystemError, cv2.error) as exc:  # cv2 raises SystemError on some bad files
+        raise RigImportError(f"{where}: cannot read it ({' '.join(str(exc).split())})") from exc
+    if values.dtype.kind not in "fiu":
+        raise RigImportError(f"{where}: not numbers (dtype {values.dtype})")
+    flat = values.astype(np.float64).ravel()
+    if not np.all(np.isfinite(flat)):
+        raise RigImportError(f"{where}: holds a value that is not a finite number")
+    return ReadValue(values=flat, source=spec)
+
+
+_TEXT_SEPARATORS = re.compile(r"[\s,;\[\]]+")
+
+
+def _read_text(path: Path, where: str) -> np.ndarray:
+    text = path.read_bytes().decode("utf-8-sig", errors="strict")
+    tokens = [t for t in _TEXT_SEPARATORS.split(text) if t]
+    if not tokens:
+        raise RigImportError(f"{where}: the text file holds no numbers")
+    try:
+        return np.array([float(t) for t in tokens])
+    except ValueError:
+        bad = next(t for t in tokens if not _is_float(t))
+        raise RigImportError(f"{where}: {bad!r} is not a number") from None
+
+
+def _is_float(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def _read_json(path: Path, dotted: str, where: str) -> np.ndarray:
+    try:
+        node: Any = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise RigImportError(f"{where}: not valid JSON ({exc.msg} at line {exc.lineno})") from exc
+    for part in dotted.split("."):
+        if isinstance(node, Mapping) and part in node:
+            node = node[part]
+        elif isinstance(node, list) and part.lstrip("-").isdigit() and -len(node) <= int(part) < len(node):
+            node = node[int(part)]
+        else:
+            raise RigImportError(f"{where}: no key {part!r} at that point of the JSON document")
+    try:
+        return np.asarray(node, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise RigImportError(f"{where}: the value is not a number or a (nested) list of numbers") from None
+
+
+def _read_filestorage(path: Path, dotted: str, where: str) -> np.ndarray:
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    try:
+        if not fs.isOpened():
+            raise RigImportError(f"{where}: not an OpenCV FileStorage file")
+        node = fs.root()
+        for part in dotted.split("."):
+            child = node.getNode(part) if node.isMap() else None
+            if child is None or child.empty() or child.isNone():
+                names = ", ".join(node.keys()) if node.isMap() else "none"
+                raise RigImportError(f"{where}: no node {part!r} (nodes there: {names})")
+            node = child
+        return _node_values(node, where)
+    finally:
+        fs.release()
+
+
+def _node_values(node: Any, where: str) -> np.ndarray:
+    if node.isMap():
+        mat = node.mat()
+        if mat is None:
+            raise RigImportError(f"{where}: the node is a map, not a matrix or a sequence of numbers")
+        return np.asarray(mat)
+    if node.isSeq():
+        out: list[float] = []
+        for i in range(node.size()):
+            out.extend(_node_values(node.at(i), where).ravel().tolist())
+        return np.array(out, dtype=np.float64)
+    if node.isReal() or node.isInt():
+        return np.array([node.real()])
+    raise RigImportError(f"{where}: the node is not a matrix, a number or a sequence of numbers")
+
+
+def check_count(key: str, value: ReadValue) -> np.ndarray:
+    """The values of ``key`` after checking their count against :data:`COUNTS`."""
+    if key not in COUNTS:
+        raise RigImportError(f"unknown key {key!r}; expected one of {', '.join(KEYS)}")
+    n = value.values.size
+    allowed = COUNTS[key]
+    if n not in allowed:
+        expect = " or ".join(str(c) for c in allowed if c) + (" (or none)" if 0 in allowed else "")
+        raise RigImportError(f"{key} from {value.source!r} has {n} element(s); {key} needs {expect}")
+    return value.values
+
+
+# --------------------------------------------------------------------------- --opencv
+@dataclass(frozen=True)
+class OpenCVScan:
+    """What :func:`opencv_sources` found: sources per key and the camera size if a node gives it."""
+
+    sources: dict[str, str]
+    camera_size: tuple[int, int] | None
+    camera_size_node: str | None
+
+
+def opencv_sources(path: str) -> OpenCVScan:
+    """Recognise the nodes of a FileStorage file by name (:data:`OPENCV_NODE_NAMES`).
+
+    A key is taken only when exactly one of its recognised names is present (two names for
+    the same key with different values are an error naming both). ``R`` wins over ``rvec``
+    when both are present and agree.
+    """
+    p = Path(path)
+    if p.suffix.lower() not in (".yml", ".yaml", ".xml"):
+        raise RigImportError(f"--opencv {path!r}: expected an OpenCV FileStorage .yml, .yaml or .xml file")
+    if not p.is_file():
+        raise RigImportError(f"--opencv {path!r}: file does not exist")
+    try:
+        fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
+    except (SystemError, cv2.error) as exc:
+        detail = " ".join(str(exc).split())
+        raise RigImportError(f"--opencv {path!r}: not a readable FileStorage file ({detail})") from exc
+    try:
+        if not fs.isOpened():
+            raise RigImportError(f"--opencv {path!r}: not an OpenCV FileStorage file")
+        names = list(fs.root().keys())
+    finally:
+        fs.release()
+    sources: dict[str, str] = {}
+    for key, candidates in OPENCV_NODE_NAMES.items():
+        found = [name for name in candidates if name in names]
+        if len(found) > 1:
+            values = [read_source(f"{path}#{name}", key).values for name in found]
+            if any(v.shape != values[0].shape or not np.array_equal(v, values[0]) for v in values[1:]):
+                raise RigImportError(
+                    f"--opencv {path!r}: {key} is ambiguous: nodes {', '.join(found)} differ; give --set {key}=..."
+                )
+        if found:
+            sources[key] = f"{path}#{found[0]}"
+    if "R" in sources and "rvec" in sources:
+        del sources["rvec"]
+    size: tuple[int, int] | None = None
+    size_node: str | None = None
+    for name, order in CAMERA_SIZE_NODES.items():
+        if name in names:
+            v = read_source(f"{path}#{name}", "camera size").values
+            if v.size == 2 and all(x > 0 and float(x).is_integer() for x in v):
+                w, h = (int(v[1]), int(v[0])) if order == "HW" else (int(v[0]), int(v[1]))
+                size, size_node = (w, h), f"{path}#{name} ({'rows, cols' if order == 'HW' else 'width, height'})"
+                break
+    return OpenCVScan(sources=sources, camera_size=size, camera_size_node=size_node)
+
+
+# --------------------------------------------------------------------------- the rig
+def rig_from_values(
+    values: Mapping[str, np.ndarray], camera_size: tuple[int, int], projector_size: tuple[float, float]
+) -> PinholeRig:
+    """Assemble and validate the pinhole rig from values checked by :func:`check_count`.
+
+    ``camera_size`` is ``(width_px, height_px)``; ``projector_size`` ``(width, height)`` in
+    projector units. ``rvec`` (Rodrigues) is turned into ``R`` with ``cv2.Rodrigues``.
+    """
+    for key in ("camera_K", "projector_K", "T"):
+        if key not in values:
+            raise RigImportError(f"{key} is missing: give --set {key}=SRC")
+    if "R" in values and "rvec" in values:
+        raise RigImportError("give R or rvec, not both")
+    if "R" in values:
+        R = values["R"].reshape(3, 3)
+    elif "rvec" in values:
+        R = cv2.Rodrigues(values["rvec"].reshape(3, 1))[0]
+    else:
+        raise RigImportError("R is missing: give --set R=SRC (a 3x3 matrix) or --set rvec=SRC (Rodrigues)")
+    for name, size in (("camera size", camera_size), ("projector size", projector_size)):
+        if len(size) != 2 or not all(math.isfinite(x) and x > 0 for x in size):
+            raise RigImportError(f"{name} must be two positive numbers W H, got {size!r}")
+
+    def k(key: str) -> list[list[float]]:
+        return values[key].reshape(3, 3).tolist()
+
+    def dist(key: str) -> list[float]:
+        return values[key].tolist() if key in values else []
+
+    data = {
+        "model": "pinhole",
+        "camera": {
+            "width_px": camera_size[0],
+            "height_px": camera_size[1],
+            "K": k("camera_K"),
+            "dist": dist("camera_dist"),
+        },
+        "projector": {
+            "width": projector_size[0],
+            "height": projector_size[1],
+            "K": k("projector_K"),
+            "dist": dist("projector_dist"),
+        },
+        "R": R.tolist(),
+        "T": values["T"].tolist(),
+    }
+    return PinholeRig.from_dict(data)

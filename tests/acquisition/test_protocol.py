@@ -1,0 +1,203 @@
+"""The acquisition API and agent protocol through Django's test client (real database, no mocks).
+
+Process-level end-to-end tests (live server, headless Chromium, ``gcps agent``) are in
+test_end_to_end.py; these pin the protocol's rules: one agent per rig, sessions, refusals,
+timeouts, and nothing stored unless a whole valid stack is uploaded.
+"""
+
+from __future__ import annotations
+
+import json
+from datetime import timedelta
+
+import cv2
+import numpy as np
+import pytest
+from django.core.files.uploadedfile import SimpleUploadedFile
+from django.test import Client
+from django.utils import timezone
+
+from metrology.acquisition.models import Acquisition, Agent
+from metrology.captures.models import Capture
+from metrology.core.patterns import projector_patterns
+from metrology.jobs.models import Job
+from tests.app.stacks import plane_zip
+
+
+@pytest.fixture
+def api(alice_token) -> Client:
+    return Client(HTTP_AUTHORIZATION=f"Token {alice_token[1]}")
+
+
+def post(client: Client, url: str, data: dict):
+    return client.post(url, json.dumps(data), content_type="application/json")
+
+
+def register(api: Client, rig, camera: str = "virtual") -> str:
+    response = post(api, f"/api/rigs/{rig.pk}/agent/register/", {"camera": camera, "name": "bench-pc"})
+    assert response.status_code == 201, response.content
+    return response.json()["session"]
+
+
+def test_second_agent_refused_while_first_connected(api, rig):
+    session = register(api, rig)
+    response = post(api, f"/api/rigs/{rig.pk}/agent/register/", {"camera": "opencv:0"})
+    assert response.status_code == 409
+    assert "already has a connected capture agent" in response.json()["error"]
+    # after a clean disconnect a new agent may register
+    assert post(api, f"/api/rigs/{rig.pk}/agent/disconnect/", {"session": session}).status_code == 200
+    register(api, rig, "opencv:0")
+    status = api.get(f"/api/rigs/{rig.pk}/agent/").json()
+    assert status["connected"] is True and status["camera"] == "opencv:0"
+
+
+def test_silent_agent_expires_and_its_acquisition_fails_with_reason(api, rig, settings):
+    settings.GCPS_AGENT_TIMEOUT_SECONDS = 5.0
+    session = register(api, rig)
+    queued = post(api, f"/api/rigs/{rig.pk}/captures/acquire/", {"role": "reference"}).json()
+    taken = post(api, f"/api/rigs/{rig.pk}/agent/take/", {"session": session})
+    assert taken.status_code == 200 and taken.json()["id"] == queued["id"]
+    Agent.objects.update(last_seen_at=timezone.now() - timedelta(seconds=6))
+    detail = api.get(f"/api/acquisitions/{queued['id']}/").json()
+    assert detail["status"] == "failed"
+    assert "stopped responding" in detail["error"] and "no capture was stored" in detail["error"]
+    assert Capture.objects.count() == 0
+    # the expired session is refused, a new agent may register
+    assert post(api, f"/api/rigs/{rig.pk}/agent/heartbeat/", {"session": session}).status_code == 409
+    register(api, rig)
+
+
+def test_acquire_validates_and_queues(api, rig):
+    bad = post(api, f"/api/rigs/{rig.pk}/captures/acquire/", {"role": "stage"})
+    assert bad.status_code == 400 and "z_in_mm" in bad.json()["error"]
+    bad = post(api, f"/api/rigs/{rig.pk}/captures/acquire/", {"role": "object", "codec": "graycode-9"})
+    assert bad.status_code == 400 and "codec" in bad.json()["error"]
+    bad = post(api, f"/api/rigs/{rig.pk}/captures/acquire/", {"role": "object", "exposure": -3})
+    assert bad.status_code == 400 and "exposure" in bad.json()["error"]
+    assert Acquisition.objects.count() == 0 and Job.objects.count() == 0
+    ok = post(
+        api,
+        f"/api/rigs/{rig.pk}/captures/acquire/",
+        {"role": "stage", "z_in_mm": 4.0, "repeat": 2, "exposure": 12.5, "codec": "gcps-v1:800x600"},
+    )
+    assert ok.status_code == 202, ok.content
+    body = ok.json()
+    assert body["status"] == "queued" and body["agent_connected"] is False
+    assert body["codec"] == "gcps-v1:800x600" and body["projector"] == {"width": 800, "height": 600}
+    assert body["frame_names"][0] == "GC_0" and len(body["frame_names"]) == 11
+    assert Job.objects.get(pk=body["job"]).kind == "acquire_capture"
+
+
+def test_take_progress_upload_stores_capture_with_provenance(api, rig):
+    session = register(api, rig, "virtual:plane")
+    assert post(api, f"/api/rigs/{rig.pk}/agent/take/", {"session": session}).status_code == 204
+    queued = post(api, f"/api/rigs/{rig.pk}/captures/acquire/", {"role": "reference", "exposure": 8}).json()
+    taken = post(api, f"/api/rigs/{rig.pk}/agent/take/", {"session": session}).json()
+    assert taken["id"] == queued["id"] and taken["rig_geometry"]["width_px"] == rig.width_px
+    frames = [{"name": "GC_0", "ok": True, "regrabs": 1}]
+    progress = post(
+        api,
+        f"/api/acquisitions/{queued['id']}/progress/",
+        {"session": session, "percent": 40, "phase": "grab GC_3", "frames": frames},
+    )
+    assert progress.status_code == 200
+    assert Job.objects.get(pk=queued["job"]).progress == 40
+    # a truncated stack is refused and nothing is stored
+    bad = api.post(
+        f"/api/acquisitions/{queued['id']}/upload/",
+        {"session": session, "file": SimpleUploadedFile("s.zip", b"PK\x03\x04broken", "application/zip")},
+    )
+    assert bad.status_code == 400 and Capture.objects.count() == 0
+    upload = api.post(
+        f"/api/acquisitions/{queued['id']}/upload/",
+        {
+            "session": session,
+            "file": SimpleUploadedFile("s.zip", plane_zip(), "application/zip"),
+            "camera": "virtual:plane",
+            "exposure_ms": "8",
+            "frames": json.dumps(frames),
+        },
+    )
+    assert upload.status_code == 201, upload.content
+    capture = Capture.objects.get()
+    assert capture.source == "rig" and capture.role == "reference"
+    assert capture.parameters["camera"] == "virtual:plane" and capture.parameters["exposure_ms"] == 8.0
+    assert capture.parameters["agent"] == Agent.objects.get().pk and capture.parameters["regrabs"] == 1
+    job = Job.objects.get(pk=queued["job"])
+    assert job.status == "done" and job.progress == 100
+    assert Acquisition.objects.get().frames == frames
+    # a second upload for the finished acquisition is refused
+    again = api.post(
+        f"/api/acquisitions/{queued['id']}/upload/",
+        {"session": session, "file": SimpleUploadedFile("s.zip", plane_zip(), "application/zip")},
+    )
+    assert again.status_code == 409 and Capture.objects.count() == 1
+
+
+def test_agent_failure_and_disconnect_fail_the_job(api, rig):
+    session = register(api, rig)
+    first = post(api, f"/api/rigs/{rig.pk}/captures/acquire/", {"role": "object"}).json()
+    second = post(api, f"/api/rigs/{rig.pk}/captures/acquire/", {"role": "object"}).json()
+    post(api, f"/api/rigs/{rig.pk}/agent/take/", {"session": session})
+    failed = post(api, f"/api/acquisitions/{first['id']}/fail/", {"session": session, "reason": "camera unplugged"})
+    assert failed.status_code == 200 and failed.json()["status"] == "failed"
+    assert Job.objects.get(pk=first["job"]).error == "camera unplugged"
+    post(api, f"/api/rigs/{rig.pk}/agent/take/", {"session": session})
+    post(api, f"/api/rigs/{rig.pk}/agent/disconnect/", {"session": session, "reason": "agent stopped (SIGTERM)"})
+    job = Job.objects.get(pk=second["job"])
+    assert job.status == "failed" and job.error.startswith("agent stopped (SIGTERM)")
+    assert Capture.objects.count() == 0
+
+
+def test_projector_state_show_and_confirm(api, client_alice, rig):
+    session = register(api, rig)
+    acquisition = post(api, f"/api/rigs/{rig.pk}/captures/acquire/", {"role": "object"}).json()
+    bad = post(api, f"/api/rigs/{rig.pk}/projector/", {"session": session, "kind": "frame", "frame": 11})
+    assert bad.status_code == 400
+    seq = post(
+        api,
+        f"/api/rigs/{rig.pk}/projector/",
+        {"session": session, "kind": "frame", "frame": 3, "acquisition": acquisition["id"]},
+    ).json()["seq"]
+    state = client_alice.get(f"/api/rigs/{rig.pk}/projector/?page=1&after=0&wait=1").json()
+    assert (state["seq"], state["kind"], state["frame"], state["shown_seq"]) == (seq, "frame", 3, 0)
+    shown = client_alice.post(
+        f"/api/rigs/{rig.pk}/projector/shown/",
+        json.dumps({"seq": seq, "kind": "frame", "frame": 3, "screen": {"device_pixel_ratio": 2}}),
+        content_type="application/json",
+    )
+    assert shown.status_code == 200
+    state = api.get(f"/api/rigs/{rig.pk}/projector/?shown={seq}&wait=1").json()
+    assert state["shown_seq"] == seq and state["shown_frame"] == 3
+
+
+def test_projector_page_and_frames(client_alice, api, rig):
+    page = client_alice.get(f"/rigs/{rig.pk}/projector/")
+    assert page.status_code == 200
+    html = page.content.decode()
+    assert "acquisition/projector.js" in html and "<canvas" in html
+    assert " on" + "click" not in html.lower() and "<script>" not in html  # no inline script (CSP)
+    acquisition = post(api, f"/api/rigs/{rig.pk}/captures/acquire/", {"role": "object", "codec": "gcps-v1:640x480"})
+    acq = acquisition.json()["id"]
+    png = client_alice.get(f"/rigs/{rig.pk}/projector/acquisitions/{acq}/frames/8.png")
+    assert png.status_code == 200 and png["Content-Type"] == "image/png"
+    image = cv2.imdecode(np.frombuffer(png.content, np.uint8), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(image, projector_patterns(640, 480)[8])
+    assert client_alice.get(f"/rigs/{rig.pk}/projector/acquisitions/{acq}/frames/11.png").status_code == 404
+    assert Client().get(f"/rigs/{rig.pk}/projector/").status_code == 302  # login required
+
+
+def test_stale_acquisition_requeued_by_the_sweep_fails_with_a_reason(api, rig, monkeypatch):
+    """If the jobs' stale sweep sees a running acquisition first, the worker fails it with words."""
+    from metrology.jobs import services as job_services
+
+    session = register(api, rig)
+    queued = post(api, f"/api/rigs/{rig.pk}/captures/acquire/", {"role": "object"}).json()
+    post(api, f"/api/rigs/{rig.pk}/agent/take/", {"session": session})
+    Job.objects.filter(pk=queued["job"]).update(heartbeat_at=timezone.now() - timedelta(hours=1))
+    monkeypatch.setattr(job_services, "_send", lambda job_id: None)  # the test runs the requeued job itself
+    assert job_services.sweep_stale_jobs()["requeued"] == 1
+    assert job_services.execute_job(queued["job"]) == "failed"
+    job = Job.objects.get(pk=queued["job"])
+    assert job.status == "failed" and "capture agent running this acquisition stopped responding" in job.error
+    assert Capture.objects.count() == 0

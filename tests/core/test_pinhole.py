@@ -1,0 +1,333 @@
+"""The pinhole model: rig file contract, exact triangulation through distorted devices, uncertainty."""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+from metrology.core.geometry.base import GeometryError, triangulate_frame
+from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, PinholeRig, PinholeRigError
+from metrology.core.scenes import make_scene
+from metrology.core.simulate_pinhole import PinholeTruth, PlacedScene, cast_truth, look_at_rig
+
+CAMERA = PinholeCamera(
+    160, 120, ((200.0, 0.0, 79.5), (0.0, 201.0, 59.5), (0.0, 0.0, 1.0)), (-0.15, 0.05, 0.001, -0.0008, 0.01)
+)
+PROJECTOR = PinholeProjector(
+    320, 200, ((380.0, 0.0, 160.2), (0.0, 381.0, 99.7), (0.0, 0.0, 1.0)), (0.08, -0.04, 0.0005, 0.0003, 0.0)
+)
+BASELINES = {"u": (-160.0, 8.0, 10.0), "v": (6.0, -150.0, 12.0)}
+Z0 = 600.0
+TOL_MM = 1e-3  # the contract: 1 um on every valid pixel
+
+
+def _rig(axis: str, projector: PinholeProjector = PROJECTOR) -> PinholeRig:
+    return look_at_rig(CAMERA, projector, BASELINES[axis], (0.0, 0.0, Z0))
+
+
+_TRUTHS: dict[tuple[str, str, bool], PinholeTruth] = {}
+
+
+def _truth(axis: str, scene: str, projector_distorted: bool = True) -> PinholeTruth:
+    key = (axis, scene, projector_distorted)
+    if key not in _TRUTHS:
+        proj = PROJECTOR if projector_distorted else PinholeProjector(320, 200, PROJECTOR.K, ())
+        _TRUTHS[key] = cast_truth(_rig(axis, proj), PlacedScene(make_scene(scene), Z0))
+    return _TRUTHS[key]
+
+
+# --------------------------------------------------------------------------- rig file
+def _rig_dict() -> dict[str, Any]:
+    return _rig("u").to_dict()
+
+
+def test_rig_file_round_trip_and_contract_keys() -> None:
+    data = _rig_dict()
+    assert list(data) == ["model", "camera", "projector", "R", "T"]
+    assert set(data["camera"]) == {"width_px", "height_px", "K", "dist"}
+    assert set(data["projector"]) == {"width", "height", "K", "dist"}
+    rig = PinholeRig.from_json(json.dumps(data))
+    assert rig == _rig("u")
+    assert PinholeRig.from_dict(rig.to_dict()).to_dict() == data
+
+
+@pytest.mark.parametrize("dist", [None, []])
+def test_absent_or_empty_dist_means_none(dist: list[float] | None) -> None:
+    data = _rig_dict()
+    if dist is None:
+        del data["projector"]["dist"]
+    else:
+        data["projector"]["dist"] = dist
+    rig = PinholeRig.from_dict(data)
+    assert rig.projector.distortion.is_identity
+    assert "dist" not in rig.to_dict()["projector"]
+
+
+@pytest.mark.parametrize("n", [4, 5, 8, 12, 14])
+def test_dist_counts_accepted(n: int) -> None:
+    data = _rig_dict()
+    data["camera"]["dist"] = [0.01] * n
+    assert len(PinholeRig.from_dict(data).camera.dist) == n
+
+
+def _mutate(path: str, value: Any) -> dict[str, Any]:
+    data = copy.deepcopy(_rig_dict())
+    *parents, last = path.split(".")
+    node = data
+    for key in parents:
+        node = node[key]
+    if value is _DELETE:
+        del node[last]
+    else:
+        node[last] = value
+    return data
+
+
+_DELETE = object()
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "message"),
+    [
+        ("colour", 1, "unknown key 'colour'"),
+        ("camera.fov", 1, "camera has unknown key 'fov'"),
+        ("projector.lumens", 1, "projector has unknown key 'lumens'"),
+        ("camera.dist", [0.1, 0.2, 0.3], "camera dist must hold 4, 5, 8, 12 or 14 coefficients"),
+        ("projector.dist", [0.0] * 6, "projector dist must hold 4, 5, 8, 12 or 14 coefficients"),
+        ("R", [[1, 0, 0], [0, 1, 0], [0, 0, 1.01]], "R is not a rotation"),
+        ("R", [[1, 0, 0], [0, 1, 0], [0, 0, -1]], "R is not a rotation: det R"),
+        ("R", [[1, 0], [0, 1]], "R must be a 3x3 matrix"),
+        ("camera.K", [[0, 0, 1], [0, 200, 1], [0, 0, 1]], "camera K must have fx > 0"),
+        ("projector.K", [[300, 0, 1], [0, -2, 1], [0, 0, 1]], "projector K must have fx > 0 and fy > 0"),
+        ("camera.K", [[300, 0, 1], [0, 300, 1], [0, 0, 2]], "camera K must have the form"),
+        ("camera.width_px", 10.5, "camera width_px must be a positive integer"),
+        ("projector.height", 0, "projector height must be positive"),
+        ("T", [1, 2], "T must be a list of three numbers"),
+        ("T", _DELETE, "missing key 'T'"),
+        ("camera.K", _DELETE, "camera is missing key 'K'"),
+        ("model", "pinhole2", "rig model must be 'pinhole'"),
+    ],
+)
+def test_bad_rig_files_name_the_key(path: str, value: Any, message: str) -> None:
+    with pytest.raises(PinholeRigError, match=message.replace("(", r"\(").replace("[", r"\[")):
+        PinholeRig.from_dict(_mutate(path, value))
+
+
+def test_sizes_must_match() -> None:
+    rig = _rig("u")
+    with pytest.raises(GeometryError, match=r"codec's projector is 1280x800 but the rig's projector is 320x200"):
+        rig.prepare(projector_size=(1280, 800))
+    with pytest.raises(GeometryError, match=r"frames are 640x480 px but the rig's camera is 160x120 px"):
+        rig.prepare(shape=(480, 640))
+    with pytest.raises(ValueError, match="triangulate must be one of auto, u, v, got 'w'"):
+        rig.prepare(axis="w")
+    with pytest.raises(ValueError, match="method must be one of plane, midpoint, got 'dlt'"):
+        rig.prepare(method="dlt")
+
+
+def test_auto_axis_follows_the_baseline() -> None:
+    assert _rig("u").prepare().axis == "u"
+    assert _rig("v").prepare().axis == "v"
+    assert _rig("u").prepare().required_axes == ("u",)
+
+
+def test_missing_axis_is_named() -> None:
+    prep = _rig("v").prepare()
+    with pytest.raises(GeometryError, match="needs the projector's v axis coded"):
+        triangulate_frame(prep, np.zeros(prep.shape, np.float32), None)
+
+
+# --------------------------------------------------------------------------- exactness
+@pytest.mark.parametrize("scene", ["plane", "sphere", "staircase"])
+@pytest.mark.parametrize("axis", ["u", "v"])
+@pytest.mark.parametrize("method", ["plane", "midpoint"])
+@pytest.mark.parametrize("both_axes", [False, True])
+def test_exact_through_distorted_rig(scene: str, axis: str, method: str, both_axes: bool) -> None:
+    """Exact (u, v) of ray-cast scenes through a rig distorted on both devices: every valid
+    pixel within 1 um of the truth, nothing valid lost."""
+    truth = _truth(axis, scene)
+    prep = _rig(axis).prepare(axis="auto", method=method)
+    assert prep.axis == axis
+    u = truth.u.astype(np.float32)
+    v = truth.v.astype(np.float32)
+    res = triangulate_frame(
+        prep, u if both_axes or axis == "u" else None, v if both_axes or axis == "v" else None, heights=False
+    )
+    assert res.points_mm is not None and res.points_mm.dtype == np.float32
+    valid = truth.valid
+    assert valid.mean() > 0.5
+    err = np.linalg.norm(res.points_mm.astype(np.float64) - truth.points_mm, axis=-1)
+    assert np.all(np.isfinite(err[valid]))
+    assert err[valid].max() < TOL_MM
+    assert np.all(np.isnan(res.points_mm[~np.isfinite(truth.u if axis == "u" else truth.v)]))
+
+
+@pytest.mark.parametrize("axis", ["u", "v"])
+def test_closed_form_without_projector_distortion(axis: str) -> None:
+    truth = _truth(axis, "sphere", projector_distorted=False)
+    rig = look_at_rig(CAMERA, PinholeProjector(320, 200, PROJECTOR.K, ()), BASELINES[axis], (0.0, 0.0, Z0))
+    coded = (truth.u if axis == "u" else truth.v).astype(np.float32)
+    prep = rig.prepare()
+    res = triangulate_frame(prep, coded if axis == "u" else None, coded if axis == "v" else None, heights=False)
+    assert res.points_mm is not None
+    err = np.linalg.norm(res.points_mm - truth.points_mm, axis=-1)[truth.valid]
+    assert err.max() < TOL_MM
+
+
+def test_heights_above_reference_plane() -> None:
+    """Reference: the plane Z = Z0; object: a plane 20 mm nearer; heights 20 mm, positive towards the camera."""
+    rig = _rig("u")
+    prep = rig.prepare()
+    ref_truth = cast_truth(rig, PlacedScene(make_scene("plane", z_mm=0.0), Z0))
+    obj_truth = cast_truth(rig, PlacedScene(make_scene("plane", z_mm=20.0), Z0))
+    reference = prep.reference(ref_truth.u.astype(np.float32), None)
+    assert abs(reference.normal @ np.array([0.0, 0.0, 1.0]) + 1) < 1e-9  # normal points to the camera (-Z)
+    res = triangulate_frame(prep, obj_truth.u.astype(np.float32), None, reference=reference)
+    assert res.height_mm is not None and res.points_mm is not None
+    h = res.height_mm[obj_truth.valid]
+    assert np.abs(h - 20.0).max() < TOL_MM
+    # points_from_heights inverts the height map onto the camera rays
+    back = prep.points_from_heights(res.height_mm, reference)
+    assert np.nanmax(np.abs(back - res.points_mm)) < TOL_MM
+    depth_back = prep.points_from_heights(res.points_mm[..., 2])
+    assert np.nanmax(np.abs(depth_back - res.points_mm)) < TOL_MM
+    with pytest.raises(GeometryError, match="heights need a reference"):
+        triangulate_frame(prep, obj_truth.u.astype(np.float32), None)
+
+
+@pytest.mark.parametrize("projector_distorted", [False, True])
+@pytest.mark.parametrize("both_axes", [False, True])
+def test_sigma_is_the_derivative_of_the_point(projector_distorted: bool, both_axes: bool) -> None:
+    """sigma_mm / sigma_u equals |dX/du| measured by finite differences of the triangulation."""
+    truth = _truth("u", "sphere", projector_distorted)
+    proj = PROJECTOR if projector_distorted else PinholeProjector(320, 200, PROJECTOR.K, ())
+    prep = look_at_rig(CAMERA, proj, BASELINES["u"], (0.0, 0.0, Z0)).prepare()
+    u = truth.u
+    v = truth.v if both_axes else None
+    h, w = prep.shape
+    sigma_in = np.full((h, w), 0.05, np.float32)
+    sigma = np.empty((h, w), np.float32)
+    pts = np.empty((h, w, 3), np.float32)
+    prep.triangulate_rows(slice(0, h), u, v, points_out=pts, sigma_in=sigma_in, sigma_out=sigma)
+    du = 1e-3
+    pts2 = np.empty_like(pts)
+    prep.triangulate_rows(slice(0, h), u + du, v, points_out=pts2)
+    deriv = np.linalg.norm(pts2.astype(np.float64) - pts, axis=-1) / du
+    valid = truth.valid
+    ratio = sigma[valid] / 0.05 / deriv[valid]
+    assert np.median(np.abs(ratio - 1)) < 0.02
+    assert np.all(np.isfinite(sigma[valid]))
+    assert not math.isnan(float(np.median(sigma[valid])))
+
+
+def test_strong_projector_distortion_falls_back_to_newton() -> None:
+    """A projector whose distortion the polynomial and the grid cannot follow to tolerance: those
+    pixels are solved by Newton per frame, and every valid pixel is still within 1 um."""
+    strong = PinholeProjector(320, 200, PROJECTOR.K, (0.35, 0.4, 0.002, -0.001, 0.3))
+    rig = look_at_rig(CAMERA, strong, BASELINES["u"], (0.0, 0.0, Z0))
+    truth = cast_truth(rig, PlacedScene(make_scene("sphere"), Z0))
+    prep = rig.prepare()
+    tables = prep.tables()
+    assert tables["poly_exact"].any()  # some pixels need the exact path
+    assert prep._grid is None  # and (u, v) pairs are undistorted by Newton
+    for v in (None, truth.v.astype(np.float32)):
+        res = triangulate_frame(prep, truth.u.astype(np.float32), v, heights=False)
+        assert res.points_mm is not None
+        err = np.linalg.norm(res.points_mm - truth.points_mm, axis=-1)[truth.valid]
+        assert truth.valid.sum() > 1000 and err.max() < TOL_MM
+
+
+def test_undistortion_grid_matches_newton() -> None:
+    from metrology.core.distortion import undistort_pixels
+    from metrology.core.geometry.pinhole import GRID_TOL, UndistortionGrid
+
+    K = np.asarray(PROJECTOR.K)
+    grid = UndistortionGrid.build(K, PROJECTOR.distortion, 320, 200)
+    assert grid is not None and grid.error <= GRID_TOL
+    rng = np.random.default_rng(5)
+    u = rng.uniform(-0.5, 319.5, 20000).astype(np.float32)
+    v = rng.uniform(-0.5, 199.5, 20000).astype(np.float32)
+    exact = undistort_pixels(K, PROJECTOR.distortion, u.astype(np.float64), v.astype(np.float64), tol_px=1e-10)
+    dx, _ = grid.lookup(grid.dx, u, v)
+    x = (u.astype(np.float64) - K[0, 2]) / K[0, 0] + dx
+    assert np.abs(x - exact.x).max() * K[0, 0] < 2 * GRID_TOL
+
+
+def test_measure_pinhole_depth_heights_and_sigma() -> None:
+    from metrology.core.pinhole_measure import measure_pinhole
+
+    rig = _rig("u")
+    obj = _truth("u", "sphere")
+    ref = cast_truth(rig, PlacedScene(make_scene("plane", z_mm=0.0), Z0))
+    u = obj.u.astype(np.float32)
+    sigma_u = np.full(u.shape, 0.02, np.float32)
+    depth = measure_pinhole(rig, u, None, sigma=sigma_u, projector_size=(320, 200))
+    assert depth.axis == "u" and depth.reference is None
+    valid = obj.valid
+    assert np.abs(depth.z_mm[valid] - obj.points_mm[..., 2][valid]).max() < TOL_MM
+    assert depth.sigma_mm is not None
+    assert np.all(np.isnan(depth.sigma_mm[np.isnan(depth.z_mm)]))
+    assert np.all(depth.sigma_mm[valid] > 0)
+    heights = measure_pinhole(rig, u, None, reference_uv=(ref.u.astype(np.float32), None))
+    # the scene's own heights above its reference plane Z = Z0
+    assert np.abs(heights.z_mm[valid] - (Z0 - obj.points_mm[..., 2][valid])).max() < TOL_MM
+    with pytest.raises(GeometryError, match="codec's projector is 1280x800"):
+        measure_pinhole(rig, u, None, projector_size=(1280, 800))
+
+
+def test_coordinate_sigma_matches_monte_carlo() -> None:
+    """sigma_x = P / (2 pi) sqrt(2 / N) sigma_I / B against the scatter of least-squares phases."""
+    from metrology.core.pinhole_measure import coordinate_sigma
+
+    rng = np.random.default_rng(11)
+    n, period, b, noise = 8, 16.0, 40.0, 1.5
+    x_true = rng.uniform(0, period, 200000)
+    k = np.arange(n)[:, None]
+    delta = 2 * np.pi * k / n
+    images = 100 + b * np.cos(2 * np.pi * x_true / period + delta) + noise * rng.standard_normal((n, x_true.size))
+    theta = np.arctan2(-(images * np.sin(delta)).sum(0), (images * np.cos(delta)).sum(0))
+    x = period * (theta / (2 * np.pi)) % period
+    err = (x - x_true + period / 2) % period - period / 2
+    predicted = float(coordinate_sigma(period, n, noise, b))
+    assert abs(err.std() / predicted - 1) < 0.02
+
+
+def test_threaded_frame_of_a_fresh_rig_completes() -> None:
+    """A frame of several tiles on two threads, the rig prepared afresh: the tables are built on the
+    caller's thread (built lazily inside a tile worker, their own threaded build would wait forever
+    for the busy pool)."""
+    import threading
+
+    from metrology.core.geometry.pinhole import _prepare_cached
+
+    big = PinholeCamera(512, 384, ((640.0, 0.0, 255.5), (0.0, 641.0, 191.5), (0.0, 0.0, 1.0)), CAMERA.dist)
+    rig = look_at_rig(big, PROJECTOR, BASELINES["u"], (0.0, 0.0, Z0))
+    _prepare_cached.cache_clear()
+    u = np.full(rig.shape, 160.0, np.float32)
+    out: dict[str, Any] = {}
+
+    def run() -> None:
+        out["res"] = triangulate_frame(rig.prepare(), u, None, heights=False, threads=2)
+
+    worker = threading.Thread(target=run, daemon=True)
+    worker.start()
+    worker.join(timeout=120)
+    assert not worker.is_alive(), "triangulation did not finish"
+    assert np.isfinite(out["res"].points_mm[..., 2]).mean() > 0.5
+
+
+def test_example_pinhole_rig_loads() -> None:
+    """examples/pinhole-rig.json (shown to users in docs/) is a valid pinhole rig."""
+    from pathlib import Path
+
+    from metrology.core.geometry import model_from_dict
+
+    path = Path(__file__).resolve().parents[2] / "examples" / "pinhole-rig.json"
+    rig = model_from_dict(json.loads(path.read_text()))
+    assert isinstance(rig, PinholeRig)
+    assert rig.shape == (1536, 2048) and rig.auto_axis() == "u"

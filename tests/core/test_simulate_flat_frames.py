@@ -1,0 +1,34 @@
+"""render_flat_frames: the virtual rig's camera images under a white and a black projector frame."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from metrology.core.rig import Rig
+from metrology.core.scenes import make_scene
+from metrology.core.simulate import SimulationOptions, render_flat_frames, render_stack
+from tests.app.stacks import SMALL_RIG
+
+
+def test_flat_frames_of_a_plane_are_ambient_and_ambient_plus_gain():
+    rig = Rig.from_dict(SMALL_RIG)
+    options = SimulationOptions(ambient=0.05, projector_gain=0.8)
+    white, black = render_flat_frames(rig, make_scene("reference"), options)
+    assert white.shape == black.shape == rig.shape
+    np.testing.assert_allclose(black, 0.05 * 65535, rtol=1e-12)
+    np.testing.assert_allclose(white, 0.85 * 65535, rtol=1e-12)
+
+
+def test_white_plus_black_equals_opposite_phase_frames_under_shadows_and_blur():
+    """Sinusoidal PS_0 + PS_2 emit 0.5 + 0.5 cos + 0.5 - 0.5 cos = 1: their images sum to white + black
+    wherever the light path is the same (the sphere's shadow, the camera blur and supersampling included)."""
+    rig = Rig.from_dict(SMALL_RIG)
+    options = SimulationOptions(camera_defocus_px=0.8, supersample=3)
+    scene = make_scene("sphere", rig=rig)
+    white, black = render_flat_frames(rig, scene, options)
+    stack = render_stack(rig, scene, options)
+    ps0, ps2 = (stack.image(name).astype(np.float64) for name in ("PS_0", "PS_2"))
+    assert np.mean(white - black < 0.01 * 65535) > 0.001  # the sphere casts a shadow: unlit pixels exist
+    lit_field = np.isfinite(stack.codes)
+    # rounding of the two 16-bit images: at most one grey level each
+    assert np.max(np.abs((ps0 + ps2) - (white + black))[lit_field]) <= 1.0 + 1e-9

@@ -1,0 +1,142 @@
+"""`gcps measure` with a pinhole rig (the measure_pinhole command): captures of any codec -> points,
+depth or heights, sigma, mesh. Needs the codec package; skipped, saying so, without it."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from metrology.commands.measure_pinhole import add_pinhole_measure_arguments, cmd_measure_pinhole, is_pinhole_rig
+from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector
+from metrology.core.scenes import make_scene
+from metrology.core.simulate_pinhole import PlacedScene, cast_truth, look_at_rig
+
+codecs = pytest.importorskip("metrology.core.codecs", reason="the codec package (issue 11) is not in this tree")
+
+PROJ_W, PROJ_H = 640, 400
+CAMERA = PinholeCamera(
+    160, 120, ((420.0, 0.0, 79.5), (0.0, 421.0, 59.5), (0.0, 0.0, 1.0)), (-0.1, 0.03, 0.0005, -0.0004, 0.0)
+)
+PROJECTOR = PinholeProjector(
+    PROJ_W, PROJ_H, ((750.0, 0.0, 320.2), (0.0, 751.0, 199.7), (0.0, 0.0, 1.0)), (0.04, -0.02, 0.0003, 0.0002)
+)
+RIG = look_at_rig(CAMERA, PROJECTOR, (-220.0, 6.0, 15.0), (0.0, 0.0, 600.0))
+CODEC = {
+    "codec": "gcps-codec/1",
+    "frames": 16,
+    "projector": {"width": PROJ_W, "height": PROJ_H},
+    "white": [14],
+    "black": [15],
+    "axes": {
+        "u": {
+            "phase": [{"frames": list(range(8)), "period": 16.0, "shift": 1, "origin": -0.5, "waveform": "sine"}],
+            "gray": {"frames": list(range(8, 14)), "word": 16.0, "order": "msb_first", "origin": -0.5},
+        }
+    },
+}
+
+
+def _capture(folder: Path, scene: str, **params: float) -> np.ndarray:
+    truth = cast_truth(RIG, PlacedScene(make_scene(scene, **params), 600.0))
+    codec = codecs.codec_from_dict(CODEC)
+    images = codecs.render_codec(codec, truth.u, None)
+    folder.mkdir()
+    for i, image in enumerate(images):
+        cv2.imwrite(str(folder / f"frame_{i:02d}.png"), image)
+    (folder / "codec.json").write_text(json.dumps(CODEC))
+    return truth.points_mm
+
+
+def _args(tmp: Path, **extra: object) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    for name in ("--rig", "--object", "--out", "--reference", "--codec", "--mesh", "--json"):
+        parser.add_argument(name)
+    add_pinhole_measure_arguments(parser)
+    argv = ["--rig", str(tmp / "rig.json")]
+    for key, value in extra.items():
+        argv += [f"--{key.replace('_', '-')}", str(value)]
+    return parser.parse_args(argv)
+
+
+def test_measure_with_pinhole_rig(tmp_path: Path) -> None:
+    (tmp_path / "rig.json").write_text(RIG.to_json())
+    assert is_pinhole_rig(str(tmp_path / "rig.json"))
+    truth = _capture(tmp_path / "sphere", "sphere")
+    _capture(tmp_path / "ref", "plane", z_mm=0.0)
+    # depth, points, sigma, mesh, stats
+    args = _args(
+        tmp_path,
+        object=tmp_path / "sphere",
+        out=tmp_path / "z.npy",
+        xyz=tmp_path / "xyz.npy",
+        sigma=tmp_path / "s.npy",
+        mesh=tmp_path / "m.ply",
+        json=tmp_path / "stats.json",
+    )
+    summary = cmd_measure_pinhole(args)
+    assert summary["triangulate"] == "u" and summary["z"] == "depth (camera Z)"
+    xyz = np.load(tmp_path / "xyz.npy")
+    z = np.load(tmp_path / "z.npy")
+    assert xyz.shape == (120, 160, 3) and xyz.dtype == np.float32
+    ok = np.isfinite(z)
+    assert ok.mean() > 0.5
+    assert np.array_equal(z[ok], xyz[..., 2][ok])
+    err = np.linalg.norm(xyz[ok] - truth[ok], axis=-1)
+    # noise-free 16-bit: within 1 um wherever the decoder found the right code (a decoder slip
+    # moves a point by whole gray words; they must be rare)
+    assert np.mean(err < 1e-3) > 0.999
+    sigma = np.load(tmp_path / "s.npy")
+    assert np.isfinite(sigma[ok]).all() and np.all(sigma[ok] >= 0)
+    # the PLY carries each vertex's sigma_mm (one vertex per measured pixel, row-major)
+    raw = (tmp_path / "m.ply").read_bytes()
+    head, _, body = raw.partition(b"end_header\n")
+    assert b"property float sigma_mm" in head
+    n_vertices = int(head.split(b"element vertex ")[1].split(b"\n")[0])
+    assert n_vertices == ok.sum()
+    vdtype = np.dtype([("xyz", "<f8", (3,)), ("n", "<f4", (3,)), ("s", "<f4")])
+    vertices = np.frombuffer(body[: n_vertices * vdtype.itemsize], vdtype)
+    assert np.array_equal(vertices["s"], sigma[ok])
+    assert np.allclose(vertices["xyz"], xyz[ok])
+    assert np.median(vertices["n"][:, 2]) < -0.5  # normals face the camera (-Z)
+    import open3d as o3d
+
+    mesh = o3d.io.read_triangle_mesh(str(tmp_path / "m.ply"))
+    assert len(mesh.vertices) == n_vertices and len(mesh.triangles) > n_vertices // 2
+    stats = json.loads((tmp_path / "stats.json").read_text())
+    assert stats["rig"]["model"] == "pinhole"
+    # heights above the reference plate (Z = 600): the sphere's own heights
+    args = _args(tmp_path, object=tmp_path / "sphere", reference=tmp_path / "ref", out=tmp_path / "h.npy")
+    assert cmd_measure_pinhole(args)["z"] == "height above the reference plane"
+    h = np.load(tmp_path / "h.npy")
+    assert np.mean(np.abs(h[ok] - (600.0 - truth[..., 2][ok])) < 1e-3) > 0.999
+    # --max-sigma drops everything above it
+    args = _args(tmp_path, object=tmp_path / "sphere", out=tmp_path / "z2.npy", max_sigma=1e-9)
+    assert cmd_measure_pinhole(args)["valid_pixels"] == 0
+    with pytest.raises(ValueError, match="--max-sigma must be > 0"):
+        cmd_measure_pinhole(_args(tmp_path, object=tmp_path / "sphere", out=tmp_path / "z3.npy", max_sigma=-1))
+
+
+def test_gcps_measure_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`gcps measure --rig PINHOLE.json` without --reference: depth, points and sigma; a crossed-axes
+    rig still needs --reference (exit 2, one line)."""
+    from metrology.cli import main
+
+    (tmp_path / "rig.json").write_text(RIG.to_json())
+    truth = _capture(tmp_path / "plane", "plane", z_mm=30.0)
+    argv = ["measure", "--rig", str(tmp_path / "rig.json"), "--object", str(tmp_path / "plane")]
+    argv += ["--out", str(tmp_path / "z.npy"), "--xyz", str(tmp_path / "xyz.npy"), "--sigma", str(tmp_path / "s.npy")]
+    assert main([*argv, "--triangulate", "u", "--method", "midpoint"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["model"] == "pinhole" and summary["method"] == "midpoint"
+    z = np.load(tmp_path / "z.npy")
+    ok = np.isfinite(z)
+    assert np.mean(np.abs(z[ok] - truth[..., 2][ok]) < 1e-3) > 0.999
+    crossed = Path(__file__).resolve().parents[1] / "examples" / "rig.json"
+    argv = ["measure", "--rig", str(crossed), "--object", str(tmp_path / "plane"), "--out", str(tmp_path / "c.npy")]
+    assert main(argv) == 2
+    assert "--reference is required for a crossed-axes rig" in capsys.readouterr().err
