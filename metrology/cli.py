@@ -574,6 +574,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     acquisition_commands(sub)
     rig_command.register(sub)
+    from metrology.commands import procam as procam_command
+
+    procam_command.register(sub)
+    from metrology.commands import gamma as gamma_command
+
+    gamma_command.register(sub)
     return parser
 
 

@@ -14,7 +14,7 @@ from typing import Any
 from django.utils import timezone
 from drf_spectacular.utils import extend_schema
 from rest_framework import serializers, status
-from rest_framework.parsers import FormParser, JSONParser, MultiPartParser
+from rest_framework.parsers import FormParser, MultiPartParser
 from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
@@ -22,8 +22,14 @@ from rest_framework.views import APIView
 from metrology.acquisition import services
 from metrology.acquisition.models import Acquisition, Agent, ProjectorState
 from metrology.api_errors import BadInput
+from metrology.api_input import BoundedJSONParser
 from metrology.captures.models import Capture
 from metrology.rigs.selectors import get_rig
+
+MAX_INT32 = 2**31 - 1
+"""Largest value of the integer columns the projector state and frames are stored in."""
+MAX_ID = 2**63 - 1
+"""Largest primary key (BigAutoField)."""
 
 
 def _get_acquisition(user, acquisition_id: int) -> Acquisition:
@@ -45,7 +51,7 @@ class AcquireSerializer(serializers.Serializer):
         required=False, allow_null=True, help_text="Exposure, ms; omitted: the agent's auto-exposure"
     )
     codec = serializers.JSONField(required=False, allow_null=True, help_text="gcps-v1 or gcps-v1:WIDTHxHEIGHT")
-    session = serializers.IntegerField(required=False, allow_null=True, min_value=1)
+    session = serializers.IntegerField(required=False, allow_null=True, min_value=1, max_value=MAX_ID)
 
 
 def acquisition_data(acquisition: Acquisition) -> dict[str, Any]:
@@ -107,7 +113,7 @@ def projector_data(state: ProjectorState) -> dict[str, Any]:
 
 
 class RigAcquireApi(APIView):
-    parser_classes = (JSONParser, FormParser, MultiPartParser)
+    parser_classes = (BoundedJSONParser, FormParser, MultiPartParser)
 
     @extend_schema(request=AcquireSerializer, responses={202: dict}, operation_id="rig_captures_acquire")
     def post(self, request: Request, rig_id: int) -> Response:
@@ -162,7 +168,7 @@ class RigAgentApi(APIView):
 
 
 class RigAgentRegisterApi(APIView):
-    parser_classes = (JSONParser,)
+    parser_classes = (BoundedJSONParser,)
 
     @extend_schema(request=RegisterSerializer, responses={201: dict}, operation_id="rig_agent_register")
     def post(self, request: Request, rig_id: int) -> Response:
@@ -187,7 +193,7 @@ def _agent(request: Request, rig, data=None) -> Agent:
 
 
 class RigAgentHeartbeatApi(APIView):
-    parser_classes = (JSONParser,)
+    parser_classes = (BoundedJSONParser,)
 
     @extend_schema(request=AgentSessionSerializer, responses=dict, operation_id="rig_agent_heartbeat")
     def post(self, request: Request, rig_id: int) -> Response:
@@ -196,7 +202,7 @@ class RigAgentHeartbeatApi(APIView):
 
 
 class RigAgentDisconnectApi(APIView):
-    parser_classes = (JSONParser,)
+    parser_classes = (BoundedJSONParser,)
 
     @extend_schema(request=AgentSessionSerializer, responses=dict, operation_id="rig_agent_disconnect")
     def post(self, request: Request, rig_id: int) -> Response:
@@ -209,7 +215,7 @@ class RigAgentDisconnectApi(APIView):
 
 
 class RigAgentTakeApi(APIView):
-    parser_classes = (JSONParser,)
+    parser_classes = (BoundedJSONParser,)
 
     @extend_schema(request=AgentSessionSerializer, responses={200: dict, 204: None}, operation_id="rig_agent_take")
     def post(self, request: Request, rig_id: int) -> Response:
@@ -241,7 +247,7 @@ def _frames(value: Any) -> list | None:
 
 
 class AcquisitionProgressApi(APIView):
-    parser_classes = (JSONParser,)
+    parser_classes = (BoundedJSONParser,)
 
     @extend_schema(request=ProgressSerializer, responses=dict, operation_id="acquisitions_progress")
     def post(self, request: Request, acquisition_id: int) -> Response:
@@ -257,7 +263,7 @@ class AcquisitionProgressApi(APIView):
 
 
 class AcquisitionFailApi(APIView):
-    parser_classes = (JSONParser,)
+    parser_classes = (BoundedJSONParser,)
 
     @extend_schema(request=ProgressSerializer, responses=dict, operation_id="acquisitions_fail")
     def post(self, request: Request, acquisition_id: int) -> Response:
@@ -309,14 +315,14 @@ class AcquisitionUploadApi(APIView):
 # ----------------------------------------------------------------------------- projector
 class ShowSerializer(AgentSessionSerializer):
     kind = serializers.ChoiceField(choices=services.PROJECTOR_KINDS)
-    frame = serializers.IntegerField(required=False, default=-1)
-    acquisition = serializers.IntegerField(required=False, allow_null=True)
+    frame = serializers.IntegerField(required=False, default=-1, min_value=-1, max_value=MAX_INT32)
+    acquisition = serializers.IntegerField(required=False, allow_null=True, min_value=1, max_value=MAX_ID)
 
 
 class ShownSerializer(serializers.Serializer):
-    seq = serializers.IntegerField(min_value=0)
+    seq = serializers.IntegerField(min_value=0, max_value=MAX_INT32)
     kind = serializers.CharField(max_length=16)
-    frame = serializers.IntegerField()
+    frame = serializers.IntegerField(min_value=-1, max_value=MAX_INT32)
     screen = serializers.JSONField(required=False, default=dict)
 
 
@@ -325,15 +331,18 @@ def _wait_param(request: Request, name: str) -> int | None:
     if raw is None or raw == "":
         return None
     try:
-        return int(raw)
+        value = int(raw)
     except ValueError:
         raise BadInput(f"{name} must be an integer, got {raw!r}") from None
+    if not -1 <= value <= MAX_INT32:
+        raise BadInput(f"{name} must be an integer from -1 to {MAX_INT32}, got {raw!r}")
+    return value
 
 
 class RigProjectorApi(APIView):
     """GET: the state (long-poll with ``after``/``shown`` and ``wait`` seconds); POST (agent): show a pattern."""
 
-    parser_classes = (JSONParser,)
+    parser_classes = (BoundedJSONParser,)
 
     @extend_schema(responses=dict, operation_id="rig_projector_state")
     def get(self, request: Request, rig_id: int) -> Response:
@@ -367,7 +376,7 @@ class RigProjectorApi(APIView):
 
 
 class RigProjectorShownApi(APIView):
-    parser_classes = (JSONParser,)
+    parser_classes = (BoundedJSONParser,)
 
     @extend_schema(request=ShownSerializer, responses=dict, operation_id="rig_projector_shown")
     def post(self, request: Request, rig_id: int) -> Response:

@@ -171,6 +171,28 @@ def test_projector_state_show_and_confirm(api, client_alice, rig):
     assert state["shown_seq"] == seq and state["shown_frame"] == 3
 
 
+@pytest.mark.parametrize(
+    "body",
+    [
+        {"seq": 1, "kind": "frame", "frame": -12775725494152984459739136},  # found by schemathesis: a 500 before
+        {"seq": 2**40, "kind": "frame", "frame": 3},
+        {"seq": 1, "kind": "frame", "frame": 2**31},
+    ],
+)
+def test_projector_confirmation_out_of_range_is_refused_not_a_server_error(client_alice, rig, body):
+    answer = client_alice.post(
+        f"/api/rigs/{rig.pk}/projector/shown/", json.dumps(body), content_type="application/json"
+    )
+    assert answer.status_code == 400
+    assert "error" in answer.json()
+
+
+def test_projector_state_wait_parameters_out_of_range_are_refused(client_alice, rig):
+    answer = client_alice.get(f"/api/rigs/{rig.pk}/projector/?after={10**30}&wait=0")
+    assert answer.status_code == 400
+    assert "after" in answer.json()["error"]
+
+
 def test_projector_page_and_frames(client_alice, api, rig):
     page = client_alice.get(f"/rigs/{rig.pk}/projector/")
     assert page.status_code == 200

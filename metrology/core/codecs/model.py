@@ -32,6 +32,8 @@ AXES: tuple[str, ...] = ("u", "v")
 WAVEFORMS: tuple[str, ...] = ("sine", "square")
 GRAY_ORDERS: tuple[str, ...] = ("msb_first", "lsb_first")
 MAX_GRAY_BITS = 16
+PRECOMPENSATED_GAMMA_RANGE: tuple[float, float] = (0.2, 5.0)
+"""Accepted ``precompensated_gamma`` values (inclusive)."""
 """Largest number of gray-code bits of one axis (65536 words)."""
 
 BUILTIN_NAMES: tuple[str, ...] = ("gcps-v1",)
@@ -176,6 +178,10 @@ class Codec:
         Frames of full white and full black (averaged when several).
     files : str or None
         Glob selecting the frame files when ``frames`` is a number (e.g. ``"pat*.png"``).
+    precompensated_gamma : float or None
+        The projector gamma ``g`` (0.2..5) the generated patterns are pre-compensated for: a
+        pattern value ``s`` in 0..1 is written as ``s**(1/g)``, so a projector emitting
+        ``value**g`` emits ``s``. None: patterns are written linearly.
     name : str or None
         Name of a built-in codec (not part of the file format).
     """
@@ -187,6 +193,7 @@ class Codec:
     white: tuple[int, ...] = ()
     black: tuple[int, ...] = ()
     files: str | None = None
+    precompensated_gamma: float | None = None
     name: str | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
@@ -216,6 +223,8 @@ class Codec:
         if self.files is not None:
             out["files"] = self.files
         out["projector"] = {"width": self.projector_width, "height": self.projector_height}
+        if self.precompensated_gamma is not None:
+            out["precompensated_gamma"] = self.precompensated_gamma
         if self.white:
             out["white"] = list(self.white)
         if self.black:
@@ -350,7 +359,7 @@ def codec_from_dict(data: Any) -> Codec:
     _check_keys(
         "(top level)",
         data,
-        ("codec", "frames", "files", "projector", "white", "black", "axes"),
+        ("codec", "frames", "files", "projector", "white", "black", "axes", "precompensated_gamma"),
         ("codec", "frames", "projector", "axes"),
     )
     if data["codec"] != CODEC_FORMAT:
@@ -374,6 +383,11 @@ def codec_from_dict(data: Any) -> Codec:
             raise CodecError(f"codec field projector.{key} must be a positive integer, got {value!r}")
     white = _int_list("white", data.get("white", []))
     black = _int_list("black", data.get("black", []))
+    gamma_value = data.get("precompensated_gamma")
+    if gamma_value is not None and not _is_real(gamma_value):
+        raise CodecError(
+            f"codec field precompensated_gamma must be a number (the projector gamma), got {gamma_value!r}"
+        )
     axes_data = data["axes"]
     _check_keys("axes", axes_data, AXES, ())
     axes: dict[str, Axis] = {}
@@ -400,6 +414,7 @@ def codec_from_dict(data: Any) -> Codec:
         white=white,
         black=black,
         files=files,
+        precompensated_gamma=None if gamma_value is None else float(gamma_value),
     )
 
 
@@ -458,6 +473,11 @@ def validate_codec(codec: Codec) -> None:
         a frame used twice, a gray code with no threshold source, a bad unwrap chain, an axis
         with nothing coded, a first stage that does not cover the projector, no axis at all.
     """
+    if codec.precompensated_gamma is not None:
+        pg = codec.precompensated_gamma
+        lo, hi = PRECOMPENSATED_GAMMA_RANGE
+        if not (isinstance(pg, (int, float)) and math.isfinite(pg) and lo <= pg <= hi):
+            raise CodecError(f"codec field precompensated_gamma must be a number in {lo:g}..{hi:g}, got {pg!r}")
     if isinstance(codec.frames, int):
         if codec.frames < 1:
             raise CodecError(f"codec field frames must be a positive number, got {codec.frames}")

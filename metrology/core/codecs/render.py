@@ -9,7 +9,8 @@ Two things live here:
   projector coordinates ``u`` (column) and ``v`` (row) of the surface point it sees. The
   projector is modelled as continuous (no pixel quantisation): frame ``f`` lights the point
   with the ideal pattern value ``E_f(x)`` at ``x = u`` (u-axis frames) or ``x = v`` (v-axis
-  frames), ``E = G_sigma * pattern^gamma``, a Gaussian blur of ``sigma`` projector units
+  frames), ``E = G_sigma * pattern^gamma`` (``pattern^(gamma/g)`` for a codec pre-compensated
+  for gamma ``g``), a Gaussian blur of ``sigma`` projector units
   along the coded axis (square waves and gray bits are rendered as steps, then blurred).
   White frames emit 1, black frames 0 (frames the codec does not use: 0 too). The camera
   sees ``I = albedo (ambient + gain E)`` (fractions of full scale), area-averaged over
@@ -171,7 +172,8 @@ def codec_patterns(codec: Codec) -> npt.NDArray[np.uint8]:
     """The projector images of ``codec``: ``(frames, projector_height, projector_width)`` uint8.
 
     Each image is :func:`pattern_value` at the projector pixel centres (``x = column`` for
-    u frames, ``x = row`` for v frames), scaled to 0..255 and rounded.
+    u frames, ``x = row`` for v frames), scaled to 0..255 and rounded. A codec with
+    ``precompensated_gamma = g`` writes ``round(255 s**(1/g))`` instead of ``round(255 s)``.
     """
     width, height = codec.projector_width, codec.projector_height
     images = np.zeros((codec.n_frames, height, width), np.uint8)
@@ -181,7 +183,10 @@ def codec_patterns(codec: Codec) -> npt.NDArray[np.uint8]:
         if role.kind == "white":
             images[f] = 255
         elif role.kind in ("phase", "gray"):
-            line = np.round(pattern_value(role, columns if role.axis == "u" else rows) * 255).astype(np.uint8)
+            value = pattern_value(role, columns if role.axis == "u" else rows)
+            if codec.precompensated_gamma is not None:
+                value = value ** (1.0 / codec.precompensated_gamma)
+            line = np.round(value * 255).astype(np.uint8)
             images[f] = line[None, :] if role.axis == "u" else line[:, None]
     return images
 
@@ -273,13 +278,15 @@ def render_codec(
     base = albedo_map * opts.ambient
     gain = (albedo_map * opts.projector_gain).ravel()[lit_index]
     rng = np.random.default_rng(opts.seed if seed is None else seed)
+    # the projected value of a pre-compensated codec is s**(1/g); the projector emits it**gamma
+    gamma = opts.projector_gamma / (codec.precompensated_gamma or 1.0)
     images = np.empty((codec.n_frames, height, width), opts.dtype)
     for f, role in enumerate(frame_roles(codec)):
         intensity = base.copy()
         if role.kind in ("phase", "gray"):
-            emitted = _emitted(role, lit_coords[role.axis], blur, opts.projector_gamma)
+            emitted = _emitted(role, lit_coords[role.axis], blur, gamma)
         else:
-            emitted = _emitted(role, np.zeros(lit_index.size), 0.0, opts.projector_gamma)
+            emitted = _emitted(role, np.zeros(lit_index.size), 0.0, gamma)
         intensity.ravel()[lit_index] += gain * emitted
         img = cv2.resize(intensity, (width, height), interpolation=cv2.INTER_AREA) if s > 1 else intensity
         if opts.camera_defocus_px > 0:

@@ -5,7 +5,8 @@ Rig file (``"model": "pinhole"``; see docs/pinhole.md)::
     {"model": "pinhole",
      "camera":    {"width_px": 2048, "height_px": 1536, "K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]],
                    "dist": [k1, k2, p1, p2, k3]},
-     "projector": {"width": 1280, "height": 800, "K": [[...]], "dist": [...]},
+     "projector": {"width": 1280, "height": 800, "K": [[...]], "dist": [...],
+                   "gamma": 2.2, "response": [256 numbers]},
      "R": [[...], [...], [...]], "T": [tx, ty, tz]}
 
 The camera frame is the model frame (mm); a point ``X_c`` of it is ``X_p = R X_c + T`` in the
@@ -13,6 +14,9 @@ projector's frame, so ``T`` is the camera centre in the projector frame and the 
 centre is ``C_p = -R^T T`` in the camera frame. ``K`` maps distorted normalized coordinates to
 pixels (camera) or projector units (projector), pixel centres at integers; ``dist`` holds 4, 5,
 8, 12 or 14 OpenCV coefficients (:mod:`metrology.core.distortion`), absent or empty for none.
+The projector's optional ``gamma`` (a number in 0.2..5: pattern value ``s`` in 0..1 comes out
+as ``s**gamma``) and ``response`` (256 non-decreasing numbers in 0..1: the emitted intensity of
+each 8-bit level, relative to white) describe its measured response; geometry ignores them.
 
 Triangulation
 -------------
@@ -68,7 +72,11 @@ from metrology.core.tiling import run_tiled
 MODEL_NAME = "pinhole"
 TOP_KEYS: tuple[str, ...] = ("model", "camera", "projector", "R", "T")
 CAMERA_KEYS: tuple[str, ...] = ("width_px", "height_px", "K", "dist")
-PROJECTOR_KEYS: tuple[str, ...] = ("width", "height", "K", "dist")
+PROJECTOR_KEYS: tuple[str, ...] = ("width", "height", "K", "dist", "gamma", "response")
+PROJECTOR_GAMMA_RANGE: tuple[float, float] = (0.2, 5.0)
+"""Accepted ``projector.gamma`` values (inclusive)."""
+RESPONSE_LEVELS = 256
+"""Entries of ``projector.response``: one per 8-bit pattern level."""
 AXIS_CHOICES: tuple[str, ...] = ("auto", "u", "v")
 METHOD_CHOICES: tuple[str, ...] = ("plane", "midpoint")
 ROTATION_TOL = 1e-6
@@ -151,6 +159,33 @@ def _dist(value: Any, name: str) -> tuple[float, ...]:
     return coeffs
 
 
+def _gamma(value: Any, name: str) -> float | None:
+    if value is None:
+        return None
+    g = _number(value, name)
+    lo, hi = PROJECTOR_GAMMA_RANGE
+    if not lo <= g <= hi:
+        raise PinholeRigError(f"{name} must be in {lo:g}..{hi:g}, got {value!r}")
+    return g
+
+
+def _response(value: Any, name: str) -> tuple[float, ...] | None:
+    if value is None:
+        return None
+    if not isinstance(value, (list, tuple)) or len(value) != RESPONSE_LEVELS:
+        got = f"{len(value)} entries" if isinstance(value, (list, tuple)) else repr(value)
+        raise PinholeRigError(f"{name} must be a list of {RESPONSE_LEVELS} numbers in 0..1, got {got}")
+    table = tuple(_number(x, f"{name}[{i}]") for i, x in enumerate(value))
+    for i, x in enumerate(table):
+        if not 0.0 <= x <= 1.0:
+            raise PinholeRigError(f"{name}[{i}] must be in 0..1, got {x!r}")
+        if i and x < table[i - 1]:
+            raise PinholeRigError(
+                f"{name} must be non-decreasing: {name}[{i}] = {x!r} < {name}[{i - 1}] = {table[i - 1]!r}"
+            )
+    return table
+
+
 def _positive_int(value: Any, name: str) -> int:
     f = _number(value, name)
     if not f.is_integer() or f <= 0:
@@ -193,12 +228,15 @@ class PinholeCamera:
 
 @dataclass(frozen=True)
 class PinholeProjector:
-    """The projector: size in projector units (the codec's), intrinsics ``K`` and distortion."""
+    """The projector: size in projector units (the codec's), intrinsics ``K``, distortion, and its
+    optional measured response: ``gamma`` (emitted ``s**gamma``) or ``response`` (256 levels, 0..1)."""
 
     width: float
     height: float
     K: Matrix3
     dist: tuple[float, ...] = ()
+    gamma: float | None = None
+    response: tuple[float, ...] | None = None
 
     @property
     def distortion(self) -> Distortion:
@@ -242,6 +280,8 @@ class PinholeRig(GeometryModel):
             height=_positive(proj["height"], "projector height"),
             K=_intrinsics(proj["K"], "projector K"),
             dist=_dist(proj.get("dist"), "projector dist"),
+            gamma=_gamma(proj.get("gamma"), "projector gamma"),
+            response=_response(proj.get("response"), "projector response"),
         )
         R = _matrix(data["R"], "R")
         t = data["T"]
@@ -279,6 +319,10 @@ class PinholeRig(GeometryModel):
         }
         if self.projector.dist:
             projector["dist"] = list(self.projector.dist)
+        if self.projector.gamma is not None:
+            projector["gamma"] = float(self.projector.gamma)
+        if self.projector.response is not None:
+            projector["response"] = list(self.projector.response)
         return {
             "model": MODEL_NAME,
             "camera": camera,

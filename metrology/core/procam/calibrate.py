@@ -1,0 +1,573 @@
+"""Projector-camera calibration from board poses: both devices as OpenCV pinholes, the stereo
+pose, and a report that explains the result (docs/procam-calibration.md).
+
+Per pose ``i`` the board's points ``X_k`` (mm, board frame ``Z = 0``) are seen at camera pixels
+``c_ik`` and, through the local homographies of :mod:`metrology.core.procam.corners`, at
+projector points ``p_ik``. Then
+
+1. camera: ``cv2.calibrateCameraExtended(X, c)`` -> ``K_c``, ``dist_c`` (5 coefficients),
+   per-pose board poses and the intrinsics' standard deviations;
+2. projector: the same with ``p`` -> ``K_p``, ``dist_p``;
+3. stereo: ``cv2.stereoCalibrateExtended`` with the intrinsics fixed -> ``R``, ``T`` with
+   ``X_p = R X_c + T`` (the pinhole rig file's convention), per-pose board poses and errors.
+
+Every residual is ``observed - projected`` (pixels or projector units) through the stereo
+solution: the camera sees board pose ``(R_i, t_i)``, the projector ``(R R_i, R t_i + T)``.
+The RMS values are those OpenCV returns: ``sqrt(sum |r|^2 / n_points)`` per device and over
+both devices for the stereo fit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from metrology.core.geometry.pinhole import PROJECTOR_GAMMA_RANGE, PinholeCamera, PinholeProjector, PinholeRig
+from metrology.core.procam.board import BoardSpec
+
+FloatArray = npt.NDArray[np.float64]
+
+MIN_DECODED_FRACTION = 0.25
+"""A corner is usable when at least this fraction of its window is decoded (both axes)."""
+MIN_USABLE_CORNERS = 0.9
+"""A pose is used when at least this fraction of its corners is usable."""
+MIN_POSES = 2
+RECOMMENDED_POSES = 5
+SIMILAR_ANGLE_DEG = 3.0
+SIMILAR_SHIFT = 0.05
+MIN_TILT_RANGE_DEG = 15.0
+FLIP_ANGLE_DEG = 10.0
+COVERAGE_CELLS = 8
+MIN_COVERAGE = 0.3
+MISMATCH_FRACTION = 0.02
+GAMMA_TOLERANCE = 0.15
+PLAUSIBLE_DISTANCE_MM = (100.0, 20000.0)
+HIGH_RMS_PX = 1.0
+
+
+class ProcamCalibrationError(ValueError):
+    """The poses cannot give a calibration (the message says why, pose by pose)."""
+
+
+@dataclass
+class PoseObservation:
+    """One board pose as seen by the camera and mapped into the projector.
+
+    Attributes
+    ----------
+    name : str
+    camera_px : (N, 2) float64 or None
+        Board points in the camera, pixels; None when the board was not found.
+    projector_px : (N, 2) float64 or None
+        The same points in the projector, projector units; NaN rows where a corner has no fit.
+    object_mm : (N, 3) float64 or None
+        Board points, mm (default: the board spec's points).
+    decoded_fraction : (N,) float64 or None
+        Decoded fraction of each corner's window (None: given correspondences, all usable).
+    fit_rms : (N,) float64 or None
+        RMS of each local homography's inliers, projector units.
+    reason : str or None
+        Why the pose cannot be used, set before calibration (board not found, ...).
+    mismatch_fraction : float or None
+        Fraction of the board's decodable pixels refused as outside the projector or
+        gray/phase inconsistent (a projector size or fringe period that does not match).
+    gamma : float or None
+        Response exponent estimated from the sine fringes' mean against white and black.
+    """
+
+    name: str
+    camera_px: FloatArray | None
+    projector_px: FloatArray | None
+    object_mm: FloatArray | None = None
+    decoded_fraction: FloatArray | None = None
+    fit_rms: FloatArray | None = None
+    reason: str | None = None
+    mismatch_fraction: float | None = None
+    gamma: float | None = None
+    cause: str | None = None
+
+
+@dataclass
+class ProcamCalibration:
+    """The calibrated rig and the report (a JSON-ready dict, docs/procam-calibration.md)."""
+
+    rig: PinholeRig
+    report: dict[str, Any] = field(default_factory=dict)
+
+
+def _warn(
+    warnings: list[dict[str, Any]], cause: str, message: str, action: str, poses: list[str] | None = None
+) -> None:
+    entry: dict[str, Any] = {"cause": cause, "message": message, "action": action}
+    if poses:
+        entry["poses"] = poses
+    warnings.append(entry)
+
+
+def _signed_area(pts: FloatArray, cols: int) -> float:
+    """Shoelace area of the quadrilateral of the grid's four outer points, in their grid order."""
+    rows = pts.shape[0] // cols
+    q = pts[[0, cols - 1, rows * cols - 1, (rows - 1) * cols]]
+    x, y = q[:, 0], q[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def _angle_deg(Ra: FloatArray, Rb: FloatArray) -> float:
+    c = (np.trace(Ra @ Rb.T) - 1.0) / 2.0
+    return math.degrees(math.acos(float(np.clip(c, -1.0, 1.0))))
+
+
+def _coverage(points: list[FloatArray], width: float, height: float) -> float:
+    """Fraction of an ``8 x 8`` grid of the image's cells holding at least one point."""
+    cells = np.zeros((COVERAGE_CELLS, COVERAGE_CELLS), bool)
+    for p in points:
+        i = np.floor((p[:, 1] + 0.5) / height * COVERAGE_CELLS).astype(int)
+        j = np.floor((p[:, 0] + 0.5) / width * COVERAGE_CELLS).astype(int)
+        keep = (i >= 0) & (i < COVERAGE_CELLS) & (j >= 0) & (j < COVERAGE_CELLS)
+        cells[i[keep], j[keep]] = True
+    return float(cells.mean())
+
+
+def _std_dict(std: FloatArray, n_dist: int) -> dict[str, Any]:
+    s = np.asarray(std, dtype=np.float64).ravel()
+    return {
+        "fx": float(s[0]),
+        "fy": float(s[1]),
+        "cx": float(s[2]),
+        "cy": float(s[3]),
+        "dist": [float(x) for x in s[4 : 4 + n_dist]],
+    }
+
+
+def _calibrate_device(
+    obj: list[FloatArray], img: list[FloatArray], size: tuple[int, int], flags: int = 0
+) -> tuple[float, FloatArray, FloatArray, list[FloatArray], list[FloatArray], FloatArray, FloatArray]:
+    o = [x.astype(np.float32).reshape(-1, 1, 3) for x in obj]
+    i = [x.astype(np.float32).reshape(-1, 1, 2) for x in img]
+    criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+    rms, K, dist, rvecs, tvecs, std_int, _std_ext, per_view = cv2.calibrateCameraExtended(  # type: ignore[call-overload]
+        o, i, size, None, None, flags=flags, criteria=criteria
+    )
+    return float(rms), K, dist.ravel()[:5], list(rvecs), list(tvecs), std_int.ravel(), per_view.ravel()
+
+
+def _project(obj: FloatArray, rvec: FloatArray, tvec: FloatArray, K: FloatArray, dist: FloatArray) -> FloatArray:
+    pts, _ = cv2.projectPoints(obj.reshape(-1, 1, 3), rvec, tvec, K, dist)
+    return np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+
+
+def _pose_checks(poses: list[PoseObservation], board_cols: int, warnings: list[dict[str, Any]]) -> None:
+    """Corner handedness: a pose whose camera grid, or whose projector grid relative to its
+    camera grid, turns the other way from the majority has its corner order mirrored."""
+    usable = [p for p in poses if p.reason is None and p.camera_px is not None and p.projector_px is not None]
+    if len(usable) < 2:
+        return
+    cam_sign = {}
+    rel_sign = {}
+    for p in usable:
+        assert p.camera_px is not None and p.projector_px is not None
+        proj = p.projector_px
+        if not np.isfinite(proj[[0, board_cols - 1, -1, -board_cols]]).all():
+            continue
+        a_c = _signed_area(p.camera_px, board_cols)
+        a_p = _signed_area(proj, board_cols)
+        cam_sign[p.name] = np.sign(a_c)
+        rel_sign[p.name] = np.sign(a_c * a_p)
+    for signs, what in ((cam_sign, "camera"), (rel_sign, "projector")):
+        if len(signs) < 2:
+            continue
+        majority = np.sign(sum(signs.values())) or 1.0
+        flipped = [name for name, s in signs.items() if s != majority]
+        if flipped and len(flipped) < len(signs) / 2:
+            for p in usable:
+                if p.name in flipped:
+                    p.reason = (
+                        f"corner order mirrored in the {what} (its grid turns the other way from the other poses)"
+                    )
+                    p.cause = "corner_order_flipped"
+
+
+def calibrate_procam(
+    poses: list[PoseObservation],
+    board: BoardSpec,
+    camera_size: tuple[int, int],
+    projector_size: tuple[int, int],
+    *,
+    min_decoded_fraction: float = MIN_DECODED_FRACTION,
+    codec_gamma_precompensated: bool = False,
+    fix_k3: bool = False,
+) -> ProcamCalibration:
+    """Calibrate camera, projector and their pose from board poses; explain the result.
+
+    Parameters
+    ----------
+    poses : list of PoseObservation
+        Poses whose ``reason`` is set are reported and left out; others are checked (decoded
+        fraction around each corner, corner order) and used.
+    board : BoardSpec
+    camera_size : (width, height) pixels
+    projector_size : (width, height) projector units
+    min_decoded_fraction : float
+        A corner is used when this fraction of its window is decoded.
+    codec_gamma_precompensated : bool
+        The patterns were pre-compensated for the projector's gamma (the codec's
+        ``precompensated_gamma``): no gamma warning, and the rig's ``projector.gamma`` is not set.
+        Otherwise a gamma estimated from the fringes (0.2..5) is written as ``projector.gamma``.
+    fix_k3 : bool
+        Hold the radial coefficient k3 at 0 for both devices (few poses, or mild distortion).
+
+    Returns
+    -------
+    ProcamCalibration
+        ``rig`` (the pinhole rig, mm) and ``report`` (see docs/procam-calibration.md).
+
+    Raises
+    ------
+    ProcamCalibrationError
+        Fewer than two usable poses (the message lists every pose's reason).
+    """
+    if not poses:
+        raise ProcamCalibrationError("no poses given")
+    names = [p.name for p in poses]
+    if len(set(names)) != len(names):
+        raise ProcamCalibrationError(f"pose names must be unique, got {names}")
+    warnings: list[dict[str, Any]] = []
+    default_obj = board.object_points()
+    used_mask: dict[str, npt.NDArray[np.bool_]] = {}
+    for p in poses:
+        if p.object_mm is None:
+            p.object_mm = default_obj
+        if p.reason is not None:
+            continue
+        if p.camera_px is None:
+            p.reason, p.cause = "board not found in the board image", "board_not_found"
+            continue
+        if p.projector_px is None:
+            p.reason, p.cause = "no projector points", "poorly_decoded"
+            continue
+        n = p.camera_px.shape[0]
+        ok = np.isfinite(p.projector_px).all(axis=1) & np.isfinite(p.camera_px).all(axis=1)
+        if p.decoded_fraction is not None:
+            ok = np.asarray(ok & (p.decoded_fraction >= min_decoded_fraction), dtype=bool)
+        if ok.sum() < max(MIN_USABLE_CORNERS * n, 6):
+            p.reason = (
+                f"only {int(ok.sum())} of {n} corners have >= {min_decoded_fraction:.0%} of their window decoded "
+                "(part of the board shadowed, outside the projector's light, or too dark)"
+            )
+            p.cause = "poorly_decoded"
+            continue
+        used_mask[p.name] = np.asarray(ok, dtype=bool)
+    _pose_checks(poses, board.cols, warnings)
+
+    def active() -> list[PoseObservation]:
+        return [p for p in poses if p.reason is None]
+
+    cam_w, cam_h = int(camera_size[0]), int(camera_size[1])
+    proj_w, proj_h = round(projector_size[0]), round(projector_size[1])
+
+    def run_devices() -> tuple[Any, Any]:
+        act = active()
+        if len(act) < MIN_POSES:
+            lines = "; ".join(f"{p.name}: {p.reason or 'usable'}" for p in poses)
+            raise ProcamCalibrationError(f"need at least {MIN_POSES} usable poses, have {len(act)} ({lines})")
+        obj = [p.object_mm[used_mask[p.name]] for p in act]  # type: ignore[index]
+        cam = [p.camera_px[used_mask[p.name]] for p in act]  # type: ignore[index]
+        prj = [p.projector_px[used_mask[p.name]] for p in act]  # type: ignore[index]
+        flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
+        c = _calibrate_device(obj, cam, (cam_w, cam_h), flags)
+        q = _calibrate_device(obj, prj, (proj_w, proj_h), flags)
+        return c, q
+
+    cam_cal, proj_cal = run_devices()
+    # a pose whose projector corners run the other way round from its camera corners: its relative
+    # rotation (projector board pose times the inverse camera board pose) differs from the others'
+    act = active()
+    if len(act) >= 3:
+        rel = []
+        for k in range(len(act)):
+            Rc = cv2.Rodrigues(cam_cal[3][k])[0]
+            Rp = cv2.Rodrigues(proj_cal[3][k])[0]
+            rel.append(Rp @ Rc.T)
+        dists = np.array([[_angle_deg(a, b) for b in rel] for a in rel])
+        ref = int(np.argmin(np.median(dists, axis=1)))
+        bad = [act[k] for k in range(len(act)) if dists[ref, k] > FLIP_ANGLE_DEG]
+        if bad and len(bad) < len(act) / 2:
+            for p in bad:
+                k = act.index(p)
+                p.reason = (
+                    f"corner order flipped between camera and projector (its camera-to-projector rotation is "
+                    f"{dists[ref, k]:.0f} degrees from the other poses')"
+                )
+                p.cause = "corner_order_flipped"
+            cam_cal, proj_cal = run_devices()
+    act = active()
+    obj = [p.object_mm[used_mask[p.name]].astype(np.float32).reshape(-1, 1, 3) for p in act]  # type: ignore[index]
+    cam = [p.camera_px[used_mask[p.name]].astype(np.float32).reshape(-1, 1, 2) for p in act]  # type: ignore[index]
+    prj = [p.projector_px[used_mask[p.name]].astype(np.float32).reshape(-1, 1, 2) for p in act]  # type: ignore[index]
+    Kc, dc = cam_cal[1], cam_cal[2]
+    Kp, dp = proj_cal[1], proj_cal[2]
+    criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+    stereo = cv2.stereoCalibrateExtended(  # type: ignore[call-overload]
+        obj, cam, prj, Kc, dc, Kp, dp, (cam_w, cam_h), None, None, flags=cv2.CALIB_FIX_INTRINSIC, criteria=criteria
+    )
+    stereo_rms = float(stereo[0])
+    R = np.asarray(stereo[5], dtype=np.float64)
+    T = np.asarray(stereo[6], dtype=np.float64).ravel()
+    s_rvecs, s_tvecs, s_err = stereo[9], stereo[10], np.asarray(stereo[11]).reshape(-1, 2)
+
+    rig = PinholeRig(
+        camera=PinholeCamera(
+            width_px=cam_w,
+            height_px=cam_h,
+            K=tuple(tuple(float(x) for x in row) for row in Kc),  # type: ignore[arg-type]
+            dist=tuple(float(x) for x in dc),
+        ),
+        projector=PinholeProjector(
+            width=proj_w,
+            height=proj_h,
+            K=tuple(tuple(float(x) for x in row) for row in Kp),  # type: ignore[arg-type]
+            dist=tuple(float(x) for x in dp),
+        ),
+        R=tuple(tuple(float(x) for x in row) for row in R),  # type: ignore[arg-type]
+        T=(float(T[0]), float(T[1]), float(T[2])),
+    )
+
+    # ----------------------------------------------------------------- per pose, per corner
+    pose_reports: list[dict[str, Any]] = []
+    board_R: dict[str, FloatArray] = {}
+    board_t: dict[str, FloatArray] = {}
+    for p in poses:
+        entry: dict[str, Any] = {"name": p.name, "used": p.reason is None, "reason": p.reason, "cause": p.cause}
+        corners: list[dict[str, Any]] = []
+        if p.reason is None:
+            k = act.index(p)
+            rvec, tvec = np.asarray(s_rvecs[k]).ravel(), np.asarray(s_tvecs[k]).ravel()
+            Ri = np.asarray(cv2.Rodrigues(rvec)[0], dtype=np.float64)
+            board_R[p.name], board_t[p.name] = Ri, tvec
+            Rpi = R @ Ri
+            tpi = R @ tvec + T
+            assert p.object_mm is not None
+            pc = _project(p.object_mm, rvec, tvec, Kc, dc)
+            pp = _project(p.object_mm, np.asarray(cv2.Rodrigues(Rpi)[0], dtype=np.float64).ravel(), tpi, Kp, dp)
+            e_c, e_p = float(s_err[k, 0]), float(s_err[k, 1])
+            normal = Ri[:, 2]
+            entry.update(
+                {
+                    "rms_px": math.sqrt((e_c**2 + e_p**2) / 2),
+                    "camera_rms_px": e_c,
+                    "projector_rms_px": e_p,
+                    "tilt_deg": math.degrees(math.acos(min(1.0, abs(float(normal[2]))))),
+                    "distance_mm": float(np.linalg.norm(tvec)),
+                }
+            )
+        else:
+            pc = pp = None  # type: ignore[assignment]
+            entry["rms_px"] = None
+        if p.camera_px is not None:
+            mask = used_mask.get(p.name)
+            for j in range(p.camera_px.shape[0]):
+                cpx = p.camera_px[j]
+                ppx = p.projector_px[j] if p.projector_px is not None else None
+                c: dict[str, Any] = {
+                    "camera_px": [float(cpx[0]), float(cpx[1])],
+                    "projector_px": [float(ppx[0]), float(ppx[1])]
+                    if ppx is not None and np.isfinite(ppx).all()
+                    else None,
+                    "used": bool(p.reason is None and mask is not None and mask[j]),
+                }
+                if p.decoded_fraction is not None:
+                    c["decoded_fraction"] = float(p.decoded_fraction[j])
+                if p.fit_rms is not None and np.isfinite(p.fit_rms[j]):
+                    c["homography_rms"] = float(p.fit_rms[j])
+                if pc is not None and pp is not None:
+                    c["residual_camera_px"] = [float(cpx[0] - pc[j, 0]), float(cpx[1] - pc[j, 1])]
+                    c["residual_projector_px"] = (
+                        [float(ppx[0] - pp[j, 0]), float(ppx[1] - pp[j, 1])]
+                        if ppx is not None and np.isfinite(ppx).all()
+                        else None
+                    )
+                else:
+                    c["residual_camera_px"] = None
+                    c["residual_projector_px"] = None
+                corners.append(c)
+        if p.decoded_fraction is not None:
+            entry["decoded_fraction_median"] = float(np.median(p.decoded_fraction))
+        if p.mismatch_fraction is not None:
+            entry["mismatch_fraction"] = p.mismatch_fraction
+        if p.gamma is not None:
+            entry["gamma_estimate"] = p.gamma
+        entry["corners"] = corners
+        pose_reports.append(entry)
+
+    # ----------------------------------------------------------------- diagnostics and warnings
+    for p in poses:
+        if p.reason is None:
+            continue
+        if p.cause == "board_not_found":
+            _warn(
+                warnings,
+                "board_not_found",
+                f"pose {p.name}: the board was not found in its board image; the pose is left out.",
+                "Check the --board size (inner corners, points per row first), that the whole board is in the "
+                "camera's view, sharp and evenly lit in the white frame.",
+                [p.name],
+            )
+        elif p.cause == "poorly_decoded":
+            _warn(
+                warnings,
+                "poorly_decoded",
+                f"pose {p.name}: too little of the board decoded ({p.reason}); the pose is left out.",
+                "Keep the whole board inside the projector's light, avoid shadows and glare, and raise the exposure "
+                "or the projector brightness so the black squares are still decoded.",
+                [p.name],
+            )
+        elif p.cause == "corner_order_flipped":
+            _warn(
+                warnings,
+                "corner_order_flipped",
+                f"pose {p.name}: {p.reason}; the pose is left out.",
+                "Give the board's points in the same order for the camera and the projector (row by row, points "
+                "per row first); in a correspondence file check that no pose has its projector list reversed.",
+                [p.name],
+            )
+    if len(act) < RECOMMENDED_POSES:
+        _warn(
+            warnings,
+            "too_few_poses",
+            f"only {len(act)} poses were used; the intrinsics, above all the projector's, are poorly constrained.",
+            f"Capture at least {RECOMMENDED_POSES} (better 8 to 12) poses, tilting the board in different directions.",
+        )
+    normals = {name: Rb[:, 2] for name, Rb in board_R.items()}
+    similar: list[list[str]] = []
+    used_names = [p.name for p in act]
+    max_pair = 0.0
+    for a in range(len(used_names)):
+        for b in range(a + 1, len(used_names)):
+            na, nb = used_names[a], used_names[b]
+            ang = _angle_deg(board_R[na], board_R[nb])
+            max_pair = max(max_pair, math.degrees(math.acos(float(np.clip(abs(normals[na] @ normals[nb]), -1, 1)))))
+            shift = float(np.linalg.norm(board_t[na] - board_t[nb])) / max(float(np.linalg.norm(board_t[na])), 1e-9)
+            if ang < SIMILAR_ANGLE_DEG and shift < SIMILAR_SHIFT:
+                similar.append([na, nb])
+    for pair in similar:
+        _warn(
+            warnings,
+            "similar_poses",
+            f"poses {pair[0]} and {pair[1]} are near-identical (board orientations within {SIMILAR_ANGLE_DEG} degrees "
+            f"and positions within {SIMILAR_SHIFT:.0%}); the second adds almost nothing.",
+            "Replace one of them by a pose tilted by 20 to 40 degrees in another direction.",
+            pair,
+        )
+    tilts = [float(e["tilt_deg"]) for e in pose_reports if e["used"]]
+    if len(act) >= 2 and max_pair < MIN_TILT_RANGE_DEG:
+        _warn(
+            warnings,
+            "similar_poses",
+            f"the board's orientations span only {max_pair:.1f} degrees; "
+            "focal length and distance cannot be told apart.",
+            "Tilt the board by 20 to 40 degrees about both its axes across the poses.",
+        )
+    cam_cov = _coverage([p.camera_px[used_mask[p.name]] for p in act], cam_w, cam_h)  # type: ignore[index]
+    proj_cov = _coverage([p.projector_px[used_mask[p.name]] for p in act], proj_w, proj_h)  # type: ignore[index]
+    for cov, what in ((cam_cov, "camera"), (proj_cov, "projector")):
+        if cov < MIN_COVERAGE:
+            _warn(
+                warnings,
+                "coverage",
+                f"the corners cover only {cov:.0%} of the {what} image (cells of an 8x8 grid); its distortion is "
+                "extrapolated elsewhere.",
+                f"Add poses that bring the board near the edges and corners of the {what} image.",
+            )
+    distances = [float(np.linalg.norm(t)) for t in board_t.values()]
+    median_distance = float(np.median(distances))
+    baseline = float(np.linalg.norm(T))
+    lo, hi = PLAUSIBLE_DISTANCE_MM
+    if not lo <= median_distance <= hi:
+        _warn(
+            warnings,
+            "board_unit",
+            f"the board comes out {median_distance:.4g} mm from the camera and the baseline {baseline:.4g} mm: "
+            "implausible for a bench rig, so the board's square size is probably in the wrong unit.",
+            f"Give the square size in millimetres (now {board.size_mm:g}; a square of 2.5 cm is 25, of 1 inch 25.4).",
+        )
+    mismatched = [p.name for p in poses if p.mismatch_fraction is not None and p.mismatch_fraction > MISMATCH_FRACTION]
+    pp = Kp[:2, 2]
+    pp_outside = not (-0.25 * proj_w <= pp[0] <= 1.25 * proj_w and -0.75 * proj_h <= pp[1] <= 1.75 * proj_h)
+    if mismatched or pp_outside:
+        fractions = ", ".join(
+            f"{p.name} {p.mismatch_fraction:.0%}" for p in poses if p.name in mismatched and p.mismatch_fraction
+        )
+        detail = (
+            f"decoded pixels refused as outside the projector or gray/phase inconsistent: {fractions}; "
+            if fractions
+            else ""
+        )
+        _warn(
+            warnings,
+            "projector_mismatch",
+            f"{detail}projector principal point ({pp[0]:.0f}, {pp[1]:.0f}) for a declared {proj_w}x{proj_h} projector. "
+            "The codec's projector size or fringe period does not match the patterns that were projected.",
+            "Write the projector's real resolution and the periods and words of the projected patterns in the codec "
+            "(regenerate the patterns from the codec to be sure), and project them at the native resolution.",
+            mismatched or None,
+        )
+    gammas = [p.gamma for p in act if p.gamma is not None and math.isfinite(p.gamma)]
+    gamma_estimate = float(np.median(gammas)) if gammas else None
+    if gamma_estimate is not None and abs(gamma_estimate - 1.0) > GAMMA_TOLERANCE and not codec_gamma_precompensated:
+        _warn(
+            warnings,
+            "gamma",
+            f"the projector-camera response is not linear (gamma about {gamma_estimate:.2f} from the fringes' mean "
+            "against the white and black frames): sine fringes are distorted and phases carry a periodic error.",
+            "Set the projector to a linear (gamma 1) mode, or pre-compensate the patterns for this gamma, or use "
+            "gray codes with inverse images or more phase steps.",
+        )
+    lo_g, hi_g = PROJECTOR_GAMMA_RANGE
+    if gamma_estimate is not None and not codec_gamma_precompensated and lo_g <= gamma_estimate <= hi_g:
+        # the measured response goes into the rig file (projector.gamma) for pre-compensation later
+        rig = replace(rig, projector=replace(rig.projector, gamma=round(gamma_estimate, 4)))
+    cam_rms, proj_rms = float(cam_cal[0]), float(proj_cal[0])
+    if proj_rms > HIGH_RMS_PX or cam_rms > HIGH_RMS_PX:
+        causes = sorted({w["cause"] for w in warnings})
+        _warn(
+            warnings,
+            "high_rms",
+            f"reprojection error is high (camera {cam_rms:.2f} px, projector {proj_rms:.2f} px)"
+            + (f"; see the other warnings ({', '.join(causes)})" if causes else ""),
+            "Look at the per-pose RMS and leave out the worst poses; check the board size, the codec and focus.",
+        )
+
+    n_dist_c, n_dist_p = len(dc), len(dp)
+    report: dict[str, Any] = {
+        "format": "gcps-procam-report/1",
+        "board": board.spec(),
+        "camera_size": [cam_w, cam_h],
+        "projector_size": [proj_w, proj_h],
+        "camera_rms_px": cam_rms,
+        "projector_rms_px": proj_rms,
+        "stereo_rms_px": stereo_rms,
+        "poses_used": len(act),
+        "poses_total": len(poses),
+        "camera": {"K": Kc.tolist(), "dist": [float(x) for x in dc], "std": _std_dict(cam_cal[5], n_dist_c)},
+        "projector": {"K": Kp.tolist(), "dist": [float(x) for x in dp], "std": _std_dict(proj_cal[5], n_dist_p)},
+        "R": R.tolist(),
+        "T": [float(x) for x in T],
+        "baseline_mm": baseline,
+        "coverage": {"camera": cam_cov, "projector": proj_cov, "grid": COVERAGE_CELLS},
+        "pose_diversity": {
+            "tilt_min_deg": min(tilts) if tilts else None,
+            "tilt_max_deg": max(tilts) if tilts else None,
+            "max_angle_between_boards_deg": max_pair,
+            "near_identical_pairs": similar,
+        },
+        "median_board_distance_mm": median_distance,
+        "gamma_estimate": gamma_estimate,
+        "warnings": warnings,
+        "poses": pose_reports,
+    }
+    return ProcamCalibration(rig=rig, report=report)

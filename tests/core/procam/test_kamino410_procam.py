@@ -1,0 +1,115 @@
+"""Real captures: kamino410 procam-calibration (5 poses of a 9x7 inner-corner chessboard, gray code
+with inverses on both axes, 1024x768 projector; MIT licensed, kept outside the repository).
+
+Its own program, rerun, gives camera fx 3452.4, projector fx 1980.6, stereo RMS 0.575 px and
+T = (88.0, -641.6, -80.4) board units (square "75"). Its projector figures come from its program's
+convention (image sizes given as (rows, cols), OpenCV 4.x's 30-iteration stop); our correspondences
+reproduce them under that convention, and converge to projector fx 1889 (see
+docs/procam-calibration.md). Skipped (with the reason) when the dataset
+folder is absent, except under ``CI=true`` where its absence fails.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from metrology.cli import main
+
+ROOT = Path(__file__).resolve().parents[3]
+CANDIDATES = [ROOT.parent / "shared" / "datasets", ROOT.parent.parent / "shared" / "datasets"]
+DATASET = next((c for c in CANDIDATES if c.is_dir()), CANDIDATES[0]) / "kamino410-procam-calibration" / "sample_data"
+CODEC = ROOT / "examples" / "kamino410-procam.codec.json"
+T_REFERENCE = np.array([88.0, -641.6, -80.4])
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, dict]:  # type: ignore[type-arg]
+    if not (DATASET / "capture_0").is_dir():
+        message = f"kamino410 procam dataset not found at {DATASET}; real-capture test skipped"
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(message.replace("skipped", "required under CI=true"))
+        pytest.skip(message)
+    out = tmp_path_factory.mktemp("kamino")
+    poses = [str(DATASET / f"capture_{i}") for i in range(5)]
+    args = ["--quiet", "calibrate-procam", "--codec", str(CODEC), "--board", "chessboard:9x7:75", "--poses", *poses]
+    assert main([*args, "--out", str(out / "rig.json"), "--report", str(out / "report.json")]) == 0
+    return json.loads((out / "rig.json").read_text()), json.loads((out / "report.json").read_text())
+
+
+def test_camera_and_stereo_match_the_datasets_program(calibrated) -> None:  # type: ignore[no-untyped-def]
+    rig, report = calibrated
+    assert rig["model"] == "pinhole" and report["poses_used"] == 5
+    assert abs(rig["camera"]["K"][0][0] / 3452.0 - 1) < 0.01
+    assert report["stereo_rms_px"] <= 0.7
+    assert len(report["poses"]) == 5 and all(len(p["corners"]) == 63 for p in report["poses"])
+
+
+def _dataset_convention(report: dict) -> dict[str, object]:  # type: ignore[type-arg]
+    """Re-fit the report's correspondences the way the dataset's program (``calibrate.py``) does.
+
+    Its program calls ``cv2.calibrateCamera(objps, corners, shape, None, None)`` with
+    ``shape = (rows, cols)`` for both devices where OpenCV reads ``(width, height)``, so each
+    Levenberg-Marquardt run starts from a principal point at the swapped image centre (the
+    projector's at (383.5, 511.5) instead of (511.5, 383.5)); under OpenCV 4.x the run stops at its
+    default 30 iterations (``TERM_CRITERIA_COUNT + EPS``, 30, DBL_EPSILON). ``cv2.stereoCalibrate``
+    then keeps both intrinsics (its default flag ``CALIB_FIX_INTRINSIC``). Returns the projector
+    K (3, 3), RMS values (pixels) and T (3,) in board units.
+    """
+    obj = np.zeros((63, 3), np.float32)
+    obj[:, :2] = 75.0 * np.mgrid[0:9, 0:7].T.reshape(-1, 2)
+    objects, camera, projector = [], [], []
+    for pose in report["poses"]:
+        used = [i for i, c in enumerate(pose["corners"]) if c["used"]]
+        objects.append(obj[used])
+        camera.append(np.float32([pose["corners"][i]["camera_px"] for i in used]))
+        projector.append(np.float32([pose["corners"][i]["projector_px"] for i in used]))
+    criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 30, float(np.finfo(float).eps))
+    cam_rows_cols = (report["camera_size"][1], report["camera_size"][0])
+    proj_rows_cols = (report["projector_size"][1], report["projector_size"][0])
+    _, Kc, dc, _, _ = cv2.calibrateCamera(objects, camera, cam_rows_cols, None, None, criteria=criteria)  # type: ignore[call-overload]
+    proj_rms, Kp, dp, _, _ = cv2.calibrateCamera(objects, projector, proj_rows_cols, None, None, criteria=criteria)  # type: ignore[call-overload]
+    stereo = cv2.stereoCalibrate(objects, camera, projector, Kc, dc, Kp, dp, None)  # type: ignore[call-overload]
+    T = stereo[6].ravel()
+    return {"camera_K": Kc, "projector_K": Kp, "projector_rms": proj_rms, "stereo_rms": stereo[0], "T": T}
+
+
+def _t_close(T: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
+    """(relative length difference, angle in degrees) between two translations."""
+    length = abs(np.linalg.norm(T) / np.linalg.norm(reference) - 1)
+    cos = float(T @ reference / (np.linalg.norm(T) * np.linalg.norm(reference)))
+    return float(length), math.degrees(math.acos(min(1.0, cos)))
+
+
+def test_our_correspondences_reproduce_the_datasets_projector_under_its_convention(calibrated) -> None:  # type: ignore[no-untyped-def]
+    """The dataset's projector fx 1980.6 is its program's convention, not its data: our corners,
+    fitted with swapped image sizes and 30 iterations, give it within the issue's tolerances."""
+    _, report = calibrated
+    fit = _dataset_convention(report)
+    assert abs(fit["camera_K"][0, 0] / 3452.0 - 1) < 0.01  # type: ignore[index]
+    assert abs(fit["projector_K"][0, 0] / 1981.0 - 1) < 0.03  # type: ignore[index]
+    assert fit["stereo_rms"] <= 0.7  # type: ignore[operator]
+    length, angle = _t_close(np.asarray(fit["T"]), T_REFERENCE)
+    assert length < 0.02 and angle < 1.0
+
+
+def test_our_converged_projector_calibration(calibrated) -> None:  # type: ignore[no-untyped-def]
+    """The product's result is the converged minimum: projector fx 1889 (1895.6 for the dataset
+    program's own corners run to convergence), T = (94, -626, -246), and a better fit than the
+    dataset's convention (projector RMS 0.19 against 0.28, stereo 0.31 against 0.56)."""
+    rig, report = calibrated
+    assert abs(rig["projector"]["K"][0][0] / 1889.0 - 1) < 0.01
+    assert abs(rig["projector"]["K"][0][0] / 1895.6 - 1) < 0.01
+    length, angle = _t_close(np.asarray(rig["T"]), np.array([94.4, -626.3, -245.9]))
+    assert length < 0.01 and angle < 0.5
+    fit = _dataset_convention(report)
+    assert report["projector_rms_px"] <= 0.25 and report["projector_rms_px"] < 0.8 * float(fit["projector_rms"])  # type: ignore[arg-type]
+    assert report["stereo_rms_px"] < 0.8 * float(fit["stereo_rms"])  # type: ignore[arg-type]
