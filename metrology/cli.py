@@ -135,8 +135,41 @@ def cmd_patterns(args: argparse.Namespace) -> dict[str, Any]:
     return {"out": args.out, "patterns": int(images.shape[0])}
 
 
+def _stacks_codec(codec_option: str | None, captures: Sequence[tuple[str, str]]) -> Any:
+    """The codec of ``gcps measure``'s captures: ``--codec`` (a file or a built-in name), else the
+    captures' own ``codec.json`` (they must agree), else None (gcps-v1 named patterns)."""
+    from metrology.core.codecs import read_codec
+    from metrology.core.codecs.stack import read_capture_codec
+
+    if codec_option:
+        return read_codec(codec_option)
+    found: dict[str, Any] = {}
+    for what, path in captures:
+        if Path(path).exists():
+            codec = read_capture_codec(path)
+            if codec is not None:
+                found[what] = codec
+    if len({json.dumps(codec.to_dict(), sort_keys=True) for codec in found.values()}) > 1:
+        raise BadInputError(f"the {' and '.join(found)} captures hold different codec.json files; give --codec")
+    return next(iter(found.values()), None)
+
+
+def _load_codec_stack(path: str, codec: Any, what: str) -> Any:
+    from metrology.core.codecs.stack import read_codec_stack
+
+    if not Path(path).exists():
+        raise BadInputError(f"{what} stack {path}: not found")
+    try:
+        return read_codec_stack(path, codec).images
+    except ValueError as exc:
+        raise BadInputError(f"{what} stack: {exc}") from exc
+
+
 def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
+    import numpy as np
+
     from metrology.commands.measure_pinhole import cmd_measure_pinhole, is_pinhole_rig
+    from metrology.core.codec_measure import is_gcps_v1
     from metrology.pipeline import MeasureOptions, measure
 
     if is_pinhole_rig(args.rig):
@@ -150,27 +183,56 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
         _check_parent(args.mesh, "--mesh")
     if args.json:
         _check_parent(args.json, "--json")
-    options = MeasureOptions(decode=_decode_options(args), gray_only=bool(args.json))
+    for option, path in (("--xyz", args.xyz), ("--sigma", args.sigma)):
+        if path:
+            _check_out_suffix(path, (".npy",), option)
+            _check_parent(path, option)
+    if args.max_sigma is not None and not (args.max_sigma > 0 and args.max_sigma < float("inf")):
+        raise BadInputError(f"--max-sigma must be a positive number of mm, got {args.max_sigma!r}")
+    want_sigma = bool(args.sigma) or args.max_sigma is not None
+    options = MeasureOptions(decode=_decode_options(args), gray_only=bool(args.json), sigma=want_sigma)
     started = time.perf_counter()
     rig = _load_rig(args.rig)
-    reference = _load_stack(args.reference, rig, "reference")
-    obj = _load_stack(args.object, rig, "object")
+    codec = _stacks_codec(args.codec, [("reference", args.reference), ("object", args.object)])
+    if is_gcps_v1(codec):  # the paper's eleven named patterns: today's path
+        codec = None
+        reference = _load_stack(args.reference, rig, "reference")
+        obj = _load_stack(args.object, rig, "object")
+    else:
+        reference = _load_codec_stack(args.reference, codec, "reference")
+        obj = _load_codec_stack(args.object, codec, "object")
     read_s = time.perf_counter() - started
-    result = measure(rig, reference, obj, options)
+    result = measure(rig, reference, obj, options, codec=codec)
+    dropped = 0
+    if args.max_sigma is not None and result.sigma_mm is not None:
+        drop = np.isfinite(result.z_mm) & ~(result.sigma_mm <= np.float32(args.max_sigma))
+        dropped = int(drop.sum())
+        result.z_mm[drop] = np.nan
+        result.sigma_mm[drop] = np.nan
     mesh = None
     if args.mesh:
         from metrology.core.mesh import mesh_from_heights
 
         mesh = mesh_from_heights(rig, result.z_mm)
 
-    from metrology.core.io import write_height_npy
+    from metrology.core.io import atomic_path, write_height_npy
 
     write_height_npy(result.z_mm, args.out)
+    if args.xyz:
+        with atomic_path(args.xyz) as tmp:
+            np.save(tmp, result.points_mm(rig))
+    if args.sigma and result.sigma_mm is not None:
+        with atomic_path(args.sigma) as tmp:
+            np.save(tmp, result.sigma_mm)
     if mesh is not None:
         from metrology.core.mesh import write_mesh
 
         write_mesh(mesh, args.mesh)
     stats = result.statistics()
+    if result.sigma_mm is not None:
+        finite = result.sigma_mm[np.isfinite(result.sigma_mm)]
+        stats["sigma_mm_median"] = float(np.median(finite)) if finite.size else None
+        stats["dropped_by_max_sigma"] = dropped
     if args.json:
         gray = stats.get("gray_only") or {}
         report = {
@@ -181,9 +243,13 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
             "options": result.options.to_dict(),
             "software_version": result.software_version,
             "rig": rig.to_dict(),
+            "codec": result.codec if codec is None else codec.to_dict(),
         }
+        if result.decoding is not None:
+            report["decoding"] = result.decoding.summary()
         _write_json(report, args.json)
-    return {"out": args.out, **{k: v for k, v in stats.items() if k.endswith(("pixels", "fraction"))}}
+    keep = ("pixels", "fraction", "sigma_mm_median", "dropped_by_max_sigma")
+    return {"out": args.out, **{k: v for k, v in stats.items() if k.endswith(keep)}}
 
 
 Z_PARAMETER = {"plane": "z_mm", "stage": "z_in_mm", "block": "top_mm"}
@@ -504,6 +570,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="height map, float32 mm, NaN where not measured (.npy)")
     p.add_argument("--mesh", help="mesh output (.ply, .stl or .obj)")
     p.add_argument("--json", help="statistics and timings (.json)")
+    p.add_argument(
+        "--codec",
+        help="codec file (gcps-codec/1) or built-in name of both captures (default: their codec.json, else gcps-v1); "
+        "a crossed-axes rig needs it to code the u axis",
+    )
     _add_decode_options(p)
     from metrology.commands.measure_pinhole import add_pinhole_measure_arguments
 

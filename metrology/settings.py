@@ -146,6 +146,8 @@ MIDDLEWARE = [
     "metrology.api_input.RequestBodyLimitMiddleware",
     "metrology.throttling.LoginThrottleMiddleware",
     "whitenoise.middleware.WhiteNoiseMiddleware",
+    # a request whose database connection broke is retried once; 503 (not 500) when it stays down
+    "metrology.unavailable.TransientErrorMiddleware",
     "django.contrib.sessions.middleware.SessionMiddleware",
     "django.middleware.common.CommonMiddleware",
     "django.middleware.csrf.CsrfViewMiddleware",
@@ -195,7 +197,13 @@ _database_url = env_url("DATABASE_URL", ("postgres", "postgresql", "pgsql", "sql
 DATABASES: dict[str, Mapping[str, Any]]
 if _database_url:
     try:
-        DATABASES = {"default": dj_database_url.parse(_database_url, conn_max_age=60)}
+        # connections are kept 60 s and checked before reuse (one killed while idle is reopened);
+        # GCPS_DB_HEALTH_CHECKS=0 leaves only the in-request retry (metrology/unavailable.py)
+        DATABASES = {
+            "default": dj_database_url.parse(
+                _database_url, conn_max_age=60, conn_health_checks=env_bool("GCPS_DB_HEALTH_CHECKS", True)
+            )
+        }
     except ValueError as exc:
         raise ImproperlyConfigured(f"DATABASE_URL is not a valid database URL: {exc}") from None
 else:
@@ -317,6 +325,9 @@ else:
     CACHES = {"default": {"BACKEND": "django.core.cache.backends.locmem.LocMemCache", "LOCATION": "gcps"}}
 # Without a broker, tasks run in-process when enqueued (the embedded default).
 CELERY_TASK_ALWAYS_EAGER = not CELERY_BROKER_URL
+if CELERY_BROKER_URL.startswith(("redis://", "rediss://")):
+    # kombu's Redis transport, made to survive a Redis restart while messages are unacknowledged
+    CELERY_BROKER_TRANSPORT = "workers.broker:Transport"
 if CELERY_TASK_ALWAYS_EAGER:
     CELERY_BROKER_URL = "memory://localhost/"
 CELERY_TASK_EAGER_PROPAGATES = False
@@ -326,6 +337,9 @@ CELERY_TASK_ACKS_LATE = True
 CELERY_TASK_REJECT_ON_WORKER_LOST = True
 CELERY_WORKER_PREFETCH_MULTIPLIER = 1
 CELERY_BROKER_CONNECTION_RETRY_ON_STARTUP = True
+# A job running when the broker connection drops keeps running (its row, not its message, says
+# whether it is done); its message, left unacknowledged, is dropped as done when redelivered.
+CELERY_WORKER_CANCEL_LONG_RUNNING_TASKS_ON_CONNECTION_LOSS = False
 # A message whose worker died unacknowledged is redelivered after this many seconds (Redis).
 CELERY_BROKER_TRANSPORT_OPTIONS = {
     "visibility_timeout": env_int("GCPS_BROKER_VISIBILITY_TIMEOUT", 3600, minimum=1),
@@ -339,11 +353,15 @@ CELERY_BEAT_SCHEDULER = env_str("CELERY_BEAT_SCHEDULER", "django_celery_beat.sch
 CELERY_TIMEZONE = TIME_ZONE
 
 # Jobs: a running job writes a heartbeat every GCPS_JOB_HEARTBEAT_SECONDS; one whose heartbeat is
-# older than GCPS_JOB_STALE_SECONDS is taken over by a redelivered message or by the sweep.
-GCPS_JOB_HEARTBEAT_SECONDS = env_int("GCPS_JOB_HEARTBEAT_SECONDS", 10, minimum=1)
-GCPS_JOB_STALE_SECONDS = env_int("GCPS_JOB_STALE_SECONDS", 120, minimum=2)
+# older than GCPS_JOB_STALE_SECONDS is taken over by a redelivered message or by the sweep, which
+# every worker runs every GCPS_JOB_SWEEP_SECONDS (beat too, when it runs): a dead worker's job is
+# taken over within about STALE + 1.2 x SWEEP seconds (15 + 6 = 21 s by default). The sweep also
+# sends again the jobs queued for GCPS_JOB_RESEND_SECONDS without being claimed (a lost message).
+GCPS_JOB_HEARTBEAT_SECONDS = env_int("GCPS_JOB_HEARTBEAT_SECONDS", 3, minimum=1)
+GCPS_JOB_STALE_SECONDS = env_int("GCPS_JOB_STALE_SECONDS", 15, minimum=2)
 GCPS_JOB_MAX_ATTEMPTS = env_int("GCPS_JOB_MAX_ATTEMPTS", 3, minimum=1)
-GCPS_JOB_SWEEP_SECONDS = env_int("GCPS_JOB_SWEEP_SECONDS", 60, minimum=1)
+GCPS_JOB_SWEEP_SECONDS = env_int("GCPS_JOB_SWEEP_SECONDS", 5, minimum=1)
+GCPS_JOB_RESEND_SECONDS = env_int("GCPS_JOB_RESEND_SECONDS", 120, minimum=1)
 # Fault injection for tests: pause between the phases of a job (0 in production).
 GCPS_JOB_PHASE_PAUSE_SECONDS = float(env_int("GCPS_JOB_PHASE_PAUSE_MS", 0, minimum=0)) / 1000.0
 

@@ -87,9 +87,9 @@ def test_measure_with_pinhole_rig(tmp_path: Path) -> None:
     assert ok.mean() > 0.5
     assert np.array_equal(z[ok], xyz[..., 2][ok])
     err = np.linalg.norm(xyz[ok] - truth[ok], axis=-1)
-    # noise-free 16-bit: within 1 um wherever the decoder found the right code (a decoder slip
-    # moves a point by whole gray words; they must be rare)
-    assert np.mean(err < 1e-3) > 0.999
+    # noise-free 16-bit: every valid point within 1 um (pixel (97, 88), on the sphere's occluding
+    # edge, was once moved by two gray words by the slip repair)
+    assert err.max() < 1e-3, err.max()
     sigma = np.load(tmp_path / "s.npy")
     assert np.isfinite(sigma[ok]).all() and np.all(sigma[ok] >= 0)
     # the PLY carries each vertex's sigma_mm (one vertex per measured pixel, row-major)
@@ -113,7 +113,7 @@ def test_measure_with_pinhole_rig(tmp_path: Path) -> None:
     args = _args(tmp_path, object=tmp_path / "sphere", reference=tmp_path / "ref", out=tmp_path / "h.npy")
     assert cmd_measure_pinhole(args)["z"] == "height above the reference plane"
     h = np.load(tmp_path / "h.npy")
-    assert np.mean(np.abs(h[ok] - (600.0 - truth[..., 2][ok])) < 1e-3) > 0.999
+    assert np.abs(h[ok] - (600.0 - truth[..., 2][ok])).max() < 1e-3
     # --max-sigma drops everything above it
     args = _args(tmp_path, object=tmp_path / "sphere", out=tmp_path / "z2.npy", max_sigma=1e-9)
     assert cmd_measure_pinhole(args)["valid_pixels"] == 0
@@ -135,7 +135,7 @@ def test_gcps_measure_command_line(tmp_path: Path, capsys: pytest.CaptureFixture
     assert summary["model"] == "pinhole" and summary["method"] == "midpoint"
     z = np.load(tmp_path / "z.npy")
     ok = np.isfinite(z)
-    assert np.mean(np.abs(z[ok] - truth[..., 2][ok]) < 1e-3) > 0.999
+    assert np.abs(z[ok] - truth[..., 2][ok]).max() < 1e-3
     crossed = Path(__file__).resolve().parents[1] / "examples" / "rig.json"
     argv = ["measure", "--rig", str(crossed), "--object", str(tmp_path / "plane"), "--out", str(tmp_path / "c.npy")]
     assert main(argv) == 2

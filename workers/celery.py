@@ -1,16 +1,22 @@
-"""The Celery app, configured from Django settings (``CELERY_*``), on Redis."""
+"""The Celery app, configured from Django settings (``CELERY_*``), on Redis.
+
+The tasks live beside their services (``metrology/<app>/tasks.py``) and are found by
+:meth:`Celery.autodiscover_tasks` over the installed Django apps; this package holds only the app.
+It imports nothing of the apps (tasks are named by string), so no app depends on it in a cycle.
+"""
 
 from __future__ import annotations
 
 import os
 
 from celery import Celery
-from celery.signals import worker_init, worker_ready
+from celery.signals import worker_init
 
 os.environ.setdefault("DJANGO_SETTINGS_MODULE", "metrology.settings")
 
-app = Celery("gcps", include=["workers.tasks", "metrology.reports.tasks"])
+app = Celery("gcps")
 app.config_from_object("django.conf:settings", namespace="CELERY")
+app.autodiscover_tasks()
 
 
 @app.on_after_configure.connect
@@ -23,14 +29,6 @@ def _beat_schedule(sender: Celery, **_: object) -> None:
             "schedule": float(settings.GCPS_JOB_SWEEP_SECONDS),
         },
     }
-
-
-@worker_ready.connect
-def _sweep_on_start(sender: object = None, **_: object) -> None:
-    """A fresh worker looks for jobs left running by a worker that died."""
-    from workers.tasks import sweep_stale_jobs
-
-    sweep_stale_jobs.delay()
 
 
 @worker_init.connect

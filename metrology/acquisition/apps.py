@@ -5,3 +5,10 @@ class AcquisitionConfig(AppConfig):
     name = "metrology.acquisition"
     label = "acquisition"
     verbose_name = "Acquisition"
+
+    def ready(self) -> None:
+        from metrology.acquisition.services import run_acquisition_job
+        from metrology.jobs.handlers import register_handler
+        from metrology.jobs.models import Job
+
+        register_handler(Job.Kind.ACQUIRE_CAPTURE, run_acquisition_job)

@@ -4,3 +4,10 @@ from django.apps import AppConfig
 class CalibrationsConfig(AppConfig):
     name = "metrology.calibrations"
     label = "calibrations"
+
+    def ready(self) -> None:
+        from metrology.calibrations.services import run_calibration
+        from metrology.jobs.handlers import register_handler
+        from metrology.jobs.models import Job
+
+        register_handler(Job.Kind.CALIBRATION, run_calibration)

@@ -73,6 +73,9 @@ def request_calibration(
     apply: bool = False,
 ) -> Calibration:
     """Create a calibration of ``rig`` on a master block and queue its job."""
+    from metrology.rigs.services import require_crossed_axes  # codecapp: pinhole rigs
+
+    require_crossed_axes(rig, "a calibration of L and alpha")
     method = str(getattr(method, "value", method))
     if method not in METHOD_OPTIONS:
         raise BadInput(f"method must be one of {', '.join(METHOD_OPTIONS)}, got {method!r}")

@@ -42,6 +42,7 @@ class CaptureSerializer(serializers.ModelSerializer):
             "height_px",
             "width_px",
             "parameters",
+            "codec",
             "job",
             "created_at",
         )
@@ -55,7 +56,12 @@ class CaptureSerializer(serializers.ModelSerializer):
 
 
 class CaptureUploadSerializer(serializers.Serializer):
-    file = serializers.FileField(help_text="Zip of GC_0..GC_6, PS_0..PS_3 images (.png/.tif/.tiff/.bmp)")
+    file = serializers.FileField(
+        help_text=(
+            "Zip of GC_0..GC_6, PS_0..PS_3 images (.png/.tif/.tiff/.bmp), or of the frames of any codec with its "
+            "codec.json (docs/codecs.md); without codec.json the rig's default codec applies"
+        )
+    )
     role = serializers.ChoiceField(choices=Capture.Role.choices)
     z_in_mm = RealNumberField(required=False, allow_null=True, help_text="Stage position, mm")
     repeat = serializers.IntegerField(required=False, min_value=0, max_value=1_000_000, default=0)

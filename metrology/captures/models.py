@@ -50,6 +50,11 @@ class Capture(models.Model):
     height_px = models.PositiveIntegerField(null=True, blank=True)
     width_px = models.PositiveIntegerField(null=True, blank=True)
     parameters = models.JSONField(default=dict, blank=True, help_text="Scene and simulation options (virtual)")
+    codec = models.JSONField(
+        null=True,
+        blank=True,
+        help_text="The stack's codec: built-in name or gcps-codec/1 object (null: the rig's)",
+    )
     job = models.OneToOneField("jobs.Job", null=True, blank=True, on_delete=models.SET_NULL, related_name="capture")
     created_at = models.DateTimeField(auto_now_add=True)
 

@@ -137,7 +137,9 @@ def upload_capture(
     if session_id is not None:  # fail early on a bad session, before reading the stack
         _session_for(owner=owner, rig=rig, session_id=session_id)
     upload.seek(0)
-    stack = read_capture_stack(upload, rig, expected_bit_depth=bit_depth)
+    from metrology.captures.codecs import read_upload_stack  # the zip's codec.json, else the rig's default
+
+    codec, stack = read_upload_stack(upload, rig, expected_bit_depth=bit_depth)
     checksum, size = _sha256(upload)
     stored = default_storage.save(_new_stack_name(rig), upload)
     try:
@@ -159,6 +161,7 @@ def upload_capture(
                 bit_depth=int(stack.bit_depth),
                 height_px=height_px,
                 width_px=width_px,
+                codec=codec,
             )
     except BaseException:
         default_storage.delete(stored)
@@ -179,6 +182,9 @@ def request_simulated_capture(
     source: str = "virtual",
 ) -> Capture:
     """Create a capture that a worker renders with the virtual rig; returns it with its queued job."""
+    from metrology.rigs.services import require_crossed_axes  # codecapp: pinhole rigs
+
+    require_crossed_axes(rig, "the virtual rig's gcps-v1 capture")
     _check_stage(role, z_in_mm)
     request = CaptureRequest(role=role, scene=scene, options=options, z_in_mm=z_in_mm, repeat=repeat)
     try:
@@ -201,6 +207,7 @@ def request_simulated_capture(
         source=Capture.Source.VIRTUAL,
         parameters={"source": source, "scene": scene, "options": options},
         job=job,
+        codec="gcps-v1",  # the virtual rig renders the eleven gcps-v1 patterns
     )
     job.parameters["capture"] = capture.pk
     job.save(update_fields=["parameters"])

@@ -4,3 +4,10 @@ from django.apps import AppConfig
 class CharacterizationsConfig(AppConfig):
     name = "metrology.characterizations"
     label = "characterizations"
+
+    def ready(self) -> None:
+        from metrology.characterizations.services import run_characterization
+        from metrology.jobs.handlers import register_handler
+        from metrology.jobs.models import Job
+
+        register_handler(Job.Kind.CHARACTERIZATION, run_characterization)

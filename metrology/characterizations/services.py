@@ -66,6 +66,9 @@ def request_characterization(
     options: dict[str, Any] | None = None,
 ) -> Characterization:
     """Create a characterization from a stage series (explicit, or a session's stage captures) and queue it."""
+    from metrology.rigs.services import require_crossed_axes  # codecapp: pinhole rigs
+
+    require_crossed_axes(rig, "a characterization")
     if (series is None) == (session_id is None):
         raise BadInput("give either series (stage positions with capture ids) or session (a capture session)")
     if session_id is not None:

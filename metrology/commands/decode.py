@@ -35,6 +35,12 @@ def register(subparsers: Any) -> None:
         "--consistency", type=float, metavar="PERIODS", help="allowed distance outside the gray word's cell, periods"
     )
     group.add_argument(
+        "--unwrap-consistency",
+        type=float,
+        metavar="PERIODS",
+        help="allowed distance of a phase stage from the coarser phase stage it is unwrapped from, periods",
+    )
+    group.add_argument(
         "--saturation", type=float, metavar="GREY", help="grey level counted as saturated (default: full scale)"
     )
     group.add_argument("--no-slip-repair", action="store_true", help="do not repair gray-code slips")
@@ -67,6 +73,7 @@ def cmd_decode(args: argparse.Namespace) -> dict[str, Any]:
         min_modulation=args.min_modulation,
         min_inverse_contrast=args.min_inverse_contrast,
         consistency_periods=args.consistency,
+        unwrap_consistency_periods=args.unwrap_consistency,
         saturation_level=args.saturation,
         repair_slips=not args.no_slip_repair,
     )

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import time
 from pathlib import Path
 from typing import Any
@@ -25,7 +24,11 @@ from typing import Any
 def add_pinhole_measure_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``gcps measure`` for pinhole rigs: --xyz, --sigma, --triangulate, --method, --max-sigma."""
     group = parser.add_argument_group("pinhole rigs (docs/pinhole.md)")
-    group.add_argument("--xyz", help="points (H, W, 3) float32 mm, camera frame, NaN where not measured (.npy)")
+    group.add_argument(
+        "--xyz",
+        help="points (H, W, 3) float32 mm, NaN where not measured (.npy): camera frame (pinhole), "
+        "the paper's frame X_H, Y_H, z (crossed axes)",
+    )
     group.add_argument("--sigma", help="per-point standard uncertainty (H, W) float32 mm (.npy)")
     group.add_argument(
         "--triangulate", choices=["auto", "u", "v"], default="auto", help="projector axis to triangulate (default auto)"
@@ -59,36 +62,22 @@ def _check_out(path: str | None, suffixes: tuple[str, ...], option: str) -> None
 
 
 def final_stage_sigma(codec: Any, axis: str, noise: Any, modulation: Any) -> Any:
-    """Coordinate sigma (projector units) of ``axis`` from the decoder's noise and modulation maps,
-    for the final stage of its unwrapping chain (a phase sequence, or a beat of two: variances
-    add); None when the chain ends on a gray code or the decoder gave no noise."""
-    import numpy as np
+    """:func:`metrology.pipeline.measure_pinhole.final_stage_sigma` (kept here for its callers)."""
+    from metrology.pipeline.measure_pinhole import final_stage_sigma as pipeline_sigma
 
-    from metrology.core.pinhole_measure import coordinate_sigma
-
-    if noise is None or not np.isfinite(noise).any():
-        return None
-    stage = codec.axes[axis].chain()[-1]
-    phase = codec.axes[axis].phase
-    if stage.kind == "phase":
-        return coordinate_sigma(stage.period, len(phase[stage.indices[0]].frames), noise, modulation)
-    if stage.kind == "beat":
-        # theta_b = theta_s - theta_l: sigma_b^2 = (P_b / 2 pi)^2 sum (2 / N_i) sigma^2 / B^2
-        total = sum(2.0 / len(phase[i].frames) for i in stage.indices)
-        return coordinate_sigma(stage.period, 2, noise, modulation) * np.float32(math.sqrt(total))
-    return None
+    return pipeline_sigma(codec, axis, noise, modulation)
 
 
 def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
-    """Read, decode, triangulate and write the outputs of a pinhole ``gcps measure``; the summary."""
+    """Read the captures, call the pipeline's :func:`~metrology.pipeline.measure_pinhole.measure_pinhole_stacks`
+    (shared with the measurement job), write the outputs of a pinhole ``gcps measure``; the summary."""
     import numpy as np
 
     from metrology.core.codecs import builtin_codec, read_codec
-    from metrology.core.codecs.decode import decode_codec
     from metrology.core.codecs.stack import read_codec_stack
     from metrology.core.geometry.pinhole import PinholeRig
     from metrology.core.io import atomic_path
-    from metrology.core.pinhole_measure import measure_pinhole
+    from metrology.pipeline.measure_pinhole import PinholeMeasureOptions, measure_pinhole_stacks
 
     _check_out(args.out, (".npy",), "--out")
     _check_out(getattr(args, "xyz", None), (".npy",), "--xyz")
@@ -98,6 +87,14 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
     max_sigma = getattr(args, "max_sigma", None)
     if max_sigma is not None and not max_sigma > 0:
         raise ValueError(f"--max-sigma must be > 0 mm, got {max_sigma!r}")
+    asked_sigma = bool(getattr(args, "sigma", None)) or max_sigma is not None
+    ply_mesh = bool(getattr(args, "mesh", None)) and Path(args.mesh).suffix.lower() == ".ply"
+    options = PinholeMeasureOptions(
+        triangulate=getattr(args, "triangulate", "auto"),
+        method=getattr(args, "triangulation_method", "plane"),
+        sigma=asked_sigma,
+        max_sigma_mm=max_sigma,
+    )
     started = time.perf_counter()
     rig = PinholeRig.from_json(Path(args.rig).read_text(encoding="utf-8"))
     codec = None
@@ -106,56 +103,24 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
     obj = read_codec_stack(args.object, codec)
     ref = read_codec_stack(args.reference, obj.codec) if getattr(args, "reference", None) else None
     read_s = time.perf_counter() - started
-    for label, stack in (("object", obj), ("reference", ref)):
-        if stack is not None and stack.images.shape[1:] != rig.shape:
-            h, w = stack.images.shape[1:]
-            cam = f"{rig.camera.width_px}x{rig.camera.height_px}"
-            raise ValueError(f"the {label} frames are {w}x{h} px but the rig's camera is {cam} px")
-    started = time.perf_counter()
-    asked_sigma = bool(getattr(args, "sigma", None)) or max_sigma is not None
-    ply_mesh = bool(getattr(args, "mesh", None)) and Path(args.mesh).suffix.lower() == ".ply"
-    want_sigma = asked_sigma or ply_mesh  # a PLY mesh carries sigma_mm per vertex when it can
-    dec = decode_codec(obj.images, obj.codec, with_noise=want_sigma)
-    ref_dec = decode_codec(ref.images, ref.codec, with_noise=False) if ref is not None else None
-    decode_s = time.perf_counter() - started
-
-    def coords(decoding: Any) -> tuple[Any, Any]:
-        u = decoding.axes["u"].coordinate if "u" in decoding.axes else None
-        v = decoding.axes["v"].coordinate if "v" in decoding.axes else None
-        return u, v
-
-    u, v = coords(dec)
-    axis = getattr(args, "triangulate", "auto")
-    method = getattr(args, "triangulation_method", "plane")
-    resolved = rig.auto_axis() if axis == "auto" else axis
-    sigma_u = None
-    if want_sigma and resolved in dec.axes:
-        ax = dec.axes[resolved]
-        sigma_u = final_stage_sigma(obj.codec, resolved, ax.noise, ax.modulation)
-        if sigma_u is None and asked_sigma:
-            raise ValueError(f"--sigma needs a phase-coded {resolved} axis with N >= 4 steps (a noise estimate)")
-    started = time.perf_counter()
-    result = measure_pinhole(
-        rig,
-        u,
-        v,
-        reference_uv=None if ref_dec is None else coords(ref_dec),
-        sigma=sigma_u,
-        axis=axis,
-        method=method,
-        projector_size=(obj.codec.projector_width, obj.codec.projector_height),
-    )
+    result = None
+    if ply_mesh and not asked_sigma:  # a PLY mesh carries sigma_mm per vertex when it can
+        try:
+            result = measure_pinhole_stacks(
+                rig,
+                None if ref is None else ref.images,
+                obj.images,
+                obj.codec,
+                PinholeMeasureOptions(triangulate=options.triangulate, method=options.method, sigma=True),
+            )
+        except ValueError as exc:
+            if "sigma needs" not in str(exc):
+                raise
+    if result is None:
+        result = measure_pinhole_stacks(rig, None if ref is None else ref.images, obj.images, obj.codec, options)
     points, z, sigma_mm = result.points_mm, result.z_mm, result.sigma_mm
-    dropped = 0
-    if max_sigma is not None and sigma_mm is not None:
-        drop = ~(sigma_mm <= max_sigma) & np.isfinite(z)
-        dropped = int(drop.sum())
-        points[drop] = np.nan
-        z[drop] = np.nan
-        sigma_mm[drop] = np.nan
-    triangulate_s = time.perf_counter() - started
     mesh = _mesh(points) if getattr(args, "mesh", None) else None
-    sigma_ply = mesh is not None and sigma_mm is not None and Path(args.mesh).suffix.lower() == ".ply"
+    sigma_ply = mesh is not None and sigma_mm is not None and ply_mesh
     with atomic_path(args.out) as tmp:
         np.save(tmp, z)
     if getattr(args, "xyz", None):
@@ -178,13 +143,14 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
         "model": "pinhole",
         "valid_pixels": valid,
         "valid_fraction": valid / z.size,
-        "z": "height above the reference plane" if ref is not None else "depth (camera Z)",
+        "z": result.z_meaning,
         "triangulate": result.axis,
         "method": result.method,
-        "dropped_by_max_sigma": dropped,
+        "dropped_by_max_sigma": result.dropped_by_max_sigma,
     }
     if getattr(args, "json", None):
         finite = z[np.isfinite(z)]
+        data = result.to_dict()
         details = {
             **stats,
             "z_mm": {
@@ -192,16 +158,12 @@ def cmd_measure_pinhole(args: argparse.Namespace) -> dict[str, Any]:
                 "max": float(finite.max()) if finite.size else None,
                 "mean": float(finite.mean()) if finite.size else None,
             },
-            "sigma_mm_median": float(np.nanmedian(sigma_mm)) if sigma_mm is not None and valid else None,
-            "reference_plane": None
-            if result.reference is None
-            else {
-                "centroid_mm": result.reference.centroid.tolist(),
-                "normal": result.reference.normal.tolist(),
-                "points": result.reference.n_points,
-            },
-            "decoding": dec.summary(),
-            "timings_s": {"read": read_s, "decode": decode_s, "triangulate": triangulate_s},
+            "sigma_mm_median": data["statistics"].get("sigma_mm_median"),
+            "reference_plane": data["reference_plane"],
+            "decoding": data["decoding"],
+            "options": data["options"],
+            "software_version": data["software_version"],
+            "timings_s": {"read": read_s, **{k: round(v, 6) for k, v in result.timings_s.items()}},
             "rig": rig.to_dict(),
         }
         with atomic_path(args.json) as tmp:

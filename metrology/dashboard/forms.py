@@ -46,8 +46,56 @@ class RigForm(forms.Form):
     notes = forms.CharField(widget=forms.Textarea(attrs={"rows": 2}), required=False)
 
 
+class PinholeRigForm(forms.Form):
+    name = forms.CharField(max_length=200, required=False, help_text="A name you will recognise")
+    rig_file = forms.FileField(
+        label="Pinhole rig file (.json)",
+        help_text='A rig file with "model": "pinhole" (docs/pinhole.md; `gcps rig import` writes one)',
+    )
+
+    def clean_rig_file(self):
+        import json
+
+        upload = self.cleaned_data["rig_file"]
+        if upload.size is not None and upload.size > 1_000_000:
+            raise forms.ValidationError("a rig file is at most 1 MB")
+        try:
+            data = json.loads(upload.read().decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise forms.ValidationError(f"not a JSON rig file: {exc}") from None
+        if not isinstance(data, dict) or data.get("model") != "pinhole":
+            raise forms.ValidationError('the rig file must be a JSON object with "model": "pinhole"')
+        return data
+
+
+class RigCodecForm(forms.Form):
+    codec = forms.CharField(
+        label="Default codec",
+        widget=forms.Textarea(attrs={"rows": 6, "spellcheck": "false"}),
+        max_length=200_000,
+        help_text=(
+            "A built-in name (gcps-v1, gcps-v1:1280x800) or a gcps-codec/1 codec file's JSON (docs/codecs.md); "
+            "used for uploads that carry no codec.json"
+        ),
+    )
+
+    def clean_codec(self):
+        import json
+
+        text = self.cleaned_data["codec"].strip()
+        if text.startswith("{"):
+            try:
+                return json.loads(text)
+            except json.JSONDecodeError as exc:
+                raise forms.ValidationError(f"not valid JSON: {exc.msg} at line {exc.lineno}") from None
+        return text
+
+
 class UploadCaptureForm(forms.Form):
-    file = forms.FileField(label="Stack (.zip)", help_text="A zip of GC_0..GC_6 and PS_0..PS_3 images")
+    file = forms.FileField(
+        label="Stack (.zip)",
+        help_text="A zip of GC_0..GC_6 and PS_0..PS_3 images, or of any codec's frames with its codec.json",
+    )
     role = forms.ChoiceField(choices=Capture.Role.choices, initial=Capture.Role.OBJECT)
     z_in_mm = forms.FloatField(label="Z_in (mm)", required=False, help_text="Stage position (stage captures only)")
     repeat = forms.IntegerField(min_value=0, initial=0, required=False)
@@ -131,12 +179,23 @@ class MeasurementForm(forms.Form):
     fields: dict[str, Any]  # choice fields, set up per instance below (BaseForm types them as Field: no choices)
     reference = forms.TypedChoiceField(coerce=int, label="Reference capture")
     object = forms.TypedChoiceField(coerce=int, label="Object capture")
+    sigma = forms.BooleanField(
+        required=False,
+        label="Per-point uncertainty",
+        help_text="Also compute each point's standard uncertainty (mm) from the object's phase noise",
+    )
 
-    def __init__(self, *args, captures=(), **kwargs):
+    def __init__(self, *args, captures=(), pinhole: bool = False, **kwargs):
         super().__init__(*args, **kwargs)
         captures = list(captures)
         self.fields["reference"].choices = capture_choices([c for c in captures if c.role == "reference"])
         self.fields["object"].choices = capture_choices([c for c in captures if c.role != "reference"])
+        if pinhole:  # a pinhole rig measures depths without a reference
+            self.fields["reference"].required = False
+            self.fields["reference"].choices = capture_choices(
+                [c for c in captures if c.role == "reference"], empty="none: depths (camera Z)"
+            )
+            self.fields["reference"].empty_value = None
 
 
 class CalibrationForm(forms.Form):

@@ -32,6 +32,8 @@ def measurement_figures(measurement, row: int | None = None) -> tuple[dict[str, 
     from metrology.core.triangulate import points_from_heights
     from metrology.figures.measurement import measurement_figures as build
 
+    if measurement.rig_values.get("model") == "pinhole":
+        return pinhole_measurement_figures(measurement, row)
     rig = CoreRig.from_dict(measurement.rig_values)
     z = load_npy(measurement.height_npy)
     if z is None:
@@ -48,6 +50,40 @@ def measurement_figures(measurement, row: int | None = None) -> tuple[dict[str, 
         y_mm=rig.row_y_mm(),
         max_jump_mm=default_max_jump_mm(rig),
     )
+    sigma = load_npy(measurement.sigma_npy)
+    if sigma is not None:  # the per-point uncertainty (options.sigma)
+        from metrology.figures.uncertainty import sigma_map_figure
+
+        figures["sigma_map"] = sigma_map_figure(sigma, rig.column_x_mm(), rig.row_y_mm())
+    return figures, row, height
+
+
+def pinhole_measurement_figures(measurement, row: int | None = None) -> tuple[dict[str, Any], int, int]:
+    """Figures of a pinhole rig's measurement: z map and profiles over camera pixels, the 3D view of
+    the stored camera-frame points, the sigma map; returns (figures, row, height_px)."""
+    from metrology.figures.measurement import measurement_figures as build
+    from metrology.measurements.pinhole import load_points
+
+    z = load_npy(measurement.height_npy)
+    points = load_points(measurement)
+    camera = measurement.rig_values.get("camera", {})
+    if z is None or points is None:
+        return {}, 0, int(camera.get("height_px", 0))
+    height, width = z.shape
+    row = height // 2 if row is None else min(max(int(row), 0), height - 1)
+    figures = build(z, points, row)  # axes: camera columns and rows
+    for fig in figures.values():
+        if fig.layout.xaxis.title.text and "X" in fig.layout.xaxis.title.text:
+            fig.update_xaxes(title_text="camera column (px)")
+        if fig.layout.yaxis.title.text and fig.layout.yaxis.title.text.startswith("Y"):
+            fig.update_yaxes(title_text="camera row (px), running down")
+    sigma = load_npy(measurement.sigma_npy)
+    if sigma is not None:
+        from metrology.figures.uncertainty import sigma_map_figure
+
+        figures["sigma_map"] = sigma_map_figure(sigma, np.arange(width, dtype=float), np.arange(height, dtype=float))
+        figures["sigma_map"].update_xaxes(title_text="camera column (px)")
+        figures["sigma_map"].update_yaxes(title_text="camera row (px), running down")
     return figures, row, height
 
 
@@ -223,3 +259,22 @@ def plotly_js() -> bytes:
     from plotly.offline import get_plotlyjs
 
     return get_plotlyjs().encode("utf-8")
+
+
+def capture_decoding(capture) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Figures of a stored capture's decoding with its codec (u/v maps, modulation, reasons) and the
+    decoding summary; ``({}, {"error": ...})`` when the stack cannot be read or decoded."""
+    from metrology.captures.codecs import load_codec_stack
+    from metrology.core.codecs.decode import decode_codec
+    from metrology.figures.capture import decoding_figures
+
+    try:
+        stack = load_codec_stack(capture)
+        decoding = decode_codec(stack.images, stack.codec, with_noise=False)
+    except (ValueError, OSError) as exc:
+        return {}, {"error": str(exc)}
+    arrays = {
+        name: {"coordinate": axis.coordinate, "modulation": axis.modulation, "reason": axis.reason}
+        for name, axis in decoding.axes.items()
+    }
+    return decoding_figures(arrays), decoding.summary()

@@ -20,6 +20,7 @@ urlpatterns = [
     path("rigs/<int:rig_id>/captures/", views.rig_captures, name="rig-captures"),
     path("rigs/<int:rig_id>/sensitivity/", views.rig_sensitivity, name="rig-sensitivity"),
     path("captures/", views.capture_list, name="captures"),
+    path("captures/<int:capture_id>/", views.capture_detail, name="capture"),
     path("measurements/", views.measurement_list, name="measurements"),
     path("measurements/new/", views.measurement_new, name="measurement-new"),
     path("measurements/<int:measurement_id>/", views.measurement_detail, name="measurement"),

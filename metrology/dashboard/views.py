@@ -107,8 +107,20 @@ def favicon(request: HttpRequest) -> HttpResponse:
 @login_required
 @require_http_methods(["GET", "POST"])
 def rig_list(request: HttpRequest) -> HttpResponse:
-    form = forms.RigForm(request.POST or None)
-    if request.method == "POST" and form.is_valid():
+    pinhole_post = request.method == "POST" and request.POST.get("action") == "pinhole"
+    form = forms.RigForm(None if pinhole_post else (request.POST or None))
+    pinhole_form = forms.PinholeRigForm(
+        request.POST if pinhole_post else None, request.FILES if pinhole_post else None, prefix="pinhole"
+    )
+    if pinhole_post and pinhole_form.is_valid():
+        try:
+            data = {**pinhole_form.cleaned_data["rig_file"], "name": pinhole_form.cleaned_data.get("name") or ""}
+            rig = rig_services.create_pinhole_rig(owner=request.user, data=data)
+        except SERVICE_ERRORS as exc:
+            pinhole_form.add_error(None, error_text(exc))
+        else:
+            return redirect("dashboard:rig", rig.pk)
+    if request.method == "POST" and not pinhole_post and form.is_valid():
         try:
             rig = rig_services.create_rig(owner=request.user, data=form.cleaned_data)
         except SERVICE_ERRORS as exc:
@@ -117,18 +129,37 @@ def rig_list(request: HttpRequest) -> HttpResponse:
             return redirect("dashboard:rig", rig.pk)
     status = 400 if request.method == "POST" else 200
     return render(
-        request, "dashboard/rigs.html", {"rigs": rig_selectors.rigs_for(request.user), "form": form}, status=status
+        request,
+        "dashboard/rigs.html",
+        {"rigs": rig_selectors.rigs_for(request.user), "form": form, "pinhole_form": pinhole_form},
+        status=status,
     )
 
 
 @login_required
+@require_http_methods(["GET", "POST"])
 def rig_detail(request: HttpRequest, rig_id: int) -> HttpResponse:
+    import json
+
+    from metrology.captures.codecs import codec_label
+
     rig = rig_selectors.get_rig(request.user, rig_id)
     user = request.user
+    initial = rig.codec if isinstance(rig.codec, str) else json.dumps(rig.codec, indent=1)
+    codec_form = forms.RigCodecForm(request.POST or None, initial={"codec": initial})
+    if request.method == "POST" and codec_form.is_valid():
+        try:
+            rig_services.set_rig_codec(rig=rig, codec=codec_form.cleaned_data["codec"])
+        except SERVICE_ERRORS as exc:
+            codec_form.add_error(None, error_text(exc))
+        else:
+            return redirect("dashboard:rig", rig.pk)
     return render(
         request,
         "dashboard/rig.html",
         {
+            "codec_form": codec_form,
+            "codec_label": codec_label(rig.codec),
             "rig": rig,
             "history": list(reversed(rig_selectors.rig_history(rig))),
             "captures": capture_selectors.captures_for(user, rig).order_by("-id")[:10],
@@ -136,6 +167,7 @@ def rig_detail(request: HttpRequest, rig_id: int) -> HttpResponse:
             "calibrations": calibration_selectors.calibrations_for(user).filter(rig=rig)[:10],
             "characterizations": characterization_selectors.characterizations_for(user).filter(rig=rig)[:10],
         },
+        status=400 if request.method == "POST" else 200,
     )
 
 
@@ -144,6 +176,8 @@ def rig_sensitivity(request: HttpRequest, rig_id: int) -> HttpResponse:
     from metrology.figures.sensitivity import sensitivity_figures
 
     rig = rig_selectors.get_rig(request.user, rig_id)
+    if rig.is_pinhole:  # Figs. 4-6 are the crossed-axes model's
+        return redirect("dashboard:rig", rig.pk)
     error = ""
     try:
         z_mm = float(request.GET.get("z_mm", 40.0))
@@ -168,6 +202,25 @@ def capture_list(request: HttpRequest) -> HttpResponse:
         {
             "rigs": rig_selectors.rigs_for(request.user),
             "captures": capture_selectors.captures_for(request.user).select_related("rig").order_by("-id")[:200],
+        },
+    )
+
+
+@login_required
+def capture_detail(request: HttpRequest, capture_id: int) -> HttpResponse:
+    """A capture: its provenance and codec; once stored, its decoding (u/v maps, modulation, reasons)."""
+    from metrology.captures.codecs import capture_codec_value, codec_label
+
+    capture = capture_selectors.get_capture(request.user, capture_id)
+    figures, summary = pages.capture_decoding(capture) if capture.ready else ({}, {})
+    return render(
+        request,
+        "dashboard/capture.html",
+        {
+            "capture": capture,
+            "codec_label": codec_label(capture_codec_value(capture)),
+            "figures": figures,
+            "summary": summary,
         },
     )
 
@@ -269,14 +322,17 @@ def measurement_new(request: HttpRequest) -> HttpResponse:
     rig = _rig_from_query(request)
     if rig is None:
         return render(request, "dashboard/choose_rig.html", _choose_rig(request, "measurement"))
-    form = forms.MeasurementForm(request.POST or None, captures=pages.ready_captures(request.user, rig))
+    form = forms.MeasurementForm(
+        request.POST or None, captures=pages.ready_captures(request.user, rig), pinhole=rig.is_pinhole
+    )
     if request.method == "POST" and form.is_valid():
         try:
             measurement = measurement_services.request_measurement(
                 owner=request.user,
                 rig=rig,
-                reference_id=form.cleaned_data["reference"],
+                reference_id=form.cleaned_data.get("reference"),
                 object_id=form.cleaned_data["object"],
+                options={"sigma": True} if form.cleaned_data.get("sigma") else None,
             )
         except SERVICE_ERRORS as exc:
             form.add_error(None, error_text(exc))
@@ -294,7 +350,7 @@ def measurement_new(request: HttpRequest) -> HttpResponse:
 def measurement_detail(request: HttpRequest, measurement_id: int) -> HttpResponse:
     figures: dict[str, Any]
     measurement = measurement_selectors.get_measurement(request.user, measurement_id)
-    figures, row, height = {}, 0, measurement.rig_values.get("height_px", 0)
+    figures, row, height = {}, 0, measurement.rig_values.get("height_px", measurement.rig.height_px)
     if measurement.job.status == "done":
         requested = request.GET.get("row")
         figures, row, height = pages.measurement_figures(

@@ -19,6 +19,7 @@ class Job(models.Model):
         CALIBRATION = "calibration", "Calibration"
         CHARACTERIZATION = "characterization", "Characterization"
         REPORT = "report", "Characterization report"
+        ACQUIRE_CAPTURE = "acquire_capture", "Acquire capture"
 
     owner = models.ForeignKey(settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="jobs")
     kind = models.CharField(max_length=32, choices=Kind.choices)
@@ -35,6 +36,9 @@ class Job(models.Model):
     created_at = models.DateTimeField(auto_now_add=True)
     started_at = models.DateTimeField(null=True, blank=True)
     heartbeat_at = models.DateTimeField(null=True, blank=True)
+    enqueued_at = models.DateTimeField(
+        null=True, blank=True, help_text="When the job's message was last sent to the workers"
+    )
     finished_at = models.DateTimeField(null=True, blank=True)
 
     class Meta:

@@ -19,33 +19,28 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import re
 import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from datetime import timedelta
-from importlib import import_module
 
 from django.conf import settings
+from django.core.files import File
+from django.core.files.storage import Storage
 from django.db import close_old_connections, connection, transaction
+from django.db.models import F, Q
+from django.db.models.functions import Greatest
 from django.utils import timezone
 
+from metrology.jobs.handlers import JobHandler, handler_for
 from metrology.jobs.models import Job
+from metrology.unavailable import ServiceUnavailableError
 from metrology.version import software_version
 
 logger = logging.getLogger(__name__)
-
-# kind -> "module:function" taking (job, run) and computing the job; imported lazily so that
-# jobs depend on no other app.
-HANDLERS: dict[str, str] = {
-    Job.Kind.SIMULATE_CAPTURE: "metrology.captures.services:run_simulate_capture",
-    Job.Kind.MEASUREMENT: "metrology.measurements.services:run_measurement",
-    Job.Kind.CALIBRATION: "metrology.calibrations.services:run_calibration",
-    Job.Kind.CHARACTERIZATION: "metrology.characterizations.services:run_characterization",
-    Job.Kind.REPORT: "metrology.reports.services:run_report",
-    "acquire_capture": "metrology.acquisition.services:run_acquisition_job",
-}
 
 
 class SupersededError(Exception):
@@ -63,16 +58,57 @@ def create_job(*, owner, kind: str, parameters: dict) -> Job:
     )
 
 
+class BrokerUnavailableError(ServiceUnavailableError):
+    """The broker cannot be reached, so a job cannot be sent to the workers now."""
+
+
 def enqueue_job(job: Job) -> None:
-    """Send the job to the workers once the surrounding transaction commits."""
+    """Send the job to the workers once the surrounding transaction commits.
+
+    With a broker (not the embedded default), the broker is checked first, inside the transaction:
+    when it is unreachable this raises :class:`BrokerUnavailableError`, the transaction that created
+    the job (and the row that owns it) rolls back, and the request answers 503. Should the broker
+    go away between that check and the send after commit, the job stays queued and the periodic
+    sweep sends it again (:func:`sweep_jobs`).
+    """
+    if not settings.CELERY_TASK_ALWAYS_EAGER:
+        check_broker()
     job_id = job.pk
+    # marks the job as one the workers run (an acquisition, run by a rig's agent, never is)
+    job.enqueued_at = timezone.now()
+    Job.objects.filter(pk=job_id).update(enqueued_at=job.enqueued_at)
     transaction.on_commit(lambda: _send(job_id))
 
 
-def _send(job_id: int) -> None:
-    from workers.tasks import run_job
+def check_broker() -> None:
+    """Raise :class:`BrokerUnavailableError` unless the Celery broker answers (one try, about 2 s at most)."""
+    from celery import current_app
+    from kombu.exceptions import OperationalError as BrokerOperationalError
 
-    result = run_job.apply_async(args=[job_id])
+    try:
+        with current_app.connection_for_write() as connection:
+            connection.ensure_connection(max_retries=1, interval_start=0, interval_step=0.2, timeout=2)
+    except (BrokerOperationalError, ConnectionError, OSError) as exc:
+        logger.warning("broker unreachable: %s", exc)
+        raise BrokerUnavailableError(
+            "The job queue (broker) is unreachable, so the job was not created; try again in a minute.",
+            retry_after_s=30,
+        ) from None
+
+
+def _send(job_id: int) -> None:
+    """Publish the job's message; on a broker failure, log it and leave the job queued for the sweep."""
+    from kombu.exceptions import OperationalError as BrokerOperationalError
+
+    from metrology.jobs.tasks import run_job
+
+    try:
+        result = run_job.apply_async(args=[job_id])
+    except (BrokerOperationalError, ConnectionError, OSError):
+        if settings.CELERY_TASK_ALWAYS_EAGER:
+            raise
+        logger.warning("job %s could not be sent; it stays queued and the sweep sends it again", job_id, exc_info=True)
+        return
     if not settings.CELERY_TASK_ALWAYS_EAGER:
         Job.objects.filter(pk=job_id, celery_task_id="").update(celery_task_id=result.id or "")
 
@@ -87,7 +123,7 @@ class JobRun:
     job_id: int
     token: uuid.UUID
     timings: dict[str, float] = field(default_factory=dict)
-    written: list[tuple[object, str]] = field(default_factory=list)  # (storage, name) to delete if superseded
+    written: list[tuple[Storage, str]] = field(default_factory=list)  # (storage, name) to delete if superseded
 
     def progress(self, percent: int, phase: str = "") -> None:
         """Record progress (0-100) and what the job is doing; raises :class:`SupersededError` if taken over."""
@@ -109,7 +145,7 @@ class JobRun:
         finally:
             self.timings[name] = round(self.timings.get(name, 0.0) + time.perf_counter() - start, 4)
 
-    def save_file(self, storage, name: str, content) -> str:
+    def save_file(self, storage: Storage, name: str, content: File) -> str:
         """Save ``content`` (a django File) under ``name``; remembered for cleanup. Returns the stored name."""
         stored = storage.save(name, content)
         self.written.append((storage, stored))
@@ -198,9 +234,13 @@ def fail_job(run: JobRun, reason: str) -> None:
 
 
 def release_job(run: JobRun) -> None:
-    """Give the job back to the queue (before a retry of a transient failure)."""
+    """Give the job back to the queue (before a retry of a transient failure).
+
+    The attempt is not counted: ``GCPS_JOB_MAX_ATTEMPTS`` bounds the attempts that ended with their
+    worker gone, not the database or broker blips a retry gets through.
+    """
     Job.objects.filter(pk=run.job_id, run_token=run.token, status=Job.Status.RUNNING).update(
-        status=Job.Status.QUEUED, run_token=None, phase="waiting to retry"
+        status=Job.Status.QUEUED, run_token=None, phase="waiting to retry", attempts=Greatest(F("attempts") - 1, 0)
     )
 
 
@@ -221,6 +261,7 @@ class _Heartbeat(threading.Thread):
                     )
                 except Exception:  # a lost database must not kill the computation; the sweep will see it
                     logger.warning("heartbeat of job %s failed", self.run_.job_id, exc_info=True)
+                    connection.close()  # a broken connection stays broken: open a new one next time
         finally:
             connection.close()
 
@@ -229,9 +270,8 @@ class _Heartbeat(threading.Thread):
         self.join(timeout=5)
 
 
-def _handler(kind: str) -> Callable[[Job, JobRun], None]:
-    module, _, name = HANDLERS[kind].partition(":")
-    return getattr(import_module(module), name)
+def _handler(kind: str) -> JobHandler:
+    return handler_for(kind)
 
 
 def execute_job(job_id: int, *, task_id: str = "", transient: tuple[type[BaseException], ...] = ()) -> str:
@@ -245,7 +285,7 @@ def execute_job(job_id: int, *, task_id: str = "", transient: tuple[type[BaseExc
     run = claim_job(job_id, task_id)
     if run is None:
         return "skipped"
-    if run == BUSY:
+    if not isinstance(run, JobRun):
         return BUSY
     job = Job.objects.get(pk=job_id)
     heartbeat = None if settings.CELERY_TASK_ALWAYS_EAGER else _Heartbeat(run)
@@ -260,14 +300,19 @@ def execute_job(job_id: int, *, task_id: str = "", transient: tuple[type[BaseExc
         return "superseded"
     except transient:
         run.discard_files()
+        if not connection.in_atomic_block:  # the connection that failed stays broken: open a new one
+            with contextlib.suppress(Exception):
+                connection.close()
         with contextlib.suppress(Exception):
-            release_job(run)
+            release_job(run)  # queued again at once, so that the task's retry can claim it
         raise
     except Exception as exc:
         run.discard_files()
-        reason = _reason(exc)
-        if reason.startswith("internal error"):
-            logger.exception("job %s failed", job_id)
+        phase = ""
+        with contextlib.suppress(Exception):  # the database may be what failed
+            phase = Job.objects.filter(pk=job_id).values_list("phase", flat=True).first() or ""
+        reason = _reason(exc, phase)
+        logger.exception("job %s failed: %s", job_id, reason)  # the traceback stays in the log
         fail_job(run, reason)
         return "failed"
     finally:
@@ -275,16 +320,43 @@ def execute_job(job_id: int, *, task_id: str = "", transient: tuple[type[BaseExc
             heartbeat.stop()
 
 
-def _reason(exc: Exception) -> str:
+def _reason(exc: Exception, phase: str = "") -> str:
+    """What went wrong, in a sentence for the person who asked for the job: no traceback, no source path.
+
+    Errors raised on purpose (:class:`JobFailedError`, ``ValueError`` from option and input checks)
+    carry their own sentence; anything else is an internal fault, described by what it is and when
+    it happened (the traceback goes to the worker's log, see :func:`execute_job`).
+    """
     from celery.exceptions import SoftTimeLimitExceeded
 
+    during = f" during the {phase!r} phase" if phase else ""
     if isinstance(exc, SoftTimeLimitExceeded):
         return f"stopped at the time limit of {settings.CELERY_TASK_SOFT_TIME_LIMIT} s (GCPS_TASK_SOFT_TIME_LIMIT)"
-    if isinstance(exc, JobFailedError | ValueError):
-        return str(exc) or type(exc).__name__
+    if isinstance(exc, JobFailedError | ValueError) and _is_plain_sentence(str(exc)):
+        return str(exc)
+    if isinstance(exc, MemoryError):
+        return (
+            f"the worker ran out of memory{during}; try a smaller frame or fewer images, or a worker with more memory"
+        )
     if isinstance(exc, ImportError):
-        return f"internal error: a part of the measurement core is missing ({exc})"
-    return f"internal error ({type(exc).__name__}): {exc}"
+        return (
+            "internal error: a part of the measurement software is missing on the worker; the worker's log has details"
+        )
+    return (
+        f"internal error{during}: the job stopped on an unexpected {type(exc).__name__}; "
+        "it has been logged on the worker"
+    )
+
+
+def _is_plain_sentence(text: str) -> bool:
+    """True for a message a person can read: not empty, no traceback, no source file path."""
+    return bool(text) and len(text) <= 2000 and not _INTERNALS.search(text)
+
+
+_INTERNALS = re.compile(
+    r"Traceback \(most recent call last\)|site-packages|dist-packages"  # a traceback, a library
+    r"|File \"[^\"]+\", line \d+|/[\w./-]+\.(py|pyx|so)\b"  # a source location
+)
 
 
 # ----------------------------------------------------------------------------- dead workers
@@ -293,7 +365,7 @@ def _reason(exc: Exception) -> str:
 def sweep_stale_jobs() -> dict[str, int]:
     """Requeue (or fail, past the attempt limit) running jobs whose heartbeat went stale.
 
-    Run periodically by beat and once when a worker starts. Returns counts.
+    Part of :func:`sweep_jobs`. Returns counts.
     """
     now = timezone.now()
     cutoff = now - timedelta(seconds=settings.GCPS_JOB_STALE_SECONDS)
@@ -322,4 +394,39 @@ def sweep_stale_jobs() -> dict[str, int]:
                 counts["requeued"] += 1
     if any(counts.values()):
         logger.warning("stale job sweep: %s", counts)
+    return counts
+
+
+def resend_unclaimed_jobs() -> dict[str, int]:
+    """Send again the jobs queued for longer than ``GCPS_JOB_RESEND_SECONDS`` without being claimed.
+
+    The job row is the source of truth: a message lost by the broker (Redis restarted without
+    persistence, a send that failed after commit) leaves its job queued, and this sends it again.
+    Idempotent: should the first message still exist, the job is claimed once (:func:`claim_job`)
+    and the other message finds it running or done and is dropped. Returns ``{"resent": n}``.
+    """
+    cutoff = timezone.now() - timedelta(seconds=settings.GCPS_JOB_RESEND_SECONDS)
+    waiting = Q(enqueued_at__lt=cutoff)  # jobs never enqueued (acquisitions, run by an agent) stay out
+    resent = 0
+    with transaction.atomic():
+        # skip_locked: another worker's sweep may be resending the same rows right now
+        jobs = list(Job.objects.select_for_update(skip_locked=True).filter(waiting, status=Job.Status.QUEUED)[:500])
+        for job in jobs:
+            enqueue_job(job)
+            resent += 1
+    if resent:
+        logger.warning(
+            "job sweep: sent %d queued job(s) again (unclaimed for %d s)", resent, settings.GCPS_JOB_RESEND_SECONDS
+        )
+    return {"resent": resent}
+
+
+def sweep_jobs() -> dict[str, int]:
+    """The periodic job sweep: take over jobs of dead workers and resend lost messages.
+
+    Run by every worker on a timer (:class:`metrology.jobs.sweeper.PeriodicSweep`), by beat when it
+    runs, and once when a worker starts. Returns ``{"requeued", "failed", "resent"}`` counts.
+    """
+    counts = sweep_stale_jobs()
+    counts.update(resend_unclaimed_jobs())
     return counts

@@ -26,12 +26,19 @@ CONTENT_TYPES = {
     "mesh.ply": "application/octet-stream",
     "mesh.stl": "model/stl",
     "mesh.obj": "model/obj",
+    "sigma.npy": "application/octet-stream",
+    "points.npy": "application/octet-stream",
 }
 
 
 class MeasurementRequestSerializer(serializers.Serializer):
     rig = serializers.IntegerField(min_value=1)
-    reference = serializers.IntegerField(min_value=1, help_text="Capture of the reference plane")
+    reference = serializers.IntegerField(
+        min_value=1,
+        required=False,
+        allow_null=True,
+        help_text="Capture of the reference plane (optional for a pinhole rig: then depths)",
+    )
     object = serializers.IntegerField(min_value=1, help_text="Capture of the object")
     options = serializers.JSONField(
         required=False,
@@ -90,7 +97,7 @@ class MeasurementListCreateApi(APIView):
         measurement = services.request_measurement(
             owner=request.user,
             rig=rig,
-            reference_id=data["reference"],
+            reference_id=data.get("reference"),
             object_id=data["object"],
             options=data.get("options"),
         )

@@ -30,7 +30,7 @@ from metrology.measurements.models import RESULT_FILES, Measurement
 DERIVED_FILES: tuple[str, ...] = ("height.tiff", "mesh.ply", "mesh.stl", "mesh.obj")
 """Result files built from the stored height map on request."""
 
-STORED_FILES: tuple[str, ...] = ("height.npy", "gray_only_height.npy")
+STORED_FILES: tuple[str, ...] = ("height.npy", "gray_only_height.npy", "sigma.npy", "points.npy")
 """Result files a measurement job stores."""
 
 CACHE_PREFIX = "derived"
@@ -137,6 +137,11 @@ def _mesh_chunks(measurement: Measurement, filename: str, cache: DerivedFileCach
     from metrology.core.mesh import mesh_file_chunks
     from metrology.core.rig import Rig as CoreRig
 
+    if measurement.rig_values.get("model") == "pinhole":  # codecapp: the stored camera-frame points
+        from metrology.measurements.pinhole import pinhole_mesh_chunks
+
+        chunks = pinhole_mesh_chunks(measurement, filename.rsplit(".", 1)[1])
+        return chunks if cache is None else cache.fill(name, chunks)
     rig = CoreRig.from_dict(measurement.rig_values)
     z = _heights(measurement)
     chunks = mesh_file_chunks(rig, z, filename.rsplit(".", 1)[1])

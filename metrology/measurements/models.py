@@ -12,13 +12,15 @@ RESULT_FILES: dict[str, str] = {
     "mesh.ply": "mesh_ply",
     "mesh.stl": "mesh_stl",
     "mesh.obj": "mesh_obj",
+    "sigma.npy": "sigma_npy",
+    "points.npy": "points_npy",
 }
 
 
 class Measurement(models.Model):
     owner = models.ForeignKey(settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="measurements")
     rig = models.ForeignKey("rigs.Rig", on_delete=models.CASCADE, related_name="measurements")
-    reference = models.ForeignKey("captures.Capture", on_delete=models.PROTECT, related_name="+")
+    reference = models.ForeignKey("captures.Capture", null=True, blank=True, on_delete=models.PROTECT, related_name="+")
     object = models.ForeignKey("captures.Capture", on_delete=models.PROTECT, related_name="+")
     job = models.OneToOneField("jobs.Job", on_delete=models.PROTECT, related_name="measurement")
     rig_values = models.JSONField(default=dict, blank=True, help_text="Rig geometry the heights were computed with")
@@ -28,6 +30,10 @@ class Measurement(models.Model):
     mesh_ply = models.FileField(max_length=300, blank=True)
     mesh_stl = models.FileField(max_length=300, blank=True)
     mesh_obj = models.FileField(max_length=300, blank=True)
+    points_npy = models.FileField(max_length=300, blank=True, help_text="Points (H, W, 3), mm (pinhole rigs)")
+    sigma_npy = models.FileField(
+        max_length=300, blank=True, help_text="Per-point height uncertainty, mm (options.sigma)"
+    )
     statistics = models.JSONField(default=dict, blank=True)
     options = models.JSONField(
         default=dict, blank=True, help_text="Pipeline options the result was computed with (decoding included)"

@@ -36,22 +36,40 @@ def measure_options(options: dict[str, Any] | None) -> dict[str, Any]:
 
 @transaction.atomic
 def request_measurement(
-    *, owner, rig: Rig, reference_id: int, object_id: int, options: dict[str, Any] | None = None
+    *, owner, rig: Rig, reference_id: int | None, object_id: int, options: dict[str, Any] | None = None
 ) -> Measurement:
     """Create a measurement of ``object`` against ``reference`` on ``rig`` and queue its job.
 
     ``options``: :class:`metrology.pipeline.MeasureOptions` as an object (``{"decode": {...}}``);
     default the pipeline's defaults. Stored, with the defaults filled in, on the measurement.
+    A pinhole rig's measurement (reference optional) is :mod:`metrology.measurements.pinhole`'s.
     """
+    if rig.is_pinhole:  # codecapp: pinhole rigs
+        from metrology.measurements.pinhole import request_pinhole_measurement
+
+        return request_pinhole_measurement(
+            owner=owner, rig=rig, reference_id=reference_id, object_id=object_id, options=options
+        )
+    if reference_id is None:
+        raise BadInput("reference: a crossed-axes rig measures against a capture of the reference plane")
     checked = measure_options(options)
     if reference_id == object_id:
         raise BadInput("object: the object capture must differ from the reference capture")
     reference = capture_for_job(owner, rig, reference_id, field="reference", roles=(Capture.Role.REFERENCE,))
     obj = capture_for_job(owner, rig, object_id, field="object")
+    from metrology.measurements.codecs import stacks_codec_value  # codecapp: the captures' codec
+
+    codec = stacks_codec_value(reference, obj)
     job = job_services.create_job(
         owner=owner,
         kind=Job.Kind.MEASUREMENT,
-        parameters={"rig": rig.pk, "reference": reference.pk, "object": obj.pk, "rig_values": rig.geometry()},
+        parameters={
+            "rig": rig.pk,
+            "reference": reference.pk,
+            "object": obj.pk,
+            "rig_values": rig.geometry(),
+            "codec": codec,
+        },
     )
     measurement = Measurement.objects.create(
         owner=owner, rig=rig, reference=reference, object=obj, job=job, rig_values=rig.geometry(), options=checked
@@ -74,6 +92,17 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
     from metrology.pipeline import MeasureOptions, measure
 
     measurement = Measurement.objects.select_related("reference__rig", "object__rig").get(job=job)
+    from metrology.measurements.codecs import job_codec, run_codec_measurement  # codecapp
+
+    if measurement.rig_values.get("model") == "pinhole":
+        from metrology.measurements.pinhole import run_pinhole_measurement
+
+        run_pinhole_measurement(job, run)
+        return
+    codec = job_codec(job)
+    if codec is not None:  # captures of a codec other than gcps-v1
+        run_codec_measurement(job, run, codec)
+        return
     rig = CoreRig.from_dict(measurement.rig_values)
     options = MeasureOptions.from_dict(measurement.options or {})
     with run.phase("reference", 5):
@@ -91,6 +120,8 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
     arrays = {"height.npy": z_mm}
     if result.gray_z_mm is not None:
         arrays["gray_only_height.npy"] = np.asarray(result.gray_z_mm, dtype=np.float32)
+    if result.sigma_mm is not None:  # options.sigma
+        arrays["sigma.npy"] = np.asarray(result.sigma_mm, dtype=np.float32)
     with run.phase("store", 80):
         for filename, array in arrays.items():
             buffer = io.BytesIO()
@@ -99,12 +130,16 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
             names[filename] = run.save_file(default_storage, f"{prefix}/{filename}", File(buffer, name=filename))
     statistics = json_safe(result.statistics())
     statistics["shape"] = list(z_mm.shape)
+    if result.sigma_mm is not None:
+        finite_sigma = result.sigma_mm[np.isfinite(result.sigma_mm)]
+        statistics["sigma_mm_median"] = float(np.median(finite_sigma)) if finite_sigma.size else None
 
     def publish(job_row: Job) -> None:
         start = time.perf_counter()
         Measurement.objects.filter(pk=measurement.pk).update(
             height_npy=names.get("height.npy", ""),
             gray_only_npy=names.get("gray_only_height.npy", ""),
+            sigma_npy=names.get("sigma.npy", ""),
             statistics=statistics,
             options=result.options.to_dict(),
         )

@@ -4,7 +4,9 @@ Each function takes image stacks (arrays), a rig and typed options, and returns 
 carrying its options (``to_dict``), the software version and per-phase timings; callers only
 load their inputs, call, and store the result:
 
-- :func:`measure` (:mod:`.measure`): height map of an object.
+- :func:`measure` (:mod:`.measure`): height map of an object (crossed-axes rig, any codec coding u).
+- :func:`measure_pinhole_stacks` (:mod:`.measure_pinhole`): points, depth or heights and sigma
+  with a pinhole rig.
 - :func:`calibrate` (:mod:`.calibrate`): L and alpha (and d) on a master block.
 - :func:`characterize` (:mod:`.characterize`): linearity and accuracy from a stage series.
 - :func:`acceptance` (:mod:`.acceptance`): VDI/VDE 2634-2 flatness, probing and spacing errors.
@@ -14,6 +16,7 @@ from metrology.pipeline.acceptance import AcceptanceOptions, AcceptanceResult, a
 from metrology.pipeline.calibrate import CalibrateOptions, CalibrateResult, calibrate
 from metrology.pipeline.characterize import CharacterizeOptions, CharacterizeResult, characterize
 from metrology.pipeline.measure import MeasureOptions, MeasureResult, measure
+from metrology.pipeline.measure_pinhole import PinholeMeasureOptions, PinholeMeasureResult, measure_pinhole_stacks
 
 __all__ = [
     "AcceptanceOptions",
@@ -24,8 +27,11 @@ __all__ = [
     "CharacterizeResult",
     "MeasureOptions",
     "MeasureResult",
+    "PinholeMeasureOptions",
+    "PinholeMeasureResult",
     "acceptance",
     "calibrate",
     "characterize",
     "measure",
+    "measure_pinhole_stacks",
 ]

@@ -1,14 +1,14 @@
 """Celery tasks of the reports: what beat runs from a report schedule (a django-celery-beat PeriodicTask).
 
 The task only requests the report (a queued job, at most one pending per rig); the work itself is
-the generic ``workers.tasks.run_job`` with its retries, heartbeats and progress on the Job record.
+the generic ``run_job`` (metrology/jobs/tasks.py) with its retries, heartbeats and progress on the Job record.
 """
 
 from __future__ import annotations
 
 from celery import shared_task
 
-from workers.tasks import RETRY_ON_TRANSIENT_ERRORS
+from metrology.jobs.tasks import RETRY_ON_TRANSIENT_ERRORS
 
 
 @shared_task(

@@ -11,7 +11,7 @@ from django.db import transaction
 from metrology.api_errors import BadInput
 from metrology.core.rig import Rig as CoreRig
 from metrology.core.rig import RigError
-from metrology.rigs.models import GEOMETRY_FIELDS, Rig, RigParameters
+from metrology.rigs.models import DEFAULT_CODEC, GEOMETRY_FIELDS, Rig, RigParameters
 
 
 def validate_geometry(values: dict[str, Any]) -> dict[str, Any]:
@@ -63,13 +63,22 @@ def validate_extra(extra: dict[str, Any]) -> dict[str, Any]:
 
 @transaction.atomic
 def create_rig(*, owner, data: dict[str, Any]) -> Rig:
-    """Create a rig from the rig-file JSON (docs/file-formats.md); ``name`` and ``notes`` are optional keys."""
+    """Create a rig from the rig-file JSON (docs/file-formats.md); ``name``, ``notes`` and ``codec`` (its
+    captures' default codec, docs/codecs.md; gcps-v1 when absent) are optional keys."""
+    from metrology.captures.codecs import validate_codec
+
     geometry = validate_geometry({name: data.get(name) for name in GEOMETRY_FIELDS if name in data})
     extra = validate_extra(
-        {key: value for key, value in data.items() if key not in (*GEOMETRY_FIELDS, "name", "notes")}
+        {key: value for key, value in data.items() if key not in (*GEOMETRY_FIELDS, "name", "notes", "codec")}
     )
+    codec = validate_codec(data["codec"]) if data.get("codec") is not None else DEFAULT_CODEC
     rig = Rig.objects.create(
-        owner=owner, name=str(data.get("name") or ""), notes=str(data.get("notes") or ""), extra=extra, **geometry
+        owner=owner,
+        name=str(data.get("name") or ""),
+        notes=str(data.get("notes") or ""),
+        extra=extra,
+        codec=codec,
+        **geometry,
     )
     RigParameters.objects.create(rig=rig, values=rig.geometry(), source=RigParameters.Source.CREATED)
     return rig
@@ -85,3 +94,58 @@ def update_rig_geometry(*, rig: Rig, changes: dict[str, Any], source: str, calib
     rig.save()
     RigParameters.objects.create(rig=rig, values=rig.geometry(), source=source, calibration=calibration)
     return rig
+
+
+@transaction.atomic
+def set_rig_codec(*, rig: Rig, codec: Any) -> Rig:
+    """Set the default codec of a rig's captures (a built-in name or a gcps-codec/1 object), validated;
+    :class:`BadInput` naming the problem. Stored captures keep the codec they were validated with."""
+    from metrology.captures.codecs import validate_codec
+
+    value = validate_codec(codec)
+    Rig.objects.filter(pk=rig.pk).update(codec=value)
+    rig.refresh_from_db()
+    return rig
+
+
+@transaction.atomic
+def create_pinhole_rig(*, owner, data: dict[str, Any]) -> Rig:
+    """Create a pinhole rig from its rig file (docs/pinhole.md: ``model``, ``camera``, ``projector``, ``R``
+    or ``rvec``... as the core reads it); ``name``, ``notes`` and ``codec`` are optional further keys.
+    Raises :class:`BadInput` naming the problem (the core's message)."""
+    from metrology.captures.codecs import validate_codec
+    from metrology.core.geometry import GeometryError
+    from metrology.core.geometry.pinhole import PinholeRig
+
+    rig_file = {key: value for key, value in data.items() if key not in ("name", "notes", "codec")}
+    try:
+        core = PinholeRig.from_dict(rig_file)
+    except GeometryError as exc:
+        raise BadInput(str(exc)) from None
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise BadInput(f"pinhole rig refused: {exc}") from None
+    limit = settings.GCPS_MAX_IMAGE_SIDE_PX
+    for name, value in (("camera width_px", core.camera.width_px), ("camera height_px", core.camera.height_px)):
+        if value > limit:
+            raise BadInput(f"{name} must be at most {limit} pixels (GCPS_MAX_IMAGE_SIDE_PX), got {value}")
+    codec = validate_codec(data["codec"]) if data.get("codec") is not None else DEFAULT_CODEC
+    values = core.to_dict()
+    rig = Rig.objects.create(
+        owner=owner,
+        name=str(data.get("name") or "")[:200],
+        notes=str(data.get("notes") or ""),
+        model=Rig.Model.PINHOLE,
+        pinhole=values,
+        width_px=core.camera.width_px,
+        height_px=core.camera.height_px,
+        codec=codec,
+    )
+    RigParameters.objects.create(rig=rig, values=values, source=RigParameters.Source.CREATED)
+    return rig
+
+
+def require_crossed_axes(rig: Rig, what: str) -> None:
+    """BadInput when ``rig`` is a pinhole rig and ``what`` (a calibration, a simulated capture...) needs
+    the crossed-axes model."""
+    if rig.is_pinhole:
+        raise BadInput(f"rig {rig.pk} is a pinhole rig: {what} needs a crossed-axes rig (docs/pinhole.md)")

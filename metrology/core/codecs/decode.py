@@ -22,7 +22,9 @@ Reason codes (uint8, one per pixel and axis; the first that applies wins, in thi
 half the white-black difference, or half the smallest inverse contrast), 2 saturated (a
 phase frame at or above ``saturation_level``), 5 low inverse contrast (``|frame - inverse|``
 below ``min_inverse_contrast`` for some bit), 4 gray/phase inconsistent (the first phase
-stage lies more than ``consistency_periods`` of its period outside the gray word's cell),
+stage lies more than ``consistency_periods`` of its period outside the gray word's cell, or a
+phase stage lies more than ``unwrap_consistency_periods`` of its period from the coarser phase
+stage it was unwrapped from),
 3 outside the projector (``x`` outside ``[-0.5, size - 0.5]``), 6 slip repaired but kept, 0
 valid. Coordinates are NaN unless the reason is 0 or 6.
 
@@ -30,7 +32,10 @@ Slips: where the gray word is at least as wide as the period of the stage after 
 bit misread at a cell edge moves a pixel by whole periods while staying consistent. Such
 pixels are found against the median of the valid coordinates of their 5x5 neighbourhood
 (at least 13 of 25 valid): where ``|x - median| > P / 2`` the pixel is moved by
-``P * round((median - x) / P)`` (re-snapped onto the final stage's phase) and kept with reason 6.
+``P * round((median - x) / P)`` (re-snapped onto the final stage's phase) and kept with reason 6,
+provided the moved coordinate lies within the gray/phase tolerance of its decoded word's cell
+(a misread bit puts the true coordinate at that word's edge); a pixel whose 5x5 neighbourhood
+straddles a depth edge is otherwise left as decoded.
 """
 
 from __future__ import annotations
@@ -86,6 +91,11 @@ class CodecDecodeOptions:
     consistency_periods : float, optional
         How far, in periods of the first phase stage, its coordinate may lie outside the gray
         word's cell. Default 0.25; gcps-v1 keeps today's 0.35 words = 0.0875 periods.
+    unwrap_consistency_periods : float, optional
+        How far, in periods of a phase stage unwrapped from another phase (or beat) stage, its
+        coordinate may lie from that coarser stage's: ``|x - x_c| <= tol * P``, else the pixel is
+        refused as inconsistent (unwrapping fails at half a period; pixels whose coarse
+        coordinate is that noisy are refused before they slip). Default 1/3.
     saturation_level : float, optional
         Grey level at or above which a frame is saturated. Default the full scale of the
         dtype (255, 65535); no check for float images.
@@ -99,12 +109,19 @@ class CodecDecodeOptions:
     min_modulation: float | None = None
     min_inverse_contrast: float | None = None
     consistency_periods: float | None = None
+    unwrap_consistency_periods: float | None = None
     saturation_level: float | None = None
     repair_slips: bool = True
     exact_phase: bool | None = None
 
     def __post_init__(self) -> None:
-        for name in ("min_modulation", "min_inverse_contrast", "consistency_periods", "saturation_level"):
+        for name in (
+            "min_modulation",
+            "min_inverse_contrast",
+            "consistency_periods",
+            "unwrap_consistency_periods",
+            "saturation_level",
+        ):
             value = getattr(self, name)
             if value is None:
                 continue
@@ -131,6 +148,9 @@ class CodecDecodeOptions:
         consistency = self.consistency_periods
         if consistency is None:
             consistency = 0.35 / 4 if gcps_v1 else 0.25
+        unwrap = self.unwrap_consistency_periods
+        if unwrap is None:
+            unwrap = 1 / 3
         saturation = self.saturation_level
         if saturation is None:
             saturation = full if integer else math.inf
@@ -139,6 +159,7 @@ class CodecDecodeOptions:
             min_modulation=float(min_mod),
             min_inverse_contrast=float(contrast),
             consistency_periods=float(consistency),
+            unwrap_consistency_periods=float(unwrap),
             saturation_level=float(saturation),
             repair_slips=self.repair_slips,
             exact_phase=bool(exact),
@@ -252,6 +273,27 @@ class _SequencePlan:
     period: float
     origin: float
     need_noise: bool
+    # 8-bit stacks: C and -S by running weighted averages (OpenCV's accumulateWeighted reads the
+    # uint8 frames directly): x_k = (1 - a_k) x_{k-1} + a_k I_k ends at K sum_k w_k I_k when
+    # a_k = K w_k / prod_{j > k} (1 - a_j); rows: cos, -sin; K = recursive_scale
+    recursive: np.ndarray = field(default_factory=lambda: np.zeros((2, 0)))
+    recursive_scale: float = 1.0
+
+
+def _recursive_alphas(weights: np.ndarray) -> tuple[np.ndarray, float]:
+    """The running-average factors ``a`` (2, N) float64 and the scale K of :class:`_SequencePlan`.
+
+    K = 1 / (2 max_row sum |w|) keeps every product ``prod (1 - a_j)`` >= 1/2.
+    """
+    w = np.asarray(weights, np.float64)
+    scale = 1.0 / (2.0 * float(np.abs(w).sum(axis=1).max()))
+    alphas = np.zeros_like(w)
+    for row in range(w.shape[0]):
+        product = 1.0
+        for k in range(w.shape[1] - 1, -1, -1):
+            alphas[row, k] = scale * w[row, k] / product
+            product *= 1.0 - alphas[row, k]
+    return alphas, scale
 
 
 @dataclass(frozen=True)
@@ -293,6 +335,8 @@ def _plan(codec: Codec, with_noise: bool = True) -> list[_AxisPlan]:
                     seq.period,
                     seq.origin,
                     need_noise=with_noise and seq.steps >= 4 and i == noise_index,
+                    recursive=_recursive_alphas(np.stack([np.cos(delta), -np.sin(delta)]))[0],
+                    recursive_scale=_recursive_alphas(np.stack([np.cos(delta), -np.sin(delta)]))[1],
                 )
             )
         lut = None
@@ -382,6 +426,8 @@ def decode_codec(
             "noise": np.empty((height, width), np.float32),
             "reason": np.empty((height, width), np.uint8),
         }
+        if opts.repair_slips and plan.slip_period > 0:  # the decoded gray words bound the repair
+            outputs[plan.name]["centre"] = np.empty((height, width), np.float32)
     used_frames = sorted(
         {f for plan in plans for s in plan.used for f in plan.sequences[s].frames}
         | {f for plan in plans if plan.axis.gray is not None for f in plan.axis.gray.frames}
@@ -425,7 +471,11 @@ def decode_codec(
                     pair = slip_candidates(out["coordinate"][start - 1 : start + 1], plan.slip_period / 2)
                     candidates[plan.name].append(pair + (start - 1) * width)
             found = np.concatenate(candidates[plan.name]) if candidates[plan.name] else np.empty(0, np.intp)
-            slips = repair_slips(out["coordinate"], out["reason"], plan.slip_period, final_period, found)
+            assert plan.axis.gray is not None and opts.consistency_periods is not None
+            reach = plan.axis.gray.word / 2 + opts.consistency_periods * plan.slip_period
+            slips = repair_slips(
+                out["coordinate"], out["reason"], plan.slip_period, final_period, found, out["centre"], reach
+            )
         axes[plan.name] = AxisDecoding(
             coordinate=out["coordinate"],
             modulation=out["modulation"],
@@ -517,15 +567,28 @@ class _PhaseResult:
     noise: np.ndarray | None
 
 
-def _phase_tile(tile: np.ndarray, seq: _SequencePlan, exact: bool, scratch: Any, tag: str) -> _PhaseResult:
+def _phase_tile(
+    tile: np.ndarray,
+    seq: _SequencePlan,
+    exact: bool,
+    scratch: Any,
+    tag: str,
+    modulation_dst: np.ndarray | None = None,
+    noise_dst: np.ndarray | None = None,
+) -> _PhaseResult:
     """Least-squares phase, modulation, sum and (N >= 4, when asked) noise of one sequence on a tile.
 
     The sum and the sum of squares come from OpenCV's accumulators reading the frames directly
-    (float32 for 8-bit stacks, whose sums stay exact integers below 2**24; float64 otherwise);
-    ``C`` and ``-S`` from ``einsum`` (numpy's own loops: OpenBLAS threads busy-wait badly on a
-    shared machine) over the differences of frames half a turn apart when N is even. The noise
-    ``R = sum I^2 - (sum I)^2 / N - (N / 2) B^2`` is combined in float64 (it is a small
-    difference of large sums).
+    (float32 for 8-bit stacks, whose sums stay exact integers below 2**24; float64 otherwise).
+    8-bit stacks: ``K C`` and ``-K S`` are running weighted averages over the uint8 frames
+    (``cv2.accumulateWeighted``, one in-cache pass per frame and sum, factors from
+    :func:`_recursive_alphas`), the scale K divided out of B and the noise. Other stacks: ``C``
+    and ``-S`` from ``einsum`` in float64 (numpy's own loops: OpenBLAS threads busy-wait badly
+    on a shared machine) over the differences of frames half a turn apart when N is even. The
+    noise ``R = sum I^2 - (sum I)^2 / N - (N / 2) B^2`` with ``(N / 2) B^2 = (2 / N)(C^2 + S^2)``.
+
+    ``modulation_dst`` and ``noise_dst`` (h, w) float32, optional: where B and the noise are
+    written (else scratch arrays).
     """
     h, w = tile.shape[1:]
     n = seq.steps
@@ -542,7 +605,18 @@ def _phase_tile(tile: np.ndarray, seq: _SequencePlan, exact: bool, scratch: Any,
         if sq is not None:
             cv2.accumulateSquare(tile[fi], sq)
     res = scratch.get(f"sums{tag}", (2, h * w), work)
-    if n % 2 == 0:
+    scale = 1.0  # c and neg_s below are K C and -K S
+    if work is np.float32:
+        # 8-bit: one running weighted average per sum, reading the uint8 frames directly
+        scale = seq.recursive_scale
+        sums = res.reshape(2, h, w)
+        sums.fill(0)
+        for row in range(2):
+            for k, fi in enumerate(frames):
+                alpha = float(seq.recursive[row, k])
+                if abs(alpha) > 1e-9:  # sin 0 and cos(pi / 2) ~ 6e-17 leave the average as it is
+                    cv2.accumulateWeighted(tile[fi], sums[row], alpha)
+    elif n % 2 == 0:
         # cos and sin change sign half a turn later: C = sum_{k < N/2} cos_k (I_k - I_{k + N/2}), same for S
         half = n // 2
         d = scratch.get(f"pairs{work.__name__}", (half, h, w), work)
@@ -565,31 +639,28 @@ def _phase_tile(tile: np.ndarray, seq: _SequencePlan, exact: bool, scratch: Any,
         cv2.cartToPolar(c, neg_s, magnitude=mag, angle=angle)
     # frac in [0, 1]: frac = 1 (theta = 2 pi) unwraps like 0, the rounding below absorbs it
     frac = np.multiply(angle, np.float32(1 / TWO_PI), out=angle)
-    b = np.multiply(mag, np.float32(2 / n), out=mag)
     noise = None
-    if sq is not None:
-        sq = sq.ravel()
-        if work is np.float32:
-            # 8-bit: sum I^2 is an exact integer below 2**24; total * (total / N) ~ 1e6 keeps ~0.1 grey^2
-            t = scratch.get("resid_t", (h * w,), np.float32)
-            cr, sr, tr = c.ravel(), neg_s.ravel(), total.ravel()
-            np.multiply(tr, np.float32(1 / n), out=t)
-            t *= tr
-            sq -= t
-            np.multiply(cr, cr, out=t)
-            t += sr * sr
-            t *= np.float32(2 / n)
-            sq -= t
-            np.maximum(sq, 0, out=sq)
-            sq *= np.float32(1 / (n - 3))
-            noise = np.sqrt(sq, out=sq).reshape(h, w)
-        else:
-            r = sq.astype(np.float64)
-            cc, ss, tt = c.ravel(), neg_s.ravel(), total.ravel()
-            r -= (cc * cc + ss * ss) * (2 / n) + tt * tt * (1 / n)
-            np.maximum(r, 0, out=r)
-            r *= 1 / (n - 3)
-            noise = np.sqrt(r).astype(np.float32).reshape(h, w)
+    if sq is not None and work is np.float32:
+        # 8-bit: sum I^2 is an exact integer below 2**24; (sum I)^2 / N ~ 1e6 keeps ~0.1 grey^2;
+        # (C^2 + S^2) (2 / N) from the magnitude, in fused OpenCV passes
+        t = scratch.get("resid_t", (h, w), np.float32)
+        cv2.multiply(total, total, dst=t, scale=1 / n)
+        cv2.subtract(sq, t, dst=sq)
+        cv2.multiply(mag, mag, dst=t, scale=2 / n / scale**2)
+        cv2.subtract(sq, t, dst=sq)
+        np.maximum(sq, 0, out=sq)
+        sq *= np.float32(1 / (n - 3))
+        noise = np.sqrt(sq, out=noise_dst if noise_dst is not None else sq)
+    b = np.multiply(mag, np.float32(2 / n / scale), out=modulation_dst if modulation_dst is not None else mag)
+    if sq is not None and work is not np.float32:
+        # 16-bit and float: combined in float64 (a small difference of large sums)
+        r = sq.ravel().astype(np.float64)
+        cc, ss, tt = c.ravel(), neg_s.ravel(), total.ravel()
+        r -= (cc * cc + ss * ss) * (2 / n) + tt * tt * (1 / n)
+        np.maximum(r, 0, out=r)
+        r *= 1 / (n - 3)
+        noise = noise_dst if noise_dst is not None else np.empty((h, w), np.float32)
+        np.copyto(noise, np.sqrt(r).reshape(h, w), casting="unsafe")
     total32 = total if total.dtype == np.float32 else total.astype(np.float32)
     return _PhaseResult(frac=frac, modulation=b, total=total32, noise=noise)
 
@@ -609,14 +680,23 @@ def _decode_axis_tile(
     h, w = tile.shape[1:]
     shape = (h, w)
     assert opts.min_modulation is not None and opts.min_inverse_contrast is not None
-    assert opts.consistency_periods is not None
+    assert opts.consistency_periods is not None and opts.unwrap_consistency_periods is not None
     exact = bool(opts.exact_phase)
     min_mod = np.float32(opts.min_modulation)
     dark = scratch.get(f"dark{plan.name}", shape, bool)
     dark.fill(False)
     results: dict[int, _PhaseResult] = {}
     for i in plan.used:
-        r = results[i] = _phase_tile(tile, plan.sequences[i], exact, scratch, f"{plan.name}{i}")
+        # the final sequence's B and noise go straight into the outputs
+        r = results[i] = _phase_tile(
+            tile,
+            plan.sequences[i],
+            exact,
+            scratch,
+            f"{plan.name}{i}",
+            modulation_dst=out["modulation"] if plan.final == (i,) else None,
+            noise_dst=out["noise"] if plan.sequences[i].need_noise else None,
+        )
         dark |= r.modulation < min_mod
     first_total: np.ndarray | None = None
     first: _PhaseResult | None = None
@@ -695,6 +775,8 @@ def _decode_axis_tile(
             centre = cv2.LUT(word, lut, dst=scratch.get(f"centre{plan.name}", shape, np.float32))
         else:
             centre = np.take(plan.gray_lut, word, out=scratch.get(f"centre{plan.name}", shape, np.float32))
+        if "centre" in out:
+            np.copyto(out["centre"], centre)
         if not plan.used:
             # gray-only chain: modulation from white/black, else half the smallest inverse contrast,
             # else the B of the phase sequence that gives the threshold
@@ -731,26 +813,41 @@ def _decode_axis_tile(
             x.fill((plan.extent - 1) / 2)
         # k = round((x_c - origin) / P - frac); x = origin + P (frac + k), two fused passes
         cv2.addWeighted(x, 1 / stage.period, frac, -1.0, -stage.origin / stage.period, dst=tmp)
+        if previous is not None and previous.kind != "gray":
+            # a phase stage unwrapped from another: |x - x_c| = P |t - round(t)| must stay within
+            # the tolerance (a coarse coordinate that far off is too close to a wrong period)
+            deviation = scratch.get("unwrap_dev", shape, np.float32)
+            cv2.absdiff(tmp, np.rint(tmp, out=deviation), dst=deviation)
+            limit = np.float32(opts.unwrap_consistency_periods)
+            if inconsistent is None:
+                inconsistent = np.greater(deviation, limit, out=scratch.get(f"incons{plan.name}", shape, bool))
+            else:
+                inconsistent |= deviation > limit
         np.rint(tmp, out=tmp)
         cv2.addWeighted(tmp, stage.period, frac, stage.period, stage.origin, dst=x)
-        if previous is not None and previous.kind == "gray":
-            assert centre is not None and g is not None
+        if centre is not None and g is not None:
+            # every phase stage (not only the first: a beat wider than the word is unwrapped by
+            # the word almost vacuously, and its noise can move the finer stages by whole periods)
             tolerance = np.float32(g.word / 2 + opts.consistency_periods * stage.period)
-            inconsistent = scratch.get(f"incons{plan.name}", shape, bool)
             cv2.absdiff(x, centre, dst=tmp)
-            np.greater(tmp, tolerance, out=inconsistent)
+            if inconsistent is None:
+                inconsistent = np.greater(tmp, tolerance, out=scratch.get(f"incons{plan.name}", shape, bool))
+            else:
+                inconsistent |= tmp > tolerance
         previous = stage
 
     if plan.used:
         final = [results[i].modulation for i in plan.final]
         if len(final) == 1:
-            np.copyto(out["modulation"], final[0])
+            if final[0] is not out["modulation"]:
+                np.copyto(out["modulation"], final[0])
         else:
             np.minimum(final[0], final[1], out=out["modulation"])
     noise_out = out["noise"]
     noise = next((results[i].noise for i in plan.used if results[i].noise is not None), None)
     if noise is not None:
-        np.copyto(noise_out, noise)
+        if noise is not noise_out:
+            np.copyto(noise_out, noise)
     else:
         noise_out.fill(np.nan)
 
@@ -801,16 +898,31 @@ def slip_candidates(x: np.ndarray, half_period: float) -> np.ndarray:
     """
     half = float(half_period)
     h, w = x.shape
-    jump = np.zeros((h, w), np.uint8)
+    # 1 where a jump (NaN compares false); a tile without any needs no index search. The
+    # differences go to per-thread scratch arrays (fresh large arrays cost page faults)
+    scratch = thread_scratch()
+    mx = my = None
     if w > 1:
-        mx = np.greater(cv2.absdiff(x[:, 1:], x[:, :-1]), half).view(np.uint8)  # NaN compares false
+        dx = cv2.absdiff(x[:, 1:], x[:, :-1], dst=scratch.get("jump_dx", (h, w - 1), np.float32))
+        mx = np.greater(dx, half, out=scratch.get("jump_mx", (h, w - 1), bool)).view(np.uint8)
+    if h > 1:
+        dy = cv2.absdiff(x[1:, :], x[:-1, :], dst=scratch.get("jump_dy", (h - 1, w), np.float32))
+        my = np.greater(dy, half, out=scratch.get("jump_my", (h - 1, w), bool)).view(np.uint8)
+    if not any(m is not None and cv2.countNonZero(m) for m in (mx, my)):
+        return np.empty(0, np.intp)
+    jump = scratch.get("jump", (h, w), np.uint8)
+    jump.fill(0)
+    if mx is not None:
         cv2.bitwise_or(jump[:, 1:], mx, dst=jump[:, 1:])
         cv2.bitwise_or(jump[:, :-1], mx, dst=jump[:, :-1])
-    if h > 1:
-        my = np.greater(cv2.absdiff(x[1:, :], x[:-1, :]), half).view(np.uint8)
+    if my is not None:
         cv2.bitwise_or(jump[1:, :], my, dst=jump[1:, :])
         cv2.bitwise_or(jump[:-1, :], my, dst=jump[:-1, :])
-    return np.flatnonzero(jump)
+    points = cv2.findNonZero(jump)  # (n, 1, 2) x, y in row-major order; far faster than flatnonzero
+    if points is None:
+        return np.empty(0, np.intp)
+    xy = points.reshape(-1, 2).astype(np.intp)
+    return xy[:, 1] * w + xy[:, 0]
 
 
 def repair_slips(
@@ -819,14 +931,20 @@ def repair_slips(
     slip_period: float,
     final_period: float,
     candidates: np.ndarray | None = None,
+    centre: np.ndarray | None = None,
+    cell_reach: float = math.inf,
 ) -> int:
     """Repair whole-period slips against the 5x5 median, in place; returns the number repaired.
 
     Candidates are valid pixels differing by more than ``slip_period / 2`` from a valid
     4-neighbour. A candidate whose 5x5 neighbourhood holds at least 13 valid coordinates and
     lies more than ``slip_period / 2`` from their median ``m`` is moved to
-    ``x + P_f round(P round((m - x) / P) / P_f)`` (P the slip period, P_f the final stage's)
-    and given reason 6.
+    ``x' = x + P_f round(P round((m - x) / P) / P_f)`` (P the slip period, P_f the final stage's)
+    and given reason 6, provided ``x'`` could have been read as the pixel's gray word: a bit
+    misread at a word edge puts the true coordinate at that edge, so ``|x' - centre| <= cell_reach``
+    (``centre``: (H, W) float32 centres of the decoded gray words; ``cell_reach``: half the word
+    plus the gray/phase tolerance). Without that bound a neighbourhood straddling a depth edge
+    (two surfaces, the median on the other one) would move correct pixels by whole words.
     """
     x = coordinate
     half = np.float32(slip_period / 2)
@@ -856,6 +974,10 @@ def repair_slips(
     r, c = rows[slipped], cols[slipped]
     shift = slip_period * np.rint((med[slipped] - values[slipped]) / slip_period)
     snapped = final_period * np.rint(shift / final_period)
-    x[r, c] = values[slipped] + snapped.astype(np.float32)
+    moved = values[slipped] + snapped.astype(np.float32)
+    if centre is not None:
+        reachable = np.abs(moved - centre[r, c]) <= np.float32(cell_reach)
+        r, c, moved = r[reachable], c[reachable], moved[reachable]
+    x[r, c] = moved
     reason[r, c] = REASON_SLIP_REPAIRED
-    return int(slipped.sum())
+    return int(r.size)

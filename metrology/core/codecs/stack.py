@@ -257,6 +257,54 @@ def read_codec_stack(
         return _read(_zip_source(label, archive, max_bytes, max_ratio), codec, max_pixels)
 
 
+def read_capture_codec(
+    source: str | os.PathLike[str] | IO[bytes],
+    *,
+    max_bytes: int = DEFAULT_MAX_BYTES,
+    max_ratio: float = DEFAULT_MAX_RATIO,
+) -> Codec | None:
+    """The codec of a capture folder or zip's own ``codec.json`` (None when it has none), without
+    decoding its images. A binary file object holding a zip is read and rewound to its start.
+
+    Raises
+    ------
+    StackError
+        If the capture does not exist, is not a folder nor a zip, or is unsafe.
+    CodecError
+        If its ``codec.json`` is invalid.
+    """
+    if isinstance(source, (str, os.PathLike)):
+        path = Path(source)
+        label = repr(path.name or str(path))
+        if path.is_dir():
+            return _own_codec(_folder_source(label, path))
+        if not path.is_file():
+            raise StackError(f"capture {label} does not exist")
+        if not zipfile.is_zipfile(path):
+            raise StackError(f"capture {label} is not a zip file (nor a folder)")
+        with zipfile.ZipFile(path) as archive:
+            return _own_codec(_zip_source(label, archive, max_bytes, max_ratio))
+    name = getattr(source, "name", None)
+    label = repr(Path(name).name) if isinstance(name, str) and name else "upload"
+    start = source.tell()
+    data = source.read(max_bytes + 1)
+    source.seek(start)
+    if len(data) > max_bytes:
+        raise StackError(f"capture {label} is larger than the limit of {max_bytes} bytes")
+    try:
+        archive = zipfile.ZipFile(io.BytesIO(data))
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError) as exc:
+        raise StackError(f"capture {label} is not a zip file ({exc})") from None
+    with archive:
+        return _own_codec(_zip_source(label, archive, max_bytes, max_ratio))
+
+
+def _own_codec(src: _Source) -> Codec | None:
+    if CODEC_FILE_NAME not in src.names:
+        return None
+    return codec_from_json(src.read(CODEC_FILE_NAME), label=f"capture {src.label} {CODEC_FILE_NAME}")
+
+
 def _read(src: _Source, codec: Codec | None, max_pixels: int) -> CodecStack:
     label = src.label
     origin = "given"
@@ -301,4 +349,4 @@ def _read(src: _Source, codec: Codec | None, max_pixels: int) -> CodecStack:
     return CodecStack(images=images, codec=codec, names=tuple(names), codec_source=origin)
 
 
-__all__ = ["CODEC_FILE_NAME", "CodecError", "CodecStack", "read_codec_stack", "select_frames"]
+__all__ = ["CODEC_FILE_NAME", "CodecError", "CodecStack", "read_capture_codec", "read_codec_stack", "select_frames"]

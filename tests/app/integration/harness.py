@@ -72,14 +72,14 @@ def free_port() -> int:
 class Stack:
     """The application's processes, sharing one environment (database, queue, media folder)."""
 
-    def __init__(self, database_url: str, media_root: Path, logs: Path) -> None:
+    def __init__(self, database_url: str, media_root: Path, logs: Path, redis_url: str = REDIS_URL) -> None:
         self.queue = f"gcps-test-{secrets.token_hex(4)}"
         self.logs = logs
         self.env = {
             **{key: value for key, value in os.environ.items() if not key.startswith(("DJANGO_", "GCPS_"))},
             "DJANGO_SETTINGS_MODULE": "metrology.settings",
             "DATABASE_URL": database_url,
-            "REDIS_URL": REDIS_URL,
+            "REDIS_URL": redis_url,
             "MEDIA_ROOT": str(media_root),
             "GCPS_VAR_DIR": str(media_root.parent / "var"),
             "SECRET_KEY": secrets.token_urlsafe(50),
@@ -87,6 +87,9 @@ class Stack:
             "ALLOWED_HOSTS": "127.0.0.1,localhost",
             "SECURE_SSL_REDIRECT": "0",
             "GCPS_CELERY_QUEUE": self.queue,
+            # tests poll the API quickly; and runs sharing a Redis must not share throttle counters
+            "GCPS_THROTTLE_USER": "100000/minute",
+            "GCPS_CACHE_KEY_PREFIX": self.queue,
             "GCPS_JOB_HEARTBEAT_SECONDS": "1",
             "GCPS_JOB_STALE_SECONDS": "3",
             "GCPS_JOB_SWEEP_SECONDS": "2",
@@ -117,9 +120,12 @@ class Stack:
         self.processes.append(process)
         return process
 
-    def start_web(self) -> str:
+    def start_web(self, *, threaded: bool = True) -> str:
+        """The development server; ``threaded=False`` serves every request on one thread, so its
+        database connection is reused across requests as under a WSGI server's sync worker."""
         port = free_port()
-        self._spawn("web", [sys.executable, "manage.py", "runserver", f"127.0.0.1:{port}", "--noreload"])
+        extra = [] if threaded else ["--nothreading"]
+        self._spawn("web", [sys.executable, "manage.py", "runserver", f"127.0.0.1:{port}", "--noreload", *extra])
         self.base_url = f"http://127.0.0.1:{port}"
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
@@ -168,5 +174,48 @@ class Stack:
         self.processes.clear()
         import redis
 
-        client = redis.Redis.from_url(REDIS_URL)
-        client.delete(self.queue, f"_kombu.binding.{self.queue}", f"_kombu.binding_permanent.{self.queue}")
+        client = redis.Redis.from_url(self.env["REDIS_URL"], socket_connect_timeout=3)
+        with contextlib.suppress(redis.RedisError):  # a fault test may have stopped its own Redis
+            client.delete(self.queue, f"_kombu.binding.{self.queue}", f"_kombu.binding_permanent.{self.queue}")
+
+
+class RedisServer:
+    """A private ``redis-server`` on a free loopback port, without persistence, that a fault test may
+    stop and restart (never the shared one). Restarting it loses every key, as a crash would."""
+
+    def __init__(self, logs: Path) -> None:
+        self.port = free_port()
+        self.logs = logs
+        self.process: subprocess.Popen | None = None
+        self.url = f"redis://127.0.0.1:{self.port}/0"
+
+    def start(self) -> None:
+        import redis
+
+        log = (self.logs / f"redis-{self.port}.log").open("ab")
+        self.process = subprocess.Popen(
+            ["redis-server", "--port", str(self.port), "--bind", "127.0.0.1", "--save", "", "--appendonly", "no"],
+            cwd=self.logs,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            with contextlib.suppress(redis.RedisError):
+                redis.Redis.from_url(self.url, socket_connect_timeout=1).ping()
+                return
+            time.sleep(0.1)
+        raise AssertionError(f"redis-server on port {self.port} did not start")
+
+    def stop(self) -> None:
+        """SIGKILL: no chance to save anything."""
+        if self.process is not None and self.process.poll() is None:
+            self.process.kill()
+            self.process.wait(timeout=10)
+        self.process = None
+
+    def restart(self, down_s: float = 0.0) -> None:
+        self.stop()
+        time.sleep(down_s)
+        self.start()

@@ -20,8 +20,13 @@ from metrology.core.codecs.decode import decode_codec
 from metrology.core.codecs.stack import read_codec_stack
 
 ROOT = Path(__file__).resolve().parents[3]
-# beside the project (ROOT.parent/shared/datasets); a git worktree one level deeper also finds it
-CANDIDATES = [ROOT.parent / "shared" / "datasets", ROOT.parent.parent / "shared" / "datasets"]
+# the datasets folder: $GCPS_SHARED_DATASETS when set, else beside the project
+# (ROOT.parent/shared/datasets); a git worktree one level deeper also finds it
+CANDIDATES = (
+    [Path(os.environ["GCPS_SHARED_DATASETS"])]
+    if os.environ.get("GCPS_SHARED_DATASETS")
+    else [ROOT.parent / "shared" / "datasets", ROOT.parent.parent / "shared" / "datasets"]
+)
 DATASET = next((c for c in CANDIDATES if c.is_dir()), CANDIDATES[0]) / "kamino410-phase-shifting"
 DATASET_DECODED_PIXELS = 1_453_533
 

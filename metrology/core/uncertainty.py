@@ -1,0 +1,128 @@
+"""Per-point height uncertainty on a crossed-axes rig, from each pixel's phase noise.
+
+An N-step least-squares phase of period P (projector units) with independent camera noise
+``sigma_I`` per frame and modulation B (grey levels) has the coordinate standard deviation
+
+    sigma_x = P / (2 pi) * sqrt(2 / N) * sigma_I / B                      (projector units)
+
+(docs/codecs.md, "Coordinate noise"); a heterodyne beat of two sequences ending the chain adds
+their phase variances over the beat's period. ``sigma_I`` is the decoder's fit-residual noise
+estimate ``sqrt(R / (N - 3))``, which has only N - 3 degrees of freedom per pixel (one for
+gcps-v1's 4 steps): it is pooled over a ``POOL_PX x POOL_PX`` window, ``sigma_I^2`` averaged over
+the window's decoded pixels, so that its median is unbiased. In light codes,
+``sigma_l = sigma_u nlp / width``; propagated through Eqs. 14, 16, 17 (the height against the
+reference's codes),
+
+    sigma_z = |dz/dl| sigma_l,
+
+with ``dz/dl`` evaluated by the geometry seam as a central difference of +-``STEP_CODES``
+(exact to float32 rounding for the smooth Eqs. 14-17). The reference's own noise is not
+included (it is common to every measurement against that reference).
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from metrology.core.codecs.decode import AxisDecoding
+from metrology.core.codecs.model import Codec
+from metrology.core.geometry.base import PreparedGeometry, ReferenceSurface, triangulate_frame
+
+POOL_PX = 7
+"""Side of the window over which the per-pixel noise estimate is pooled, px."""
+STEP_CODES = 0.01
+"""Half-step of the central difference of dz/dl, code units."""
+
+
+def coordinate_sigma(
+    period: float, steps: int, noise: npt.ArrayLike, modulation: npt.ArrayLike
+) -> npt.NDArray[np.float32]:
+    """``P / (2 pi) * sqrt(2 / N) * sigma_I / B``: an N-step phase's coordinate sigma, projector units.
+
+    ``noise`` and ``modulation`` are maps (or scalars) in grey levels; NaN where ``B <= 0``.
+    """
+    if not (math.isfinite(period) and period > 0):
+        raise ValueError(f"period must be > 0, got {period!r}")
+    if steps < 3:
+        raise ValueError(f"steps must be >= 3, got {steps!r}")
+    b = np.asarray(modulation, dtype=np.float32)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sigma = np.float32(period / (2 * math.pi) * math.sqrt(2.0 / steps)) * np.asarray(noise, np.float32) / b
+    return np.where(b > 0, sigma, np.float32(np.nan)).astype(np.float32)
+
+
+def pooled_noise(noise: npt.ArrayLike, window: int = POOL_PX) -> npt.NDArray[np.float32]:
+    """``sqrt(mean of noise^2)`` over the ``window x window`` neighbourhood's finite values, (H, W) float32.
+
+    NaN where the window holds no finite value.
+    """
+    n = np.asarray(noise, dtype=np.float32)
+    finite = np.isfinite(n)
+    squares = np.where(finite, n * n, np.float32(0)).astype(np.float32)
+    total = cv2.boxFilter(squares, cv2.CV_32F, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    count = cv2.boxFilter(
+        finite.astype(np.float32), cv2.CV_32F, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT
+    )
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pooled = np.sqrt(total / count)
+    pooled[count < 0.5] = np.nan
+    return pooled.astype(np.float32)
+
+
+def axis_coordinate_sigma(codec: Codec, axis: str, decoding: AxisDecoding) -> npt.NDArray[np.float32]:
+    """Coordinate sigma (projector units) of ``axis`` from its decoding, for the final stage of its
+    unwrapping chain: an N-step phase (N >= 4), or a beat of two (variances add over the beat's
+    period); the noise estimate pooled (:func:`pooled_noise`).
+
+    Raises
+    ------
+    ValueError
+        When the chain ends on a gray code or on a sequence of 3 steps (no noise estimate).
+    """
+    stage = codec.axes[axis].chain()[-1]
+    phase = codec.axes[axis].phase
+    steps = [len(phase[i].frames) for i in stage.indices]
+    if stage.kind == "gray" or min(steps, default=0) < 4:
+        raise ValueError(
+            f"a per-point uncertainty needs the {axis} axis to end on a phase sequence of N >= 4 steps "
+            "(its fit residual is the noise estimate)"
+        )
+    noise = pooled_noise(decoding.noise)
+    if stage.kind == "phase":
+        return coordinate_sigma(stage.period, steps[0], noise, decoding.modulation)
+    # beat: theta_b = theta_s - theta_l, sigma_b^2 = (P_b / 2 pi)^2 sum_i (2 / N_i) sigma^2 / B^2
+    factor = math.sqrt(sum(2.0 / n for n in steps) / 2.0)
+    return coordinate_sigma(stage.period, 2, noise, decoding.modulation) * np.float32(factor)
+
+
+def height_sigma(
+    prepared: PreparedGeometry,
+    codes: np.ndarray,
+    sigma_codes: npt.ArrayLike,
+    reference: ReferenceSurface,
+    threads: int | None = None,
+) -> npt.NDArray[np.float32]:
+    """``|dz/dl| sigma_l``: the height uncertainty of each pixel, (H, W) float32 mm.
+
+    Parameters
+    ----------
+    prepared : PreparedGeometry
+        The crossed-axes rig prepared without a projector size (``u`` read as light codes).
+    codes : (H, W) float32 array
+        The object's light codes, NaN where not measured.
+    sigma_codes : (H, W) float array
+        Their standard deviation, code units.
+    reference : ReferenceSurface
+    """
+    step = np.float32(STEP_CODES)
+    up = triangulate_frame(prepared, codes + step, None, reference=reference, points=False, threads=threads)
+    down = triangulate_frame(prepared, codes - step, None, reference=reference, points=False, threads=threads)
+    assert up.height_mm is not None and down.height_mm is not None
+    slope = (up.height_mm - down.height_mm) / (2 * step)
+    sigma = np.abs(slope) * np.asarray(sigma_codes, dtype=np.float32)
+    sigma[~np.isfinite(codes)] = np.nan
+    return sigma.astype(np.float32)

@@ -1,0 +1,110 @@
+"""Pinhole rigs through the REST API: rig import, uploads of any codec, measurement jobs (depth without
+a reference, heights with one, points and sigma stored), downloads, and what stays crossed-axes only."""
+
+from __future__ import annotations
+
+import io
+import json
+
+import numpy as np
+import pytest
+
+from metrology.core.codecs import codec_from_dict, render_codec
+from metrology.core.scenes import make_scene
+from metrology.core.simulate_pinhole import PlacedScene, cast_truth
+from metrology.measurements.models import Measurement
+from metrology.rigs.models import Rig
+from tests.app.stacks import png, zip_bytes
+from tests.test_measure_pinhole import CODEC, RIG
+
+pytestmark = pytest.mark.django_db(transaction=True)
+
+
+def capture_zip(scene: str, codec: dict = CODEC, **params: float) -> tuple[bytes, np.ndarray]:
+    """Noise-free 16-bit frames of ``codec`` of a scene placed 600 mm in front of the camera, and the truth points."""
+    truth = cast_truth(RIG, PlacedScene(make_scene(scene, **params), 600.0))
+    images = render_codec(codec_from_dict(codec), truth.u, None)
+    members = {f"frame_{i:02d}.png": png(image) for i, image in enumerate(images)}
+    members["codec.json"] = json.dumps(codec).encode()
+    return zip_bytes(members), truth.points_mm
+
+
+def upload(api, rig_id: int, data: bytes, role: str):
+    handle = io.BytesIO(data)
+    handle.name = f"{role}.zip"
+    return api.post(f"/api/rigs/{rig_id}/captures/", {"file": handle, "role": role}, format="multipart")
+
+
+def fetch(api, url: str) -> np.ndarray:
+    return np.load(io.BytesIO(b"".join(api.get(url).streaming_content)))
+
+
+@pytest.fixture
+def pinhole_rig(api) -> dict:
+    response = api.post("/api/rigs/", {**RIG.to_dict(), "name": "pinhole bench"}, format="json")
+    assert response.status_code == 201, response.content
+    return response.json()
+
+
+def test_pinhole_rig_is_imported_and_checked(api, pinhole_rig):
+    assert pinhole_rig["model"] == "pinhole" and pinhole_rig["width_px"] == 160 and pinhole_rig["height_px"] == 120
+    assert pinhole_rig["pinhole"] == RIG.to_dict() and pinhole_rig["L_mm"] is None
+    assert Rig.objects.get(pk=pinhole_rig["id"]).to_core() == RIG
+    bad = RIG.to_dict()
+    bad["R"] = [[1, 0, 0], [0, 1, 0], [0, 0, 2]]
+    refused = api.post("/api/rigs/", bad, format="json")
+    assert refused.status_code == 400 and "R" in refused.json()["error"]
+    unknown = api.post("/api/rigs/", {**RIG.to_dict(), "colour": 1}, format="json")
+    assert unknown.status_code == 400 and "colour" in unknown.json()["error"]
+    assert Rig.objects.count() == 1
+
+
+def test_pinhole_measurements_depth_heights_points_sigma(api, pinhole_rig):
+    rig_id = pinhole_rig["id"]
+    sphere, truth = capture_zip("sphere")
+    plate, _ = capture_zip("plane", z_mm=0.0)
+    obj = upload(api, rig_id, sphere, "object")
+    assert obj.status_code == 201, obj.content
+    ref = upload(api, rig_id, plate, "reference")
+    assert ref.status_code == 201, ref.content
+    # depth: no reference
+    response = api.post("/api/measurements/", {"rig": rig_id, "object": obj.json()["id"]}, format="json")
+    assert response.status_code == 202, response.content
+    body = api.get(f"/api/measurements/{response.json()['id']}/").json()
+    assert body["status"] == "done", body
+    assert body["statistics"]["z"] == "depth (camera Z)" and body["rig_values"]["model"] == "pinhole"
+    assert {"height.npy", "points.npy", "mesh.ply", "height.tiff"} <= set(body["files"])
+    points = fetch(api, body["files"]["points.npy"])
+    z = fetch(api, body["files"]["height.npy"])
+    ok = np.isfinite(z)
+    assert ok.mean() > 0.5 and np.array_equal(z[ok], points[..., 2][ok])
+    # noise-free 16-bit: within 1 um of the truth (but rare decoder slips)
+    assert np.mean(np.linalg.norm(points[ok] - truth[ok], axis=-1) < 1e-3) > 0.999
+    mesh = b"".join(api.get(body["files"]["mesh.ply"]).streaming_content)
+    assert mesh.startswith(b"ply") and b"element vertex" in mesh
+    # heights above the reference plate, with sigma
+    request = {"rig": rig_id, "reference": ref.json()["id"], "object": obj.json()["id"], "options": {"sigma": True}}
+    response = api.post("/api/measurements/", request, format="json")
+    body = api.get(f"/api/measurements/{response.json()['id']}/").json()
+    assert body["status"] == "done", body
+    assert body["statistics"]["z"] == "height above the reference plane"
+    h = fetch(api, body["files"]["height.npy"])
+    assert np.mean(np.abs(h[ok] - (600.0 - truth[..., 2][ok])) < 1e-3) > 0.999
+    sigma = fetch(api, body["files"]["sigma.npy"])
+    assert np.array_equal(np.isfinite(sigma), np.isfinite(h)) and body["statistics"]["sigma_mm_median"] >= 0
+    bad = api.post("/api/measurements/", {**request, "options": {"triangulate": "w"}}, format="json")
+    assert bad.status_code == 400 and "triangulate must be one of" in bad.json()["error"]
+
+
+def test_pinhole_uploads_must_match_the_rigs_projector_and_crossed_only_jobs_are_refused(api, pinhole_rig):
+    rig_id = pinhole_rig["id"]
+    other = {**CODEC, "projector": {"width": 1024, "height": 768}}
+    data, _ = capture_zip("sphere", codec=other)
+    refused = upload(api, rig_id, data, "object")
+    assert refused.status_code == 400
+    assert "its projector is 1024x768 but the rig's projector is 640x400" in refused.json()["error"]
+    simulate = api.post(
+        f"/api/rigs/{rig_id}/captures/simulate/", {"role": "reference", "scene": {"name": "reference"}}, format="json"
+    )
+    assert simulate.status_code == 400 and "pinhole rig" in simulate.json()["error"]
+    assert Measurement.objects.count() == 0

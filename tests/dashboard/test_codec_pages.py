@@ -1,0 +1,91 @@
+"""Codec pages: a rig's default codec on the rig page, a capture's decoding on the capture page."""
+
+from __future__ import annotations
+
+import json
+import re
+
+from django.core.files.uploadedfile import SimpleUploadedFile
+
+from metrology.captures.services import upload_capture
+from metrology.rigs.models import Rig
+from tests.app.test_codecs_app import CODEC, codec_images, codec_zip
+
+
+def figure_data(html: str, name: str) -> dict:
+    match = re.search(rf'<script type="application/json" id="fig-{name}-data">(.*?)</script>', html, re.S)
+    assert match, f"figure {name} not on the page"
+    return json.loads(match.group(1))
+
+
+def test_rig_page_shows_and_sets_the_default_codec(client_alice, rig):
+    page = client_alice.get(f"/rigs/{rig.pk}/")
+    assert page.status_code == 200
+    html = page.content.decode()
+    assert "Default codec" in html and "gcps-v1" in html
+    done = client_alice.post(f"/rigs/{rig.pk}/", {"codec": json.dumps(CODEC)})
+    assert done.status_code == 302
+    assert Rig.objects.get(pk=rig.pk).codec["axes"]["u"]["phase"][0]["period"] == 32.0
+    shown = client_alice.get(f"/rigs/{rig.pk}/").content.decode()
+    assert "gcps-codec/1: 24 frames, axes u, projector 1024x768" in shown
+    refused = client_alice.post(f"/rigs/{rig.pk}/", {"codec": json.dumps({**CODEC, "framez": 1})})
+    assert refused.status_code == 400 and "framez" in refused.content.decode()
+    bad_json = client_alice.post(f"/rigs/{rig.pk}/", {"codec": "{not json"})
+    assert bad_json.status_code == 400 and "not valid JSON" in bad_json.content.decode()
+    assert Rig.objects.get(pk=rig.pk).codec["codec"] == "gcps-codec/1"  # unchanged by the refusals
+
+
+def test_capture_page_shows_the_decoded_maps_modulation_and_reasons(client_alice, rig, alice):
+    images = codec_images(0.0)
+    images[:, :, :20] = 0  # a dark band: refused as too dark
+    capture = upload_capture(
+        owner=alice,
+        rig=rig,
+        upload=SimpleUploadedFile("ref.zip", codec_zip(images), "application/zip"),
+        role="reference",
+    )
+    page = client_alice.get(f"/captures/{capture.pk}/")
+    assert page.status_code == 200
+    html = page.content.decode()
+    assert "gcps-codec/1: 24 frames" in html and "too dark: 2400" in html
+    u = figure_data(html, "coordinate_u")
+    assert u["data"][0]["type"] == "heatmap"
+    modulation = figure_data(html, "modulation_u")
+    assert modulation["data"][0]["type"] == "heatmap"
+    reasons = figure_data(html, "reason_u")
+    ticks = reasons["data"][0]["colorbar"]["ticktext"]
+    assert any(t.startswith("too dark (2400 px)") for t in ticks) and any(t.startswith("valid") for t in ticks)
+    assert "coordinate_v" not in html  # the codec codes u only
+    # the capture list links to the page
+    assert f'href="/captures/{capture.pk}/"' in client_alice.get(f"/rigs/{rig.pk}/captures/").content.decode()
+
+
+def test_capture_page_of_a_gcps_v1_capture(client_alice, rig, captures):
+    reference, _ = captures
+    html = client_alice.get(f"/captures/{reference.pk}/").content.decode()
+    assert "gcps-v1" in html
+    assert figure_data(html, "coordinate_u")["data"][0]["type"] == "heatmap"
+    decoded = re.search(r'<td>u</td><td class="num">(\d+)</td>', html)
+    assert decoded and int(decoded.group(1)) > 0.9 * reference.width_px * reference.height_px
+
+
+def test_capture_page_of_another_user_is_not_found(client_bob, rig, captures):
+    reference, _ = captures
+    assert client_bob.get(f"/captures/{reference.pk}/").status_code == 404
+
+
+def test_measurement_page_shows_the_sigma_map(client_alice, rig, captures, run_jobs):
+    from metrology.measurements.services import request_measurement
+
+    reference, obj = captures
+    with run_jobs():
+        measurement = request_measurement(
+            owner=reference.owner, rig=rig, reference_id=reference.pk, object_id=obj.pk, options={"sigma": True}
+        )
+    html = client_alice.get(f"/measurements/{measurement.pk}/").content.decode()
+    assert "Per-point uncertainty" in html
+    assert figure_data(html, "sigma_map")["data"][0]["type"] == "heatmap"
+    assert "sigma.npy" in html  # the download
+    # the form offers it
+    form = client_alice.get(f"/measurements/new/?rig={rig.pk}").content.decode()
+    assert 'name="sigma"' in form
