@@ -14,12 +14,15 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from django.conf import settings
 from django.http import HttpRequest, HttpResponse, JsonResponse
 from rest_framework import exceptions, serializers, status
 from rest_framework.parsers import JSONParser
+
+if TYPE_CHECKING:
+    from django_stubs_ext import StrOrPromise
 
 #: Deepest nesting of arrays and objects a request body may have.
 MAX_JSON_DEPTH = 32
@@ -115,7 +118,7 @@ def _refuse_constant(name: str) -> float:
 class RealNumberField(serializers.FloatField):
     """A finite real number; ``true``/``false`` are refused (they are not numbers)."""
 
-    default_error_messages: ClassVar[dict[str, str]] = {"boolean": "A number is required, not true or false."}
+    default_error_messages: ClassVar[dict[str, StrOrPromise]] = {"boolean": "A number is required, not true or false."}
 
     def to_internal_value(self, data: Any) -> float:
         if isinstance(data, bool):

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import dj_database_url
 from django.core.exceptions import ImproperlyConfigured
@@ -191,6 +193,8 @@ with contextlib.suppress(OSError):  # WhiteNoise warns on every request while th
 
 # ----------------------------------------------------------------------------- database
 _database_url = env_url("DATABASE_URL", ("postgres", "postgresql", "pgsql", "sqlite"))
+# read-only here: dj_database_url's typed configuration or the sqlite one below (whose NAME is a Path)
+DATABASES: dict[str, Mapping[str, Any]]
 if _database_url:
     try:
         # connections are kept 60 s and checked before reuse (one killed while idle is reopened);

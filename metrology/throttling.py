@@ -32,14 +32,12 @@ LOGIN_PATHS = ("/login/", "/admin/login/")
 logger = logging.getLogger(__name__)
 
 
-class SettingsRateMixin:
+class SettingsRateMixin(throttling.SimpleRateThrottle):
     """Reads the rate of ``scope`` from ``settings.GCPS_THROTTLE_RATES`` on every request.
 
     A cache that cannot be reached lets the request through (logged): rate limiting must not
-    take the API down with it.
+    take the API down with it. Listed first among the bases of a DRF throttle class.
     """
-
-    scope: str
 
     def get_rate(self) -> str | None:
         rates = getattr(settings, "GCPS_THROTTLE_RATES", {})
@@ -47,7 +45,7 @@ class SettingsRateMixin:
 
     def allow_request(self, request, view) -> bool:
         try:
-            return super().allow_request(request, view)  # type: ignore[misc]
+            return super().allow_request(request, view)
         except Exception as exc:  # the cache (Redis) is down
             logger.warning("rate limit %s not applied: cache unavailable (%s)", self.scope, exc)
             return True
@@ -76,6 +74,11 @@ class FailureCounter(SettingsRateMixin, throttling.SimpleRateThrottle):
     ``history`` in the cache is the list of failure times (newest first) within the rate's window.
     """
 
+    # set by SimpleRateThrottle.__init__ from parse_rate(rate): both None when no rate is set
+    # (the DRF stubs do not declare them)
+    num_requests: int | None
+    duration: int | None
+
     def __init__(self, scope: str) -> None:
         self.scope = scope
         super().__init__()
@@ -83,18 +86,18 @@ class FailureCounter(SettingsRateMixin, throttling.SimpleRateThrottle):
     def get_cache_key(self, request, view=None) -> str:
         return self.cache_format % {"scope": self.scope, "ident": self.get_ident(request)}
 
-    def _history(self, request) -> tuple[str, list[float], float]:
+    def _history(self, request, duration: int) -> tuple[str, list[float], float]:
         key = self.get_cache_key(request)
         now = time.time()
-        history = [moment for moment in cache.get(key, []) if moment > now - self.duration]
+        history = [moment for moment in cache.get(key, []) if moment > now - duration]
         return key, history, now
 
     def wait_seconds(self, request) -> float | None:
         """Seconds until the next attempt is allowed, or None when not blocked (or no rate is set)."""
-        if self.rate is None:
+        if self.num_requests is None or self.duration is None:
             return None
         try:
-            _key, history, now = self._history(request)
+            _key, history, now = self._history(request, self.duration)
         except Exception as exc:
             logger.warning("rate limit %s not applied: cache unavailable (%s)", self.scope, exc)
             return None
@@ -104,10 +107,10 @@ class FailureCounter(SettingsRateMixin, throttling.SimpleRateThrottle):
 
     def record(self, request) -> None:
         """Count one failure now."""
-        if self.rate is None:
+        if self.num_requests is None or self.duration is None:
             return
         try:
-            key, history, now = self._history(request)
+            key, history, now = self._history(request, self.duration)
             cache.set(key, [now, *history][: self.num_requests + 1], self.duration)
         except Exception as exc:
             logger.warning("rate limit %s not applied: cache unavailable (%s)", self.scope, exc)

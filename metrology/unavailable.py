@@ -16,7 +16,9 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
+from weakref import WeakKeyDictionary
 
 from django.conf import settings
 from django.db import InterfaceError, OperationalError, connections
@@ -95,6 +97,18 @@ def _keep_body(request: HttpRequest) -> None:
             _ = request.body
 
 
+@dataclass
+class _Attempts:
+    """A request's attempts so far: the database error the last one met (None: none), and whether it is the retry."""
+
+    database_error: BaseException | None = None
+    retry: bool = False
+
+
+#: The attempts of each request in progress (an entry goes with its request).
+_attempts: WeakKeyDictionary[HttpRequest, _Attempts] = WeakKeyDictionary()
+
+
 class TransientErrorMiddleware:
     """Retry once on a lost database connection; 503 (not 500) when the database or broker stays away."""
 
@@ -103,10 +117,11 @@ class TransientErrorMiddleware:
 
     def __call__(self, request: HttpRequest) -> HttpResponse:
         _keep_body(request)
+        attempts = _attempts.setdefault(request, _Attempts())
         recorder = _WriteRecorder()
         with connections["default"].execute_wrapper(recorder):
             response = self.get_response(request)
-        error = getattr(request, "_gcps_database_error", None)
+        error = attempts.database_error
         if error is None:
             return response
         _close_broken_connections()
@@ -116,10 +131,10 @@ class TransientErrorMiddleware:
             )
             return response
         logger.warning("database error in %s %s (%s); retrying once", request.method, request.path, error)
-        request._gcps_database_error = None  # type: ignore[attr-defined]
-        request._gcps_retry = True  # type: ignore[attr-defined]
+        attempts.database_error = None
+        attempts.retry = True
         response = self.get_response(request)
-        if getattr(request, "_gcps_database_error", None) is not None:
+        if attempts.database_error is not None:
             _close_broken_connections()
         return response
 
@@ -128,8 +143,9 @@ class TransientErrorMiddleware:
             logger.warning("%s %s: %s", request.method, request.path, exception)
             return unavailable_response(request, str(exception), exception.retry_after_s)
         if isinstance(exception, DATABASE_ERRORS):
-            request._gcps_database_error = exception  # type: ignore[attr-defined]
-            if getattr(request, "_gcps_retry", False):
+            attempts = _attempts.setdefault(request, _Attempts())
+            attempts.database_error = exception
+            if attempts.retry:
                 logger.error("database error in %s %s after a retry", request.method, request.path, exc_info=exception)
             return unavailable_response(request, "The database is unreachable; try again in a few seconds.", 5)
         return None

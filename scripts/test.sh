@@ -7,5 +7,6 @@ scripts/setup.sh --dev
 scripts/services.sh
 export PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1
 .venv/bin/ruff check metrology workers tests benchmarks
+.venv/bin/ruff format --check metrology workers tests benchmarks
 .venv/bin/mypy
 exec .venv/bin/python -m pytest "$@"

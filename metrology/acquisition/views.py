@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import cv2
 from django.contrib.auth.decorators import login_required
-from django.http import Http404, HttpRequest, HttpResponse
+from django.http import Http404, HttpResponse
 from django.middleware.csrf import get_token
 from django.shortcuts import redirect, render
 from django.urls import reverse
 from rest_framework.exceptions import APIException
 
+from metrology.accounts.http import AuthenticatedHttpRequest
 from metrology.acquisition import services
 from metrology.acquisition.forms import AcquireForm
 from metrology.acquisition.models import Acquisition, Agent
@@ -19,7 +20,7 @@ THUMBNAIL_WIDTH = 160
 
 
 @login_required
-def projector_page(request: HttpRequest, rig_id: int) -> HttpResponse:
+def projector_page(request: AuthenticatedHttpRequest, rig_id: int) -> HttpResponse:
     """Full-screen, pixel-exact pattern display for the rig's projector (JS: static/acquisition/projector.js).
 
     ``?webcam=1`` is the zero-install webcam mode (static/acquisition/webcam.js): the page is also
@@ -64,7 +65,7 @@ def projector_page(request: HttpRequest, rig_id: int) -> HttpResponse:
 
 
 @login_required
-def projector_frame(request: HttpRequest, rig_id: int, acquisition_id: int, frame: int) -> HttpResponse:
+def projector_frame(request: AuthenticatedHttpRequest, rig_id: int, acquisition_id: int, frame: int) -> HttpResponse:
     """Frame ``frame`` of the acquisition's codec as a grey PNG at the projector's resolution."""
     rig = get_rig(request.user, rig_id)
     acquisition = Acquisition.objects.filter(pk=acquisition_id, rig=rig, owner=request.user).first()
@@ -81,7 +82,7 @@ def projector_frame(request: HttpRequest, rig_id: int, acquisition_id: int, fram
     return response
 
 
-def _own_acquisition(request: HttpRequest, acquisition_id: int) -> Acquisition:
+def _own_acquisition(request: AuthenticatedHttpRequest, acquisition_id: int) -> Acquisition:
     acquisition = (
         Acquisition.objects.select_related("job", "rig", "agent", "capture")
         .filter(pk=acquisition_id, owner=request.user)
@@ -93,7 +94,7 @@ def _own_acquisition(request: HttpRequest, acquisition_id: int) -> Acquisition:
 
 
 @login_required
-def acquire_page(request: HttpRequest, rig_id: int) -> HttpResponse:
+def acquire_page(request: AuthenticatedHttpRequest, rig_id: int) -> HttpResponse:
     """Acquire from the rig: the agent's status, the request form, the rig's acquisitions."""
     rig = get_rig(request.user, rig_id)
     form = AcquireForm(request.POST or None)
@@ -130,7 +131,7 @@ def acquire_page(request: HttpRequest, rig_id: int) -> HttpResponse:
 
 
 @login_required
-def acquisition_page(request: HttpRequest, acquisition_id: int) -> HttpResponse:
+def acquisition_page(request: AuthenticatedHttpRequest, acquisition_id: int) -> HttpResponse:
     """One acquisition: live progress, the agent, each frame's checks and (once stored) its thumbnail."""
     acquisition = _own_acquisition(request, acquisition_id)
     services.expire_agents(acquisition.rig)
@@ -149,7 +150,7 @@ def acquisition_page(request: HttpRequest, acquisition_id: int) -> HttpResponse:
 
 
 @login_required
-def acquisition_thumbnail(request: HttpRequest, acquisition_id: int, frame: int) -> HttpResponse:
+def acquisition_thumbnail(request: AuthenticatedHttpRequest, acquisition_id: int, frame: int) -> HttpResponse:
     """Frame ``frame`` of the stored capture, 160 px wide (area-averaged), PNG."""
     acquisition = _own_acquisition(request, acquisition_id)
     if acquisition.capture is None:

@@ -217,6 +217,7 @@ class CaptureFileApi(APIView):
     def get(self, request: Request, capture_id: int) -> FileResponse:
         capture = selectors.get_capture(request.user, capture_id)
         if not capture.ready:
+            assert capture.job is not None, "a capture not stored yet comes from a job (uploads are stored at once)"
             raise BadInput(f"capture {capture.pk} is not stored yet; its job is {capture.job.status}")
         return FileResponse(
             capture.file.open("rb"),

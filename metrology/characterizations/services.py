@@ -50,6 +50,7 @@ def _series_from_session(owner, rig: Rig, session_id: int) -> list[dict[str, Any
         raise BadInput(f"session: session {session_id} belongs to rig {session.rig_id}, not to rig {rig.pk}")
     positions: dict[float, list[int]] = defaultdict(list)
     for capture in session.captures.filter(role=Capture.Role.STAGE).order_by("z_in_mm", "repeat", "id"):
+        assert capture.z_in_mm is not None, "stage captures carry their position (captures.services._check_stage)"
         positions[capture.z_in_mm].append(capture.pk)
     return [{"z_in_mm": z, "captures": ids} for z, ids in sorted(positions.items())]
 

@@ -11,7 +11,11 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # imported where used, so that gcps starts without them
+    from metrology.acquisition.agent.cameras import Camera
+    from metrology.acquisition.agent.sequencer import SequenceOptions
 
 
 def _bad(message: str) -> Exception:
@@ -45,7 +49,7 @@ def _faults(value: str | None) -> tuple[int, int]:
     return counts["latency"], counts["saturate"]
 
 
-def _camera(args: argparse.Namespace):
+def _camera(args: argparse.Namespace) -> Camera:
     from metrology.acquisition.agent.cameras import FaultyCamera, make_camera
 
     try:
@@ -62,7 +66,7 @@ def _camera(args: argparse.Namespace):
     return camera
 
 
-def _sequence_options(args: argparse.Namespace):
+def _sequence_options(args: argparse.Namespace) -> SequenceOptions:
     from metrology.acquisition.agent.sequencer import SequenceOptions
 
     try:

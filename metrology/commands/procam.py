@@ -113,17 +113,19 @@ def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
         names = [Path(p).name or str(p) for p in args.poses]
         if len(set(names)) != len(names):
             names = [str(p) for p in args.poses]
-        stacks = []
+        stacks: list[ProcamPose] = []
+        first_size: tuple[int, ...] | None = None  # (H, W) of the first pose's images
         for name, source in zip(names, args.poses, strict=True):
             if not Path(source).exists():
                 raise ValueError(f"--poses {source}: no such folder or file")
             stack = read_codec_stack(source, codec)
             if stack.images.ndim != 3:
                 raise ValueError(f"--poses {source}: not a stack of images")
-            if stacks and stack.images.shape[1:] != stacks[0].images.shape[1:]:
+            if first_size is None:
+                first_size = stack.images.shape[1:]
+            elif stack.images.shape[1:] != first_size:
                 raise ValueError(
-                    f"--poses {source}: image size {stack.images.shape[1:]} differs from the first pose's "
-                    f"{stacks[0].images.shape[1:]}"
+                    f"--poses {source}: image size {stack.images.shape[1:]} differs from the first pose's {first_size}"
                 )
             stacks.append(ProcamPose(name=name, images=stack.images, codec=stack.codec))
         outcome = calibrate_procam_stacks(stacks, options)

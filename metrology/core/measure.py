@@ -389,7 +389,8 @@ def unreliable_mask(
     seeds = np.empty(codes.shape, np.uint8)
     limit = np.float32(max_step_codes)
     ratio = np.float32(min_visibility_ratio)
-    use_visibility = visibility is not None and min_visibility_ratio > 0
+    # the visibility map when the visibility test runs, else None
+    tested_visibility = visibility if min_visibility_ratio > 0 else None
     use_creases = blur_variance_px2 > 0 and max_blur_bias_codes > 0
     creases = np.empty(codes.shape, bool) if use_creases else None
     # rows of context: the code steps' reach, or the 5x5 Laplacian's plus the creases' band
@@ -410,8 +411,8 @@ def unreliable_mask(
                 jump = np.greater(step, limit, out=scratch.get("jump", ahead.shape, bool))
                 (s[:, 1:] if axis == 1 else s[1:])[...] |= jump
                 (s[:, :-1] if axis == 1 else s[:-1])[...] |= jump
-        if use_visibility:
-            v = visibility[top:bottom]  # type: ignore[index]
+        if tested_visibility is not None:
+            v = tested_visibility[top:bottom]
             local_max: np.ndarray = cv2.dilate(
                 v, _VISIBILITY_NEIGHBOURHOOD, dst=scratch.get("local_max", c.shape, np.float32)
             )

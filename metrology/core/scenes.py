@@ -78,6 +78,12 @@ def _set(obj: Any, name: str, value: Any) -> None:
     object.__setattr__(obj, name, value)
 
 
+def _resolved(name: str, value: float | None) -> float:
+    """A parameter that may be given as None (a default derived from the others), once ``__post_init__`` set it."""
+    assert value is not None, f"scene parameter {name} is set by __post_init__"
+    return value
+
+
 def _xy(X: npt.ArrayLike, Y: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
     return np.asarray(X, dtype=np.float64), np.asarray(Y, dtype=np.float64)
 
@@ -395,7 +401,7 @@ class SphereScene(Scene):
     @property
     def center_mm(self) -> tuple[float, float, float]:
         """Sphere centre (X, Y, Z), mm."""
-        return (self.center_x_mm, self.center_y_mm, float(self.center_z_mm))  # type: ignore[arg-type]
+        return (self.center_x_mm, self.center_y_mm, _resolved("center_z_mm", self.center_z_mm))
 
     def height_mm(self, X: npt.ArrayLike, Y: npt.ArrayLike) -> FloatArray:
         X, Y = _xy(X, Y)
@@ -403,7 +409,7 @@ class SphereScene(Scene):
 
     @property
     def z_max_mm(self) -> float:
-        return float(self.center_z_mm) + self.radius_mm  # type: ignore[arg-type]
+        return _resolved("center_z_mm", self.center_z_mm) + self.radius_mm
 
     @property
     def footprint_mm(self) -> tuple[float, float, float, float] | None:
@@ -461,7 +467,7 @@ class TwoSpheresScene(Scene):
         """Centres (X, Y, Z) of the two spheres, mm; the first is on the -direction side."""
         h = self.spacing_mm / 2
         ux, uy = math.cos(self.angle_rad), math.sin(self.angle_rad)
-        cz = float(self.center_z_mm)  # type: ignore[arg-type]
+        cz = _resolved("center_z_mm", self.center_z_mm)
         return (
             (self.center_x_mm - h * ux, self.center_y_mm - h * uy, cz),
             (self.center_x_mm + h * ux, self.center_y_mm + h * uy, cz),
@@ -474,7 +480,7 @@ class TwoSpheresScene(Scene):
 
     @property
     def z_max_mm(self) -> float:
-        return float(self.center_z_mm) + self.radius_mm  # type: ignore[arg-type]
+        return _resolved("center_z_mm", self.center_z_mm) + self.radius_mm
 
     @property
     def footprint_mm(self) -> tuple[float, float, float, float] | None:

@@ -99,13 +99,17 @@ def look_at_rig(
     r2 = np.cross(r3, r1)
     R = np.stack([r1, r2, r3])
     T = -R @ c
-    rows = tuple(tuple(float(x) for x in row) for row in R)
     return PinholeRig(
         camera=camera,
         projector=projector,
-        R=rows,  # type: ignore[arg-type]
-        T=(float(T[0]), float(T[1]), float(T[2])),
+        R=(_triple(R[0]), _triple(R[1]), _triple(R[2])),
+        T=_triple(T),
     )
+
+
+def _triple(values: np.ndarray) -> tuple[float, float, float]:
+    """The three entries of a length-3 vector as Python floats."""
+    return (float(values[0]), float(values[1]), float(values[2]))
 
 
 def cast_truth(

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from django import forms
 
 from metrology.captures.models import Capture
@@ -138,12 +140,13 @@ class StageSeriesForm(forms.Form):
 
     MAX_CAPTURES = 400
 
-    def clean(self):
+    def clean(self) -> dict[str, Any]:
         from metrology.core.simulate import stage_positions
 
-        data = super().clean()
+        super().clean()
+        data = self.cleaned_data
         lo, hi, step = data.get("z_from_mm"), data.get("z_to_mm"), data.get("z_step_mm")
-        if None not in (lo, hi, step):
+        if lo is not None and hi is not None and step is not None:
             if hi <= lo:
                 raise forms.ValidationError("'to Z_in' must be above 'from Z_in'.")
             positions = stage_positions(lo, hi, step)
@@ -165,7 +168,15 @@ def capture_choices(captures, empty: str = "choose a capture") -> list[tuple[str
     return [("", empty)] + [(str(c.pk), label(c)) for c in captures]
 
 
+def set_choices(form: forms.Form, name: str, choices: list[tuple[str, str]]) -> None:
+    """Set the choices of the form's choice field ``name`` (declared as a ChoiceField by the form)."""
+    field = form.fields[name]
+    assert isinstance(field, forms.ChoiceField), f"{name} is not a choice field"
+    field.choices = choices
+
+
 class MeasurementForm(forms.Form):
+    fields: dict[str, Any]  # choice fields, set up per instance below (BaseForm types them as Field: no choices)
     reference = forms.TypedChoiceField(coerce=int, label="Reference capture")
     object = forms.TypedChoiceField(coerce=int, label="Object capture")
     sigma = forms.BooleanField(
@@ -199,8 +210,8 @@ class CalibrationForm(forms.Form):
     def __init__(self, *args, captures=(), **kwargs):
         super().__init__(*args, **kwargs)
         captures = list(captures)
-        self.fields["reference"].choices = capture_choices([c for c in captures if c.role == "reference"])
-        self.fields["master"].choices = capture_choices([c for c in captures if c.role in ("master", "object")])
+        set_choices(self, "reference", capture_choices([c for c in captures if c.role == "reference"]))
+        set_choices(self, "master", capture_choices([c for c in captures if c.role in ("master", "object")]))
 
     def initial_values(self) -> dict:
         data = self.cleaned_data
@@ -220,7 +231,10 @@ class CharacterizationForm(forms.Form):
 
     def __init__(self, *args, captures=(), sessions=(), **kwargs):
         super().__init__(*args, **kwargs)
-        self.fields["reference"].choices = capture_choices([c for c in captures if c.role == "reference"])
-        self.fields["session"].choices = [("", "choose a session")] + [
-            (str(s.pk), f"#{s.pk} {s.name or 'session'} ({s.n_stage} stage captures)") for s in sessions
-        ]
+        set_choices(self, "reference", capture_choices([c for c in captures if c.role == "reference"]))
+        set_choices(
+            self,
+            "session",
+            [("", "choose a session")]
+            + [(str(s.pk), f"#{s.pk} {s.name or 'session'} ({s.n_stage} stage captures)") for s in sessions],
+        )

@@ -6,6 +6,7 @@ another user's object is a 404). Errors that the services raise are shown in wor
 
 from __future__ import annotations
 
+from typing import Any
 from urllib.parse import urlencode
 
 from django.contrib.auth.decorators import login_required
@@ -14,6 +15,7 @@ from django.db import transaction
 from django.http import HttpRequest, HttpResponse
 from django.shortcuts import redirect, render
 from django.urls import reverse
+from django.utils.datastructures import MultiValueDict
 from django.utils.http import url_has_allowed_host_and_scheme
 from django.views.decorators.http import require_http_methods, require_POST
 from rest_framework.exceptions import APIException
@@ -235,7 +237,7 @@ def rig_captures(request: HttpRequest, rig_id: int) -> HttpResponse:
     for name, form in bound.items():
         if name != action:
             form.is_bound = False  # only the submitted form shows errors
-            form.data, form.files = {}, {}
+            form.data, form.files = MultiValueDict(), MultiValueDict()  # what Django gives an unbound form
     if action in bound and bound[action].is_valid():
         try:
             target = _start_capture(request, rig, action, bound[action])
@@ -294,6 +296,7 @@ def _start_capture(request: HttpRequest, rig, action: str, form) -> str:
                     repeat=repeat,
                     session_id=session.pk,
                 )
+    assert last is not None, "the form gives at least two positions and one repeat"
     after = f"{reverse('dashboard:characterization-new')}?{urlencode({'rig': rig.pk, 'session': session.pk})}"
     return f"{reverse('dashboard:job', args=[last.job_id])}?{urlencode({'next': after})}"
 
@@ -345,6 +348,7 @@ def measurement_new(request: HttpRequest) -> HttpResponse:
 
 @login_required
 def measurement_detail(request: HttpRequest, measurement_id: int) -> HttpResponse:
+    figures: dict[str, Any]
     measurement = measurement_selectors.get_measurement(request.user, measurement_id)
     figures, row, height = {}, 0, measurement.rig_values.get("height_px", measurement.rig.height_px)
     if measurement.job.status == "done":

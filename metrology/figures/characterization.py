@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
+from collections.abc import Callable
 from typing import Any
 
 import plotly.graph_objects as go
@@ -138,7 +139,12 @@ def error_vs_z_figure(result: dict[str, Any]) -> go.Figure:
 
 
 def _per_x_figure(
-    result: dict[str, Any], key: str, value_of, y_title: str, ideal: float | None, hover: str
+    result: dict[str, Any],
+    key: str,
+    value_of: Callable[[dict[str, Any]], float],
+    y_title: str,
+    ideal: float | None,
+    hover: str,
 ) -> go.Figure:
     points = result.get("test_points") or []
     title = FIGURE_TITLES[key]

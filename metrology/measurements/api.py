@@ -144,8 +144,7 @@ def file_view(filename: str) -> type[APIView]:
                 response = StreamingHttpResponse(result.chunks, content_type=content_type)
                 response["Content-Disposition"] = f'attachment; filename="{attachment}"'
                 return response
-            handle = result.path.open("rb") if result.path is not None else result.stored.open("rb")  # type: ignore[union-attr]
-            return FileResponse(handle, as_attachment=True, filename=attachment, content_type=content_type)
+            return FileResponse(result.open(), as_attachment=True, filename=attachment, content_type=content_type)
 
     MeasurementFileApi.__name__ = f"Measurement{field.title().replace('_', '')}Api"
     return MeasurementFileApi

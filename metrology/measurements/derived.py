@@ -17,10 +17,12 @@ import json
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 from django.conf import settings
 from django.core.files.storage import default_storage
+from django.db.models.fields.files import FieldFile
 
 from metrology.measurements.derived_cache import DerivedFileCache
 from metrology.measurements.models import RESULT_FILES, Measurement
@@ -44,8 +46,16 @@ class ResultFile:
 
     filename: str
     path: Path | None = None
-    stored: object | None = None  # a Django FieldFile
+    stored: FieldFile | None = None
     chunks: Iterator[bytes] | None = None
+
+    def open(self) -> IO[bytes] | FieldFile:
+        """The file opened for reading in binary mode (``path`` first, else ``stored``); not for ``chunks``."""
+        if self.path is not None:
+            return self.path.open("rb")
+        if self.stored is None:
+            raise ValueError(f"{self.filename} is streamed from chunks, it has no file to open")
+        return self.stored.open("rb")
 
 
 def derived_cache() -> DerivedFileCache | None:
@@ -117,10 +127,10 @@ def _tiff(measurement: Measurement, cache: DerivedFileCache | None, name: str) -
         return ResultFile("height.tiff", chunks=iter([data]))
     with cache.store(name, suffix=".tiff") as tmp_path:
         write_height_tiff(z, tmp_path)
-    path = cache.get(name)
-    if path is None:  # evicted at once (a cache smaller than the file): serve a fresh copy
+    cached = cache.get(name)
+    if cached is None:  # evicted at once (a cache smaller than the file): serve a fresh copy
         return _tiff(measurement, None, name)
-    return ResultFile("height.tiff", path=path)
+    return ResultFile("height.tiff", path=cached)
 
 
 def _mesh_chunks(measurement: Measurement, filename: str, cache: DerivedFileCache | None, name: str) -> Iterator[bytes]:

@@ -105,6 +105,8 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
         return
     rig = CoreRig.from_dict(measurement.rig_values)
     options = MeasureOptions.from_dict(measurement.options or {})
+    # a crossed-axes measurement always has one (request_measurement; the capture is PROTECTed)
+    assert measurement.reference is not None, "a crossed-axes measurement without its reference capture"
     with run.phase("reference", 5):
         reference, _kept = kept_reference(measurement.reference, measurement.rig_values, options.decode)
     with run.phase("read", 10):

@@ -187,8 +187,9 @@ def _virtual_series(report: Report, run: job_services.JobRun) -> tuple[int, int]
         "noise_grey": options["noise_grey"],
         "camera_defocus_px": options["camera_defocus_px"],
     }
+    session_id = report.session_id
     with transaction.atomic():
-        if report.session_id is None:
+        if session_id is None:
             session = create_session(
                 owner=report.owner, rig=rig, name=f"virtual stage of report {report.pk}", notes="made by a report"
             )
@@ -210,11 +211,12 @@ def _virtual_series(report: Report, run: job_services.JobRun) -> tuple[int, int]
                     simulate("stage", {"name": "stage"}, (i, repeat), z_in_mm=z_in, repeat=repeat)
             Report.objects.filter(pk=report.pk).update(session=session)
             report.session = session
-    captures = list(Capture.objects.filter(session_id=report.session_id).order_by("id"))
+            session_id = session.pk
+    captures = list(Capture.objects.filter(session_id=session_id).order_by("id"))
     job_ids = [capture.job_id for capture in captures if capture.job_id and not capture.file]
     complete_jobs(job_ids, run=run, progress=(5, 55), label="simulated captures")
     reference = next(capture for capture in captures if capture.role == Capture.Role.REFERENCE)
-    return report.session_id, reference.pk
+    return session_id, reference.pk
 
 
 def run_report(job: Job, run: job_services.JobRun) -> None:
@@ -226,6 +228,8 @@ def run_report(job: Job, run: job_services.JobRun) -> None:
         if report.characterization_id is None:
             if report.source == Report.Source.VIRTUAL_STAGE:
                 session_id, reference_id = _virtual_series(report, run)
+            elif report.session_id is None:  # the uploaded series' session was deleted since (SET_NULL)
+                raise job_services.JobFailedError("cannot characterize the stage series: its session was deleted")
             else:
                 session_id, reference_id = report.session_id, report.parameters["reference"]
             try:
@@ -238,8 +242,10 @@ def run_report(job: Job, run: job_services.JobRun) -> None:
                 raise job_services.JobFailedError(f"cannot characterize the stage series: {exc.detail}") from None
             report.characterization = characterization
     with run.phase("characterization", 56):
-        complete_jobs([report.characterization.job_id], run=run, progress=(56, 90), label="characterization")
-        characterization = Characterization.objects.select_related("job").get(pk=report.characterization_id)
+        requested = report.characterization
+        assert requested is not None, "set by the stage-series phase (or by an earlier attempt of this job)"
+        complete_jobs([requested.job_id], run=run, progress=(56, 90), label="characterization")
+        characterization = Characterization.objects.select_related("job").get(pk=requested.pk)
     with run.phase("render", 92):
         previous = previous_report(report)
         summary = build_summary(report, characterization)

@@ -589,9 +589,9 @@ class PreparedCrossedAxes(PreparedGeometry):
 
     def light_codes(self, u: np.ndarray) -> np.ndarray:
         """``u`` as float32 light codes: unchanged without a projector size, else ``(u + 0.5) nlp / width``."""
-        if self.code_scale is None:
+        if self.projector_size is None:  # (code_scale is None then too)
             return u if u.dtype == np.float32 else u.astype(np.float32)
-        return light_codes_from_projector(self.rig, u.astype(np.float32, copy=False), self.projector_size[0])  # type: ignore[index]
+        return light_codes_from_projector(self.rig, u.astype(np.float32, copy=False), self.projector_size[0])
 
     def reference(self, u: np.ndarray | None, v: np.ndarray | None, threads: int | None = None) -> CrossedAxesReference:
         check_axes(self, u, v)

@@ -119,12 +119,13 @@ def _number(value: Any, name: str) -> float:
 def _matrix(value: Any, name: str) -> Matrix3:
     if not isinstance(value, (list, tuple)) or len(value) != 3:
         raise PinholeRigError(f"{name} must be a 3x3 matrix (three rows of three numbers), got {value!r}")
-    rows = []
+    rows: list[tuple[float, float, float]] = []
     for i, row in enumerate(value):
         if not isinstance(row, (list, tuple)) or len(row) != 3:
             raise PinholeRigError(f"{name} row {i} must hold three numbers, got {row!r}")
-        rows.append(tuple(_number(x, f"{name}[{i}][{j}]") for j, x in enumerate(row)))
-    return (rows[0], rows[1], rows[2])  # type: ignore[return-value]
+        a, b, c = (_number(x, f"{name}[{i}][{j}]") for j, x in enumerate(row))
+        rows.append((a, b, c))
+    return (rows[0], rows[1], rows[2])
 
 
 def _check_keys(data: Any, allowed: tuple[str, ...], required: tuple[str, ...], where: str) -> Mapping[str, Any]:
