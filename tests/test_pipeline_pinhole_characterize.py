@@ -9,9 +9,14 @@ heights (distances to the reference plane) are measured, so the true in-out slop
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
+import cv2
 import numpy as np
 import pytest
 
+from metrology.cli import main
 from metrology.core.codecs import codec_from_dict, render_codec
 from metrology.core.geometry.pinhole import PinholeCamera, PinholeRig
 from metrology.core.scenes import make_scene
@@ -111,3 +116,37 @@ def test_realistic_flatness_consistent_with_noise() -> None:
     overall = result.report["overall"]
     assert overall["max_abs_slope_deviation"] < 2e-3, overall
     assert abs(overall["mean_error_mm"]) < 0.05 and overall["std_error_mm"] < 0.05, overall
+
+
+def _write_capture(folder: Path, images: np.ndarray) -> None:
+    folder.mkdir(parents=True)
+    for i, image in enumerate(images):
+        cv2.imwrite(str(folder / f"frame_{i:02d}.png"), image)
+    (folder / "codec.json").write_text(json.dumps(CODEC))
+
+
+def test_cli_characterize_and_acceptance_with_pinhole_rig(tmp_path: Path) -> None:
+    """`gcps characterize` / `gcps acceptance --rig PINHOLE.json`: the captures' codec.json (or
+    --codec), the same figures as the pipeline; bad input exits 2."""
+    (tmp_path / "rig.json").write_text(RIG.to_json())
+    _write_capture(tmp_path / "ref", _plane(0.0))
+    positions = []
+    for z in STAGE_MM[:3]:
+        _write_capture(tmp_path / f"z{z:03.0f}", _plane(z))
+        positions.append({"z_in_mm": z, "captures": [f"z{z:03.0f}"]})
+    (tmp_path / "series.json").write_text(json.dumps({"positions": positions}))
+    (tmp_path / "codec.json").write_text(json.dumps(CODEC))
+    common = ["--quiet", "characterize", "--rig", str(tmp_path / "rig.json"), "--reference", str(tmp_path / "ref")]
+    args = [*common, "--series", str(tmp_path / "series.json"), "--points", "5", "--out", str(tmp_path / "c.json")]
+    assert main([*args, "--codec", str(tmp_path / "codec.json")]) == 0
+    report = json.loads((tmp_path / "c.json").read_text())
+    assert report["model"] == "pinhole" and report["z_in_mm"] == [0.0, 4.0, 8.0]
+    assert report["overall"]["max_abs_slope_deviation"] < 1e-5 and abs(report["overall"]["mean_error_mm"]) < 1e-3
+    assert report["codec"]["codec"] == "gcps-codec/1" and report["rig"]["model"] == "pinhole"
+    flat = ["--quiet", "acceptance", "--rig", str(tmp_path / "rig.json"), "--object", str(tmp_path / "z008")]
+    assert main([*flat, "--test", "flatness", "--out", str(tmp_path / "f.json")]) == 0
+    result = json.loads((tmp_path / "f.json").read_text())
+    assert result["standard"] == "VDI/VDE 2634 part 2" and result["flatness_mm"] < 2e-3
+    # probing without a reference: exit 2, nothing written
+    assert main([*flat, "--test", "probing", "--diameter", "100", "--out", str(tmp_path / "p.json")]) == 2
+    assert not (tmp_path / "p.json").exists()
