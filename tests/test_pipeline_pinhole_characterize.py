@@ -150,3 +150,17 @@ def test_cli_characterize_and_acceptance_with_pinhole_rig(tmp_path: Path) -> Non
     # probing without a reference: exit 2, nothing written
     assert main([*flat, "--test", "probing", "--diameter", "100", "--out", str(tmp_path / "p.json")]) == 2
     assert not (tmp_path / "p.json").exists()
+
+
+def test_cli_crossed_axes_rig_keeps_needing_a_reference_and_refuses_codec(tmp_path: Path, capsys) -> None:
+    from metrology.core.io import write_rig
+    from tests.test_cli import RIG as CROSSED
+
+    write_rig(CROSSED, tmp_path / "rig.json")
+    base = ["--quiet", "acceptance", "--rig", str(tmp_path / "rig.json"), "--object", str(tmp_path / "obj")]
+    assert main([*base, "--test", "flatness", "--out", str(tmp_path / "f.json")]) == 2
+    assert "--reference is required for a crossed-axes rig" in capsys.readouterr().err
+    with_ref = [*base, "--reference", str(tmp_path / "ref"), "--test", "flatness", "--out", str(tmp_path / "f.json")]
+    assert main([*with_ref, "--codec", "gcps-v1"]) == 2
+    assert "--codec applies to pinhole rigs only" in capsys.readouterr().err
+    assert not (tmp_path / "f.json").exists()

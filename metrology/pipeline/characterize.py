@@ -225,6 +225,13 @@ def characterize_pinhole(
         ``decode`` (the crossed-axes decoder's options) is not used by the codec decoder.
     triangulate : {'auto', 'u', 'v'}
 
+    Returns
+    -------
+    CharacterizeResult
+        The report of :func:`metrology.core.characterize.characterize` plus ``model``
+        (``"pinhole"``), ``triangulate`` (the axis used) and ``reference_plane`` (``centroid_mm``,
+        unit ``normal`` towards the camera, ``points``).
+
     Raises
     ------
     ValueError
@@ -261,6 +268,12 @@ def characterize_pinhole(
             margin_frac=options.margin_frac,
         )
     report["model"] = "pinhole"
+    report["triangulate"] = prepared.axis
+    report["reference_plane"] = {
+        "centroid_mm": plane.centroid.tolist(),
+        "normal": plane.normal.tolist(),
+        "points": plane.n_points,
+    }
     return CharacterizeResult(
         report=report, options=options, software_version=software_version(), timings_s=timer.timings_s
     )
