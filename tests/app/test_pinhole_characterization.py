@@ -9,6 +9,7 @@ import io
 
 import numpy as np
 import pytest
+from django.test import Client
 
 from metrology.characterizations.models import Characterization
 from tests.app.test_pinhole_app import capture_zip, pinhole_rig, upload  # noqa: F401 (fixture)
@@ -57,6 +58,12 @@ def test_pinhole_characterization_through_the_api(api, pinhole_rig):  # noqa: F8
     assert csv.status_code == 200
     lines = b"".join(csv.streaming_content if csv.streaming else [csv.content]).decode().splitlines()
     assert len(lines) == 22 and lines[0].startswith("x_mm,y_mm,row_px,column_px,slope")
+    # the dashboard's characterization page loads with the pinhole results
+    browser = Client()
+    browser.force_login(api.user)
+    page = browser.get(f"/characterizations/{body['id']}/")
+    assert page.status_code == 200
+    assert "In-out characteristic per test point" in page.content.decode()
 
 
 def test_pinhole_characterization_refuses_a_stage_capture_of_another_codec(api, pinhole_rig):  # noqa: F811
