@@ -434,6 +434,14 @@ def cmd_calibrate(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+def _add_pinhole_codec_options(p: argparse.ArgumentParser) -> None:
+    """``--codec`` and ``--triangulate`` of the pinhole-rig paths (docs/pinhole.md)."""
+    p.add_argument("--codec", help="pinhole rigs: codec file (gcps-codec/1) or built-in name; default: codec.json")
+    p.add_argument(
+        "--triangulate", choices=["auto", "u", "v"], default="auto", help="pinhole rigs: projector axis (default auto)"
+    )
+
+
 def cmd_characterize(args: argparse.Namespace) -> dict[str, Any]:
     from metrology.core.io import read_series
     from metrology.pipeline import CharacterizeOptions, characterize
@@ -445,6 +453,14 @@ def cmd_characterize(args: argparse.Namespace) -> dict[str, Any]:
             rows = tuple(int(v) for v in args.rows.split(","))
         except ValueError as exc:
             raise BadInputError(f"--rows {args.rows!r}: expected comma-separated row indices") from exc
+    from metrology.commands.measure_pinhole import is_pinhole_rig
+
+    if is_pinhole_rig(args.rig):
+        from metrology.commands.pinhole_acceptance import cmd_characterize_pinhole
+
+        return cmd_characterize_pinhole(args, rows)
+    if args.codec is not None:
+        raise BadInputError("--codec applies to pinhole rigs only (a crossed-axes characterization reads gcps-v1)")
     options = CharacterizeOptions(decode=_decode_options(args), n_points=args.points, rows=rows, patch_px=args.patch)
     rig = _load_rig(args.rig)
     series = read_series(args.series)
@@ -469,6 +485,16 @@ def cmd_acceptance(args: argparse.Namespace) -> dict[str, Any]:
     if args.test in needs and getattr(args, needs[args.test]) is None:
         raise BadInputError(f"--test {args.test} needs --{needs[args.test]}")
     _check_parent(args.out, "--out")
+    from metrology.commands.measure_pinhole import is_pinhole_rig
+
+    if is_pinhole_rig(args.rig):
+        from metrology.commands.pinhole_acceptance import cmd_acceptance_pinhole
+
+        return cmd_acceptance_pinhole(args)
+    if args.codec is not None:
+        raise BadInputError("--codec applies to pinhole rigs only (a crossed-axes acceptance reads gcps-v1)")
+    if args.reference is None:
+        raise BadInputError("--reference is required for a crossed-axes rig (a pinhole rig's flatness needs none)")
     options = AcceptanceOptions(
         test=args.test,
         diameter_mm=args.diameter,
@@ -609,12 +635,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--patch", type=int, default=5, help="test-point patch size, px (default 5)")
     p.add_argument("--points", type=int, default=21, help="test points along X (default 21)")
     p.add_argument("--rows", help="rows of the test points, comma-separated (default: middle row)")
+    _add_pinhole_codec_options(p)
     _add_decode_options(p)
     p.set_defaults(func=cmd_characterize)
 
     p = sub.add_parser("acceptance", help="VDI/VDE 2634-2 quantities from a capture of a plane, sphere or ball bar")
     p.add_argument("--rig", required=True)
-    p.add_argument("--reference", required=True)
+    p.add_argument("--reference", help="capture of the reference plane (optional for flatness on a pinhole rig)")
     p.add_argument("--object", required=True, help="capture of the plane, the sphere or the two spheres")
     p.add_argument(
         "--test",
@@ -631,6 +658,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="probing/spacing: pixels this high above R belong to the spheres, mm (default 1)",
     )
     p.add_argument("--out", required=True, help="result JSON (with and without the 0.3 %% outlier rejection)")
+    _add_pinhole_codec_options(p)
     _add_decode_options(p)
     p.set_defaults(func=cmd_acceptance)
 

@@ -65,10 +65,11 @@ def request_characterization(
     session_id: int | None = None,
     options: dict[str, Any] | None = None,
 ) -> Characterization:
-    """Create a characterization from a stage series (explicit, or a session's stage captures) and queue it."""
-    from metrology.rigs.services import require_crossed_axes  # codecapp: pinhole rigs
+    """Create a characterization from a stage series (explicit, or a session's stage captures) and queue it.
 
-    require_crossed_axes(rig, "a characterization")
+    A pinhole rig's series may use any codec (the reference's; every stage capture must share it):
+    heights above the reference capture's fitted plane (:func:`metrology.pipeline.characterize_pinhole`).
+    """
     if (series is None) == (session_id is None):
         raise BadInput("give either series (stage positions with capture ids) or session (a capture session)")
     if session_id is not None:
@@ -93,11 +94,12 @@ def request_characterization(
         checked.append({"z_in_mm": float(z_in), "captures": ids})
     if len({position["z_in_mm"] for position in checked}) < 2:
         raise BadInput("a characterization needs stage captures at two or more distinct z_in_mm positions")
-    job = job_services.create_job(
-        owner=owner,
-        kind=Job.Kind.CHARACTERIZATION,
-        parameters={"rig": rig.pk, "reference": reference.pk, "series": checked, "options": options},
-    )
+    parameters: dict[str, Any] = {"rig": rig.pk, "reference": reference.pk, "series": checked, "options": options}
+    rig_values = rig.geometry()
+    if rig.is_pinhole:
+        parameters["codec"] = _pinhole_series_codec(reference, sorted(seen))
+        rig_values = rig.rig_file()
+    job = job_services.create_job(owner=owner, kind=Job.Kind.CHARACTERIZATION, parameters=parameters)
     characterization = Characterization.objects.create(
         owner=owner,
         rig=rig,
@@ -105,7 +107,7 @@ def request_characterization(
         session_id=session_id,
         series=checked,
         parameters={"options": options},
-        rig_values=rig.geometry(),
+        rig_values=rig_values,
         options=used,
         job=job,
     )
@@ -113,6 +115,22 @@ def request_characterization(
     job.save(update_fields=["parameters"])
     job_services.enqueue_job(job)
     return characterization
+
+
+def _pinhole_series_codec(reference: Capture, capture_ids: list[int]) -> Any:
+    """The stored codec value of a pinhole series: the reference's; BadInput naming a stage capture
+    of another codec."""
+    from metrology.captures.codecs import capture_codec_value, codec_of
+
+    value = capture_codec_value(reference)
+    codec = codec_of(value)
+    for capture in Capture.objects.filter(pk__in=capture_ids).select_related("rig").order_by("pk"):
+        if codec_of(capture_codec_value(capture)) != codec:
+            raise BadInput(
+                f"series: capture {capture.pk} has another codec than the reference capture {reference.pk} "
+                "(every capture of a characterization must use one codec)"
+            )
+    return value
 
 
 def _pipeline_options(options: dict[str, Any]) -> Any:
@@ -133,6 +151,9 @@ def run_characterization(job: Job, run: job_services.JobRun) -> None:
     from metrology.pipeline import CharacterizeOptions, characterize
 
     characterization = Characterization.objects.select_related("reference__rig").get(job=job)
+    if characterization.rig_values.get("model") == "pinhole":
+        run_pinhole_characterization(job, run, characterization)
+        return
     rig = CoreRig.from_dict(characterization.rig_values)
     if characterization.options:
         options = CharacterizeOptions.from_dict(characterization.options)
@@ -158,6 +179,41 @@ def run_characterization(job: Job, run: job_services.JobRun) -> None:
 
     with run.phase("characterize", 5):
         outcome = characterize(rig, reference, stacks(), options)
+    _publish(run, characterization, outcome)
+
+
+def run_pinhole_characterization(job: Job, run: job_services.JobRun, characterization: Characterization) -> None:
+    """Job handler of a pinhole rig: the reference and stage stacks in the job's codec order, the
+    pipeline's :func:`~metrology.pipeline.characterize_pinhole` (heights above the reference
+    capture's fitted plane), publish."""
+    from metrology.captures.codecs import load_codec_stack
+    from metrology.core.geometry.pinhole import PinholeRig
+    from metrology.pipeline import CharacterizeOptions, characterize_pinhole
+
+    rig = PinholeRig.from_dict(characterization.rig_values)
+    options = CharacterizeOptions.from_dict(characterization.options)
+    items = [
+        (p["z_in_mm"], r, capture_id) for p in characterization.series for r, capture_id in enumerate(p["captures"])
+    ]
+    with run.phase("reference", 2):
+        reference = load_codec_stack(characterization.reference)
+    captures = Capture.objects.select_related("rig").in_bulk([capture_id for _z, _r, capture_id in items])
+
+    def stacks() -> Any:
+        for done, (z_in, repeat, capture_id) in enumerate(items):
+            run.progress(5 + int(85 * done / len(items)), f"stage {done + 1}/{len(items)}")
+            stack = load_codec_stack(captures[capture_id])
+            if stack.codec != reference.codec:
+                raise ValueError(f"capture {capture_id} has another codec than the reference capture")
+            yield z_in, repeat, stack.images
+
+    with run.phase("characterize", 5):
+        outcome = characterize_pinhole(rig, reference.images, stacks(), reference.codec, options)
+    _publish(run, characterization, outcome)
+
+
+def _publish(run: job_services.JobRun, characterization: Characterization, outcome: Any) -> None:
+    """Store a characterization's results, options and overall figures; commit the job."""
     for name, seconds in outcome.timings_s.items():
         run.timings[f"characterize.{name}"] = round(float(seconds), 4)
     results = json_safe(outcome.report)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -42,8 +43,56 @@ from metrology.core.triangulate import height_from_codes
 SeriesItem = tuple[float, int, np.ndarray]
 
 
+@dataclass(frozen=True)
+class TestPointFrame:
+    """Where the test points of another rig model sit (a pinhole rig: docs/pinhole.md).
+
+    Attributes
+    ----------
+    x_mm, y_mm : (H, W) float64 arrays
+        Coordinates (mm) reported for a test point centred on each pixel: for a pinhole rig, the
+        camera-frame X, Y of the point of the reference plane seen by that pixel.
+    centre_x_mm : float
+        X of the field centre (``edge_sigma_ratio`` ranks test points by ``|x - centre_x_mm|``).
+    """
+
+    __test__ = False  # not a pytest class
+    x_mm: np.ndarray
+    y_mm: np.ndarray
+    centre_x_mm: float
+
+    def __post_init__(self) -> None:
+        if np.shape(self.x_mm) != np.shape(self.y_mm) or np.ndim(self.x_mm) != 2:
+            shapes = f"{np.shape(self.x_mm)}, {np.shape(self.y_mm)}"
+            raise ValueError(f"x_mm and y_mm must be equal (H, W) arrays, got {shapes}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        h, w = np.shape(self.x_mm)
+        return (int(h), int(w))
+
+    @property
+    def height_px(self) -> int:
+        return self.shape[0]
+
+    @property
+    def width_px(self) -> int:
+        return self.shape[1]
+
+
+def _test_point_xy(
+    rig: Rig | TestPointFrame, centers: Sequence[tuple[int, int]]
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(x_mm, y_mm)`` of each centre, ``(n,)`` float64 each, and the field centre's x (mm)."""
+    rr = np.array([r for r, _ in centers], dtype=int)
+    cc = np.array([c for _, c in centers], dtype=int)
+    if isinstance(rig, TestPointFrame):
+        return np.asarray(rig.x_mm, np.float64)[rr, cc], np.asarray(rig.y_mm, np.float64)[rr, cc], rig.centre_x_mm
+    return rig.column_x_mm()[cc].astype(np.float64), rig.row_y_mm()[rr].astype(np.float64), rig.d_mm
+
+
 def place_test_points(
-    rig: Rig,
+    rig: Rig | TestPointFrame,
     n_points: int = 21,
     rows: int | Sequence[int] | None = None,
     margin_frac: float = 0.08,
@@ -136,7 +185,7 @@ def heights_from_code_series(
 
 
 def characterize(
-    rig: Rig,
+    rig: Rig | TestPointFrame,
     series: Iterable[SeriesItem] | Mapping[float, Sequence[np.ndarray]],
     *,
     n_points: int = 21,
@@ -149,8 +198,9 @@ def characterize(
 
     Parameters
     ----------
-    rig : Rig
-        The rig the heights were measured with (for the test points' coordinates).
+    rig : Rig or TestPointFrame
+        The rig the heights were measured with (for the test points' coordinates); a
+        :class:`TestPointFrame` for a pinhole rig.
     series : iterable of (z_in_mm, repeat_index, z_mm), or mapping z_in_mm -> list of z_mm
         Height maps ``(height_px, width_px)`` (float, mm, NaN where invalid) of the
         plane at stage position ``z_in_mm``; consumed once, in any order.
@@ -245,14 +295,14 @@ def characterize(
         dof_within += np.maximum(cnt - 1, 0)
     sigma_tp = np.divide(np.sqrt(ss_within), np.sqrt(dof_within), out=np.full(n_tp, np.nan), where=dof_within > 0)
 
-    x_a, y_a = rig.column_x_mm(), rig.row_y_mm()
+    x_tp, y_tp, centre_x = _test_point_xy(rig, centers)
     points = []
     slopes = []
     for t, (r, c) in enumerate(centers):
         ok = np.isfinite(z_out[:, t])
         entry: dict[str, Any] = {
-            "x_mm": float(x_a[c]),
-            "y_mm": float(y_a[r]),
+            "x_mm": float(x_tp[t]),
+            "y_mm": float(y_tp[t]),
             "row_px": r,
             "column_px": c,
             "n_positions": int(ok.sum()),
@@ -281,7 +331,7 @@ def characterize(
     rms_all = math.sqrt(mean_all**2 + std_all**2)
     slopes_arr = np.array(slopes) if slopes else np.array([math.nan])
 
-    dist = np.abs(x_a[[c for _, c in centers]] - rig.d_mm)
+    dist = np.abs(x_tp - centre_x)
     order = np.argsort(dist)
     fifth = max(1, n_tp // 5)
     inner_mean = _finite_mean(sigma_tp[order[:fifth]])

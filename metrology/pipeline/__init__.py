@@ -10,11 +10,12 @@ load their inputs, call, and store the result:
 - :func:`calibrate` (:mod:`.calibrate`): L and alpha (and d) on a master block.
 - :func:`characterize` (:mod:`.characterize`): linearity and accuracy from a stage series.
 - :func:`acceptance` (:mod:`.acceptance`): VDI/VDE 2634-2 flatness, probing and spacing errors.
+- :func:`characterize_pinhole`, :func:`acceptance_pinhole`: the same with a pinhole rig.
 """
 
-from metrology.pipeline.acceptance import AcceptanceOptions, AcceptanceResult, acceptance
+from metrology.pipeline.acceptance import AcceptanceOptions, AcceptanceResult, acceptance, acceptance_pinhole
 from metrology.pipeline.calibrate import CalibrateOptions, CalibrateResult, calibrate
-from metrology.pipeline.characterize import CharacterizeOptions, CharacterizeResult, characterize
+from metrology.pipeline.characterize import CharacterizeOptions, CharacterizeResult, characterize, characterize_pinhole
 from metrology.pipeline.measure import MeasureOptions, MeasureResult, measure
 from metrology.pipeline.measure_pinhole import PinholeMeasureOptions, PinholeMeasureResult, measure_pinhole_stacks
 
@@ -30,8 +31,10 @@ __all__ = [
     "PinholeMeasureOptions",
     "PinholeMeasureResult",
     "acceptance",
+    "acceptance_pinhole",
     "calibrate",
     "characterize",
+    "characterize_pinhole",
     "measure",
     "measure_pinhole_stacks",
 ]

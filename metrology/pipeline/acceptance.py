@@ -7,10 +7,13 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
 import numpy.typing as npt
 
 from metrology.core import acceptance as core
 from metrology.core import measure as core_measure
+from metrology.core.codecs.model import Codec
+from metrology.core.geometry.pinhole import PinholeRig
 from metrology.core.measure import DecodeOptions
 from metrology.core.rig import Rig
 from metrology.pipeline.common import PhaseTimer, check_keys, check_positive, decode_options
@@ -119,6 +122,69 @@ def acceptance(
                 core.points_from_height_map(rig, z_mm, second),
                 options.spacing_mm,
             )
+    return AcceptanceResult(
+        report=report, options=options, software_version=software_version(), timings_s=timer.timings_s
+    )
+
+
+def acceptance_pinhole(
+    rig: PinholeRig,
+    reference: npt.ArrayLike | None,
+    obj: npt.ArrayLike,
+    codec: Codec,
+    options: AcceptanceOptions,
+    *,
+    triangulate: str = "auto",
+    threads: int | None = None,
+) -> AcceptanceResult:
+    """The VDI/VDE 2634-2 quantity of ``options.test`` from a capture through a pinhole rig
+    (docs/pinhole.md), on the camera-frame points ``(H, W, 3)`` mm of
+    :func:`~metrology.pipeline.measure_pinhole.measure_pinhole_stacks`.
+
+    flatness: the range of the residuals to the total-least-squares plane through every point
+    (no reference capture needed). probing / spacing: the spheres are the pixels higher than
+    ``options.min_height_mm`` above the reference capture's plane (a reference is required),
+    fitted by least squares in the camera frame. ``options.decode`` is not used (the codec
+    decoder has its own).
+
+    Raises
+    ------
+    ValueError
+        On a bad option or stack, a probing/spacing test without reference, or spheres that
+        cannot be segmented.
+    """
+    from metrology.pipeline.measure_pinhole import PinholeMeasureOptions, measure_pinhole_stacks
+
+    if reference is None and options.test != "flatness":
+        raise ValueError(f"the {options.test} test segments the spheres by height: give a reference capture")
+    timer = PhaseTimer()
+    with timer.phase("measure"):
+        measured = measure_pinhole_stacks(
+            rig, reference, obj, codec, PinholeMeasureOptions(triangulate=triangulate), threads=threads
+        )
+    points, z_mm = measured.points_mm, measured.z_mm
+
+    def cloud(mask: np.ndarray | None = None) -> np.ndarray:
+        pts = points.reshape(-1, 3).astype(np.float64)
+        keep = np.isfinite(pts).all(axis=1)
+        if mask is not None:
+            keep &= np.asarray(mask).reshape(-1)
+        return pts[keep]
+
+    with timer.phase("fit"):
+        if options.test == "flatness":
+            report = core.flatness_error(cloud())
+        elif options.test == "probing":
+            assert options.diameter_mm is not None
+            (sphere,) = core.segment_objects(z_mm, 1, options.min_height_mm)
+            report = core.probing_error(cloud(sphere), options.diameter_mm)
+        else:
+            assert options.spacing_mm is not None
+            first, second = core.segment_objects(z_mm, 2, options.min_height_mm)
+            report = core.sphere_spacing_error(cloud(first), cloud(second), options.spacing_mm)
+    report["model"] = "pinhole"
+    report["frame"] = "camera"
+    report["triangulate"] = measured.axis
     return AcceptanceResult(
         report=report, options=options, software_version=software_version(), timings_s=timer.timings_s
     )
