@@ -380,23 +380,27 @@ class UndistortionGrid:
 
     ``(x_p, y_p) = K^-1 (u, v) + (dx, dy)(u, v)``: the corrections ``dx, dy`` (float32
     ``(n_v, n_u)``) at ``u = -1 + step i``, ``v = -1 + step k``, exact (Newton, 1e-9 units).
-    ``error`` is the estimated worst bilinear error (projector units). ``dx4``, ``dy4`` hold the
-    four corners of every cell side by side (``(n_v - 1) (n_u - 1), 4``), so that a look-up is
-    one gather of 16 bytes instead of four scattered ones.
+    ``error`` is the estimated worst bilinear error (projector units). ``cx4``, ``cy4`` hold, per
+    cell (``(n_v - 1) (n_u - 1), 4`` float32), the bilinear coefficients of the undistorted
+    normalized coordinate itself, ``x_p = c0 + c1 a_u + c2 a_v + c3 a_u a_v`` (``a_u, a_v`` the
+    position inside the cell, 0..1): bilinear interpolation reproduces the affine part
+    ``K^-1 (u, v)`` exactly, so one gather of 16 bytes and five multiply-adds give ``x_p``.
     """
 
     step: float
     dx: np.ndarray
     dy: np.ndarray
     error: float
-    dx4: np.ndarray = field(repr=False, default_factory=lambda: np.empty((0, 4), np.float32))
-    dy4: np.ndarray = field(repr=False, default_factory=lambda: np.empty((0, 4), np.float32))
+    intrinsics: tuple[float, float, float, float, float] = (1.0, 0.0, 0.0, 1.0, 0.0)
+    cx4: np.ndarray = field(repr=False, default_factory=lambda: np.empty((0, 4), np.float32))
+    cy4: np.ndarray = field(repr=False, default_factory=lambda: np.empty((0, 4), np.float32))
 
-    def __post_init__(self) -> None:
-        for name in ("dx", "dy"):
-            t = getattr(self, name)
-            corners = np.stack([t[:-1, :-1], t[:-1, 1:], t[1:, :-1], t[1:, 1:]], axis=-1)
-            object.__setattr__(self, name + "4", np.ascontiguousarray(corners.reshape(-1, 4)))
+    @staticmethod
+    def _cells(t: np.ndarray) -> np.ndarray:
+        """Per-cell bilinear coefficients ``(c0, c1, c2, c3)`` of a float64 grid, float32 ``(cells, 4)``."""
+        f00, f01, f10, f11 = t[:-1, :-1], t[:-1, 1:], t[1:, :-1], t[1:, 1:]
+        coef = np.stack([f00, f01 - f00, f10 - f00, f11 - f10 - f01 + f00], axis=-1)
+        return np.ascontiguousarray(coef.reshape(-1, 4).astype(np.float32))
 
     @classmethod
     def build(cls, K: np.ndarray, dist: Distortion, width: float, height: float) -> UndistortionGrid | None:
@@ -419,51 +423,72 @@ class UndistortionGrid:
                 d2v = np.abs(f[2:] - 2 * f[1:-1] + f[:-2]).max()
                 err = max(err, float(d2u + d2v) / 8 * scale)
             if err <= GRID_TOL:
-                return cls(step=step, dx=dx.astype(np.float32), dy=dy.astype(np.float32), error=err)
+                return cls(
+                    step=step,
+                    dx=dx.astype(np.float32),
+                    dy=dy.astype(np.float32),
+                    error=err,
+                    intrinsics=(float(fx), float(s), float(cx), float(fy), float(cy)),
+                    cx4=cls._cells(res.x),
+                    cy4=cls._cells(res.y),
+                )
         return None
+
+    def normalized(
+        self, axis: str, u: np.ndarray, v: np.ndarray, derivative: bool = False
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Bilinear undistorted normalized coordinate ``x_p`` (``axis="u"``) or ``y_p`` (``"v"``) at
+        ``(u, v)`` and, with ``derivative``, its derivative along ``u`` (``x_p``) or ``v`` (``y_p``);
+        float32, same shape. Coordinates beyond the grid (one unit outside the projector) are
+        clamped to its border; NaN coordinates give NaN."""
+        coef = self.cx4 if axis == "u" else self.cy4
+        n_cols = self.dx.shape[1] - 1
+        n_rows = self.dx.shape[0] - 1
+        inv = np.float32(1.0 / self.step)
+        gu = np.add(u, np.float32(1.0), dtype=np.float32)
+        gv = np.add(v, np.float32(1.0), dtype=np.float32)
+        if self.step != 1.0:
+            gu *= inv
+            gv *= inv
+        np.clip(gu, np.float32(0.0), np.float32(n_cols - 1e-3), out=gu)  # NaN stays NaN
+        np.clip(gv, np.float32(0.0), np.float32(n_rows - 1e-3), out=gv)
+        with np.errstate(invalid="ignore"):  # NaN: an arbitrary index, clipped by take(); NaN propagates
+            iu = gu.astype(np.int32)
+            iv = gv.astype(np.int32)
+        gu -= iu  # a_u
+        gv -= iv  # a_v
+        iv *= np.int32(n_cols)
+        iv += iu
+        c = coef.take(iv, axis=0, mode="clip")
+        c0, c1, c2, c3 = c[..., 0], c[..., 1], c[..., 2], c[..., 3]
+        slope = np.multiply(c3, gv if axis == "u" else gu)
+        slope += c1 if axis == "u" else c2  # d/d(a_u) for x_p, d/d(a_v) for y_p
+        if axis == "u":
+            value = np.multiply(c2, gv)
+            deriv = slope * inv if derivative else None
+            slope *= gu
+        else:
+            value = np.multiply(c1, gu)
+            deriv = slope * inv if derivative else None
+            slope *= gv
+        value += slope
+        value += c0
+        return value, deriv
 
     def lookup(
         self, table: np.ndarray, u: np.ndarray, v: np.ndarray, derivative: bool = True
     ) -> tuple[np.ndarray, np.ndarray | None]:
-        """Bilinear value of ``table`` (``dx`` or ``dy``) at ``(u, v)`` and, with ``derivative``,
-        its derivative along ``u`` (``dx``) or ``v`` (``dy``); float32. Coordinates outside the
-        grid (beyond one unit outside the projector) are clamped to its border; NaN
-        coordinates look up the corner (the caller's NaN propagates through ``K^-1 (u, v)``)."""
-        n_v, n_u = table.shape
-        inv = np.float32(1.0 / self.step)
-        gu = np.asarray(u, np.float32) + np.float32(1.0)
-        gu *= inv
-        gv = np.asarray(v, np.float32) + np.float32(1.0)
-        gv *= inv
-        # fmax/fmin map NaN to the bound, so every index is valid
-        np.fmin(np.fmax(gu, np.float32(0.0), out=gu), np.float32(n_u - 1.001), out=gu)
-        np.fmin(np.fmax(gv, np.float32(0.0), out=gv), np.float32(n_v - 1.001), out=gv)
-        iu = gu.astype(np.int32)
-        iv = gv.astype(np.int32)
-        au = gu - iu
-        av = gv - iv
-        idx = iv * np.int32(n_u - 1)
-        idx += iu
-        corners = (self.dx4 if table is self.dx else self.dy4).take(idx, axis=0)
-        f00, f01, f10, f11 = corners[..., 0], corners[..., 1], corners[..., 2], corners[..., 3]
-        top = f01 - f00
-        slope_u = f11 - f10
-        slope_u -= top
-        slope_u *= av
-        slope_u += top  # d/d(gu)
-        value = f10 - f00
-        value *= av
-        value += f00
-        deriv = None
-        if derivative:
-            if table is self.dx:
-                deriv = slope_u * inv
-            else:
-                left = f10 - f00
-                right = f11 - f01
-                deriv = (left + au * (right - left)) * inv
-        slope_u *= au
-        value += slope_u
+        """The correction ``dx`` (``table`` is ``self.dx``) or ``dy`` at ``(u, v)``: :meth:`normalized`
+        minus the affine ``K^-1 (u, v)``; with ``derivative`` its derivative along ``u`` (``dx``) or
+        ``v`` (``dy``); float32 (the affine part from the grid's ``intrinsics``)."""
+        axis = "u" if table is self.dx else "v"
+        value, deriv = self.normalized(axis, u, v, derivative)
+        fx, skew, cx, fy, cy = self.intrinsics
+        y_lin = (np.asarray(v, np.float64) - cy) / fy
+        lin = y_lin if axis == "v" else (np.asarray(u, np.float64) - cx - skew * y_lin) / fx
+        value = (value - lin).astype(np.float32)
+        if deriv is not None:
+            deriv = (deriv - np.float32(1.0 / (fx if axis == "u" else fy))).astype(np.float32)
         return value, deriv
 
 
@@ -749,43 +774,28 @@ class PreparedPinhole(PreparedGeometry):
         sigma_out: np.ndarray | None,
     ) -> np.ndarray:
         """Both axes through a distorted projector: ``(u, v)`` undistorted by the grid (bilinear,
-        error below :data:`GRID_TOL`), then the plane of the coded axis; float32 ``(n, W)``."""
+        error below :data:`GRID_TOL`), then the plane of the coded axis
+        ``t = (q T_z - T_i) / (Rd_i - q Rd_z)``; float32 ``(n, W)``."""
         grid = self._grid
         assert grid is not None
         tab = self.tables()
-        Kp, T = self._Kp, self._T
-        fx, s, cx, fy, cy = (np.float32(x) for x in (Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]))
+        T = self._T
         want_sigma = sigma_in is not None and sigma_out is not None
         u, v = (coded, other) if self.axis == "u" else (other, coded)
-        u = np.asarray(u, np.float32)
-        v = np.asarray(v, np.float32)
-        y_lin = (v - cy) / fy
-        if self.axis == "u":
-            q = u - cx
-            if s != 0:
-                q -= s * y_lin
-            q /= fx
-            corr, dcorr = grid.lookup(grid.dx, u, v, want_sigma)
-            scale = np.float32(1.0) / fx
-        else:
-            q = y_lin
-            corr, dcorr = grid.lookup(grid.dy, u, v, want_sigma)
-            scale = np.float32(1.0) / fy
-        q += corr
+        q, dq = grid.normalized(self.axis, u, v, want_sigma)
         Ti = T[0] if self.axis == "u" else T[1]
         rdi, rdz = tab["rdi32"][rows], tab["rdz32"][rows]
         num = q * np.float32(T[2])
         num -= np.float32(Ti)
-        den = q * rdz
+        den = np.multiply(q, rdz, out=q)
         np.subtract(rdi, den, out=den)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = num / den
-            if sigma_in is not None and sigma_out is not None and dcorr is not None:
-                dq = dcorr + scale
+            if sigma_in is not None and sigma_out is not None and dq is not None:
                 dtdq = (np.float32(T[2]) * den + num * rdz) / (den * den)
                 np.multiply(np.abs(dtdq * dq), tab["norm_d"][rows], out=sigma_out)
                 sigma_out *= sigma_in
-            t[~(t > 0)] = np.nan
+            t = np.divide(num, den, out=num)
+            np.copyto(t, np.float32(np.nan), where=~(t > 0))
         return t
 
     def _coded_from_polynomial(self, rows: slice, coded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
