@@ -350,7 +350,7 @@ def _table_threads() -> int | None:
     return 1 if threading.current_thread().name.startswith("gcps-tile") else None
 
 
-@functools.lru_cache(maxsize=2)  # tables of a 2048x1536 rig with distortion: ~400 MB
+@functools.lru_cache(maxsize=2)  # tables of a 2048x1536 rig with distortion: ~285 MB
 def _prepare_cached(rig: PinholeRig, axis: str, method: str) -> PreparedPinhole:
     return PreparedPinhole(rig, axis, method)
 
@@ -518,9 +518,11 @@ class PinholeReference(ReferenceSurface):
 class PreparedPinhole(PreparedGeometry):
     """A :class:`PinholeRig` prepared for its camera frame (tables computed once, kept).
 
-    Per pixel (float64 for the Newton path, float32 for the closed form):
-    ``x_n, y_n`` (ray ``d = (x_n, y_n, 1)``), ``|d|``, the Mobius tables ``A, B`` of the plane
-    path without projector distortion, and the epipolar line ``c0, c1`` with projector distortion.
+    Per pixel: ``x_n, y_n`` (ray ``d = (x_n, y_n, 1)``, float64 and float32), ``|d|``; without
+    projector distortion the Mobius tables ``A, B`` of the closed form; with it the polynomials
+    ``poly`` along each pixel's epipolar line (one axis), ``(Rd)_i, (Rd)_z`` (float32) and the
+    undistortion grid (both axes). ``R d`` and the epipolar lines ``c0, c1`` of the Newton paths
+    are recomputed per tile from ``x_n, y_n`` (:meth:`_rows_terms`).
     """
 
     def __init__(self, rig: PinholeRig, axis: str, method: str) -> None:
