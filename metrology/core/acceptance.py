@@ -15,6 +15,13 @@ the valid pixels of :func:`metrology.core.triangulate.points_from_heights` (see
 - **Sphere-spacing error SD**: distance between the fitted centres of two spheres
   minus the known spacing.
 
+Per-point uncertainty (issue 12): every fit and figure takes an optional ``sigma`` (``(N,)``
+standard uncertainty of each point, mm, e.g. the valid pixels of ``gcps measure --sigma``). The
+fits then weight each point by ``w = 1 / sigma^2`` (weighted total least squares for the plane:
+the weighted centroid and the smallest right singular vector of ``sqrt(w) (p - c)``; for the
+sphere the weighted algebraic fit and the geometric residuals scaled by ``sqrt(w)``), and
+``max_sigma`` drops the points whose sigma exceeds it (or is not finite) before fitting.
+
 The standard lets up to 0.3 % of the points be discarded as outliers; every
 quantity is reported with and without that rejection (``reject_frac``): the
 ``floor(reject_frac * N)`` points with the largest absolute residuals are removed
@@ -91,13 +98,43 @@ def points_from_height_map(rig: Rig, z_mm: npt.ArrayLike, mask: npt.ArrayLike | 
 
 
 def _check_points(points: npt.ArrayLike, name: str = "points", minimum: int = 4) -> np.ndarray:
+    p, _ = _checked(points, None, None, name, minimum)
+    return p
+
+
+def _checked(
+    points: npt.ArrayLike,
+    sigma: npt.ArrayLike | None,
+    max_sigma: float | None,
+    name: str = "points",
+    minimum: int = 4,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The finite points (and, with ``sigma``, those with a finite sigma <= ``max_sigma``) and their
+    weights ``1 / sigma^2`` (None without ``sigma``)."""
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError(f"{name} must be an (N, 3) array of X, Y, Z in mm, got shape {p.shape}")
-    p = p[np.isfinite(p).all(axis=1)]
+    keep = np.isfinite(p).all(axis=1)
+    weights = None
+    if max_sigma is not None:
+        if sigma is None:
+            raise ValueError("max_sigma needs a per-point sigma")
+        if not (isinstance(max_sigma, (int, float, np.floating, np.integer)) and max_sigma > 0):
+            raise ValueError(f"max_sigma must be a positive number of mm, got {max_sigma!r}")
+    if sigma is not None:
+        s = np.asarray(sigma, dtype=np.float64)
+        if s.shape != (len(p),):
+            raise ValueError(f"sigma must have one value per point, shape ({len(p)},), got {s.shape}")
+        if (s[np.isfinite(s)] <= 0).any():
+            raise ValueError("sigma must be positive where finite (a standard uncertainty in mm)")
+        keep &= np.isfinite(s)
+        if max_sigma is not None:
+            keep &= s <= max_sigma
+        weights = 1.0 / s[keep] ** 2
+    p = p[keep]
     if len(p) < minimum:
         raise ValueError(f"{name} needs at least {minimum} finite points, got {len(p)}")
-    return p
+    return p, weights
 
 
 def _check_frac(reject_frac: float) -> None:
@@ -105,43 +142,65 @@ def _check_frac(reject_frac: float) -> None:
         raise ValueError(f"reject_frac must lie in [0, 0.5), got {reject_frac!r}")
 
 
-def fit_plane(points: npt.ArrayLike) -> PlaneFit:
-    """Total-least-squares plane through ``(N, 3)`` points (N >= 3), signed distances in mm."""
-    p = _check_points(points, minimum=3)
-    centroid = p.mean(axis=0)
-    _, _, vt = np.linalg.svd(p - centroid, full_matrices=False)
+def fit_plane(points: npt.ArrayLike, sigma: npt.ArrayLike | None = None, max_sigma: float | None = None) -> PlaneFit:
+    """Total-least-squares plane through ``(N, 3)`` points (N >= 3), signed distances in mm.
+
+    With ``sigma`` (``(N,)`` mm) the fit is weighted by ``1 / sigma^2`` (weighted centroid, SVD of
+    the weighted centred points); ``max_sigma`` (mm) drops the points above it. ``distances``
+    are those of the points kept (finite, and within ``max_sigma``), in their order.
+    """
+    p, w = _checked(points, sigma, max_sigma, minimum=3)
+    return _plane(p, w)
+
+
+def _plane(p: np.ndarray, w: np.ndarray | None) -> PlaneFit:
+    if w is None:
+        centroid = p.mean(axis=0)
+        centred = p - centroid
+    else:
+        centroid = (w[:, None] * p).sum(axis=0) / w.sum()
+        centred = (p - centroid) * np.sqrt(w / w.mean())[:, None]
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
     normal = vt[-1]
     if normal[2] < 0:
         normal = -normal
     return PlaneFit(centroid=centroid, normal=normal, distances=(p - centroid) @ normal)
 
 
-def fit_sphere(points: npt.ArrayLike) -> SphereFit:
+def fit_sphere(points: npt.ArrayLike, sigma: npt.ArrayLike | None = None, max_sigma: float | None = None) -> SphereFit:
     """Least-squares sphere through ``(N, 3)`` points (N >= 4): algebraic start, geometric refinement.
+
+    With ``sigma`` (``(N,)`` mm) both steps are weighted by ``1 / sigma^2``; ``max_sigma`` (mm)
+    drops the points above it. ``residuals`` are those of the points kept, in their order.
 
     Raises
     ------
     ValueError
         If the points are degenerate (e.g. coplanar).
     """
-    p = _check_points(points, minimum=4)
-    shift = p.mean(axis=0)
+    p, w = _checked(points, sigma, max_sigma, minimum=4)
+    return _sphere(p, w)
+
+
+def _sphere(p: np.ndarray, w: np.ndarray | None) -> SphereFit:
+    root_w = np.ones(len(p)) if w is None else np.sqrt(w / w.mean())
+    shift = p.mean(axis=0) if w is None else (w[:, None] * p).sum(axis=0) / w.sum()
     q = p - shift  # conditioning
     a = np.column_stack([2 * q, np.ones(len(q))])
     b = (q**2).sum(axis=1)
-    sol, _, rank, _ = np.linalg.lstsq(a, b, rcond=None)
+    sol, _, rank, _ = np.linalg.lstsq(a * root_w[:, None], b * root_w, rcond=None)
     if rank < 4:
         raise ValueError("points are degenerate (coplanar or collinear): no sphere fits them")
     c0 = sol[:3]
     r0 = math.sqrt(max(sol[3] + c0 @ c0, 0.0))
 
     def radial(x: np.ndarray) -> np.ndarray:
-        return np.linalg.norm(q - x[:3], axis=1) - x[3]
+        return root_w * (np.linalg.norm(q - x[:3], axis=1) - x[3])
 
     def jac(x: np.ndarray) -> np.ndarray:
         diff = q - x[:3]
         dist = np.linalg.norm(diff, axis=1)
-        return np.column_stack([-diff / dist[:, None], -np.ones(len(q))])
+        return root_w[:, None] * np.column_stack([-diff / dist[:, None], -np.ones(len(q))])
 
     res = optimize.least_squares(radial, np.r_[c0, r0], jac=jac, method="lm", xtol=1e-12, ftol=1e-12)
     center = res.x[:3] + shift
@@ -155,15 +214,34 @@ def fit_sphere(points: npt.ArrayLike) -> SphereFit:
     )
 
 
-def _reject(points: np.ndarray, residuals: np.ndarray, reject_frac: float) -> tuple[np.ndarray, int]:
+def _reject(
+    points: np.ndarray, residuals: np.ndarray, reject_frac: float, weights: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray | None, int]:
     n_out = math.floor(reject_frac * len(points))
     if n_out == 0:
-        return points, 0
+        return points, weights, 0
     keep = np.argsort(np.abs(residuals))[: len(points) - n_out]
-    return points[keep], n_out
+    return points[keep], None if weights is None else weights[keep], n_out
 
 
-def flatness_error(points: npt.ArrayLike, reject_frac: float = VDI_REJECT_FRAC) -> dict[str, Any]:
+def _sigma_report(sigma: npt.ArrayLike | None, max_sigma: float | None, n_input: int, n_kept: int) -> dict[str, Any]:
+    if sigma is None:
+        return {}
+    return {"weighted": True, "max_sigma_mm": max_sigma, "n_dropped_sigma": n_input - n_kept}
+
+
+def _finite_count(points: npt.ArrayLike) -> int:
+    p = np.asarray(points, dtype=np.float64)
+    return int(np.isfinite(p).all(axis=1).sum()) if p.ndim == 2 and p.shape[1] == 3 else 0
+
+
+def flatness_error(
+    points: npt.ArrayLike,
+    reject_frac: float = VDI_REJECT_FRAC,
+    *,
+    sigma: npt.ArrayLike | None = None,
+    max_sigma: float | None = None,
+) -> dict[str, Any]:
     """Flatness measurement error F of a plane (VDI/VDE 2634-2).
 
     Parameters
@@ -173,19 +251,24 @@ def flatness_error(points: npt.ArrayLike, reject_frac: float = VDI_REJECT_FRAC) 
     reject_frac : float
         Share of points with the largest absolute distances discarded for the
         second figure (standard: 0.003).
+    sigma : (N,) float array, optional
+        Standard uncertainty of each point, mm: the plane is fitted with weights ``1 / sigma^2``.
+    max_sigma : float, optional
+        Drop the points whose sigma exceeds this (mm) before fitting (needs ``sigma``).
 
     Returns
     -------
     dict
         ``flatness_mm`` (range of signed distances, all points), ``flatness_rejected_mm``
         (after rejection), ``rms_mm``, ``n_points``, ``n_rejected``, ``normal``,
-        ``centroid_mm``.
+        ``centroid_mm``; with ``sigma`` also ``weighted`` (True), ``max_sigma_mm`` and
+        ``n_dropped_sigma`` (finite points dropped by ``max_sigma`` or a non-finite sigma).
     """
     _check_frac(reject_frac)
-    p = _check_points(points, minimum=3)
-    fit = fit_plane(p)
-    kept, n_out = _reject(p, fit.distances, reject_frac)
-    fit2 = fit_plane(kept) if n_out else fit
+    p, w = _checked(points, sigma, max_sigma, minimum=3)
+    fit = _plane(p, w)
+    kept, kept_w, n_out = _reject(p, fit.distances, reject_frac, w)
+    fit2 = _plane(kept, kept_w) if n_out else fit
     return {
         "flatness_mm": float(np.ptp(fit.distances)),
         "flatness_rejected_mm": float(np.ptp(fit2.distances)),
@@ -194,11 +277,19 @@ def flatness_error(points: npt.ArrayLike, reject_frac: float = VDI_REJECT_FRAC) 
         "n_rejected": n_out,
         "normal": fit.normal.tolist(),
         "centroid_mm": fit.centroid.tolist(),
-        "fit": "total least-squares plane (SVD)",
+        "fit": "total least-squares plane (SVD)" + (", weighted 1/sigma^2" if w is not None else ""),
+        **_sigma_report(sigma, max_sigma, _finite_count(points), len(p)),
     }
 
 
-def probing_error(points: npt.ArrayLike, diameter_mm: float, reject_frac: float = VDI_REJECT_FRAC) -> dict[str, Any]:
+def probing_error(
+    points: npt.ArrayLike,
+    diameter_mm: float,
+    reject_frac: float = VDI_REJECT_FRAC,
+    *,
+    sigma: npt.ArrayLike | None = None,
+    max_sigma: float | None = None,
+) -> dict[str, Any]:
     """Probing errors form P_F and size P_S on a sphere of known diameter (VDI/VDE 2634-2).
 
     Parameters
@@ -209,6 +300,10 @@ def probing_error(points: npt.ArrayLike, diameter_mm: float, reject_frac: float 
         Calibrated diameter of the sphere, mm, > 0.
     reject_frac : float
         Share of points discarded for the ``*_rejected`` figures.
+    sigma : (N,) float array, optional
+        Standard uncertainty of each point, mm: the sphere is fitted with weights ``1 / sigma^2``.
+    max_sigma : float, optional
+        Drop the points whose sigma exceeds this (mm) before fitting (needs ``sigma``).
 
     Returns
     -------
@@ -216,15 +311,16 @@ def probing_error(points: npt.ArrayLike, diameter_mm: float, reject_frac: float 
         ``form_error_mm`` (range of radial residuals), ``size_error_mm`` (fitted minus
         known diameter), ``diameter_mm``, ``center_mm``, ``rms_mm``, the same three
         after rejection (``form_error_rejected_mm``, ``size_error_rejected_mm``,
-        ``diameter_rejected_mm``), ``n_points``, ``n_rejected``.
+        ``diameter_rejected_mm``), ``n_points``, ``n_rejected``; with ``sigma`` also
+        ``weighted``, ``max_sigma_mm`` and ``n_dropped_sigma``.
     """
     if not (diameter_mm > 0):
         raise ValueError(f"diameter_mm must be positive, got {diameter_mm!r}")
     _check_frac(reject_frac)
-    p = _check_points(points)
-    fit = fit_sphere(p)
-    kept, n_out = _reject(p, fit.residuals, reject_frac)
-    fit2 = fit_sphere(kept) if n_out else fit
+    p, w = _checked(points, sigma, max_sigma)
+    fit = _sphere(p, w)
+    kept, kept_w, n_out = _reject(p, fit.residuals, reject_frac, w)
+    fit2 = _sphere(kept, kept_w) if n_out else fit
     return {
         "form_error_mm": float(np.ptp(fit.residuals)),
         "size_error_mm": 2 * fit.radius - diameter_mm,
@@ -236,7 +332,9 @@ def probing_error(points: npt.ArrayLike, diameter_mm: float, reject_frac: float 
         "diameter_rejected_mm": 2 * fit2.radius,
         "n_points": len(p),
         "n_rejected": n_out,
-        "fit": "algebraic linear least-squares sphere, refined geometrically (Levenberg-Marquardt)",
+        "fit": "algebraic linear least-squares sphere, refined geometrically (Levenberg-Marquardt)"
+        + (", weighted 1/sigma^2" if w is not None else ""),
+        **_sigma_report(sigma, max_sigma, _finite_count(points), len(p)),
     }
 
 
@@ -267,8 +365,8 @@ def sphere_spacing_error(
     a = _check_points(points_a, "points_a")
     b = _check_points(points_b, "points_b")
     fa, fb = fit_sphere(a), fit_sphere(b)
-    ka, _ = _reject(a, fa.residuals, reject_frac)
-    kb, _ = _reject(b, fb.residuals, reject_frac)
+    ka, _, _ = _reject(a, fa.residuals, reject_frac)
+    kb, _, _ = _reject(b, fb.residuals, reject_frac)
     fa2, fb2 = fit_sphere(ka), fit_sphere(kb)
     spacing = float(np.linalg.norm(fa.center - fb.center))
     spacing2 = float(np.linalg.norm(fa2.center - fb2.center))

@@ -331,3 +331,45 @@ def test_example_pinhole_rig_loads() -> None:
     rig = model_from_dict(json.loads(path.read_text()))
     assert isinstance(rig, PinholeRig)
     assert rig.shape == (1536, 2048) and rig.auto_axis() == "u"
+
+
+def _long_focus_rig(axis: str) -> PinholeRig:
+    """A 1024x768 camera of focal length 2457.6 px and a 1280x800 projector, both distorted (the
+    centre of the benchmark's rig)."""
+    camera = PinholeCamera(
+        1024, 768, ((2457.6, 0.0, 511.5), (0.0, 2457.6, 383.5), (0.0, 0.0, 1.0)), (-0.1, 0.03, 0.001, -0.0005, 0.0)
+    )
+    projector = PinholeProjector(
+        1280, 800, ((1500.0, 0.0, 640.0), (0.0, 1500.0, 400.0), (0.0, 0.0, 1.0)), (0.06, -0.03, 0.0008, -0.0004, 0.0)
+    )
+    baseline = (-200.0, 10.0, 15.0) if axis == "u" else (10.0, -200.0, 15.0)
+    return look_at_rig(camera, projector, baseline, (0.0, 0.0, 700.0))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("axis", ["u", "v"])
+def test_coarse_grid_polynomials_match_the_per_pixel_ones(axis: str) -> None:
+    """The polynomials solved on a coarse pixel grid and interpolated agree with those solved at
+    every pixel within the interpolation tolerance plus the coefficients' float32 rounding,
+    and the points through them are within 1 um of the truth."""
+    from metrology.core.geometry.pinhole import POLY_DEGREE, POLY_INTERP_TOL, POLY_PIXEL_STEPS
+
+    rig = _long_focus_rig(axis)
+    prep = rig.prepare(axis=axis)
+    coarse = next((c for c in map(prep._coarse_polynomials, POLY_PIXEL_STEPS) if c is not None), None)
+    assert coarse is not None  # this rig's polynomials are smooth enough across pixels
+    full = prep._full_polynomials()
+    scale = rig.projector.K[0][0] if axis == "u" else rig.projector.K[1][1]
+    worst = 0.0
+    for w in np.linspace(-1.0, 1.0, 9):
+        q = [sum(t["poly"][k].astype(np.float64) * w**k for k in range(POLY_DEGREE + 1)) for t in (coarse, full)]
+        worst = max(worst, float(np.nanmax(np.abs(q[0] - q[1]))) * scale)
+    # each set's float32 monomial coefficients alone round q by up to ~2.5e-5 units at |omega| ~ 1
+    assert worst < POLY_INTERP_TOL + 5e-5, f"{worst:.2e} projector units"
+    truth = cast_truth(rig, PlacedScene(make_scene("sphere"), 700.0))
+    coded = truth.u if axis == "u" else truth.v
+    kwargs = {"u": coded.astype(np.float32), "v": None} if axis == "u" else {"u": None, "v": coded.astype(np.float32)}
+    res = triangulate_frame(prep, kwargs["u"], kwargs["v"], heights=False)
+    assert res.points_mm is not None
+    err = np.linalg.norm(res.points_mm - truth.points_mm, axis=-1)[truth.valid]
+    assert truth.valid.sum() > 10000 and err.max() < TOL_MM

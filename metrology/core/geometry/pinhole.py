@@ -88,6 +88,12 @@ POLY_DEGREE = 9
 """Degree of the per-pixel polynomial ``x_p(u)`` along the epipolar line (projector distortion, one axis)."""
 POLY_NODES = 14
 """Chebyshev nodes at which each pixel's ``x_p(u)`` is solved exactly (Newton) to build the polynomial."""
+POLY_PIXEL_STEPS: tuple[tuple[int, int], ...] = ((4, 8), (2, 8), (2, 4))
+"""Spacings (camera rows, camera columns) of the coarse grids the polynomials are solved on,
+coarsest first (:meth:`PreparedPinhole._build_polynomials`)."""
+POLY_INTERP_TOL = 2e-5
+"""Largest estimated bilinear-interpolation error of a coarse grid's polynomials accepted,
+projector units (as :data:`GRID_TOL`)."""
 POLY_TOL = 5e-6
 """A pixel's polynomial is used when its Chebyshev tail (the truncated terms) is below this, in
 projector units; other pixels are solved by Newton on the epipolar line at every frame."""
@@ -389,7 +395,7 @@ def _table_threads() -> int | None:
     return 1 if threading.current_thread().name.startswith("gcps-tile") else None
 
 
-@functools.lru_cache(maxsize=2)  # tables of a 2048x1536 rig with distortion: ~400 MB
+@functools.lru_cache(maxsize=2)  # tables of a 2048x1536 rig with distortion: ~285 MB
 def _prepare_cached(rig: PinholeRig, axis: str, method: str) -> PreparedPinhole:
     return PreparedPinhole(rig, axis, method)
 
@@ -425,23 +431,27 @@ class UndistortionGrid:
 
     ``(x_p, y_p) = K^-1 (u, v) + (dx, dy)(u, v)``: the corrections ``dx, dy`` (float32
     ``(n_v, n_u)``) at ``u = -1 + step i``, ``v = -1 + step k``, exact (Newton, 1e-9 units).
-    ``error`` is the estimated worst bilinear error (projector units). ``dx4``, ``dy4`` hold the
-    four corners of every cell side by side (``(n_v - 1) (n_u - 1), 4``), so that a look-up is
-    one gather of 16 bytes instead of four scattered ones.
+    ``error`` is the estimated worst bilinear error (projector units). ``cx4``, ``cy4`` hold, per
+    cell (``(n_v - 1) (n_u - 1), 4`` float32), the bilinear coefficients of the undistorted
+    normalized coordinate itself, ``x_p = c0 + c1 a_u + c2 a_v + c3 a_u a_v`` (``a_u, a_v`` the
+    position inside the cell, 0..1): bilinear interpolation reproduces the affine part
+    ``K^-1 (u, v)`` exactly, so one gather of 16 bytes and five multiply-adds give ``x_p``.
     """
 
     step: float
     dx: np.ndarray
     dy: np.ndarray
     error: float
-    dx4: np.ndarray = field(repr=False, default_factory=lambda: np.empty((0, 4), np.float32))
-    dy4: np.ndarray = field(repr=False, default_factory=lambda: np.empty((0, 4), np.float32))
+    intrinsics: tuple[float, float, float, float, float] = (1.0, 0.0, 0.0, 1.0, 0.0)
+    cx4: np.ndarray = field(repr=False, default_factory=lambda: np.empty((0, 4), np.float32))
+    cy4: np.ndarray = field(repr=False, default_factory=lambda: np.empty((0, 4), np.float32))
 
-    def __post_init__(self) -> None:
-        for name in ("dx", "dy"):
-            t = getattr(self, name)
-            corners = np.stack([t[:-1, :-1], t[:-1, 1:], t[1:, :-1], t[1:, 1:]], axis=-1)
-            object.__setattr__(self, name + "4", np.ascontiguousarray(corners.reshape(-1, 4)))
+    @staticmethod
+    def _cells(t: np.ndarray) -> np.ndarray:
+        """Per-cell bilinear coefficients ``(c0, c1, c2, c3)`` of a float64 grid, float32 ``(cells, 4)``."""
+        f00, f01, f10, f11 = t[:-1, :-1], t[:-1, 1:], t[1:, :-1], t[1:, 1:]
+        coef = np.stack([f00, f01 - f00, f10 - f00, f11 - f10 - f01 + f00], axis=-1)
+        return np.ascontiguousarray(coef.reshape(-1, 4).astype(np.float32))
 
     @classmethod
     def build(cls, K: np.ndarray, dist: Distortion, width: float, height: float) -> UndistortionGrid | None:
@@ -464,51 +474,72 @@ class UndistortionGrid:
                 d2v = np.abs(f[2:] - 2 * f[1:-1] + f[:-2]).max()
                 err = max(err, float(d2u + d2v) / 8 * scale)
             if err <= GRID_TOL:
-                return cls(step=step, dx=dx.astype(np.float32), dy=dy.astype(np.float32), error=err)
+                return cls(
+                    step=step,
+                    dx=dx.astype(np.float32),
+                    dy=dy.astype(np.float32),
+                    error=err,
+                    intrinsics=(float(fx), float(s), float(cx), float(fy), float(cy)),
+                    cx4=cls._cells(res.x),
+                    cy4=cls._cells(res.y),
+                )
         return None
+
+    def normalized(
+        self, axis: str, u: np.ndarray, v: np.ndarray, derivative: bool = False
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Bilinear undistorted normalized coordinate ``x_p`` (``axis="u"``) or ``y_p`` (``"v"``) at
+        ``(u, v)`` and, with ``derivative``, its derivative along ``u`` (``x_p``) or ``v`` (``y_p``);
+        float32, same shape. Coordinates beyond the grid (one unit outside the projector) are
+        clamped to its border; NaN coordinates give NaN."""
+        coef = self.cx4 if axis == "u" else self.cy4
+        n_cols = self.dx.shape[1] - 1
+        n_rows = self.dx.shape[0] - 1
+        inv = np.float32(1.0 / self.step)
+        gu = np.add(u, np.float32(1.0), dtype=np.float32)
+        gv = np.add(v, np.float32(1.0), dtype=np.float32)
+        if self.step != 1.0:
+            gu *= inv
+            gv *= inv
+        np.clip(gu, np.float32(0.0), np.float32(n_cols - 1e-3), out=gu)  # NaN stays NaN
+        np.clip(gv, np.float32(0.0), np.float32(n_rows - 1e-3), out=gv)
+        with np.errstate(invalid="ignore"):  # NaN: an arbitrary index, clipped by take(); NaN propagates
+            iu = gu.astype(np.int32)
+            iv = gv.astype(np.int32)
+        gu -= iu  # a_u
+        gv -= iv  # a_v
+        iv *= np.int32(n_cols)
+        iv += iu
+        c = coef.take(iv, axis=0, mode="clip")
+        c0, c1, c2, c3 = c[..., 0], c[..., 1], c[..., 2], c[..., 3]
+        slope = np.multiply(c3, gv if axis == "u" else gu)
+        slope += c1 if axis == "u" else c2  # d/d(a_u) for x_p, d/d(a_v) for y_p
+        if axis == "u":
+            value = np.multiply(c2, gv)
+            deriv = slope * inv if derivative else None
+            slope *= gu
+        else:
+            value = np.multiply(c1, gu)
+            deriv = slope * inv if derivative else None
+            slope *= gv
+        value += slope
+        value += c0
+        return value, deriv
 
     def lookup(
         self, table: np.ndarray, u: np.ndarray, v: np.ndarray, derivative: bool = True
     ) -> tuple[np.ndarray, np.ndarray | None]:
-        """Bilinear value of ``table`` (``dx`` or ``dy``) at ``(u, v)`` and, with ``derivative``,
-        its derivative along ``u`` (``dx``) or ``v`` (``dy``); float32. Coordinates outside the
-        grid (beyond one unit outside the projector) are clamped to its border; NaN
-        coordinates look up the corner (the caller's NaN propagates through ``K^-1 (u, v)``)."""
-        n_v, n_u = table.shape
-        inv = np.float32(1.0 / self.step)
-        gu = np.asarray(u, np.float32) + np.float32(1.0)
-        gu *= inv
-        gv = np.asarray(v, np.float32) + np.float32(1.0)
-        gv *= inv
-        # fmax/fmin map NaN to the bound, so every index is valid
-        np.fmin(np.fmax(gu, np.float32(0.0), out=gu), np.float32(n_u - 1.001), out=gu)
-        np.fmin(np.fmax(gv, np.float32(0.0), out=gv), np.float32(n_v - 1.001), out=gv)
-        iu = gu.astype(np.int32)
-        iv = gv.astype(np.int32)
-        au = gu - iu
-        av = gv - iv
-        idx = iv * np.int32(n_u - 1)
-        idx += iu
-        corners = (self.dx4 if table is self.dx else self.dy4).take(idx, axis=0)
-        f00, f01, f10, f11 = corners[..., 0], corners[..., 1], corners[..., 2], corners[..., 3]
-        top = f01 - f00
-        slope_u = f11 - f10
-        slope_u -= top
-        slope_u *= av
-        slope_u += top  # d/d(gu)
-        value = f10 - f00
-        value *= av
-        value += f00
-        deriv = None
-        if derivative:
-            if table is self.dx:
-                deriv = slope_u * inv
-            else:
-                left = f10 - f00
-                right = f11 - f01
-                deriv = (left + au * (right - left)) * inv
-        slope_u *= au
-        value += slope_u
+        """The correction ``dx`` (``table`` is ``self.dx``) or ``dy`` at ``(u, v)``: :meth:`normalized`
+        minus the affine ``K^-1 (u, v)``; with ``derivative`` its derivative along ``u`` (``dx``) or
+        ``v`` (``dy``); float32 (the affine part from the grid's ``intrinsics``)."""
+        axis = "u" if table is self.dx else "v"
+        value, deriv = self.normalized(axis, u, v, derivative)
+        fx, skew, cx, fy, cy = self.intrinsics
+        y_lin = (np.asarray(v, np.float64) - cy) / fy
+        lin = y_lin if axis == "v" else (np.asarray(u, np.float64) - cx - skew * y_lin) / fx
+        value = (value - lin).astype(np.float32)
+        if deriv is not None:
+            deriv = (deriv - np.float32(1.0 / (fx if axis == "u" else fy))).astype(np.float32)
         return value, deriv
 
 
@@ -532,9 +563,11 @@ class PinholeReference(ReferenceSurface):
 class PreparedPinhole(PreparedGeometry):
     """A :class:`PinholeRig` prepared for its camera frame (tables computed once, kept).
 
-    Per pixel (float64 for the Newton path, float32 for the closed form):
-    ``x_n, y_n`` (ray ``d = (x_n, y_n, 1)``), ``|d|``, the Mobius tables ``A, B`` of the plane
-    path without projector distortion, and the epipolar line ``c0, c1`` with projector distortion.
+    Per pixel: ``x_n, y_n`` (ray ``d = (x_n, y_n, 1)``, float64 and float32), ``|d|``; without
+    projector distortion the Mobius tables ``A, B`` of the closed form; with it the polynomials
+    ``poly`` along each pixel's epipolar line (one axis), ``(Rd)_i, (Rd)_z`` (float32) and the
+    undistortion grid (both axes). ``R d`` and the epipolar lines ``c0, c1`` of the Newton paths
+    are recomputed per tile from ``x_n, y_n`` (:meth:`_rows_terms`).
     """
 
     def __init__(self, rig: PinholeRig, axis: str, method: str) -> None:
@@ -573,29 +606,14 @@ class PreparedPinhole(PreparedGeometry):
                 self._tables = self._build_tables()
             return self._tables
 
-    def _build_tables(self) -> dict[str, np.ndarray]:
-        xn, yn = _camera_tables(self.rig.camera)
-        R, T, Kp = self._R, self._T, self._Kp
-        # R d for d = (xn, yn, 1)
+    def _ray_terms(self, xn: np.ndarray, yn: np.ndarray) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+        """``R d`` (three arrays) for the rays ``d = (x_n, y_n, 1)`` and their epipolar lines
+        ``(c0, c1)`` in undistorted normalized projector coordinates; float64, shape of ``xn``.
+
+        The points ``t Rd + T`` of a ray project onto ``l . (x_p, y_p, 1) = 0`` with
+        ``l = (Rd) x T``: ``y_p = c0 + c1 x_p`` for axis u (``x_p = c0 + c1 y_p`` for axis v)."""
+        R, T = self._R, self._T
         rd = [R[i, 0] * xn + R[i, 1] * yn + R[i, 2] for i in range(3)]
-        fx, s, cx, fy, cy = Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]
-        if self.axis == "u":
-            # Column u (no distortion): fx X + s Y - (u - cx) Z = 0 in the projector frame, i.e.
-            # n = (fx, s, 0) - w e_z with the centred coordinate w = u - cx (smaller float32 terms).
-            A = fx * rd[0] + s * rd[1]
-            B = -rd[2]
-            a = fx * T[0] + s * T[1]
-            b = -T[2]
-            centre = cx
-        else:
-            A = fy * rd[1]
-            B = -rd[2]
-            a = fy * T[1]
-            b = -T[2]
-            centre = cy
-        # Epipolar line in undistorted normalized projector coordinates: the points t Rd + T of
-        # the pixel's ray project onto l . (x_p, y_p, 1) = 0 with l = (Rd) x T; written as
-        # y_p = c0 + c1 x_p for axis u (x_p = c0 + c1 y_p for axis v).
         lx = rd[1] * T[2] - rd[2] * T[1]
         ly = rd[2] * T[0] - rd[0] * T[2]
         lz = rd[0] * T[1] - rd[1] * T[0]
@@ -604,77 +622,165 @@ class PreparedPinhole(PreparedGeometry):
                 c0, c1 = -lz / ly, -lx / ly
             else:  # x = -(ly y + lz) / lx
                 c0, c1 = -lz / lx, -ly / lx
-        norm_d = np.sqrt(xn * xn + yn * yn + 1.0)
-        extra: dict[str, np.ndarray] = {}
-        if self._p_distorted:
-            extra = self._build_polynomials(c0, c1)
-            rdi = rd[0] if self.axis == "u" else rd[1]
-            extra["rdi32"] = rdi.astype(np.float32)
-            extra["rdz32"] = rd[2].astype(np.float32)
-            self._grid = UndistortionGrid.build(Kp, self._pdist, self.rig.projector.width, self.rig.projector.height)
-        return {
-            **extra,
+        return rd, c0, c1
+
+    def _rows_terms(self, rows: slice) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+        """:meth:`_ray_terms` of the camera pixels of ``rows`` (computed per call, not kept)."""
+        tab = self.tables()
+        return self._ray_terms(tab["xn"][rows], tab["yn"][rows])
+
+    def _build_tables(self) -> dict[str, np.ndarray]:
+        xn, yn = _camera_tables(self.rig.camera)
+        T, Kp = self._T, self._Kp
+        rd = [self._R[i, 0] * xn + self._R[i, 1] * yn + self._R[i, 2] for i in range(3)]
+        fx, s, cx, fy, cy = Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]
+        if self.axis == "u":
+            # Column u (no distortion): fx X + s Y - (u - cx) Z = 0 in the projector frame, i.e.
+            # n = (fx, s, 0) - w e_z with the centred coordinate w = u - cx (smaller float32 terms).
+            a, b, centre = fx * T[0] + s * T[1], -T[2], cx
+        else:
+            a, b, centre = fy * T[1], -T[2], cy
+        tables: dict[str, np.ndarray] = {
             "xn": xn,
             "yn": yn,
             "xn32": xn.astype(np.float32),
             "yn32": yn.astype(np.float32),
-            "norm_d": norm_d.astype(np.float32),
-            "A": A.astype(np.float32),
-            "B": B.astype(np.float32),
+            "norm_d": np.sqrt(xn * xn + yn * yn + 1.0).astype(np.float32),
             "ab": np.array([a, b, centre]),
-            "rdx": rd[0],
-            "rdy": rd[1],
-            "rdz": rd[2],
-            "c0": c0,
-            "c1": c1,
         }
+        if not self._p_distorted:  # the Mobius tables of the closed form
+            A = fx * rd[0] + s * rd[1] if self.axis == "u" else fy * rd[1]
+            tables["A"] = A.astype(np.float32)
+            tables["B"] = (-rd[2]).astype(np.float32)
+        else:  # the per-pixel polynomials (one axis) and the undistortion grid (both axes)
+            tables.update(self._build_polynomials())
+            rdi = rd[0] if self.axis == "u" else rd[1]
+            tables["rdi32"] = rdi.astype(np.float32)
+            tables["rdz32"] = rd[2].astype(np.float32)
+            self._grid = UndistortionGrid.build(Kp, self._pdist, self.rig.projector.width, self.rig.projector.height)
+        return tables
 
     def _coded_domain(self) -> tuple[float, float]:
         """``(mid, half)``: the polynomial's variable is ``omega = (w - mid) / half`` in [-1, 1]."""
         size = self.rig.projector.width if self.axis == "u" else self.rig.projector.height
         return (size - 1) / 2, size / 2 + 1.0
 
-    def _build_polynomials(self, c0: np.ndarray, c1: np.ndarray) -> dict[str, np.ndarray]:
-        """Per pixel, the undistorted normalized coordinate ``q`` of the coded axis along the
-        pixel's epipolar line as a polynomial of ``omega`` (degree :data:`POLY_DEGREE`, monomial
-        coefficients, float32, shape ``(POLY_DEGREE + 1, H, W)``): Chebyshev interpolation of
-        ``q`` solved by Newton at :data:`POLY_NODES` nodes, truncated; ``poly_exact`` marks the
-        pixels whose truncated tail exceeds :data:`POLY_TOL` (they are solved exactly per frame)."""
+    def _node_values(self, c0: np.ndarray, c1: np.ndarray) -> np.ndarray:
+        """``q`` solved by Newton at the :data:`POLY_NODES` Chebyshev nodes of ``omega`` for rays of
+        epipolar lines ``(c0, c1)``: ``(POLY_NODES, *c0.shape)`` float64, NaN where Newton fails."""
+        Kp = self._Kp
+        fx, s, cx, fy, cy = Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]
+        mid, half = self._coded_domain()
+        n = POLY_NODES
+        nodes = np.cos(np.pi * (np.arange(n) + 0.5) / n)
+        q = np.empty((n, *c0.shape))
+        guess: np.ndarray | None = None
+        with np.errstate(all="ignore"):
+            for j in range(n):  # nodes in increasing order of w; each starts from the previous one
+                target = np.full(c0.shape, mid + half * nodes[n - 1 - j])
+                xp, yp, dqdw = self._solve_on_line(target, c0, c1, fx, s, cx, fy, cy, guess)
+                q[n - 1 - j] = xp if self.axis == "u" else yp
+                if j + 1 < n:
+                    guess = q[n - 1 - j] + dqdw * half * (nodes[n - 2 - j] - nodes[n - 1 - j])
+        return q
+
+    def _chebyshev(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Monomial coefficients in ``omega`` (``(POLY_DEGREE + 1, *shape)`` float64) of the degree
+        :data:`POLY_DEGREE` truncation of the Chebyshev interpolant of node values ``q``, and the
+        truncated tail (projector units)."""
         from numpy.polynomial import chebyshev
 
         Kp = self._Kp
-        fx, s, cx, fy, cy = Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]
-        scale = fx if self.axis == "u" else fy
-        mid, half = self._coded_domain()
+        scale = Kp[0, 0] if self.axis == "u" else Kp[1, 1]
         n, deg = POLY_NODES, POLY_DEGREE
         theta = np.pi * (np.arange(n) + 0.5) / n
-        nodes = np.cos(theta)
         cheb_t = np.cos(np.outer(np.arange(n), theta))  # T_k(omega_j)
         to_mono = np.zeros((deg + 1, deg + 1))  # column k: monomial coefficients of T_k
         for k in range(deg + 1):
             mono = chebyshev.cheb2poly(np.eye(deg + 1)[k])
             to_mono[: len(mono), k] = mono
-        h, w = c0.shape
+        shape = q.shape[1:]
+        cheb = np.einsum("jk,kp->jp", cheb_t, q.reshape(n, -1)) * (2.0 / n)  # no BLAS threads in threads
+        cheb[0] *= 0.5
+        tail = np.abs(cheb[deg + 1 :]).sum(axis=0) * scale
+        mono = np.einsum("ij,jp->ip", to_mono, cheb[: deg + 1])
+        return mono.reshape(deg + 1, *shape), tail.reshape(shape)
+
+    def _build_polynomials(self) -> dict[str, np.ndarray]:
+        """Per pixel, the undistorted normalized coordinate ``q`` of the coded axis along the
+        pixel's epipolar line as a polynomial of ``omega`` (degree :data:`POLY_DEGREE`, monomial
+        coefficients, float32, shape ``(POLY_DEGREE + 1, H, W)``): Chebyshev interpolation of
+        ``q`` solved by Newton at :data:`POLY_NODES` nodes, truncated; ``poly_exact`` marks the
+        pixels whose truncated tail exceeds :data:`POLY_TOL` (they are solved exactly per frame).
+
+        ``q`` at a fixed ``omega`` varies slowly from pixel to pixel, so the polynomials are
+        solved on a coarse grid of pixels (spacings :data:`POLY_PIXEL_STEPS`, coarsest first)
+        and interpolated bilinearly, when the interpolation error (estimated from the coarse
+        grid's second differences of ``q`` at every node) is below :data:`POLY_INTERP_TOL`; else
+        on every pixel."""
+        h, w = self.shape
+        for step in POLY_PIXEL_STEPS:
+            if h < 4 * step[0] or w < 4 * step[1]:
+                continue
+            found = self._coarse_polynomials(step)
+            if found is not None:
+                return found
+        return self._full_polynomials()
+
+    def _coarse_polynomials(self, step: tuple[int, int]) -> dict[str, np.ndarray] | None:
+        """:meth:`_build_polynomials` from a grid of every ``step = (rows, columns)`` pixels (one
+        more outside each border), or None when the estimated interpolation error exceeds
+        :data:`POLY_INTERP_TOL`."""
+        import cv2
+
+        cam = self.rig.camera
+        h, w = self.shape
+        sr, sc = step
+        hc, wc = -(-h // sr) + 2, -(-w // sc) + 2
+        # coarse sample i sits at pixel s (i - 1) + (s - 1) / 2: cv2.resize (INTER_LINEAR) by the
+        # factors (sc, sr) then interpolates bilinearly at every pixel after a crop of (sr, sc)
+        kk = sr * (np.arange(hc, dtype=np.float64) - 1) + (sr - 1) / 2
+        jj = sc * (np.arange(wc, dtype=np.float64) - 1) + (sc - 1) / 2
+        jg, kg = np.meshgrid(jj, kk)
+        und = undistort_pixels(np.asarray(cam.K), cam.distortion, jg, kg)
+        _, c0, c1 = self._ray_terms(und.x, und.y)
+        q = self._node_values(c0, c1)
+        scale = self._Kp[0, 0] if self.axis == "u" else self._Kp[1, 1]
+        d2_rows = np.abs(q[:, 2:] - 2 * q[:, 1:-1] + q[:, :-2])
+        d2_cols = np.abs(q[:, :, 2:] - 2 * q[:, :, 1:-1] + q[:, :, :-2])
+        if not (np.isfinite(d2_rows).any() and np.isfinite(d2_cols).any()):
+            return None
+        if (float(np.nanmax(d2_rows)) + float(np.nanmax(d2_cols))) / 8 * scale > POLY_INTERP_TOL:
+            return None
+        mono, tail = self._chebyshev(q)
+        coeffs = np.empty((POLY_DEGREE + 1, h, w), np.float32)
+        size = (wc * sc, hc * sr)
+        crop = (slice(sr, sr + h), slice(sc, sc + w))
+        for k in range(POLY_DEGREE + 1):
+            c = mono[k]
+            offset = float(np.nanmedian(c))  # interpolate the small variation, not the constant
+            full = cv2.resize(c - offset, size, interpolation=cv2.INTER_LINEAR)[crop]
+            full += offset
+            coeffs[k] = full
+        # the interpolated tail bounds the tail of the interpolated polynomial (positive weights);
+        # NaN (Newton failed near a pixel) marks the pixel for the exact path too
+        tail_full = cv2.resize(np.nan_to_num(tail, nan=np.inf), size, interpolation=cv2.INTER_LINEAR)[crop]
+        exact = ~(tail_full <= POLY_TOL) | ~np.isfinite(coeffs).all(axis=0)
+        return {"poly": coeffs, "poly_exact": exact}
+
+    def _full_polynomials(self) -> dict[str, np.ndarray]:
+        """:meth:`_build_polynomials` solved at every pixel."""
+        h, w = self.shape
+        xn, yn = _camera_tables(self.rig.camera)
+        deg = POLY_DEGREE
         coeffs = np.empty((deg + 1, h, w), np.float32)
         exact = np.zeros((h, w), bool)
 
         def run(rows: slice) -> None:
-            q = np.empty((n, *c0[rows].shape))
-            guess: np.ndarray | None = None
-            with np.errstate(all="ignore"):
-                for j in range(n):  # nodes in increasing order of w; each starts from the previous one
-                    target = np.full(c0[rows].shape, mid + half * nodes[n - 1 - j])
-                    xp, yp, dqdw = self._solve_on_line(target, c0[rows], c1[rows], fx, s, cx, fy, cy, guess)
-                    q[n - 1 - j] = xp if self.axis == "u" else yp
-                    if j + 1 < n:
-                        guess = q[n - 1 - j] + dqdw * half * (nodes[n - 2 - j] - nodes[n - 1 - j])
-            shape = q.shape[1:]
-            cheb = np.einsum("jk,kp->jp", cheb_t, q.reshape(n, -1)) * (2.0 / n)  # no BLAS threads in threads
-            cheb[0] *= 0.5
-            tail = np.abs(cheb[deg + 1 :]).sum(axis=0) * scale
-            exact[rows] = ~(tail <= POLY_TOL).reshape(shape)
-            mono = np.einsum("ij,jp->ip", to_mono, cheb[: deg + 1])
-            coeffs[:, rows] = mono.reshape(deg + 1, *shape).astype(np.float32)
+            _, c0, c1 = self._ray_terms(xn[rows], yn[rows])  # not tables(): it holds the lock now
+            mono, tail = self._chebyshev(self._node_values(c0, c1))
+            exact[rows] = ~(tail <= POLY_TOL)
+            coeffs[:, rows] = mono.astype(np.float32)
 
         # threads over row blocks of ~16k pixels (cache-sized)
         run_tiled(run, h, w, threads=_table_threads(), tile_px=1 << 14)
@@ -794,43 +900,28 @@ class PreparedPinhole(PreparedGeometry):
         sigma_out: np.ndarray | None,
     ) -> np.ndarray:
         """Both axes through a distorted projector: ``(u, v)`` undistorted by the grid (bilinear,
-        error below :data:`GRID_TOL`), then the plane of the coded axis; float32 ``(n, W)``."""
+        error below :data:`GRID_TOL`), then the plane of the coded axis
+        ``t = (q T_z - T_i) / (Rd_i - q Rd_z)``; float32 ``(n, W)``."""
         grid = self._grid
         assert grid is not None
         tab = self.tables()
-        Kp, T = self._Kp, self._T
-        fx, s, cx, fy, cy = (np.float32(x) for x in (Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]))
+        T = self._T
         want_sigma = sigma_in is not None and sigma_out is not None
         u, v = (coded, other) if self.axis == "u" else (other, coded)
-        u = np.asarray(u, np.float32)
-        v = np.asarray(v, np.float32)
-        y_lin = (v - cy) / fy
-        if self.axis == "u":
-            q = u - cx
-            if s != 0:
-                q -= s * y_lin
-            q /= fx
-            corr, dcorr = grid.lookup(grid.dx, u, v, want_sigma)
-            scale = np.float32(1.0) / fx
-        else:
-            q = y_lin
-            corr, dcorr = grid.lookup(grid.dy, u, v, want_sigma)
-            scale = np.float32(1.0) / fy
-        q += corr
+        q, dq = grid.normalized(self.axis, u, v, want_sigma)
         Ti = T[0] if self.axis == "u" else T[1]
         rdi, rdz = tab["rdi32"][rows], tab["rdz32"][rows]
         num = q * np.float32(T[2])
         num -= np.float32(Ti)
-        den = q * rdz
+        den = np.multiply(q, rdz, out=q)
         np.subtract(rdi, den, out=den)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = num / den
-            if sigma_in is not None and sigma_out is not None and dcorr is not None:
-                dq = dcorr + scale
+            if sigma_in is not None and sigma_out is not None and dq is not None:
                 dtdq = (np.float32(T[2]) * den + num * rdz) / (den * den)
                 np.multiply(np.abs(dtdq * dq), tab["norm_d"][rows], out=sigma_out)
                 sigma_out *= sigma_in
-            t[~(t > 0)] = np.nan
+            t = np.divide(num, den, out=num)
+            np.copyto(t, np.float32(np.nan), where=~(t > 0))
         return t
 
     def _coded_from_polynomial(self, rows: slice, coded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -851,7 +942,8 @@ class PreparedPinhole(PreparedGeometry):
             if sel.any():
                 Kp = self._Kp
                 w = np.asarray(coded, dtype=np.float64)[sel]
-                c0, c1 = tab["c0"][rows][sel], tab["c1"][rows][sel]
+                _, c0_rows, c1_rows = self._rows_terms(rows)
+                c0, c1 = c0_rows[sel], c1_rows[sel]
                 with np.errstate(all="ignore"):
                     xp, yp, _ = self._solve_on_line(w, c0, c1, Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2])
                 q[sel] = xp if self.axis == "u" else yp
@@ -891,7 +983,6 @@ class PreparedPinhole(PreparedGeometry):
         self, rows: slice, coded: np.ndarray, other: np.ndarray | None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Undistorted normalized projector coordinates of each pixel and d(coded normalized)/d(coded)."""
-        tab = self.tables()
         Kp = self._Kp
         fx, s, cx, fy, cy = Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]
         w = np.asarray(coded, dtype=np.float64)
@@ -906,7 +997,7 @@ class PreparedPinhole(PreparedGeometry):
                 # d(x_p)/du with v fixed, d(y_p)/dv with u fixed (zero skew part only; skew enters via u)
                 dxp_dw = jyy / (det * fx) if self.axis == "u" else jxx / (det * fy)
             return xp, yp, dxp_dw
-        c0, c1 = tab["c0"][rows], tab["c1"][rows]
+        _, c0, c1 = self._rows_terms(rows)
         with np.errstate(all="ignore"):
             return self._solve_on_line(w, c0, c1, fx, s, cx, fy, cy)
 
@@ -970,7 +1061,7 @@ class PreparedPinhole(PreparedGeometry):
         """``t`` (float32) from undistorted normalized projector coordinates, and the midpoints."""
         tab = self.tables()
         T = self._T
-        rdx, rdy, rdz = tab["rdx"][rows], tab["rdy"][rows], tab["rdz"][rows]
+        (rdx, rdy, rdz), _, _ = self._rows_terms(rows)
         mid = None
         with np.errstate(all="ignore"):
             # Plane of the coded axis, n = (1, 0, -x_p) (u) or (0, 1, -y_p) (v):
