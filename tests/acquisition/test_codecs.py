@@ -207,3 +207,27 @@ def test_projector_serves_the_codecs_patterns(client_alice, api, rig):
         np.testing.assert_array_equal(image, expected[frame])
     page = client_alice.get(f"/acquisitions/{body['id']}/")
     assert page.status_code == 200 and b"gcps-codec/1: 30 frames, axes u, v, projector 1024x768" in page.content
+
+
+def test_dashboard_form_takes_a_codec_object_and_thumbnails_its_stored_frames(client_alice, api, rig):
+    document = phase_gray_codec(("u",), steps=3)
+    bad = client_alice.post(f"/rigs/{rig.pk}/acquire/", {"role": "object", "codec": "{not json"})
+    assert bad.status_code == 400 and "not a JSON object" in bad.content.decode()
+    done = client_alice.post(f"/rigs/{rig.pk}/acquire/", {"role": "object", "codec": json.dumps(document)})
+    acquisition = Acquisition.objects.get()
+    assert done.status_code == 302 and done["Location"] == f"/acquisitions/{acquisition.pk}/"
+    assert acquisition.codec == codec_from_dict(document).to_dict()
+    session = register(api, rig)
+    taken = post(api, f"/api/rigs/{rig.pk}/agent/take/", {"session": session}).json()
+    images, archive = agent_grabs(taken)
+    upload = api.post(
+        f"/api/acquisitions/{acquisition.pk}/upload/",
+        {"session": session, "file": SimpleUploadedFile("s.zip", archive, "application/zip")},
+    )
+    assert upload.status_code == 201, upload.content
+    # the thumbnail of a stored frame of this codec (read with the codec reader)
+    response = client_alice.get(f"/acquisitions/{acquisition.pk}/frames/3.png")
+    assert response.status_code == 200, response.status_code
+    thumbnail = cv2.imdecode(np.frombuffer(response.content, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert images.shape[2] == 160  # the small rig is 160 px wide: the thumbnail is the frame itself
+    np.testing.assert_array_equal(thumbnail, images[3])
