@@ -50,7 +50,11 @@ class AcquireSerializer(serializers.Serializer):
     exposure = serializers.FloatField(
         required=False, allow_null=True, help_text="Exposure, ms; omitted: the agent's auto-exposure"
     )
-    codec = serializers.JSONField(required=False, allow_null=True, help_text="gcps-v1 or gcps-v1:WIDTHxHEIGHT")
+    codec = serializers.JSONField(
+        required=False,
+        allow_null=True,
+        help_text="gcps-v1, gcps-v1:WIDTHxHEIGHT or a gcps-codec/1 object; omitted: the rig's default codec",
+    )
     session = serializers.IntegerField(required=False, allow_null=True, min_value=1, max_value=MAX_ID)
 
 
@@ -58,6 +62,7 @@ def acquisition_data(acquisition: Acquisition) -> dict[str, Any]:
     """An acquisition as the API and the agent see it."""
     job = acquisition.job
     codec = services.codec_of(acquisition)
+    stored = services.stored_codec_value(acquisition)
     return {
         "id": acquisition.pk,
         "rig": acquisition.rig_id,
@@ -66,7 +71,7 @@ def acquisition_data(acquisition: Acquisition) -> dict[str, Any]:
         "z_in_mm": acquisition.z_in_mm,
         "repeat": acquisition.repeat,
         "exposure_ms": acquisition.exposure_ms,
-        "codec": codec.spec,
+        "codec": stored if isinstance(stored, dict) else codec.spec,
         "frame_names": list(codec.frame_names),
         "projector": {"width": codec.width, "height": codec.height},
         "job": job.pk,

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+from typing import Any
+
 from django import forms
 
 from metrology.captures.models import Capture
@@ -15,5 +18,20 @@ class AcquireForm(forms.Form):
         required=False, min_value=0.001, max_value=60_000, label="Exposure (ms)", help_text="Empty: automatic"
     )
     codec = forms.CharField(
-        required=False, initial="gcps-v1", help_text="gcps-v1 (1024x768 projector) or gcps-v1:WIDTHxHEIGHT"
+        required=False,
+        widget=forms.Textarea(attrs={"rows": 2}),
+        help_text=(
+            "Empty: the rig's default codec. gcps-v1 (1024x768 projector), gcps-v1:WIDTHxHEIGHT, "
+            "or a gcps-codec/1 JSON object"
+        ),
     )
+
+    def clean_codec(self) -> Any:
+        """The codec as the API takes it: a name, or the parsed JSON object when the text starts with ``{``."""
+        text = (self.cleaned_data.get("codec") or "").strip()
+        if not text.startswith("{"):
+            return text or None
+        try:
+            return json.loads(text)
+        except ValueError as exc:
+            raise forms.ValidationError(f"codec: not a JSON object ({exc})") from None

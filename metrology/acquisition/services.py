@@ -156,12 +156,11 @@ def request_acquisition(
     capture_services._check_stage(role, z_in_mm)
     if exposure_ms is not None and not (0 < exposure_ms <= 60_000):
         raise BadInput(f"exposure must be a number of milliseconds in (0, 60000], got {exposure_ms}")
+    value = acquisition_codec_value(rig, codec)
     try:
-        projected = resolve_codec(codec)
+        resolve_codec(value)  # the agent must be able to render it
     except ValueError as exc:
-        raise BadInput(str(exc)) from None
-    if not projected.is_gcps_v1:
-        raise BadInput(f"codec {projected.name!r}: the application stores gcps-v1 captures only for now")
+        raise BadInput(f"codec: {exc}") from None
     with transaction.atomic():
         session = capture_services._session_for(owner=owner, rig=rig, session_id=session_id, name="rig capture")
         job = job_services.create_job(
@@ -173,7 +172,7 @@ def request_acquisition(
                 "z_in_mm": z_in_mm,
                 "repeat": repeat,
                 "exposure_ms": exposure_ms,
-                "codec": projected.spec,
+                "codec": value,
             },
         )
         Job.objects.filter(pk=job.pk).update(phase="waiting for the rig's capture agent")
@@ -185,7 +184,7 @@ def request_acquisition(
             z_in_mm=z_in_mm,
             repeat=repeat,
             exposure_ms=exposure_ms,
-            codec={"name": projected.spec},
+            codec={"name": value} if isinstance(value, str) else value,
             job=job,
         )
         job.parameters["acquisition"] = acquisition.pk
@@ -193,7 +192,39 @@ def request_acquisition(
     return acquisition
 
 
+def acquisition_codec_value(rig: Rig, codec: Any) -> Any:
+    """The codec an acquisition projects, as stored on its capture: ``codec`` (a built-in name,
+    ``{"name": ...}`` or a gcps-codec/1 object), else the rig's default codec.
+
+    A name is kept as given (``"gcps-v1"``, ``"gcps-v1:1280x800"``), an object in its canonical
+    gcps-codec/1 form. Raises :class:`BadInput` for a malformed codec, one of more than
+    :data:`~metrology.captures.codecs.MAX_CODEC_FRAMES` frames, or one the rig cannot measure with
+    (:func:`~metrology.captures.codecs.check_codec_for_rig`).
+    """
+    from metrology.captures import codecs as capture_codecs
+
+    if isinstance(codec, dict) and set(codec) == {"name"}:
+        codec = codec["name"]
+    if codec is None or codec == "":
+        codec = capture_codecs.capture_default(rig)
+    value = capture_codecs.validate_codec(codec)
+    parsed = capture_codecs.codec_of(value)
+    if not (capture_codecs.is_gcps_v1(parsed) and not getattr(rig, "is_pinhole", False)):
+        capture_codecs.check_codec_for_rig(parsed, rig)
+    return value
+
+
+def stored_codec_value(acquisition: Acquisition) -> Any:
+    """The acquisition's codec as :attr:`Capture.codec <metrology.captures.models.Capture.codec>` stores it:
+    a built-in name or a gcps-codec/1 object."""
+    codec = acquisition.codec
+    if isinstance(codec, dict) and set(codec) == {"name"}:
+        return codec["name"]
+    return codec
+
+
 def codec_of(acquisition: Acquisition) -> ProjectedCodec:
+    """The acquisition's codec, ready to project."""
     return resolve_codec(acquisition.codec)
 
 
@@ -265,7 +296,9 @@ def store_acquired_capture(
     job = _running_for(agent, acquisition)
     rig = acquisition.rig
     upload.seek(0)
-    stack = capture_services.read_capture_stack(upload, rig)
+    from metrology.captures.codecs import read_upload_stack
+
+    codec, stack = read_upload_stack(upload, rig, codec=stored_codec_value(acquisition))
     checksum, size = capture_services._sha256(upload)
     stored = default_storage.save(capture_services._new_stack_name(rig), upload)
     try:
@@ -283,6 +316,7 @@ def store_acquired_capture(
                 z_in_mm=acquisition.z_in_mm,
                 repeat=acquisition.repeat,
                 source=Capture.Source.RIG,
+                codec=codec,
                 file=stored,
                 original_name=f"acquisition-{acquisition.pk}.zip",
                 checksum_sha256=checksum,

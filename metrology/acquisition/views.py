@@ -14,6 +14,7 @@ from metrology.accounts.http import AuthenticatedHttpRequest
 from metrology.acquisition import services
 from metrology.acquisition.forms import AcquireForm
 from metrology.acquisition.models import Acquisition, Agent
+from metrology.captures.codecs import codec_label
 from metrology.rigs.selectors import get_rig
 
 THUMBNAIL_WIDTH = 160
@@ -145,7 +146,13 @@ def acquisition_page(request: AuthenticatedHttpRequest, acquisition_id: int) -> 
     return render(
         request,
         "acquisition/acquisition.html",
-        {"acquisition": acquisition, "job": acquisition.job, "rig": acquisition.rig, "frames": frames},
+        {
+            "acquisition": acquisition,
+            "job": acquisition.job,
+            "rig": acquisition.rig,
+            "frames": frames,
+            "codec_label": codec_label(services.stored_codec_value(acquisition)),
+        },
     )
 
 
@@ -155,9 +162,12 @@ def acquisition_thumbnail(request: AuthenticatedHttpRequest, acquisition_id: int
     acquisition = _own_acquisition(request, acquisition_id)
     if acquisition.capture is None:
         raise Http404("This acquisition has no stored capture.")
+    from metrology.captures.codecs import capture_codec, is_gcps_v1, load_codec_stack
     from metrology.captures.services import load_capture_stack
 
-    images = load_capture_stack(acquisition.capture).images
+    capture = acquisition.capture
+    gcps_v1 = is_gcps_v1(capture_codec(capture)) and not capture.rig.is_pinhole
+    images = load_capture_stack(capture).images if gcps_v1 else load_codec_stack(capture).images
     if not 0 <= frame < images.shape[0]:
         raise Http404(f"No frame {frame}.")
     image = images[frame]

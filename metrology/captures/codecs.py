@@ -78,10 +78,14 @@ def capture_codec(capture: Any) -> Codec:
     return codec_of(capture_codec_value(capture))
 
 
-def read_upload_stack(upload: Any, rig: Any, *, expected_bit_depth: int | None = None) -> tuple[Any, Any]:
+def read_upload_stack(
+    upload: Any, rig: Any, *, expected_bit_depth: int | None = None, codec: Any = None
+) -> tuple[Any, Any]:
     """Validate an uploaded zip for ``rig`` with its codec: returns ``(stored codec value, stack)``.
 
-    The codec is the zip's own ``codec.json``, else the rig's default. gcps-v1 stacks are read by
+    The codec is the zip's own ``codec.json``, else the rig's default; or, when ``codec`` is given
+    (the codec an acquisition projected), that one, and a ``codec.json`` in the zip must then be
+    the same codec. gcps-v1 stacks are read by
     the gcps-v1 reader as before (the eleven named patterns); any other codec by the codec reader,
     which checks the frames against the codec; the frames must be the rig's camera size and the
     codec must code the projector's u axis (what the crossed-axes rig triangulates). A pinhole
@@ -103,21 +107,17 @@ def read_upload_stack(upload: Any, rig: Any, *, expected_bit_depth: int | None =
         raise BadInput(f"capture codec refused: {exc}") from None
     except StackError as exc:
         raise BadInput(f"capture stack refused: {exc}") from None
-    value = validate_codec(own.to_dict()) if own is not None else capture_default(rig)
+    if codec is not None:
+        value = validate_codec(codec)
+        if own is not None and own.to_dict() != codec_of(value).to_dict():
+            raise BadInput("capture codec refused: the zip's codec.json is not the codec that was projected")
+    else:
+        value = validate_codec(own.to_dict()) if own is not None else capture_default(rig)
     codec = codec_of(value)
     pinhole = bool(getattr(rig, "is_pinhole", False))
     if is_gcps_v1(codec) and not pinhole:
         return value, read_capture_stack(upload, rig, expected_bit_depth=expected_bit_depth)
-    if pinhole:
-        projector = (rig.pinhole or {}).get("projector", {})
-        size = (float(projector.get("width", 0)), float(projector.get("height", 0)))
-        if (float(codec.projector_width), float(codec.projector_height)) != size:
-            raise BadInput(
-                f"capture codec refused: its projector is {codec.projector_width}x{codec.projector_height} "
-                f"but the rig's projector is {size[0]:g}x{size[1]:g}"
-            )
-    elif "u" not in codec.axes:
-        raise BadInput("capture codec refused: it does not code the projector's u axis, which the rig triangulates")
+    check_codec_for_rig(codec, rig)
     upload.seek(0)
     limits = codec_stack_limits(rig, codec.n_frames)
     try:
@@ -136,6 +136,22 @@ def read_upload_stack(upload: Any, rig: Any, *, expected_bit_depth: int | None =
             f"but bit_depth {expected_bit_depth} was declared"
         )
     return value, stack
+
+
+def check_codec_for_rig(codec: Codec, rig: Any) -> None:
+    """Raise :class:`BadInput` unless ``rig`` can measure with ``codec``: a pinhole rig needs the codec's
+    projector size to be its projector's; a crossed-axes rig needs the u axis coded (it triangulates u).
+    gcps-v1 on a crossed-axes rig always passes."""
+    if getattr(rig, "is_pinhole", False):
+        projector = (rig.pinhole or {}).get("projector", {})
+        size = (float(projector.get("width", 0)), float(projector.get("height", 0)))
+        if (float(codec.projector_width), float(codec.projector_height)) != size:
+            raise BadInput(
+                f"capture codec refused: its projector is {codec.projector_width}x{codec.projector_height} "
+                f"but the rig's projector is {size[0]:g}x{size[1]:g}"
+            )
+    elif "u" not in codec.axes:
+        raise BadInput("capture codec refused: it does not code the projector's u axis, which the rig triangulates")
 
 
 def capture_default(rig: Any) -> Any:

@@ -202,6 +202,50 @@ def test_agent_with_faulty_camera_stores_in_sync_stacks_that_measure_like_direct
     print("captured vs direct error statistics:", captured, simulated)
 
 
+def test_agent_acquires_a_phase_gray_codec_stored_with_its_codec_decoding_to_the_truth(server, projector):
+    """A 4-step phase + gray code with inverses on both axes (30 frames): the page shows the codec's
+    patterns, the agent grabs one frame per codec frame (virtual camera, latency faults injected), the
+    capture is stored with its codec and decodes to the true projector coordinates of the virtual rig."""
+    from metrology.captures.codecs import load_codec_stack
+    from metrology.core.codecs import codec_from_dict, crossed_rig_truth
+    from metrology.core.codecs.decode import decode_codec
+    from tests.acquisition.test_codecs import phase_gray_codec
+
+    document = phase_gray_codec(("u", "v"))
+    agent = start_agent(server, "--settle", "0.03", "--max-acquisitions", "1", "--inject-faults", "latency=9")
+    try:
+        wait_registered(server)
+        queued = acquire(server, role="object", exposure=10, codec=document)
+        done = wait_finished(server, queued["id"])
+        _, err = agent.communicate(timeout=60)
+    finally:
+        if agent.poll() is None:
+            agent.kill()
+    assert agent.returncode == 0, err
+    assert done["status"] == "done", done["error"]
+    canonical = codec_from_dict(document).to_dict()
+    capture = Capture.objects.get(pk=done["capture"])
+    assert capture.codec == canonical and capture.source == "rig"
+    assert capture.parameters["regrabs"] > 0  # the latency faults were caught and re-grabbed
+    frames = Acquisition.objects.get(pk=done["id"]).frames
+    assert [f["name"] for f in frames][-30:] == [f"{k:02d}" for k in range(30)]
+    stack = load_codec_stack(capture)
+    assert stack.images.shape == (30, SMALL_RIG["height_px"], SMALL_RIG["width_px"])
+    uv = decode_codec(stack.images, stack.codec).uv()
+    rig = CoreRig.from_dict(SMALL_RIG)
+    truth = crossed_rig_truth(
+        render_stack(rig, make_scene("sphere", rig=rig), SimulationOptions(**SIM_OPTIONS)), rig, 1024, 768
+    )
+    for index in (0, 1):
+        both = np.isfinite(uv[..., index]) & np.isfinite(truth[index])
+        error = np.abs(uv[..., index][both] - truth[index][both])
+        assert both.mean() > 0.5
+        # 4-step phase, period 32 px, 8-bit, noise 1.5 grey levels: median |error| ~ 0.05 px
+        assert np.median(error) < 0.15, (index, float(np.median(error)))
+        assert np.mean(error < 1.0) > 0.99, (index, float(np.mean(error < 1.0)))
+        print(f"axis {'uv'[index]}: {both.sum()} px decoded, median |error| {np.median(error):.4f} px")
+
+
 def test_agent_killed_mid_capture_fails_the_job_and_stores_nothing(server, projector, settings, media_root):
     settings.GCPS_AGENT_TIMEOUT_SECONDS = 2.0
     agent = start_agent(server, "--settle", "0.4")
