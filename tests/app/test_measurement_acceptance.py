@@ -14,6 +14,7 @@ from metrology.core.codecs import codec_from_dict, render_codec
 from metrology.core.rig import Rig as CoreRig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate_pinhole import PlacedScene, cast_truth
+from metrology.core.synthetic import sphere_heights
 from metrology.pipeline.acceptance import AcceptanceOptions, acceptance, acceptance_pinhole
 from tests.app.stacks import SMALL_RIG, png, render_images, stack_zip, zip_bytes
 from tests.app.test_measurement_job import upload
@@ -179,3 +180,29 @@ def test_acceptance_is_in_the_openapi_schema(api):
     names = {p["name"]: p for p in operation["parameters"] if p["in"] == "query"}
     assert set(names) == {"test", "diameter", "spacing", "min_height"} and names["test"]["required"]
     assert {"200", "400", "404", "409"} <= set(operation["responses"])
+
+
+def test_crossed_axes_spacing_and_probing_of_two_spheres(api, rig):
+    """Two spheres of radius 40 mm, centres 200 mm apart, resting on R (exact 16-bit stacks)."""
+    core = CoreRig.from_dict(SMALL_RIG)
+    za = sphere_heights(core, (250.0, 0.0, 40.0), 40.0)
+    zb = sphere_heights(core, (450.0, 0.0, 40.0), 40.0)
+    stacks = {
+        "reference": render_images(core, 0.0, bit_depth=16),
+        "object": render_images(core, np.where(za > 0, za, zb), bit_depth=16),
+    }
+    ids = {role: upload(api, rig["id"], stack_zip(images), role) for role, images in stacks.items()}
+    measurement_id = measure(api, {"rig": rig["id"], **ids})
+    body = accept(api, measurement_id, test="spacing", spacing=200, min_height=5)
+    options = AcceptanceOptions("spacing", spacing_mm=200.0, min_height_mm=5.0)
+    expected = acceptance(core, stacks["reference"], stacks["object"], options)
+    for key in ("spacing_error_mm", "spacing_error_rejected_mm"):
+        assert body[key] == pytest.approx(expected.report[key], rel=1e-9, abs=1e-12), key
+    # exact 16-bit stacks (~3 mm pixels): the centres 200 mm apart within 10 um (measured: 0.2 um)
+    assert abs(body["spacing_error_rejected_mm"]) < 0.01
+    probing = accept(api, measurement_id, test="probing", diameter=80, min_height=5)
+    expected = acceptance(
+        core, stacks["reference"], stacks["object"], AcceptanceOptions("probing", diameter_mm=80.0, min_height_mm=5.0)
+    )
+    assert probing["size_error_rejected_mm"] == pytest.approx(expected.report["size_error_rejected_mm"], abs=1e-12)
+    assert abs(probing["size_error_rejected_mm"]) < 0.01  # measured: 0.3 um
