@@ -26,6 +26,11 @@ api_patterns = [
     path("jobs/<int:job_id>/", jobs.JobDetailApi.as_view(), name="job"),
     path("measurements/", measurements.MeasurementListCreateApi.as_view(), name="measurements"),
     path("measurements/<int:measurement_id>/", measurements.MeasurementDetailApi.as_view(), name="measurement"),
+    path(
+        "measurements/<int:measurement_id>/acceptance/",
+        measurements.MeasurementAcceptanceApi.as_view(),
+        name="measurement-acceptance",
+    ),
     *[
         path(
             f"measurements/<int:measurement_id>/{name}",

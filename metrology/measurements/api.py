@@ -5,7 +5,7 @@ from __future__ import annotations
 from django.http import FileResponse, Http404, StreamingHttpResponse
 from django.urls import reverse
 from drf_spectacular.types import OpenApiTypes
-from drf_spectacular.utils import extend_schema
+from drf_spectacular.utils import OpenApiParameter, OpenApiResponse, extend_schema
 from rest_framework import serializers, status
 from rest_framework.parsers import FormParser, MultiPartParser
 from rest_framework.request import Request
@@ -15,7 +15,7 @@ from rest_framework.views import APIView
 from metrology.api_errors import BadInput
 from metrology.api_input import BoundedJSONParser
 from metrology.jobs.serializers import JobStateMixin
-from metrology.measurements import derived, selectors, services
+from metrology.measurements import acceptance, derived, selectors, services
 from metrology.measurements.models import RESULT_FILES, Measurement
 from metrology.rigs.selectors import get_rig
 
@@ -119,6 +119,40 @@ class MeasurementDetailApi(APIView):
     @extend_schema(responses=MeasurementSerializer, operation_id="measurements_retrieve")
     def get(self, request: Request, measurement_id: int) -> Response:
         return Response(MeasurementSerializer(selectors.get_measurement(request.user, measurement_id)).data)
+
+
+ACCEPTANCE_PARAMETERS = [
+    OpenApiParameter(
+        "test", str, required=True, enum=["flatness", "probing", "spacing"], description="The VDI/VDE 2634-2 test"
+    ),
+    OpenApiParameter("diameter", float, description="probing: the sphere's calibrated diameter, mm (required)"),
+    OpenApiParameter("spacing", float, description="spacing: the calibrated centre distance, mm (required)"),
+    OpenApiParameter(
+        "min_height", float, description="probing/spacing: pixels this high above the reference are spheres, mm (1)"
+    ),
+]
+
+
+class MeasurementAcceptanceApi(APIView):
+    @extend_schema(
+        parameters=ACCEPTANCE_PARAMETERS,
+        responses={
+            200: OpenApiResponse(
+                OpenApiTypes.OBJECT,
+                description="The body of `gcps acceptance --json`: the quantities (mm) with and without the "
+                "0.3 % outlier rejection, options, software version, timings; plus the measurement id",
+            ),
+            409: OpenApiResponse(
+                {"$ref": "#/components/schemas/Error"},
+                description="The measurement is not done (queued, running or failed): no stored result to fit",
+            ),
+        },
+        operation_id="measurements_acceptance",
+        summary="VDI/VDE 2634-2 acceptance of a stored measurement (flatness, probing, spacing)",
+    )
+    def get(self, request: Request, measurement_id: int) -> Response:
+        measurement = selectors.get_measurement(request.user, measurement_id)
+        return Response(acceptance.measurement_acceptance(measurement, request.query_params))
 
 
 def file_view(filename: str) -> type[APIView]:

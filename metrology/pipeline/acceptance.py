@@ -89,6 +89,86 @@ class AcceptanceResult:
         }
 
 
+def fit_height_map(rig: Rig, z_mm: npt.ArrayLike, options: AcceptanceOptions) -> dict[str, Any]:
+    """The VDI/VDE 2634-2 quantities of ``options.test`` from a crossed-axes height map.
+
+    Parameters
+    ----------
+    rig : Rig
+        The crossed-axes rig the heights were measured with (points by
+        :func:`metrology.core.acceptance.points_from_height_map`, DESIGN frame X_H, Y_H, z).
+    z_mm : (H, W) float array
+        Heights above the reference plane, mm, NaN where not measured.
+    options : AcceptanceOptions
+        ``decode`` is not used (the heights are given).
+
+    Returns
+    -------
+    dict
+        The report of :func:`metrology.core.acceptance.flatness_error`, ``probing_error`` or
+        ``sphere_spacing_error`` (with and without the 0.3 % rejection).
+
+    Raises
+    ------
+    ValueError
+        When the spheres cannot be segmented or too few points are valid.
+    """
+    z = np.asarray(z_mm)
+    if options.test == "flatness":
+        return core.flatness_error(core.points_from_height_map(rig, z))
+    if options.test == "probing":
+        assert options.diameter_mm is not None
+        (sphere,) = core.segment_objects(z, 1, options.min_height_mm)
+        return core.probing_error(core.points_from_height_map(rig, z, sphere), options.diameter_mm)
+    assert options.spacing_mm is not None
+    first, second = core.segment_objects(z, 2, options.min_height_mm)
+    return core.sphere_spacing_error(
+        core.points_from_height_map(rig, z, first),
+        core.points_from_height_map(rig, z, second),
+        options.spacing_mm,
+    )
+
+
+def fit_points(points_mm: npt.ArrayLike, z_mm: npt.ArrayLike, options: AcceptanceOptions) -> dict[str, Any]:
+    """The VDI/VDE 2634-2 quantities of ``options.test`` from per-pixel points (pinhole rigs).
+
+    Parameters
+    ----------
+    points_mm : (H, W, 3) float array
+        Camera-frame points, mm, NaN where not measured.
+    z_mm : (H, W) float array
+        Heights above the reference plane, mm (segments the spheres of probing/spacing;
+        flatness does not use it).
+    options : AcceptanceOptions
+
+    Returns
+    -------
+    dict
+        As :func:`fit_height_map`, the fits done on the finite points (TLS plane; sphere).
+
+    Raises
+    ------
+    ValueError
+        When the spheres cannot be segmented or too few points are valid.
+    """
+    pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
+    finite = np.isfinite(pts).all(axis=1)
+
+    def cloud(mask: np.ndarray | None = None) -> np.ndarray:
+        keep = finite if mask is None else finite & np.asarray(mask).reshape(-1)
+        return pts[keep]
+
+    if options.test == "flatness":
+        return core.flatness_error(cloud())
+    if options.test == "probing":
+        assert options.diameter_mm is not None
+        (sphere,) = core.segment_objects(z_mm, 1, options.min_height_mm)
+        return core.probing_error(cloud(sphere), options.diameter_mm)
+    assert options.spacing_mm is not None
+    first, second = core.segment_objects(z_mm, 2, options.min_height_mm)
+    return core.sphere_spacing_error(cloud(first), cloud(second), options.spacing_mm)
+
+
 def acceptance(
     rig: Rig,
     reference: npt.ArrayLike,
@@ -108,20 +188,7 @@ def acceptance(
     with timer.phase("measure"):
         z_mm = core_measure.measure_height(rig, reference, obj, options.decode, gray_only=False, threads=threads).z_mm
     with timer.phase("fit"):
-        if options.test == "flatness":
-            report = core.flatness_error(core.points_from_height_map(rig, z_mm))
-        elif options.test == "probing":
-            assert options.diameter_mm is not None
-            (sphere,) = core.segment_objects(z_mm, 1, options.min_height_mm)
-            report = core.probing_error(core.points_from_height_map(rig, z_mm, sphere), options.diameter_mm)
-        else:
-            assert options.spacing_mm is not None
-            first, second = core.segment_objects(z_mm, 2, options.min_height_mm)
-            report = core.sphere_spacing_error(
-                core.points_from_height_map(rig, z_mm, first),
-                core.points_from_height_map(rig, z_mm, second),
-                options.spacing_mm,
-            )
+        report = fit_height_map(rig, z_mm, options)
     return AcceptanceResult(
         report=report, options=options, software_version=software_version(), timings_s=timer.timings_s
     )
@@ -162,26 +229,8 @@ def acceptance_pinhole(
         measured = measure_pinhole_stacks(
             rig, reference, obj, codec, PinholeMeasureOptions(triangulate=triangulate), threads=threads
         )
-    points, z_mm = measured.points_mm, measured.z_mm
-
-    def cloud(mask: np.ndarray | None = None) -> np.ndarray:
-        pts = points.reshape(-1, 3).astype(np.float64)
-        keep = np.isfinite(pts).all(axis=1)
-        if mask is not None:
-            keep &= np.asarray(mask).reshape(-1)
-        return pts[keep]
-
     with timer.phase("fit"):
-        if options.test == "flatness":
-            report = core.flatness_error(cloud())
-        elif options.test == "probing":
-            assert options.diameter_mm is not None
-            (sphere,) = core.segment_objects(z_mm, 1, options.min_height_mm)
-            report = core.probing_error(cloud(sphere), options.diameter_mm)
-        else:
-            assert options.spacing_mm is not None
-            first, second = core.segment_objects(z_mm, 2, options.min_height_mm)
-            report = core.sphere_spacing_error(cloud(first), cloud(second), options.spacing_mm)
+        report = fit_points(measured.points_mm, measured.z_mm, options)
     report["model"] = "pinhole"
     report["frame"] = "camera"
     report["triangulate"] = measured.axis
