@@ -12,45 +12,16 @@ from __future__ import annotations
 from typing import Any
 
 from metrology.api_errors import BadInput
-from metrology.core.codecs.model import Codec, CodecError, builtin_codec, codec_from_dict
+from metrology.core.codecs.model import Codec, CodecError
+from metrology.rigs.codecs import MAX_CODEC_FRAMES, codec_of, validate_codec
 from metrology.rigs.models import DEFAULT_CODEC
 
-MAX_CODEC_FRAMES = 256
-"""Most frames a stored codec may have (a capture's zip of that many images must fit the upload limit anyway)."""
-
-
-def codec_of(value: Any) -> Codec:
-    """The :class:`Codec` of a stored value (a built-in name or a gcps-codec/1 object).
-
-    Raises
-    ------
-    CodecError
-        Naming the problem (unknown name, bad field...).
-    """
-    if isinstance(value, str):
-        return builtin_codec(value)
-    if isinstance(value, dict):
-        return codec_from_dict(value)
-    raise CodecError(f"a codec is a built-in name (e.g. {DEFAULT_CODEC!r}) or a gcps-codec/1 object, got {value!r}")
+__all__ = ["MAX_CODEC_FRAMES", "codec_of", "validate_codec"]  # stored-codec values live with the rig's default codec
 
 
 def is_gcps_v1(codec: Codec) -> bool:
     """True for the built-in gcps-v1 (any projector size): the paper's eleven named patterns."""
     return codec.name == "gcps-v1"
-
-
-def validate_codec(value: Any) -> Any:
-    """A codec value checked and normalised for storing: a built-in name as given, an object as its
-    canonical gcps-codec/1 form. Raises :class:`BadInput` naming the problem."""
-    try:
-        codec = codec_of(value)
-    except CodecError as exc:
-        raise BadInput(f"codec: {exc}") from None
-    except (TypeError, ValueError) as exc:
-        raise BadInput(f"codec: {exc}") from None
-    if codec.n_frames > MAX_CODEC_FRAMES:
-        raise BadInput(f"codec: {codec.n_frames} frames, more than the limit of {MAX_CODEC_FRAMES}")
-    return value if isinstance(value, str) else codec.to_dict()
 
 
 def codec_label(value: Any) -> str:

@@ -11,6 +11,7 @@ from django.db import transaction
 from metrology.api_errors import BadInput
 from metrology.core.rig import Rig as CoreRig
 from metrology.core.rig import RigError
+from metrology.rigs.codecs import validate_codec
 from metrology.rigs.models import DEFAULT_CODEC, GEOMETRY_FIELDS, Rig, RigParameters
 
 
@@ -65,8 +66,6 @@ def validate_extra(extra: dict[str, Any]) -> dict[str, Any]:
 def create_rig(*, owner, data: dict[str, Any]) -> Rig:
     """Create a rig from the rig-file JSON (docs/file-formats.md); ``name``, ``notes`` and ``codec`` (its
     captures' default codec, docs/codecs.md; gcps-v1 when absent) are optional keys."""
-    from metrology.captures.codecs import validate_codec
-
     geometry = validate_geometry({name: data.get(name) for name in GEOMETRY_FIELDS if name in data})
     extra = validate_extra(
         {key: value for key, value in data.items() if key not in (*GEOMETRY_FIELDS, "name", "notes", "codec")}
@@ -100,8 +99,6 @@ def update_rig_geometry(*, rig: Rig, changes: dict[str, Any], source: str, calib
 def set_rig_codec(*, rig: Rig, codec: Any) -> Rig:
     """Set the default codec of a rig's captures (a built-in name or a gcps-codec/1 object), validated;
     :class:`BadInput` naming the problem. Stored captures keep the codec they were validated with."""
-    from metrology.captures.codecs import validate_codec
-
     value = validate_codec(codec)
     Rig.objects.filter(pk=rig.pk).update(codec=value)
     rig.refresh_from_db()
@@ -113,7 +110,6 @@ def create_pinhole_rig(*, owner, data: dict[str, Any]) -> Rig:
     """Create a pinhole rig from its rig file (docs/pinhole.md: ``model``, ``camera``, ``projector``, ``R``
     or ``rvec``... as the core reads it); ``name``, ``notes`` and ``codec`` are optional further keys.
     Raises :class:`BadInput` naming the problem (the core's message)."""
-    from metrology.captures.codecs import validate_codec
     from metrology.core.geometry import GeometryError
     from metrology.core.geometry.pinhole import PinholeRig
 

@@ -1,0 +1,44 @@
+"""Stored codec values (docs/codecs.md): a built-in name (``"gcps-v1"``, ``"gcps-v1:1280x800"``) or a
+gcps-codec/1 object, parsed and validated for storing. A rig's default codec (``Rig.codec``) and a
+capture's codec (:mod:`metrology.captures.codecs`) are such values.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from metrology.api_errors import BadInput
+from metrology.core.codecs.model import Codec, CodecError, builtin_codec, codec_from_dict
+from metrology.rigs.models import DEFAULT_CODEC
+
+MAX_CODEC_FRAMES = 256
+"""Most frames a stored codec may have (a capture's zip of that many images must fit the upload limit anyway)."""
+
+
+def codec_of(value: Any) -> Codec:
+    """The :class:`Codec` of a stored value (a built-in name or a gcps-codec/1 object).
+
+    Raises
+    ------
+    CodecError
+        Naming the problem (unknown name, bad field...).
+    """
+    if isinstance(value, str):
+        return builtin_codec(value)
+    if isinstance(value, dict):
+        return codec_from_dict(value)
+    raise CodecError(f"a codec is a built-in name (e.g. {DEFAULT_CODEC!r}) or a gcps-codec/1 object, got {value!r}")
+
+
+def validate_codec(value: Any) -> Any:
+    """A codec value checked and normalised for storing: a built-in name as given, an object as its
+    canonical gcps-codec/1 form. Raises :class:`BadInput` naming the problem."""
+    try:
+        codec = codec_of(value)
+    except CodecError as exc:
+        raise BadInput(f"codec: {exc}") from None
+    except (TypeError, ValueError) as exc:
+        raise BadInput(f"codec: {exc}") from None
+    if codec.n_frames > MAX_CODEC_FRAMES:
+        raise BadInput(f"codec: {codec.n_frames} frames, more than the limit of {MAX_CODEC_FRAMES}")
+    return value if isinstance(value, str) else codec.to_dict()
