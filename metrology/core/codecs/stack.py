@@ -22,7 +22,6 @@ import fnmatch
 import io
 import os
 import zipfile
-import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
@@ -36,12 +35,11 @@ from metrology.core.io import (
     DEFAULT_MAX_PIXELS,
     DEFAULT_MAX_RATIO,
     IMAGE_EXTENSIONS,
-    JUNK_NAMES,
-    MAX_ARCHIVE_MEMBERS,
     StackError,
     checked_header,
     decode_grey_image,
 )
+from metrology.core.io.archives import checked_zip_members, is_junk, read_zip_member, strip_single_folder
 from metrology.core.patterns import PATTERN_NAMES
 
 CODEC_FILE_NAME = "codec.json"
@@ -74,21 +72,6 @@ class CodecStack:
         return 8 if self.images.dtype == np.uint8 else 16
 
 
-def _is_junk(relpath: str) -> bool:
-    parts = relpath.split("/")
-    return parts[0] == "__MACOSX" or parts[-1] in JUNK_NAMES or parts[-1].startswith("._")
-
-
-def _strip_single_folder(entries: list[str]) -> tuple[str, list[str]]:
-    tops = {entry.split("/", 1)[0] for entry in entries}
-    if len(tops) == 1 and entries and all("/" in entry for entry in entries):
-        top = tops.pop()
-        inner = [entry.split("/", 1)[1] for entry in entries if entry.split("/", 1)[1]]
-        if inner:
-            return top + "/", inner
-    return "", entries
-
-
 class _Source:
     """Files of a folder or zip: top-level names and a reader of their bytes."""
 
@@ -101,13 +84,13 @@ class _Source:
 
 def _folder_source(label: str, folder: Path) -> _Source:
     entries = sorted(
-        child.name + ("/" if child.is_dir() else "") for child in folder.iterdir() if not _is_junk(child.name)
+        child.name + ("/" if child.is_dir() else "") for child in folder.iterdir() if not is_junk(child.name)
     )
     root = folder
     if len(entries) == 1 and entries[0].endswith("/"):
         root = folder / entries[0].rstrip("/")
         entries = sorted(
-            child.name + ("/" if child.is_dir() else "") for child in root.iterdir() if not _is_junk(child.name)
+            child.name + ("/" if child.is_dir() else "") for child in root.iterdir() if not is_junk(child.name)
         )
     files = [e for e in entries if not e.endswith("/")]
 
@@ -121,40 +104,12 @@ def _folder_source(label: str, folder: Path) -> _Source:
 
 
 def _zip_source(label: str, archive: zipfile.ZipFile, max_bytes: int, max_ratio: float) -> _Source:
-    infos = archive.infolist()
-    if len(infos) > MAX_ARCHIVE_MEMBERS:
-        raise StackError(f"capture {label} holds {len(infos)} entries, more than {MAX_ARCHIVE_MEMBERS}")
-    for info in infos:
-        normal = info.filename.replace("\\", "/")
-        if normal.startswith("/") or (len(normal) > 1 and normal[1] == ":") or ".." in normal.split("/"):
-            raise StackError(f"capture {label} holds an unsafe member name {info.filename!r} (absolute path or '..')")
-    files = [info for info in infos if not info.is_dir() and not _is_junk(info.filename)]
-    total = sum(info.file_size for info in files)
-    if total > max_bytes:
-        raise StackError(
-            f"capture {label} expands to {total} bytes, more than the limit of {max_bytes} bytes; refused before "
-            "decompressing"
-        )
-    for info in files:
-        ratio = info.file_size / max(info.compress_size, 1)
-        if info.file_size > 2**20 and ratio > max_ratio:
-            raise StackError(
-                f"capture {label} member {info.filename} claims a compression ratio of {ratio:.0f}:1, more than "
-                f"the limit of {max_ratio:.0f}:1"
-            )
-    prefix, entries = _strip_single_folder([info.filename for info in files])
+    files = checked_zip_members(archive, label, max_bytes=max_bytes, max_ratio=max_ratio)
+    prefix, entries = strip_single_folder([info.filename for info in files])
     top = [e for e in entries if "/" not in e]
 
     def read(name: str) -> bytes:
-        info = archive.getinfo(prefix + name)
-        try:
-            with archive.open(info) as fh:
-                data = fh.read(info.file_size + 1)
-        except (zipfile.BadZipFile, zlib.error, EOFError, OSError, RuntimeError, NotImplementedError) as exc:
-            raise StackError(f"capture {label} member {prefix + name} cannot be read ({exc})") from None
-        if len(data) > info.file_size:
-            raise StackError(f"capture {label} member {prefix + name} is larger than its declared size")
-        return data
+        return read_zip_member(archive, prefix + name, label)
 
     return _Source(label, sorted(top), read, lambda name: archive.getinfo(prefix + name).file_size)
 

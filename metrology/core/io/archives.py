@@ -41,7 +41,7 @@ MAX_ARCHIVE_MEMBERS = 1000
 """Largest number of entries accepted in a stack zip."""
 
 
-def _is_junk(relpath: str) -> bool:
+def is_junk(relpath: str) -> bool:
     parts = relpath.split("/")
     base = parts[-1]
     return parts[0] == "__MACOSX" or base in JUNK_NAMES or base.startswith("._")
@@ -86,7 +86,7 @@ def _match_patterns(label: str, entries: Sequence[str]) -> dict[str, str]:
     return {name: files[0] for name, files in found.items()}
 
 
-def _strip_single_folder(entries: list[str]) -> tuple[str, list[str]]:
+def strip_single_folder(entries: list[str]) -> tuple[str, list[str]]:
     """If every entry lies in one top-level folder (and none at top level), drop that folder."""
     tops = {entry.split("/", 1)[0] for entry in entries}
     if len(tops) == 1 and all("/" in entry for entry in entries):
@@ -105,20 +105,22 @@ def _check_member_name(label: str, name: str) -> None:
         raise StackError(f"capture stack {label} holds an unsafe member name {name!r} (absolute path or '..')")
 
 
-def _read_zip(
-    label: str,
-    archive: zipfile.ZipFile,
-    *,
-    max_bytes: int,
-    max_ratio: float,
-) -> dict[str, tuple[str, bytes]]:
-    """Pattern name -> (member name, bytes) of a stack zip, checked before decompression."""
+def checked_zip_members(
+    archive: zipfile.ZipFile, label: str, *, max_bytes: int, max_ratio: float
+) -> list[zipfile.ZipInfo]:
+    """The file members of a capture zip, checked before anything is decompressed.
+
+    Refused (:class:`StackError` naming the problem): more than ``MAX_ARCHIVE_MEMBERS`` entries,
+    an absolute or ``..`` member name, more than ``max_bytes`` bytes once expanded, a member over
+    1 MiB whose compression ratio exceeds ``max_ratio`` (a zip bomb), a member name twice.
+    Folders and junk files (``__MACOSX/``, ``.DS_Store``...) are left out.
+    """
     infos = archive.infolist()
     if len(infos) > MAX_ARCHIVE_MEMBERS:
         raise StackError(f"capture stack {label} holds {len(infos)} entries, more than {MAX_ARCHIVE_MEMBERS}")
     for info in infos:
         _check_member_name(label, info.filename)
-    files = [info for info in infos if not info.is_dir() and not _is_junk(info.filename)]
+    files = [info for info in infos if not info.is_dir() and not is_junk(info.filename)]
     total = sum(info.file_size for info in files)
     if total > max_bytes:
         raise StackError(
@@ -136,23 +138,38 @@ def _read_zip(
     if len(set(names)) != len(names):
         dup = next(name for name in names if names.count(name) > 1)
         raise StackError(f"capture stack {label} holds member {dup} more than once")
-    prefix, entries = _strip_single_folder(names)
+    return files
+
+
+def read_zip_member(archive: zipfile.ZipFile, member: str, label: str) -> bytes:
+    """The bytes of one member of a checked zip, refusing a corrupt, unreadable (encrypted,
+    unsupported method) or larger-than-declared member with a :class:`StackError`."""
+    info = archive.getinfo(member)
+    try:
+        with archive.open(info) as fh:
+            data = fh.read(info.file_size + 1)
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError) as exc:
+        raise StackError(f"capture stack {label} member {member} is corrupt ({exc})") from None
+    except (RuntimeError, NotImplementedError) as exc:  # encrypted, unsupported method
+        raise StackError(f"capture stack {label} member {member} cannot be read ({exc})") from None
+    if len(data) > info.file_size:
+        raise StackError(f"capture stack {label} member {member} is larger than its declared size")
+    return data
+
+
+def _read_zip(
+    label: str,
+    archive: zipfile.ZipFile,
+    *,
+    max_bytes: int,
+    max_ratio: float,
+) -> dict[str, tuple[str, bytes]]:
+    """Pattern name -> (member name, bytes) of a stack zip, checked before decompression."""
+    files = checked_zip_members(archive, label, max_bytes=max_bytes, max_ratio=max_ratio)
+    prefix, entries = strip_single_folder([info.filename for info in files])
     matched = _match_patterns(label, entries)
-    result: dict[str, tuple[str, bytes]] = {}
-    for pattern, entry in matched.items():
-        member = prefix + entry
-        info = archive.getinfo(member)
-        try:
-            with archive.open(info) as fh:
-                data = fh.read(info.file_size + 1)
-        except (zipfile.BadZipFile, zlib.error, EOFError, OSError) as exc:
-            raise StackError(f"capture stack {label} member {member} is corrupt ({exc})") from None
-        except (RuntimeError, NotImplementedError) as exc:  # encrypted, unsupported method
-            raise StackError(f"capture stack {label} member {member} cannot be read ({exc})") from None
-        if len(data) > info.file_size:
-            raise StackError(f"capture stack {label} member {member} is larger than its declared size")
-        result[pattern] = (member, data)
-    return result
+    members = {pattern: prefix + entry for pattern, entry in matched.items()}
+    return {pattern: (member, read_zip_member(archive, member, label)) for pattern, member in members.items()}
 
 
 def _read_folder(label: str, folder: Path, *, max_bytes: int) -> dict[str, tuple[str, bytes]]:
@@ -160,7 +177,7 @@ def _read_folder(label: str, folder: Path, *, max_bytes: int) -> dict[str, tuple
         entries = []
         for child in sorted(where.iterdir()):
             rel = prefix + child.name
-            if _is_junk(rel):
+            if is_junk(rel):
                 continue
             entries.append(rel + "/" if child.is_dir() else rel)
         return entries

@@ -23,12 +23,12 @@ from metrology.core.io.archives import (
     DEFAULT_MAX_BYTES,
     DEFAULT_MAX_RATIO,
     IMAGE_EXTENSIONS,
-    _is_junk,
     _match_patterns,
     _open_zip,
     _read_folder,
     _read_zip,
-    _strip_single_folder,
+    is_junk,
+    strip_single_folder,
 )
 from metrology.core.io.atomic import _write_bytes_atomic, atomic_path
 from metrology.core.io.errors import StackError
@@ -357,8 +357,8 @@ def read_verified_stack(data: bytes, sha256: str, *, shape: tuple[int, int] | No
             f"capture stack no longer matches the sha256 recorded when it was validated ({digest} != {sha256}); refused"
         )
     with zipfile.ZipFile(io.BytesIO(data)) as archive:
-        names = [info.filename for info in archive.infolist() if not info.is_dir() and not _is_junk(info.filename)]
-    prefix, entries = _strip_single_folder(names)
+        names = [info.filename for info in archive.infolist() if not info.is_dir() and not is_junk(info.filename)]
+    prefix, entries = strip_single_folder(names)
     members = _match_patterns("verified stack", entries)
 
     def load(pattern: str) -> np.ndarray:
