@@ -10,9 +10,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import secrets
-import shutil
-import zipfile
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -42,7 +39,7 @@ def write_codec_patterns(codec: Any, dest: str | os.PathLike[str]) -> Path:
     import numpy as np
 
     from metrology.core.codecs import codec_patterns
-    from metrology.core.io import atomic_path
+    from metrology.core.io.atomic import write_files_new_folder_atomic, write_files_zip_atomic
 
     images = codec_patterns(codec)
     files: dict[str, bytes] = {}
@@ -55,24 +52,10 @@ def write_codec_patterns(codec: Any, dest: str | os.PathLike[str]) -> Path:
     files["codec.json"] = codec.to_json().encode()
     target = Path(dest)
     if target.suffix.lower() == ".zip":
-        target.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(target) as tmp, zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as archive:
-            for name, data in files.items():
-                archive.writestr(name, data)
-        return target
+        return write_files_zip_atomic(files, target)
     if target.exists():
         raise ValueError(f"--out {dest}: already exists; give a new folder or a .zip")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp_dir = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
-    tmp_dir.mkdir()
-    try:
-        for name, data in files.items():
-            (tmp_dir / name).write_bytes(data)
-        os.rename(tmp_dir, target)
-    finally:
-        if tmp_dir.exists():
-            shutil.rmtree(tmp_dir)
-    return target
+    return write_files_new_folder_atomic(files, target)
 
 
 def cmd_codec_patterns(args: argparse.Namespace) -> dict[str, Any]:

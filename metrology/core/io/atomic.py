@@ -6,6 +6,8 @@ from __future__ import annotations
 import contextlib
 import os
 import secrets
+import shutil
+import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -53,3 +55,33 @@ def _write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
 def write_text_atomic(text: str, path: str | os.PathLike[str]) -> None:
     """Write UTF-8 ``text`` to ``path`` atomically (a reader sees the old file or the whole new one)."""
     _write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def write_files_zip_atomic(files: dict[str, bytes], path: str | os.PathLike[str], *, compress: bool = True) -> Path:
+    """Write ``files`` (member name -> bytes) as a new zip at ``path``: written to a temporary
+    file and renamed into place, so a reader never sees half a zip. PNG data compresses no
+    further: ``compress=False`` stores the members."""
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
+    with atomic_path(target) as tmp, zipfile.ZipFile(tmp, "w", compression=method) as archive:
+        for name, data in files.items():
+            archive.writestr(name, data)
+    return target
+
+
+def write_files_new_folder_atomic(files: dict[str, bytes], path: str | os.PathLike[str]) -> Path:
+    """Write ``files`` (file name -> bytes) as the new folder ``path``: written as a temporary
+    sibling folder and renamed into place, so the folder appears whole or not at all."""
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp_dir = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
+    tmp_dir.mkdir()
+    try:
+        for name, data in files.items():
+            (tmp_dir / name).write_bytes(data)
+        os.rename(tmp_dir, target)
+    finally:
+        if tmp_dir.exists():
+            shutil.rmtree(tmp_dir)
+    return target

@@ -6,8 +6,6 @@ from __future__ import annotations
 import hashlib
 import io
 import os
-import secrets
-import shutil
 import zipfile
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -30,7 +28,7 @@ from metrology.core.io.archives import (
     is_junk,
     strip_single_folder,
 )
-from metrology.core.io.atomic import _write_bytes_atomic, atomic_path
+from metrology.core.io.atomic import _write_bytes_atomic, write_files_new_folder_atomic, write_files_zip_atomic
 from metrology.core.io.errors import StackError
 from metrology.core.io.images import DEFAULT_MAX_PIXELS, checked_header, decode_grey_image
 from metrology.core.patterns import PATTERN_NAMES
@@ -293,12 +291,7 @@ def write_stack(images: CaptureStack | npt.ArrayLike, dest: str | os.PathLike[st
     encoded = encode_stack(images, ext)
     target = Path(dest)
     if target.suffix.lower() == ".zip":
-        target.parent.mkdir(parents=True, exist_ok=True)
-        method = zipfile.ZIP_STORED if ext.lower() == ".png" else zipfile.ZIP_DEFLATED
-        with atomic_path(target) as tmp, zipfile.ZipFile(tmp, "w", compression=method) as archive:
-            for name, data in encoded.items():
-                archive.writestr(name, data)
-        return target
+        return write_files_zip_atomic(encoded, target, compress=ext.lower() != ".png")
     if target.is_dir():
         clashes = [
             child.name
@@ -313,17 +306,7 @@ def write_stack(images: CaptureStack | npt.ArrayLike, dest: str | os.PathLike[st
         for name, data in encoded.items():
             _write_bytes_atomic(target / name, data)
         return target
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp_dir = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
-    tmp_dir.mkdir()
-    try:
-        for name, data in encoded.items():
-            (tmp_dir / name).write_bytes(data)
-        os.rename(tmp_dir, target)
-    finally:
-        if tmp_dir.exists():
-            shutil.rmtree(tmp_dir)
-    return target
+    return write_files_new_folder_atomic(encoded, target)
 
 
 def read_verified_stack(data: bytes, sha256: str, *, shape: tuple[int, int] | None = None) -> CaptureStack:
