@@ -11,14 +11,11 @@ per reason, repaired slips, the validity rules used).
 
 from __future__ import annotations
 
-import io
 import json
 import time
 from typing import Any
 
 import numpy as np
-from django.core.files import File
-from django.core.files.storage import default_storage
 
 from metrology.api_errors import BadInput
 from metrology.captures.codecs import capture_codec_value, codec_of, is_gcps_v1
@@ -26,6 +23,7 @@ from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.jobs.results import json_safe
 from metrology.measurements.models import Measurement
+from metrology.measurements.stored_arrays import save_arrays, sigma_statistics
 
 
 def stacks_codec_value(reference: Any, obj: Any) -> Any:
@@ -99,18 +97,11 @@ def run_codec_measurement(job: Job, run: job_services.JobRun, codec: Any) -> Non
     arrays = {"height.npy": z_mm}
     if result.sigma_mm is not None:  # options.sigma
         arrays["sigma.npy"] = np.asarray(result.sigma_mm, dtype=np.float32)
-    names: dict[str, str] = {}
     with run.phase("store", 80):
-        for filename, array in arrays.items():
-            buffer = io.BytesIO()
-            np.save(buffer, array)
-            buffer.seek(0)
-            names[filename] = run.save_file(default_storage, f"{prefix}/{filename}", File(buffer, name=filename))
+        names = save_arrays(run, prefix, arrays)
     statistics = json_safe(result.statistics())
     statistics["shape"] = list(z_mm.shape)
-    if result.sigma_mm is not None:
-        finite_sigma = result.sigma_mm[np.isfinite(result.sigma_mm)]
-        statistics["sigma_mm_median"] = float(np.median(finite_sigma)) if finite_sigma.size else None
+    statistics.update(sigma_statistics(result.sigma_mm))
     statistics["codec"] = json.loads(json.dumps(job.parameters.get("codec")))
     if result.decoding is not None:
         statistics["decoding"] = json_safe(result.decoding.summary())

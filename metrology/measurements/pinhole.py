@@ -19,8 +19,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from django.core.files import File
-from django.core.files.storage import default_storage
 from django.db import transaction
 
 from metrology.api_errors import BadInput
@@ -31,6 +29,7 @@ from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.jobs.results import json_safe
 from metrology.measurements.models import Measurement
+from metrology.measurements.stored_arrays import save_arrays
 
 
 def pinhole_options(options: Any) -> dict[str, Any]:
@@ -108,13 +107,8 @@ def run_pinhole_measurement(job: Job, run: job_services.JobRun) -> None:
     if result.sigma_mm is not None:
         arrays["sigma.npy"] = result.sigma_mm.astype(np.float32)
     prefix = f"measurements/{measurement.pk}/{run.token.hex}"
-    names: dict[str, str] = {}
     with run.phase("store", 80):
-        for filename, array in arrays.items():
-            buffer = io.BytesIO()
-            np.save(buffer, array)
-            buffer.seek(0)
-            names[filename] = run.save_file(default_storage, f"{prefix}/{filename}", File(buffer, name=filename))
+        names = save_arrays(run, prefix, arrays)
     data = result.to_dict()
     statistics = json_safe(data["statistics"])
     statistics["shape"] = list(result.z_mm.shape)

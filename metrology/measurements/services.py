@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import io
 import time
 from typing import Any
 
 import numpy as np
-from django.core.files import File
 from django.core.files.storage import default_storage
 from django.db import transaction
 
@@ -19,6 +17,7 @@ from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.jobs.results import json_safe
 from metrology.measurements.models import Measurement
+from metrology.measurements.stored_arrays import save_arrays, sigma_statistics
 from metrology.rigs.models import Rig
 
 
@@ -118,23 +117,16 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
             run.timings[name] = round(float(seconds), 4)
     z_mm = np.asarray(result.z_mm, dtype=np.float32)
     prefix = f"measurements/{measurement.pk}/{run.token.hex}"
-    names: dict[str, str] = {}
     arrays = {"height.npy": z_mm}
     if result.gray_z_mm is not None:
         arrays["gray_only_height.npy"] = np.asarray(result.gray_z_mm, dtype=np.float32)
     if result.sigma_mm is not None:  # options.sigma
         arrays["sigma.npy"] = np.asarray(result.sigma_mm, dtype=np.float32)
     with run.phase("store", 80):
-        for filename, array in arrays.items():
-            buffer = io.BytesIO()
-            np.save(buffer, array)
-            buffer.seek(0)
-            names[filename] = run.save_file(default_storage, f"{prefix}/{filename}", File(buffer, name=filename))
+        names = save_arrays(run, prefix, arrays)
     statistics = json_safe(result.statistics())
     statistics["shape"] = list(z_mm.shape)
-    if result.sigma_mm is not None:
-        finite_sigma = result.sigma_mm[np.isfinite(result.sigma_mm)]
-        statistics["sigma_mm_median"] = float(np.median(finite_sigma)) if finite_sigma.size else None
+    statistics.update(sigma_statistics(result.sigma_mm))
 
     def publish(job_row: Job) -> None:
         start = time.perf_counter()

@@ -1,0 +1,37 @@
+"""Result arrays of a measurement job written to storage under the attempt's own prefix.
+
+Every measurement handler (gcps-v1, other codecs, pinhole rigs) stores its maps the same way:
+``.npy`` files under ``measurements/<id>/<attempt token>/``, referenced by the row only when the
+attempt commits (:mod:`metrology.jobs.services`), so a half-written result is never visible.
+"""
+
+from __future__ import annotations
+
+import io
+from typing import Any
+
+import numpy as np
+from django.core.files import File
+from django.core.files.storage import default_storage
+
+from metrology.jobs.services import JobRun
+
+
+def save_arrays(run: JobRun, prefix: str, arrays: dict[str, np.ndarray]) -> dict[str, str]:
+    """Save each array as ``prefix/<file name>`` (``.npy``); returns file name -> stored name."""
+    names: dict[str, str] = {}
+    for filename, array in arrays.items():
+        buffer = io.BytesIO()
+        np.save(buffer, array)
+        buffer.seek(0)
+        names[filename] = run.save_file(default_storage, f"{prefix}/{filename}", File(buffer, name=filename))
+    return names
+
+
+def sigma_statistics(sigma_mm: np.ndarray | None) -> dict[str, Any]:
+    """``{"sigma_mm_median": ...}`` over the finite per-point sigmas (None when there are none);
+    empty when no sigma map was computed."""
+    if sigma_mm is None:
+        return {}
+    finite = sigma_mm[np.isfinite(sigma_mm)]
+    return {"sigma_mm_median": float(np.median(finite)) if finite.size else None}
