@@ -111,7 +111,7 @@ def profile_figure(
     """Height along one image row (full resolution), GCPS; the gray-code-only profile if given."""
     fig = go.Figure(layout=base_layout(f"Profile along row {row}", "X (mm)", "height (mm)"))
     fig.add_trace(
-        go.Scattergl(
+        go.Scatter(
             x=np.asarray(x_mm, dtype=np.float32),
             y=np.asarray(z_row_mm, dtype=np.float32),
             mode="lines",
@@ -121,7 +121,7 @@ def profile_figure(
     )
     if gray_row_mm is not None:
         fig.add_trace(
-            go.Scattergl(
+            go.Scatter(
                 x=np.asarray(x_mm, dtype=np.float32),
                 y=np.asarray(gray_row_mm, dtype=np.float32),
                 mode="lines",
@@ -140,7 +140,7 @@ def gray_vs_gcps_figure(
     diff = (np.asarray(gray_row_mm, dtype=np.float64) - np.asarray(z_row_mm, dtype=np.float64)) * UM
     fig = go.Figure(layout=base_layout(f"Gray code only minus GCPS, row {row}", "X (mm)", "difference (µm)"))
     fig.add_trace(
-        go.Scattergl(x=x, y=diff.astype(np.float32), mode="lines", name="gray only - GCPS", line={"color": PALETTE[4]})
+        go.Scatter(x=x, y=diff.astype(np.float32), mode="lines", name="gray only - GCPS", line={"color": PALETTE[4]})
     )
     fig.update_yaxes(tickformat=",.0f")  # "-10,000 µm", not "-10k µm"
     return fig

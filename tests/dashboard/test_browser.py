@@ -140,6 +140,10 @@ def test_measure_and_characterize_in_the_browser(live_server, alice, worker, bro
     assert page.locator("#fig-surface .gl-container canvas, #fig-surface canvas").count() >= 1
     assert page.locator("#fig-profile .main-svg").count() >= 1
     assert page.locator("#fig-gray_vs_gcps .main-svg").count() >= 1
+    # the row profiles are SVG line plots, drawn where WebGL is missing too (they were blank there)
+    for figure in ("#fig-profile", "#fig-gray_vs_gcps"):
+        assert page.locator(f"{figure} .scatterlayer .trace path.js-line").count() >= 1
+    assert "WebGL is not supported" not in page.locator("body").inner_text()
     assert page.locator("#fig-height_map .colorbar").count() == 1
     # the X axis spans the field (d - FW/2 .. d + FW/2 = 102 .. 602 mm), not a range padded to the square aspect
     x_range = page.evaluate("document.getElementById('fig-height_map')._fullLayout.xaxis.range")
