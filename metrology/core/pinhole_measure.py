@@ -10,16 +10,14 @@ The measurement a ``gcps measure --rig PINHOLE.json`` run makes once the capture
 - with a per-pixel sigma of the triangulated axis's coordinate (projector units), the points'
   standard uncertainty in mm (``--sigma``), first-order propagation through the triangulation.
 
-:func:`coordinate_sigma` gives that coordinate sigma from an N-step phase decoding.
+:func:`metrology.core.uncertainty.coordinate_sigma` gives that coordinate sigma from an N-step phase decoding.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
 from metrology.core.geometry.base import check_axes, check_frame
 from metrology.core.geometry.pinhole import PinholeReference, PinholeRig, PreparedPinhole
@@ -52,25 +50,6 @@ class PinholeMeasurement:
     method: str
 
 
-def coordinate_sigma(
-    period: float, steps: int, noise: npt.ArrayLike, modulation: npt.ArrayLike
-) -> npt.NDArray[np.float32]:
-    """Standard deviation of an N-step phase decoding's coordinate, projector units.
-
-    ``sigma_x = P / (2 pi) * sqrt(2 / N) * sigma_I / B`` for ``N`` frames of period ``P``, camera
-    noise ``sigma_I`` and modulation ``B`` (grey levels; both maps or scalars), the least-squares
-    phase's first-order variance. NaN where ``B`` is not positive.
-    """
-    if not (math.isfinite(period) and period > 0):
-        raise ValueError(f"period must be > 0, got {period!r}")
-    if steps < 3:
-        raise ValueError(f"steps must be >= 3, got {steps!r}")
-    b = np.asarray(modulation, dtype=np.float32)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sigma = np.float32(period / (2 * math.pi) * math.sqrt(2.0 / steps)) * np.asarray(noise, np.float32) / b
-    return np.where(b > 0, sigma, np.float32(np.nan)).astype(np.float32)
-
-
 def measure_pinhole(
     rig: PinholeRig,
     u: np.ndarray | None,
@@ -93,7 +72,8 @@ def measure_pinhole(
     reference_uv : (u, v) of the reference capture, optional
         When given, ``z_mm`` holds heights above the plane fitted to it.
     sigma : (H, W) float array, optional
-        Sigma of the triangulated axis's coordinate, projector units (:func:`coordinate_sigma`).
+        Sigma of the triangulated axis's coordinate, projector units
+        (:func:`metrology.core.uncertainty.coordinate_sigma`).
     axis, method : str
         ``auto|u|v`` and ``plane|midpoint`` (see :meth:`PinholeRig.prepare`).
     projector_size : (width, height), optional

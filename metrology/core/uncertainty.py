@@ -49,9 +49,17 @@ def coordinate_sigma(
         raise ValueError(f"period must be > 0, got {period!r}")
     if steps < 3:
         raise ValueError(f"steps must be >= 3, got {steps!r}")
+    return _phase_coordinate_sigma(period, 2.0 / steps, noise, modulation)
+
+
+def _phase_coordinate_sigma(
+    period: float, variance_factor: float, noise: npt.ArrayLike, modulation: npt.ArrayLike
+) -> npt.NDArray[np.float32]:
+    """``P / (2 pi) * sqrt(k) * sigma_I / B``, with ``var(theta) = k sigma_I^2 / B^2`` (``k = 2 / N`` for
+    an N-step phase, ``sum_i 2 / N_i`` for a beat of several); float32, NaN where ``B <= 0``."""
     b = np.asarray(modulation, dtype=np.float32)
     with np.errstate(divide="ignore", invalid="ignore"):
-        sigma = np.float32(period / (2 * math.pi) * math.sqrt(2.0 / steps)) * np.asarray(noise, np.float32) / b
+        sigma = np.float32(period / (2 * math.pi) * math.sqrt(variance_factor)) * np.asarray(noise, np.float32) / b
     return np.where(b > 0, sigma, np.float32(np.nan)).astype(np.float32)
 
 
@@ -73,10 +81,15 @@ def pooled_noise(noise: npt.ArrayLike, window: int = POOL_PX) -> npt.NDArray[np.
     return pooled.astype(np.float32)
 
 
-def axis_coordinate_sigma(codec: Codec, axis: str, decoding: AxisDecoding) -> npt.NDArray[np.float32]:
-    """Coordinate sigma (projector units) of ``axis`` from its decoding, for the final stage of its
-    unwrapping chain: an N-step phase (N >= 4), or a beat of two (variances add over the beat's
-    period); the noise estimate pooled (:func:`pooled_noise`).
+def stage_coordinate_sigma(
+    codec: Codec, axis: str, noise: npt.ArrayLike, modulation: npt.ArrayLike
+) -> npt.NDArray[np.float32]:
+    """Coordinate sigma (projector units) of ``axis`` for the final stage of its unwrapping chain,
+    from the decoder's per-pixel noise estimate (pooled, :func:`pooled_noise`) and modulation maps.
+
+    An N-step phase (N >= 4) gives :func:`coordinate_sigma`; a beat of two sequences,
+    ``theta_b = theta_s - theta_l``, adds their phase variances over the beat's period:
+    ``sigma_b = P_b / (2 pi) * sqrt(sum_i 2 / N_i) * sigma_I / B``.
 
     Raises
     ------
@@ -91,12 +104,15 @@ def axis_coordinate_sigma(codec: Codec, axis: str, decoding: AxisDecoding) -> np
             f"a per-point uncertainty needs the {axis} axis to end on a phase sequence of N >= 4 steps "
             "(its fit residual is the noise estimate)"
         )
-    noise = pooled_noise(decoding.noise)
+    pooled = pooled_noise(noise)
     if stage.kind == "phase":
-        return coordinate_sigma(stage.period, steps[0], noise, decoding.modulation)
-    # beat: theta_b = theta_s - theta_l, sigma_b^2 = (P_b / 2 pi)^2 sum_i (2 / N_i) sigma^2 / B^2
-    factor = math.sqrt(sum(2.0 / n for n in steps) / 2.0)
-    return coordinate_sigma(stage.period, 2, noise, decoding.modulation) * np.float32(factor)
+        return coordinate_sigma(stage.period, steps[0], pooled, modulation)
+    return _phase_coordinate_sigma(stage.period, sum(2.0 / n for n in steps), pooled, modulation)  # a beat
+
+
+def axis_coordinate_sigma(codec: Codec, axis: str, decoding: AxisDecoding) -> npt.NDArray[np.float32]:
+    """:func:`stage_coordinate_sigma` of a decoded axis (its noise and modulation maps)."""
+    return stage_coordinate_sigma(codec, axis, decoding.noise, decoding.modulation)
 
 
 def height_sigma(

@@ -25,7 +25,8 @@ from metrology.core.codecs.decode import CodecDecoding, decode_codec, validate_c
 from metrology.core.codecs.model import Codec
 from metrology.core.geometry.pinhole import PinholeReference, PinholeRig
 from metrology.core.measure import height_statistics
-from metrology.core.pinhole_measure import coordinate_sigma, measure_pinhole
+from metrology.core.pinhole_measure import measure_pinhole
+from metrology.core.uncertainty import stage_coordinate_sigma
 from metrology.pipeline.common import PhaseTimer, check_bool, check_keys
 from metrology.version import software_version
 
@@ -154,20 +155,15 @@ class PinholeMeasureResult:
 
 
 def final_stage_sigma(codec: Codec, axis: str, noise: Any, modulation: Any) -> Any:
-    """Coordinate sigma (projector units) of ``axis`` from the decoder's noise and modulation maps,
-    for the final stage of its unwrapping chain (a phase sequence, or a beat of two: variances
-    add); None when the chain ends on a gray code or the decoder gave no noise."""
+    """Coordinate sigma (projector units) of ``axis`` from the decoder's noise and modulation maps
+    (:func:`metrology.core.uncertainty.stage_coordinate_sigma`); None when the decoder gave no
+    noise or the chain ends where there is none (a gray code, a 3-step phase)."""
     if noise is None or not np.isfinite(noise).any():
         return None
-    stage = codec.axes[axis].chain()[-1]
-    phase = codec.axes[axis].phase
-    if stage.kind == "phase":
-        return coordinate_sigma(stage.period, len(phase[stage.indices[0]].frames), noise, modulation)
-    if stage.kind == "beat":
-        # theta_b = theta_s - theta_l: sigma_b^2 = (P_b / 2 pi)^2 sum (2 / N_i) sigma^2 / B^2
-        total = sum(2.0 / len(phase[i].frames) for i in stage.indices)
-        return coordinate_sigma(stage.period, 2, noise, modulation) * np.float32(math.sqrt(total))
-    return None
+    try:
+        return stage_coordinate_sigma(codec, axis, noise, modulation)
+    except ValueError:
+        return None
 
 
 def _coordinates(decoding: CodecDecoding) -> tuple[np.ndarray | None, np.ndarray | None]:

@@ -282,7 +282,7 @@ def test_measure_pinhole_depth_heights_and_sigma() -> None:
 
 def test_coordinate_sigma_matches_monte_carlo() -> None:
     """sigma_x = P / (2 pi) sqrt(2 / N) sigma_I / B against the scatter of least-squares phases."""
-    from metrology.core.pinhole_measure import coordinate_sigma
+    from metrology.core.uncertainty import coordinate_sigma
 
     rng = np.random.default_rng(11)
     n, period, b, noise = 8, 16.0, 40.0, 1.5

@@ -89,8 +89,9 @@ def test_predicted_sigma_matches_scatter_of_realistic_renders(axis: str) -> None
     """30 realistic 8-bit renders of a plane: the predicted per-point sigma (decoder noise and
     modulation -> coordinate sigma -> triangulation) matches the observed per-pixel scatter of
     the points within 15 % (median over pixels)."""
-    from metrology.core.pinhole_measure import coordinate_sigma, measure_pinhole
+    from metrology.core.pinhole_measure import measure_pinhole
     from metrology.core.simulate import SimulationOptions
+    from metrology.core.uncertainty import coordinate_sigma
 
     rig = look_at_rig(CAMERA, PROJECTOR, BASELINES[axis], (0.0, 0.0, Z0))
     options = SimulationOptions.realistic_8bit()
