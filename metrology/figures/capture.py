@@ -125,7 +125,7 @@ def decoding_figures(axes: Mapping[str, Mapping[str, np.ndarray]]) -> dict[str, 
             arrays["coordinate"], f"Decoded {name}: projector {what} of each camera pixel", "projector px"
         )
         figures[f"modulation_{name}"] = map_figure(
-            arrays["modulation"], f"Modulation B of the {name} fringes", "grey levels", colorscale="Greys"
+            arrays["modulation"], f"Modulation B of the {name} fringes", "grey levels", colorscale="Gray"
         )
         figures[f"reason_{name}"] = reason_figure(arrays["reason"], f"Why {name} pixels were refused")
     return figures
