@@ -273,11 +273,11 @@ class AcquisitionFailApi(APIView):
     @extend_schema(request=ProgressSerializer, responses=dict, operation_id="acquisitions_fail")
     def post(self, request: Request, acquisition_id: int) -> Response:
         acquisition = _get_acquisition(request.user, acquisition_id)
-        serializer = AgentSessionSerializer(data=request.data)
+        serializer = ProgressSerializer(data=request.data)  # the schema it documents
         serializer.is_valid(raise_exception=True)
         data = serializer.validated_data
         agent = services.agent_for_session(owner=request.user, rig=acquisition.rig, session=data["session"])
-        services.fail_acquisition(agent, acquisition, data["reason"], frames=_frames(request.data.get("frames")))
+        services.fail_acquisition(agent, acquisition, data["reason"], frames=_frames(data.get("frames")))
         acquisition.job.refresh_from_db()
         return Response(acquisition_data(acquisition))
 
