@@ -326,7 +326,9 @@ def test_characterization_form_error_in_words(client_alice, rig, alice):
     assert b"two or more distinct z_in_mm positions" in response.content
 
 
-def test_calibration_page_and_apply(client_alice, rig, alice, run_jobs):
+def calibrate_40mm_master_from_the_paper_start(client_alice, rig, alice, run_jobs):
+    """Upload a reference and a 40 mm master, and run an lsq calibration through the form from the
+    paper's rough start (L0 = 1080 mm, alpha0 = 0.4871 rad); the form's response."""
     z = np.zeros((rig.height_px, rig.width_px))
     z[25:95, 30:130] = 40.0
     reference = upload(alice, rig, 0.0, "reference")
@@ -344,6 +346,11 @@ def test_calibration_page_and_apply(client_alice, rig, alice, run_jobs):
                 "initial_alpha_rad": 0.4871,
             },
         )
+    return response
+
+
+def test_calibration_page_and_apply(client_alice, rig, alice, run_jobs):
+    response = calibrate_40mm_master_from_the_paper_start(client_alice, rig, alice, run_jobs)
     assert response.status_code == 302
     page = client_alice.get(response["Location"]).content.decode()
     for key in ("calibration_parameters", "calibration_profiles", "calibration_residual"):
@@ -370,23 +377,7 @@ def figure_data(html: str, name: str) -> dict:
 
 def test_calibration_page_shows_start_result_and_iterations_in_plain_words(client_alice, rig, alice, run_jobs):
     """Paper's rough start L0 = 1080 mm on a rig stored at 1022 mm: the page shows start -> result."""
-    z = np.zeros((rig.height_px, rig.width_px))
-    z[25:95, 30:130] = 40.0
-    reference = upload(alice, rig, 0.0, "reference")
-    master = upload(alice, rig, z, "master")
-    with run_jobs():
-        response = client_alice.post(
-            "/calibrations/new/",
-            {
-                "rig": rig.pk,
-                "reference": reference.pk,
-                "master": master.pk,
-                "master_height_mm": 40,
-                "method": "lsq",
-                "initial_L_mm": 1080,
-                "initial_alpha_rad": 0.4871,
-            },
-        )
+    response = calibrate_40mm_master_from_the_paper_start(client_alice, rig, alice, run_jobs)
     assert response.status_code == 302
     html = client_alice.get(response["Location"]).content.decode()
     text = visible_text(html)
