@@ -31,6 +31,9 @@ MIN_POSES = 2
 MAX_POSES = 40
 """Most poses a request may name (every stack is held in memory while the poses are observed)."""
 
+MAX_BOARD_POINTS = 100
+"""Most points per row, and rows, a board spec may have (a real board has a few dozen)."""
+
 OPTION_KEYS = ("window", "min_decoded", "fix_k3", "min_modulation", "min_inverse_contrast")
 """The options a request may give besides the board (those of ``ProcamOptions``)."""
 
@@ -44,9 +47,13 @@ def procam_options(board: Any, options: dict[str, Any] | None) -> Any:
     if not isinstance(board, str) or not board.strip():
         raise BadInput("board is required: KIND:COLSxROWS:SIZE_MM, e.g. chessboard:9x7:25 (inner corners, mm)")
     try:
-        parse_board(board)
+        spec = parse_board(board)
     except ValueError as exc:
         raise BadInput("board: " + str(exc).removeprefix("--board ")) from None
+    if spec.cols > MAX_BOARD_POINTS or spec.rows > MAX_BOARD_POINTS:
+        raise BadInput(
+            f"board: at most {MAX_BOARD_POINTS} points per row and {MAX_BOARD_POINTS} rows, got {spec.cols}x{spec.rows}"
+        )
     options = dict(options or {})
     unknown = sorted(set(options) - set(OPTION_KEYS))
     if unknown:

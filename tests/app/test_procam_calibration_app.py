@@ -6,7 +6,8 @@ board captures of a 320x240 crossed-axes rig; the job must give the camera fx wi
 projector fx and the baseline within 1 %, use five poses and warn about the sixth. Applying makes
 the rig a pinhole rig with the calibrated file and a history entry; bad requests answer 400 with a
 sentence naming the field; a job whose poses are all unusable fails with each pose's reason; the
-command line gives the same report and rig file for the same stacks.
+command line gives the same report and rig file for the same stacks (to 1e-5 px, see
+PARITY_RTOL).
 """
 
 from __future__ import annotations
@@ -180,6 +181,7 @@ def test_bad_requests_answer_400_naming_the_field(api, other_api, rig320, poses)
         ),
         ({"board": "chessboard:9x7"}, "board: 'chessboard:9x7': expected chessboard:COLSxROWS:SQUARE_MM"),
         ({"board": "chessboard:2x7:20"}, "board: a chessboard needs at least 3x3 inner corners, got 2x7"),
+        ({"board": "chessboard:9x100000:20"}, "board: at most 100 points per row and 100 rows, got 9x100000"),
         ({"options": {"colour": 1}}, "options: unknown option(s) colour; accepted: window, min_decoded"),
         ({"options": {"window": 0}}, "options: window must be 1..200 pixels, got 0"),
         ({"options": {"min_decoded": "half"}}, "options: min_decoded must be a number within 0..1, got 'half'"),
@@ -236,6 +238,31 @@ def test_job_and_command_line_give_the_same_report_and_rig_file(api, rig320, pos
     cli_report = json.loads(report_path.read_text())
     job_report = json.loads(api.get(f"/api/procam-calibrations/{calibration.pk}/report.json").content)
     assert set(cli_report.pop("timings_s")) == set(job_report.pop("timings_s")) == {"observe", "calibrate", "total"}
-    assert cli_report == job_report
-    assert api.get(f"/api/procam-calibrations/{calibration.pk}/rig.json").content.decode() == out.read_text()
-    assert calibration.rig_file == json.loads(out.read_text())
+    assert_same(cli_report, job_report)
+    job_rig = json.loads(api.get(f"/api/procam-calibrations/{calibration.pk}/rig.json").content)
+    assert list(job_rig) == list(json.loads(out.read_text()))  # the same keys, in the same order
+    assert_same(json.loads(out.read_text()), job_rig)
+    assert_same(json.loads(out.read_text()), calibration.rig_file)
+
+
+PARITY_RTOL, PARITY_ATOL = 1e-5, 1e-5
+"""Tolerances of the command/job comparison (relative; absolute, in the report's units: px, mm).
+Two runs on the same stacks find the same corners bit for bit, but OpenCV's calibration sums in
+parallel threads, so its results vary between runs by up to about 1e-6 px (measured: 9.4e-7 px on
+the camera's cx over five runs; bit-identical with ``cv2.setNumThreads(1)``)."""
+
+
+def assert_same(expected, actual, where: str = "") -> None:
+    """``actual`` equals ``expected``: same keys, lists, strings, booleans; numbers within PARITY_RTOL."""
+    if isinstance(expected, dict):
+        assert isinstance(actual, dict) and set(actual) == set(expected), where
+        for key, value in expected.items():
+            assert_same(value, actual[key], f"{where}.{key}")
+    elif isinstance(expected, list):
+        assert isinstance(actual, list) and len(actual) == len(expected), where
+        for index, (a, b) in enumerate(zip(expected, actual, strict=True)):
+            assert_same(a, b, f"{where}[{index}]")
+    elif isinstance(expected, float) and not isinstance(actual, bool):
+        assert actual == pytest.approx(expected, rel=PARITY_RTOL, abs=PARITY_ATOL), where
+    else:
+        assert actual == expected, where
