@@ -78,6 +78,21 @@ REQUEST_EXAMPLES: dict[str, dict[str, tuple[str, Any]]] = {
             },
         ),
     },
+    "procam_calibrations_create": {
+        "eight-poses": (
+            "Eight board captures of rig 1, a board of 10 x 8 squares of 25 mm (9x7 inner corners), result applied",
+            {"rig": 1, "poses": [11, 12, 13, 14, 15, 16, 17, 18], "board": "chessboard:9x7:25", "apply": True},
+        ),
+        "options": (
+            "Five poses, k3 held at 0, corner windows of 12 px",
+            {
+                "rig": 1,
+                "poses": [21, 22, 23, 24, 25],
+                "board": "chessboard:9x6:20",
+                "options": {"fix_k3": True, "window": 12, "min_decoded": 0.3},
+            },
+        ),
+    },
     "characterizations_create": {
         "session": ("The stage captures of session 4", {"rig": 1, "reference": 1, "session": 4}),
         "series": (

@@ -6,6 +6,7 @@ from drf_spectacular.views import SpectacularAPIView, SpectacularSwaggerSplitVie
 
 from metrology.acquisition import urls as acquisition_urls
 from metrology.calibrations import api as calibrations
+from metrology.calibrations import procam_api as procam
 from metrology.captures import api as captures
 from metrology.characterizations import api as characterizations
 from metrology.jobs import api as jobs
@@ -43,6 +44,27 @@ api_patterns = [
     path("calibrations/<int:calibration_id>/", calibrations.CalibrationDetailApi.as_view(), name="calibration"),
     path(
         "calibrations/<int:calibration_id>/apply/", calibrations.CalibrationApplyApi.as_view(), name="calibration-apply"
+    ),
+    path("procam-calibrations/", procam.ProcamCalibrationListCreateApi.as_view(), name="procam-calibrations"),
+    path(
+        "procam-calibrations/<int:calibration_id>/",
+        procam.ProcamCalibrationDetailApi.as_view(),
+        name="procam-calibration",
+    ),
+    path(
+        "procam-calibrations/<int:calibration_id>/apply/",
+        procam.ProcamCalibrationApplyApi.as_view(),
+        name="procam-calibration-apply",
+    ),
+    path(
+        "procam-calibrations/<int:calibration_id>/report.json",
+        procam.ProcamCalibrationReportApi.as_view(),
+        name="procam-calibration-report",
+    ),
+    path(
+        "procam-calibrations/<int:calibration_id>/rig.json",
+        procam.ProcamCalibrationRigFileApi.as_view(),
+        name="procam-calibration-rig",
     ),
     path("characterizations/", characterizations.CharacterizationListCreateApi.as_view(), name="characterizations"),
     path(

@@ -28,6 +28,7 @@ class Capture(models.Model):
         OBJECT = "object", "Object"
         MASTER = "master", "Calibration master"
         STAGE = "stage", "Stage position"
+        BOARD = "board", "Calibration board pose"
 
     class Source(models.TextChoices):
         UPLOAD = "upload", "Uploaded"

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import time
 from pathlib import Path
 from typing import Any
@@ -55,17 +54,6 @@ def _check_json_out(path: str, option: str) -> Path:
     return out.resolve()
 
 
-def _finite(value: Any) -> Any:
-    """JSON-ready copy: non-finite floats become None."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_finite(v) for v in value]
-    return value
-
-
 def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
     """Observe the poses, calibrate, write ``--out`` and ``--report`` atomically; returns a summary."""
     from metrology.core.codecs import read_codec
@@ -73,7 +61,13 @@ def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
     from metrology.core.io import write_text_atomic
     from metrology.core.procam import calibrate_procam, parse_board
     from metrology.core.procam.correspondences import correspondences_dict, read_correspondences
-    from metrology.pipeline.calibrate_procam import ProcamOptions, ProcamPose, calibrate_procam_stacks
+    from metrology.pipeline.calibrate_procam import (
+        ProcamOptions,
+        ProcamPose,
+        calibrate_procam_stacks,
+        json_ready,
+        report_json_text,
+    )
     from metrology.version import software_version
 
     board = parse_board(args.board)
@@ -132,10 +126,10 @@ def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
         rig, report = outcome.rig, dict(outcome.report)
         poses, camera_size, projector_size = outcome.poses, outcome.camera_size, outcome.projector_size
         report["timings_s"] = {**report["timings_s"], "total": round(time.perf_counter() - start, 3)}
-    report_text = json.dumps(_finite(report), indent=2, allow_nan=False) + "\n"
+    report_text = report_json_text(report)
     if args.save_correspondences:
         corr = correspondences_dict(poses, camera_size, projector_size)
-        write_text_atomic(json.dumps(_finite(corr), indent=2) + "\n", outs["--save-correspondences"])
+        write_text_atomic(json.dumps(json_ready(corr), indent=2) + "\n", outs["--save-correspondences"])
     if args.figures:
         from metrology.core.procam.figures import residual_svg
 

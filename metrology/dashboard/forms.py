@@ -238,3 +238,87 @@ class CharacterizationForm(forms.Form):
             [("", "choose a session")]
             + [(str(s.pk), f"#{s.pk} {s.name or 'session'} ({s.n_stage} stage captures)") for s in sessions],
         )
+
+
+class MultipleFileInput(forms.ClearableFileInput):
+    """A file input that takes several files (``<input type=file multiple>``)."""
+
+    allow_multiple_selected = True
+
+
+class MultipleFileField(forms.FileField):
+    """Several uploaded files: a list (empty when none and not required)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("widget", MultipleFileInput(attrs={"accept": ".zip,application/zip"}))
+        super().__init__(*args, **kwargs)
+
+    def clean(self, data: Any, initial: Any = None) -> Any:
+        files = [item for item in (data if isinstance(data, list | tuple) else [data]) if item]
+        if not files:
+            if self.required:
+                raise forms.ValidationError(self.error_messages["required"], code="required")
+            return []
+        return [super(MultipleFileField, self).clean(item, initial) for item in files]
+
+
+BOARD_HELP = (
+    "KIND:COLSxROWS:SIZE_MM. COLSxROWS is OpenCV's pattern size: the inner corners of a chessboard (where "
+    "four squares meet), points per row first; a board of 10 x 8 squares of 25 mm is chessboard:9x7:25. "
+    "circles:COLSxROWS:SPACING_MM and acircles:... for circle grids."
+)
+
+
+class ProcamCalibrationForm(forms.Form):
+    fields: dict[str, Any]
+    board = forms.CharField(max_length=100, initial="chessboard:9x7:25", help_text=BOARD_HELP)
+    pose_files = MultipleFileField(
+        label="Pose stacks (.zip, one per pose)",
+        required=False,
+        help_text=(
+            "Select several files: one zip per board pose, each the frames of a codec coding both projector axes "
+            "with its codec.json (docs/codecs.md). They are stored as board captures in one new capture session."
+        ),
+    )
+    existing = forms.TypedMultipleChoiceField(
+        coerce=int,
+        required=False,
+        label="Board captures already stored",
+        widget=forms.CheckboxSelectMultiple,
+        help_text="Used after the uploaded poses, in this order",
+    )
+    window = forms.IntegerField(
+        label="Corner window (px)",
+        required=False,
+        min_value=1,
+        max_value=200,
+        help_text="Half-size of each corner's homography window; empty: half the corner spacing, 4 to 30 px",
+    )
+    min_decoded = forms.FloatField(
+        label="Decoded fraction a corner needs",
+        initial=0.25,
+        min_value=0.0,
+        max_value=1.0,
+        help_text="A corner is used when this fraction of its window is decoded",
+    )
+    fix_k3 = forms.BooleanField(required=False, label="Hold k3 at 0 (few poses, mild distortion)")
+    apply = forms.BooleanField(required=False, label="Make the result the rig's calibration when done")
+
+    def __init__(self, *args: Any, board_captures: Any = (), **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        set_choices(self, "existing", capture_choices(list(board_captures))[1:])
+
+    def clean(self) -> dict[str, Any]:
+        data = super().clean() or {}
+        count = len(data.get("pose_files") or []) + len(data.get("existing") or [])
+        if not self.errors and count < 2:
+            raise forms.ValidationError("Give at least two poses (8 to 12 recommended): upload zips or pick captures.")
+        return data
+
+    def options(self) -> dict[str, Any]:
+        """The request's options (``window`` only when given)."""
+        data = self.cleaned_data
+        options: dict[str, Any] = {"min_decoded": data["min_decoded"], "fix_k3": data["fix_k3"]}
+        if data.get("window") is not None:
+            options["window"] = data["window"]
+        return options

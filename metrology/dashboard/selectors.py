@@ -210,6 +210,8 @@ def job_result_url(job: Job) -> str:
         return reverse("dashboard:measurement", args=[params["measurement"]])
     if job.kind == Job.Kind.CALIBRATION and "calibration" in params:
         return reverse("dashboard:calibration", args=[params["calibration"]])
+    if job.kind == Job.Kind.PROCAM_CALIBRATION and "procam_calibration" in params:
+        return reverse("dashboard:procam-calibration", args=[params["procam_calibration"]])
     if job.kind == Job.Kind.CHARACTERIZATION and "characterization" in params:
         return reverse("dashboard:characterization", args=[params["characterization"]])
     if job.kind == Job.Kind.SIMULATE_CAPTURE:

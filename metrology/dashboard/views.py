@@ -165,6 +165,7 @@ def rig_detail(request: HttpRequest, rig_id: int) -> HttpResponse:
             "captures": capture_selectors.captures_for(user, rig).order_by("-id")[:10],
             "measurements": measurement_selectors.measurements_for(user).filter(rig=rig)[:10],
             "calibrations": calibration_selectors.calibrations_for(user).filter(rig=rig)[:10],
+            "procam_calibrations": calibration_selectors.procam_calibrations_for(user, rig)[:10],
             "characterizations": characterization_selectors.characterizations_for(user).filter(rig=rig)[:10],
         },
         status=400 if request.method == "POST" else 200,
@@ -459,6 +460,157 @@ def calibration_apply(request: HttpRequest, calibration_id: int) -> HttpResponse
             status=400,
         )
     return redirect("dashboard:rig", calibration.rig_id)
+
+
+# ----------------------------------------------------------------------------- procam calibrations
+
+
+@login_required
+def procam_list(request: HttpRequest) -> HttpResponse:
+    rig = _rig_from_query(request)
+    return render(
+        request,
+        "dashboard/procam_calibrations.html",
+        {"rig": rig, "calibrations": calibration_selectors.procam_calibrations_for(request.user, rig)[:200]},
+    )
+
+
+@login_required
+@require_http_methods(["GET", "POST"])
+def procam_new(request: HttpRequest) -> HttpResponse:
+    """The board spec, the pose zips (uploaded into one new capture session) or stored board captures,
+    the options; starts the job and goes to the calibration's page."""
+    rig = _rig_from_query(request)
+    if rig is None:
+        return render(request, "dashboard/choose_rig.html", _choose_rig(request, "projector-camera calibration"))
+    board_captures = pages.ready_captures(request.user, rig).filter(role="board").order_by("id")
+    form = forms.ProcamCalibrationForm(request.POST or None, request.FILES or None, board_captures=board_captures)
+    if request.method == "POST" and form.is_valid():
+        try:
+            calibration = _start_procam(request, rig, form.cleaned_data, form.options())
+        except SERVICE_ERRORS as exc:
+            form.add_error(None, error_text(exc))
+        else:
+            return redirect("dashboard:procam-calibration", calibration.pk)
+    return render(
+        request,
+        "dashboard/procam_new.html",
+        {
+            "rig": rig,
+            "form": form,
+            "has_board_captures": bool(form.fields["existing"].choices),
+            "option_fields": [form[name] for name in ("window", "min_decoded", "fix_k3", "apply")],
+        },
+        status=400 if request.method == "POST" else 200,
+    )
+
+
+def _start_procam(request: HttpRequest, rig, data: dict[str, Any], options: dict[str, Any]):
+    """Store the uploaded pose zips as board captures of one new session and request the calibration, in
+    one transaction; on any refusal nothing stays (rows rolled back, stored stacks deleted)."""
+    from django.core.files.storage import default_storage
+    from django.utils import timezone
+
+    from metrology.api_errors import BadInput
+    from metrology.calibrations import procam_services
+
+    stored: list[str] = []
+    try:
+        with transaction.atomic():
+            ids: list[int] = []
+            files = data.get("pose_files") or []
+            if files:
+                session = capture_services.create_session(
+                    owner=request.user, rig=rig, name=f"board poses {timezone.now():%Y-%m-%d %H:%M}"
+                )
+                for upload in files:
+                    try:
+                        capture = capture_services.upload_capture(
+                            owner=request.user, rig=rig, upload=upload, role="board", session_id=session.pk
+                        )
+                    except SERVICE_ERRORS as exc:
+                        raise BadInput(f"pose file {upload.name}: {error_text(exc)}") from None
+                    stored.append(capture.file.name)
+                    ids.append(capture.pk)
+            ids += list(data.get("existing") or [])
+            return procam_services.request_procam_calibration(
+                owner=request.user, rig=rig, pose_ids=ids, board=data["board"], options=options, apply=data["apply"]
+            )
+    except BaseException:
+        for name in stored:
+            default_storage.delete(name)
+        raise
+
+
+def _procam_context(request: HttpRequest, calibration, error: str = "") -> dict[str, Any]:
+    from metrology.dashboard.procam_pages import procam_summary
+
+    done = calibration.job.status == "done"
+    return {
+        "calibration": calibration,
+        "job": calibration.job,
+        "summary": procam_summary(calibration.report) if done else {},
+        "rig_before": calibration.rig_before or {},
+        "pose_ids": calibration_selectors.procam_pose_ids(calibration),
+        "error": error,
+    }
+
+
+@login_required
+def procam_detail(request: HttpRequest, calibration_id: int) -> HttpResponse:
+    calibration = calibration_selectors.get_procam_calibration(request.user, calibration_id)
+    return render(request, "dashboard/procam_calibration.html", _procam_context(request, calibration))
+
+
+@login_required
+@require_POST
+def procam_apply(request: HttpRequest, calibration_id: int) -> HttpResponse:
+    from metrology.calibrations import procam_services
+
+    calibration = calibration_selectors.get_procam_calibration(request.user, calibration_id)
+    try:
+        procam_services.apply_procam_calibration(calibration=calibration)
+    except SERVICE_ERRORS as exc:
+        calibration = calibration_selectors.get_procam_calibration(request.user, calibration_id)
+        context = _procam_context(request, calibration, error_text(exc))
+        return render(request, "dashboard/procam_calibration.html", context, status=400)
+    return redirect("dashboard:rig", calibration.rig_id)
+
+
+def _svg(text: str) -> HttpResponse:
+    """An SVG figure: no script may run in it, even when opened on its own."""
+    response = HttpResponse(text, content_type="image/svg+xml; charset=utf-8")
+    response["Content-Security-Policy"] = "default-src 'none'; style-src 'unsafe-inline'"
+    response["X-Content-Type-Options"] = "nosniff"
+    response["Cache-Control"] = "private, max-age=3600"
+    return response
+
+
+@login_required
+def procam_residual_svg(request: HttpRequest, calibration_id: int, index: int) -> HttpResponse:
+    """The residual arrows of the calibration's pose ``index`` (0-based, the report's order), SVG."""
+    from django.http import Http404
+
+    from metrology.core.procam.figures import residual_svg
+
+    calibration = calibration_selectors.get_procam_calibration(request.user, calibration_id)
+    poses = (calibration.report or {}).get("poses") or []
+    if not 0 <= index < len(poses) or not poses[index].get("used"):
+        raise Http404(f"procam calibration {calibration.pk} has no used pose {index}")
+    return _svg(residual_svg(calibration.report, poses[index]["name"]))
+
+
+@login_required
+def procam_coverage_svg(request: HttpRequest, calibration_id: int, device: str) -> HttpResponse:
+    """The used corners over the camera's or the projector's image and the covered grid cells, SVG."""
+    from django.http import Http404
+
+    from metrology.core.procam.figures import coverage_svg
+
+    calibration = calibration_selectors.get_procam_calibration(request.user, calibration_id)
+    if device not in ("camera", "projector") or not calibration.report:
+        raise Http404(f"procam calibration {calibration.pk} has no {device} coverage")
+    return _svg(coverage_svg(calibration.report, device))
 
 
 # ----------------------------------------------------------------------------- characterizations

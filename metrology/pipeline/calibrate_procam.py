@@ -9,6 +9,8 @@ called after each pose, so a job can report it. See docs/procam-calibration.md.
 
 from __future__ import annotations
 
+import json
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -195,3 +197,21 @@ def calibrate_procam_stacks(
         software_version=version,
         timings_s=dict(timer.timings_s),
     )
+
+
+def json_ready(value: Any) -> Any:
+    """A JSON-ready copy of a report (or any nest of dicts, lists and floats): non-finite floats become None."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    return value
+
+
+def report_json_text(report: Mapping[str, Any]) -> str:
+    """The text of ``REPORT.json`` (``gcps-procam-report/1``): the report, non-finite floats as null,
+    indented by 2, one trailing newline; what ``gcps calibrate-procam --report`` writes and the app's
+    ``/api/procam-calibrations/{id}/report.json`` serves."""
+    return json.dumps(json_ready(dict(report)), indent=2, allow_nan=False) + "\n"

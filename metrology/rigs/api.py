@@ -55,7 +55,7 @@ class RigInputSerializer(serializers.Serializer):
 class RigHistorySerializer(serializers.ModelSerializer):
     class Meta:
         model = RigParameters
-        fields = ("values", "source", "calibration", "created_at")
+        fields = ("values", "source", "calibration", "procam_calibration", "created_at")
 
 
 class RigSerializer(serializers.ModelSerializer):

@@ -79,10 +79,18 @@ class RigParameters(models.Model):
         MANUAL = "manual", "Edited"
 
     rig = models.ForeignKey(Rig, on_delete=models.CASCADE, related_name="history")
-    values = models.JSONField(help_text="The seven geometric values")
+    values = models.JSONField(help_text="The seven geometric values, or the pinhole rig file")
     source = models.CharField(max_length=16, choices=Source.choices)
     calibration = models.ForeignKey(
         "calibrations.Calibration", null=True, blank=True, on_delete=models.SET_NULL, related_name="+"
+    )
+    procam_calibration = models.ForeignKey(
+        "calibrations.ProcamCalibration",
+        null=True,
+        blank=True,
+        on_delete=models.SET_NULL,
+        related_name="+",
+        help_text="The projector-camera calibration that set these values",
     )
     created_at = models.DateTimeField(auto_now_add=True)
 

@@ -20,8 +20,17 @@ def get_rig(user, rig_id) -> Rig:
 
 
 def rig_history(rig: Rig) -> list[dict]:
-    """The rig's geometry over time, oldest first."""
+    """The rig's geometry over time, oldest first: ``values`` (the seven values or a pinhole rig file),
+    ``pinhole`` (True for a pinhole rig file), ``source``, ``calibration`` / ``procam_calibration`` (the id
+    of the calibration that set them, or None) and ``at``."""
     return [
-        {"values": entry.values, "source": entry.source, "calibration": entry.calibration_id, "at": entry.created_at}
+        {
+            "values": entry.values,
+            "pinhole": entry.values.get("model") == "pinhole",
+            "source": entry.source,
+            "calibration": entry.calibration_id,
+            "procam_calibration": entry.procam_calibration_id,
+            "at": entry.created_at,
+        }
         for entry in rig.history.all()
     ]

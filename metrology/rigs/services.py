@@ -145,3 +145,33 @@ def require_crossed_axes(rig: Rig, what: str) -> None:
     the crossed-axes model."""
     if rig.is_pinhole:
         raise BadInput(f"rig {rig.pk} is a pinhole rig: {what} needs a crossed-axes rig (docs/pinhole.md)")
+
+
+@transaction.atomic
+def set_pinhole_rig_file(*, rig: Rig, rig_file: dict[str, Any], source: str, procam=None) -> Rig:
+    """Make ``rig`` a pinhole rig with ``rig_file`` (docs/pinhole.md), recorded in its history.
+
+    The model becomes ``pinhole``, the image size the camera's and the crossed-axes values are
+    cleared (a crossed-axes rig is converted; its values stay in the history). ``procam`` is the
+    projector-camera calibration that produced the file, if any. :class:`BadInput` naming the
+    problem when the core refuses the file.
+    """
+    from metrology.core.geometry import GeometryError
+    from metrology.core.geometry.pinhole import PinholeRig
+
+    try:
+        core = PinholeRig.from_dict(rig_file)
+    except GeometryError as exc:
+        raise BadInput(str(exc)) from None
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise BadInput(f"pinhole rig refused: {exc}") from None
+    values = core.to_dict()
+    rig = Rig.objects.select_for_update().get(pk=rig.pk)
+    rig.model = Rig.Model.PINHOLE
+    rig.pinhole = values
+    rig.width_px, rig.height_px = core.camera.width_px, core.camera.height_px
+    for name in ("L_mm", "d_mm", "alpha_rad", "fw_mm", "nlp"):
+        setattr(rig, name, None)
+    rig.save()
+    RigParameters.objects.create(rig=rig, values=values, source=source, procam_calibration=procam)
+    return rig

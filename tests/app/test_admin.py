@@ -14,6 +14,7 @@ import pytest
         "jobs/job",
         "measurements/measurement",
         "calibrations/calibration",
+        "calibrations/procamcalibration",
         "characterizations/characterization",
     ],
 )

@@ -123,3 +123,15 @@ def pct(value, digits: int = 1):
     except (TypeError, ValueError):
         return "n/a"
     return "n/a" if not math.isfinite(number) else f"{100 * number:.{int(digits)}f} %"
+
+
+@register.filter
+def pinhole_summary(values) -> str:
+    """A pinhole rig file in a line: camera and projector fx, baseline |T| (for the rig's history)."""
+    try:
+        camera_fx = float(values["camera"]["K"][0][0])
+        projector_fx = float(values["projector"]["K"][0][0])
+        baseline = math.sqrt(sum(float(t) ** 2 for t in values["T"]))
+    except (KeyError, IndexError, TypeError, ValueError):
+        return "pinhole rig file"
+    return f"pinhole: camera fx {camera_fx:.2f} px, projector fx {projector_fx:.2f}, baseline {baseline:.2f} mm"

@@ -1,0 +1,104 @@
+"""What the projector-camera calibration page shows, read from the stored report (gcps-procam-report/1).
+
+Nothing is computed again: the numbers are the report's (docs/procam-calibration.md), arranged
+for the template: the devices' intrinsics and distortion with their standard deviations, the
+stereo pose (baseline, rotation angle), coverage, the warnings and the per-pose table.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+DISTORTION_NAMES = ("k1", "k2", "p1", "p2", "k3")
+
+
+def _number(value: Any) -> float | None:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return None
+    return number if math.isfinite(number) else None
+
+
+def device_rows(device: dict[str, Any]) -> list[dict[str, Any]]:
+    """One row per intrinsic value of a device's report entry: ``name``, ``value``, ``std`` (one sigma;
+    None when the report has none), ``unit`` ("px", or "" for distortion coefficients)."""
+    K = device.get("K") or [[None] * 3] * 3
+    std = device.get("std") or {}
+    rows = [
+        {"name": "fx", "value": _number(K[0][0]), "std": _number(std.get("fx")), "unit": "px"},
+        {"name": "fy", "value": _number(K[1][1]), "std": _number(std.get("fy")), "unit": "px"},
+        {"name": "cx", "value": _number(K[0][2]), "std": _number(std.get("cx")), "unit": "px"},
+        {"name": "cy", "value": _number(K[1][2]), "std": _number(std.get("cy")), "unit": "px"},
+    ]
+    dist_std = list(std.get("dist") or [])
+    for index, value in enumerate(device.get("dist") or []):
+        name = DISTORTION_NAMES[index] if index < len(DISTORTION_NAMES) else f"d{index}"
+        sigma = _number(dist_std[index]) if index < len(dist_std) else None
+        rows.append({"name": name, "value": _number(value), "std": sigma, "unit": ""})
+    return rows
+
+
+def rotation_angle_deg(R: Any) -> float | None:
+    """The angle of the rotation ``R`` (3x3 nested lists), degrees: ``acos((trace R - 1) / 2)``."""
+    try:
+        trace = float(R[0][0]) + float(R[1][1]) + float(R[2][2])
+    except (TypeError, ValueError, IndexError):
+        return None
+    return math.degrees(math.acos(max(-1.0, min(1.0, (trace - 1.0) / 2.0))))
+
+
+def procam_summary(report: dict[str, Any]) -> dict[str, Any]:
+    """The page's view of a done calibration's report (empty dict for an empty report)."""
+    if not report:
+        return {}
+    diversity = report.get("pose_diversity") or {}
+    poses = []
+    for index, pose in enumerate(report.get("poses") or []):
+        poses.append(
+            {
+                "index": index,
+                "name": pose.get("name"),
+                "used": bool(pose.get("used")),
+                "reason": pose.get("reason"),
+                "cause": pose.get("cause"),
+                "rms_px": _number(pose.get("rms_px")),
+                "camera_rms_px": _number(pose.get("camera_rms_px")),
+                "projector_rms_px": _number(pose.get("projector_rms_px")),
+                "decoded_fraction": _number(pose.get("decoded_fraction_median")),
+                "tilt_deg": _number(pose.get("tilt_deg")),
+                "distance_mm": _number(pose.get("distance_mm")),
+                "corners_used": sum(1 for c in pose.get("corners") or [] if c.get("used")),
+                "corners": len(pose.get("corners") or []),
+            }
+        )
+    coverage = report.get("coverage") or {}
+    return {
+        "board": report.get("board"),
+        "camera_size": report.get("camera_size"),
+        "projector_size": report.get("projector_size"),
+        "rms": {
+            "camera": _number(report.get("camera_rms_px")),
+            "projector": _number(report.get("projector_rms_px")),
+            "stereo": _number(report.get("stereo_rms_px")),
+        },
+        "poses_used": report.get("poses_used"),
+        "poses_total": report.get("poses_total"),
+        "devices": [
+            ("Camera", device_rows(report.get("camera") or {})),
+            ("Projector", device_rows(report.get("projector") or {})),
+        ],
+        "baseline_mm": _number(report.get("baseline_mm")),
+        "rotation_deg": rotation_angle_deg(report.get("R")),
+        "T": report.get("T"),
+        "coverage": {"camera": _number(coverage.get("camera")), "projector": _number(coverage.get("projector"))},
+        "grid": coverage.get("grid", 8),
+        "tilt_min_deg": _number(diversity.get("tilt_min_deg")),
+        "tilt_max_deg": _number(diversity.get("tilt_max_deg")),
+        "max_angle_deg": _number(diversity.get("max_angle_between_boards_deg")),
+        "median_distance_mm": _number(report.get("median_board_distance_mm")),
+        "gamma": _number(report.get("gamma_estimate")),
+        "warnings": list(report.get("warnings") or []),
+        "poses": poses,
+    }
