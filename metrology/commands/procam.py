@@ -40,6 +40,11 @@ def register(subparsers: Any) -> None:
         "--min-decoded", type=float, default=0.25, metavar="FRACTION", help="decoded fraction a corner's window needs"
     )
     p.add_argument("--fix-k3", action="store_true", help="hold the radial distortion coefficient k3 at 0")
+    p.add_argument(
+        "--fixed-intrinsics",
+        action="store_true",
+        help="keep each device's own intrinsics in the stereo fit (default: refine both jointly with the pose)",
+    )
     p.add_argument("--min-modulation", type=float, metavar="GREY", help="decoder: smallest fringe amplitude")
     p.add_argument("--min-inverse-contrast", type=float, metavar="GREY", help="decoder: smallest |bit - inverse|")
     p.set_defaults(func=cmd_calibrate_procam)
@@ -88,7 +93,13 @@ def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
     if args.correspondences:
         poses, camera_size, projector_size = read_correspondences(args.correspondences, board)
         result = calibrate_procam(
-            poses, board, camera_size, projector_size, min_decoded_fraction=args.min_decoded, fix_k3=args.fix_k3
+            poses,
+            board,
+            camera_size,
+            projector_size,
+            min_decoded_fraction=args.min_decoded,
+            fix_k3=args.fix_k3,
+            joint=not args.fixed_intrinsics,
         )
         rig = result.rig
         report = dict(result.report)
@@ -100,6 +111,7 @@ def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
             window=args.window,
             min_decoded=args.min_decoded,
             fix_k3=args.fix_k3,
+            joint=not args.fixed_intrinsics,
             min_modulation=args.min_modulation,
             min_inverse_contrast=args.min_inverse_contrast,
         )

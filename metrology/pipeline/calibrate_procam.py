@@ -27,7 +27,7 @@ from metrology.core.procam.observe import observe_pose
 from metrology.pipeline.common import PhaseTimer, check_bool, check_keys
 from metrology.version import software_version
 
-OPTION_KEYS = {"board", "window", "min_decoded", "fix_k3", "min_modulation", "min_inverse_contrast"}
+OPTION_KEYS = {"board", "window", "min_decoded", "fix_k3", "joint", "min_modulation", "min_inverse_contrast"}
 
 
 @dataclass(frozen=True)
@@ -44,6 +44,9 @@ class ProcamOptions:
         Decoded fraction (0..1) a corner's window needs for the corner to be used.
     fix_k3 : bool
         Hold the radial distortion coefficient k3 at 0 for both devices.
+    joint : bool
+        Refine both devices' intrinsics together with the stereo pose (default True); False keeps
+        each device's own calibration in the stereo fit.
     min_modulation, min_inverse_contrast : float or None
         Decoder thresholds, grey levels (None: the decoder's defaults).
     """
@@ -52,6 +55,7 @@ class ProcamOptions:
     window: int | None = None
     min_decoded: float = MIN_DECODED_FRACTION
     fix_k3: bool = False
+    joint: bool = True
     min_modulation: float | None = None
     min_inverse_contrast: float | None = None
 
@@ -66,6 +70,7 @@ class ProcamOptions:
         if not 0.0 <= self.min_decoded <= 1.0:
             raise ValueError(f"min_decoded must be within 0..1, got {self.min_decoded}")
         check_bool("fix_k3", self.fix_k3)
+        check_bool("joint", self.joint)
         self.decode_options()  # ValueError naming a bad decoder threshold
 
     def board_spec(self) -> BoardSpec:
@@ -80,6 +85,7 @@ class ProcamOptions:
             "window": self.window,
             "min_decoded": self.min_decoded,
             "fix_k3": self.fix_k3,
+            "joint": self.joint,
             "min_modulation": self.min_modulation,
             "min_inverse_contrast": self.min_inverse_contrast,
         }
@@ -182,6 +188,7 @@ def calibrate_procam_stacks(
             min_decoded_fraction=options.min_decoded,
             codec_gamma_precompensated=precompensated,
             fix_k3=options.fix_k3,
+            joint=options.joint,
         )
     report = dict(result.report)
     version = software_version()
