@@ -45,6 +45,7 @@ class ProcamCalibrationRequestSerializer(serializers.Serializer):
         required=False,
         help_text=(
             "window (1..200 px, default automatic), min_decoded (0..1, default 0.25), fix_k3 (bool), "
+            "joint (bool, default true: refine both devices' intrinsics with the stereo pose), "
             "min_modulation, min_inverse_contrast (grey levels, default the decoder's)"
         ),
     )

@@ -34,7 +34,7 @@ MAX_POSES = 40
 MAX_BOARD_POINTS = 100
 """Most points per row, and rows, a board spec may have (a real board has a few dozen)."""
 
-OPTION_KEYS = ("window", "min_decoded", "fix_k3", "min_modulation", "min_inverse_contrast")
+OPTION_KEYS = ("window", "min_decoded", "fix_k3", "joint", "min_modulation", "min_inverse_contrast")
 """The options a request may give besides the board (those of ``ProcamOptions``)."""
 
 

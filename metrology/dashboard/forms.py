@@ -302,6 +302,11 @@ class ProcamCalibrationForm(forms.Form):
         help_text="A corner is used when this fraction of its window is decoded",
     )
     fix_k3 = forms.BooleanField(required=False, label="Hold k3 at 0 (few poses, mild distortion)")
+    fixed_intrinsics = forms.BooleanField(
+        required=False,
+        label="Keep each device's own intrinsics in the stereo fit",
+        help_text="Default: refine both devices' intrinsics jointly with their pose (predicts unseen poses better)",
+    )
     apply = forms.BooleanField(required=False, label="Make the result the rig's calibration when done")
 
     def __init__(self, *args: Any, board_captures: Any = (), **kwargs: Any) -> None:
@@ -318,7 +323,11 @@ class ProcamCalibrationForm(forms.Form):
     def options(self) -> dict[str, Any]:
         """The request's options (``window`` only when given)."""
         data = self.cleaned_data
-        options: dict[str, Any] = {"min_decoded": data["min_decoded"], "fix_k3": data["fix_k3"]}
+        options: dict[str, Any] = {
+            "min_decoded": data["min_decoded"],
+            "fix_k3": data["fix_k3"],
+            "joint": not data["fixed_intrinsics"],
+        }
         if data.get("window") is not None:
             options["window"] = data["window"]
         return options

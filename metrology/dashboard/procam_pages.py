@@ -68,6 +68,7 @@ def procam_summary(report: dict[str, Any]) -> dict[str, Any]:
                 "projector_rms_px": _number(pose.get("projector_rms_px")),
                 "decoded_fraction": _number(pose.get("decoded_fraction_median")),
                 "tilt_deg": _number(pose.get("tilt_deg")),
+                "leave_one_out_px": _number(pose.get("leave_one_out_projector_rms_px")),
                 "distance_mm": _number(pose.get("distance_mm")),
                 "corners_used": sum(1 for c in pose.get("corners") or [] if c.get("used")),
                 "corners": len(pose.get("corners") or []),
@@ -84,6 +85,8 @@ def procam_summary(report: dict[str, Any]) -> dict[str, Any]:
             "stereo": _number(report.get("stereo_rms_px")),
         },
         "poses_used": report.get("poses_used"),
+        "leave_one_out_median_px": _number((report.get("leave_one_out") or {}).get("median_px")),
+        "joint": report.get("intrinsics_refined_jointly"),
         "poses_total": report.get("poses_total"),
         "devices": [
             ("Camera", device_rows(report.get("camera") or {})),

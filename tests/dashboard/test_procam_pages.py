@@ -56,6 +56,10 @@ def test_new_calibration_page_upload_detail_apply(client_alice, alice, rig320, r
     assert f"{report['baseline_mm']:.2f} mm" in html and f"{report['camera']['std']['fx']:.2g}" in html
     assert "board_not_found" in html and escape(report["warnings"][0]["action"]) in html
     assert "5 of 6" in html and "board not found in the board image" in html
+    assert f"{report['leave_one_out']['median_px']:.3f} px" in html and "refined jointly" in html
+    for pose in report["poses"]:
+        if pose["used"]:  # each used pose's left-out prediction, in its row
+            assert f"{pose['leave_one_out_projector_rms_px']:.3f}</td>" in html
     used = [i for i in range(6) if i != UNUSABLE_POSE]
     for index in used:
         assert f'/procam-calibrations/{calibration.pk}/residuals/{index}.svg"' in html
