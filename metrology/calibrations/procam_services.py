@@ -234,6 +234,32 @@ def _sentence(text: str, limit: int = 1900) -> str:
     return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
+def _match_default_codec(rig: Rig, calibration: ProcamCalibration) -> None:
+    """Give the rig the first pose's codec as its default when its own is for another projector size.
+
+    A pinhole rig measures only with codecs of its projector's size; a crossed-axes rig's default
+    is usually gcps-v1 (whose projector is the paper's, not the real one), so after the conversion
+    captures uploaded without their own codec would be refused. The poses' codec codes both axes
+    of the calibrated projector and is what the lab projects, so it becomes the default; a default
+    of the right size is kept (the lab may measure with another pattern sequence).
+    """
+    from metrology.captures.codecs import capture_codec, capture_codec_value
+    from metrology.rigs.codecs import codec_of
+    from metrology.rigs.services import set_rig_codec
+
+    projector = (calibration.rig_file or {}).get("projector", {})
+    size = (float(projector.get("width", 0)), float(projector.get("height", 0)))
+    current = codec_of(rig.codec)
+    if (float(current.projector_width), float(current.projector_height)) == size:
+        return
+    first = calibration.pose_links.select_related("capture__rig").order_by("index").first()
+    if first is None:
+        return
+    codec = capture_codec(first.capture)
+    if (float(codec.projector_width), float(codec.projector_height)) == size:
+        set_rig_codec(rig=rig, codec=capture_codec_value(first.capture))
+
+
 @transaction.atomic
 def apply_procam_calibration(*, calibration: ProcamCalibration, require_done: bool = True) -> ProcamCalibration:
     """Make the calibration's rig a pinhole rig with the calibrated rig file, recorded in its history.
@@ -255,9 +281,10 @@ def apply_procam_calibration(*, calibration: ProcamCalibration, require_done: bo
         raise BadInput(f"procam calibration {calibration.pk} has no calibrated rig file to apply")
     from metrology.rigs.services import set_pinhole_rig_file
 
-    set_pinhole_rig_file(
+    rig = set_pinhole_rig_file(
         rig=calibration.rig, rig_file=calibration.rig_file, source=RigParameters.Source.CALIBRATION, procam=calibration
     )
+    _match_default_codec(rig, calibration)
     calibration.applied = True
     calibration.applied_at = timezone.now()
     calibration.save(update_fields=["applied", "applied_at"])

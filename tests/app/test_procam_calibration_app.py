@@ -129,6 +129,11 @@ def test_calibration_job_report_apply_and_history(api, rig320, poses, monkeypatc
     rig = api.get(f"/api/rigs/{rig320['id']}/").json()
     assert rig["model"] == "pinhole" and rig["pinhole"] == rig_file.to_dict()
     assert (rig["width_px"], rig["height_px"]) == (320, 240) and rig["L_mm"] is None
+    # the rig's default codec (gcps-v1, another projector) becomes the poses' codec, so that
+    # captures uploaded without a codec.json are of the calibrated projector
+    from metrology.captures.models import Capture
+
+    assert rig320["codec"] == "gcps-v1" and rig["codec"] == Capture.objects.get(pk=poses[0]).codec
     assert [h["source"] for h in rig["history"]] == ["created", "calibration"]
     assert rig["history"][0]["values"]["L_mm"] == RIG_320["L_mm"]  # what it replaced stays
     assert rig["history"][1]["procam_calibration"] == body["id"] and rig["history"][1]["values"] == rig["pinhole"]
