@@ -116,6 +116,15 @@ def short(value, digits: int = 6):
 
 
 @register.filter
+def shortlist(value, digits: int = 6):
+    """Numbers, or nested lists of them (a matrix), each with at most ``digits`` significant digits:
+    ``[[1000.0000000002, 0, 403.2], ...]`` -> ``"[[1000, 0, 403.2], ...]"``."""
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(str(shortlist(item, digits)) for item in value) + "]"
+    return short(value, digits)
+
+
+@register.filter
 def pct(value, digits: int = 1):
     """A fraction in [0, 1] as a percentage."""
     try:
