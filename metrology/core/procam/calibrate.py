@@ -608,8 +608,8 @@ def calibrate_procam(
                 warnings,
                 "board_not_found",
                 f"pose {p.name}: the board was not found in its board image; the pose is left out.",
-                "Check the --board size (inner corners, points per row first), that the whole board is in the "
-                "camera's view, sharp and evenly lit in the white frame.",
+                "Check the board spec (COLSxROWS counts inner corners, points per row first), that the whole "
+                "board is in the camera's view, sharp and evenly lit in the white frame.",
                 [p.name],
             )
         elif p.cause == "poorly_decoded":
