@@ -10,6 +10,7 @@ makes the rig a pinhole rig with that file; the rig's history keeps what it repl
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -171,11 +172,12 @@ def run_procam_calibration(job: Job, run: job_services.JobRun) -> None:
     """Job handler: load every pose's stack and codec, call the pipeline with the job's progress, publish
     the report and the rig file (and apply them if asked).
 
-    Progress: reading 0-10 % ("read pose i of n"), observing 10-90 % ("observe pose i of n"),
-    calibrating at 90 %. A calibration that cannot be done (fewer than two usable poses...) fails
-    the job with the pipeline's sentence, each pose's reason included.
+    Progress: 0-90 % over the poses, each read ("read pose i of n", only then: one pose's images
+    are in memory at a time) and observed ("observe pose i of n"), calibrating at 90 %. A
+    calibration that cannot be done (fewer than two usable poses...) fails the job with the
+    pipeline's sentence, each pose's reason included.
     """
-    from metrology.captures.codecs import load_codec_stack
+    from metrology.captures.codecs import capture_codec
     from metrology.pipeline.calibrate_procam import (
         ProcamOptions,
         ProcamPose,
@@ -190,19 +192,19 @@ def run_procam_calibration(job: Job, run: job_services.JobRun) -> None:
     names = pose_names(captures)
     options = ProcamOptions.from_dict(calibration.options)
     total = len(captures)
-    poses: list[Any] = []
-    with run.phase("read", 0):
-        for index, (name, capture) in enumerate(zip(names, captures, strict=True)):
-            run.progress(round(10 * index / total), f"read pose {index + 1} of {total}")
-            stack = load_codec_stack(capture)
-            poses.append(ProcamPose(name=name, images=stack.images, codec=stack.codec))
+    # each pose's stack is read when its turn comes and released after it is observed, so one
+    # pose's images are in memory at a time
+    poses = [
+        ProcamPose(name=name, images=functools.partial(_pose_images, capture), codec=capture_codec(capture))
+        for name, capture in zip(names, captures, strict=True)
+    ]
     order = {name: index for index, name in enumerate(names)}
 
     def progress(percent: int, phase: str) -> None:
-        name = phase.removeprefix("observe ")
-        if phase.startswith("observe ") and name in order:
-            phase = f"observe pose {order[name] + 1} of {total}"
-        run.progress(10 + round(percent * 80 / 90), phase)
+        verb, _, name = phase.partition(" ")
+        if verb in ("read", "observe") and name in order:
+            phase = f"{verb} pose {order[name] + 1} of {total}"
+        run.progress(percent, phase)
 
     start = time.perf_counter()
     try:
@@ -227,6 +229,13 @@ def run_procam_calibration(job: Job, run: job_services.JobRun) -> None:
 
     run.progress(95, "store")
     run.commit(publish)
+
+
+def _pose_images(capture: Capture) -> Any:
+    """A board capture's stored stack, ``(frames, H, W)`` (read when the pipeline needs it)."""
+    from metrology.captures.codecs import load_codec_stack
+
+    return load_codec_stack(capture).images
 
 
 def _sentence(text: str, limit: int = 1900) -> str:

@@ -12,6 +12,7 @@ written then. A pose whose board is not found or poorly decoded is reported and 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import time
 from pathlib import Path
@@ -59,10 +60,17 @@ def _check_json_out(path: str, option: str) -> Path:
     return out.resolve()
 
 
+def _pose_images(source: str, codec: Any) -> Any:
+    """A pose capture's frames in codec order, ``(frames, H, W)`` (read when the pipeline needs them)."""
+    from metrology.core.codecs.stack import read_codec_stack
+
+    return read_codec_stack(source, codec).images
+
+
 def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
     """Observe the poses, calibrate, write ``--out`` and ``--report`` atomically; returns a summary."""
     from metrology.core.codecs import read_codec
-    from metrology.core.codecs.stack import read_codec_stack
+    from metrology.core.codecs.stack import read_capture_codec
     from metrology.core.io import write_text_atomic
     from metrology.core.procam import calibrate_procam, parse_board
     from metrology.core.procam.correspondences import correspondences_dict, read_correspondences
@@ -119,21 +127,17 @@ def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
         names = [Path(p).name or str(p) for p in args.poses]
         if len(set(names)) != len(names):
             names = [str(p) for p in args.poses]
+        # every pose's codec is checked first; its images are read when its turn comes and released
+        # after it is observed (one pose in memory at a time); the pipeline names a pose whose size differs
         stacks: list[ProcamPose] = []
-        first_size: tuple[int, ...] | None = None  # (H, W) of the first pose's images
         for name, source in zip(names, args.poses, strict=True):
             if not Path(source).exists():
                 raise ValueError(f"--poses {source}: no such folder or file")
-            stack = read_codec_stack(source, codec)
-            if stack.images.ndim != 3:
-                raise ValueError(f"--poses {source}: not a stack of images")
-            if first_size is None:
-                first_size = stack.images.shape[1:]
-            elif stack.images.shape[1:] != first_size:
-                raise ValueError(
-                    f"--poses {source}: image size {stack.images.shape[1:]} differs from the first pose's {first_size}"
-                )
-            stacks.append(ProcamPose(name=name, images=stack.images, codec=stack.codec))
+            pose_codec = codec if codec is not None else read_capture_codec(source)
+            if pose_codec is None:
+                raise ValueError(f"--poses {source}: no codec.json in the capture; give --codec")
+            images = functools.partial(_pose_images, source, pose_codec)
+            stacks.append(ProcamPose(name=name, images=images, codec=pose_codec))
         outcome = calibrate_procam_stacks(stacks, options)
         rig, report = outcome.rig, dict(outcome.report)
         poses, camera_size, projector_size = outcome.poses, outcome.camera_size, outcome.projector_size

@@ -101,11 +101,21 @@ class ProcamOptions:
 
 @dataclass(frozen=True)
 class ProcamPose:
-    """One board pose: a name, its stack ``(frames, H, W)`` (uint8/uint16) and its codec (both axes)."""
+    """One board pose: a name, its stack ``(frames, H, W)`` (uint8/uint16) and its codec (both axes).
+
+    ``images`` may also be a function of no arguments returning the stack: it is then called when
+    the pose's turn comes and the stack is released once the pose is observed, so that only one
+    pose's images are in memory at a time (a job of 40 poses of 1280x1024x44 frames would hold
+    2.3 GB otherwise).
+    """
 
     name: str
-    images: npt.ArrayLike
+    images: npt.ArrayLike | Callable[[], npt.ArrayLike]
     codec: Codec
+
+    def stack(self) -> npt.ArrayLike:
+        """The pose's images (calling ``images`` when it is a function)."""
+        return self.images() if callable(self.images) else self.images
 
 
 @dataclass
@@ -135,7 +145,8 @@ def calibrate_procam_stacks(
         All stacks of one size (the camera's), all codecs of one projector size.
     options : ProcamOptions
     progress : callable(percent, phase), optional
-        Called with 0..90 while poses are observed and 90 before the calibration.
+        Called with 0..90 while poses are read (``"read NAME"``, for poses whose ``images`` is a
+        function) and observed (``"observe NAME"``), and with 90 before the calibration.
 
     Raises
     ------
@@ -153,11 +164,19 @@ def calibrate_procam_stacks(
     shape: tuple[int, int] | None = None
     projector: tuple[int, int] | None = None
     precompensated = False
-    with timer.phase("observe"):
-        for index, pose in enumerate(poses):
+    for index, pose in enumerate(poses):
+        percent = round(90 * index / len(poses))
+        if callable(pose.images):
             if progress is not None:
-                progress(round(90 * index / len(poses)), f"observe {pose.name}")
-            stack_shape = tuple(getattr(pose.images, "shape", ()))
+                progress(percent, f"read {pose.name}")
+            with timer.phase("read"):
+                images = pose.stack()
+        else:
+            images = pose.images
+        if progress is not None:
+            progress(percent, f"observe {pose.name}")
+        with timer.phase("observe"):
+            stack_shape = tuple(getattr(images, "shape", ()))
             if len(stack_shape) != 3:
                 raise ValueError(f"pose {pose.name}: not a stack of images (shape {stack_shape})")
             size = (int(stack_shape[1]), int(stack_shape[2]))
@@ -171,10 +190,9 @@ def calibrate_procam_stacks(
             shape, projector = size, proj
             precompensated = precompensated or pose.codec.precompensated_gamma is not None
             observations.append(
-                observe_pose(
-                    pose.name, pose.images, pose.codec, board, half_window=options.window, decode_options=decode
-                )
+                observe_pose(pose.name, images, pose.codec, board, half_window=options.window, decode_options=decode)
             )
+        del images  # a loaded pose's stack is released before the next is read
     assert shape is not None and projector is not None
     camera_size = (shape[1], shape[0])
     if progress is not None:
