@@ -4,8 +4,8 @@ A small rig (320x240 camera, fx 400, k1 -0.12; 320x240 projector, fx 420; baseli
 sees a 7x5 inner-corner chessboard of 20 mm squares in six poses 290..330 mm away, tilted up to
 25 degrees, rendered through the pinhole virtual rig (core/procam/virtual.py) with realistic 8-bit
 noise and coded by an 8-step phase (period 16) + gray code on both axes (28 frames). The fourth
-pose (index 3) puts part of the board outside the camera image, so its board is not found: the
-report has a ``board_not_found`` warning and five poses are used.
+pose (index 3) puts a quarter of the board outside the camera image, so its board is not found:
+the report has a ``board_not_found`` warning and five poses are used.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ TRUE_RIG: PinholeRig = look_at_rig(CAMERA, PROJECTOR, (120.0, 10.0, -20.0), (0.0
 BOARD_SPEC = "chessboard:7x5:20"
 OPTIONS = {"fix_k3": True}  # six poses of a small board: k3 is not determined
 ANGLES = [(0, 0, 0), (25, 0, 5), (-25, 0, -5), (0, 25, 10), (0, -25, -10), (18, 18, 0)]
-SHIFTS = [(0, 0, 300), (-40, 25, 320), (40, -25, 290), (35, 30, 310), (-35, -30, 300), (40, 25, 330)]
+SHIFTS = [(0, 0, 300), (-40, 25, 320), (40, -25, 290), (50, 50, 310), (-35, -30, 300), (40, 25, 330)]
 UNUSABLE_POSE = 3
 
 #: A crossed-axes rig of the camera's size: the rig the poses are uploaded to (then converted).

@@ -1,11 +1,17 @@
 """Procam calibration on virtual-rig board renders of a known distorted pinhole rig (issue 13 must-shows).
 
-8 chessboard poses (9x6 inner corners, 20 mm squares, 450..530 mm away, tilted up to 25 degrees)
-rendered through the pinhole virtual rig with realistic 8-bit noise (1.5 grey levels, camera and
-projector defocus, 2x2 sub-rays), coded by an 8-step phase (period 32 px) + gray code on both axes.
-The calibration must give: focal lengths within 0.2 %, principal points within 1 px, the
-distortion's point displacements within 0.1 px over the image, the rotation within 0.05 degrees
-and the baseline within 0.1 %. Then each failure cause, produced on purpose, gives its warning.
+8 chessboard poses (9x6 inner corners, 20 mm squares) placed the way a careful user places them:
+each brings the board's outer corner as near as both images allow to a point on the projector
+image's edge (:func:`~metrology.core.procam.virtual.plan_board_poses`), tilted by 20 to 30
+degrees in four directions and turned by 20 to 25 degrees in its plane, 330 to 690 mm away. They
+are rendered through the pinhole virtual rig with realistic 8-bit noise (1.5 grey levels, camera
+and projector defocus, 2x2 sub-rays), coded by an 8-step phase (period 32 px) + gray code on both
+axes. The calibration must give: focal lengths within 0.2 %, principal points within 1 px, the
+distortion's point displacements within 0.1 px over the WHOLE image of both devices (a 41 x 31
+grid), the rotation within 0.05 degrees and the baseline within 0.1 %. The camera never sees the
+projector image's top 48 to 133 px (12 % of it) at 300 to 1000 mm, so the projector's distortion
+there is extrapolated whatever the poses. Then each failure cause, produced on purpose, gives its
+warning, the coverage warning among them for the 8 central poses this test used before.
 """
 
 from __future__ import annotations
@@ -13,7 +19,6 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-import cv2
 import numpy as np
 import pytest
 
@@ -24,7 +29,14 @@ from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, Pin
 from metrology.core.procam import calibrate_procam, parse_board
 from metrology.core.procam.calibrate import PoseObservation
 from metrology.core.procam.observe import observe_pose
-from metrology.core.procam.virtual import BoardPose, render_board, true_corners
+from metrology.core.procam.virtual import (
+    BoardPose,
+    board_in_view,
+    edge_angles_deg,
+    plan_board_poses,
+    render_board,
+    true_corners,
+)
 from metrology.core.simulate import realistic_8bit
 from metrology.core.simulate_pinhole import look_at_rig
 
@@ -39,8 +51,31 @@ PROJECTOR = PinholeProjector(
 RIG = look_at_rig(CAMERA, PROJECTOR, (150.0, 10.0, -20.0), (0.0, 0.0, 500.0))
 BOARD = parse_board("chessboard:9x6:20")
 OPTIONS = realistic_8bit(supersample=2)
-ANGLES = [(0, 0, 0), (25, 0, 5), (-25, 0, -5), (0, 25, 10), (0, -25, -10), (18, 18, 0), (-18, 18, 15), (18, -18, -15)]
-SHIFTS = [
+W, H = PROJECTOR.width - 1, PROJECTOR.height - 1
+# (tilt_x, tilt_y, spin) degrees, and the projector point the board's outer corner reaches for
+PLAN = [
+    ((-14, 14, 20), (W, H / 4)),
+    ((-20, 0, -20), (0, H / 2)),
+    ((14, -14, -20), (0, H)),
+    ((14, -14, -25), (W, H / 2)),
+    ((-30, 0, -20), (W, 0)),
+    ((14, -14, -25), (W, 0)),
+    ((30, 0, 25), (0, H / 4)),
+    ((21, -21, 20), (0, 3 * H / 4)),
+]
+POSES = plan_board_poses(RIG, BOARD, PLAN)
+# the poses this test used before: boards around the middle of both images
+CENTRAL_ANGLES = [
+    (0, 0, 0),
+    (25, 0, 5),
+    (-25, 0, -5),
+    (0, 25, 10),
+    (0, -25, -10),
+    (18, 18, 0),
+    (-18, 18, 15),
+    (18, -18, -15),
+]
+CENTRAL_SHIFTS = [
     (0, 0, 480),
     (-40, 30, 520),
     (40, -30, 450),
@@ -50,6 +85,7 @@ SHIFTS = [
     (-50, -20, 490),
     (0, 40, 460),
 ]
+CENTRAL = [BoardPose.from_angles(*a, s).centred(BOARD) for a, s in zip(CENTRAL_ANGLES, CENTRAL_SHIFTS, strict=True)]
 
 
 def make_codec(width: int = 1024, height: int = 768, period: float = 32.0) -> Codec:
@@ -75,14 +111,14 @@ CODEC = make_codec()
 
 
 def pose(i: int) -> BoardPose:
-    return BoardPose.from_angles(*ANGLES[i], SHIFTS[i]).centred(BOARD)
+    return POSES[i]
 
 
 @pytest.fixture(scope="module")
 def rendered() -> tuple[list[PoseObservation], np.ndarray]:
     observations = []
     first_images = None
-    for i in range(len(ANGLES)):
+    for i in range(len(POSES)):
         images = render_board(RIG, BOARD, pose(i), CODEC, OPTIONS, seed=i)
         if i == 0:
             first_images = images
@@ -106,26 +142,51 @@ def displacement(K: np.ndarray, dist: tuple[float, ...] | list[float], xn: np.nd
     return np.stack([u - (K[0, 0] * xn + K[0, 2]), v - (K[1, 1] * yn + K[1, 2])], axis=-1)
 
 
-def distortion_error_px(got, truth, observations=None, whole_image=False):  # type: ignore[no-untyped-def]
+def distortion_error_px(got, truth) -> float:  # type: ignore[no-untyped-def]
     """Largest difference of the distortion's point displacements, pixels, over a 41 x 31 grid of
-    the image (``whole_image``) or of its part inside the hull of the camera's corners."""
+    the whole image: ``D(K, dist, x, y) - (f x + c)`` for both devices at the same normalized
+    points ``(x, y) = K_true^-1 (u, v)``."""
     K, Kt = np.asarray(got.K), np.asarray(truth.K)
     width = getattr(truth, "width_px", None) or truth.width
     height = getattr(truth, "height_px", None) or truth.height
     xs, ys = np.meshgrid(np.linspace(0, width - 1, 41), np.linspace(0, height - 1, 31))
-    keep = np.ones(xs.shape, bool)
-    if not whole_image and observations is not None:
-        pts = np.concatenate(observations).astype(np.float32)
-        hull = cv2.convexHull(pts)
-        keep = np.array(
-            [
-                [cv2.pointPolygonTest(hull, (float(x), float(y)), False) >= 0 for x, y in zip(rx, ry, strict=False)]
-                for rx, ry in zip(xs, ys, strict=False)
-            ]
-        )
     xn, yn = (xs - Kt[0, 2]) / Kt[0, 0], (ys - Kt[1, 2]) / Kt[1, 1]
     diff = displacement(K, got.dist, xn, yn) - displacement(Kt, truth.dist, xn, yn)
-    return float(np.abs(diff[keep]).max())
+    return float(np.abs(diff).max())
+
+
+def tilt_deg(p: BoardPose) -> float:
+    """Angle between the board's normal and the camera's axis, degrees."""
+    return math.degrees(math.acos(min(1.0, abs(float(p.R[2, 2])))))
+
+
+def edge_gaps(points: list[np.ndarray], width: int, height: int) -> tuple[float, float, float, float]:
+    """Left, right, top, bottom: distance from the image edge to the nearest point over its size."""
+    pts = np.concatenate(points)
+    return (
+        (pts[:, 0].min() + 0.5) / width,
+        (width - 0.5 - pts[:, 0].max()) / width,
+        (pts[:, 1].min() + 0.5) / height,
+        (height - 0.5 - pts[:, 1].max()) / height,
+    )
+
+
+def test_poses_reach_the_edges_of_both_images() -> None:
+    """The planned poses: whole board seen and lit, tilted 20 to 30 degrees, its edges 13 to 32
+    degrees off the pixel rows and columns, corners near every edge of both images that the other
+    device allows (the projector's top: the camera never sees its first 48 to 133 rows)."""
+    cam = [true_corners(RIG, BOARD, p)[0] for p in POSES]
+    prj = [true_corners(RIG, BOARD, p)[1] for p in POSES]
+    for p in POSES:
+        assert board_in_view(RIG, BOARD, p)
+        assert 19 <= tilt_deg(p) <= 31
+        angles = edge_angles_deg(RIG, BOARD, p)
+        assert angles.min() >= 13 and angles.max() <= 32, (angles.min(), angles.max())
+    left, right, top, bottom = edge_gaps(prj, PROJECTOR.width, PROJECTOR.height)
+    assert left < 0.065 and right < 0.065 and top < 0.16 and bottom < 0.11, (left, right, top, bottom)
+    assert max(edge_gaps(cam, CAMERA.width_px, CAMERA.height_px)) < 0.17
+    left, right, top, bottom = edge_gaps([true_corners(RIG, BOARD, p)[1] for p in CENTRAL], 1024, 768)
+    assert left > 0.19 and right > 0.17 and top > 0.27  # the central poses stopped short of 3 edges
 
 
 def test_corners_found_and_mapped_into_the_projector(rendered) -> None:  # type: ignore[no-untyped-def]
@@ -153,15 +214,19 @@ def test_recovers_the_rig(rendered) -> None:  # type: ignore[no-untyped-def]
         K, Kt = np.asarray(got.K), np.asarray(truth.K)
         assert abs(K[0, 0] / Kt[0, 0] - 1) < 0.002 and abs(K[1, 1] / Kt[1, 1] - 1) < 0.002, (name, K)
         assert abs(K[0, 2] - Kt[0, 2]) < 1.0 and abs(K[1, 2] - Kt[1, 2]) < 1.0, (name, K)
-        points = [p.camera_px if name == "camera" else p.projector_px for p in observations]
-        # the camera over its whole image; the projector inside the hull of its corners (the part
-        # of its image the boards reached: 0.44 px at its far corners, extrapolated)
-        assert distortion_error_px(got, truth, points, whole_image=name == "camera") < 0.1, name
+        # over the whole image of both devices (the central poses gave 0.45 px at the projector's
+        # far corners, where its distortion was extrapolated from corners 18 to 28 % of it away)
+        assert distortion_error_px(got, truth) < 0.1, name
     R, Rt = np.asarray(rig.R), np.asarray(RIG.R)
     angle = math.degrees(math.acos(min(1.0, (np.trace(R @ Rt.T) - 1) / 2)))
     assert angle < 0.05
     baseline, truth_baseline = np.linalg.norm(rig.T), np.linalg.norm(RIG.T)
     assert abs(baseline / truth_baseline - 1) < 0.001
+    # the report's coverage: no warning, every edge of both images within 20 % of a corner
+    coverage = report["coverage"]
+    assert coverage["camera"] > 0.6 and coverage["projector"] > 0.6, coverage
+    for device in ("camera", "projector"):
+        assert max(coverage["edge_gaps"][device].values()) < 0.2, coverage["edge_gaps"]
     # per-pose and per-corner contract
     for entry in report["poses"]:
         assert entry["used"] and entry["rms_px"] < 0.25 and len(entry["corners"]) == BOARD.count
@@ -193,7 +258,7 @@ def test_half_shadowed_pose_is_left_out(rendered) -> None:  # type: ignore[no-un
     s = OPTIONS.supersample
     shadow = np.zeros((600 * s, 800 * s), bool)
     shadow[:, : 400 * s] = True
-    images = render_board(RIG, BOARD, pose(0), CODEC, OPTIONS.with_changes(ambient=0.4), seed=20, shadow=shadow)
+    images = render_board(RIG, BOARD, CENTRAL[0], CODEC, OPTIONS.with_changes(ambient=0.4), seed=20, shadow=shadow)
     extra = observe_pose("shadowed", images, CODEC, BOARD)
     result = calibrate([*rendered[0], extra])
     assert "poorly_decoded" in causes(result) or "board_not_found" in causes(result)
@@ -202,12 +267,35 @@ def test_half_shadowed_pose_is_left_out(rendered) -> None:  # type: ignore[no-un
 
 
 def test_near_identical_poses_are_found(rendered) -> None:  # type: ignore[no-untyped-def]
-    twin = BoardPose.from_angles(0.5, 0.3, 0.2, (1.0, 0.5, 481.0)).centred(BOARD)
+    nudge = BoardPose.from_angles(0.5, 0.3, 0.2, (0.0, 0.0, 0.0)).R
+    twin = BoardPose(R=pose(0).R @ nudge, t=pose(0).t + np.array([1.0, 0.5, 1.0]))
     images = render_board(RIG, BOARD, twin, CODEC, OPTIONS, seed=30)
     extra = observe_pose("twin", images, CODEC, BOARD)
     result = calibrate([*rendered[0], extra])
     pairs = [w for w in result.report["warnings"] if w["cause"] == "similar_poses"]
     assert pairs and pairs[0]["poses"] == ["pose0", "twin"]
+
+
+def test_poses_around_the_middle_give_the_coverage_warning() -> None:
+    """The central poses (corners of exact projections, 0.01 px noise) leave 20 %, 18 % and 28 % of
+    the projector image free at its left, right and top edges: the report names the top edge
+    (beyond 20 %), and nothing about the camera, whose corners come within 17 % of its edges."""
+    rng = np.random.default_rng(0)
+    observations = []
+    for i, p in enumerate(CENTRAL):
+        cam, prj = true_corners(RIG, BOARD, p)
+        cam, prj = cam + 0.01 * rng.standard_normal(cam.shape), prj + 0.01 * rng.standard_normal(prj.shape)
+        observations.append(PoseObservation(f"central{i}", cam, prj))
+    result = calibrate(observations)
+    coverage = [w for w in result.report["warnings"] if w["cause"] == "coverage"]
+    assert len(coverage) == 1, result.report["warnings"]
+    message = coverage[0]["message"]
+    assert message.startswith(
+        "in the projector image the corners come no nearer than 28% of its height to its top edge"
+    )
+    assert not any(word in message for word in ("camera", "left", "right", "bottom")), message
+    gaps = result.report["coverage"]["edge_gaps"]["projector"]
+    assert gaps["top"] == pytest.approx(0.278, abs=0.002) and gaps["left"] == pytest.approx(0.196, abs=0.002)
 
 
 def test_too_few_poses_are_found(rendered) -> None:  # type: ignore[no-untyped-def]
@@ -225,10 +313,10 @@ def test_wrong_projector_size_is_found(rendered) -> None:  # type: ignore[no-unt
 
 
 def test_gamma_is_found() -> None:
-    images = render_board(RIG, BOARD, pose(0), CODEC, OPTIONS.with_changes(projector_gamma=2.2), seed=40)
+    images = render_board(RIG, BOARD, CENTRAL[0], CODEC, OPTIONS.with_changes(projector_gamma=2.2), seed=40)
     p = observe_pose("gamma", images, CODEC, BOARD)
     assert p.gamma is not None and abs(p.gamma - 2.2) < 0.2
-    linear = observe_pose("linear", render_board(RIG, BOARD, pose(0), CODEC, OPTIONS, seed=41), CODEC, BOARD)
+    linear = observe_pose("linear", render_board(RIG, BOARD, CENTRAL[0], CODEC, OPTIONS, seed=41), CODEC, BOARD)
     assert linear.gamma is not None and abs(linear.gamma - 1.0) < 0.1
 
 
