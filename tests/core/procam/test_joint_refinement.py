@@ -12,20 +12,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector
-from metrology.core.procam import parse_board
 from metrology.core.procam.calibrate import PoseObservation, calibrate_procam
 from metrology.core.procam.virtual import BoardPose, true_corners
-from metrology.core.simulate_pinhole import look_at_rig
 
-CAMERA = PinholeCamera(
-    800, 600, ((1000.0, 0, 403.2), (0, 1001.0, 297.6), (0, 0, 1)), (-0.12, 0.08, 0.0008, -0.0005, 0.0)
-)
-PROJECTOR = PinholeProjector(
-    1024, 768, ((1300.0, 0, 515.0), (0, 1300.0, 460.0), (0, 0, 1)), (0.04, -0.02, 0.0, 0.0, 0.0)
-)
-RIG = look_at_rig(CAMERA, PROJECTOR, (150.0, 10.0, -20.0), (0.0, 0.0, 500.0))
-BOARD = parse_board("chessboard:9x6:20")
+from .test_virtual_calibration import BOARD, CAMERA, PROJECTOR, RIG  # the distorted rig
+
 POSES = [
     ((0, 0, 0), (0, 0, 480)),
     ((25, 0, 5), (-40, 30, 520)),
