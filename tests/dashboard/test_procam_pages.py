@@ -89,7 +89,9 @@ def test_new_calibration_page_upload_detail_apply(client_alice, alice, rig320, r
     K = rig.pinhole["camera"]["K"]  # six significant digits, not the stored float's seventeen
     assert f"K [[{K[0][0]:.6g}, 0, {K[0][2]:.6g}], [0, {K[1][1]:.6g}, {K[1][2]:.6g}], [0, 0, 1]]" in html
     assert f"projector-camera calibration {calibration.pk}</a>" in html
-    assert f"pinhole: camera fx {fx:.2f} px" in html and "crossed axes: L 1022.0000 mm, alpha" in html  # new entry and the one it replaced
+    assert (
+        f"pinhole: camera fx {fx:.2f} px" in html and "crossed axes: L 1022.0000 mm, alpha" in html
+    )  # new entry and the one it replaced
     listing = client_alice.get("/procam-calibrations/").content.decode()
     assert f"Procam calibration {calibration.pk}" in listing and "board_not_found" in listing
     assert 'aria-current="page">Procam calibrations' in listing

@@ -55,7 +55,10 @@ def test_procam_calibration_through_api_redis_and_a_worker_process(stack, http):
     assert [p for p, _ in seen] == sorted(p for p, _ in seen) and any(0 < p < 100 for p, _ in seen), seen
 
     report = body["report"]
-    assert report["poses_used"] == 5 and [w["cause"] for w in report["warnings"]] == ["board_not_found"]
+    causes = [w["cause"] for w in report["warnings"]]  # the six poses leave image edges bare: coverage too
+    assert (
+        report["poses_used"] == 5 and causes[0] == "board_not_found" and set(causes) <= {"board_not_found", "coverage"}
+    )
     assert abs(report["camera"]["K"][0][0] / np.asarray(TRUE_RIG.camera.K)[0, 0] - 1) < 0.005
     served = http.get(url(http, f"/api/procam-calibrations/{calibration_id}/report.json"))
     assert served.status_code == 200 and json.loads(served.text) == report
