@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from django.core.exceptions import ValidationError as DjangoValidationError
 from rest_framework import exceptions, status
 from rest_framework.response import Response
 from rest_framework.views import exception_handler as drf_exception_handler
@@ -20,6 +21,25 @@ class BadInput(exceptions.APIException):
     status_code = status.HTTP_400_BAD_REQUEST
     default_detail = "The request was refused."
     default_code = "bad_input"
+
+
+#: What services raise for refused input: DRF errors (``BadInput``, ``ValidationError``), Django's
+#: model ``ValidationError`` and ``ValueError`` from the measurement core.
+SERVICE_ERRORS = (exceptions.APIException, ValueError, DjangoValidationError)
+
+
+def error_sentence(exc: Exception) -> str:
+    """One of :data:`SERVICE_ERRORS` as one sentence for a page or an enclosing error."""
+    if isinstance(exc, exceptions.APIException):
+        detail = exc.detail
+        if isinstance(detail, dict):
+            return "; ".join(f"{key}: {' '.join(map(str, value))}" for key, value in detail.items())
+        if isinstance(detail, list):
+            return " ".join(map(str, detail))
+        return str(detail)
+    if isinstance(exc, DjangoValidationError):
+        return " ".join(exc.messages)
+    return str(exc)
 
 
 def _flatten(detail: Any, prefix: str = "") -> list[str]:

@@ -15,11 +15,13 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from django.core.files.storage import default_storage
 from django.db import transaction
 from django.utils import timezone
 
-from metrology.api_errors import BadInput
+from metrology.api_errors import SERVICE_ERRORS, BadInput, error_sentence
 from metrology.calibrations.models import ProcamCalibration, ProcamCalibrationPose
+from metrology.captures import services as capture_services
 from metrology.captures.models import Capture
 from metrology.captures.selectors import capture_for_job
 from metrology.jobs import services as job_services
@@ -157,6 +159,52 @@ def request_procam_calibration(
     job.save(update_fields=["parameters"])
     job_services.enqueue_job(job)
     return calibration
+
+
+def request_procam_calibration_with_uploads(
+    *,
+    owner,
+    rig: Rig,
+    uploads: Sequence[Any],
+    existing_ids: Sequence[int] = (),
+    board: str,
+    options: dict[str, Any] | None = None,
+    apply: bool = False,
+) -> ProcamCalibration:
+    """Store the uploaded pose zips as board captures of one new capture session, then request the
+    calibration of those poses followed by the stored board captures ``existing_ids``.
+
+    All in one transaction: on any refusal no row stays and the stacks already stored are deleted.
+
+    Raises
+    ------
+    BadInput
+        As :func:`request_procam_calibration`, or naming the pose file whose upload was refused.
+    """
+    stored: list[str] = []
+    try:
+        with transaction.atomic():
+            ids: list[int] = []
+            if uploads:
+                session = capture_services.create_session(
+                    owner=owner, rig=rig, name=f"board poses {timezone.now():%Y-%m-%d %H:%M}"
+                )
+                for upload in uploads:
+                    try:
+                        capture = capture_services.upload_capture(
+                            owner=owner, rig=rig, upload=upload, role="board", session_id=session.pk
+                        )
+                    except SERVICE_ERRORS as exc:
+                        raise BadInput(f"pose file {upload.name}: {error_sentence(exc)}") from None
+                    stored.append(capture.file.name)
+                    ids.append(capture.pk)
+            return request_procam_calibration(
+                owner=owner, rig=rig, pose_ids=ids + list(existing_ids), board=board, options=options, apply=apply
+            )
+    except BaseException:
+        for name in stored:
+            default_storage.delete(name)
+        raise
 
 
 def pose_names(captures: Sequence[Capture]) -> list[str]:

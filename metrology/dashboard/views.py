@@ -10,7 +10,6 @@ from typing import Any
 from urllib.parse import urlencode
 
 from django.contrib.auth.decorators import login_required
-from django.core.exceptions import ValidationError
 from django.db import transaction
 from django.http import HttpRequest, HttpResponse
 from django.shortcuts import redirect, render
@@ -18,8 +17,10 @@ from django.urls import reverse
 from django.utils.datastructures import MultiValueDict
 from django.utils.http import url_has_allowed_host_and_scheme
 from django.views.decorators.http import require_http_methods, require_POST
-from rest_framework.exceptions import APIException
 
+from metrology.api_errors import SERVICE_ERRORS as API_SERVICE_ERRORS
+from metrology.api_errors import error_sentence
+from metrology.calibrations import procam_services
 from metrology.calibrations import selectors as calibration_selectors
 from metrology.calibrations import services as calibration_services
 from metrology.captures import selectors as capture_selectors
@@ -36,21 +37,9 @@ from metrology.rigs import selectors as rig_selectors
 from metrology.rigs import services as rig_services
 from metrology.version import software_version
 
-SERVICE_ERRORS = (APIException, ValueError, ValidationError)
-
-
-def error_text(exc: Exception) -> str:
-    """A service error as one sentence for the page."""
-    if isinstance(exc, APIException):
-        detail = exc.detail
-        if isinstance(detail, dict):
-            return "; ".join(f"{key}: {' '.join(map(str, value))}" for key, value in detail.items())
-        if isinstance(detail, list):
-            return " ".join(map(str, detail))
-        return str(detail)
-    if isinstance(exc, ValidationError):
-        return " ".join(exc.messages)
-    return str(exc)
+#: The page shows these service errors on its form (kept under the names the pages use).
+SERVICE_ERRORS = API_SERVICE_ERRORS
+error_text = error_sentence
 
 
 def _rig_from_query(request: HttpRequest):
@@ -487,7 +476,16 @@ def procam_new(request: HttpRequest) -> HttpResponse:
     form = forms.ProcamCalibrationForm(request.POST or None, request.FILES or None, board_captures=board_captures)
     if request.method == "POST" and form.is_valid():
         try:
-            calibration = _start_procam(request, rig, form.cleaned_data, form.options())
+            data = form.cleaned_data
+            calibration = procam_services.request_procam_calibration_with_uploads(
+                owner=request.user,
+                rig=rig,
+                uploads=data.get("pose_files") or [],
+                existing_ids=data.get("existing") or [],
+                board=data["board"],
+                options=form.options(),
+                apply=data["apply"],
+            )
         except SERVICE_ERRORS as exc:
             form.add_error(None, error_text(exc))
         else:
@@ -503,43 +501,6 @@ def procam_new(request: HttpRequest) -> HttpResponse:
         },
         status=400 if request.method == "POST" else 200,
     )
-
-
-def _start_procam(request: HttpRequest, rig, data: dict[str, Any], options: dict[str, Any]):
-    """Store the uploaded pose zips as board captures of one new session and request the calibration, in
-    one transaction; on any refusal nothing stays (rows rolled back, stored stacks deleted)."""
-    from django.core.files.storage import default_storage
-    from django.utils import timezone
-
-    from metrology.api_errors import BadInput
-    from metrology.calibrations import procam_services
-
-    stored: list[str] = []
-    try:
-        with transaction.atomic():
-            ids: list[int] = []
-            files = data.get("pose_files") or []
-            if files:
-                session = capture_services.create_session(
-                    owner=request.user, rig=rig, name=f"board poses {timezone.now():%Y-%m-%d %H:%M}"
-                )
-                for upload in files:
-                    try:
-                        capture = capture_services.upload_capture(
-                            owner=request.user, rig=rig, upload=upload, role="board", session_id=session.pk
-                        )
-                    except SERVICE_ERRORS as exc:
-                        raise BadInput(f"pose file {upload.name}: {error_text(exc)}") from None
-                    stored.append(capture.file.name)
-                    ids.append(capture.pk)
-            ids += list(data.get("existing") or [])
-            return procam_services.request_procam_calibration(
-                owner=request.user, rig=rig, pose_ids=ids, board=data["board"], options=options, apply=data["apply"]
-            )
-    except BaseException:
-        for name in stored:
-            default_storage.delete(name)
-        raise
 
 
 def _procam_context(request: HttpRequest, calibration, error: str = "") -> dict[str, Any]:
@@ -565,7 +526,6 @@ def procam_detail(request: HttpRequest, calibration_id: int) -> HttpResponse:
 @login_required
 @require_POST
 def procam_apply(request: HttpRequest, calibration_id: int) -> HttpResponse:
-    from metrology.calibrations import procam_services
 
     calibration = calibration_selectors.get_procam_calibration(request.user, calibration_id)
     try:
