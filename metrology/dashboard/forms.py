@@ -301,6 +301,20 @@ class ProcamCalibrationForm(forms.Form):
         max_value=1.0,
         help_text="A corner is used when this fraction of its window is decoded",
     )
+    min_modulation = forms.FloatField(
+        label="Smallest fringe modulation (grey levels)",
+        required=False,
+        min_value=0.0,
+        max_value=65535.0,
+        help_text="Pixels with a weaker fringe amplitude are not decoded; empty: 4 at 8 bits (1028 at 16 bits)",
+    )
+    min_inverse_contrast = forms.FloatField(
+        label="Smallest gray-code contrast to its inverse (grey levels)",
+        required=False,
+        min_value=0.0,
+        max_value=65535.0,
+        help_text="For codecs with inverse frames; empty: 4 at 8 bits (1028 at 16 bits)",
+    )
     fix_k3 = forms.BooleanField(required=False, label="Hold k3 at 0 (few poses, mild distortion)")
     fixed_intrinsics = forms.BooleanField(
         required=False,
@@ -321,13 +335,14 @@ class ProcamCalibrationForm(forms.Form):
         return data
 
     def options(self) -> dict[str, Any]:
-        """The request's options (``window`` only when given)."""
+        """The request's options (``window`` and the decoder thresholds only when given)."""
         data = self.cleaned_data
         options: dict[str, Any] = {
             "min_decoded": data["min_decoded"],
             "fix_k3": data["fix_k3"],
             "joint": not data["fixed_intrinsics"],
         }
-        if data.get("window") is not None:
-            options["window"] = data["window"]
+        for name in ("window", "min_modulation", "min_inverse_contrast"):
+            if data.get(name) is not None:
+                options[name] = data[name]
         return options

@@ -497,7 +497,18 @@ def procam_new(request: HttpRequest) -> HttpResponse:
             "rig": rig,
             "form": form,
             "has_board_captures": bool(form.fields["existing"].choices),
-            "option_fields": [form[name] for name in ("window", "min_decoded", "fix_k3", "fixed_intrinsics", "apply")],
+            "option_fields": [
+                form[name]
+                for name in (
+                    "window",
+                    "min_decoded",
+                    "min_modulation",
+                    "min_inverse_contrast",
+                    "fix_k3",
+                    "fixed_intrinsics",
+                    "apply",
+                )
+            ],
         },
         status=400 if request.method == "POST" else 200,
     )

@@ -132,3 +132,29 @@ def test_other_users_calibration_is_not_found(client_alice, client_bob, alice, r
         assert client_bob.get(f"/procam-calibrations/{calibration.pk}/{url}").status_code == 404
     assert client_bob.post(f"/procam-calibrations/{calibration.pk}/apply/").status_code == 404
     assert re.search(r"Procam calibration \d+", client_bob.get("/procam-calibrations/").content.decode()) is None
+
+
+def test_form_passes_decoder_thresholds(client_alice, rig320):
+    """The page offers the API's decoder thresholds; given, they reach the job's options; empty, the
+    decoder's defaults stay (None)."""
+    page = client_alice.get(f"/procam-calibrations/new/?rig={rig320.pk}").content.decode()
+    assert 'name="min_modulation"' in page and 'name="min_inverse_contrast"' in page
+    form = {"rig": rig320.pk, "board": BOARD_SPEC, "pose_files": pose_files()[:2], "min_decoded": "0.25"}
+    given = client_alice.post(
+        "/procam-calibrations/new/", {**form, "min_modulation": "6.5", "min_inverse_contrast": "3"}
+    )
+    assert given.status_code == 302, given.content.decode()[:2000]
+    options = ProcamCalibration.objects.get().options
+    assert options["min_modulation"] == 6.5 and options["min_inverse_contrast"] == 3.0
+    refused = client_alice.post(
+        "/procam-calibrations/new/", {**form, "pose_files": pose_files()[:2], "min_modulation": "-1"}
+    )
+    assert refused.status_code == 400 and ProcamCalibration.objects.count() == 1
+    default = client_alice.post("/procam-calibrations/new/", {**form, "pose_files": pose_files()[:2]})
+    assert default.status_code == 302
+    latest = ProcamCalibration.objects.order_by("-id").first()
+    assert (
+        latest is not None
+        and latest.options["min_modulation"] is None
+        and latest.options["min_inverse_contrast"] is None
+    )
