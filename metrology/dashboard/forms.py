@@ -269,6 +269,17 @@ BOARD_HELP = (
 )
 
 
+def _grey_levels_field(label: str, help_text: str) -> forms.FloatField:
+    """An optional decoder threshold in grey levels of the stack (empty: the decoder's default)."""
+    return forms.FloatField(
+        label=label,
+        required=False,
+        min_value=0.0,
+        max_value=65535.0,
+        help_text=f"{help_text}; empty: 4 at 8 bits (1028 at 16 bits)",
+    )
+
+
 class ProcamCalibrationForm(forms.Form):
     fields: dict[str, Any]
     board = forms.CharField(max_length=100, initial="chessboard:9x7:25", help_text=BOARD_HELP)
@@ -301,19 +312,11 @@ class ProcamCalibrationForm(forms.Form):
         max_value=1.0,
         help_text="A corner is used when this fraction of its window is decoded",
     )
-    min_modulation = forms.FloatField(
-        label="Smallest fringe modulation (grey levels)",
-        required=False,
-        min_value=0.0,
-        max_value=65535.0,
-        help_text="Pixels with a weaker fringe amplitude are not decoded; empty: 4 at 8 bits (1028 at 16 bits)",
+    min_modulation = _grey_levels_field(
+        "Smallest fringe modulation (grey levels)", "Pixels with a weaker fringe amplitude are not decoded"
     )
-    min_inverse_contrast = forms.FloatField(
-        label="Smallest gray-code contrast to its inverse (grey levels)",
-        required=False,
-        min_value=0.0,
-        max_value=65535.0,
-        help_text="For codecs with inverse frames; empty: 4 at 8 bits (1028 at 16 bits)",
+    min_inverse_contrast = _grey_levels_field(
+        "Smallest gray-code contrast to its inverse (grey levels)", "For codecs with inverse frames"
     )
     fix_k3 = forms.BooleanField(required=False, label="Hold k3 at 0 (few poses, mild distortion)")
     fixed_intrinsics = forms.BooleanField(
