@@ -18,6 +18,11 @@ api_patterns = [
     path("rigs/", rigs.RigListCreateApi.as_view(), name="rigs"),
     path("rigs/<int:rig_id>/", rigs.RigDetailApi.as_view(), name="rig"),
     path("rigs/<int:rig_id>/codec/", rigs.RigCodecApi.as_view(), name="rig-codec"),
+    path(
+        "rigs/<int:rig_id>/history/<int:entry_id>/restore/",
+        rigs.RigHistoryRestoreApi.as_view(),
+        name="rig-history-restore",
+    ),
     path("rigs/<int:rig_id>/captures/", captures.RigCapturesApi.as_view(), name="rig-captures"),
     path("rigs/<int:rig_id>/captures/simulate/", captures.RigCaptureSimulateApi.as_view(), name="rig-simulate"),
     path("rigs/<int:rig_id>/sessions/", captures.RigSessionsApi.as_view(), name="rig-sessions"),

@@ -17,6 +17,7 @@ urlpatterns = [
     path("favicon.ico", views.favicon),
     path("rigs/", views.rig_list, name="rigs"),
     path("rigs/<int:rig_id>/", views.rig_detail, name="rig"),
+    path("rigs/<int:rig_id>/history/<int:entry_id>/restore/", views.rig_restore, name="rig-restore"),
     path("rigs/<int:rig_id>/captures/", views.rig_captures, name="rig-captures"),
     path("rigs/<int:rig_id>/sensitivity/", views.rig_sensitivity, name="rig-sensitivity"),
     path("captures/", views.capture_list, name="captures"),

@@ -125,17 +125,17 @@ def rig_list(request: HttpRequest) -> HttpResponse:
     )
 
 
+def _codec_initial(rig) -> str:
+    import json
+
+    return rig.codec if isinstance(rig.codec, str) else json.dumps(rig.codec, indent=1)
+
+
 @login_required
 @require_http_methods(["GET", "POST"])
 def rig_detail(request: HttpRequest, rig_id: int) -> HttpResponse:
-    import json
-
-    from metrology.captures.codecs import codec_label
-
     rig = rig_selectors.get_rig(request.user, rig_id)
-    user = request.user
-    initial = rig.codec if isinstance(rig.codec, str) else json.dumps(rig.codec, indent=1)
-    codec_form = forms.RigCodecForm(request.POST or None, initial={"codec": initial})
+    codec_form = forms.RigCodecForm(request.POST or None, initial={"codec": _codec_initial(rig)})
     if request.method == "POST" and codec_form.is_valid():
         try:
             rig_services.set_rig_codec(rig=rig, codec=codec_form.cleaned_data["codec"])
@@ -143,6 +143,14 @@ def rig_detail(request: HttpRequest, rig_id: int) -> HttpResponse:
             codec_form.add_error(None, error_text(exc))
         else:
             return redirect("dashboard:rig", rig.pk)
+    return _rig_page(request, rig, codec_form, status=400 if request.method == "POST" else 200)
+
+
+def _rig_page(request: HttpRequest, rig, codec_form, *, status: int = 200, restore_error: str = "") -> HttpResponse:
+    from metrology.captures.codecs import codec_label
+
+    user = request.user
+    history = list(reversed(rig_selectors.rig_history(rig)))
     return render(
         request,
         "dashboard/rig.html",
@@ -150,15 +158,32 @@ def rig_detail(request: HttpRequest, rig_id: int) -> HttpResponse:
             "codec_form": codec_form,
             "codec_label": codec_label(rig.codec),
             "rig": rig,
-            "history": list(reversed(rig_selectors.rig_history(rig))),
+            "history": history,
+            # one Values column when a pinhole file is involved (three numeric columns do not fit it)
+            "values_column": rig.is_pinhole or any(entry["pinhole"] for entry in history),
+            "restore_error": restore_error,
             "captures": capture_selectors.captures_for(user, rig).order_by("-id")[:10],
             "measurements": measurement_selectors.measurements_for(user).filter(rig=rig)[:10],
             "calibrations": calibration_selectors.calibrations_for(user).filter(rig=rig)[:10],
             "procam_calibrations": calibration_selectors.procam_calibrations_for(user, rig)[:10],
             "characterizations": characterization_selectors.characterizations_for(user).filter(rig=rig)[:10],
         },
-        status=400 if request.method == "POST" else 200,
+        status=status,
     )
+
+
+@login_required
+@require_POST
+def rig_restore(request: HttpRequest, rig_id: int, entry_id: int) -> HttpResponse:
+    """Make an earlier history entry the rig's values again; back to the rig page's history."""
+    rig = rig_selectors.get_rig(request.user, rig_id)
+    try:
+        rig_services.restore_rig_entry(rig=rig, entry_id=entry_id)
+    except SERVICE_ERRORS as exc:
+        rig = rig_selectors.get_rig(request.user, rig_id)
+        codec_form = forms.RigCodecForm(initial={"codec": _codec_initial(rig)})
+        return _rig_page(request, rig, codec_form, status=400, restore_error=error_text(exc))
+    return redirect(reverse("dashboard:rig", args=[rig.pk]) + "#h-hist")
 
 
 @login_required

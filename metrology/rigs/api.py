@@ -55,7 +55,7 @@ class RigInputSerializer(serializers.Serializer):
 class RigHistorySerializer(serializers.ModelSerializer):
     class Meta:
         model = RigParameters
-        fields = ("values", "source", "calibration", "procam_calibration", "created_at")
+        fields = ("id", "values", "source", "calibration", "procam_calibration", "restored_from", "created_at")
 
 
 class RigSerializer(serializers.ModelSerializer):
@@ -119,6 +119,15 @@ class RigDetailApi(APIView):
     @extend_schema(responses=RigSerializer, operation_id="rigs_retrieve")
     def get(self, request: Request, rig_id: int) -> Response:
         return Response(RigSerializer(selectors.get_rig(request.user, rig_id)).data)
+
+
+class RigHistoryRestoreApi(APIView):
+    """Make an earlier history entry the rig's current values again (a new ``restored`` entry)."""
+
+    @extend_schema(request=None, responses=RigSerializer, operation_id="rigs_history_restore")
+    def post(self, request: Request, rig_id: int, entry_id: int) -> Response:
+        rig = services.restore_rig_entry(rig=selectors.get_rig(request.user, rig_id), entry_id=entry_id)
+        return Response(RigSerializer(selectors.get_rig(request.user, rig.pk)).data)
 
 
 class RigCodecSerializer(serializers.Serializer):

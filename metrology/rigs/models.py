@@ -77,6 +77,7 @@ class RigParameters(models.Model):
         CREATED = "created", "Created"
         CALIBRATION = "calibration", "Calibration applied"
         MANUAL = "manual", "Edited"
+        RESTORED = "restored", "Restored from history"
 
     rig = models.ForeignKey(Rig, on_delete=models.CASCADE, related_name="history")
     values = models.JSONField(help_text="The seven geometric values, or the pinhole rig file")
@@ -91,6 +92,14 @@ class RigParameters(models.Model):
         on_delete=models.SET_NULL,
         related_name="+",
         help_text="The projector-camera calibration that set these values",
+    )
+    restored_from = models.ForeignKey(
+        "self",
+        null=True,
+        blank=True,
+        on_delete=models.SET_NULL,
+        related_name="+",
+        help_text="The earlier entry whose values were restored (source restored)",
     )
     created_at = models.DateTimeField(auto_now_add=True)
 

@@ -20,17 +20,25 @@ def get_rig(user, rig_id) -> Rig:
 
 
 def rig_history(rig: Rig) -> list[dict]:
-    """The rig's geometry over time, oldest first: ``values`` (the seven values or a pinhole rig file),
-    ``pinhole`` (True for a pinhole rig file), ``source``, ``calibration`` / ``procam_calibration`` (the id
-    of the calibration that set them, or None) and ``at``."""
+    """The rig's geometry over time, oldest first: ``id``, ``values`` (the seven values or a pinhole rig
+    file), ``pinhole`` (True for a pinhole rig file), ``source``, ``calibration`` / ``procam_calibration``
+    (the id of the calibration that set them, or None), ``restored_from`` (the entry a restore copied),
+    ``restored_from_at`` (that entry's date), ``at`` and ``current`` (True for the latest entry, the
+    rig's values now)."""
+    entries = list(rig.history.all())
+    dates = {entry.pk: entry.created_at for entry in entries}
     return [
         {
+            "id": entry.pk,
             "values": entry.values,
             "pinhole": entry.values.get("model") == "pinhole",
             "source": entry.source,
             "calibration": entry.calibration_id,
             "procam_calibration": entry.procam_calibration_id,
+            "restored_from": entry.restored_from_id,
+            "restored_from_at": dates.get(entry.restored_from_id) if entry.restored_from_id else None,
             "at": entry.created_at,
+            "current": index == len(entries) - 1,
         }
-        for entry in rig.history.all()
+        for index, entry in enumerate(entries)
     ]

@@ -148,13 +148,15 @@ def require_crossed_axes(rig: Rig, what: str) -> None:
 
 
 @transaction.atomic
-def set_pinhole_rig_file(*, rig: Rig, rig_file: dict[str, Any], source: str, procam=None) -> Rig:
+def set_pinhole_rig_file(
+    *, rig: Rig, rig_file: dict[str, Any], source: str, procam=None, restored_from: RigParameters | None = None
+) -> Rig:
     """Make ``rig`` a pinhole rig with ``rig_file`` (docs/pinhole.md), recorded in its history.
 
     The model becomes ``pinhole``, the image size the camera's and the crossed-axes values are
     cleared (a crossed-axes rig is converted; its values stay in the history). ``procam`` is the
-    projector-camera calibration that produced the file, if any. :class:`BadInput` naming the
-    problem when the core refuses the file.
+    projector-camera calibration that produced the file, if any; ``restored_from`` the history entry
+    it comes back from, if any. :class:`BadInput` naming the problem when the core refuses the file.
     """
     from metrology.core.geometry import GeometryError
     from metrology.core.geometry.pinhole import PinholeRig
@@ -173,5 +175,48 @@ def set_pinhole_rig_file(*, rig: Rig, rig_file: dict[str, Any], source: str, pro
     for name in ("L_mm", "d_mm", "alpha_rad", "fw_mm", "nlp"):
         setattr(rig, name, None)
     rig.save()
-    RigParameters.objects.create(rig=rig, values=values, source=source, procam_calibration=procam)
+    RigParameters.objects.create(
+        rig=rig, values=values, source=source, procam_calibration=procam, restored_from=restored_from
+    )
+    return rig
+
+
+@transaction.atomic
+def restore_rig_entry(*, rig: Rig, entry_id: Any) -> Rig:
+    """Make an earlier entry of the rig's history its current values again, as a new entry (source
+    ``restored``, pointing to the entry and to the calibration that had set it).
+
+    A pinhole entry makes the rig a pinhole rig with that rig file; a crossed-axes entry makes it a
+    crossed-axes rig with those seven values (a pinhole rig is converted back; its rig file stays in
+    the history). The default codec is kept: a crossed-axes rig measures with any codec coding u.
+    Measurements made before keep the values they were made with.
+
+    Raises
+    ------
+    BadInput
+        When the entry is not one of this rig's, or already holds its current values (the latest
+        entry).
+    """
+    rig = Rig.objects.select_for_update().get(pk=rig.pk)
+    entries = RigParameters.objects.filter(rig=rig)
+    entry = entries.filter(pk=entry_id).first() if str(entry_id).isdigit() else None
+    if entry is None:
+        raise BadInput(f"rig {rig.pk} has no history entry {entry_id}")
+    latest = entries.order_by("-created_at", "-id").first()
+    if latest is not None and latest.pk == entry.pk:
+        raise BadInput(f"history entry {entry.pk} already holds rig {rig.pk}'s current values")
+    source = RigParameters.Source.RESTORED
+    if entry.values.get("model") == "pinhole":
+        return set_pinhole_rig_file(
+            rig=rig, rig_file=entry.values, source=source, procam=entry.procam_calibration, restored_from=entry
+        )
+    geometry = validate_geometry({name: entry.values.get(name) for name in GEOMETRY_FIELDS})
+    rig.model = Rig.Model.CROSSED_AXES
+    rig.pinhole = None
+    for name, value in geometry.items():
+        setattr(rig, name, value)
+    rig.save()
+    RigParameters.objects.create(
+        rig=rig, values=rig.geometry(), source=source, calibration=entry.calibration, restored_from=entry
+    )
     return rig

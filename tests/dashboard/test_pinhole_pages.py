@@ -61,3 +61,35 @@ def test_crossed_axes_pages_of_a_pinhole_rig_do_not_fail(client_alice, alice):
     ):
         response = client_alice.get(url, follow=True)
         assert response.status_code == 200, url
+
+
+def test_rig_page_restores_a_history_entry(client_alice, client_bob, alice):
+    """The history's Restore buttons: a converted rig goes back to its crossed-axes values and the page
+    says so; the current entry has no button; a refused restore is shown in words."""
+    from metrology.rigs.services import create_rig, set_pinhole_rig_file
+    from tests.app.stacks import SMALL_RIG
+
+    rig = create_rig(
+        owner=alice, data={**SMALL_RIG, "width_px": RIG.camera.width_px, "height_px": RIG.camera.height_px}
+    )
+    set_pinhole_rig_file(rig=rig, rig_file=RIG.to_dict(), source="calibration")
+    created, converted = rig.history.order_by("id")
+    html = client_alice.get(f"/rigs/{rig.pk}/").content.decode()
+    assert html.count(">Restore</button>") == 1 and f"/history/{created.pk}/restore/" in html
+    assert f"/history/{converted.pk}/restore/" not in html and 'badge done">current' in html
+
+    done = client_alice.post(f"/rigs/{rig.pk}/history/{created.pk}/restore/")
+    assert done.status_code == 302 and done["Location"] == f"/rigs/{rig.pk}/#h-hist"
+    rig.refresh_from_db()
+    assert not rig.is_pinhole and rig.L_mm == SMALL_RIG["L_mm"] and rig.pinhole is None
+    page = client_alice.get(f"/rigs/{rig.pk}/")
+    html = page.content.decode()
+    assert page.status_code == 200
+    assert f"restored, the values of {created.created_at:%Y-%m-%d %H:%M:%S}" in html
+    assert html.count(">Restore</button>") == 2 and "New calibration" in html  # crossed-axes pages again
+
+    refused = client_alice.post(f"/rigs/{rig.pk}/history/{rig.history.order_by('-id').first().pk}/restore/")
+    assert refused.status_code == 400 and "already holds rig" in refused.content.decode()
+    assert 'id="restore-error"' in refused.content.decode()
+    assert client_bob.get(f"/rigs/{rig.pk}/history/{created.pk}/restore/").status_code == 405
+    assert client_bob.post(f"/rigs/{rig.pk}/history/{created.pk}/restore/").status_code == 404

@@ -84,4 +84,15 @@ def test_procam_calibration_in_the_browser(live_server, alice, procam_rig, worke
     shot(page, "procam-04-rig")
     page.goto(detail_url)
     assert "Applied" in page.locator("#h-apply").locator("..").inner_text()
+
+    # changed one's mind: the history's Restore brings the crossed-axes values back, as a new entry
+    page.goto(f"{base}/rigs/{rig.pk}/")
+    page.locator("#h-hist").locator("..").get_by_role("button", name="Restore").last.click()
+    page.wait_for_url(f"{base}/rigs/{rig.pk}/#h-hist")
+    history = page.locator("#h-hist").locator("..").inner_text()
+    assert "restored, the values of" in history and "pinhole camera and projector" not in page.content()
+    assert "New calibration" in page.content()  # the crossed-axes rig's actions again
+    assert f"crossed axes: L {RIG_320['L_mm']:.4f} mm" in history
+    assert page.js_errors == []
+    shot(page, "procam-05-restored")
     assert [outcome for _, outcome in worker] == ["done"]
