@@ -18,8 +18,7 @@ from django.utils.datastructures import MultiValueDict
 from django.utils.http import url_has_allowed_host_and_scheme
 from django.views.decorators.http import require_http_methods, require_POST
 
-from metrology.api_errors import SERVICE_ERRORS as API_SERVICE_ERRORS
-from metrology.api_errors import error_sentence
+from metrology.api_errors import SERVICE_ERRORS, error_sentence
 from metrology.calibrations import procam_services
 from metrology.calibrations import selectors as calibration_selectors
 from metrology.calibrations import services as calibration_services
@@ -36,10 +35,6 @@ from metrology.measurements.derived import available_files
 from metrology.rigs import selectors as rig_selectors
 from metrology.rigs import services as rig_services
 from metrology.version import software_version
-
-#: The page shows these service errors on its form (kept under the names the pages use).
-SERVICE_ERRORS = API_SERVICE_ERRORS
-error_text = error_sentence
 
 
 def _rig_from_query(request: HttpRequest):
@@ -106,14 +101,14 @@ def rig_list(request: HttpRequest) -> HttpResponse:
             data = {**pinhole_form.cleaned_data["rig_file"], "name": pinhole_form.cleaned_data.get("name") or ""}
             rig = rig_services.create_pinhole_rig(owner=request.user, data=data)
         except SERVICE_ERRORS as exc:
-            pinhole_form.add_error(None, error_text(exc))
+            pinhole_form.add_error(None, error_sentence(exc))
         else:
             return redirect("dashboard:rig", rig.pk)
     if request.method == "POST" and not pinhole_post and form.is_valid():
         try:
             rig = rig_services.create_rig(owner=request.user, data=form.cleaned_data)
         except SERVICE_ERRORS as exc:
-            form.add_error(None, error_text(exc))
+            form.add_error(None, error_sentence(exc))
         else:
             return redirect("dashboard:rig", rig.pk)
     status = 400 if request.method == "POST" else 200
@@ -140,7 +135,7 @@ def rig_detail(request: HttpRequest, rig_id: int) -> HttpResponse:
         try:
             rig_services.set_rig_codec(rig=rig, codec=codec_form.cleaned_data["codec"])
         except SERVICE_ERRORS as exc:
-            codec_form.add_error(None, error_text(exc))
+            codec_form.add_error(None, error_sentence(exc))
         else:
             return redirect("dashboard:rig", rig.pk)
     return _rig_page(request, rig, codec_form, status=400 if request.method == "POST" else 200)
@@ -182,7 +177,7 @@ def rig_restore(request: HttpRequest, rig_id: int, entry_id: int) -> HttpRespons
     except SERVICE_ERRORS as exc:
         rig = rig_selectors.get_rig(request.user, rig_id)
         codec_form = forms.RigCodecForm(initial={"codec": _codec_initial(rig)})
-        return _rig_page(request, rig, codec_form, status=400, restore_error=error_text(exc))
+        return _rig_page(request, rig, codec_form, status=400, restore_error=error_sentence(exc))
     return redirect(reverse("dashboard:rig", args=[rig.pk]) + "#h-hist")
 
 
@@ -257,7 +252,7 @@ def rig_captures(request: HttpRequest, rig_id: int) -> HttpResponse:
         try:
             target = _start_capture(request, rig, action, bound[action])
         except SERVICE_ERRORS as exc:
-            bound[action].add_error(None, error_text(exc))
+            bound[action].add_error(None, error_sentence(exc))
         else:
             return redirect(target)
     return render(
@@ -350,7 +345,7 @@ def measurement_new(request: HttpRequest) -> HttpResponse:
                 options={"sigma": True} if form.cleaned_data.get("sigma") else None,
             )
         except SERVICE_ERRORS as exc:
-            form.add_error(None, error_text(exc))
+            form.add_error(None, error_sentence(exc))
         else:
             return redirect("dashboard:measurement", measurement.pk)
     return render(
@@ -423,7 +418,7 @@ def calibration_new(request: HttpRequest) -> HttpResponse:
                 apply=data["apply"],
             )
         except SERVICE_ERRORS as exc:
-            form.add_error(None, error_text(exc))
+            form.add_error(None, error_sentence(exc))
         else:
             return redirect("dashboard:calibration", calibration.pk)
     return render(
@@ -469,7 +464,7 @@ def calibration_apply(request: HttpRequest, calibration_id: int) -> HttpResponse
                 "figures": {},
                 "result": calibration.result or {},
                 "summary": pages.calibration_summary(calibration),
-                "error": error_text(exc),
+                "error": error_sentence(exc),
             },
             status=400,
         )
@@ -512,7 +507,7 @@ def procam_new(request: HttpRequest) -> HttpResponse:
                 apply=data["apply"],
             )
         except SERVICE_ERRORS as exc:
-            form.add_error(None, error_text(exc))
+            form.add_error(None, error_sentence(exc))
         else:
             return redirect("dashboard:procam-calibration", calibration.pk)
     return render(
@@ -562,13 +557,12 @@ def procam_detail(request: HttpRequest, calibration_id: int) -> HttpResponse:
 @login_required
 @require_POST
 def procam_apply(request: HttpRequest, calibration_id: int) -> HttpResponse:
-
     calibration = calibration_selectors.get_procam_calibration(request.user, calibration_id)
     try:
         procam_services.apply_procam_calibration(calibration=calibration)
     except SERVICE_ERRORS as exc:
         calibration = calibration_selectors.get_procam_calibration(request.user, calibration_id)
-        context = _procam_context(request, calibration, error_text(exc))
+        context = _procam_context(request, calibration, error_sentence(exc))
         return render(request, "dashboard/procam_calibration.html", context, status=400)
     return redirect("dashboard:rig", calibration.rig_id)
 
@@ -645,7 +639,7 @@ def characterization_new(request: HttpRequest) -> HttpResponse:
                 options={"n_points": data["n_points"], "rows": data["rows"]},
             )
         except SERVICE_ERRORS as exc:
-            form.add_error(None, error_text(exc))
+            form.add_error(None, error_sentence(exc))
         else:
             return redirect("dashboard:characterization", characterization.pk)
     return render(
