@@ -230,9 +230,9 @@ def run_procam_calibration(job: Job, run: job_services.JobRun) -> None:
         ProcamOptions,
         ProcamPose,
         calibrate_procam_stacks,
-        json_ready,
         report_json_text,
     )
+    from metrology.pipeline.common import json_safe
 
     calibration = ProcamCalibration.objects.select_related("rig").get(job=job)
     links = list(calibration.pose_links.select_related("capture__rig").order_by("index"))
@@ -269,7 +269,7 @@ def run_procam_calibration(job: Job, run: job_services.JobRun) -> None:
 
     def publish(job_row: Job) -> None:
         ProcamCalibration.objects.filter(pk=calibration.pk).update(
-            report=json_ready(report), report_json=report_text, rig_file=rig_file
+            report=json_safe(report), report_json=report_text, rig_file=rig_file
         )
         job_row.software_version = outcome.software_version  # the code that computed it
         if calibration.apply:

@@ -18,7 +18,7 @@ from metrology.captures.services import load_capture_stack
 from metrology.characterizations.models import Characterization
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
-from metrology.jobs.results import json_safe
+from metrology.pipeline.common import json_safe
 from metrology.rigs.models import Rig
 
 OPTION_TYPES: dict[str, type] = {"n_points": int, "rows": int, "patch_px": int, "margin_frac": float}

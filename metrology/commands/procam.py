@@ -78,9 +78,9 @@ def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
         ProcamOptions,
         ProcamPose,
         calibrate_procam_stacks,
-        json_ready,
         report_json_text,
     )
+    from metrology.pipeline.common import json_safe
     from metrology.version import software_version
 
     board = parse_board(args.board)
@@ -145,7 +145,7 @@ def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
     report_text = report_json_text(report)
     if args.save_correspondences:
         corr = correspondences_dict(poses, camera_size, projector_size)
-        write_text_atomic(json.dumps(json_ready(corr), indent=2) + "\n", outs["--save-correspondences"])
+        write_text_atomic(json.dumps(json_safe(corr), indent=2) + "\n", outs["--save-correspondences"])
     if args.figures:
         from metrology.core.procam.figures import residual_svg
 

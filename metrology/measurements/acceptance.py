@@ -25,10 +25,10 @@ from metrology.api_errors import BadInput
 from metrology.core.measure import DecodeOptions
 from metrology.core.rig import Rig as CoreRig
 from metrology.jobs.models import Job
-from metrology.jobs.results import json_safe
 from metrology.measurements.models import Measurement
 from metrology.measurements.pinhole import load_points
 from metrology.pipeline.acceptance import TESTS, AcceptanceOptions, AcceptanceResult, fit_height_map, fit_points
+from metrology.pipeline.common import json_safe
 from metrology.version import software_version
 
 QUERY_PARAMETERS = ("test", "diameter", "spacing", "min_height")

@@ -27,9 +27,9 @@ from metrology.captures.models import Capture
 from metrology.captures.selectors import capture_for_job
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
-from metrology.jobs.results import json_safe
 from metrology.measurements.models import Measurement
 from metrology.measurements.stored_arrays import save_arrays
+from metrology.pipeline.common import json_safe
 
 
 def pinhole_options(options: Any) -> dict[str, Any]:

@@ -15,9 +15,9 @@ from metrology.captures.selectors import capture_for_job
 from metrology.captures.services import load_capture_stack
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
-from metrology.jobs.results import json_safe
 from metrology.measurements.models import Measurement
 from metrology.measurements.stored_arrays import save_arrays, sigma_statistics
+from metrology.pipeline.common import json_safe
 from metrology.rigs.models import Rig
 
 

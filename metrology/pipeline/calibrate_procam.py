@@ -10,7 +10,6 @@ called after each pose, so a job can report it. See docs/procam-calibration.md.
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -24,7 +23,7 @@ from metrology.core.procam import calibrate_procam, parse_board
 from metrology.core.procam.board import BoardSpec
 from metrology.core.procam.calibrate import MIN_DECODED_FRACTION, PoseObservation
 from metrology.core.procam.observe import observe_pose
-from metrology.pipeline.common import PhaseTimer, check_bool, check_keys
+from metrology.pipeline.common import PhaseTimer, check_bool, check_keys, json_safe
 from metrology.version import software_version
 
 OPTION_KEYS = {"board", "window", "min_decoded", "fix_k3", "joint", "min_modulation", "min_inverse_contrast"}
@@ -224,19 +223,8 @@ def calibrate_procam_stacks(
     )
 
 
-def json_ready(value: Any) -> Any:
-    """A JSON-ready copy of a report (or any nest of dicts, lists and floats): non-finite floats become None."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: json_ready(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_ready(v) for v in value]
-    return value
-
-
 def report_json_text(report: Mapping[str, Any]) -> str:
     """The text of ``REPORT.json`` (``gcps-procam-report/1``): the report, non-finite floats as null,
     indented by 2, one trailing newline; what ``gcps calibrate-procam --report`` writes and the app's
     ``/api/procam-calibrations/{id}/report.json`` serves."""
-    return json.dumps(json_ready(dict(report)), indent=2, allow_nan=False) + "\n"
+    return json.dumps(json_safe(dict(report)), indent=2, allow_nan=False) + "\n"
