@@ -32,20 +32,17 @@ MIN_POSES = 2
 """Fewest poses a request may name (the calibration needs two usable ones; docs recommend 8 to 12)."""
 
 MAX_POSES = 40
-"""Most poses a request may name (every stack is held in memory while the poses are observed)."""
+"""Most poses a request may name (a bound on one job's work; its stacks are read one at a time)."""
 
 MAX_BOARD_POINTS = 100
 """Most points per row, and rows, a board spec may have (a real board has a few dozen)."""
-
-OPTION_KEYS = ("window", "min_decoded", "fix_k3", "joint", "min_modulation", "min_inverse_contrast")
-"""The options a request may give besides the board (those of ``ProcamOptions``)."""
 
 
 def procam_options(board: Any, options: dict[str, Any] | None) -> Any:
     """The :class:`~metrology.pipeline.calibrate_procam.ProcamOptions` of a request; :class:`BadInput` naming
     ``board`` or ``options.NAME`` when a value is refused."""
     from metrology.core.procam import parse_board
-    from metrology.pipeline.calibrate_procam import ProcamOptions
+    from metrology.pipeline.calibrate_procam import OPTION_KEYS, ProcamOptions
 
     if not isinstance(board, str) or not board.strip():
         raise BadInput("board is required: KIND:COLSxROWS:SIZE_MM, e.g. chessboard:9x7:25 (inner corners, mm)")
@@ -58,10 +55,11 @@ def procam_options(board: Any, options: dict[str, Any] | None) -> Any:
             f"board: at most {MAX_BOARD_POINTS} points per row and {MAX_BOARD_POINTS} rows, got {spec.cols}x{spec.rows}"
         )
     options = dict(options or {})
-    unknown = sorted(set(options) - set(OPTION_KEYS))
+    accepted = [key for key in OPTION_KEYS if key != "board"]  # the board is a field of its own
+    unknown = sorted(set(options) - set(accepted))
     if unknown:
         raise BadInput(
-            f"options: unknown option(s) {', '.join(map(str, unknown))}; accepted: {', '.join(OPTION_KEYS)} "
+            f"options: unknown option(s) {', '.join(map(str, unknown))}; accepted: {', '.join(accepted)} "
             "(the board is given as board)"
         )
     try:

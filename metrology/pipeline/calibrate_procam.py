@@ -26,7 +26,8 @@ from metrology.core.procam.observe import observe_pose
 from metrology.pipeline.common import PhaseTimer, check_bool, check_keys, json_safe
 from metrology.version import software_version
 
-OPTION_KEYS = {"board", "window", "min_decoded", "fix_k3", "joint", "min_modulation", "min_inverse_contrast"}
+OPTION_KEYS = ("board", "window", "min_decoded", "fix_k3", "joint", "min_modulation", "min_inverse_contrast")
+"""The keys of :meth:`ProcamOptions.from_dict` (those of :meth:`ProcamOptions.to_dict`)."""
 
 
 @dataclass(frozen=True)
@@ -92,7 +93,7 @@ class ProcamOptions:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> ProcamOptions:
         """Options from a JSON object; ValueError naming an unknown key or a bad value."""
-        check_keys("procam calibration", data, OPTION_KEYS)
+        check_keys("procam calibration", data, set(OPTION_KEYS))
         if "board" not in data:
             raise ValueError("board is required (e.g. 'chessboard:9x7:25')")
         return cls(**dict(data))
