@@ -84,14 +84,25 @@ def create_rig(*, owner, data: dict[str, Any]) -> Rig:
 
 
 @transaction.atomic
-def update_rig_geometry(*, rig: Rig, changes: dict[str, Any], source: str, calibration=None) -> Rig:
-    """Replace some geometric values (e.g. a calibration's L and alpha) and record them in the history."""
+def update_rig_geometry(
+    *, rig: Rig, changes: dict[str, Any], source: str, calibration=None, restored_from: RigParameters | None = None
+) -> Rig:
+    """Replace some geometric values (e.g. a calibration's L and alpha) and record them in the history.
+
+    The rig is a crossed-axes rig afterwards: the seven values are that model's (a pinhole rig's
+    ``changes`` must give all seven, as a restored crossed-axes entry does; its rig file stays in
+    the history). ``restored_from`` is the history entry the values come back from, if any.
+    """
     geometry = validate_geometry({**rig.geometry(), **changes})
     rig = Rig.objects.select_for_update().get(pk=rig.pk)
+    rig.model = Rig.Model.CROSSED_AXES
+    rig.pinhole = None
     for name, value in geometry.items():
         setattr(rig, name, value)
     rig.save()
-    RigParameters.objects.create(rig=rig, values=rig.geometry(), source=source, calibration=calibration)
+    RigParameters.objects.create(
+        rig=rig, values=rig.geometry(), source=source, calibration=calibration, restored_from=restored_from
+    )
     return rig
 
 
@@ -105,21 +116,27 @@ def set_rig_codec(*, rig: Rig, codec: Any) -> Rig:
     return rig
 
 
+def validate_pinhole_file(rig_file: dict[str, Any]) -> Any:
+    """The core's :class:`~metrology.core.geometry.pinhole.PinholeRig` of a pinhole rig file
+    (docs/pinhole.md); :class:`BadInput` naming the problem (the core's message) when it is refused."""
+    from metrology.core.geometry import GeometryError
+    from metrology.core.geometry.pinhole import PinholeRig
+
+    try:
+        return PinholeRig.from_dict(rig_file)
+    except GeometryError as exc:
+        raise BadInput(str(exc)) from None
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise BadInput(f"pinhole rig refused: {exc}") from None
+
+
 @transaction.atomic
 def create_pinhole_rig(*, owner, data: dict[str, Any]) -> Rig:
     """Create a pinhole rig from its rig file (docs/pinhole.md: ``model``, ``camera``, ``projector``, ``R``
     or ``rvec``... as the core reads it); ``name``, ``notes`` and ``codec`` are optional further keys.
     Raises :class:`BadInput` naming the problem (the core's message)."""
-    from metrology.core.geometry import GeometryError
-    from metrology.core.geometry.pinhole import PinholeRig
-
     rig_file = {key: value for key, value in data.items() if key not in ("name", "notes", "codec")}
-    try:
-        core = PinholeRig.from_dict(rig_file)
-    except GeometryError as exc:
-        raise BadInput(str(exc)) from None
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise BadInput(f"pinhole rig refused: {exc}") from None
+    core = validate_pinhole_file(rig_file)
     limit = settings.GCPS_MAX_IMAGE_SIDE_PX
     for name, value in (("camera width_px", core.camera.width_px), ("camera height_px", core.camera.height_px)):
         if value > limit:
@@ -158,15 +175,7 @@ def set_pinhole_rig_file(
     projector-camera calibration that produced the file, if any; ``restored_from`` the history entry
     it comes back from, if any. :class:`BadInput` naming the problem when the core refuses the file.
     """
-    from metrology.core.geometry import GeometryError
-    from metrology.core.geometry.pinhole import PinholeRig
-
-    try:
-        core = PinholeRig.from_dict(rig_file)
-    except GeometryError as exc:
-        raise BadInput(str(exc)) from None
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise BadInput(f"pinhole rig refused: {exc}") from None
+    core = validate_pinhole_file(rig_file)
     values = core.to_dict()
     rig = Rig.objects.select_for_update().get(pk=rig.pk)
     rig.model = Rig.Model.PINHOLE
@@ -210,13 +219,10 @@ def restore_rig_entry(*, rig: Rig, entry_id: Any) -> Rig:
         return set_pinhole_rig_file(
             rig=rig, rig_file=entry.values, source=source, procam=entry.procam_calibration, restored_from=entry
         )
-    geometry = validate_geometry({name: entry.values.get(name) for name in GEOMETRY_FIELDS})
-    rig.model = Rig.Model.CROSSED_AXES
-    rig.pinhole = None
-    for name, value in geometry.items():
-        setattr(rig, name, value)
-    rig.save()
-    RigParameters.objects.create(
-        rig=rig, values=rig.geometry(), source=source, calibration=entry.calibration, restored_from=entry
+    return update_rig_geometry(
+        rig=rig,
+        changes={name: entry.values.get(name) for name in GEOMETRY_FIELDS},
+        source=source,
+        calibration=entry.calibration,
+        restored_from=entry,
     )
-    return rig
