@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -39,6 +38,7 @@ from metrology.core.codecs import read_codec  # noqa: E402
 from metrology.core.codecs.decode import decode_codec  # noqa: E402
 from metrology.core.codecs.stack import read_codec_stack  # noqa: E402
 from metrology.core.procam import calibrate_procam, parse_board  # noqa: E402
+from metrology.core.procam.calibrate import rotation_angle_deg  # noqa: E402
 from metrology.core.procam.observe import observe_pose  # noqa: E402
 from metrology.core.procam.virtual import BoardPose, render_board  # noqa: E402
 
@@ -88,8 +88,7 @@ def virtual(results: dict[str, Any]) -> None:
                 f"pp ({row[name]['pp_px'][0]:+.3f}, {row[name]['pp_px'][1]:+.3f}) px  "
                 f"distortion over the whole image {row[name]['distortion_px']:.4f} px"
             )
-        R, Rt = np.asarray(rig.R), np.asarray(virtual_rig.RIG.R)
-        row["rotation_deg"] = math.degrees(math.acos(min(1.0, (np.trace(R @ Rt.T) - 1) / 2)))
+        row["rotation_deg"] = rotation_angle_deg(rig.R, virtual_rig.RIG.R)
         row["baseline_pct"] = 100 * (np.linalg.norm(rig.T) / np.linalg.norm(virtual_rig.RIG.T) - 1)
         row["flatness_mm"], row["noise_mm"] = virtual_rig.plane_flatness_mm(rig, u, v), noise
         row["warnings"] = [w["cause"] for w in report["warnings"]]

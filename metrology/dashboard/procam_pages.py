@@ -7,18 +7,12 @@ stereo pose (baseline, rotation angle), coverage, the warnings and the per-pose 
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
+from metrology.core.procam.calibrate import rotation_angle_deg as core_rotation_angle_deg
+from metrology.dashboard.selectors import finite_or_none
+
 DISTORTION_NAMES = ("k1", "k2", "p1", "p2", "k3")
-
-
-def _number(value: Any) -> float | None:
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        return None
-    return number if math.isfinite(number) else None
 
 
 def device_rows(device: dict[str, Any]) -> list[dict[str, Any]]:
@@ -27,26 +21,25 @@ def device_rows(device: dict[str, Any]) -> list[dict[str, Any]]:
     K = device.get("K") or [[None] * 3] * 3
     std = device.get("std") or {}
     rows = [
-        {"name": "fx", "value": _number(K[0][0]), "std": _number(std.get("fx")), "unit": "px"},
-        {"name": "fy", "value": _number(K[1][1]), "std": _number(std.get("fy")), "unit": "px"},
-        {"name": "cx", "value": _number(K[0][2]), "std": _number(std.get("cx")), "unit": "px"},
-        {"name": "cy", "value": _number(K[1][2]), "std": _number(std.get("cy")), "unit": "px"},
+        {"name": "fx", "value": finite_or_none(K[0][0]), "std": finite_or_none(std.get("fx")), "unit": "px"},
+        {"name": "fy", "value": finite_or_none(K[1][1]), "std": finite_or_none(std.get("fy")), "unit": "px"},
+        {"name": "cx", "value": finite_or_none(K[0][2]), "std": finite_or_none(std.get("cx")), "unit": "px"},
+        {"name": "cy", "value": finite_or_none(K[1][2]), "std": finite_or_none(std.get("cy")), "unit": "px"},
     ]
     dist_std = list(std.get("dist") or [])
     for index, value in enumerate(device.get("dist") or []):
         name = DISTORTION_NAMES[index] if index < len(DISTORTION_NAMES) else f"d{index}"
-        sigma = _number(dist_std[index]) if index < len(dist_std) else None
-        rows.append({"name": name, "value": _number(value), "std": sigma, "unit": ""})
+        sigma = finite_or_none(dist_std[index]) if index < len(dist_std) else None
+        rows.append({"name": name, "value": finite_or_none(value), "std": sigma, "unit": ""})
     return rows
 
 
 def rotation_angle_deg(R: Any) -> float | None:
-    """The angle of the rotation ``R`` (3x3 nested lists), degrees: ``acos((trace R - 1) / 2)``."""
+    """The angle of the report's rotation ``R`` (3x3 nested lists), degrees; None when it is not one."""
     try:
-        trace = float(R[0][0]) + float(R[1][1]) + float(R[2][2])
-    except (TypeError, ValueError, IndexError):
+        return core_rotation_angle_deg(R)
+    except (TypeError, ValueError):
         return None
-    return math.degrees(math.acos(max(-1.0, min(1.0, (trace - 1.0) / 2.0))))
 
 
 def procam_summary(report: dict[str, Any]) -> dict[str, Any]:
@@ -63,13 +56,13 @@ def procam_summary(report: dict[str, Any]) -> dict[str, Any]:
                 "used": bool(pose.get("used")),
                 "reason": pose.get("reason"),
                 "cause": pose.get("cause"),
-                "rms_px": _number(pose.get("rms_px")),
-                "camera_rms_px": _number(pose.get("camera_rms_px")),
-                "projector_rms_px": _number(pose.get("projector_rms_px")),
-                "decoded_fraction": _number(pose.get("decoded_fraction_median")),
-                "tilt_deg": _number(pose.get("tilt_deg")),
-                "leave_one_out_px": _number(pose.get("leave_one_out_projector_rms_px")),
-                "distance_mm": _number(pose.get("distance_mm")),
+                "rms_px": finite_or_none(pose.get("rms_px")),
+                "camera_rms_px": finite_or_none(pose.get("camera_rms_px")),
+                "projector_rms_px": finite_or_none(pose.get("projector_rms_px")),
+                "decoded_fraction": finite_or_none(pose.get("decoded_fraction_median")),
+                "tilt_deg": finite_or_none(pose.get("tilt_deg")),
+                "leave_one_out_px": finite_or_none(pose.get("leave_one_out_projector_rms_px")),
+                "distance_mm": finite_or_none(pose.get("distance_mm")),
                 "corners_used": sum(1 for c in pose.get("corners") or [] if c.get("used")),
                 "corners": len(pose.get("corners") or []),
             }
@@ -80,28 +73,31 @@ def procam_summary(report: dict[str, Any]) -> dict[str, Any]:
         "camera_size": report.get("camera_size"),
         "projector_size": report.get("projector_size"),
         "rms": {
-            "camera": _number(report.get("camera_rms_px")),
-            "projector": _number(report.get("projector_rms_px")),
-            "stereo": _number(report.get("stereo_rms_px")),
+            "camera": finite_or_none(report.get("camera_rms_px")),
+            "projector": finite_or_none(report.get("projector_rms_px")),
+            "stereo": finite_or_none(report.get("stereo_rms_px")),
         },
         "poses_used": report.get("poses_used"),
-        "leave_one_out_median_px": _number((report.get("leave_one_out") or {}).get("median_px")),
+        "leave_one_out_median_px": finite_or_none((report.get("leave_one_out") or {}).get("median_px")),
         "joint": report.get("intrinsics_refined_jointly"),
         "poses_total": report.get("poses_total"),
         "devices": [
             ("Camera", device_rows(report.get("camera") or {})),
             ("Projector", device_rows(report.get("projector") or {})),
         ],
-        "baseline_mm": _number(report.get("baseline_mm")),
+        "baseline_mm": finite_or_none(report.get("baseline_mm")),
         "rotation_deg": rotation_angle_deg(report.get("R")),
         "T": report.get("T"),
-        "coverage": {"camera": _number(coverage.get("camera")), "projector": _number(coverage.get("projector"))},
+        "coverage": {
+            "camera": finite_or_none(coverage.get("camera")),
+            "projector": finite_or_none(coverage.get("projector")),
+        },
         "grid": coverage.get("grid", 8),
-        "tilt_min_deg": _number(diversity.get("tilt_min_deg")),
-        "tilt_max_deg": _number(diversity.get("tilt_max_deg")),
-        "max_angle_deg": _number(diversity.get("max_angle_between_boards_deg")),
-        "median_distance_mm": _number(report.get("median_board_distance_mm")),
-        "gamma": _number(report.get("gamma_estimate")),
+        "tilt_min_deg": finite_or_none(diversity.get("tilt_min_deg")),
+        "tilt_max_deg": finite_or_none(diversity.get("tilt_max_deg")),
+        "max_angle_deg": finite_or_none(diversity.get("max_angle_between_boards_deg")),
+        "median_distance_mm": finite_or_none(report.get("median_board_distance_mm")),
+        "gamma": finite_or_none(report.get("gamma_estimate")),
         "warnings": list(report.get("warnings") or []),
         "poses": poses,
     }

@@ -105,7 +105,8 @@ def calibration_figures(calibration) -> dict[str, Any]:
 _CALIBRATED = (("L_mm", "L", "mm"), ("alpha_rad", "alpha", "rad"), ("d_mm", "d", "mm"))
 
 
-def _finite(value: Any) -> float | None:
+def finite_or_none(value: Any) -> float | None:
+    """``value`` as a float, or None when it is not a finite number (stored JSON may hold null)."""
     try:
         number = float(value)
     except (TypeError, ValueError):
@@ -121,12 +122,12 @@ def calibration_stop_reason(method: str, result: dict[str, Any]) -> str:
     """
     message = str(result.get("message") or "")
     options = result.get("parameters") or {}
-    tolerance = _finite(options.get("tolerance"))
+    tolerance = finite_or_none(options.get("tolerance"))
     limit = options.get("max_iterations")
     within = f" (relative tolerance {tolerance:g})" if tolerance is not None else ""
     if method == "paper":
         if result.get("converged"):
-            dz, m_hat = _finite(options.get("delta_z_mm")), _finite(options.get("m_hat"))
+            dz, m_hat = finite_or_none(options.get("delta_z_mm")), finite_or_none(options.get("m_hat"))
             if dz is not None and m_hat is not None:
                 return f"the master's mean height is within {dz * 1000:g} µm of H and its slope within {m_hat:g}"
             return "the master's mean height and slope are within tolerance"
@@ -160,10 +161,14 @@ def calibration_summary(calibration) -> dict[str, Any]:
     sigma = result.get("std_errors") or {}
     rows = []
     for key, name, unit in _CALIBRATED:
-        before, after, stored_value = _finite(start.get(key)), _finite(result.get(key)), _finite(stored.get(key))
+        before, after, stored_value = (
+            finite_or_none(start.get(key)),
+            finite_or_none(result.get(key)),
+            finite_or_none(stored.get(key)),
+        )
         if after is None:
             continue
-        u = _finite(sigma.get(key))
+        u = finite_or_none(sigma.get(key))
         rows.append(
             {
                 "name": name,
@@ -185,7 +190,7 @@ def calibration_summary(calibration) -> dict[str, Any]:
         "iterations": max(len(points) - 1, 0),
         "converged": bool(result.get("converged")),
         "stop_reason": calibration_stop_reason(calibration.method, result),
-        "residual_rms_mm": _finite(result.get("residual_rms_mm")),
+        "residual_rms_mm": finite_or_none(result.get("residual_rms_mm")),
         "n_pixels": result.get("n_pixels"),
     }
 

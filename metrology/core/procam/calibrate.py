@@ -152,9 +152,32 @@ def _signed_area(pts: FloatArray, cols: int) -> float:
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
 
 
-def _angle_deg(Ra: FloatArray, Rb: FloatArray) -> float:
-    c = (np.trace(Ra @ Rb.T) - 1.0) / 2.0
-    return math.degrees(math.acos(float(np.clip(c, -1.0, 1.0))))
+def rotation_angle_deg(Ra: npt.ArrayLike, Rb: npt.ArrayLike | None = None) -> float:
+    """The angle of the rotation ``Ra Rb^T`` (``Ra`` alone when ``Rb`` is None), degrees:
+    ``acos((trace - 1) / 2)``, the cosine clipped to ``[-1, 1]``. ``Ra``, ``Rb``: (3, 3); ValueError
+    for another shape (TypeError for entries that are not numbers)."""
+    A = np.asarray(Ra, dtype=np.float64)
+    B = np.eye(3) if Rb is None else np.asarray(Rb, dtype=np.float64)
+    if A.shape != (3, 3) or B.shape != (3, 3):
+        raise ValueError(f"rotations must be 3x3, got {A.shape} and {B.shape}")
+    M = A @ B.T
+    c = (float(np.trace(M)) - 1.0) / 2.0
+    return math.degrees(math.acos(min(1.0, max(-1.0, c))))
+
+
+_CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+"""Termination of every OpenCV fit here: 200 iterations or a step below 1e-12 (run to convergence)."""
+
+
+def _device_flags(fix_k3: bool) -> int:
+    """``calibrateCamera``'s flags: k3 held at 0 or not."""
+    return cv2.CALIB_FIX_K3 if fix_k3 else 0
+
+
+def _stereo_flags(joint: bool, fix_k3: bool) -> int:
+    """``stereoCalibrate``'s flags: refine both devices' intrinsics from the given start (``joint``),
+    or hold them fixed."""
+    return (cv2.CALIB_USE_INTRINSIC_GUESS | _device_flags(fix_k3)) if joint else cv2.CALIB_FIX_INTRINSIC
 
 
 def _coverage(points: list[FloatArray], width: float, height: float) -> float:
@@ -202,9 +225,8 @@ def _calibrate_device(
 ) -> tuple[float, FloatArray, FloatArray, list[FloatArray], list[FloatArray], FloatArray, FloatArray]:
     o = [x.astype(np.float32).reshape(-1, 1, 3) for x in obj]
     i = [x.astype(np.float32).reshape(-1, 1, 2) for x in img]
-    criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
     rms, K, dist, rvecs, tvecs, std_int, _std_ext, per_view = cv2.calibrateCameraExtended(  # type: ignore[call-overload]
-        o, i, size, None, None, flags=flags, criteria=criteria
+        o, i, size, None, None, flags=flags, criteria=_CRITERIA
     )
     return float(rms), K, dist.ravel()[:5], list(rvecs), list(tvecs), std_int.ravel(), per_view.ravel()
 
@@ -301,7 +323,7 @@ def _leave_one_out(
     prj: list[npt.NDArray[np.float32]],
     camera_size: tuple[int, int],
     projector_size: tuple[int, int],
-    flags: int,
+    fix_k3: bool,
     joint: bool,
 ) -> list[float]:
     """Each pose's projector corners predicted by a calibration of the other poses, RMS pixels.
@@ -313,17 +335,16 @@ def _leave_one_out(
     fit fails. It measures what a calibration is for, predicting poses it has not seen, which
     the reprojection RMS of the poses it was fitted to does not.
     """
-    criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
-    stereo_flags = (cv2.CALIB_USE_INTRINSIC_GUESS | (flags & cv2.CALIB_FIX_K3)) if joint else cv2.CALIB_FIX_INTRINSIC
+    flags, stereo_flags = _device_flags(fix_k3), _stereo_flags(joint, fix_k3)
     out: list[float] = []
     for k in range(len(obj)):
         o = [obj[i] for i in range(len(obj)) if i != k]
         c = [cam[i] for i in range(len(obj)) if i != k]
         q = [prj[i] for i in range(len(obj)) if i != k]
         try:
-            _, Kc0, dc0, _, _ = cv2.calibrateCamera(o, c, camera_size, None, None, flags=flags, criteria=criteria)
-            _, Kp0, dp0, _, _ = cv2.calibrateCamera(o, q, projector_size, None, None, flags=flags, criteria=criteria)
-            st = cv2.stereoCalibrate(o, c, q, Kc0, dc0, Kp0, dp0, camera_size, flags=stereo_flags, criteria=criteria)
+            _, Kc0, dc0, _, _ = cv2.calibrateCamera(o, c, camera_size, None, None, flags=flags, criteria=_CRITERIA)
+            _, Kp0, dp0, _, _ = cv2.calibrateCamera(o, q, projector_size, None, None, flags=flags, criteria=_CRITERIA)
+            st = cv2.stereoCalibrate(o, c, q, Kc0, dc0, Kp0, dp0, camera_size, flags=stereo_flags, criteria=_CRITERIA)
             Kc, dc = np.asarray(st[1], np.float64), np.asarray(st[2], np.float64).ravel()
             Kp, dp = np.asarray(st[3], np.float64), np.asarray(st[4], np.float64).ravel()
             R, T = np.asarray(st[5], np.float64), np.asarray(st[6], np.float64)
@@ -513,7 +534,7 @@ def calibrate_procam(
         obj = [p.object_mm[used_mask[p.name]] for p in act]  # type: ignore[index]
         cam = [p.camera_px[used_mask[p.name]] for p in act]  # type: ignore[index]
         prj = [p.projector_px[used_mask[p.name]] for p in act]  # type: ignore[index]
-        flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
+        flags = _device_flags(fix_k3)
         c = _calibrate_device(obj, cam, (cam_w, cam_h), flags)
         q = _calibrate_device(obj, prj, (proj_w, proj_h), flags)
         return c, q
@@ -528,7 +549,7 @@ def calibrate_procam(
             Rc = cv2.Rodrigues(cam_cal[3][k])[0]
             Rp = cv2.Rodrigues(proj_cal[3][k])[0]
             rel.append(Rp @ Rc.T)
-        dists = np.array([[_angle_deg(a, b) for b in rel] for a in rel])
+        dists = np.array([[rotation_angle_deg(a, b) for b in rel] for a in rel])
         ref = int(np.argmin(np.median(dists, axis=1)))
         bad = [act[k] for k in range(len(act)) if dists[ref, k] > FLIP_ANGLE_DEG]
         if bad and len(bad) < len(act) / 2:
@@ -565,11 +586,6 @@ def calibrate_procam(
     prj = [p.projector_px[used_mask[p.name]].astype(np.float32).reshape(-1, 1, 2) for p in act]  # type: ignore[index]
     Kc, dc = cam_cal[1], cam_cal[2]
     Kp, dp = proj_cal[1], proj_cal[2]
-    criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
-    if joint:
-        stereo_flags = cv2.CALIB_USE_INTRINSIC_GUESS | (cv2.CALIB_FIX_K3 if fix_k3 else 0)
-    else:
-        stereo_flags = cv2.CALIB_FIX_INTRINSIC
     stereo = cv2.stereoCalibrateExtended(  # type: ignore[call-overload]
         obj,
         cam,
@@ -581,8 +597,8 @@ def calibrate_procam(
         (cam_w, cam_h),
         None,
         None,
-        flags=stereo_flags,
-        criteria=criteria,
+        flags=_stereo_flags(joint, fix_k3),
+        criteria=_CRITERIA,
     )
     stereo_rms = float(stereo[0])
     if joint:
@@ -608,11 +624,7 @@ def calibrate_procam(
         )
     else:
         cam_std, proj_std = cam_cal[5], proj_cal[5]
-    loo = (
-        _leave_one_out(obj, cam, prj, (cam_w, cam_h), (proj_w, proj_h), cv2.CALIB_FIX_K3 if fix_k3 else 0, joint)
-        if len(act) >= 3
-        else []
-    )
+    loo = _leave_one_out(obj, cam, prj, (cam_w, cam_h), (proj_w, proj_h), fix_k3, joint) if len(act) >= 3 else []
     loo_by_name = {p.name: value for p, value in zip(act, loo, strict=False)}
 
     rig = PinholeRig(
@@ -756,7 +768,7 @@ def calibrate_procam(
     for a in range(len(used_names)):
         for b in range(a + 1, len(used_names)):
             na, nb = used_names[a], used_names[b]
-            ang = _angle_deg(board_R[na], board_R[nb])
+            ang = rotation_angle_deg(board_R[na], board_R[nb])
             max_pair = max(max_pair, math.degrees(math.acos(float(np.clip(abs(normals[na] @ normals[nb]), -1, 1)))))
             shift = float(np.linalg.norm(board_t[na] - board_t[nb])) / max(float(np.linalg.norm(board_t[na])), 1e-9)
             if ang < SIMILAR_ANGLE_DEG and shift < SIMILAR_SHIFT:
