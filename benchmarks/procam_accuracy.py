@@ -13,7 +13,8 @@ distortion's point displacements over a 41x31 grid of the whole image (px); then
 error (degrees), the baseline error (%), and the flatness (RMS about a fitted plane, mm) of a
 plane measured with the calibrated rig against the true rig (the noise).
 
-kamino410 procam-calibration (five real poses; skipped when ../shared/datasets is absent):
+kamino410 procam-calibration (five real poses; skipped when the datasets folder, $GCPS_SHARED_DATASETS or
+../shared/datasets, is absent):
 camera and projector fx, stereo RMS, outlier corners and each pose's left-out prediction (its
 projector corners predicted by a calibration of the other four), for both settings.
 Runs in about a minute; prints one line per figure and a JSON line.
@@ -41,8 +42,9 @@ from metrology.core.procam import calibrate_procam, parse_board  # noqa: E402
 from metrology.core.procam.calibrate import rotation_angle_deg  # noqa: E402
 from metrology.core.procam.observe import observe_pose  # noqa: E402
 from metrology.core.procam.virtual import BoardPose, render_board  # noqa: E402
+from tests.datasets import dataset_path  # noqa: E402
 
-KAMINO = ROOT.parent / "shared" / "datasets" / "kamino410-procam-calibration" / "sample_data"
+KAMINO = dataset_path("kamino410-procam-calibration", "sample_data")
 
 
 def virtual(results: dict[str, Any]) -> None:

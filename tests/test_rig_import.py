@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import cv2
@@ -12,9 +11,10 @@ import pytest
 
 from metrology.cli import main
 from metrology.core.geometry.pinhole import PinholeRig
+from tests.datasets import dataset_path, require_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
-KAMINO = ROOT.parent / "shared" / "datasets" / "kamino410-procam-calibration" / "calibration_result.rerun.xml"
+KAMINO = dataset_path("kamino410-procam-calibration", "calibration_result.rerun.xml")
 
 CAM_K = np.array([[2301.123456789012, 0.0, 1023.4567], [0.0, 2299.87654321, 767.25], [0.0, 0.0, 1.0]])
 CAM_D = np.array([-0.112233445566, 0.0987654321, 0.000123456, -0.000654321, -0.0123456789])
@@ -197,10 +197,7 @@ def test_bad_values_are_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]
 
 def test_kamino410_calibration_imports(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Real data: the kamino410 procam calibration (OpenCV XML) imports with --opencv."""
-    if not KAMINO.is_file():
-        if os.environ.get("CI") == "true":
-            pytest.fail(f"dataset missing under CI: {KAMINO}")
-        pytest.skip(f"dataset absent: {KAMINO}")
+    require_dataset(KAMINO, "kamino410 procam calibration result")
     out = tmp_path / "kamino.json"
     args = ["rig", "import", "--out", str(out), "--projector-size", "1024", "768", "--opencv", str(KAMINO)]
     assert main(args) == 0

@@ -10,7 +10,6 @@ absence fails.
 
 from __future__ import annotations
 
-import os
 import zipfile
 from pathlib import Path
 
@@ -22,10 +21,10 @@ from metrology.calibrations.procam_services import apply_procam_calibration, req
 from metrology.captures.services import upload_capture
 from metrology.rigs.services import create_rig
 from tests.app.stacks import SMALL_RIG
+from tests.datasets import dataset_path, require_dataset
 
 ROOT = Path(__file__).resolve().parents[2]
-CANDIDATES = [ROOT.parent / "shared" / "datasets", ROOT.parent.parent / "shared" / "datasets"]
-DATASET = next((c for c in CANDIDATES if c.is_dir()), CANDIDATES[0]) / "kamino410-procam-calibration" / "sample_data"
+DATASET = dataset_path("kamino410-procam-calibration", "sample_data")
 CODEC = ROOT / "examples" / "kamino410-procam.codec.json"
 
 pytestmark = [pytest.mark.slow, pytest.mark.django_db(transaction=True)]
@@ -33,11 +32,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.django_db(transaction=True)]
 
 @pytest.fixture(scope="module")
 def pose_zips(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
-    if not (DATASET / "capture_0").is_dir():
-        message = f"kamino410 procam dataset not found at {DATASET}; real-capture test skipped"
-        if os.environ.get("CI", "").lower() == "true":
-            pytest.fail(message.replace("skipped", "required under CI=true"))
-        pytest.skip(message)
+    require_dataset(DATASET / "capture_0", "kamino410 procam dataset")
     out = tmp_path_factory.mktemp("kamino-zips")
     zips = []
     for index in range(5):

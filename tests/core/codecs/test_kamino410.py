@@ -9,7 +9,6 @@ dataset folder is absent, except under ``CI=true`` where its absence fails.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -18,26 +17,15 @@ import pytest
 from metrology.core.codecs import read_codec
 from metrology.core.codecs.decode import decode_codec
 from metrology.core.codecs.stack import read_codec_stack
+from tests.datasets import dataset_path, require_dataset
 
-ROOT = Path(__file__).resolve().parents[3]
-# the datasets folder: $GCPS_SHARED_DATASETS when set, else beside the project
-# (ROOT.parent/shared/datasets); a git worktree one level deeper also finds it
-CANDIDATES = (
-    [Path(os.environ["GCPS_SHARED_DATASETS"])]
-    if os.environ.get("GCPS_SHARED_DATASETS")
-    else [ROOT.parent / "shared" / "datasets", ROOT.parent.parent / "shared" / "datasets"]
-)
-DATASET = next((c for c in CANDIDATES if c.is_dir()), CANDIDATES[0]) / "kamino410-phase-shifting"
+DATASET = dataset_path("kamino410-phase-shifting")
 DATASET_DECODED_PIXELS = 1_453_533
 
 
 @pytest.fixture(scope="module")
 def dataset() -> Path:
-    if not (DATASET / "object1").is_dir():
-        message = f"kamino410 dataset not found at {DATASET} (see the datasets README); real-capture test skipped"
-        if os.environ.get("CI", "").lower() == "true":
-            pytest.fail(message.replace("skipped", "required under CI=true"))
-        pytest.skip(message)
+    require_dataset(DATASET / "object1", "kamino410 dataset")
     return DATASET
 
 

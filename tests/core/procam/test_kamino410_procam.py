@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
 
 import cv2
@@ -21,10 +20,10 @@ import numpy as np
 import pytest
 
 from metrology.cli import main
+from tests.datasets import dataset_path, require_dataset
 
 ROOT = Path(__file__).resolve().parents[3]
-CANDIDATES = [ROOT.parent / "shared" / "datasets", ROOT.parent.parent / "shared" / "datasets"]
-DATASET = next((c for c in CANDIDATES if c.is_dir()), CANDIDATES[0]) / "kamino410-procam-calibration" / "sample_data"
+DATASET = dataset_path("kamino410-procam-calibration", "sample_data")
 CODEC = ROOT / "examples" / "kamino410-procam.codec.json"
 T_REFERENCE = np.array([88.0, -641.6, -80.4])
 
@@ -33,11 +32,7 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def calibrated(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, dict]:  # type: ignore[type-arg]
-    if not (DATASET / "capture_0").is_dir():
-        message = f"kamino410 procam dataset not found at {DATASET}; real-capture test skipped"
-        if os.environ.get("CI", "").lower() == "true":
-            pytest.fail(message.replace("skipped", "required under CI=true"))
-        pytest.skip(message)
+    require_dataset(DATASET / "capture_0", "kamino410 procam dataset")
     out = tmp_path_factory.mktemp("kamino")
     poses = [str(DATASET / f"capture_{i}") for i in range(5)]
     args = ["--quiet", "calibrate-procam", "--codec", str(CODEC), "--board", "chessboard:9x7:75", "--poses", *poses]
