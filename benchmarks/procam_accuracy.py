@@ -39,7 +39,7 @@ from metrology.core.codecs import read_codec  # noqa: E402
 from metrology.core.codecs.decode import decode_codec  # noqa: E402
 from metrology.core.codecs.stack import read_codec_stack  # noqa: E402
 from metrology.core.procam import calibrate_procam, parse_board  # noqa: E402
-from metrology.core.procam.calibrate import rotation_angle_deg  # noqa: E402
+from metrology.core.procam.diagnostics import rotation_angle_deg  # noqa: E402
 from metrology.core.procam.observe import observe_pose  # noqa: E402
 from metrology.core.procam.virtual import BoardPose, render_board  # noqa: E402
 from tests.datasets import dataset_path  # noqa: E402

@@ -109,7 +109,7 @@ def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
             fix_k3=args.fix_k3,
             joint=not args.fixed_intrinsics,
         )
-        rig = result.rig
+        rig, poses = result.rig, list(result.poses)
         report = dict(result.report)
         report["software_version"] = software_version()
         report["timings_s"] = {"total": round(time.perf_counter() - start, 3)}

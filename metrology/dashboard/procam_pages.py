@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from metrology.core.procam.calibrate import rotation_angle_deg as core_rotation_angle_deg
+from metrology.core.procam.diagnostics import rotation_angle_deg as core_rotation_angle_deg
 from metrology.dashboard.selectors import finite_or_none
 
 DISTORTION_NAMES = ("k1", "k2", "p1", "p2", "k3")

@@ -21,8 +21,8 @@ from metrology.core.codecs.decode import CodecDecodeOptions
 from metrology.core.geometry.pinhole import PinholeRig
 from metrology.core.procam import calibrate_procam, parse_board
 from metrology.core.procam.board import BoardSpec
-from metrology.core.procam.calibrate import MIN_DECODED_FRACTION, PoseObservation
 from metrology.core.procam.observe import observe_pose
+from metrology.core.procam.poses import MIN_DECODED_FRACTION, PoseObservation
 from metrology.pipeline.common import PhaseTimer, check_bool, check_keys, json_safe
 from metrology.version import software_version
 
@@ -120,7 +120,8 @@ class ProcamPose:
 
 @dataclass
 class ProcamResult:
-    """The calibrated rig, the report (JSON-ready apart from non-finite floats), the observations."""
+    """The calibrated rig, the report (JSON-ready apart from non-finite floats), the observations
+    (as the calibration judged them: board points filled in, each left-out pose's reason set)."""
 
     rig: PinholeRig
     report: dict[str, Any]
@@ -215,7 +216,7 @@ def calibrate_procam_stacks(
     return ProcamResult(
         rig=result.rig,
         report=report,
-        poses=observations,
+        poses=list(result.poses),
         options=options,
         camera_size=camera_size,
         projector_size=projector,

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from metrology.core.procam.board import BoardSpec
-from metrology.core.procam.calibrate import PoseObservation
+from metrology.core.procam.poses import PoseObservation
 
 CORRESPONDENCES_FORMAT = "gcps-procam-correspondences/1"
 _TOP = ("format", "camera_size", "projector_size", "poses")

@@ -42,8 +42,8 @@ from metrology.core.codecs.decode import (
 )
 from metrology.core.codecs.model import Codec
 from metrology.core.procam.board import BoardSpec, detect_board
-from metrology.core.procam.calibrate import PoseObservation
 from metrology.core.procam.corners import auto_window, project_corners
+from metrology.core.procam.poses import PoseObservation
 
 FloatArray = npt.NDArray[np.float64]
 

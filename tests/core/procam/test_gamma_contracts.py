@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -134,14 +135,12 @@ def test_precompensated_codec_decodes_linearly_on_a_gamma_virtual_projector() ->
 def test_calibration_writes_the_measured_gamma_unless_precompensated() -> None:
     board = parse_board("chessboard:9x6:20")
     poses, camera_size, projector_size = read_correspondences(EXAMPLE, board)
-    for pose in poses:
-        pose.gamma = 2.1
+    poses = [replace(pose, gamma=2.1) for pose in poses]
     result = calibrate_procam(poses, board, camera_size, projector_size, fix_k3=True)
     assert result.rig.projector.gamma == pytest.approx(2.1)
     assert PinholeRig.from_json(result.rig.to_json()).to_dict()["projector"]["gamma"] == pytest.approx(2.1)
     poses, camera_size, projector_size = read_correspondences(EXAMPLE, board)
-    for pose in poses:
-        pose.gamma = 2.1
+    poses = [replace(pose, gamma=2.1) for pose in poses]
     kept = calibrate_procam(poses, board, camera_size, projector_size, fix_k3=True, codec_gamma_precompensated=True)
     assert kept.rig.projector.gamma is None and "gamma" not in kept.rig.to_dict()["projector"]
 

@@ -241,7 +241,7 @@ def causes(result) -> set[str]:  # type: ignore[no-untyped-def]
 def test_flipped_corner_order_is_found(rendered) -> None:  # type: ignore[no-untyped-def]
     observations = fresh(rendered[0])
     assert observations[3].projector_px is not None
-    observations[3].projector_px = observations[3].projector_px[::-1].copy()
+    observations[3] = replace(observations[3], projector_px=observations[3].projector_px[::-1].copy())
     result = calibrate(observations)
     assert "corner_order_flipped" in causes(result)
     assert [p["name"] for p in result.report["poses"] if not p["used"]] == ["pose3"]
