@@ -1,15 +1,22 @@
 """The report's warnings: what went wrong, in plain words, and what to do; one function per cause.
 
 Each function returns its cause's entries (:class:`CalibrationWarning`), an empty list when all
-is well: one entry per pose (or pair of poses) it concerns. The table of causes is in
-docs/procam-calibration.md.
+is well. A cause that concerns several poses gives one entry naming them all: ``poses`` lists them
+in pose order (``board_not_found``, ``poorly_decoded``, ``corner_order_flipped``,
+``outlier_corners``, ``inconsistent_pose``, ``projector_mismatch``), and the near-identical poses'
+entry lists its pairs (``pairs``, each pair in pose order, ``poses`` the poses they hold). Entries
+of one pose or pair say it as they always did; of several, their message lists each one's figures.
+
+Two causes may give two entries, for different findings: ``similar_poses`` (near-identical pairs;
+boards whose orientations span too little) and ``coverage`` (one per device). The table of
+causes is in docs/procam-calibration.md.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -18,6 +25,7 @@ import numpy.typing as npt
 from metrology.core.procam.board import BoardSpec
 from metrology.core.procam.diagnostics import COVERAGE_CELLS, SIMILAR_ANGLE_DEG, SIMILAR_SHIFT, Coverage, PoseDiversity
 from metrology.core.procam.poses import PoseObservation
+from metrology.core.procam.rejection import outlier_reason
 
 RECOMMENDED_POSES = 5
 INCONSISTENT_POSE_RATIO = 3.0
@@ -54,18 +62,23 @@ class CalibrationWarning:
         What to do.
     poses : tuple of str
         The poses it concerns, in pose order (empty: the whole calibration).
+    pairs : tuple of (str, str)
+        For ``similar_poses``: the near-identical pairs.
     """
 
     cause: str
     message: str
     action: str
     poses: tuple[str, ...] = ()
+    pairs: tuple[tuple[str, str], ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
-        """``{cause, message, action}``, with ``poses`` (a list) when not empty."""
+        """``{cause, message, action}``, with ``poses`` and ``pairs`` (lists) when not empty."""
         entry: dict[str, Any] = {"cause": self.cause, "message": self.message, "action": self.action}
         if self.poses:
             entry["poses"] = list(self.poses)
+        if self.pairs:
+            entry["pairs"] = [list(pair) for pair in self.pairs]
         return entry
 
 
@@ -78,26 +91,44 @@ def _left_out(poses: Sequence[PoseObservation], cause: str) -> list[PoseObservat
     return [p for p in poses if p.reason is not None and p.cause == cause]
 
 
+def _left_out_message(found: Sequence[PoseObservation], one: str, many: str) -> str:
+    """``pose a: ONE; the pose is left out.`` (``{reason}`` in ONE standing for the pose's reason), or
+    for several ``poses a, b and c: MANY (a and c: their reason; b: its reason); these poses are
+    left out.`` (each reason once, for its poses)."""
+    if len(found) == 1:
+        return f"pose {found[0].name}: {one.format(reason=found[0].reason)}; the pose is left out."
+    by_reason: dict[str, list[str]] = {}
+    for p in found:
+        by_reason.setdefault(str(p.reason), []).append(p.name)
+    reasons = "; ".join(f"{_listing(names)}: {reason}" for reason, names in by_reason.items())
+    return f"poses {_listing([p.name for p in found])}: {many} ({reasons}); these poses are left out."
+
+
 def _left_out_warnings(
-    poses: Sequence[PoseObservation], cause: str, action: str, one: str = "{reason}"
+    poses: Sequence[PoseObservation], cause: str, action: str, many: str, one: str = "{reason}"
 ) -> list[CalibrationWarning]:
-    """One entry per pose left out with ``cause``: ``pose a: ONE; the pose is left out.`` (``{reason}``
-    in ONE standing for the pose's reason)."""
-    return [
-        CalibrationWarning(
-            cause, f"pose {p.name}: {one.format(reason=p.reason)}; the pose is left out.", action, (p.name,)
-        )
-        for p in _left_out(poses, cause)
-    ]
+    """One entry for the poses left out with ``cause`` (:func:`_left_out_message`), none without."""
+    found = _left_out(poses, cause)
+    if not found:
+        return []
+    return [CalibrationWarning(cause, _left_out_message(found, one, many), action, tuple(p.name for p in found))]
 
 
 def board_not_found_warnings(poses: Sequence[PoseObservation]) -> list[CalibrationWarning]:
     """Poses left out because their board was not found (cause ``board_not_found``)."""
+    names = [p.name for p in _left_out(poses, "board_not_found")]
+    if not names:
+        return []
+    message = (
+        f"pose {names[0]}: the board was not found in its board image; the pose is left out."
+        if len(names) == 1
+        else f"poses {_listing(names)}: the board was not found in their board images; these poses are left out."
+    )
     action = (
         "Check the board spec (COLSxROWS counts inner corners, points per row first), that the whole "
         "board is in the camera's view, sharp and evenly lit in the white frame."
     )
-    return _left_out_warnings(poses, "board_not_found", action, "the board was not found in its board image")
+    return [CalibrationWarning("board_not_found", message, action, tuple(names))]
 
 
 def poorly_decoded_warnings(poses: Sequence[PoseObservation]) -> list[CalibrationWarning]:
@@ -106,16 +137,25 @@ def poorly_decoded_warnings(poses: Sequence[PoseObservation]) -> list[Calibratio
         "Keep the whole board inside the projector's light, avoid shadows and glare, and raise the exposure "
         "or the projector brightness so the black squares are still decoded."
     )
-    return _left_out_warnings(poses, "poorly_decoded", action, "too little of the board decoded ({reason})")
+    summary = "too little of the board decoded"
+    return _left_out_warnings(poses, "poorly_decoded", action, summary, f"{summary} ({{reason}})")
 
 
 def outlier_corners_warnings(poses: Sequence[PoseObservation]) -> list[CalibrationWarning]:
-    """Poses left out for too many outlier corners (cause ``outlier_corners``)."""
+    """Poses left out for too many outlier corners (cause ``outlier_corners``); for several, the
+    message gives each one's count of outlier corners in one sentence."""
     action = (
         "Look at the pose's board image: keep the whole board, with a margin, inside the camera's view and "
         "the projector's light, without glare, and keep it still during the sequence."
     )
-    return _left_out_warnings(poses, "outlier_corners", action)
+    entries = _left_out_warnings(poses, "outlier_corners", action, "too many corners disagree with the calibration")
+    found = _left_out(poses, "outlier_corners")
+    outliers = [p.outliers for p in found if p.outliers is not None]
+    if len(found) < 2 or len(outliers) < len(found):
+        return entries
+    counts = _listing([f"{int(o.sum())} of {o.size}" for o in outliers])
+    message = f"poses {_listing([p.name for p in found])}: {outlier_reason(counts)}; these poses are left out."
+    return [replace(entry, message=message) for entry in entries]
 
 
 def corner_order_flipped_warnings(poses: Sequence[PoseObservation]) -> list[CalibrationWarning]:
@@ -124,12 +164,12 @@ def corner_order_flipped_warnings(poses: Sequence[PoseObservation]) -> list[Cali
         "Give the board's points in the same order for the camera and the projector (row by row, points "
         "per row first); in a correspondence file check that no pose has its projector list reversed."
     )
-    return _left_out_warnings(poses, "corner_order_flipped", action)
+    return _left_out_warnings(poses, "corner_order_flipped", action, "corner order mirrored or flipped")
 
 
 def left_out_warnings(poses: Sequence[PoseObservation]) -> list[CalibrationWarning]:
-    """The warnings of the poses left out (the four causes above), in pose order. A pose left out
-    with another cause, or none, gives no warning."""
+    """The warnings of the poses left out (the four causes above), in the order of each one's
+    first pose. A pose left out with another cause, or none, gives no warning."""
     entries = [
         *board_not_found_warnings(poses),
         *poorly_decoded_warnings(poses),
@@ -154,18 +194,26 @@ def too_few_poses_warnings(n_used: int) -> list[CalibrationWarning]:
 
 
 def similar_poses_warnings(diversity: PoseDiversity, n_used: int) -> list[CalibrationWarning]:
-    """Near-identical pairs of boards (an entry per pair), and boards whose orientations span less
-    than :data:`MIN_TILT_RANGE_DEG`; cause ``similar_poses``."""
-    within = f"board orientations within {SIMILAR_ANGLE_DEG} degrees and positions within {SIMILAR_SHIFT:.0%}"
-    entries = [
-        CalibrationWarning(
-            "similar_poses",
-            f"poses {a} and {b} are near-identical ({within}); the second adds almost nothing.",
-            "Replace one of them by a pose tilted by 20 to 40 degrees in another direction.",
-            (a, b),
-        )
-        for a, b in diversity.similar_pairs
-    ]
+    """Near-identical pairs of boards (one entry listing the pairs), and boards whose orientations
+    span less than :data:`MIN_TILT_RANGE_DEG` (a second entry); cause ``similar_poses``."""
+    entries = []
+    pairs = diversity.similar_pairs
+    if pairs:
+        within = f"board orientations within {SIMILAR_ANGLE_DEG} degrees and positions within {SIMILAR_SHIFT:.0%}"
+        if len(pairs) == 1:
+            ((a, b),) = pairs
+            message = f"poses {a} and {b} are near-identical ({within}); the second adds almost nothing."
+            action = "Replace one of them by a pose tilted by 20 to 40 degrees in another direction."
+        else:
+            listed = ", ".join(f"({a}, {b})" for a, b in pairs)
+            message = (
+                f"{len(pairs)} pairs of poses are near-identical ({within}): {listed}; "
+                "the second of each pair adds almost nothing."
+            )
+            action = "Replace one pose of each pair by a pose tilted by 20 to 40 degrees in another direction."
+        in_pairs = {name for pair in pairs for name in pair}
+        poses = tuple(name for name in diversity.names if name in in_pairs)
+        entries.append(CalibrationWarning("similar_poses", message, action, poses, pairs))
     if n_used >= 2 and diversity.max_angle_deg < MIN_TILT_RANGE_DEG:
         entries.append(
             CalibrationWarning(
@@ -189,18 +237,31 @@ def inconsistent_pose_warnings(leave_one_out_px: Mapping[str, float | None]) -> 
         typical = float(np.median(others)) if others else math.nan
         if others and value > max(INCONSISTENT_POSE_RATIO * typical, INCONSISTENT_POSE_PX):
             found.append((name, value, typical))
-    return [
-        CalibrationWarning(
-            "inconsistent_pose",
+    if not found:
+        return []
+    if len(found) == 1:
+        name, value, typical = found[0]
+        message = (
             f"pose {name} is not predicted by the other poses: calibrated without it, the rig puts its projector "
             f"corners {value:.2f} px (RMS) from where they were decoded, against {typical:.2f} px for the "
-            "other poses left out in turn.",
-            "Retake this pose or leave it out: the board or the rig may have moved during its sequence, or "
-            "its corners are wrong (blur, reflections).",
-            (name,),
+            "other poses left out in turn."
         )
-        for name, value, typical in found
-    ]
+        action = (
+            "Retake this pose or leave it out: the board or the rig may have moved during its sequence, or "
+            "its corners are wrong (blur, reflections)."
+        )
+    else:
+        figures = ", ".join(f"{name} {value:.2f} px against {typical:.2f} px" for name, value, typical in found)
+        message = (
+            f"poses {_listing([name for name, _, _ in found])} are not predicted by the other poses: calibrated "
+            "without one of them, the rig puts its projector corners this far (RMS) from where they were decoded, "
+            f"against the median of the other poses left out in turn: {figures}."
+        )
+        action = (
+            "Retake these poses or leave them out: the board or the rig may have moved during their sequences, or "
+            "their corners are wrong (blur, reflections)."
+        )
+    return [CalibrationWarning("inconsistent_pose", message, action, tuple(name for name, _, _ in found))]
 
 
 def coverage_warnings(coverage: Coverage) -> list[CalibrationWarning]:

@@ -273,7 +273,7 @@ def test_near_identical_poses_are_found(rendered) -> None:  # type: ignore[no-un
     extra = observe_pose("twin", images, CODEC, BOARD)
     result = calibrate([*rendered[0], extra])
     pairs = [w for w in result.report["warnings"] if w["cause"] == "similar_poses"]
-    assert pairs and pairs[0]["poses"] == ["pose0", "twin"]
+    assert len(pairs) == 1 and pairs[0]["poses"] == ["pose0", "twin"] and pairs[0]["pairs"] == [["pose0", "twin"]]
 
 
 def test_poses_around_the_middle_give_the_coverage_warning() -> None:
