@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from metrology.api_errors import BadInput
 from metrology.captures.codecs import capture_codec_value, codec_of, is_gcps_v1
+from metrology.errors import BadInput
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement

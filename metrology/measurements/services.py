@@ -9,10 +9,10 @@ import numpy as np
 from django.core.files.storage import default_storage
 from django.db import transaction
 
-from metrology.api_errors import BadInput
 from metrology.captures.models import Capture
 from metrology.captures.selectors import capture_for_job
 from metrology.captures.services import load_capture_stack
+from metrology.errors import BadInput
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
