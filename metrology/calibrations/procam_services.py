@@ -231,7 +231,7 @@ def run_procam_calibration(job: Job, run: job_services.JobRun) -> None:
         calibrate_procam_stacks,
         report_json_text,
     )
-    from metrology.pipeline.common import json_safe
+    from metrology.pipeline.jsonsafe import json_safe
 
     calibration = ProcamCalibration.objects.select_related("rig").get(job=job)
     links = list(calibration.pose_links.select_related("capture__rig").order_by("index"))

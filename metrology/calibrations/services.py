@@ -20,7 +20,7 @@ from metrology.captures.services import load_capture_stack
 from metrology.errors import BadInput
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
-from metrology.pipeline.common import json_safe
+from metrology.pipeline.jsonsafe import json_safe
 from metrology.rigs.models import Rig, RigParameters
 from metrology.rigs.services import update_rig_geometry, validate_geometry
 

@@ -18,7 +18,7 @@ from metrology.characterizations.models import Characterization
 from metrology.errors import BadInput
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
-from metrology.pipeline.common import json_safe
+from metrology.pipeline.jsonsafe import json_safe
 from metrology.rigs.models import Rig
 
 OPTION_TYPES: dict[str, type] = {"n_points": int, "rows": int, "patch_px": int, "margin_frac": float}

@@ -27,7 +27,7 @@ from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
 from metrology.measurements.pinhole import load_points
 from metrology.pipeline.acceptance import TESTS, AcceptanceOptions, AcceptanceResult, fit_height_map, fit_points
-from metrology.pipeline.common import json_safe
+from metrology.pipeline.jsonsafe import json_safe
 from metrology.version import software_version
 
 QUERY_PARAMETERS = ("test", "diameter", "spacing", "min_height")

@@ -23,7 +23,7 @@ from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
 from metrology.measurements.stored_arrays import save_arrays, sigma_statistics
-from metrology.pipeline.common import json_safe
+from metrology.pipeline.jsonsafe import json_safe
 
 
 def stacks_codec_value(reference: Any, obj: Any) -> Any:

@@ -17,7 +17,7 @@ from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
 from metrology.measurements.stored_arrays import save_arrays, sigma_statistics
-from metrology.pipeline.common import json_safe
+from metrology.pipeline.jsonsafe import json_safe
 from metrology.rigs.models import Rig
 
 
