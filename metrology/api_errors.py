@@ -1,45 +1,34 @@
 """Errors answer as JSON ``{"error": "<what is wrong and what to do>"}`` (plus ``fields`` for forms).
 
 DRF's own errors (validation, authentication, 404, throttling) are reshaped here so that every
-error the API returns has the same shape; services raise :class:`ApiError` subclasses or plain
-DRF ``ValidationError``.
+error the API returns has the same shape. The services raise the domain errors of
+:mod:`metrology.errors` and know nothing of HTTP: :class:`~metrology.errors.BadInput` answers 400
+and :class:`~metrology.errors.Conflict` 409, each with its sentence as ``error``.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from django.core.exceptions import ValidationError as DjangoValidationError
 from rest_framework import exceptions, status
 from rest_framework.response import Response
 from rest_framework.views import exception_handler as drf_exception_handler
 
+from metrology.errors import BadInput, Conflict, DomainError
 
-class BadInput(exceptions.APIException):
-    """400: the request is understood but its content is refused; ``detail`` says why."""
-
-    status_code = status.HTTP_400_BAD_REQUEST
-    default_detail = "The request was refused."
-    default_code = "bad_input"
+# BadInput stays importable from here, where it was defined before metrology.errors.
+__all__ = ["BadInput", "bad_request", "exception_handler", "not_found", "server_error"]
 
 
-#: What services raise for refused input: DRF errors (``BadInput``, ``ValidationError``), Django's
-#: model ``ValidationError`` and ``ValueError`` from the measurement core.
-SERVICE_ERRORS = (exceptions.APIException, ValueError, DjangoValidationError)
-
-
-def error_sentence(exc: Exception) -> str:
-    """One of :data:`SERVICE_ERRORS` as one sentence for a page or an enclosing error."""
-    if isinstance(exc, exceptions.APIException):
-        detail = exc.detail
-        if isinstance(detail, dict):
-            return "; ".join(f"{key}: {' '.join(map(str, value))}" for key, value in detail.items())
-        if isinstance(detail, list):
-            return " ".join(map(str, detail))
-        return str(detail)
-    if isinstance(exc, DjangoValidationError):
-        return " ".join(exc.messages)
-    return str(exc)
+def _api_exception(exc: DomainError) -> exceptions.APIException:
+    """The DRF error answering a domain error: 409 for a :class:`Conflict`, else 400; its sentence."""
+    if isinstance(exc, Conflict):
+        answer = exceptions.APIException(detail=str(exc), code="conflict")
+        answer.status_code = status.HTTP_409_CONFLICT
+    else:
+        answer = exceptions.APIException(detail=str(exc), code="bad_input")
+        answer.status_code = status.HTTP_400_BAD_REQUEST
+    return answer
 
 
 def _flatten(detail: Any, prefix: str = "") -> list[str]:
@@ -60,6 +49,8 @@ def _flatten(detail: Any, prefix: str = "") -> list[str]:
 
 
 def exception_handler(exc: Exception, context: dict) -> Response | None:
+    if isinstance(exc, DomainError):
+        exc = _api_exception(exc)
     response = drf_exception_handler(exc, context)
     if response is None:
         return None

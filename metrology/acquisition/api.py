@@ -21,9 +21,9 @@ from rest_framework.views import APIView
 
 from metrology.acquisition import services
 from metrology.acquisition.models import Acquisition, Agent, ProjectorState
-from metrology.api_errors import BadInput
 from metrology.api_input import BoundedJSONParser
 from metrology.captures.models import Capture
+from metrology.errors import BadInput
 from metrology.rigs.selectors import get_rig
 
 MAX_INT32 = 2**31 - 1

@@ -7,8 +7,7 @@ class AcquisitionConfig(AppConfig):
     verbose_name = "Acquisition"
 
     def ready(self) -> None:
-        from metrology.acquisition.services import run_acquisition_job
         from metrology.jobs.handlers import register_handler
         from metrology.jobs.models import Job
 
-        register_handler(Job.Kind.ACQUIRE_CAPTURE, run_acquisition_job)
+        register_handler(Job.Kind.ACQUIRE_CAPTURE, "metrology.acquisition.services.run_acquisition_job")

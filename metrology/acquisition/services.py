@@ -20,27 +20,18 @@ from django.conf import settings
 from django.core.files.storage import default_storage
 from django.db import transaction
 from django.utils import timezone
-from rest_framework import exceptions, status
 
 from metrology.acquisition.agent.patterns import ProjectedCodec, resolve_codec
 from metrology.acquisition.models import Acquisition, Agent, ProjectorState
-from metrology.api_errors import BadInput
 from metrology.captures import services as capture_services
 from metrology.captures.models import Capture
+from metrology.errors import BadInput, Conflict
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.rigs.models import Rig
 
 ACQUIRE_KIND = "acquire_capture"
 PROJECTOR_KINDS = ("blank", "test", "white", "black", "frame")
-
-
-class Conflict(exceptions.APIException):
-    """409: refused because of the rig's state (another agent connected, a session no longer valid)."""
-
-    status_code = status.HTTP_409_CONFLICT
-    default_detail = "Refused: the rig is in another state."
-    default_code = "conflict"
 
 
 def _timeout() -> timedelta:

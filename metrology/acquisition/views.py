@@ -8,13 +8,13 @@ from django.http import Http404, HttpResponse
 from django.middleware.csrf import get_token
 from django.shortcuts import redirect, render
 from django.urls import reverse
-from rest_framework.exceptions import APIException
 
 from metrology.accounts.http import AuthenticatedHttpRequest
 from metrology.acquisition import services
 from metrology.acquisition.forms import AcquireForm
 from metrology.acquisition.models import Acquisition, Agent
 from metrology.captures.codecs import codec_label
+from metrology.errors import DomainError
 from metrology.rigs.selectors import get_rig
 
 THUMBNAIL_WIDTH = 160
@@ -111,8 +111,8 @@ def acquire_page(request: AuthenticatedHttpRequest, rig_id: int) -> HttpResponse
                 exposure_ms=data.get("exposure"),
                 codec=data.get("codec") or None,
             )
-        except APIException as exc:
-            form.add_error(None, str(exc.detail))
+        except DomainError as exc:
+            form.add_error(None, str(exc))
         else:
             return redirect("acquisition:acquisition", acquisition.pk)
     agent = services.connected_agent(rig) or Agent.objects.filter(rig=rig).order_by("-connected_at").first()

@@ -16,10 +16,10 @@ from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
-from metrology.api_errors import BadInput
 from metrology.api_input import BoundedJSONParser
 from metrology.calibrations import procam_services, selectors
 from metrology.calibrations.models import ProcamCalibration
+from metrology.errors import BadInput
 from metrology.jobs.models import Job
 from metrology.jobs.serializers import JobStateMixin
 from metrology.measurements.api import get_rig_for_body

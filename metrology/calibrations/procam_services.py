@@ -19,14 +19,15 @@ from django.core.files.storage import default_storage
 from django.db import transaction
 from django.utils import timezone
 
-from metrology.api_errors import SERVICE_ERRORS, BadInput, error_sentence
 from metrology.calibrations.models import ProcamCalibration, ProcamCalibrationPose
 from metrology.captures import services as capture_services
 from metrology.captures.models import Capture
 from metrology.captures.selectors import capture_for_job
+from metrology.errors import BadInput
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.rigs.models import Rig, RigParameters
+from metrology.service_errors import SERVICE_ERRORS, error_sentence
 
 MIN_POSES = 2
 """Fewest poses a request may name (the calibration needs two usable ones; docs recommend 8 to 12)."""
@@ -230,7 +231,7 @@ def run_procam_calibration(job: Job, run: job_services.JobRun) -> None:
         calibrate_procam_stacks,
         report_json_text,
     )
-    from metrology.pipeline.common import json_safe
+    from metrology.pipeline.jsonsafe import json_safe
 
     calibration = ProcamCalibration.objects.select_related("rig").get(job=job)
     links = list(calibration.pose_links.select_related("capture__rig").order_by("index"))

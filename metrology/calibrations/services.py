@@ -13,14 +13,14 @@ from django.core.files.storage import default_storage
 from django.db import transaction
 from django.utils import timezone
 
-from metrology.api_errors import BadInput
 from metrology.calibrations.models import Calibration
 from metrology.captures.models import Capture
 from metrology.captures.selectors import capture_for_job
 from metrology.captures.services import load_capture_stack
+from metrology.errors import BadInput
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
-from metrology.pipeline.common import json_safe
+from metrology.pipeline.jsonsafe import json_safe
 from metrology.rigs.models import Rig, RigParameters
 from metrology.rigs.services import update_rig_geometry, validate_geometry
 

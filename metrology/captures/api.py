@@ -12,12 +12,12 @@ from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
-from metrology.api_errors import BadInput
 from metrology.api_input import BoundedJSONParser, RealNumberField
 from metrology.captures import selectors, services
 from metrology.captures.models import Capture, CaptureSession
 from metrology.captures.simulation import DEFAULT_PRESET, PRESETS, preset_options
 from metrology.core.scenes import SCENES
+from metrology.errors import BadInput
 from metrology.rigs.selectors import get_rig
 
 

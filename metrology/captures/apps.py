@@ -6,8 +6,7 @@ class CapturesConfig(AppConfig):
     label = "captures"
 
     def ready(self) -> None:
-        from metrology.captures.services import run_simulate_capture
         from metrology.jobs.handlers import register_handler
         from metrology.jobs.models import Job
 
-        register_handler(Job.Kind.SIMULATE_CAPTURE, run_simulate_capture)
+        register_handler(Job.Kind.SIMULATE_CAPTURE, "metrology.captures.services.run_simulate_capture")

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from metrology.api_errors import BadInput
 from metrology.core.codecs.model import Codec, CodecError
+from metrology.errors import BadInput
 from metrology.rigs.codecs import MAX_CODEC_FRAMES, codec_of, validate_codec
 from metrology.rigs.models import DEFAULT_CODEC
 

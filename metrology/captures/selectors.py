@@ -5,8 +5,8 @@ from __future__ import annotations
 from django.db.models import QuerySet
 from django.http import Http404
 
-from metrology.api_errors import BadInput
 from metrology.captures.models import Capture, CaptureSession
+from metrology.errors import BadInput
 from metrology.rigs.models import Rig
 
 

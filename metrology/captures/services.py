@@ -20,9 +20,9 @@ from django.core.files import File
 from django.core.files.storage import default_storage
 from django.db import transaction
 
-from metrology.api_errors import BadInput
 from metrology.captures.models import Capture, CaptureSession
 from metrology.captures.sources import CaptureRequest, get_source
+from metrology.errors import BadInput
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.rigs.models import Rig

@@ -6,8 +6,7 @@ class CharacterizationsConfig(AppConfig):
     label = "characterizations"
 
     def ready(self) -> None:
-        from metrology.characterizations.services import run_characterization
         from metrology.jobs.handlers import register_handler
         from metrology.jobs.models import Job
 
-        register_handler(Job.Kind.CHARACTERIZATION, run_characterization)
+        register_handler(Job.Kind.CHARACTERIZATION, "metrology.characterizations.services.run_characterization")

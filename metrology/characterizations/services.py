@@ -11,14 +11,14 @@ from typing import Any
 
 from django.db import transaction
 
-from metrology.api_errors import BadInput
 from metrology.captures.models import Capture, CaptureSession
 from metrology.captures.selectors import capture_for_job
 from metrology.captures.services import load_capture_stack
 from metrology.characterizations.models import Characterization
+from metrology.errors import BadInput
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
-from metrology.pipeline.common import json_safe
+from metrology.pipeline.jsonsafe import json_safe
 from metrology.rigs.models import Rig
 
 OPTION_TYPES: dict[str, type] = {"n_points": int, "rows": int, "patch_px": int, "margin_frac": float}

@@ -80,7 +80,7 @@ def cmd_calibrate_procam(args: argparse.Namespace) -> dict[str, Any]:
         calibrate_procam_stacks,
         report_json_text,
     )
-    from metrology.pipeline.common import json_safe
+    from metrology.pipeline.jsonsafe import json_safe
     from metrology.version import software_version
 
     board = parse_board(args.board)

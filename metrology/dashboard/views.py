@@ -18,7 +18,6 @@ from django.utils.datastructures import MultiValueDict
 from django.utils.http import url_has_allowed_host_and_scheme
 from django.views.decorators.http import require_http_methods, require_POST
 
-from metrology.api_errors import SERVICE_ERRORS, error_sentence
 from metrology.calibrations import procam_services
 from metrology.calibrations import selectors as calibration_selectors
 from metrology.calibrations import services as calibration_services
@@ -34,6 +33,7 @@ from metrology.measurements import services as measurement_services
 from metrology.measurements.derived import available_files
 from metrology.rigs import selectors as rig_selectors
 from metrology.rigs import services as rig_services
+from metrology.service_errors import SERVICE_ERRORS, error_sentence
 from metrology.version import software_version
 
 

@@ -19,28 +19,23 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-from rest_framework import exceptions, status
 
-from metrology.api_errors import BadInput
 from metrology.core.measure import DecodeOptions
 from metrology.core.rig import Rig as CoreRig
+from metrology.errors import BadInput, Conflict
 from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
 from metrology.measurements.pinhole import load_points
 from metrology.pipeline.acceptance import TESTS, AcceptanceOptions, AcceptanceResult, fit_height_map, fit_points
-from metrology.pipeline.common import json_safe
+from metrology.pipeline.jsonsafe import json_safe
 from metrology.version import software_version
 
 QUERY_PARAMETERS = ("test", "diameter", "spacing", "min_height")
 """Query parameters of the acceptance endpoint (diameter, spacing, min_height in mm)."""
 
 
-class NotDone(exceptions.APIException):
-    """409: the measurement's job is not done (queued, running or failed): no stored result to fit."""
-
-    status_code = status.HTTP_409_CONFLICT
-    default_detail = "The measurement is not done."
-    default_code = "not_done"
+class NotDone(Conflict):
+    """The measurement's job is not done (queued, running or failed): no stored result to fit (409)."""
 
 
 def _millimetres(query: Mapping[str, str], name: str) -> float | None:

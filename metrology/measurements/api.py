@@ -12,8 +12,8 @@ from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
-from metrology.api_errors import BadInput
 from metrology.api_input import BoundedJSONParser
+from metrology.errors import BadInput
 from metrology.jobs.serializers import JobStateMixin
 from metrology.measurements import acceptance, derived, selectors, services
 from metrology.measurements.models import RESULT_FILES, Measurement

@@ -8,6 +8,5 @@ class MeasurementsConfig(AppConfig):
     def ready(self) -> None:
         from metrology.jobs.handlers import register_handler
         from metrology.jobs.models import Job
-        from metrology.measurements.services import run_measurement
 
-        register_handler(Job.Kind.MEASUREMENT, run_measurement)
+        register_handler(Job.Kind.MEASUREMENT, "metrology.measurements.services.run_measurement")

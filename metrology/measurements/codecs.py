@@ -17,13 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from metrology.api_errors import BadInput
 from metrology.captures.codecs import capture_codec_value, codec_of, is_gcps_v1
+from metrology.errors import BadInput
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
 from metrology.measurements.stored_arrays import save_arrays, sigma_statistics
-from metrology.pipeline.common import json_safe
+from metrology.pipeline.jsonsafe import json_safe
 
 
 def stacks_codec_value(reference: Any, obj: Any) -> Any:

@@ -21,15 +21,15 @@ from typing import Any
 import numpy as np
 from django.db import transaction
 
-from metrology.api_errors import BadInput
 from metrology.captures.codecs import capture_codec_value, codec_of
 from metrology.captures.models import Capture
 from metrology.captures.selectors import capture_for_job
+from metrology.errors import BadInput
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
 from metrology.measurements.stored_arrays import save_arrays
-from metrology.pipeline.common import json_safe
+from metrology.pipeline.jsonsafe import json_safe
 
 
 def pinhole_options(options: Any) -> dict[str, Any]:

@@ -9,15 +9,15 @@ import numpy as np
 from django.core.files.storage import default_storage
 from django.db import transaction
 
-from metrology.api_errors import BadInput
 from metrology.captures.models import Capture
 from metrology.captures.selectors import capture_for_job
 from metrology.captures.services import load_capture_stack
+from metrology.errors import BadInput
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
 from metrology.measurements.stored_arrays import save_arrays, sigma_statistics
-from metrology.pipeline.common import json_safe
+from metrology.pipeline.jsonsafe import json_safe
 from metrology.rigs.models import Rig
 
 

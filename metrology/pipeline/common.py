@@ -1,5 +1,5 @@
 """What every pipeline result carries: its options, the software version, per-phase timings, and
-its JSON-safe form (:func:`json_safe`) for the files and the database."""
+its JSON-safe form (:func:`json_safe`, from the light :mod:`.jsonsafe`) for the files and the database."""
 
 from __future__ import annotations
 
@@ -10,9 +10,8 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 from metrology.core.measure import DecodeOptions
+from metrology.pipeline.jsonsafe import json_safe as json_safe  # where the pipelines import it from
 
 
 @dataclass
@@ -34,25 +33,6 @@ class PhaseTimer:
         for name, seconds in timings_s.items():
             key = f"{prefix}{name}"
             self.timings_s[key] = self.timings_s.get(key, 0.0) + float(seconds)
-
-
-def json_safe(value: Any) -> Any:
-    """``value`` with numpy scalars/arrays turned into Python and NaN/inf into ``None`` (JSON has neither)."""
-    if isinstance(value, dict):
-        return {str(key): json_safe(item) for key, item in value.items()}
-    if isinstance(value, list | tuple):
-        return [json_safe(item) for item in value]
-    if isinstance(value, np.ndarray):
-        return json_safe(value.tolist())
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, str | int | float | bool) or value is None:
-        return value
-    if hasattr(value, "to_dict"):
-        return json_safe(value.to_dict())
-    return str(value)
 
 
 def decode_options(value: Any) -> DecodeOptions:

@@ -9,6 +9,5 @@ class ReportsConfig(AppConfig):
     def ready(self) -> None:
         from metrology.jobs.handlers import register_handler
         from metrology.jobs.models import Job
-        from metrology.reports.services import run_report
 
-        register_handler(Job.Kind.REPORT, run_report)
+        register_handler(Job.Kind.REPORT, "metrology.reports.services.run_report")

@@ -1,6 +1,6 @@
 """Options of a characterization report: the virtual stage's settings and the drift tolerances, checked.
 
-Every check raises :class:`~metrology.api_errors.BadInput` naming the option and the value, so the
+Every check raises :class:`~metrology.errors.BadInput` naming the option and the value, so the
 API answers 400 and the form shows the message; nothing is stored before the options pass.
 """
 
@@ -11,7 +11,7 @@ from typing import Any
 
 from django.conf import settings
 
-from metrology.api_errors import BadInput
+from metrology.errors import BadInput
 from metrology.reports.models import Report
 from metrology.reports.selectors import latest_uploaded_stage_session
 from metrology.rigs.models import Rig

@@ -17,7 +17,7 @@ from django.db import transaction
 from django.utils import timezone
 from django_celery_beat.models import CrontabSchedule, IntervalSchedule, PeriodicTask
 
-from metrology.api_errors import BadInput
+from metrology.errors import BadInput
 from metrology.reports.options import SOURCES, check_options, checked_number
 from metrology.reports.selectors import REPORT_TASK
 from metrology.rigs.models import Rig

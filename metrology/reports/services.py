@@ -36,10 +36,10 @@ from django.core.files.base import ContentFile
 from django.core.files.storage import default_storage
 from django.db import transaction
 
-from metrology.api_errors import BadInput
 from metrology.captures.models import Capture
 from metrology.captures.services import request_simulated_capture
 from metrology.characterizations.models import Characterization
+from metrology.errors import BadInput
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.reports.drift import DRIFT_FIGURES, UNITS, compute_drift
@@ -239,7 +239,7 @@ def run_report(job: Job, run: job_services.JobRun) -> None:
                     )
                     Report.objects.filter(pk=report.pk).update(characterization=characterization)
             except BadInput as exc:
-                raise job_services.JobFailedError(f"cannot characterize the stage series: {exc.detail}") from None
+                raise job_services.JobFailedError(f"cannot characterize the stage series: {exc}") from None
             report.characterization = characterization
     with run.phase("characterization", 56):
         requested = report.characterization

@@ -13,7 +13,7 @@ from django.shortcuts import redirect, render
 from django.views.decorators.clickjacking import xframe_options_sameorigin
 from django.views.decorators.http import require_GET, require_POST
 
-from metrology.api_errors import BadInput
+from metrology.errors import BadInput
 from metrology.reports import selectors, services
 from metrology.reports.schedules import when_text
 from metrology.rigs.selectors import get_rig, rigs_for
@@ -78,7 +78,7 @@ def report_run(request: HttpRequest) -> HttpResponse:
     try:
         report = services.request_report(rig=rig, owner=request.user, source=request.POST.get("source", "auto"))
     except BadInput as exc:
-        messages.error(request, str(exc.detail))
+        messages.error(request, str(exc))
         return redirect("reports:list")
     return redirect("reports:detail", report_id=report.pk)
 
@@ -92,7 +92,7 @@ def report_schedule(request: HttpRequest) -> HttpResponse:
     try:
         task = services.schedule_report(rig, crontab=form["crontab"], source=form["source"] or "auto")
     except BadInput as exc:
-        return _list_page(request, schedule_form=form, error=str(exc.detail), status=400)
+        return _list_page(request, schedule_form=form, error=str(exc), status=400)
     messages.success(request, f"Report of {rig} scheduled: {when_text(task)}.")
     return redirect("reports:list")
 
@@ -114,7 +114,7 @@ def report_schedule_run(request: HttpRequest, rig_id: int) -> HttpResponse:
             rig_id=schedule["rig"].pk, source=schedule["source"], options=schedule["options"]
         )
     except BadInput as exc:
-        messages.error(request, str(exc.detail))
+        messages.error(request, str(exc))
         return redirect("reports:list")
     if report is None:
         messages.info(request, f"A report of {schedule['rig']} is already queued or running.")

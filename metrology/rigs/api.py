@@ -9,8 +9,8 @@ from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
-from metrology.api_errors import BadInput
 from metrology.api_input import BoundedJSONParser, RealNumberField
+from metrology.errors import BadInput
 from metrology.rigs import selectors, services
 from metrology.rigs.models import Rig, RigParameters
 

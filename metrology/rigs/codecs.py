@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from metrology.api_errors import BadInput
 from metrology.core.codecs.model import Codec, CodecError, builtin_codec, codec_from_dict
+from metrology.errors import BadInput
 from metrology.rigs.models import DEFAULT_CODEC
 
 MAX_CODEC_FRAMES = 256

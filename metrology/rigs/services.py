@@ -8,9 +8,9 @@ from typing import Any
 from django.conf import settings
 from django.db import transaction
 
-from metrology.api_errors import BadInput
 from metrology.core.rig import Rig as CoreRig
 from metrology.core.rig import RigError
+from metrology.errors import BadInput
 from metrology.rigs.codecs import validate_codec
 from metrology.rigs.models import DEFAULT_CODEC, GEOMETRY_FIELDS, Rig, RigParameters
 

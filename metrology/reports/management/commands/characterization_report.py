@@ -12,7 +12,7 @@ from django.core.files.storage import default_storage
 from django.core.management.base import BaseCommand, CommandError
 from django.urls import reverse
 
-from metrology.api_errors import BadInput
+from metrology.errors import BadInput
 from metrology.reports import services
 from metrology.rigs.models import Rig
 
@@ -94,7 +94,7 @@ class Command(BaseCommand):
                 rig, source=opts["source"], options=options, timeout_s=opts["timeout"]
             )
         except BadInput as exc:
-            raise CommandError(str(exc.detail)) from None
+            raise CommandError(str(exc)) from None
         job = report.job
         if job.status != job.Status.DONE:
             raise CommandError(f"report {report.pk} {job.status}: {job.error or 'not finished'}")

@@ -1,0 +1,225 @@
+"""Start-up stays light: ``django.setup()`` imports none of the heavy libraries, services import no DRF.
+
+``django.setup()`` runs in every web process, worker, management command and test session; the
+measurement libraries (SciPy, OpenCV, Open3D, Plotly) and DRF's serializers are loaded when a
+request or a job needs them (the worker loads the job handlers as it starts,
+:func:`metrology.jobs.handlers.preload_job_code`). The services raise the domain errors of
+:mod:`metrology.errors` and leave HTTP to the API layer, so they import nothing of DRF.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from tests.test_import_cycles import imported_modules, module_name
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: Loaded on demand only, never by ``django.setup()``.
+HEAVY = ("scipy", "cv2", "open3d", "plotly", "rest_framework.serializers")
+
+SETUP = "import os, django; os.environ.setdefault('DJANGO_SETTINGS_MODULE', 'metrology.settings'); django.setup()"
+
+
+def importtime_tree(stderr: str) -> list[tuple[int, str]]:
+    """``(depth, module)`` of each ``-X importtime`` line, in its order (a module after its imports)."""
+    rows = []
+    for line in stderr.splitlines():
+        if not line.startswith("import time:") or line.endswith("| imported package"):
+            continue
+        name = line.rsplit("|", 1)[1]
+        rows.append(((len(name) - len(name.lstrip())) // 2, name.strip()))
+    return rows
+
+
+def import_chain(rows: list[tuple[int, str]], index: int) -> list[str]:
+    """The modules whose import imported ``rows[index]``, outermost first (a parent follows its
+    children, one level less indented)."""
+    depth, name = rows[index]
+    chain = [name]
+    for row_depth, row_name in rows[index + 1 :]:
+        if row_depth < depth:
+            chain.append(row_name)
+            depth = row_depth
+    return chain[::-1]
+
+
+def test_the_import_chain_of_a_module_is_read_from_importtime():
+    stderr = "\n".join(
+        [
+            "import time: self [us] | cumulative | imported package",
+            "import time:        10 |         10 |     scipy",
+            "import time:        10 |         20 |   metrology.core.fit",
+            "import time:        10 |         10 |   json",
+            "import time:        10 |         40 | metrology.measurements.services",
+        ]
+    )
+    rows = importtime_tree(stderr)
+    assert rows[0] == (2, "scipy")
+    assert import_chain(rows, 0) == ["metrology.measurements.services", "metrology.core.fit", "scipy"]
+
+
+def fresh_interpreter(code: str, *options: str) -> subprocess.CompletedProcess:
+    """Run ``code`` in a new interpreter with no environment variable set (but the source path)."""
+    env = {"PATH": os.environ.get("PATH", ""), "PYTHONPATH": str(ROOT)}
+    done = subprocess.run(
+        [sys.executable, *options, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    return done
+
+
+def test_django_setup_imports_no_heavy_module():
+    """With no environment variable set (the embedded default: ``metrology.settings`` loads)."""
+    done = fresh_interpreter(SETUP + "; print('ready')", "-X", "importtime")
+    assert done.stdout.strip() == "ready"
+    rows = importtime_tree(done.stderr)
+    assert any(name == "django" for _, name in rows), "no -X importtime output"
+    found = {
+        name: " <- ".join(reversed(import_chain(rows, index))) for index, (_, name) in enumerate(rows) if name in HEAVY
+    }
+    assert not found, "django.setup() imported:\n" + "\n".join(f"{name}: {chain}" for name, chain in found.items())
+
+
+# ----------------------------------------------------------------------------- DRF in the API layer only
+API_LAYER_NAMES = {"api.py", "serializers.py", "views.py", "urls.py", "throttling.py"}
+"""The modules that speak HTTP through DRF: the API views, their serializers, the pages, the URL
+configuration, the throttles and token authentication (``metrology/throttling.py``), with
+:func:`in_api_layer`'s ``api_*.py`` and ``*_api.py``."""
+
+DRF_TOKEN_MODEL = "rest_framework.authtoken.models"
+"""DRF's ``Token`` model, which the account services and the demo command create (a model of an
+installed app, not DRF's HTTP layer)."""
+
+WIRING = {"apps.py"}
+"""An app's ``ready()`` may connect the API layer's signal receivers (the login-failure throttle)."""
+
+
+def in_api_layer(path: Path) -> bool:
+    """``api.py``, ``api_*.py`` (the error handler, request parsing, OpenAPI hooks), ``*_api.py``
+    and :data:`API_LAYER_NAMES`."""
+    name = path.name
+    return name in API_LAYER_NAMES or name.startswith("api_") or name.endswith("_api.py")
+
+
+def api_layer_modules() -> set[str]:
+    return {module_name(path) for path in (ROOT / "metrology").rglob("*.py") if in_api_layer(path)}
+
+
+def refused_imports(filename: str, imported: set[str], api_modules: set[str]) -> list[str]:
+    """What a module named ``filename``, outside the API layer, imports of DRF or of the API layer."""
+    refused = []
+    for name in sorted(imported):
+        if name == "rest_framework.authtoken" or name.startswith(DRF_TOKEN_MODEL):
+            continue
+        drf = name == "rest_framework" or name.startswith("rest_framework.")
+        if drf or (name in api_modules and filename not in WIRING):
+            refused.append(name)
+    return refused
+
+
+def test_the_api_layer_is_found():
+    modules = api_layer_modules()
+    assert {"metrology.api_errors", "metrology.rigs.api", "metrology.calibrations.procam_api"} <= modules
+    assert {"metrology.jobs.serializers", "metrology.throttling", "metrology.dashboard.views"} <= modules
+    assert not modules & {"metrology.rigs.services", "metrology.errors", "metrology.service_errors"}
+
+
+def test_a_planted_drf_import_is_refused():
+    imported = imported_modules(ROOT / "metrology" / "rigs" / "services.py")
+    imported |= {"rest_framework", "rest_framework.exceptions", "metrology.api_errors"}
+    imported |= {"rest_framework.authtoken.models", "rest_framework.authtoken.models.Token"}
+    api_modules = api_layer_modules()
+    assert refused_imports("services.py", imported, api_modules) == [
+        "metrology.api_errors",
+        "rest_framework",
+        "rest_framework.exceptions",
+    ]
+    assert refused_imports("apps.py", {"metrology.throttling"}, api_modules) == []
+
+
+def test_outside_the_api_layer_nothing_imports_drf():
+    """Services, selectors, models, tasks, commands: DRF (but its Token model) and the API layer's
+    modules are imported by the API layer only."""
+    api_modules = api_layer_modules()
+    refused = {}
+    for path in sorted((ROOT / "metrology").rglob("*.py")):
+        if "migrations" in path.parts or in_api_layer(path):
+            continue
+        if found := refused_imports(path.name, imported_modules(path), api_modules):
+            refused[path.relative_to(ROOT).as_posix()] = found
+    assert not refused, f"raise metrology.errors instead, leave HTTP to the API layer: {refused}"
+
+
+# ----------------------------------------------------------------------------- loaded on demand
+def run_fresh(code: str) -> dict:
+    """The JSON object that ``code``, run in a fresh interpreter, prints last."""
+    return json.loads(fresh_interpreter(code).stdout.strip().splitlines()[-1])
+
+
+PIPELINE_ON_FIRST_USE = """
+import json, sys
+import metrology.pipeline.jsonsafe
+light = sorted(m for m in ("scipy", "cv2") if m in sys.modules)
+import metrology.pipeline.common
+common = sorted(m for m in sys.modules if m.startswith("metrology.pipeline"))
+import metrology.pipeline.measure
+from metrology.pipeline import MeasureOptions, calibrate, measure
+import metrology.pipeline as pipeline
+print(json.dumps({
+    "light": light,
+    "common": common,
+    "functions": [callable(measure), callable(pipeline.measure), callable(calibrate)],
+    "options": MeasureOptions.__module__,
+    "not_in_dir": sorted(set(pipeline.__all__) - set(dir(pipeline))),
+    "all_found": sorted(pipeline._SOURCE) == sorted(pipeline.__all__),
+}))
+"""
+
+
+def test_the_pipeline_package_loads_its_modules_on_first_use():
+    found = run_fresh(PIPELINE_ON_FIRST_USE)
+    assert found["light"] == []  # json_safe: numpy only
+    assert found["common"] == ["metrology.pipeline", "metrology.pipeline.common", "metrology.pipeline.jsonsafe"]
+    # the functions stay over their submodules of the same names, whichever is imported first
+    assert found["functions"] == [True, True, True]
+    assert found["options"] == "metrology.pipeline.measure"
+    assert found["not_in_dir"] == [] and found["all_found"]
+
+
+def test_every_job_kind_has_a_handler_that_resolves():
+    from metrology.jobs.handlers import handler_for, registered_kinds
+    from metrology.jobs.models import Job
+
+    assert registered_kinds() == set(Job.Kind)
+    for kind in Job.Kind:
+        handler = handler_for(kind)
+        assert callable(handler) and handler.__module__.startswith("metrology."), (kind, handler)
+
+
+WORKER_START = f"""
+{SETUP}
+import json, sys
+from celery.signals import worker_init
+from metrology.jobs.handlers import preload_job_code
+receivers = [ref() for _, ref in worker_init.receivers]
+before = sorted(m for m in sys.modules if m.startswith(("metrology.pipeline.", "scipy", "cv2")))
+preload_job_code()
+after = sorted(m for m in sys.modules if m.startswith(("metrology.", "scipy", "cv2", "plotly")))
+print(json.dumps({{"connected": preload_job_code in receivers, "before": before, "after": after}}))
+"""
+
+
+def test_a_worker_loads_the_job_code_as_it_starts():
+    """On ``worker_init`` (before the pool forks): the handlers, the pipelines and their libraries."""
+    found = run_fresh(WORKER_START)
+    assert found["connected"] and found["before"] == []
+    after = set(found["after"])
+    assert {"scipy.optimize", "cv2", "plotly", "metrology.figures.characterization"} <= after
+    assert {"metrology.measurements.services", "metrology.calibrations.procam_services"} <= after
+    pipelines = {module_name(path) for path in (ROOT / "metrology" / "pipeline").glob("[!_]*.py")}
+    assert pipelines <= after, pipelines - after
