@@ -30,7 +30,7 @@ from metrology.pipeline import (
     characterize_pinhole,
     measure_pinhole_stacks,
 )
-from tests.test_measure_pinhole import CODEC, RIG
+from tests.pinhole_stacks import CODEC, RIG
 
 DISTANCE_MM = 600.0
 STAGE_MM = (0.0, 4.0, 8.0, 12.0, 16.0)
@@ -154,7 +154,7 @@ def test_cli_characterize_and_acceptance_with_pinhole_rig(tmp_path: Path) -> Non
 
 def test_cli_crossed_axes_rig_keeps_needing_a_reference_and_refuses_codec(tmp_path: Path, capsys) -> None:
     from metrology.core.io import write_rig
-    from tests.test_cli import RIG as CROSSED
+    from tests.commands.rigs import RIG as CROSSED
 
     write_rig(CROSSED, tmp_path / "rig.json")
     base = ["--quiet", "acceptance", "--rig", str(tmp_path / "rig.json"), "--object", str(tmp_path / "obj")]

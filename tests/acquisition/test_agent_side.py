@@ -6,7 +6,6 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -20,9 +19,9 @@ from metrology.core.io import read_stack
 from metrology.core.rig import Rig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_stack
+from tests.acquisition.helpers import ROOT
 from tests.app.stacks import SMALL_RIG
 
-ROOT = Path(__file__).resolve().parents[2]
 RNG = np.random.default_rng(7)
 
 

@@ -9,9 +9,8 @@ from django.core.files.uploadedfile import SimpleUploadedFile
 
 from metrology.captures.services import upload_capture
 from metrology.rigs.models import Rig
-from tests.app.test_pinhole_app import capture_zip
-from tests.dashboard.test_codec_pages import figure_data
-from tests.test_measure_pinhole import RIG
+from tests.dashboard.helpers import figure_data
+from tests.pinhole_stacks import RIG, capture_zip
 
 
 def test_import_a_pinhole_rig_then_measure_depths(client_alice, alice, run_jobs):

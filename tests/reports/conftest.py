@@ -9,7 +9,6 @@ import pytest
 from metrology.accounts.services import create_user_with_token
 from metrology.rigs.services import create_rig
 from tests.app.stacks import SMALL_RIG
-from tests.dashboard.test_browser import browser_page  # noqa: F401  (a fixture, for the browser tests)
 
 # Three positions, two repeats: a report in about a second on the 160 x 120 rig.
 QUICK = {"z_start_mm": 0.0, "z_stop_mm": 16.0, "z_step_mm": 8.0, "repeats": 2}

@@ -20,7 +20,7 @@ from metrology.core.procam.virtual import (
 )
 from metrology.core.simulate_pinhole import look_at_rig
 
-from .test_virtual_calibration import BOARD, CAMERA, PROJECTOR, RIG
+from .virtual_rig import BOARD, CAMERA, PROJECTOR, RIG
 
 
 def outline(pose: BoardPose) -> tuple[np.ndarray, np.ndarray]:
