@@ -1,22 +1,84 @@
-"""Settings and fixtures for the whole test suite: rate limits raised so that no test is throttled by
-accident, and the headless-Chromium page of the browser tests.
+"""Fixtures for the whole test suite: rate limits raised so that no test is throttled by accident,
+a temporary MEDIA_ROOT for every test, two users with passwords, logged-in clients, a small rig, and
+the headless-Chromium page of the browser tests.
 
-The tests of the rate limits themselves (tests/app/test_throttling.py) lower them again.
+The tests of the rate limits themselves (tests/app/test_throttling.py) lower them again; the
+application tests (tests/app/conftest.py) add API clients and make their rig through the API; the
+integration tests (tests/app/integration/conftest.py) keep the media root out of the settings.
 """
 
 from __future__ import annotations
 
-import pytest
+from pathlib import Path
 
+import pytest
+from django.test import Client
+
+from metrology.accounts.services import create_user_with_token
+from metrology.rigs.services import create_rig
+from tests.app.stacks import SMALL_RIG
 from tests.browser import CHROMIUM, CHROMIUM_ARGS, TIMEOUT_MS
 
 #: Far above anything a test does (the suite's fastest loops make a few hundred requests).
 RAISED_RATE = "1000000/hour"
+#: The password of the users made here (the log-in tests type it).
+PASSWORD = "a-long-test-password-42"
 
 
 @pytest.fixture(autouse=True)
 def raised_throttle_rates(settings) -> None:
     settings.GCPS_THROTTLE_RATES = dict.fromkeys(settings.GCPS_THROTTLE_RATES, RAISED_RATE)
+
+
+@pytest.fixture(autouse=True)
+def media_root(settings, tmp_path_factory) -> Path:
+    """Every test stores files in its own temporary folder (not inside ``tmp_path``, which some tests
+    expect to hold only what they wrote there)."""
+    root = tmp_path_factory.mktemp("media")
+    settings.MEDIA_ROOT = root
+    return root
+
+
+def stored_files(root: Path) -> list[Path]:
+    return sorted(path for path in root.rglob("*") if path.is_file())
+
+
+@pytest.fixture
+def alice_token(db):
+    """The user alice and her API token."""
+    return create_user_with_token(username="alice", password=PASSWORD)
+
+
+@pytest.fixture
+def alice(alice_token):
+    return alice_token[0]
+
+
+@pytest.fixture
+def bob(db):
+    return create_user_with_token(username="bob", password=PASSWORD)[0]
+
+
+def logged_in(user) -> Client:
+    client = Client()
+    client.force_login(user)
+    return client
+
+
+@pytest.fixture
+def client_alice(alice) -> Client:
+    return logged_in(alice)
+
+
+@pytest.fixture
+def client_bob(bob) -> Client:
+    return logged_in(bob)
+
+
+@pytest.fixture
+def rig(alice):
+    """Alice's small crossed-axes rig (SMALL_RIG), made through the services."""
+    return create_rig(owner=alice, data={**SMALL_RIG, "name": "bench"})
 
 
 @pytest.fixture

@@ -1,9 +1,7 @@
-"""Fixtures for the application tests: a temporary MEDIA_ROOT, users with tokens, API clients, rigs
-and stored captures made through the API."""
+"""Fixtures for the application tests: users with tokens, API clients, rigs and stored captures made
+through the API (the media root is tests/conftest.py's)."""
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import pytest
 from rest_framework.test import APIClient
@@ -13,19 +11,6 @@ from metrology.core.rig import Rig
 from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
 from tests.app.uploads import upload
 from tests.pinhole_stacks import RIG as PINHOLE_RIG
-
-
-@pytest.fixture(autouse=True)
-def media_root(settings, tmp_path) -> Path:
-    """Every test stores files in its own temporary folder."""
-    root = tmp_path / "media"
-    root.mkdir()
-    settings.MEDIA_ROOT = root
-    return root
-
-
-def stored_files(root: Path) -> list[Path]:
-    return sorted(path for path in root.rglob("*") if path.is_file())
 
 
 @pytest.fixture

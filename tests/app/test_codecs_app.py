@@ -13,9 +13,9 @@ from metrology.core.codecs import codec_from_dict
 from metrology.core.rig import Rig
 from metrology.measurements.models import Measurement
 from tests.app.codec_stacks import CODEC, codec_images, codec_zip
-from tests.app.conftest import stored_files
 from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
 from tests.app.uploads import post_capture
+from tests.conftest import stored_files
 
 # Jobs are enqueued on commit: these tests need real commits.
 pytestmark = pytest.mark.django_db(transaction=True)

@@ -10,9 +10,9 @@ import pytest
 from metrology.core.rig import Rig
 from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
-from tests.app.conftest import stored_files
 from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
 from tests.app.uploads import upload
+from tests.conftest import stored_files
 
 # Jobs are enqueued on commit: these tests need real commits.
 pytestmark = pytest.mark.django_db(transaction=True)

@@ -1,63 +1,18 @@
-"""Fixtures for the page tests: a temporary MEDIA_ROOT, two users with passwords, logged-in clients,
-a small rig with stored captures, finished results made through the services, and an in-process job
-worker for the browser tests."""
+"""Fixtures for the page tests: stored captures of the small rig made through the services, jobs run
+in-process, and an in-process job worker for the browser tests (the users, their clients, the rig and
+the media root are tests/conftest.py's)."""
 
 from __future__ import annotations
 
 import queue
 import threading
-from pathlib import Path
 
 import pytest
 from django.core.files.uploadedfile import SimpleUploadedFile
-from django.test import Client
 
-from metrology.accounts.services import create_user_with_token
 from metrology.captures.services import upload_capture
 from metrology.core.rig import Rig as CoreRig
-from metrology.rigs.services import create_rig
 from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
-
-PASSWORD = "a-long-test-password-42"
-
-
-@pytest.fixture(autouse=True)
-def media_root(settings, tmp_path) -> Path:
-    root = tmp_path / "media"
-    root.mkdir()
-    settings.MEDIA_ROOT = root
-    return root
-
-
-@pytest.fixture
-def alice(db):
-    return create_user_with_token(username="alice", password=PASSWORD)[0]
-
-
-@pytest.fixture
-def bob(db):
-    return create_user_with_token(username="bob", password=PASSWORD)[0]
-
-
-def logged_in(user) -> Client:
-    client = Client()
-    client.force_login(user)
-    return client
-
-
-@pytest.fixture
-def client_alice(alice) -> Client:
-    return logged_in(alice)
-
-
-@pytest.fixture
-def client_bob(bob) -> Client:
-    return logged_in(bob)
-
-
-@pytest.fixture
-def rig(alice):
-    return create_rig(owner=alice, data={**SMALL_RIG, "name": "bench"})
 
 
 def upload(owner, rig, z, role: str, **extra):

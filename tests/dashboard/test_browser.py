@@ -12,7 +12,7 @@ import os
 import pytest
 
 from tests.browser import CHROMIUM, shot
-from tests.dashboard.conftest import PASSWORD
+from tests.conftest import PASSWORD
 
 pytestmark = [
     pytest.mark.browser,

@@ -13,7 +13,8 @@ from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
 from metrology.measurements.services import request_measurement
 from metrology.rigs.models import Rig
-from tests.dashboard.conftest import PASSWORD, upload
+from tests.conftest import PASSWORD
+from tests.dashboard.conftest import upload
 from tests.dashboard.helpers import capture_listing_pages
 
 PAGES = [

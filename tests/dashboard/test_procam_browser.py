@@ -13,7 +13,7 @@ import pytest
 from metrology.rigs.services import create_rig
 from tests.app.procam_stacks import BOARD_SPEC, RIG_320, TRUE_RIG, UNUSABLE_POSE, pose_name, pose_zips
 from tests.browser import CHROMIUM, shot
-from tests.dashboard.conftest import PASSWORD
+from tests.conftest import PASSWORD
 
 pytestmark = [
     pytest.mark.browser,

@@ -17,8 +17,8 @@ from metrology.calibrations.models import ProcamCalibration
 from metrology.captures.models import Capture, CaptureSession
 from metrology.rigs.models import Rig
 from metrology.rigs.services import create_rig
-from tests.app.conftest import stored_files
 from tests.app.procam_stacks import BOARD_SPEC, RIG_320, TRUE_RIG, UNUSABLE_POSE, pose_name, pose_zip, pose_zips
+from tests.conftest import stored_files
 
 
 def pose_files() -> list[SimpleUploadedFile]:
