@@ -114,7 +114,7 @@ def test_gcps_measure_command_line(tmp_path: Path, capsys: pytest.CaptureFixture
     z = np.load(tmp_path / "z.npy")
     ok = np.isfinite(z)
     assert np.abs(z[ok] - truth[..., 2][ok]).max() < 1e-3
-    crossed = Path(__file__).resolve().parents[1] / "examples" / "rig.json"
+    crossed = Path(__file__).resolve().parents[2] / "examples" / "rig.json"
     argv = ["measure", "--rig", str(crossed), "--object", str(tmp_path / "plane"), "--out", str(tmp_path / "c.npy")]
     assert main(argv) == 2
     assert "--reference is required for a crossed-axes rig" in capsys.readouterr().err

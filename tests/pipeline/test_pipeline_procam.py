@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from metrology.pipeline.calibrate_procam import ProcamOptions, ProcamPose, calibrate_procam_stacks
-
-from .virtual_rig import CODEC, OPTIONS, PROJECTOR, RIG, make_codec, pose
+from tests.core.procam.virtual_rig import CODEC, OPTIONS, PROJECTOR, RIG, make_codec, pose
 
 
 @pytest.mark.parametrize(
@@ -50,8 +49,7 @@ def test_stacks_mismatch_is_named() -> None:
 @pytest.mark.slow
 def test_virtual_stacks_calibrate_with_progress() -> None:
     from metrology.core.procam.virtual import render_board
-
-    from .virtual_rig import BOARD
+    from tests.core.procam.virtual_rig import BOARD
 
     poses = [ProcamPose(f"p{i}", render_board(RIG, BOARD, pose(i), CODEC, OPTIONS, seed=i), CODEC) for i in range(6)]
     seen: list[tuple[int, str]] = []
@@ -77,8 +75,7 @@ def test_stacks_given_as_functions_are_read_one_at_a_time() -> None:
     import weakref
 
     from metrology.core.procam.virtual import render_board
-
-    from .virtual_rig import BOARD
+    from tests.core.procam.virtual_rig import BOARD
 
     def render(i: int) -> np.ndarray:
         return render_board(RIG, BOARD, pose(i), CODEC, OPTIONS, seed=i)
