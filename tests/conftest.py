@@ -1,6 +1,6 @@
 """Fixtures for the whole test suite: rate limits raised so that no test is throttled by accident,
-a temporary MEDIA_ROOT for every test, two users with passwords, logged-in clients, a small rig, and
-the headless-Chromium page of the browser tests.
+a fast password hasher, a temporary MEDIA_ROOT for every test, two users with passwords, logged-in
+clients, a small rig, and the headless-Chromium page of the browser tests.
 
 The tests of the rate limits themselves (tests/app/test_throttling.py) lower them again; the
 application tests (tests/app/conftest.py) add API clients and make their rig through the API; the
@@ -28,6 +28,14 @@ PASSWORD = "a-long-test-password-42"
 @pytest.fixture(autouse=True)
 def raised_throttle_rates(settings) -> None:
     settings.GCPS_THROTTLE_RATES = dict.fromkeys(settings.GCPS_THROTTLE_RATES, RAISED_RATE)
+
+
+@pytest.fixture(autouse=True)
+def fast_password_hasher(settings) -> None:
+    """Passwords hashed with MD5, not PBKDF2's million rounds (a quarter of a second for each user
+    made with a password, each password log-in and each failed one): the tests check who may log
+    in, not the hasher's cost. Processes started by the tests keep the settings' hashers."""
+    settings.PASSWORD_HASHERS = ["django.contrib.auth.hashers.MD5PasswordHasher"]
 
 
 @pytest.fixture(autouse=True)
