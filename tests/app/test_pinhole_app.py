@@ -33,6 +33,7 @@ def test_pinhole_rig_is_imported_and_checked(api, pinhole_rig):
     assert Rig.objects.count() == 1
 
 
+@pytest.mark.slow
 def test_pinhole_measurements_depth_heights_points_sigma(api, pinhole_rig):
     rig_id = pinhole_rig["id"]
     sphere, truth = capture_zip("sphere")
@@ -70,6 +71,7 @@ def test_pinhole_measurements_depth_heights_points_sigma(api, pinhole_rig):
     assert bad.status_code == 400 and "triangulate must be one of" in bad.json()["error"]
 
 
+@pytest.mark.slow
 def test_pinhole_uploads_must_match_the_rigs_projector_and_crossed_only_jobs_are_refused(api, pinhole_rig):
     rig_id = pinhole_rig["id"]
     other = {**CODEC, "projector": {"width": 1024, "height": 768}}

@@ -31,6 +31,7 @@ def upload_stage(api, rig_id: int, z_in_mm: float):
     )
 
 
+@pytest.mark.slow
 def test_pinhole_characterization_through_the_api(api, pinhole_rig):
     rig_id = pinhole_rig["id"]
     plate, _ = capture_zip("plane", z_mm=0.0)

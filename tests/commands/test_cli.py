@@ -271,6 +271,7 @@ def test_bad_rig_exits_2(captures, tmp_path, capsys, change, words):
     assert code == 2 and words in capsys.readouterr().err and not out.exists()
 
 
+@pytest.mark.slow
 def test_installed_command_runs(captures, tmp_path):
     """The console script works as a process: exit status and stderr as external checks see them."""
     gcps = Path(sys.executable).with_name("gcps")

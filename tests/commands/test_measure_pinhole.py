@@ -41,6 +41,7 @@ def _args(tmp: Path, **extra: object) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
+@pytest.mark.slow
 def test_measure_with_pinhole_rig(tmp_path: Path) -> None:
     (tmp_path / "rig.json").write_text(RIG.to_json())
     assert is_pinhole_rig(str(tmp_path / "rig.json"))

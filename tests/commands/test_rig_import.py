@@ -195,6 +195,7 @@ def test_bad_values_are_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_kamino410_calibration_imports(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Real data: the kamino410 procam calibration (OpenCV XML) imports with --opencv."""
     require_dataset(KAMINO, "kamino410 procam calibration result")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 
+import pytest
 from django.core.files.uploadedfile import SimpleUploadedFile
 
 from metrology.captures.services import upload_capture
@@ -13,6 +14,7 @@ from tests.dashboard.helpers import figure_data
 from tests.pinhole_stacks import RIG, capture_zip
 
 
+@pytest.mark.slow
 def test_import_a_pinhole_rig_then_measure_depths(client_alice, alice, run_jobs):
     page = client_alice.get("/rigs/")
     assert page.status_code == 200 and "Import a pinhole rig" in page.content.decode()

@@ -30,6 +30,7 @@ def rig320(alice):
     return create_rig(owner=alice, data={**RIG_320, "name": "procam bench"})
 
 
+@pytest.mark.slow
 def test_new_calibration_page_upload_detail_apply(client_alice, alice, rig320, run_jobs):
     page = client_alice.get(f"/procam-calibrations/new/?rig={rig320.pk}")
     html = page.content.decode()

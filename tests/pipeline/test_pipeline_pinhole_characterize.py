@@ -94,6 +94,7 @@ def test_noise_free_flatness_and_probing_in_camera_frame() -> None:
         acceptance_pinhole(RIG, None, _plane(5.0), codec, AcceptanceOptions(test="probing", diameter_mm=diameter))
 
 
+@pytest.mark.slow
 def test_realistic_flatness_consistent_with_noise() -> None:
     """8-bit realistic renders: the RMS of the plane's TLS residuals matches the points' predicted
     uncertainty (median per-point sigma along the rays, from the decoder's noise) within 25 %, and

@@ -67,6 +67,7 @@ def test_virtual_stacks_calibrate_with_progress() -> None:
     assert result.rig.projector.gamma is not None and abs(result.rig.projector.gamma - 1.0) < 0.1
 
 
+@pytest.mark.slow
 def test_stacks_given_as_functions_are_read_one_at_a_time() -> None:
     """Poses whose images are functions are read in turn, and each stack is released before the
     next is read (weak references to the earlier stacks are dead when a loader runs); the result
