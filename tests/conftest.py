@@ -1,16 +1,106 @@
-"""Settings for the whole test suite: rate limits raised so that no test is throttled by accident.
+"""Fixtures for the whole test suite: rate limits raised so that no test is throttled by accident,
+a fast password hasher, a temporary MEDIA_ROOT for every test, two users with passwords, logged-in
+clients, a small rig, and the headless-Chromium page of the browser tests.
 
-The tests of the rate limits themselves (tests/app/test_throttling.py) lower them again.
+The tests of the rate limits themselves (tests/app/test_throttling.py) lower them again; the
+application tests (tests/app/conftest.py) add API clients and make their rig through the API; the
+integration tests (tests/app/integration/conftest.py) keep the media root out of the settings.
 """
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
+from django.test import Client
+
+from metrology.accounts.services import create_user_with_token
+from metrology.rigs.services import create_rig
+from tests.app.stacks import SMALL_RIG
+from tests.browser import CHROMIUM, CHROMIUM_ARGS, TIMEOUT_MS
 
 #: Far above anything a test does (the suite's fastest loops make a few hundred requests).
 RAISED_RATE = "1000000/hour"
+#: The password of the users made here (the log-in tests type it).
+PASSWORD = "a-long-test-password-42"
 
 
 @pytest.fixture(autouse=True)
 def raised_throttle_rates(settings) -> None:
     settings.GCPS_THROTTLE_RATES = dict.fromkeys(settings.GCPS_THROTTLE_RATES, RAISED_RATE)
+
+
+@pytest.fixture(autouse=True)
+def fast_password_hasher(settings) -> None:
+    """Passwords hashed with MD5, not PBKDF2's million rounds (a quarter of a second for each user
+    made with a password, each password log-in and each failed one): the tests check who may log
+    in, not the hasher's cost. Processes started by the tests keep the settings' hashers."""
+    settings.PASSWORD_HASHERS = ["django.contrib.auth.hashers.MD5PasswordHasher"]
+
+
+@pytest.fixture(autouse=True)
+def media_root(settings, tmp_path_factory) -> Path:
+    """Every test stores files in its own temporary folder (not inside ``tmp_path``, which some tests
+    expect to hold only what they wrote there)."""
+    root = tmp_path_factory.mktemp("media")
+    settings.MEDIA_ROOT = root
+    return root
+
+
+def stored_files(root: Path) -> list[Path]:
+    return sorted(path for path in root.rglob("*") if path.is_file())
+
+
+@pytest.fixture
+def alice_token(db):
+    """The user alice and her API token."""
+    return create_user_with_token(username="alice", password=PASSWORD)
+
+
+@pytest.fixture
+def alice(alice_token):
+    return alice_token[0]
+
+
+@pytest.fixture
+def bob(db):
+    return create_user_with_token(username="bob", password=PASSWORD)[0]
+
+
+def logged_in(user) -> Client:
+    client = Client()
+    client.force_login(user)
+    return client
+
+
+@pytest.fixture
+def client_alice(alice) -> Client:
+    return logged_in(alice)
+
+
+@pytest.fixture
+def client_bob(bob) -> Client:
+    return logged_in(bob)
+
+
+@pytest.fixture
+def rig(alice):
+    """Alice's small crossed-axes rig (SMALL_RIG), made through the services."""
+    return create_rig(owner=alice, data={**SMALL_RIG, "name": "bench"})
+
+
+@pytest.fixture
+def browser_page():
+    """A page of headless Chromium (1280 x 900) that collects the page's JavaScript errors in ``js_errors``."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        context = browser.new_context(viewport={"width": 1280, "height": 900}, accept_downloads=True)
+        page = context.new_page()
+        page.set_default_timeout(TIMEOUT_MS)
+        errors: list[str] = []
+        page.on("pageerror", lambda exc: errors.append(str(exc)))
+        page.js_errors = errors
+        yield page
+        context.close()
+        browser.close()

@@ -9,6 +9,8 @@ import sys
 import tomllib
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -19,6 +21,7 @@ def test_licence_is_an_spdx_string_and_gunicorn_a_dependency():
     assert any(dep.startswith("gunicorn>=") for dep in project["project"]["dependencies"])
 
 
+@pytest.mark.slow
 def test_gunicorn_loads_the_application(tmp_path):
     env = {key: value for key, value in os.environ.items() if not key.startswith(("GCPS", "DATABASE", "REDIS"))}
     env.update(DJANGO_SETTINGS_MODULE="metrology.settings", GCPS_VAR_DIR=str(tmp_path), DEBUG="1")

@@ -6,7 +6,6 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -20,9 +19,9 @@ from metrology.core.io import read_stack
 from metrology.core.rig import Rig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_stack
+from tests.acquisition.helpers import ROOT
 from tests.app.stacks import SMALL_RIG
 
-ROOT = Path(__file__).resolve().parents[2]
 RNG = np.random.default_rng(7)
 
 
@@ -163,6 +162,7 @@ def gcps(*args: str) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow
 def test_gcps_capture_virtual_writes_the_stack_and_its_checks(tmp_path):
     rig_path = tmp_path / "rig.json"
     rig_path.write_text(json.dumps(SMALL_RIG))
@@ -205,6 +205,7 @@ CODEC = {
 }
 
 
+@pytest.mark.slow
 def test_gcps_capture_of_a_codec_file_decodes_to_the_true_projector_columns(tmp_path):
     """A 3-step phase (period 32 px) + 7-bit gray codec with its own white/black frames, through the
     virtual camera: the stored stack carries codec.json and decodes (issue 11's decoder) to the true u."""

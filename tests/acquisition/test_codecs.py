@@ -32,34 +32,10 @@ from metrology.core.rig import Rig as CoreRig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import render_stack
 from metrology.jobs.models import Job
+from tests.acquisition.helpers import PROJ_H, PROJ_W, phase_gray_codec
 from tests.app.stacks import SMALL_RIG, plane_zip
 
-PROJ_W, PROJ_H = 1024, 768
 SIM_OPTIONS = {"bit_depth": 8, "noise_grey": 1.0}
-
-
-def phase_gray_codec(axes: tuple[str, ...], steps: int = 4) -> dict:
-    """``steps``-step phase (period 32 px) + 5-bit gray code (word 32 px) with inverse frames, per axis,
-    then one white and one black frame: ``len(axes) * (steps + 10) + 2`` frames."""
-    coded: dict[str, dict] = {}
-    start = 0
-    for axis in axes:
-        phase = list(range(start, start + steps))
-        gray = list(range(start + steps, start + steps + 5))
-        inverse = list(range(start + steps + 5, start + steps + 10))
-        coded[axis] = {
-            "phase": [{"frames": phase, "period": 32.0, "origin": -0.5}],
-            "gray": {"frames": gray, "word": 32.0, "origin": -0.5, "inverse_frames": inverse},
-        }
-        start += steps + 10
-    return {
-        "codec": "gcps-codec/1",
-        "frames": start + 2,
-        "projector": {"width": PROJ_W, "height": PROJ_H},
-        "white": [start],
-        "black": [start + 1],
-        "axes": coded,
-    }
 
 
 @pytest.fixture

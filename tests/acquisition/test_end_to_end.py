@@ -14,7 +14,6 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -29,19 +28,10 @@ from metrology.core.rig import Rig as CoreRig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_stack
 from metrology.pipeline.measure import measure
+from tests.acquisition.helpers import CHROMIUM_ARGS, ROOT
 from tests.app.stacks import SMALL_RIG
+from tests.browser import CHROMIUM
 
-ROOT = Path(__file__).resolve().parents[2]
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--force-color-profile=srgb",
-]
 SIM_OPTIONS = {"bit_depth": 8, "noise_grey": 1.5, "projector_defocus_codes": 0.15, "camera_defocus_px": 0.5}
 OBJECT_SCENE = {"name": "sphere"}
 
@@ -209,7 +199,7 @@ def test_agent_acquires_a_phase_gray_codec_stored_with_its_codec_decoding_to_the
     from metrology.captures.codecs import load_codec_stack
     from metrology.core.codecs import codec_from_dict, crossed_rig_truth
     from metrology.core.codecs.decode import decode_codec
-    from tests.acquisition.test_codecs import phase_gray_codec
+    from tests.acquisition.helpers import phase_gray_codec
 
     document = phase_gray_codec(("u", "v"))
     agent = start_agent(server, "--settle", "0.03", "--max-acquisitions", "1", "--inject-faults", "latency=9")

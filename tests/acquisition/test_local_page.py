@@ -17,9 +17,9 @@ from metrology.core.io import read_stack
 from metrology.core.rig import Rig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_stack
-from tests.acquisition.test_agent_side import ROOT
-from tests.acquisition.test_end_to_end import CHROMIUM, CHROMIUM_ARGS
+from tests.acquisition.helpers import CHROMIUM_ARGS, ROOT
 from tests.app.stacks import SMALL_RIG
+from tests.browser import CHROMIUM
 
 pytestmark = [
     pytest.mark.browser,

@@ -23,8 +23,9 @@ from metrology.captures.services import load_capture_stack
 from metrology.core.rig import Rig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_flat_frames, render_stack
-from tests.acquisition.test_end_to_end import CHROMIUM, CHROMIUM_ARGS
+from tests.acquisition.helpers import CHROMIUM_ARGS
 from tests.app.stacks import SMALL_RIG
+from tests.browser import CHROMIUM
 
 FPS = 10
 HOLD_S = 1.5

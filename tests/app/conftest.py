@@ -1,27 +1,16 @@
-"""Fixtures for the application tests: a temporary MEDIA_ROOT, users with tokens, API clients."""
+"""Fixtures for the application tests: users with tokens, API clients, rigs and stored captures made
+through the API (the media root is tests/conftest.py's)."""
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import pytest
 from rest_framework.test import APIClient
 
 from metrology.accounts.services import create_user_with_token
-from tests.app.stacks import SMALL_RIG
-
-
-@pytest.fixture(autouse=True)
-def media_root(settings, tmp_path) -> Path:
-    """Every test stores files in its own temporary folder."""
-    root = tmp_path / "media"
-    root.mkdir()
-    settings.MEDIA_ROOT = root
-    return root
-
-
-def stored_files(root: Path) -> list[Path]:
-    return sorted(path for path in root.rglob("*") if path.is_file())
+from metrology.core.rig import Rig
+from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
+from tests.app.uploads import upload
+from tests.pinhole_stacks import RIG as PINHOLE_RIG
 
 
 @pytest.fixture
@@ -51,3 +40,18 @@ def rig(api) -> dict:
     response = api.post("/api/rigs/", {**SMALL_RIG, "name": "bench"}, format="json")
     assert response.status_code == 201, response.content
     return response.json()
+
+
+@pytest.fixture
+def pinhole_rig(api) -> dict:
+    response = api.post("/api/rigs/", {**PINHOLE_RIG.to_dict(), "name": "pinhole bench"}, format="json")
+    assert response.status_code == 201, response.content
+    return response.json()
+
+
+@pytest.fixture
+def captures(api, rig) -> tuple[int, int]:
+    core = Rig.from_dict(SMALL_RIG)
+    reference = upload(api, rig["id"], stack_zip(render_images(core, 0.0, bit_depth=16)), "reference")
+    obj = upload(api, rig["id"], stack_zip(render_images(core, block_heights(), bit_depth=16)), "object")
+    return reference, obj

@@ -56,3 +56,10 @@ def stack_zip(images: np.ndarray, names: tuple[str, ...] = PATTERN_NAMES) -> byt
 
 def plane_zip(rig_values: dict = SMALL_RIG, z_mm: float = 0.0, *, bit_depth: int = 8) -> bytes:
     return stack_zip(render_images(Rig.from_dict(rig_values), z_mm, bit_depth=bit_depth))
+
+
+def block_heights() -> np.ndarray:
+    """SMALL_RIG's heights (mm) of a block 25 mm high on the reference plane."""
+    z = np.zeros((SMALL_RIG["height_px"], SMALL_RIG["width_px"]))
+    z[30:90, 40:120] = 25.0
+    return z

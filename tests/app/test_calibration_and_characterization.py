@@ -12,18 +12,11 @@ from metrology.calibrations.models import Calibration
 from metrology.characterizations.models import Characterization
 from metrology.core.rig import Rig
 from metrology.jobs.models import Job
-from tests.app.stacks import SMALL_RIG, render_images, stack_zip
+from tests.app.stacks import SMALL_RIG
+from tests.app.uploads import upload_heights
 
 pytestmark = pytest.mark.django_db(transaction=True)
 CORE_RIG = Rig.from_dict(SMALL_RIG)
-
-
-def upload(api, rig_id, z, role, **fields) -> dict:
-    handle = io.BytesIO(stack_zip(render_images(CORE_RIG, z, bit_depth=16)))
-    handle.name = f"{role}.zip"
-    response = api.post(f"/api/rigs/{rig_id}/captures/", {"file": handle, "role": role, **fields}, format="multipart")
-    assert response.status_code == 201, response.content
-    return response.json()
 
 
 def master_heights(height_mm: float = 40.0) -> np.ndarray:
@@ -33,8 +26,8 @@ def master_heights(height_mm: float = 40.0) -> np.ndarray:
 
 
 def test_calibration_from_the_papers_rough_start_is_applied_to_the_rig(api, rig):
-    reference = upload(api, rig["id"], 0.0, "reference")["id"]
-    master = upload(api, rig["id"], master_heights(), "master")["id"]
+    reference = upload_heights(api, rig["id"], 0.0, "reference")["id"]
+    master = upload_heights(api, rig["id"], master_heights(), "master")["id"]
     response = api.post(
         "/api/calibrations/",
         {
@@ -73,8 +66,8 @@ def test_calibration_from_the_papers_rough_start_is_applied_to_the_rig(api, rig)
     ],
 )
 def test_bad_calibration_requests_answer_400(api, rig, change, words):
-    reference = upload(api, rig["id"], 0.0, "reference")["id"]
-    master = upload(api, rig["id"], master_heights(), "master")["id"]
+    reference = upload_heights(api, rig["id"], 0.0, "reference")["id"]
+    master = upload_heights(api, rig["id"], master_heights(), "master")["id"]
     body = {"rig": rig["id"], "reference": reference, "master": master, "master_height_mm": 40.0, **change}
     if body["master"] == "REF":
         body["master"] = reference
@@ -85,11 +78,11 @@ def test_bad_calibration_requests_answer_400(api, rig, change, words):
 
 
 def test_characterization_of_a_stage_series_with_csv_tables(api, rig):
-    reference = upload(api, rig["id"], 0.0, "reference")["id"]
+    reference = upload_heights(api, rig["id"], 0.0, "reference")["id"]
     session = api.post(f"/api/rigs/{rig['id']}/sessions/", {"name": "stage"}, format="json").json()["id"]
     for z in (0.0, 4.0, 8.0):
         for repeat in range(2):
-            upload(api, rig["id"], z, "stage", z_in_mm=z, repeat=repeat, session=session)
+            upload_heights(api, rig["id"], z, "stage", z_in_mm=z, repeat=repeat, session=session)
     response = api.post(
         "/api/characterizations/",
         {"rig": rig["id"], "reference": reference, "session": session, "options": {"n_points": 5}},
@@ -112,8 +105,8 @@ def test_characterization_of_a_stage_series_with_csv_tables(api, rig):
 
 
 def test_bad_characterization_requests_answer_400(api, rig):
-    reference = upload(api, rig["id"], 0.0, "reference")["id"]
-    stage = upload(api, rig["id"], 4.0, "stage", z_in_mm=4.0)["id"]
+    reference = upload_heights(api, rig["id"], 0.0, "reference")["id"]
+    stage = upload_heights(api, rig["id"], 4.0, "stage", z_in_mm=4.0)["id"]
     cases = [
         ({}, "give either series"),
         ({"series": [{"z_in_mm": 4.0, "captures": [stage]}]}, "two or more distinct z_in_mm"),

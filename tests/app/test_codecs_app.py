@@ -4,69 +4,21 @@ measurement jobs of captures of a codec other than gcps-v1 (docs/codecs.md)."""
 from __future__ import annotations
 
 import io
-import json
 
 import numpy as np
 import pytest
 
 from metrology.captures.models import Capture
-from metrology.core.codecs import codec_from_dict, render_codec
+from metrology.core.codecs import codec_from_dict
 from metrology.core.rig import Rig
-from metrology.core.synthetic import exact_codes
 from metrology.measurements.models import Measurement
-from tests.app.conftest import stored_files
-from tests.app.stacks import SMALL_RIG, png, render_images, stack_zip, zip_bytes
+from tests.app.codec_stacks import CODEC, codec_images, codec_zip
+from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
+from tests.app.uploads import post_capture
+from tests.conftest import stored_files
 
 # Jobs are enqueued on commit: these tests need real commits.
 pytestmark = pytest.mark.django_db(transaction=True)
-
-PROJ_W, PROJ_H = 1024, 768
-CODEC = {
-    "codec": "gcps-codec/1",
-    "frames": 24,
-    "projector": {"width": PROJ_W, "height": PROJ_H},
-    "white": [22],
-    "black": [23],
-    "axes": {
-        "u": {
-            "phase": [{"frames": list(range(12)), "period": 32.0, "origin": -0.5}],
-            "gray": {
-                "frames": list(range(12, 17)),
-                "word": 32.0,
-                "origin": -0.5,
-                "inverse_frames": list(range(17, 22)),
-            },
-        }
-    },
-}
-
-
-def codec_images(z_mm: float | np.ndarray, codec: dict = CODEC) -> np.ndarray:
-    """Noise-free 16-bit frames of ``codec`` for a surface at ``z_mm`` seen by SMALL_RIG (exact model)."""
-    rig = Rig.from_dict(SMALL_RIG)
-    codes = exact_codes(rig, np.broadcast_to(np.asarray(z_mm, dtype=float), rig.shape))
-    u = codes * (PROJ_W / rig.nlp) - 0.5
-    return render_codec(codec_from_dict(codec), u, None)
-
-
-def codec_zip(images: np.ndarray, codec: dict | None = CODEC, extra: dict[str, bytes] | None = None) -> bytes:
-    members = {f"frame{index:02d}.png": png(image) for index, image in enumerate(images)}
-    if codec is not None:
-        members["codec.json"] = json.dumps(codec).encode()
-    members.update(extra or {})
-    return zip_bytes(members)
-
-
-def upload(api, rig_id: int, data: bytes, role: str):
-    handle = io.BytesIO(data)
-    handle.name = f"{role}.zip"
-    return api.post(f"/api/rigs/{rig_id}/captures/", {"file": handle, "role": role}, format="multipart")
-
-
-def block_heights() -> np.ndarray:
-    z = np.zeros((SMALL_RIG["height_px"], SMALL_RIG["width_px"]))
-    z[30:90, 40:120] = 25.0
-    return z
 
 
 def test_rig_default_codec_is_gcps_v1_and_settable(api, rig):
@@ -95,13 +47,13 @@ def test_rig_default_codec_is_gcps_v1_and_settable(api, rig):
 
 
 def test_upload_with_its_codec_json_is_stored_with_its_codec(api, rig, media_root):
-    response = upload(api, rig["id"], codec_zip(codec_images(0.0)), "reference")
+    response = post_capture(api, rig["id"], codec_zip(codec_images(0.0)), "reference")
     assert response.status_code == 201, response.content
     capture = Capture.objects.get(pk=response.json()["id"])
     assert capture.codec == codec_from_dict(CODEC).to_dict() and capture.bit_depth == 16
     assert response.json()["codec"]["codec"] == "gcps-codec/1"
     # a gcps-v1 upload records the rig's default, gcps-v1
-    plain = upload(api, rig["id"], stack_zip(render_images(Rig.from_dict(SMALL_RIG), 0.0)), "reference")
+    plain = post_capture(api, rig["id"], stack_zip(render_images(Rig.from_dict(SMALL_RIG), 0.0)), "reference")
     assert plain.status_code == 201 and plain.json()["codec"] == "gcps-v1"
 
 
@@ -119,7 +71,7 @@ def test_upload_with_its_codec_json_is_stored_with_its_codec(api, rig, media_roo
     ],
 )
 def test_bad_codec_or_stack_unlike_its_codec_answers_400_and_stores_nothing(api, rig, media_root, make, words):
-    response = upload(api, rig["id"], make(), "reference")
+    response = post_capture(api, rig["id"], make(), "reference")
     assert response.status_code == 400, response.content
     assert words in response.json()["error"], response.json()
     assert Capture.objects.count() == 0
@@ -129,9 +81,9 @@ def test_bad_codec_or_stack_unlike_its_codec_answers_400_and_stores_nothing(api,
 def test_a_job_measures_uploads_of_another_codec_to_the_exact_heights(api, rig, media_root):
     # the rig's default codec is the 12-step codec: uploads without codec.json use it
     assert api.put(f"/api/rigs/{rig['id']}/codec/", {"codec": CODEC}, format="json").status_code == 200
-    reference = upload(api, rig["id"], codec_zip(codec_images(0.0), None), "reference")
+    reference = post_capture(api, rig["id"], codec_zip(codec_images(0.0), None), "reference")
     assert reference.status_code == 201, reference.content
-    obj = upload(api, rig["id"], codec_zip(codec_images(block_heights())), "object")
+    obj = post_capture(api, rig["id"], codec_zip(codec_images(block_heights())), "object")
     assert obj.status_code == 201, obj.content
     response = api.post(
         "/api/measurements/",
@@ -169,8 +121,8 @@ def test_a_job_measures_uploads_of_another_codec_to_the_exact_heights(api, rig, 
 
 
 def test_a_measurement_of_captures_of_two_codecs_is_refused(api, rig):
-    reference = upload(api, rig["id"], stack_zip(render_images(Rig.from_dict(SMALL_RIG), 0.0)), "reference")
-    obj = upload(api, rig["id"], codec_zip(codec_images(block_heights())), "object")
+    reference = post_capture(api, rig["id"], stack_zip(render_images(Rig.from_dict(SMALL_RIG), 0.0)), "reference")
+    obj = post_capture(api, rig["id"], codec_zip(codec_images(block_heights())), "object")
     response = api.post(
         "/api/measurements/",
         {"rig": rig["id"], "reference": reference.json()["id"], "object": obj.json()["id"]},
@@ -190,8 +142,8 @@ def test_measurement_with_sigma_stores_and_serves_the_uncertainty(api, rig):
         images = render_images(core, z).astype(np.float64) + rng.normal(0, 1.5, (11, *core.shape))
         return stack_zip(np.clip(np.rint(images), 0, 255).astype(np.uint8))
 
-    reference = upload(api, rig["id"], noisy(0.0), "reference").json()["id"]
-    obj = upload(api, rig["id"], noisy(block_heights()), "object").json()["id"]
+    reference = post_capture(api, rig["id"], noisy(0.0), "reference").json()["id"]
+    obj = post_capture(api, rig["id"], noisy(block_heights()), "object").json()["id"]
     body = {"rig": rig["id"], "reference": reference, "object": obj, "options": {"sigma": True}}
     response = api.post("/api/measurements/", body, format="json")
     assert response.status_code == 202, response.content

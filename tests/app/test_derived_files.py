@@ -17,8 +17,8 @@ from metrology.core.rig import Rig
 from metrology.measurements import derived
 from metrology.measurements.derived_cache import DerivedFileCache
 from metrology.measurements.models import Measurement
-from tests.app.stacks import SMALL_RIG, render_images, stack_zip
-from tests.app.test_measurement_job import block_heights, upload
+from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
+from tests.app.uploads import upload
 
 o3d = pytest.importorskip("open3d")
 

@@ -13,7 +13,7 @@ from django.utils import timezone
 
 from metrology.jobs import services
 from metrology.jobs.models import Job
-from tests.app.conftest import stored_files
+from tests.conftest import stored_files
 
 
 @pytest.fixture

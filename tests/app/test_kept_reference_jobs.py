@@ -11,8 +11,8 @@ from metrology.captures import references
 from metrology.captures.models import Capture
 from metrology.core.io import StackError, read_stack, read_verified_stack
 from metrology.core.rig import Rig
-from tests.app.stacks import SMALL_RIG, render_images, stack_zip
-from tests.app.test_measurement_job import block_heights, upload
+from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
+from tests.app.uploads import upload, upload_heights
 
 pytestmark = pytest.mark.django_db(transaction=True)
 CORE_RIG = Rig.from_dict(SMALL_RIG)
@@ -89,12 +89,10 @@ def test_read_verified_stack_equals_read_stack_and_checks_the_hash():
 
 
 def test_characterization_uses_the_kept_reference(api, rig):
-    from tests.app.test_calibration_and_characterization import upload as upload_z
-
-    reference = upload_z(api, rig["id"], 0.0, "reference")["id"]
+    reference = upload_heights(api, rig["id"], 0.0, "reference")["id"]
     session = api.post(f"/api/rigs/{rig['id']}/sessions/", {"name": "stage"}, format="json").json()["id"]
     for z in (0.0, 4.0, 8.0):
-        upload_z(api, rig["id"], z, "stage", z_in_mm=z, repeat=0, session=session)
+        upload_heights(api, rig["id"], z, "stage", z_in_mm=z, repeat=0, session=session)
     stats = references.kept_references().stats
     bodies = []
     for _ in range(2):

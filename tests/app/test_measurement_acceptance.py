@@ -17,8 +17,8 @@ from metrology.core.simulate_pinhole import PlacedScene, cast_truth
 from metrology.core.synthetic import sphere_heights
 from metrology.pipeline.acceptance import AcceptanceOptions, acceptance, acceptance_pinhole
 from tests.app.stacks import SMALL_RIG, png, render_images, stack_zip, zip_bytes
-from tests.app.test_measurement_job import upload
-from tests.test_measure_pinhole import CODEC, RIG
+from tests.app.uploads import upload
+from tests.pinhole_stacks import CODEC, RIG
 
 pytestmark = pytest.mark.django_db(transaction=True)
 

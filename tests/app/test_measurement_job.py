@@ -10,8 +10,9 @@ import pytest
 from metrology.core.rig import Rig
 from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
-from tests.app.conftest import stored_files
-from tests.app.stacks import SMALL_RIG, render_images, stack_zip
+from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
+from tests.app.uploads import upload
+from tests.conftest import stored_files
 
 # Jobs are enqueued on commit: these tests need real commits.
 pytestmark = pytest.mark.django_db(transaction=True)
@@ -23,28 +24,6 @@ def no_workers(monkeypatch):
     import metrology.jobs.services as job_services
 
     monkeypatch.setattr(job_services, "_send", lambda job_id: None)
-
-
-def upload(api, rig_id, data: bytes, role: str) -> int:
-    handle = io.BytesIO(data)
-    handle.name = f"{role}.zip"
-    response = api.post(f"/api/rigs/{rig_id}/captures/", {"file": handle, "role": role}, format="multipart")
-    assert response.status_code == 201, response.content
-    return response.json()["id"]
-
-
-def block_heights() -> np.ndarray:
-    z = np.zeros((SMALL_RIG["height_px"], SMALL_RIG["width_px"]))
-    z[30:90, 40:120] = 25.0
-    return z
-
-
-@pytest.fixture
-def captures(api, rig) -> tuple[int, int]:
-    core = Rig.from_dict(SMALL_RIG)
-    reference = upload(api, rig["id"], stack_zip(render_images(core, 0.0, bit_depth=16)), "reference")
-    obj = upload(api, rig["id"], stack_zip(render_images(core, block_heights(), bit_depth=16)), "object")
-    return reference, obj
 
 
 def test_measurement_runs_and_serves_heights_and_meshes(api, rig, captures, media_root):

@@ -4,46 +4,20 @@ a reference, heights with one, points and sigma stored), downloads, and what sta
 from __future__ import annotations
 
 import io
-import json
 
 import numpy as np
 import pytest
 
-from metrology.core.codecs import codec_from_dict, render_codec
-from metrology.core.scenes import make_scene
-from metrology.core.simulate_pinhole import PlacedScene, cast_truth
 from metrology.measurements.models import Measurement
 from metrology.rigs.models import Rig
-from tests.app.stacks import png, zip_bytes
-from tests.test_measure_pinhole import CODEC, RIG
+from tests.app.uploads import post_capture
+from tests.pinhole_stacks import CODEC, RIG, capture_zip
 
 pytestmark = pytest.mark.django_db(transaction=True)
 
 
-def capture_zip(scene: str, codec: dict = CODEC, **params: float) -> tuple[bytes, np.ndarray]:
-    """Noise-free 16-bit frames of ``codec`` of a scene placed 600 mm in front of the camera, and the truth points."""
-    truth = cast_truth(RIG, PlacedScene(make_scene(scene, **params), 600.0))
-    images = render_codec(codec_from_dict(codec), truth.u, None)
-    members = {f"frame_{i:02d}.png": png(image) for i, image in enumerate(images)}
-    members["codec.json"] = json.dumps(codec).encode()
-    return zip_bytes(members), truth.points_mm
-
-
-def upload(api, rig_id: int, data: bytes, role: str):
-    handle = io.BytesIO(data)
-    handle.name = f"{role}.zip"
-    return api.post(f"/api/rigs/{rig_id}/captures/", {"file": handle, "role": role}, format="multipart")
-
-
 def fetch(api, url: str) -> np.ndarray:
     return np.load(io.BytesIO(b"".join(api.get(url).streaming_content)))
-
-
-@pytest.fixture
-def pinhole_rig(api) -> dict:
-    response = api.post("/api/rigs/", {**RIG.to_dict(), "name": "pinhole bench"}, format="json")
-    assert response.status_code == 201, response.content
-    return response.json()
 
 
 def test_pinhole_rig_is_imported_and_checked(api, pinhole_rig):
@@ -59,13 +33,14 @@ def test_pinhole_rig_is_imported_and_checked(api, pinhole_rig):
     assert Rig.objects.count() == 1
 
 
+@pytest.mark.slow
 def test_pinhole_measurements_depth_heights_points_sigma(api, pinhole_rig):
     rig_id = pinhole_rig["id"]
     sphere, truth = capture_zip("sphere")
     plate, _ = capture_zip("plane", z_mm=0.0)
-    obj = upload(api, rig_id, sphere, "object")
+    obj = post_capture(api, rig_id, sphere, "object")
     assert obj.status_code == 201, obj.content
-    ref = upload(api, rig_id, plate, "reference")
+    ref = post_capture(api, rig_id, plate, "reference")
     assert ref.status_code == 201, ref.content
     # depth: no reference
     response = api.post("/api/measurements/", {"rig": rig_id, "object": obj.json()["id"]}, format="json")
@@ -96,11 +71,12 @@ def test_pinhole_measurements_depth_heights_points_sigma(api, pinhole_rig):
     assert bad.status_code == 400 and "triangulate must be one of" in bad.json()["error"]
 
 
+@pytest.mark.slow
 def test_pinhole_uploads_must_match_the_rigs_projector_and_crossed_only_jobs_are_refused(api, pinhole_rig):
     rig_id = pinhole_rig["id"]
     other = {**CODEC, "projector": {"width": 1024, "height": 768}}
     data, _ = capture_zip("sphere", codec=other)
-    refused = upload(api, rig_id, data, "object")
+    refused = post_capture(api, rig_id, data, "object")
     assert refused.status_code == 400
     assert "its projector is 1024x768 but the rig's projector is 640x400" in refused.json()["error"]
     simulate = api.post(

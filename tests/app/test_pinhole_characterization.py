@@ -12,8 +12,8 @@ import pytest
 from django.test import Client
 
 from metrology.characterizations.models import Characterization
-from tests.app.test_pinhole_app import capture_zip, pinhole_rig, upload  # noqa: F401 (fixture)
-from tests.test_measure_pinhole import CODEC
+from tests.app.uploads import post_capture
+from tests.pinhole_stacks import CODEC, capture_zip
 
 pytestmark = pytest.mark.django_db(transaction=True)
 
@@ -31,10 +31,11 @@ def upload_stage(api, rig_id: int, z_in_mm: float):
     )
 
 
-def test_pinhole_characterization_through_the_api(api, pinhole_rig):  # noqa: F811
+@pytest.mark.slow
+def test_pinhole_characterization_through_the_api(api, pinhole_rig):
     rig_id = pinhole_rig["id"]
     plate, _ = capture_zip("plane", z_mm=0.0)
-    ref = upload(api, rig_id, plate, "reference")
+    ref = post_capture(api, rig_id, plate, "reference")
     assert ref.status_code == 201, ref.content
     series = []
     for z in STAGE_MM:
@@ -66,10 +67,10 @@ def test_pinhole_characterization_through_the_api(api, pinhole_rig):  # noqa: F8
     assert "In-out characteristic per test point" in page.content.decode()
 
 
-def test_pinhole_characterization_refuses_a_stage_capture_of_another_codec(api, pinhole_rig):  # noqa: F811
+def test_pinhole_characterization_refuses_a_stage_capture_of_another_codec(api, pinhole_rig):
     rig_id = pinhole_rig["id"]
     plate, _ = capture_zip("plane", z_mm=0.0)
-    ref = upload(api, rig_id, plate, "reference").json()["id"]
+    ref = post_capture(api, rig_id, plate, "reference").json()["id"]
     first = upload_stage(api, rig_id, 0.0).json()["id"]
     other = {**CODEC, "axes": {"u": {**CODEC["axes"]["u"], "phase": [{**CODEC["axes"]["u"]["phase"][0]}]}}}
     other["axes"]["u"]["phase"][0]["period"] = 32.0

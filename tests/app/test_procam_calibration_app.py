@@ -77,6 +77,7 @@ def relative(a: float, b: float) -> float:
     return abs(a / b - 1)
 
 
+@pytest.mark.slow
 def test_calibration_job_report_apply_and_history(api, rig320, poses, monkeypatch):
     from metrology.jobs.services import JobRun
 
@@ -231,6 +232,7 @@ def test_poses_without_a_board_fail_the_job_with_each_reason(api, rig320):
     assert refused.status_code == 400 and "its job is failed" in refused.json()["error"]
 
 
+@pytest.mark.slow
 def test_job_and_command_line_give_the_same_report_and_rig_file(api, rig320, poses, tmp_path: Path):
     response = request(api, rig320["id"], poses)
     calibration = ProcamCalibration.objects.get(pk=response.json()["id"])

@@ -35,6 +35,7 @@ def run_python(code: str, env: dict[str, str], tmp_path: Path) -> subprocess.Com
 SHOW = "import django; django.setup(); from django.conf import settings as s; print({})"
 
 
+@pytest.mark.slow
 def test_embedded_default_uses_sqlite_local_media_and_in_process_tasks(tmp_path):
     result = run_python(
         SHOW.format("s.DATABASES['default']['ENGINE'], s.CELERY_TASK_ALWAYS_EAGER, s.DEBUG, s.MEDIA_ROOT"), {}, tmp_path
@@ -43,6 +44,7 @@ def test_embedded_default_uses_sqlite_local_media_and_in_process_tasks(tmp_path)
     assert result.stdout.strip() == f"django.db.backends.sqlite3 True True {tmp_path / 'var' / 'media'}"
 
 
+@pytest.mark.slow
 def test_production_settings_use_postgres_and_redis(tmp_path):
     result = run_python(
         SHOW.format("s.DATABASES['default']['ENGINE'], s.CELERY_TASK_ALWAYS_EAGER, s.DEBUG, s.CELERY_BROKER_URL"),
@@ -53,6 +55,7 @@ def test_production_settings_use_postgres_and_redis(tmp_path):
     assert result.stdout.strip() == "django.db.backends.postgresql False False redis://redis:6379/0"
 
 
+@pytest.mark.slow
 def test_check_deploy_is_clean_in_production(tmp_path):
     result = run_python(
         "import sys; from django.core.management import execute_from_command_line as run; "

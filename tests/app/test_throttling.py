@@ -15,10 +15,9 @@ from django.test import Client
 from rest_framework.test import APIClient
 
 from metrology.accounts.services import create_user_with_token
-from tests.conftest import RAISED_RATE
+from tests.conftest import PASSWORD, RAISED_RATE
 
 ROOT = Path(__file__).resolve().parents[2]
-PASSWORD = "a-long-test-password-42"
 
 
 @pytest.fixture(autouse=True)

@@ -10,7 +10,6 @@ import pytest
 from metrology.captures.models import Capture
 from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
-from tests.app.test_measurement_job import captures as uploaded_captures
 
 
 @pytest.fixture
@@ -39,9 +38,6 @@ def test_a_simulation_request_answers_503_when_the_broker_is_down_and_creates_no
     assert int(response["Retry-After"]) > 0
     assert "queue" in response.json()["error"] and "unreachable" in response.json()["error"]
     assert (Capture.objects.count(), Job.objects.count()) == before
-
-
-captures = uploaded_captures  # the fixture, under its own name
 
 
 def test_a_measurement_request_answers_503_when_the_broker_is_down(api, rig, captures, broker_down):

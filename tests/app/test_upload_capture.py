@@ -13,8 +13,8 @@ import pytest
 from metrology.captures.models import Capture, CaptureSession
 from metrology.core.patterns import PATTERN_NAMES
 from metrology.core.rig import Rig
-from tests.app.conftest import stored_files
 from tests.app.stacks import SMALL_RIG, plane_zip, png, render_images, stack_zip, zip_bytes
+from tests.conftest import stored_files
 
 
 def upload(api, rig_id, data: bytes, name="stack.zip", **fields):

@@ -6,7 +6,7 @@ import pytest
 from metrology.core.decode import decode_stack
 from metrology.core.measure import DecodeOptions, measure_height, prepare_reference, unreliable_mask
 from metrology.core.triangulate import height_from_codes
-from tests.core.test_decode import RIG, ideal_stack, plane_codes
+from tests.core.ideal_stacks import RIG, ideal_stack, plane_codes
 
 
 def test_fused_path_equals_decode_then_triangulate():

@@ -225,6 +225,7 @@ def test_sigma_is_the_derivative_of_the_point(projector_distorted: bool, both_ax
     assert not math.isnan(float(np.median(sigma[valid])))
 
 
+@pytest.mark.slow
 def test_strong_projector_distortion_falls_back_to_newton() -> None:
     """A projector whose distortion the polynomial and the grid cannot follow to tolerance: those
     pixels are solved by Newton per frame, and every valid pixel is still within 1 um."""

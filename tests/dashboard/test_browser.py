@@ -8,78 +8,17 @@ really show a progress bar moving from queued to done. Screenshots go to artifac
 from __future__ import annotations
 
 import os
-import queue
-import threading
-from pathlib import Path
 
 import pytest
 
-from tests.dashboard.conftest import PASSWORD
-
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
-SCREENSHOTS = Path(__file__).resolve().parents[2] / "artifacts" / "screenshots"
-TIMEOUT_MS = 120_000
+from tests.browser import CHROMIUM, shot
+from tests.conftest import PASSWORD
 
 pytestmark = [
     pytest.mark.browser,
     pytest.mark.slow,
     pytest.mark.skipif(not os.path.exists(CHROMIUM), reason=f"{CHROMIUM} is not installed"),
 ]
-
-
-@pytest.fixture
-def worker(transactional_db, settings, monkeypatch):
-    """Run enqueued jobs in a background thread (its own connection to the file test database)."""
-    from django.db import connection
-
-    import metrology.jobs.services as job_services
-
-    settings.GCPS_JOB_PHASE_PAUSE_SECONDS = 0.15  # slow enough for the bar to be seen moving
-    jobs: queue.Queue[int | None] = queue.Queue()
-    seen: list[tuple[int, str]] = []
-
-    def loop() -> None:
-        while (job_id := jobs.get()) is not None:
-            seen.append((job_id, job_services.execute_job(job_id)))
-        connection.close()
-
-    thread = threading.Thread(target=loop, daemon=True)
-    thread.start()
-    monkeypatch.setattr(job_services, "_send", jobs.put)
-    yield seen
-    jobs.put(None)
-    thread.join(timeout=60)
-
-
-@pytest.fixture
-def browser_page():
-    sync_api = pytest.importorskip("playwright.sync_api")
-    with sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        context = browser.new_context(viewport={"width": 1280, "height": 900}, accept_downloads=True)
-        page = context.new_page()
-        page.set_default_timeout(TIMEOUT_MS)
-        errors: list[str] = []
-        page.on("pageerror", lambda exc: errors.append(str(exc)))
-        page.js_errors = errors
-        yield page
-        context.close()
-        browser.close()
-
-
-def shot(page, name: str) -> None:
-    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
-    page.screenshot(path=str(SCREENSHOTS / f"{name}.png"), full_page=True)
 
 
 def simulate(page, rig_url: str, scene: str, z: str = "", noise: str = "none", seed: str = "1") -> None:
@@ -240,7 +179,7 @@ def test_uploaded_captures_appear_on_every_page_that_lists_captures(
     from metrology.captures.services import create_session
     from tests.app.stacks import SMALL_RIG, plane_zip
     from tests.dashboard.conftest import upload
-    from tests.dashboard.test_pages import capture_listing_pages
+    from tests.dashboard.helpers import capture_listing_pages
 
     page = browser_page
     base = live_server.url

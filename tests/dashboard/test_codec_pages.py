@@ -9,13 +9,8 @@ from django.core.files.uploadedfile import SimpleUploadedFile
 
 from metrology.captures.services import upload_capture
 from metrology.rigs.models import Rig
-from tests.app.test_codecs_app import CODEC, codec_images, codec_zip
-
-
-def figure_data(html: str, name: str) -> dict:
-    match = re.search(rf'<script type="application/json" id="fig-{name}-data">(.*?)</script>', html, re.S)
-    assert match, f"figure {name} not on the page"
-    return json.loads(match.group(1))
+from tests.app.codec_stacks import CODEC, codec_images, codec_zip
+from tests.dashboard.helpers import figure_data
 
 
 def test_rig_page_shows_and_sets_the_default_codec(client_alice, rig):

@@ -8,7 +8,7 @@ import os
 
 import pytest
 
-from tests.dashboard.test_browser import CHROMIUM, browser_page  # noqa: F401  (the fixture)
+from tests.browser import CHROMIUM
 
 pytestmark = [
     pytest.mark.browser,
@@ -41,7 +41,7 @@ def test_header_is_sent_on_pages_and_api(client_alice, rig):
 
 
 @pytest.mark.django_db(transaction=True)
-def test_pages_work_under_the_policy(live_server, alice, captures, browser_page, monkeypatch):  # noqa: F811
+def test_pages_work_under_the_policy(live_server, alice, captures, browser_page, monkeypatch):
     from django.test import Client
 
     # Playwright's sync API keeps an event loop on this thread; the ORM calls here are synchronous

@@ -13,7 +13,9 @@ from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
 from metrology.measurements.services import request_measurement
 from metrology.rigs.models import Rig
-from tests.dashboard.conftest import PASSWORD, upload
+from tests.conftest import PASSWORD
+from tests.dashboard.conftest import upload
+from tests.dashboard.helpers import capture_listing_pages
 
 PAGES = [
     "/",
@@ -165,19 +167,6 @@ def test_upload_form_stores_a_stack(client_alice, rig, alice):
     )
     assert response.status_code == 302
     assert rig.captures.filter(role="reference").exclude(file="").count() == 1
-
-
-def capture_listing_pages(rig_id: int, reference: int, obj: int) -> dict[str, list[str]]:
-    """Every page that lists a user's captures, with what it must show of the two uploads."""
-    table = [f"<td>#{reference}</td>", f"<td>#{obj}</td>", "plane-r.zip", "block-o.zip"]
-    return {
-        "/captures/": table,
-        f"/rigs/{rig_id}/captures/": table,
-        f"/rigs/{rig_id}/": [f"#{reference} reference", f"#{obj} object"],
-        f"/measurements/new/?rig={rig_id}": [f"#{reference} reference (plane-r.zip)", f"#{obj} object (block-o.zip)"],
-        f"/calibrations/new/?rig={rig_id}": [f"#{reference} reference (plane-r.zip)", f"#{obj} object (block-o.zip)"],
-        f"/characterizations/new/?rig={rig_id}": [f"#{reference} reference (plane-r.zip)"],
-    }
 
 
 def test_uploaded_captures_are_listed_on_every_capture_page(client_alice, rig, alice):

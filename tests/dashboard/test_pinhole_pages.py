@@ -5,15 +5,16 @@ from __future__ import annotations
 
 import json
 
+import pytest
 from django.core.files.uploadedfile import SimpleUploadedFile
 
 from metrology.captures.services import upload_capture
 from metrology.rigs.models import Rig
-from tests.app.test_pinhole_app import capture_zip
-from tests.dashboard.test_codec_pages import figure_data
-from tests.test_measure_pinhole import RIG
+from tests.dashboard.helpers import figure_data
+from tests.pinhole_stacks import RIG, capture_zip
 
 
+@pytest.mark.slow
 def test_import_a_pinhole_rig_then_measure_depths(client_alice, alice, run_jobs):
     page = client_alice.get("/rigs/")
     assert page.status_code == 200 and "Import a pinhole rig" in page.content.decode()

@@ -1,7 +1,7 @@
 """Projector-camera calibration in headless Chromium: upload six pose zips through the form, watch the
 job's progress, see the warnings and figures, apply, see the rig page show the pinhole calibration.
 
-Jobs run in the in-process worker thread of tests/dashboard/test_browser.py; screenshots go to
+Jobs run in the in-process worker thread of tests/dashboard/conftest.py; screenshots go to
 artifacts/screenshots/ (procam-*.png).
 """
 
@@ -12,8 +12,8 @@ import pytest
 
 from metrology.rigs.services import create_rig
 from tests.app.procam_stacks import BOARD_SPEC, RIG_320, TRUE_RIG, UNUSABLE_POSE, pose_name, pose_zips
-from tests.dashboard.conftest import PASSWORD
-from tests.dashboard.test_browser import CHROMIUM, browser_page, shot, worker  # noqa: F401  (fixtures)
+from tests.browser import CHROMIUM, shot
+from tests.conftest import PASSWORD
 
 pytestmark = [
     pytest.mark.browser,
@@ -28,7 +28,7 @@ def procam_rig(alice):
     return create_rig(owner=alice, data={**RIG_320, "name": "procam bench"})
 
 
-def test_procam_calibration_in_the_browser(live_server, alice, procam_rig, worker, browser_page, tmp_path):  # noqa: F811
+def test_procam_calibration_in_the_browser(live_server, alice, procam_rig, worker, browser_page, tmp_path):
     page = browser_page
     base = live_server.url
     rig = procam_rig

@@ -17,8 +17,8 @@ from metrology.calibrations.models import ProcamCalibration
 from metrology.captures.models import Capture, CaptureSession
 from metrology.rigs.models import Rig
 from metrology.rigs.services import create_rig
-from tests.app.conftest import stored_files
 from tests.app.procam_stacks import BOARD_SPEC, RIG_320, TRUE_RIG, UNUSABLE_POSE, pose_name, pose_zip, pose_zips
+from tests.conftest import stored_files
 
 
 def pose_files() -> list[SimpleUploadedFile]:
@@ -30,6 +30,7 @@ def rig320(alice):
     return create_rig(owner=alice, data={**RIG_320, "name": "procam bench"})
 
 
+@pytest.mark.slow
 def test_new_calibration_page_upload_detail_apply(client_alice, alice, rig320, run_jobs):
     page = client_alice.get(f"/procam-calibrations/new/?rig={rig320.pk}")
     html = page.content.decode()

@@ -9,7 +9,7 @@ import pytest
 
 from metrology.jobs.models import Job
 from metrology.reports import services
-from tests.dashboard.test_browser import CHROMIUM, shot
+from tests.browser import CHROMIUM, shot
 
 pytestmark = [
     pytest.mark.browser,

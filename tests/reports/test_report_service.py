@@ -74,6 +74,7 @@ def test_virtual_stage_report_is_stored_self_contained_and_summarized(rig, media
     assert job.progress == 100 and set(job.timings) >= {"stage series", "characterization", "render"}
 
 
+@pytest.mark.slow
 def test_second_report_highlights_the_figures_that_drifted(rig):
     # Over this short 16 mm full scale, 10 um of RMS error is 0.06 % FS: widen that tolerance only.
     options = {**QUICK, "tolerances": {"pct_fs": 0.2}}

@@ -16,7 +16,7 @@ import pytest
 import requests
 
 from tests.app.integration.harness import PG_ADMIN_URL, RedisServer, Stack, check_services, fresh_database
-from tests.app.integration.test_workers import RIG, finished, simulated_zip, upload, url, wait_for
+from tests.app.integration.helpers import RIG, finished, simulated_zip, upload, url, wait_for
 from tests.app.stacks import SMALL_RIG
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from metrology.core.geometry.pinhole import PinholeRig
-from tests.app.integration.test_workers import url
+from tests.app.integration.helpers import url
 from tests.app.procam_stacks import BOARD_SPEC, OPTIONS, RIG_320, TRUE_RIG, pose_name, pose_zips
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]

@@ -7,7 +7,7 @@ import struct
 import numpy as np
 import pytest
 
-from tests.app.integration.test_workers import RIG, finished, simulated_zip, upload, url, wait_for
+from tests.app.integration.helpers import RIG, finished, simulated_zip, upload, url, wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 

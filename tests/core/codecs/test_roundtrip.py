@@ -229,6 +229,7 @@ def test_square_waves_with_projector_blur_n_at_least_12(steps: int, period: floa
     assert square_error(steps, period) < 0.05
 
 
+@pytest.mark.slow
 def test_square_wave_bias_for_small_n_is_as_documented() -> None:
     # docs/codecs.md: the aliased odd harmonics m = k N +- 1 bound the bias (1.2 px projector blur)
     for period in (16.0, 32.0, 64.0):

@@ -11,7 +11,7 @@ from metrology.core.procam.board import detect_board
 from metrology.core.procam.observe import board_frames, board_image
 from metrology.core.procam.virtual import BoardPose, render_board, true_corners
 
-from .test_virtual_calibration import BOARD, CODEC, OPTIONS, RIG
+from .virtual_rig import BOARD, CODEC, OPTIONS, RIG
 
 
 def codec(steps: int, waveform: str = "sine", white: bool = True) -> object:

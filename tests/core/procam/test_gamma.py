@@ -19,7 +19,7 @@ from metrology.core.procam.observe import gamma_from_mean_ratio
 from metrology.core.procam.virtual import BoardPose, render_board
 from metrology.core.simulate import noise_free_16bit
 
-from .test_virtual_calibration import BOARD, RIG, plane_flatness_mm
+from .virtual_rig import BOARD, RIG, plane_flatness_mm
 
 
 def gamma_codec():  # type: ignore[no-untyped-def]

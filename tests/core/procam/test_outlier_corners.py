@@ -11,7 +11,8 @@ import numpy as np
 
 from metrology.core.procam.calibrate import OUTLIER_FLOOR_PX, PoseObservation
 
-from .test_joint_refinement import CAMERA, PROJECTOR, calibrate, observations
+from .noisy_corners import calibrate, observations
+from .virtual_rig import CAMERA, PROJECTOR
 
 
 def moved(obs: list[PoseObservation], pose: int, corners: list[int], shift_px: float) -> list[PoseObservation]:

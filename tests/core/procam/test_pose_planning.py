@@ -20,7 +20,7 @@ from metrology.core.procam.virtual import (
 )
 from metrology.core.simulate_pinhole import look_at_rig
 
-from .test_virtual_calibration import BOARD, CAMERA, PROJECTOR, RIG
+from .virtual_rig import BOARD, CAMERA, PROJECTOR, RIG
 
 
 def outline(pose: BoardPose) -> tuple[np.ndarray, np.ndarray]:
@@ -60,6 +60,7 @@ def test_the_top_edge_is_out_of_the_cameras_view() -> None:
     assert cam[:, 1].min() < 3.5 + 11.0
 
 
+@pytest.mark.slow
 def test_no_pose_fits() -> None:
     big = replace(BOARD, size_mm=200.0)
     assert pose_reaching(RIG, big, (0, 0, 20), (1023, 383.5)) is None

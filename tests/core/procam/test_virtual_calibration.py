@@ -22,10 +22,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from metrology.core.codecs import codec_from_dict
-from metrology.core.codecs.model import Codec
 from metrology.core.distortion import project_normalized
-from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, PinholeRig
+from metrology.core.geometry.pinhole import PinholeRig
 from metrology.core.procam import calibrate_procam, parse_board
 from metrology.core.procam.calibrate import PoseObservation
 from metrology.core.procam.observe import observe_pose
@@ -33,37 +31,25 @@ from metrology.core.procam.virtual import (
     BoardPose,
     board_in_view,
     edge_angles_deg,
-    plan_board_poses,
     render_board,
     true_corners,
 )
-from metrology.core.simulate import realistic_8bit
-from metrology.core.simulate_pinhole import look_at_rig
+
+from .virtual_rig import (
+    BOARD,
+    CAMERA,
+    CODEC,
+    OPTIONS,
+    POSES,
+    PROJECTOR,
+    RIG,
+    make_codec,
+    plane_flatness_mm,
+    pose,
+)
 
 pytestmark = pytest.mark.slow
 
-CAMERA = PinholeCamera(
-    800, 600, ((1000.0, 0, 403.2), (0, 1001.0, 297.6), (0, 0, 1)), (-0.12, 0.08, 0.0008, -0.0005, 0.0)
-)
-PROJECTOR = PinholeProjector(
-    1024, 768, ((1300.0, 0, 515.0), (0, 1300.0, 460.0), (0, 0, 1)), (0.04, -0.02, 0.0, 0.0, 0.0)
-)
-RIG = look_at_rig(CAMERA, PROJECTOR, (150.0, 10.0, -20.0), (0.0, 0.0, 500.0))
-BOARD = parse_board("chessboard:9x6:20")
-OPTIONS = realistic_8bit(supersample=2)
-W, H = PROJECTOR.width - 1, PROJECTOR.height - 1
-# (tilt_x, tilt_y, spin) degrees, and the projector point the board's outer corner reaches for
-PLAN = [
-    ((-14, 14, 20), (W, H / 4)),
-    ((-20, 0, -20), (0, H / 2)),
-    ((14, -14, -20), (0, H)),
-    ((14, -14, -25), (W, H / 2)),
-    ((-30, 0, -20), (W, 0)),
-    ((14, -14, -25), (W, 0)),
-    ((30, 0, 25), (0, H / 4)),
-    ((21, -21, 20), (0, 3 * H / 4)),
-]
-POSES = plan_board_poses(RIG, BOARD, PLAN)
 # the poses this test used before: boards around the middle of both images
 CENTRAL_ANGLES = [
     (0, 0, 0),
@@ -86,32 +72,6 @@ CENTRAL_SHIFTS = [
     (0, 40, 460),
 ]
 CENTRAL = [BoardPose.from_angles(*a, s).centred(BOARD) for a, s in zip(CENTRAL_ANGLES, CENTRAL_SHIFTS, strict=True)]
-
-
-def make_codec(width: int = 1024, height: int = 768, period: float = 32.0) -> Codec:
-    def axis(first: int) -> dict[str, object]:
-        return {
-            "phase": [{"frames": list(range(first, first + 8)), "period": period}],
-            "gray": {"frames": list(range(first + 8, first + 13)), "word": period, "origin": -0.5},
-        }
-
-    return codec_from_dict(
-        {
-            "codec": "gcps-codec/1",
-            "frames": 28,
-            "projector": {"width": width, "height": height},
-            "white": [26],
-            "black": [27],
-            "axes": {"u": axis(0), "v": axis(13)},
-        }
-    )
-
-
-CODEC = make_codec()
-
-
-def pose(i: int) -> BoardPose:
-    return POSES[i]
 
 
 @pytest.fixture(scope="module")
@@ -318,22 +278,6 @@ def test_gamma_is_found() -> None:
     assert p.gamma is not None and abs(p.gamma - 2.2) < 0.2
     linear = observe_pose("linear", render_board(RIG, BOARD, CENTRAL[0], CODEC, OPTIONS, seed=41), CODEC, BOARD)
     assert linear.gamma is not None and abs(linear.gamma - 1.0) < 0.1
-
-
-def plane_flatness_mm(rig: PinholeRig, u: np.ndarray, v: np.ndarray) -> float:
-    """RMS distance of the triangulated points to their total-least-squares plane, mm, after
-    dropping points more than 5 robust sigmas (1.4826 MAD) off (the field's edge pixels)."""
-    from metrology.core.pinhole_measure import measure_pinhole
-
-    pts = measure_pinhole(rig, u, v).points_mm.reshape(-1, 3).astype(np.float64)
-    pts = pts[np.isfinite(pts).all(axis=1)]
-    for _ in range(3):
-        centred = pts - pts.mean(axis=0)
-        normal = np.linalg.svd(centred, full_matrices=False)[2][2]
-        r = centred @ normal
-        robust = 1.4826 * float(np.median(np.abs(r - np.median(r))))
-        pts = pts[np.abs(r - np.median(r)) < 5 * robust]
-    return float(np.sqrt(np.mean(r**2)))
 
 
 def test_a_plane_measured_with_the_calibrated_rig_is_flat(rendered) -> None:  # type: ignore[no-untyped-def]

@@ -30,7 +30,7 @@ from metrology.pipeline import (
     characterize_pinhole,
     measure_pinhole_stacks,
 )
-from tests.test_measure_pinhole import CODEC, RIG
+from tests.pinhole_stacks import CODEC, RIG
 
 DISTANCE_MM = 600.0
 STAGE_MM = (0.0, 4.0, 8.0, 12.0, 16.0)
@@ -94,6 +94,7 @@ def test_noise_free_flatness_and_probing_in_camera_frame() -> None:
         acceptance_pinhole(RIG, None, _plane(5.0), codec, AcceptanceOptions(test="probing", diameter_mm=diameter))
 
 
+@pytest.mark.slow
 def test_realistic_flatness_consistent_with_noise() -> None:
     """8-bit realistic renders: the RMS of the plane's TLS residuals matches the points' predicted
     uncertainty (median per-point sigma along the rays, from the decoder's noise) within 25 %, and
@@ -154,7 +155,7 @@ def test_cli_characterize_and_acceptance_with_pinhole_rig(tmp_path: Path) -> Non
 
 def test_cli_crossed_axes_rig_keeps_needing_a_reference_and_refuses_codec(tmp_path: Path, capsys) -> None:
     from metrology.core.io import write_rig
-    from tests.test_cli import RIG as CROSSED
+    from tests.commands.rigs import RIG as CROSSED
 
     write_rig(CROSSED, tmp_path / "rig.json")
     base = ["--quiet", "acceptance", "--rig", str(tmp_path / "rig.json"), "--object", str(tmp_path / "obj")]

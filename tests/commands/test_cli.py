@@ -13,8 +13,7 @@ import pytest
 from metrology.cli import main
 from metrology.core.io import read_stack, write_rig, write_stack
 from metrology.core.rig import Rig
-
-RIG = Rig(L_mm=1022.0, d_mm=352.0, alpha_rad=0.332, fw_mm=500.0, nlp=128, width_px=320, height_px=240)
+from tests.commands.rigs import RIG
 
 
 @pytest.fixture(scope="module")
@@ -272,6 +271,7 @@ def test_bad_rig_exits_2(captures, tmp_path, capsys, change, words):
     assert code == 2 and words in capsys.readouterr().err and not out.exists()
 
 
+@pytest.mark.slow
 def test_installed_command_runs(captures, tmp_path):
     """The console script works as a process: exit status and stderr as external checks see them."""
     gcps = Path(sys.executable).with_name("gcps")

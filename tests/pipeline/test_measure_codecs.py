@@ -81,6 +81,7 @@ def test_noise_free_codec_heights_within_1um_like_gcps_v1(scene, params, noise_f
     assert data["codec"] == "gcps-codec/1" and data["decoding"]["axes"]["u"]["decoded"] > 0
 
 
+@pytest.mark.slow
 def test_realistic_twelve_steps_are_quieter_than_gcps_v1():
     """8-bit, 1.5 grey levels of noise, camera and projector blur (one ray per pixel: the codec
     renderer needs the true coordinates of every sub-ray): 12 steps at the same period as gcps-v1's
@@ -148,6 +149,7 @@ def write_capture(folder, images: np.ndarray, codec: Codec | None) -> str:
     return str(folder)
 
 
+@pytest.mark.slow
 def test_cli_measures_a_codec_capture_with_its_codec_json_or_codec_option(tmp_path, noise_free_reference):
     from metrology.cli import main
     from metrology.core.codecs import write_codec

@@ -12,33 +12,11 @@ import numpy as np
 import pytest
 
 from metrology.commands.measure_pinhole import add_pinhole_measure_arguments, cmd_measure_pinhole, is_pinhole_rig
-from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector
 from metrology.core.scenes import make_scene
-from metrology.core.simulate_pinhole import PlacedScene, cast_truth, look_at_rig
+from metrology.core.simulate_pinhole import PlacedScene, cast_truth
+from tests.pinhole_stacks import CODEC, RIG
 
 codecs = pytest.importorskip("metrology.core.codecs", reason="the codec package (issue 11) is not in this tree")
-
-PROJ_W, PROJ_H = 640, 400
-CAMERA = PinholeCamera(
-    160, 120, ((420.0, 0.0, 79.5), (0.0, 421.0, 59.5), (0.0, 0.0, 1.0)), (-0.1, 0.03, 0.0005, -0.0004, 0.0)
-)
-PROJECTOR = PinholeProjector(
-    PROJ_W, PROJ_H, ((750.0, 0.0, 320.2), (0.0, 751.0, 199.7), (0.0, 0.0, 1.0)), (0.04, -0.02, 0.0003, 0.0002)
-)
-RIG = look_at_rig(CAMERA, PROJECTOR, (-220.0, 6.0, 15.0), (0.0, 0.0, 600.0))
-CODEC = {
-    "codec": "gcps-codec/1",
-    "frames": 16,
-    "projector": {"width": PROJ_W, "height": PROJ_H},
-    "white": [14],
-    "black": [15],
-    "axes": {
-        "u": {
-            "phase": [{"frames": list(range(8)), "period": 16.0, "shift": 1, "origin": -0.5, "waveform": "sine"}],
-            "gray": {"frames": list(range(8, 14)), "word": 16.0, "order": "msb_first", "origin": -0.5},
-        }
-    },
-}
 
 
 def _capture(folder: Path, scene: str, **params: float) -> np.ndarray:
@@ -63,6 +41,7 @@ def _args(tmp: Path, **extra: object) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
+@pytest.mark.slow
 def test_measure_with_pinhole_rig(tmp_path: Path) -> None:
     (tmp_path / "rig.json").write_text(RIG.to_json())
     assert is_pinhole_rig(str(tmp_path / "rig.json"))
@@ -136,7 +115,7 @@ def test_gcps_measure_command_line(tmp_path: Path, capsys: pytest.CaptureFixture
     z = np.load(tmp_path / "z.npy")
     ok = np.isfinite(z)
     assert np.abs(z[ok] - truth[..., 2][ok]).max() < 1e-3
-    crossed = Path(__file__).resolve().parents[1] / "examples" / "rig.json"
+    crossed = Path(__file__).resolve().parents[2] / "examples" / "rig.json"
     argv = ["measure", "--rig", str(crossed), "--object", str(tmp_path / "plane"), "--out", str(tmp_path / "c.npy")]
     assert main(argv) == 2
     assert "--reference is required for a crossed-axes rig" in capsys.readouterr().err

@@ -13,7 +13,7 @@ from metrology.cli import main
 from metrology.core.geometry.pinhole import PinholeRig
 from tests.datasets import dataset_path, require_dataset
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 KAMINO = dataset_path("kamino410-procam-calibration", "calibration_result.rerun.xml")
 
 CAM_K = np.array([[2301.123456789012, 0.0, 1023.4567], [0.0, 2299.87654321, 767.25], [0.0, 0.0, 1.0]])
@@ -195,6 +195,7 @@ def test_bad_values_are_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_kamino410_calibration_imports(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Real data: the kamino410 procam calibration (OpenCV XML) imports with --opencv."""
     require_dataset(KAMINO, "kamino410 procam calibration result")

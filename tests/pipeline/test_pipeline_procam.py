@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from metrology.pipeline.calibrate_procam import ProcamOptions, ProcamPose, calibrate_procam_stacks
-
-from .test_virtual_calibration import CODEC, OPTIONS, PROJECTOR, RIG, make_codec, pose
+from tests.core.procam.virtual_rig import CODEC, OPTIONS, PROJECTOR, RIG, make_codec, pose
 
 
 @pytest.mark.parametrize(
@@ -50,8 +49,7 @@ def test_stacks_mismatch_is_named() -> None:
 @pytest.mark.slow
 def test_virtual_stacks_calibrate_with_progress() -> None:
     from metrology.core.procam.virtual import render_board
-
-    from .test_virtual_calibration import BOARD
+    from tests.core.procam.virtual_rig import BOARD
 
     poses = [ProcamPose(f"p{i}", render_board(RIG, BOARD, pose(i), CODEC, OPTIONS, seed=i), CODEC) for i in range(6)]
     seen: list[tuple[int, str]] = []
@@ -69,6 +67,7 @@ def test_virtual_stacks_calibrate_with_progress() -> None:
     assert result.rig.projector.gamma is not None and abs(result.rig.projector.gamma - 1.0) < 0.1
 
 
+@pytest.mark.slow
 def test_stacks_given_as_functions_are_read_one_at_a_time() -> None:
     """Poses whose images are functions are read in turn, and each stack is released before the
     next is read (weak references to the earlier stacks are dead when a loader runs); the result
@@ -77,8 +76,7 @@ def test_stacks_given_as_functions_are_read_one_at_a_time() -> None:
     import weakref
 
     from metrology.core.procam.virtual import render_board
-
-    from .test_virtual_calibration import BOARD
+    from tests.core.procam.virtual_rig import BOARD
 
     def render(i: int) -> np.ndarray:
         return render_board(RIG, BOARD, pose(i), CODEC, OPTIONS, seed=i)

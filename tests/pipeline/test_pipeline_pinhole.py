@@ -9,7 +9,7 @@ from metrology.core.codecs import codec_from_dict, render_codec
 from metrology.core.scenes import make_scene
 from metrology.core.simulate_pinhole import PlacedScene, cast_truth
 from metrology.pipeline import PinholeMeasureOptions, measure_pinhole_stacks
-from tests.test_measure_pinhole import CODEC, RIG
+from tests.pinhole_stacks import CODEC, RIG
 
 
 def test_pipeline_points_depth_heights_and_options():

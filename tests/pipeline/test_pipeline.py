@@ -20,7 +20,7 @@ from metrology.pipeline import (
 )
 from metrology.version import software_version
 
-PIPELINE = Path(__file__).resolve().parents[1] / "metrology" / "pipeline"
+PIPELINE = Path(__file__).resolve().parents[2] / "metrology" / "pipeline"
 FORBIDDEN = {"django", "celery", "rest_framework", "redis", "workers", "plotly"}
 RIG = Rig(L_mm=1022.0, d_mm=352.0, alpha_rad=0.332, fw_mm=500.0, nlp=128, width_px=320, height_px=48)
 

@@ -1,0 +1,56 @@
+"""Shared by the integration tests: the rig they upload to, simulated captures, and the HTTP calls to
+the running stack (uploads, polling a resource until it is done)."""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from metrology.core.io import write_stack
+from metrology.core.rig import Rig
+from metrology.core.scenes import make_scene
+from metrology.core.simulate import SimulationOptions, render_stack
+from tests.app.stacks import SMALL_RIG
+
+# Bigger than the unit tests' rig so that the measurement (with meshes) takes a moment.
+RIG = {**SMALL_RIG, "width_px": 320, "height_px": 240, "name": "integration"}
+
+
+def simulated_zip(scene: str, **params) -> tuple[bytes, np.ndarray]:
+    """A noise-free 16-bit stack of ``scene`` rendered by the core's simulator, and its truth heights."""
+    rig = Rig.from_dict({key: RIG[key] for key in SMALL_RIG})
+    rendered = render_stack(rig, make_scene(scene, rig=rig, **params), SimulationOptions(bit_depth=16, seed=1))
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "stack.zip"
+        write_stack(rendered.images, path)
+        return path.read_bytes(), np.asarray(rendered.truth_mm)
+
+
+def url(http, path: str) -> str:
+    return http.base + path
+
+
+def upload(http, rig_id: int, data: bytes, role: str) -> int:
+    response = http.post(
+        url(http, f"/api/rigs/{rig_id}/captures/"), files={"file": (f"{role}.zip", data)}, data={"role": role}
+    )
+    assert response.status_code == 201, response.text
+    return response.json()["id"]
+
+
+def wait_for(http, path: str, done, timeout: float = 120.0, interval: float = 0.25) -> dict:
+    deadline = time.monotonic() + timeout
+    body: dict = {}
+    while time.monotonic() < deadline:
+        body = http.get(url(http, path)).json()
+        if done(body):
+            return body
+        time.sleep(interval)
+    raise AssertionError(f"timed out waiting on {path}: {body}")
+
+
+def finished(body: dict) -> bool:
+    return body["status"] in ("done", "failed")

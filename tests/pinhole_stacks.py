@@ -1,0 +1,45 @@
+"""The pinhole rig and codec that the pinhole tests share (command line, pipeline, app, pages), and
+noise-free captures of it zipped in memory."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from metrology.core.codecs import codec_from_dict, render_codec
+from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector
+from metrology.core.scenes import make_scene
+from metrology.core.simulate_pinhole import PlacedScene, cast_truth, look_at_rig
+from tests.app.stacks import png, zip_bytes
+
+PROJ_W, PROJ_H = 640, 400
+CAMERA = PinholeCamera(
+    160, 120, ((420.0, 0.0, 79.5), (0.0, 421.0, 59.5), (0.0, 0.0, 1.0)), (-0.1, 0.03, 0.0005, -0.0004, 0.0)
+)
+PROJECTOR = PinholeProjector(
+    PROJ_W, PROJ_H, ((750.0, 0.0, 320.2), (0.0, 751.0, 199.7), (0.0, 0.0, 1.0)), (0.04, -0.02, 0.0003, 0.0002)
+)
+RIG = look_at_rig(CAMERA, PROJECTOR, (-220.0, 6.0, 15.0), (0.0, 0.0, 600.0))
+CODEC = {
+    "codec": "gcps-codec/1",
+    "frames": 16,
+    "projector": {"width": PROJ_W, "height": PROJ_H},
+    "white": [14],
+    "black": [15],
+    "axes": {
+        "u": {
+            "phase": [{"frames": list(range(8)), "period": 16.0, "shift": 1, "origin": -0.5, "waveform": "sine"}],
+            "gray": {"frames": list(range(8, 14)), "word": 16.0, "order": "msb_first", "origin": -0.5},
+        }
+    },
+}
+
+
+def capture_zip(scene: str, codec: dict = CODEC, **params: float) -> tuple[bytes, np.ndarray]:
+    """Noise-free 16-bit frames of ``codec`` of a scene placed 600 mm in front of the camera, and the truth points."""
+    truth = cast_truth(RIG, PlacedScene(make_scene(scene, **params), 600.0))
+    images = render_codec(codec_from_dict(codec), truth.u, None)
+    members = {f"frame_{i:02d}.png": png(image) for i, image in enumerate(images)}
+    members["codec.json"] = json.dumps(codec).encode()
+    return zip_bytes(members), truth.points_mm
