@@ -15,7 +15,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from tests.test_import_cycles import imported_modules, module_name
+from tests.import_graph import imported_modules, module_name
 
 ROOT = Path(__file__).resolve().parents[1]
 

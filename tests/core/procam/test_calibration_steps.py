@@ -23,8 +23,7 @@ from metrology.core.procam.advice import (
 from metrology.core.procam.diagnostics import PoseDiversity
 from metrology.core.procam.poses import PoseObservation, select_usable_poses
 from metrology.core.procam.virtual import BoardPose, true_corners
-
-from .test_virtual_calibration import BOARD, CENTRAL, RIG
+from tests.core.procam.virtual_rig import BOARD, CENTRAL, RIG
 
 NOISE_PX = 0.05
 """Noise of every camera and projector point, pixels (projector units), per coordinate."""

@@ -38,6 +38,7 @@ from metrology.core.procam.virtual import (
 from .virtual_rig import (
     BOARD,
     CAMERA,
+    CENTRAL,
     CODEC,
     OPTIONS,
     POSES,
@@ -49,29 +50,6 @@ from .virtual_rig import (
 )
 
 pytestmark = pytest.mark.slow
-
-# the poses this test used before: boards around the middle of both images
-CENTRAL_ANGLES = [
-    (0, 0, 0),
-    (25, 0, 5),
-    (-25, 0, -5),
-    (0, 25, 10),
-    (0, -25, -10),
-    (18, 18, 0),
-    (-18, 18, 15),
-    (18, -18, -15),
-]
-CENTRAL_SHIFTS = [
-    (0, 0, 480),
-    (-40, 30, 520),
-    (40, -30, 450),
-    (30, 40, 500),
-    (-30, -40, 470),
-    (50, 20, 530),
-    (-50, -20, 490),
-    (0, 40, 460),
-]
-CENTRAL = [BoardPose.from_angles(*a, s).centred(BOARD) for a, s in zip(CENTRAL_ANGLES, CENTRAL_SHIFTS, strict=True)]
 
 
 @pytest.fixture(scope="module")
