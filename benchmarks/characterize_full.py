@@ -17,9 +17,8 @@ import numpy as np
 
 from metrology.core.calibrate import MasterCapture, calibrate_lsq, calibrate_paper
 from metrology.core.characterize import characterize
-from metrology.core.rig import PAPER_RIG
+from metrology.core.geometry.crossed_axes import PAPER_RIG, height_from_codes
 from metrology.core.synthetic import add_code_noise, block_heights, exact_codes, reference_codes, stage_height_maps
-from metrology.core.triangulate import height_from_codes
 
 
 def main() -> None:

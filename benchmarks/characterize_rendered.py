@@ -27,8 +27,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from metrology.core.calibrate import MasterCapture, calibrate_lsq, calibrate_paper
 from metrology.core.characterize import characterize
-from metrology.core.measure import measure_height, prepare_reference
-from metrology.core.rig import PAPER_RIG
+from metrology.core.geometry.crossed_axes import PAPER_RIG
+from metrology.core.measure import MeasureOptions, measure, prepare_reference
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_series, render_stack
 
@@ -43,17 +43,18 @@ def main() -> None:
 
     truth = PAPER_RIG
     rough = truth.with_parameters(L_mm=1080.0, alpha_rad=0.4871)
-    options = SimulationOptions.realistic_8bit(seed=2026)
+    simulation = SimulationOptions.realistic_8bit(seed=2026)
     start = time.perf_counter()
-    reference_stack = render_stack(truth, make_scene("reference", truth), options).images
-    master_stack = render_stack(truth, make_scene("block", truth, top_mm=40.0), options.with_changes(seed=7)).images
-    reference = prepare_reference(rough, reference_stack)
-    master_codes = measure_height(rough, reference, master_stack, gray_only=False).obj_codes
-    master = MasterCapture(reference.decoded.codes, master_codes, 40.0)
+    reference_stack = render_stack(truth, make_scene("reference", truth), simulation).images
+    master_stack = render_stack(truth, make_scene("block", truth, top_mm=40.0), simulation.with_changes(seed=7)).images
+    options = MeasureOptions(gray_only=False)
+    reference = prepare_reference(rough, reference_stack, None, options)
+    master_codes = measure(rough, master_stack, reference=reference, options=options).codes
+    master = MasterCapture(reference.codes, master_codes, 40.0)
 
     print("calibration from L0 = 1080 mm, alpha0 = 0.4871 rad (truth 1022 mm, 0.332 rad)")
     lsq = calibrate_lsq(rough, master)
-    paper = calibrate_paper(rough, reference.decoded.codes, master_codes, 40.0, delta_z_mm=0.025, m_hat=1e-4)
+    paper = calibrate_paper(rough, reference.codes, master_codes, 40.0, delta_z_mm=0.025, m_hat=1e-4)
     for result in (lsq, paper):
         report = result.to_dict()
         print(
@@ -63,12 +64,12 @@ def main() -> None:
         )
 
     rig = lsq.rig
-    kept = prepare_reference(rig, reference.decoded)
+    kept = prepare_reference(rig, reference_stack, None, options)
     positions = list(np.arange(0.0, args.top + args.step / 2, args.step))
 
     def heights():
-        for z_in, repeat, rendered in render_series(truth, positions, args.repeats, options):
-            yield z_in, repeat, measure_height(rig, kept, rendered.images, gray_only=False).z_mm
+        for z_in, repeat, rendered in render_series(truth, positions, args.repeats, simulation):
+            yield z_in, repeat, measure(rig, rendered.images, reference=kept, options=options).z_mm
 
     result = characterize(rig, heights())
     elapsed = time.perf_counter() - start

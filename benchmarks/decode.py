@@ -6,7 +6,7 @@
 What is timed (medians over ``--repeats`` interleaved runs in shuffled order, so a
 noisy shared machine affects all rows alike, each after flushing the caches):
 
-* ``decode + triangulate vs kept reference``: :func:`measure_height` of an 8-bit
+* ``decode + triangulate vs kept reference``: :func:`~metrology.core.measure.measure` of an 8-bit
   object stack against a :class:`Reference` decoded once (the common case: one
   reference plane, many objects). Decode (Eqs. 1-3) + Eq. 14 + Eq. 17, fused per
   tile, with the mixed-pixel filter and the blur correction turned off.
@@ -50,11 +50,15 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from metrology.core.allocation import retain_freed_memory  # noqa: E402
-from metrology.core.measure import DecodeOptions, measure_height, prepare_reference  # noqa: E402
+from metrology.core.filters import FilterOptions  # noqa: E402
+from metrology.core.geometry.crossed_axes import (  # noqa: E402
+    Rig,
+    camera_ray_point,
+    codes_of_points,
+)
+from metrology.core.measure import MeasureOptions, measure, prepare_reference  # noqa: E402
 from metrology.core.patterns import PATTERN_NAMES, pattern_intensity  # noqa: E402
-from metrology.core.rig import Rig  # noqa: E402
 from metrology.core.tiling import scratch_nbytes  # noqa: E402
-from metrology.core.triangulate import camera_ray_point, codes_of_points  # noqa: E402
 
 
 def synthetic_pair(width: int, height: int, seed: int = 0) -> tuple[Rig, np.ndarray, np.ndarray]:
@@ -102,28 +106,25 @@ def opencv_baseline(width: int, height: int) -> dict | None:
 def run_size(width: int, height: int, repeats: int, with_opencv: bool) -> dict:
     rig, ref_stack, obj_stack = synthetic_pair(width, height)
     mpx = width * height / 1e6
-    options = DecodeOptions()
-    reference = prepare_reference(rig, ref_stack, options)
+    options = MeasureOptions(gray_only=False)
+    reference = prepare_reference(rig, ref_stack, None, options)
     touched = np.empty(15 * width * height, np.uint8)
     touched_out = np.empty_like(touched)
 
-    bare = DecodeOptions(edge_band_px=0, blur_variance_px2=0.0)
-    no_bound = DecodeOptions(max_blur_bias_codes=0.0)  # the mixed-pixel filter without its crease test
-    bare_reference = prepare_reference(rig, ref_stack, bare)
+    bare = MeasureOptions(filters=FilterOptions(edge_band_px=0, blur_variance_px2=0.0), gray_only=False)
+    # the mixed-pixel filter without its crease test
+    no_bound = MeasureOptions(filters=FilterOptions(max_blur_bias_codes=0.0), gray_only=False)
+    bare_reference = prepare_reference(rig, ref_stack, None, bare)
     rows = {
         "memory bound (copy 15 B/px)": lambda: np.copyto(touched_out, touched),
-        "decode + triangulate vs kept reference": lambda: measure_height(
-            rig, bare_reference, obj_stack, bare, gray_only=False
+        "decode + triangulate vs kept reference": lambda: measure(
+            rig, obj_stack, reference=bare_reference, options=bare
         ),
-        "  same, 1 thread": lambda: measure_height(rig, bare_reference, obj_stack, bare, gray_only=False, threads=1),
-        "decode + triangulate, both stacks decoded": lambda: measure_height(
-            rig, ref_stack, obj_stack, bare, gray_only=False
-        ),
-        "full pipeline vs kept reference": lambda: measure_height(rig, reference, obj_stack, options, gray_only=False),
-        "  same, no blur-bias bound": lambda: measure_height(rig, reference, obj_stack, no_bound, gray_only=False),
-        "full pipeline, both stacks decoded": lambda: measure_height(
-            rig, ref_stack, obj_stack, options, gray_only=False
-        ),
+        "  same, 1 thread": lambda: measure(rig, obj_stack, reference=bare_reference, options=bare, threads=1),
+        "decode + triangulate, both stacks decoded": lambda: measure(rig, obj_stack, reference=ref_stack, options=bare),
+        "full pipeline vs kept reference": lambda: measure(rig, obj_stack, reference=reference, options=options),
+        "  same, no blur-bias bound": lambda: measure(rig, obj_stack, reference=reference, options=no_bound),
+        "full pipeline, both stacks decoded": lambda: measure(rig, obj_stack, reference=ref_stack, options=options),
     }
     for func in rows.values():
         func()  # warm up
@@ -142,7 +143,7 @@ def run_size(width: int, height: int, repeats: int, with_opencv: bool) -> dict:
     seconds = {name: statistics.median(values) for name, values in samples.items()}
 
     tracemalloc.start()
-    measure_height(rig, reference, obj_stack, options, gray_only=False)
+    measure(rig, obj_stack, reference=reference, options=options)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     peak += scratch_nbytes()  # the threads' scratch arrays, allocated in the warm-up, count too

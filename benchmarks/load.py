@@ -68,8 +68,8 @@ OBJECT_SCENES = ("sphere", "block", "staircase")
 def stacks(width: int, height: int) -> tuple[bytes, list[bytes], dict[str, Any]]:
     """Reference and object stack zips (realistic 8-bit, virtual rig), rendered once and cached."""
     sys.path.insert(0, str(ROOT))
+    from metrology.core.geometry.crossed_axes import PAPER_RIG
     from metrology.core.io import write_stack
-    from metrology.core.rig import PAPER_RIG
     from metrology.core.scenes import make_scene
     from metrology.core.simulate import realistic_8bit, render_stack
 

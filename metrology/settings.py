@@ -240,9 +240,11 @@ FILE_UPLOAD_MAX_MEMORY_SIZE = 8 * 1024 * 1024
 DATA_UPLOAD_MAX_MEMORY_SIZE = 8 * 1024 * 1024
 # Largest image a stack may hold (width * height), guards against headers claiming huge sizes.
 GCPS_MAX_STACK_PIXELS = env_int("GCPS_MAX_STACK_PIXELS", 64 * 1024 * 1024, minimum=1)
-# Largest rig image side (width_px, height_px), pixels; and the memory a simulation may take, bytes.
 # Largest ``extra`` (the rig file's further keys) a rig may hold, bytes of JSON.
 GCPS_MAX_RIG_EXTRA_BYTES = env_int("GCPS_MAX_RIG_EXTRA_BYTES", 16 * 1024, minimum=2)
+# Largest rig or calibration file (JSON, OpenCV FileStorage) a page uploads, bytes.
+GCPS_MAX_RIG_FILE_BYTES = env_int("GCPS_MAX_RIG_FILE_BYTES", 1024 * 1024, minimum=1024)
+# Largest rig image side (width_px, height_px), pixels; and the memory a simulation may take, bytes.
 GCPS_MAX_IMAGE_SIDE_PX = env_int("GCPS_MAX_IMAGE_SIDE_PX", 4096, minimum=1)
 GCPS_MAX_SIMULATION_BYTES = env_int("GCPS_MAX_SIMULATION_BYTES", 4 * 1024**3, minimum=1)
 

@@ -32,23 +32,38 @@ def module_name(path: Path) -> str:
     return ".".join(parts)
 
 
-def imported_modules(path: Path) -> set[str]:
-    """Absolute names of the modules ``path`` imports (relative imports resolved; ``from a import b``
-    counts as both ``a`` and ``a.b``, since ``b`` may be a submodule)."""
+def import_statements(path: Path, source: str | None = None, *, type_checking: bool = True):
+    """``(line, origin, names)`` of every import of ``path`` (or of ``source`` as if it were at
+    ``path``): ``import a.b`` gives ``("a.b", [])``, ``from .x import y, z`` the absolute origin
+    (relative imports resolved) and ``["y", "z"]``. The bodies of ``if TYPE_CHECKING:`` (never
+    run) count only with ``type_checking``."""
     module = module_name(path)
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
-    found: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+    tree = ast.parse(path.read_text() if source is None else source, filename=str(path))
+    if not type_checking:
+        for node in ast.walk(tree):
+            if isinstance(node, ast.If) and _is_type_checking(node.test):
+                node.body = []
+    for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            found.update(alias.name for alias in node.names)
+            for alias in node.names:
+                yield node.lineno, alias.name, []
         elif isinstance(node, ast.ImportFrom):
             if node.level:
                 base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
-                source = ".".join(base + ([node.module] if node.module else []))
+                origin = ".".join(base + ([node.module] if node.module else []))
             else:
-                source = node.module or ""
-            found.add(source)
-            found.update(f"{source}.{alias.name}" for alias in node.names)
+                origin = node.module or ""
+            yield node.lineno, origin, [alias.name for alias in node.names]
+
+
+def imported_modules(path: Path) -> set[str]:
+    """Absolute names of the modules ``path`` imports (relative imports resolved; ``from a import b``
+    counts as both ``a`` and ``a.b``, since ``b`` may be a submodule)."""
+    found: set[str] = set()
+    for _line, origin, names in import_statements(path):
+        found.add(origin)
+        found.update(f"{origin}.{name}" for name in names)
     return found
 
 
@@ -89,3 +104,41 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
         if node not in state and (cycle := visit(node)):
             return cycle
     return None
+
+
+def project_modules() -> dict[str, Path]:
+    """Every module of the project (migrations excepted) by its dotted name."""
+    modules: dict[str, Path] = {}
+    for top in TOPS:
+        for path in sorted((ROOT / top).rglob("*.py")):
+            if "migrations" not in path.parts:
+                modules[module_name(path)] = path
+    return modules
+
+
+def module_graph(*, type_checking: bool = False) -> dict[str, set[str]]:
+    """Module -> the project's modules it imports, file granularity.
+
+    ``from a import b`` is an edge to ``a.b`` where that is a module, else to ``a`` (a name defined
+    in ``a``); importing ``a.b.c`` runs ``a`` and ``a.b`` first, but those package edges are not
+    counted (a package's ``__init__`` is a module of its own, with its own edges). Imports under
+    ``if TYPE_CHECKING:`` are never run: they count only with ``type_checking=True``.
+    """
+    modules = project_modules()
+    graph: dict[str, set[str]] = {}
+    for module, path in modules.items():
+        targets: set[str] = set()
+        for _line, origin, names in import_statements(path, type_checking=type_checking):
+            for imported in [f"{origin}.{n}" for n in names] or [origin]:
+                if imported in modules:
+                    targets.add(imported)
+                elif origin in modules:  # a name defined in the origin module
+                    targets.add(origin)
+        graph[module] = targets - {module}
+    return graph
+
+
+def _is_type_checking(test: ast.expr) -> bool:
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
+    )

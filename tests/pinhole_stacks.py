@@ -8,9 +8,9 @@ import json
 import numpy as np
 
 from metrology.core.codecs import codec_from_dict, render_codec
-from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector
+from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, look_at_rig
 from metrology.core.scenes import make_scene
-from metrology.core.simulate_pinhole import PlacedScene, cast_truth, look_at_rig
+from metrology.core.simulate import CastTruth, ScenePlacement, cast_truth
 from tests.app.stacks import png, zip_bytes
 
 PROJ_W, PROJ_H = 640, 400
@@ -36,10 +36,37 @@ CODEC = {
 }
 
 
+def cast_scene(scene: str, distance_mm: float = 600.0, *, supersample: int = 1, **params: float) -> CastTruth:
+    """The ground truth of scene ``scene`` (``make_scene(scene, **params)``) facing the camera at
+    ``distance_mm`` (its reference plane ``Z = distance_mm``), ``supersample`` rays per pixel and axis."""
+    prepared = RIG.prepare(RIG.shape, (PROJ_W, PROJ_H))
+    placement = ScenePlacement.facing_camera(distance_mm)
+    return cast_truth(prepared, make_scene(scene, **params), placement, supersample=supersample)
+
+
 def capture_zip(scene: str, codec: dict = CODEC, **params: float) -> tuple[bytes, np.ndarray]:
     """Noise-free 16-bit frames of ``codec`` of a scene placed 600 mm in front of the camera, and the truth points."""
-    truth = cast_truth(RIG, PlacedScene(make_scene(scene, **params), 600.0))
+    prepared = RIG.prepare(RIG.shape, (PROJ_W, PROJ_H))
+    truth = cast_truth(prepared, make_scene(scene, **params), ScenePlacement.facing_camera(600.0))
     images = render_codec(codec_from_dict(codec), truth.u, None)
     members = {f"frame_{i:02d}.png": png(image) for i, image in enumerate(images)}
     members["codec.json"] = json.dumps(codec).encode()
     return zip_bytes(members), truth.points_mm
+
+
+def write_filestorage_yaml(path) -> None:
+    """The pinhole test rig written as an OpenCV FileStorage YAML, with the node names of a stereo
+    calibration script (``cam_int``, ``cam_dist``, ``proj_int``, ``proj_dist``, ``rotation``,
+    ``translation``) and the image size as ``img_shape`` (height, width)."""
+    import cv2
+
+    rig = RIG
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("img_shape", np.array([[rig.camera.height_px, rig.camera.width_px]], dtype=np.float64))
+    fs.write("cam_int", np.asarray(rig.camera.K, dtype=np.float64))
+    fs.write("cam_dist", np.asarray(rig.camera.dist, dtype=np.float64).reshape(1, -1))
+    fs.write("proj_int", np.asarray(rig.projector.K, dtype=np.float64))
+    fs.write("proj_dist", np.asarray(rig.projector.dist, dtype=np.float64).reshape(1, -1))
+    fs.write("rotation", np.asarray(rig.R, dtype=np.float64))
+    fs.write("translation", np.asarray(rig.T, dtype=np.float64).reshape(3, 1))
+    fs.release()

@@ -11,8 +11,8 @@ import pytest
 
 from metrology.cli import main
 from metrology.core.geometry import model_from_dict
+from metrology.core.geometry.crossed_axes import PAPER_RIG
 from metrology.core.io import read_model, read_rig, read_series
-from metrology.core.rig import PAPER_RIG
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"

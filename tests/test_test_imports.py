@@ -8,18 +8,11 @@ counts, also those inside functions and relative ones.
 
 from __future__ import annotations
 
-import ast
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.import_graph import ROOT, import_statements
+
 TESTS = ROOT / "tests"
-
-
-def module_name(path: Path) -> str:
-    parts = list(path.relative_to(ROOT).with_suffix("").parts)
-    if parts[-1] == "__init__":
-        parts.pop()
-    return ".".join(parts)
 
 
 def is_test_module(name: str) -> bool:
@@ -31,22 +24,10 @@ def is_test_module(name: str) -> bool:
 def imported_test_modules(path: Path, source: str | None = None) -> list[str]:
     """``lineno: module`` for each test module that ``path`` (or ``source`` as if it were at
     ``path``) imports; ``from a import b`` names the module ``a.b`` when ``b`` is one."""
-    module = module_name(path)
-    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
-    tree = ast.parse(path.read_text() if source is None else source, filename=str(path))
     found: list[str] = []
-    for node in ast.walk(tree):
-        names: list[str] = []
-        if isinstance(node, ast.Import):
-            names = [alias.name for alias in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
-                origin = ".".join(base + ([node.module] if node.module else []))
-            else:
-                origin = node.module or ""
-            names = [origin, *(f"{origin}.{alias.name}" for alias in node.names)]
-        found += [f"{node.lineno}: {name}" for name in names if is_test_module(name)]
+    for line, origin, names in import_statements(path, source):
+        candidates = [origin, *(f"{origin}.{name}" for name in names)]
+        found += [f"{line}: {name}" for name in candidates if is_test_module(name)]
     return sorted(set(found), key=lambda item: int(item.partition(":")[0]))
 
 

@@ -82,7 +82,7 @@ def acquisition_data(acquisition: Acquisition) -> dict[str, Any]:
         "agent": acquisition.agent_id,
         "capture": acquisition.capture_id,
         "frames": acquisition.frames,
-        "rig_geometry": acquisition.rig.geometry(),
+        "rig_geometry": acquisition.rig.rig_file(),
         "created_at": acquisition.created_at,
     }
 
@@ -186,7 +186,7 @@ class RigAgentRegisterApi(APIView):
         body = agent_data(agent) | {
             "session": str(agent.session),
             "heartbeat_seconds": settings.GCPS_AGENT_TIMEOUT_SECONDS / 3,
-            "rig_geometry": rig.geometry(),
+            "rig_geometry": rig.rig_file(),
         }
         return Response(body, status=status.HTTP_201_CREATED)
 

@@ -189,19 +189,17 @@ def acquisition_codec_value(rig: Rig, codec: Any) -> Any:
 
     A name is kept as given (``"gcps-v1"``, ``"gcps-v1:1280x800"``), an object in its canonical
     gcps-codec/1 form. Raises :class:`BadInput` for a malformed codec, one of more than
-    :data:`~metrology.captures.codecs.MAX_CODEC_FRAMES` frames, or one the rig cannot measure with
-    (:func:`~metrology.captures.codecs.check_codec_for_rig`).
+    :data:`~metrology.rigs.codecs.MAX_CODEC_FRAMES` frames, or one the rig cannot measure with
+    (:func:`~metrology.rigs.codecs.check_codec_for_rig`).
     """
-    from metrology.captures import codecs as capture_codecs
+    from metrology.rigs.codecs import capture_default, check_codec_for_rig, codec_of, validate_codec
 
     if isinstance(codec, dict) and set(codec) == {"name"}:
         codec = codec["name"]
     if codec is None or codec == "":
-        codec = capture_codecs.capture_default(rig)
-    value = capture_codecs.validate_codec(codec)
-    parsed = capture_codecs.codec_of(value)
-    if not (capture_codecs.is_gcps_v1(parsed) and not getattr(rig, "is_pinhole", False)):
-        capture_codecs.check_codec_for_rig(parsed, rig)
+        codec = capture_default(rig)
+    value = validate_codec(codec)
+    check_codec_for_rig(codec_of(value), rig)
     return value
 
 
@@ -287,7 +285,7 @@ def store_acquired_capture(
     job = _running_for(agent, acquisition)
     rig = acquisition.rig
     upload.seek(0)
-    from metrology.captures.codecs import read_upload_stack
+    from metrology.captures.stacks import read_upload_stack
 
     codec, stack = read_upload_stack(upload, rig, codec=stored_codec_value(acquisition))
     checksum, size = capture_services._sha256(upload)

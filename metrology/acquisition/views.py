@@ -162,12 +162,9 @@ def acquisition_thumbnail(request: AuthenticatedHttpRequest, acquisition_id: int
     acquisition = _own_acquisition(request, acquisition_id)
     if acquisition.capture is None:
         raise Http404("This acquisition has no stored capture.")
-    from metrology.captures.codecs import capture_codec, is_gcps_v1, load_codec_stack
-    from metrology.captures.services import load_capture_stack
+    from metrology.captures.stacks import load_capture_images
 
-    capture = acquisition.capture
-    gcps_v1 = is_gcps_v1(capture_codec(capture)) and not capture.rig.is_pinhole
-    images = load_capture_stack(capture).images if gcps_v1 else load_codec_stack(capture).images
+    images = load_capture_images(acquisition.capture)
     if not 0 <= frame < images.shape[0]:
         raise Http404(f"No frame {frame}.")
     image = images[frame]

@@ -203,11 +203,11 @@ class ProcamCalibrationRigFileApi(APIView):
     )
     def get(self, request: Request, calibration_id: int) -> HttpResponse:
         """The calibrated pinhole rig file (docs/pinhole.md) exactly as ``gcps calibrate-procam --out`` writes it."""
-        from metrology.core.geometry.pinhole import PinholeRig
+        from metrology.core.geometry import model_from_dict
 
         calibration = selectors.get_procam_calibration(request.user, calibration_id)
         _done(calibration, "rig.json")
         if not calibration.rig_file:
             raise Http404(f"procam calibration {calibration.pk} has no rig file")
-        text = PinholeRig.from_dict(calibration.rig_file).to_json()
+        text = model_from_dict(calibration.rig_file).to_json()
         return _json_file(text, f"procam-calibration-{calibration.pk}-rig.json")

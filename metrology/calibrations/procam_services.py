@@ -280,9 +280,9 @@ def run_procam_calibration(job: Job, run: job_services.JobRun) -> None:
 
 def _pose_images(capture: Capture) -> Any:
     """A board capture's stored stack, ``(frames, H, W)`` (read when the pipeline needs it)."""
-    from metrology.captures.codecs import load_codec_stack
+    from metrology.captures.stacks import load_capture_images
 
-    return load_codec_stack(capture).images
+    return load_capture_images(capture)
 
 
 def _sentence(text: str, limit: int = 1900) -> str:
@@ -290,40 +290,52 @@ def _sentence(text: str, limit: int = 1900) -> str:
     return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
-def _match_default_codec(rig: Rig, calibration: ProcamCalibration) -> None:
-    """Give the rig the first pose's codec as its default when its own is for another projector size.
+def converted_model(rig: Rig) -> str | None:
+    """The label of the rig's model when applying a projector-camera calibration changes it (the
+    calibration gives a pinhole rig), else None."""
+    from metrology.core.geometry.pinhole import PinholeRig
 
-    A pinhole rig measures only with codecs of its projector's size; a crossed-axes rig's default
+    model = rig.to_core()
+    return None if model.model == PinholeRig.model else model.label
+
+
+def _match_default_codec(rig: Rig, calibration: ProcamCalibration) -> None:
+    """Give the rig the first pose's codec as its default when its model cannot measure with its own.
+
+    A calibrated rig measures only with codecs of its projector's size; a crossed-axes rig's default
     is usually gcps-v1 (whose projector is the paper's, not the real one), so after the conversion
     captures uploaded without their own codec would be refused. The poses' codec codes both axes
     of the calibrated projector and is what the lab projects, so it becomes the default; a default
-    of the right size is kept (the lab may measure with another pattern sequence).
+    the model measures with is kept (the lab may measure with another pattern sequence).
     """
     from metrology.captures.codecs import capture_codec, capture_codec_value
+    from metrology.core.geometry import GeometryError
     from metrology.rigs.codecs import codec_of
     from metrology.rigs.services import set_rig_codec
 
-    projector = (calibration.rig_file or {}).get("projector", {})
-    size = (float(projector.get("width", 0)), float(projector.get("height", 0)))
-    current = codec_of(rig.codec)
-    if (float(current.projector_width), float(current.projector_height)) == size:
+    model = rig.to_core()
+
+    def measurable(codec: Any) -> bool:
+        try:
+            model.check_codec((codec.projector_width, codec.projector_height), tuple(codec.axes))
+        except GeometryError:
+            return False
+        return True
+
+    if measurable(codec_of(rig.codec)):
         return
     first = calibration.pose_links.select_related("capture__rig").order_by("index").first()
-    if first is None:
-        return
-    codec = capture_codec(first.capture)
-    if (float(codec.projector_width), float(codec.projector_height)) == size:
+    if first is not None and measurable(capture_codec(first.capture)):
         set_rig_codec(rig=rig, codec=capture_codec_value(first.capture))
 
 
 @transaction.atomic
 def apply_procam_calibration(*, calibration: ProcamCalibration, require_done: bool = True) -> ProcamCalibration:
-    """Make the calibration's rig a pinhole rig with the calibrated rig file, recorded in its history.
+    """Give the calibration's rig the calibrated rig file (a pinhole rig's), recorded in its history.
 
-    The rig's model becomes ``pinhole``, its pinhole rig file the calibration's and its image size
-    the camera's; a crossed-axes rig is converted (its seven values stay in its history and in
-    ``rig_before``). Idempotent: a second call changes nothing. :class:`BadInput` unless the job is
-    done (``require_done``) or when there is no rig file.
+    The rig takes the file's model and values; a rig of another model is converted (its values stay
+    in its history and in ``rig_before``). Idempotent: a second call changes nothing.
+    :class:`BadInput` unless the job is done (``require_done``) or when there is no rig file.
     """
     calibration = ProcamCalibration.objects.select_for_update().select_related("job").get(pk=calibration.pk)
     if require_done and calibration.job.status != Job.Status.DONE:
@@ -335,10 +347,13 @@ def apply_procam_calibration(*, calibration: ProcamCalibration, require_done: bo
         return calibration
     if not calibration.rig_file:
         raise BadInput(f"procam calibration {calibration.pk} has no calibrated rig file to apply")
-    from metrology.rigs.services import set_pinhole_rig_file
+    from metrology.rigs.services import set_rig_model, validate_model
 
-    rig = set_pinhole_rig_file(
-        rig=calibration.rig, rig_file=calibration.rig_file, source=RigParameters.Source.CALIBRATION, procam=calibration
+    rig = set_rig_model(
+        rig=calibration.rig,
+        model=validate_model(calibration.rig_file),
+        source=RigParameters.Source.CALIBRATION,
+        procam=calibration,
     )
     _match_default_codec(rig, calibration)
     calibration.applied = True

@@ -14,22 +14,22 @@ from django.db import transaction
 from django.utils import timezone
 
 from metrology.calibrations.models import Calibration
+from metrology.captures.codecs import captures_codec_value, codec_of
 from metrology.captures.models import Capture
 from metrology.captures.selectors import capture_for_job
-from metrology.captures.services import load_capture_stack
+from metrology.captures.stacks import load_capture_images
 from metrology.errors import BadInput
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.pipeline.jsonsafe import json_safe
 from metrology.rigs.models import Rig, RigParameters
-from metrology.rigs.services import update_rig_geometry, validate_geometry
+from metrology.rigs.services import history_values, require_capability, update_rig_parameters, validate_model
 
 # Options each method accepts (passed to metrology.core.calibrate), with their types.
 METHOD_OPTIONS: dict[str, dict[str, type]] = {
     "paper": {"delta_z_mm": float, "m_hat": float, "w": float, "max_iterations": int},
     "lsq": {"fit_d": bool, "use_floor": bool, "max_iterations": int, "tolerance": float},
 }
-INITIAL_KEYS = ("L_mm", "alpha_rad", "d_mm")
 
 
 def _check_options(method: str, options: dict[str, Any]) -> dict[str, Any]:
@@ -72,31 +72,39 @@ def request_calibration(
     options: dict[str, Any] | None = None,
     apply: bool = False,
 ) -> Calibration:
-    """Create a calibration of ``rig`` on a master block and queue its job."""
-    from metrology.rigs.services import require_crossed_axes  # codecapp: pinhole rigs
+    """Create a calibration of ``rig`` on a master block and queue its job.
 
-    require_crossed_axes(rig, "a calibration of L and alpha")
+    ``initial``: starting values of the parameters the paper's calibration adjusts (the model's
+    :attr:`~metrology.core.geometry.base.GeometryModel.calibration_parameters`: L, alpha, d);
+    default the rig's. The captures share one codec (their own, else the rig's default).
+    """
+    model = rig.to_core()
+    adjustable = model.calibration_parameters
+    require_capability(
+        rig, bool(adjustable), "the paper's calibration adjusts L and alpha", "calibrate it from board poses"
+    )
     method = str(getattr(method, "value", method))
     if method not in METHOD_OPTIONS:
         raise BadInput(f"method must be one of {', '.join(METHOD_OPTIONS)}, got {method!r}")
     if not math.isfinite(master_height_mm) or master_height_mm <= 0:
         raise BadInput(f"master_height_mm must be a positive number of millimetres, got {master_height_mm}")
     initial = dict(initial or {})
-    unknown = sorted(set(initial) - set(INITIAL_KEYS))
+    unknown = sorted(set(initial) - set(adjustable))
     if unknown:
-        raise BadInput(f"initial: unknown key(s) {', '.join(unknown)}; accepted: {', '.join(INITIAL_KEYS)}")
-    start = validate_geometry({**rig.geometry(), **initial})
+        raise BadInput(f"initial: unknown key(s) {', '.join(unknown)}; accepted: {', '.join(adjustable)}")
+    start = history_values(validate_model({**rig.rig_file(), **initial}))
     options = _check_options(method, dict(options or {}))
     used = _pipeline_options(method, master_height_mm, options).to_dict()
     if reference_id == master_id:
         raise BadInput("master: the master capture must differ from the reference capture")
     reference = capture_for_job(owner, rig, reference_id, field="reference", roles=(Capture.Role.REFERENCE,))
     master = capture_for_job(owner, rig, master_id, field="master", roles=(Capture.Role.MASTER, Capture.Role.OBJECT))
+    codec = captures_codec_value(model, reference, master, what="master")
     parameters = {"initial": start, "options": options, "master_height_mm": master_height_mm, "method": method}
     job = job_services.create_job(
         owner=owner,
         kind=Job.Kind.CALIBRATION,
-        parameters={"rig": rig.pk, "reference": reference.pk, "master": master.pk, **parameters},
+        parameters={"rig": rig.pk, "reference": reference.pk, "master": master.pk, "codec": codec, **parameters},
     )
     calibration = Calibration.objects.create(
         owner=owner,
@@ -106,7 +114,7 @@ def request_calibration(
         master_height_mm=master_height_mm,
         method=method,
         parameters=parameters,
-        rig_values=rig.geometry(),
+        rig_values=rig.rig_file(),
         options=used,
         apply=apply,
         job=job,
@@ -119,7 +127,7 @@ def request_calibration(
 
 def _pipeline_options(method: str, master_height_mm: float, options: dict[str, Any]) -> Any:
     """:class:`metrology.pipeline.CalibrateOptions` of a request (BadInput naming a bad value)."""
-    from metrology.pipeline import CalibrateOptions
+    from metrology.pipeline.calibrate import CalibrateOptions
 
     try:
         return CalibrateOptions(master_height_mm=master_height_mm, method=method, **options)
@@ -129,11 +137,13 @@ def _pipeline_options(method: str, master_height_mm: float, options: dict[str, A
 
 def run_calibration(job: Job, run: job_services.JobRun) -> None:
     """Job handler: load reference and master, call the pipeline's calibrate, publish (and apply if asked)."""
-    from metrology.core.rig import Rig as CoreRig
-    from metrology.pipeline import CalibrateOptions, calibrate
+    from metrology.core.geometry import model_from_dict
+    from metrology.pipeline.calibrate import CalibrateOptions, calibrate
 
     calibration = Calibration.objects.select_related("reference__rig", "master__rig", "rig").get(job=job)
-    start_rig = CoreRig.from_dict(calibration.parameters["initial"])
+    start_rig = model_from_dict(calibration.parameters["initial"])
+    codec_value = job.parameters.get("codec")
+    codec = None if codec_value is None else codec_of(codec_value)
     if calibration.options:
         options = CalibrateOptions.from_dict(calibration.options)
     else:  # requested before options were stored
@@ -141,10 +151,10 @@ def run_calibration(job: Job, run: job_services.JobRun) -> None:
             calibration.method, calibration.master_height_mm, dict(calibration.parameters.get("options") or {})
         )
     with run.phase("read", 5):
-        reference = load_capture_stack(calibration.reference)
-        master = load_capture_stack(calibration.master)
+        reference = load_capture_images(calibration.reference)
+        master = load_capture_images(calibration.master)
     with run.phase("calibrate", 15):
-        outcome = calibrate(start_rig, reference.images, [master.images], options)
+        outcome = calibrate(start_rig, reference, [master], options, codec=codec)
     for name, seconds in outcome.timings_s.items():
         run.timings[f"calibrate.{name}"] = round(float(seconds), 4)
     result = outcome.calibration
@@ -173,17 +183,19 @@ def run_calibration(job: Job, run: job_services.JobRun) -> None:
 
 @transaction.atomic
 def apply_calibration(*, calibration: Calibration, require_done: bool = True) -> Calibration:
-    """Set the rig's L, alpha (and d if fitted) to the calibration's result; recorded in the rig's history."""
+    """Set the rig's calibrated parameters (L, alpha, and d if fitted) to the calibration's result;
+    recorded in the rig's history."""
     calibration = Calibration.objects.select_for_update().select_related("job", "rig").get(pk=calibration.pk)
     if require_done and calibration.job.status != Job.Status.DONE:
         raise BadInput(f"calibration {calibration.pk} cannot be applied: its job is {calibration.job.status}")
     if calibration.applied:
         return calibration
     result = calibration.result
-    changes = {key: result[key] for key in INITIAL_KEYS if isinstance(result.get(key), int | float)}
+    adjustable = calibration.rig.to_core().calibration_parameters
+    changes = {key: result[key] for key in adjustable if isinstance(result.get(key), int | float)}
     if not changes:
-        raise BadInput(f"calibration {calibration.pk} has no calibrated values to apply")
-    update_rig_geometry(
+        raise BadInput(f"calibration {calibration.pk} has no calibrated values to apply to its rig's model")
+    update_rig_parameters(
         rig=calibration.rig, changes=changes, source=RigParameters.Source.CALIBRATION, calibration=calibration
     )
     calibration.applied = True

@@ -8,14 +8,16 @@ or option decodes again and a replaced file is never mistaken for the one decode
 from __future__ import annotations
 
 import json
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from django.conf import settings
 
 from metrology.captures.models import Capture
-from metrology.captures.services import load_capture_stack
-from metrology.core.measure import DecodeOptions, Reference, prepare_reference
 from metrology.pipeline.kept_references import KeptReferences
+
+if TYPE_CHECKING:  # pragma: no cover
+    from metrology.core.codecs.model import Codec
+    from metrology.core.measure import MeasureOptions, Reference
 
 _kept: KeptReferences | None = None
 
@@ -29,22 +31,32 @@ def kept_references() -> KeptReferences:
     return _kept
 
 
-def reference_key(capture: Capture, rig_values: dict[str, Any], decode: DecodeOptions) -> tuple[Any, ...]:
-    """What identifies a decoded reference: capture id and sha256, rig values, decoding options."""
+def reference_key(
+    capture: Capture, rig_values: dict[str, Any], codec: Codec | None, options: MeasureOptions
+) -> tuple[Any, ...]:
+    """What identifies a decoded reference: capture id and sha256, rig values, codec, the
+    decoding, filter and triangulation options."""
+    settings_of = {key: value for key, value in options.to_dict().items() if key in ("decode", "triangulate", "method")}
     return (
         capture.pk,
         capture.checksum_sha256,
         capture.file.name,
         json.dumps(rig_values, sort_keys=True),
-        json.dumps(decode.to_dict(), sort_keys=True),
+        None if codec is None else json.dumps(codec.to_dict(), sort_keys=True),
+        json.dumps(settings_of, sort_keys=True),
     )
 
 
-def kept_reference(capture: Capture, rig_values: dict[str, Any], decode: DecodeOptions) -> tuple[Reference, bool]:
-    """The decoded reference plane of ``capture`` for the rig ``rig_values``; and whether it was kept (no decode)."""
-    from metrology.core.rig import Rig as CoreRig
+def kept_reference(
+    capture: Capture, rig_values: dict[str, Any], codec: Codec | None, options: MeasureOptions
+) -> tuple[Reference, bool]:
+    """The reference plane of ``capture`` prepared for the rig ``rig_values`` (any model) and its
+    ``codec``; and whether it was kept (no decode)."""
+    from metrology.captures.stacks import load_capture_images
+    from metrology.core.geometry import model_from_dict
+    from metrology.pipeline.measure import prepare_reference
 
     def prepare() -> Reference:
-        return prepare_reference(CoreRig.from_dict(rig_values), load_capture_stack(capture).images, decode)
+        return prepare_reference(model_from_dict(rig_values), load_capture_images(capture), options, codec=codec)
 
-    return kept_references().get(reference_key(capture, rig_values, decode), prepare)
+    return kept_references().get(reference_key(capture, rig_values, codec, options), prepare)

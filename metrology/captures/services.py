@@ -22,56 +22,11 @@ from django.db import transaction
 
 from metrology.captures.models import Capture, CaptureSession
 from metrology.captures.sources import CaptureRequest, get_source
+from metrology.captures.stacks import MIB, read_upload_stack
 from metrology.errors import BadInput
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.rigs.models import Rig
-
-MIB = 1024 * 1024
-
-
-def stack_limits(rig: Rig) -> dict[str, int]:
-    """Bounds passed to the core's reader: pixels per image and expanded bytes of the whole zip."""
-    pixels = rig.width_px * rig.height_px
-    # 11 images of at most 4 channels x 16 bit, plus generous room for file headers.
-    expanded = 11 * (pixels * 8 + MIB)
-    return {
-        "max_pixels": min(pixels, settings.GCPS_MAX_STACK_PIXELS),
-        "max_bytes": min(expanded, max(settings.GCPS_MAX_UPLOAD_BYTES, 64 * MIB) * 4),
-    }
-
-
-def read_capture_stack(source: Any, rig: Rig, *, expected_bit_depth: int | None = None):
-    """Read and validate a stack (path or binary file-like zip) for ``rig`` with the core's reader.
-
-    Raises
-    ------
-    BadInput
-        With the core's one-line message when the stack is refused.
-    """
-    from metrology.core.io import StackError, read_stack
-
-    try:
-        return read_stack(source, rig=rig.to_core(), expected_bit_depth=expected_bit_depth, **stack_limits(rig))
-    except StackError as exc:
-        raise BadInput(f"capture stack refused: {exc}") from None
-
-
-def load_capture_stack(capture: Capture):
-    """The stored stack of a capture (in a worker). Raises ``ValueError`` if it is not stored.
-
-    A stack validated when it was stored (its sha256 recorded) is read without validating it again,
-    after checking that its hash still matches (:func:`metrology.core.io.read_verified_stack`);
-    one without a recorded hash is validated like an upload.
-    """
-    if not capture.file:
-        raise ValueError(f"capture {capture.pk} has no stored stack yet (its simulation has not finished)")
-    from metrology.core.io import read_stack, read_verified_stack
-
-    with capture.file.open("rb") as handle:
-        if capture.checksum_sha256:
-            return read_verified_stack(handle.read(), capture.checksum_sha256, shape=capture.rig.to_core().shape)
-        return read_stack(handle, rig=capture.rig.to_core(), **stack_limits(capture.rig))
 
 
 def _sha256(handle) -> tuple[str, int]:
@@ -137,7 +92,6 @@ def upload_capture(
     if session_id is not None:  # fail early on a bad session, before reading the stack
         _session_for(owner=owner, rig=rig, session_id=session_id)
     upload.seek(0)
-    from metrology.captures.codecs import read_upload_stack  # the zip's codec.json, else the rig's default
 
     codec, stack = read_upload_stack(upload, rig, expected_bit_depth=bit_depth)
     checksum, size = _sha256(upload)
@@ -181,12 +135,18 @@ def request_simulated_capture(
     session_id: int | None = None,
     source: str = "virtual",
 ) -> Capture:
-    """Create a capture that a worker renders with the virtual rig; returns it with its queued job."""
-    from metrology.rigs.services import require_crossed_axes  # codecapp: pinhole rigs
+    """Create a capture that a worker renders with the virtual rig; returns it with its queued job.
 
-    require_crossed_axes(rig, "the virtual rig's gcps-v1 capture")
+    The virtual rig projects the rig's default codec (gcps-v1 unless set), which the rig's model
+    must measure with, and renders it through the model (any model: docs/file-formats.md).
+    """
+    from metrology.rigs.codecs import capture_default, check_codec_for_rig, codec_of
+
     _check_stage(role, z_in_mm)
-    request = CaptureRequest(role=role, scene=scene, options=options, z_in_mm=z_in_mm, repeat=repeat)
+    codec_value = capture_default(rig)
+    codec = codec_of(codec_value)
+    check_codec_for_rig(codec, rig)
+    request = CaptureRequest(role=role, scene=scene, options=options, z_in_mm=z_in_mm, repeat=repeat, codec=codec)
     try:
         get_source(source).check(rig.to_core(), request)
     except (ValueError, TypeError) as exc:
@@ -207,7 +167,7 @@ def request_simulated_capture(
         source=Capture.Source.VIRTUAL,
         parameters={"source": source, "scene": scene, "options": options},
         job=job,
-        codec="gcps-v1",  # the virtual rig renders the eleven gcps-v1 patterns
+        codec=codec_value,
     )
     job.parameters["capture"] = capture.pk
     job.save(update_fields=["parameters"])
@@ -217,7 +177,8 @@ def request_simulated_capture(
 
 def run_simulate_capture(job: Job, run: job_services.JobRun) -> None:
     """Job handler: render the stack, store it (and the truth heights), then publish the capture."""
-    from metrology.core.io import write_stack
+    from metrology.captures.codecs import capture_codec
+    from metrology.core.codecs.stack import write_capture
 
     capture = Capture.objects.select_related("rig").get(job=job)
     if capture.file:  # already stored by an earlier attempt that committed
@@ -230,13 +191,14 @@ def run_simulate_capture(job: Job, run: job_services.JobRun) -> None:
         options=params.get("options", {}),
         z_in_mm=capture.z_in_mm,
         repeat=capture.repeat,
+        codec=capture_codec(capture),
     )
     with run.phase("render", 5):
         stack = get_source(params.get("source", "virtual")).acquire(capture.rig.to_core(), request)
     with tempfile.TemporaryDirectory(prefix="gcps-capture-") as tmp:
         with run.phase("write", 70):
             zip_path = Path(tmp) / "stack.zip"
-            write_stack(stack.images, zip_path)
+            write_capture(stack.images, zip_path, request.codec)
             with zip_path.open("rb") as handle:
                 checksum, size = _sha256(handle)
                 stack_name = run.save_file(default_storage, _new_stack_name(capture.rig), File(handle))

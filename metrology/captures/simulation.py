@@ -43,9 +43,10 @@ NOISE_MAX_FRACTION_OF_FULL_SCALE = 0.25
 SEED_MAX = 2**32 - 1
 #: No scene value (sizes, positions, heights) may exceed this multiple of the rig's size.
 SCENE_SIZE_FACTOR = 10.0
-#: Heights the renderer accepts: below R down to -L, above R up to 95 % of L (the pupils).
-DEPTH_BELOW_FRACTION_OF_L = 1.0
-DEPTH_ABOVE_FRACTION_OF_L = 0.95
+#: Heights the renderer accepts: below the scene's plane down to the camera's height above it, above
+#: it up to 95 % of that height (the paper's rig: -L to 0.95 L, its pupils at L).
+DEPTH_BELOW_FRACTION = 1.0
+DEPTH_ABOVE_FRACTION = 0.95
 
 # Peak memory of render_stack, bytes per camera pixel and per sub-ray (measured with tracemalloc:
 # 286 B/px at one ray per pixel, 152 B per further sub-ray, 374 B/px with noise and blur), with margin.
@@ -60,24 +61,37 @@ def preset_options(preset: str, overrides: Mapping[str, Any] | None = None) -> d
     return {**PRESETS[preset], **dict(overrides or {})}
 
 
-def depth_range_mm(rig: Any) -> tuple[float, float]:
-    """Heights (mm above R) a scene may reach for ``rig``: ``(-L, 0.95 L)``."""
-    return -DEPTH_BELOW_FRACTION_OF_L * rig.L_mm, DEPTH_ABOVE_FRACTION_OF_L * rig.L_mm
+def camera_height_mm(model: Any) -> float:
+    """The camera's height above the plane the virtual rig places scenes on (the paper's L)."""
+    from metrology.core.scenes import FIELD_WIDTH_MM
+
+    return float(model.scene_distance_mm(FIELD_WIDTH_MM))
 
 
-def estimated_render_bytes(rig: Any, options: Any) -> int:
+def depth_range_mm(model: Any) -> tuple[float, float]:
+    """Heights (mm above the scene's plane) a scene may reach for the rig's ``model``:
+    ``(-D, 0.95 D)``, ``D`` the camera's height (:func:`camera_height_mm`)."""
+    height = camera_height_mm(model)
+    return -DEPTH_BELOW_FRACTION * height, DEPTH_ABOVE_FRACTION * height
+
+
+def estimated_render_bytes(model: Any, options: Any) -> int:
     """Peak memory of rendering a stack for ``rig`` with ``options``, bytes.
 
     ``H W (400 + 170 s^2)`` with ``s`` the sub-rays per pixel along each axis: the traced peak
     is 286 + 152 (s^2 - 1) bytes per pixel noise-free and ~90 more with noise and blur.
     """
     subrays = int(options.supersample) ** 2
-    return int(rig.width_px) * int(rig.height_px) * (_BYTES_PER_PIXEL + _BYTES_PER_SUBRAY * subrays)
+    height, width = model.shape
+    return int(width) * int(height) * (_BYTES_PER_PIXEL + _BYTES_PER_SUBRAY * subrays)
 
 
-def check_scene_values(rig: Any, name: str, params: Mapping[str, Any]) -> None:
-    """Every numeric scene parameter finite and within ``SCENE_SIZE_FACTOR`` times the rig's size."""
-    limit = SCENE_SIZE_FACTOR * max(rig.L_mm, rig.fw_mm, rig.d_mm)
+def check_scene_values(model: Any, name: str, params: Mapping[str, Any]) -> None:
+    """Every numeric scene parameter finite and within ``SCENE_SIZE_FACTOR`` times the rig's size
+    (the camera's height above the scene's plane, the scenes' field width, the field's centre)."""
+    from metrology.core.scenes import FIELD_WIDTH_MM
+
+    limit = SCENE_SIZE_FACTOR * max(camera_height_mm(model), FIELD_WIDTH_MM, abs(model.scene_centre_x_mm or 0.0))
     for key, value in params.items():
         if isinstance(value, bool) or not isinstance(value, int | float):
             continue  # the scene itself refuses what is not a number
@@ -88,14 +102,15 @@ def check_scene_values(rig: Any, name: str, params: Mapping[str, Any]) -> None:
             )
 
 
-def check_scene_depth(rig: Any, name: str, scene: Any) -> None:
+def check_scene_depth(model: Any, name: str, scene: Any) -> None:
     """The scene's heights within :func:`depth_range_mm`."""
-    low, high = depth_range_mm(rig)
+    low, high = depth_range_mm(model)
     z_min, z_max = float(scene.z_min_mm), float(scene.z_max_mm)
     if not (low <= z_min and z_max < high):
         raise ValueError(
             f"scene {name!r} reaches heights {z_min:g} to {z_max:g} mm, outside the rig's depth range "
-            f"{low:g} to {high:g} mm (below R down to -L, above R up to 0.95 L)"
+            f"{low:g} to {high:g} mm (below the reference plane down to the camera's height above it, "
+            "above it up to 0.95 of that height)"
         )
 
 
@@ -115,13 +130,14 @@ def check_option_values(options: Any) -> None:
         raise ValueError(f"options.seed must be at most {SEED_MAX}, got {options.seed!r}")
 
 
-def check_render_memory(rig: Any, options: Any, limit_bytes: int) -> None:
+def check_render_memory(model: Any, options: Any, limit_bytes: int) -> None:
     """Refuse a render whose :func:`estimated_render_bytes` exceeds ``limit_bytes``."""
-    needed = estimated_render_bytes(rig, options)
+    needed = estimated_render_bytes(model, options)
     if needed > limit_bytes:
         gib = 1024**3
+        height, width = model.shape
         raise ValueError(
-            f"simulating a {rig.width_px}x{rig.height_px} px rig with supersample {options.supersample} needs "
+            f"simulating a {width}x{height} px rig with supersample {options.supersample} needs "
             f"about {needed / gib:.2f} GiB, more than the limit of {limit_bytes / gib:.2f} GiB "
             "(GCPS_MAX_SIMULATION_BYTES); use a smaller rig or a lower supersample"
         )

@@ -1,7 +1,7 @@
 """Where image stacks come from: one small interface, the virtual rig today.
 
-A real camera/projector driver implements :class:`CaptureSource` (project the eleven patterns of
-docs/conventions.md, grab one frame each) and is registered in :data:`SOURCES`; nothing else changes.
+A real camera/projector driver implements :class:`CaptureSource` (project a codec's patterns,
+grab one frame each) and is registered in :data:`SOURCES`; nothing else changes.
 """
 
 from __future__ import annotations
@@ -29,11 +29,13 @@ class CaptureRequest:
     options: Mapping[str, Any] = field(default_factory=dict)
     z_in_mm: float | None = None
     repeat: int = 0
+    codec: Any = None
+    """The codec to project (a :class:`~metrology.core.codecs.model.Codec`; None: gcps-v1)."""
 
 
 @dataclass(frozen=True)
 class AcquiredStack:
-    """An acquired stack: ``images`` (11, H, W) uint8/uint16 in pattern order, and what is known of it."""
+    """An acquired stack: ``images`` (frames, H, W) uint8/uint16 in the codec's order, and what is known of it."""
 
     images: np.ndarray
     bit_depth: int
@@ -55,7 +57,8 @@ class CaptureSource(Protocol):
 
 
 class VirtualRigSource:
-    """Renders the stack with the core's simulator (metrology.core.scenes / simulate)."""
+    """Renders the stack of any codec through any model with the core's virtual rig
+    (:func:`metrology.core.simulate.render_capture`)."""
 
     name = "virtual"
 
@@ -90,10 +93,10 @@ class VirtualRigSource:
         check_render_memory(rig, options, settings.GCPS_MAX_SIMULATION_BYTES)
 
     def acquire(self, rig, request: CaptureRequest) -> AcquiredStack:
-        from metrology.core.simulate import render_stack
+        from metrology.core.simulate import render_capture
 
         scene, options = self._build(rig, request)
-        rendered = render_stack(rig, scene, options)
+        rendered = render_capture(rig, scene, request.codec, options)
         images = np.asarray(rendered.images)
         bit_depth = int(getattr(options, "bit_depth", 16 if images.dtype == np.uint16 else 8))
         truth = getattr(rendered, "truth_mm", None)

@@ -11,9 +11,10 @@ from typing import Any
 
 from django.db import transaction
 
+from metrology.captures.codecs import captures_codec_value, codec_of
 from metrology.captures.models import Capture, CaptureSession
 from metrology.captures.selectors import capture_for_job
-from metrology.captures.services import load_capture_stack
+from metrology.captures.stacks import load_capture_images
 from metrology.characterizations.models import Characterization
 from metrology.errors import BadInput
 from metrology.jobs import services as job_services
@@ -67,8 +68,8 @@ def request_characterization(
 ) -> Characterization:
     """Create a characterization from a stage series (explicit, or a session's stage captures) and queue it.
 
-    A pinhole rig's series may use any codec (the reference's; every stage capture must share it):
-    heights above the reference capture's fitted plane (:func:`metrology.pipeline.characterize_pinhole`).
+    Any model and codec (the reference's; every stage capture must share it): each stage capture's
+    heights above the reference plane (:func:`metrology.pipeline.characterize.characterize`).
     """
     if (series is None) == (session_id is None):
         raise BadInput("give either series (stage positions with capture ids) or session (a capture session)")
@@ -77,6 +78,8 @@ def request_characterization(
     options = _check_options(dict(options or {}))
     used = _pipeline_options(options).to_dict()
     reference = capture_for_job(owner, rig, reference_id, field="reference", roles=(Capture.Role.REFERENCE,))
+    model = rig.to_core()
+    codec = captures_codec_value(model, None, reference, what="reference")
     checked: list[dict[str, Any]] = []
     seen: set[int] = set()
     for index, position in enumerate(series or []):
@@ -90,15 +93,19 @@ def request_characterization(
             if capture_id in seen:
                 raise BadInput(f"series[{index}]: capture {capture_id} is listed twice")
             seen.add(capture_id)
-            capture_for_job(owner, rig, capture_id, field=f"series[{index}]", roles=(Capture.Role.STAGE,))
+            stage = capture_for_job(owner, rig, capture_id, field=f"series[{index}]", roles=(Capture.Role.STAGE,))
+            captures_codec_value(model, reference, stage, what=f"series[{index}]")
         checked.append({"z_in_mm": float(z_in), "captures": ids})
     if len({position["z_in_mm"] for position in checked}) < 2:
         raise BadInput("a characterization needs stage captures at two or more distinct z_in_mm positions")
-    parameters: dict[str, Any] = {"rig": rig.pk, "reference": reference.pk, "series": checked, "options": options}
-    rig_values = rig.geometry()
-    if rig.is_pinhole:
-        parameters["codec"] = _pinhole_series_codec(reference, sorted(seen))
-        rig_values = rig.rig_file()
+    parameters: dict[str, Any] = {
+        "rig": rig.pk,
+        "reference": reference.pk,
+        "series": checked,
+        "options": options,
+        "codec": codec,
+    }
+    rig_values = rig.rig_file()
     job = job_services.create_job(owner=owner, kind=Job.Kind.CHARACTERIZATION, parameters=parameters)
     characterization = Characterization.objects.create(
         owner=owner,
@@ -117,25 +124,9 @@ def request_characterization(
     return characterization
 
 
-def _pinhole_series_codec(reference: Capture, capture_ids: list[int]) -> Any:
-    """The stored codec value of a pinhole series: the reference's; BadInput naming a stage capture
-    of another codec."""
-    from metrology.captures.codecs import capture_codec_value, codec_of
-
-    value = capture_codec_value(reference)
-    codec = codec_of(value)
-    for capture in Capture.objects.filter(pk__in=capture_ids).select_related("rig").order_by("pk"):
-        if codec_of(capture_codec_value(capture)) != codec:
-            raise BadInput(
-                f"series: capture {capture.pk} has another codec than the reference capture {reference.pk} "
-                "(every capture of a characterization must use one codec)"
-            )
-    return value
-
-
 def _pipeline_options(options: dict[str, Any]) -> Any:
     """:class:`metrology.pipeline.CharacterizeOptions` of a request's options (BadInput naming a bad value)."""
-    from metrology.pipeline import CharacterizeOptions
+    from metrology.pipeline.characterize import CharacterizeOptions
 
     try:
         return CharacterizeOptions(**options)
@@ -147,68 +138,40 @@ def run_characterization(job: Job, run: job_services.JobRun) -> None:
     """Job handler: the kept reference, the stage stacks (each read while the previous one is measured),
     the pipeline's characterize (section 5's figures), publish."""
     from metrology.captures.references import kept_reference
-    from metrology.core.rig import Rig as CoreRig
-    from metrology.pipeline import CharacterizeOptions, characterize
+    from metrology.core.geometry import model_from_dict
+    from metrology.core.measure import MeasureOptions
+    from metrology.pipeline.characterize import CharacterizeOptions, characterize
 
     characterization = Characterization.objects.select_related("reference__rig").get(job=job)
-    if characterization.rig_values.get("model") == "pinhole":
-        run_pinhole_characterization(job, run, characterization)
-        return
-    rig = CoreRig.from_dict(characterization.rig_values)
+    model = model_from_dict(characterization.rig_values)
     if characterization.options:
         options = CharacterizeOptions.from_dict(characterization.options)
     else:  # requested before options were stored
         options = _pipeline_options(dict(characterization.parameters.get("options") or {}))
+    codec_value = job.parameters.get("codec")
+    codec = None if codec_value is None else codec_of(codec_value)
     items = [
         (p["z_in_mm"], r, capture_id) for p in characterization.series for r, capture_id in enumerate(p["captures"])
     ]
     with run.phase("reference", 2):
-        reference, _kept = kept_reference(characterization.reference, characterization.rig_values, options.decode)
-    captures = Capture.objects.select_related("rig").in_bulk([capture_id for _z, _r, capture_id in items])
-
-    def stacks():
-        # the next stack is read (inflated and decoded, GIL released) while this one is measured
-        with ThreadPoolExecutor(max_workers=1) as reader:
-            pending = [reader.submit(load_capture_stack, captures[capture_id]) for _z, _r, capture_id in items[:1]]
-            for done, (z_in, repeat, _capture_id) in enumerate(items):
-                run.progress(5 + int(85 * done / len(items)), f"stage {done + 1}/{len(items)}")
-                stack = pending.pop().result()
-                if done + 1 < len(items):
-                    pending.append(reader.submit(load_capture_stack, captures[items[done + 1][2]]))
-                yield z_in, repeat, stack.images
-
-    with run.phase("characterize", 5):
-        outcome = characterize(rig, reference, stacks(), options)
-    _publish(run, characterization, outcome)
-
-
-def run_pinhole_characterization(job: Job, run: job_services.JobRun, characterization: Characterization) -> None:
-    """Job handler of a pinhole rig: the reference and stage stacks in the job's codec order, the
-    pipeline's :func:`~metrology.pipeline.characterize_pinhole` (heights above the reference
-    capture's fitted plane), publish."""
-    from metrology.captures.codecs import load_codec_stack
-    from metrology.core.geometry.pinhole import PinholeRig
-    from metrology.pipeline import CharacterizeOptions, characterize_pinhole
-
-    rig = PinholeRig.from_dict(characterization.rig_values)
-    options = CharacterizeOptions.from_dict(characterization.options)
-    items = [
-        (p["z_in_mm"], r, capture_id) for p in characterization.series for r, capture_id in enumerate(p["captures"])
-    ]
-    with run.phase("reference", 2):
-        reference = load_codec_stack(characterization.reference)
+        reference, _kept = kept_reference(
+            characterization.reference, characterization.rig_values, codec, MeasureOptions.of(options)
+        )
     captures = Capture.objects.select_related("rig").in_bulk([capture_id for _z, _r, capture_id in items])
 
     def stacks() -> Any:
-        for done, (z_in, repeat, capture_id) in enumerate(items):
-            run.progress(5 + int(85 * done / len(items)), f"stage {done + 1}/{len(items)}")
-            stack = load_codec_stack(captures[capture_id])
-            if stack.codec != reference.codec:
-                raise ValueError(f"capture {capture_id} has another codec than the reference capture")
-            yield z_in, repeat, stack.images
+        # the next stack is read (inflated and decoded, GIL released) while this one is measured
+        with ThreadPoolExecutor(max_workers=1) as reader:
+            pending = [reader.submit(load_capture_images, captures[capture_id]) for _z, _r, capture_id in items[:1]]
+            for done, (z_in, repeat, _capture_id) in enumerate(items):
+                run.progress(5 + int(85 * done / len(items)), f"stage {done + 1}/{len(items)}")
+                images = pending.pop().result()
+                if done + 1 < len(items):
+                    pending.append(reader.submit(load_capture_images, captures[items[done + 1][2]]))
+                yield z_in, repeat, images
 
     with run.phase("characterize", 5):
-        outcome = characterize_pinhole(rig, reference.images, stacks(), reference.codec, options)
+        outcome = characterize(model, reference, stacks(), options, codec=codec)
     _publish(run, characterization, outcome)
 
 

@@ -1,61 +1,60 @@
-"""``gcps patterns --codec C --out DIR``: the projector images of any codec (docs/codecs.md).
+"""``gcps patterns``: the projector images of gcps-v1 or of any codec (docs/codecs.md).
 
-``gcps patterns --width W --height H`` (the eleven gcps-v1 images) is unchanged; with ``--codec``
-the images are the codec's frames at its projector size, 8-bit PNG, named in frame order
-(the codec's file names, or ``NN.png``; ``prefix*suffix`` globs give ``prefixNNsuffix``), with
-the codec written beside them as ``codec.json`` so the folder documents itself.
+::
+
+    gcps patterns --width W --height H [--nlp N] [--square] --out DIR_OR_ZIP
+    gcps patterns --codec C --out DIR_OR_ZIP
+
+``--width W --height H``: the eleven gcps-v1 images. With ``--codec`` the images are the codec's
+frames at its projector size, 8-bit PNG, named in frame order (the codec's file names, or
+``NN.png``; ``prefix*suffix`` globs give ``prefixNNsuffix``), with the codec written beside them
+as ``codec.json`` so the folder documents itself.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 from typing import Any
 
-
-def add_codec_option(parser: argparse.ArgumentParser) -> None:
-    """Add ``--codec`` to the ``patterns`` subcommand."""
-    parser.add_argument("--codec", help="write the frames of this codec (file or built-in name) instead of gcps-v1")
+from metrology.commands.common import BadInputError
 
 
-def frame_file_names(codec: Any) -> list[str]:
-    """File name of each frame of ``codec`` (see the module docstring)."""
-    n = codec.n_frames
-    if not isinstance(codec.frames, int):
-        return [name if PurePosixPath(name).suffix else f"{name}.png" for name in codec.frames]
-    digits = max(2, len(str(n - 1)))
-    prefix, suffix = "", ".png"
-    if codec.files and codec.files.count("*") == 1 and not any(ch in codec.files for ch in "?[]"):
-        head, tail = codec.files.split("*")
-        if tail.lower().endswith((".png", ".tif", ".tiff", ".bmp")) and "/" not in tail:
-            prefix, suffix = head, tail
-    return [f"{prefix}{i:0{digits}d}{suffix}" for i in range(n)]
+def register(subparsers: Any) -> None:
+    """Add ``patterns`` to the ``gcps`` subcommands."""
+    p = subparsers.add_parser("patterns", help="write the eleven projector images (or a codec's) as PNG")
+    p.add_argument("--width", type=int, help="projector width, px (gcps-v1)")
+    p.add_argument("--height", type=int, help="projector height, px (gcps-v1)")
+    p.add_argument("--nlp", type=int, default=128, help="light codes across the width (default 128)")
+    p.add_argument("--square", action="store_true", help="square-wave phase patterns (smooth on decoding)")
+    p.add_argument("--out", required=True, help="output folder or .zip")
+    p.add_argument("--codec", help="write the frames of this codec (file or built-in name) instead of gcps-v1")
+    p.set_defaults(func=cmd_patterns)
+
+
+def cmd_patterns(args: argparse.Namespace) -> dict[str, Any]:
+    """The gcps-v1 images of ``--width x --height``, or the frames of ``--codec``; the summary."""
+    from metrology.core.io import write_stack
+    from metrology.core.patterns import projector_patterns
+
+    if args.codec is not None:
+        return cmd_codec_patterns(args)
+    if args.width is None or args.height is None:
+        raise BadInputError("give --width and --height (gcps-v1) or --codec")
+    if args.width <= 0 or args.height <= 0:
+        raise BadInputError(f"--width and --height must be positive, got {args.width}x{args.height}")
+    images = projector_patterns(args.width, args.height, nlp=args.nlp, square=args.square)
+    write_stack(images, args.out)
+    return {"out": args.out, "patterns": int(images.shape[0])}
 
 
 def write_codec_patterns(codec: Any, dest: str | os.PathLike[str]) -> Path:
     """Write the projector images of ``codec`` and its ``codec.json`` as a new folder or a .zip (atomic)."""
-    import cv2
-    import numpy as np
-
     from metrology.core.codecs import codec_patterns
-    from metrology.core.io.atomic import write_files_new_folder_atomic, write_files_zip_atomic
+    from metrology.core.codecs.stack import write_codec_stack
 
-    images = codec_patterns(codec)
-    files: dict[str, bytes] = {}
-    for name, image in zip(frame_file_names(codec), images, strict=True):
-        ext = PurePosixPath(name).suffix.lower()
-        ok, buf = cv2.imencode(ext, np.ascontiguousarray(image))
-        if not ok:
-            raise OSError(f"OpenCV could not encode {name}")
-        files[name] = buf.tobytes()
-    files["codec.json"] = codec.to_json().encode()
-    target = Path(dest)
-    if target.suffix.lower() == ".zip":
-        return write_files_zip_atomic(files, target)
-    if target.exists():
-        raise ValueError(f"--out {dest}: already exists; give a new folder or a .zip")
-    return write_files_new_folder_atomic(files, target)
+    return write_codec_stack(codec, codec_patterns(codec), dest)
 
 
 def cmd_codec_patterns(args: argparse.Namespace) -> dict[str, Any]:

@@ -52,46 +52,17 @@ def register(subparsers: Any) -> None:
 
 
 def cmd_rig_import(args: argparse.Namespace) -> dict[str, Any]:
-    """Read every source, validate the rig, write it atomically; return the summary."""
+    """Read every source (:func:`metrology.core.rig_import.import_rig`), write the rig atomically;
+    return the summary."""
     from metrology.core.io import atomic_path
-    from metrology.core.rig_import import (
-        KEYS,
-        RigImportError,
-        check_count,
-        opencv_sources,
-        read_source,
-        rig_from_values,
-    )
+    from metrology.core.rig_import import import_rig
 
-    sources: dict[str, str] = {}
-    camera_size = tuple(args.camera_size) if args.camera_size else None
-    size_from = "--camera-size" if camera_size else None
-    if args.opencv:
-        scan = opencv_sources(args.opencv)
-        sources.update(scan.sources)
-        if camera_size is None and scan.camera_size is not None:
-            camera_size, size_from = scan.camera_size, scan.camera_size_node
-    for item in args.set:
-        key, sep, src = item.partition("=")
-        if not sep or not src:
-            raise RigImportError(f"--set takes KEY=SRC, got {item!r}")
-        if key not in KEYS:
-            raise RigImportError(f"--set: unknown key {key!r}; expected one of {', '.join(KEYS)}")
-        sources[key] = src
-    set_keys = {item.partition("=")[0] for item in args.set}
-    if "R" in set_keys and "rvec" not in set_keys:
-        sources.pop("rvec", None)  # --set R overrides a rotation vector found by --opencv
-    if "rvec" in set_keys and "R" not in set_keys:
-        sources.pop("R", None)
-    if camera_size is None:
-        raise RigImportError("--camera-size W H is required (no image size node was found)")
-    values = {key: check_count(key, read_source(src, key)) for key, src in sources.items()}
-    rig = rig_from_values(values, (int(camera_size[0]), int(camera_size[1])), tuple(args.projector_size))
+    imported = import_rig(
+        projector_size=tuple(args.projector_size),
+        camera_size=tuple(args.camera_size) if args.camera_size else None,
+        opencv=args.opencv,
+        sets=list(args.set),
+    )
     with atomic_path(args.out) as tmp:
-        tmp.write_text(rig.to_json(), encoding="utf-8")
-    return {
-        "out": args.out,
-        "read": sources,
-        "camera_size": {"value": list(camera_size), "from": size_from},
-        "triangulate_auto": rig.auto_axis(),
-    }
+        tmp.write_text(imported.rig.to_json(), encoding="utf-8")
+    return {"out": args.out, **imported.summary()}

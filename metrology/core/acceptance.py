@@ -1,8 +1,8 @@
 """Acceptance quantities after VDI/VDE 2634 part 2 (beyond the paper).
 
 All inputs are ``(N, 3)`` float arrays of measured points ``(X, Y, Z)`` in mm, e.g.
-the valid pixels of :func:`metrology.core.triangulate.points_from_heights` (see
-:func:`points_from_height_map`).
+the valid pixels of a measurement's points (:meth:`metrology.core.measure.Measurement.points_mm`,
+or :func:`points_from_height_map` of a height map).
 
 - **Flatness measurement error F**: range (max - min) of the signed distances of
   the points from their least-squares plane. The plane is the total-least-squares
@@ -38,15 +38,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 from scipy import optimize
 
-from metrology.core.rig import Rig
-from metrology.core.triangulate import points_from_heights
+if TYPE_CHECKING:  # pragma: no cover
+    from metrology.core.geometry.base import GeometryModel, ReferenceSurface
+
 
 VDI_REJECT_FRAC = 0.003
 """Share of points VDI/VDE 2634-2 allows to discard as outliers."""
@@ -72,27 +73,40 @@ class SphereFit:
     algebraic_radius: float
 
 
-def points_from_height_map(rig: Rig, z_mm: npt.ArrayLike, mask: npt.ArrayLike | None = None) -> np.ndarray:
-    """The valid pixels of a height map as 3D points (docs/conventions.md).
+def points_from_height_map(
+    model: GeometryModel,
+    z_mm: npt.ArrayLike,
+    mask: npt.ArrayLike | None = None,
+    reference: ReferenceSurface | None = None,
+) -> np.ndarray:
+    """The valid pixels of a height map as 3D points in the model's frame (docs/conventions.md).
 
     Parameters
     ----------
-    rig : Rig
+    model : GeometryModel
+        Any geometric model (:meth:`~metrology.core.geometry.base.PreparedGeometry.points_from_heights`
+        places each height on its camera ray).
     z_mm : (height_px, width_px) float array
-        Height map, mm, NaN where invalid.
+        Height map, mm, NaN where invalid: heights above ``reference``, or what the model gives
+        without one (the paper's heights above R; a pinhole rig's depths).
     mask : (height_px, width_px) bool array, optional
         Pixels to keep (e.g. a sphere's region).
+    reference : ReferenceSurface, optional
+        The reference the heights are measured from (a measurement's ``reference.surface``).
 
     Returns
     -------
-    points : (N, 3) float64 array, mm: ``(X_H, Y_H, z)``.
+    points : (N, 3) float64 array, mm: the paper's ``(X_H, Y_H, z)`` on a crossed-axes rig.
     """
-    xyz = points_from_heights(rig, z_mm)
-    keep = np.isfinite(xyz[..., 2])
+    z = np.asarray(z_mm, dtype=np.float64)
+    if z.shape != model.shape:
+        raise ValueError(f"z_mm must have the rig's shape {model.shape}, got {z.shape}")
+    xyz = model.prepare().points_from_heights(z, reference).astype(np.float64, copy=False)
+    keep = np.isfinite(xyz).all(axis=-1)
     if mask is not None:
         m = np.asarray(mask, dtype=bool)
-        if m.shape != rig.shape:
-            raise ValueError(f"mask must have the rig's shape {rig.shape}, got {m.shape}")
+        if m.shape != model.shape:
+            raise ValueError(f"mask must have the rig's shape {model.shape}, got {m.shape}")
         keep &= m
     return xyz[keep]
 

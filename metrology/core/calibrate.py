@@ -58,8 +58,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage, optimize
 
-from metrology.core.geometry.crossed_axes import camera_ray_point, height_from_codes
-from metrology.core.rig import Rig, RigError
+from metrology.core.geometry.crossed_axes import Rig, RigError, camera_ray_point, height_from_codes
 
 Roi = tuple[slice, slice]
 

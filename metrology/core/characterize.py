@@ -31,68 +31,39 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from metrology.core.rig import Rig
-from metrology.core.triangulate import height_from_codes
+from metrology.core.geometry.base import GeometryModel, PlaneCoordinates
+from metrology.core.geometry.crossed_axes import Rig, height_from_codes
 
 SeriesItem = tuple[float, int, np.ndarray]
 
 
-@dataclass(frozen=True)
-class TestPointFrame:
-    """Where the test points of another rig model sit (a pinhole rig: docs/pinhole.md).
-
-    Attributes
-    ----------
-    x_mm, y_mm : (H, W) float64 arrays
-        Coordinates (mm) reported for a test point centred on each pixel: for a pinhole rig, the
-        camera-frame X, Y of the point of the reference plane seen by that pixel.
-    centre_x_mm : float
-        X of the field centre (``edge_sigma_ratio`` ranks test points by ``|x - centre_x_mm|``).
-    """
-
-    __test__ = False  # not a pytest class
-    x_mm: np.ndarray
-    y_mm: np.ndarray
-    centre_x_mm: float
-
-    def __post_init__(self) -> None:
-        if np.shape(self.x_mm) != np.shape(self.y_mm) or np.ndim(self.x_mm) != 2:
-            shapes = f"{np.shape(self.x_mm)}, {np.shape(self.y_mm)}"
-            raise ValueError(f"x_mm and y_mm must be equal (H, W) arrays, got {shapes}")
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        h, w = np.shape(self.x_mm)
-        return (int(h), int(w))
-
-    @property
-    def height_px(self) -> int:
-        return self.shape[0]
-
-    @property
-    def width_px(self) -> int:
-        return self.shape[1]
+TestPoints = GeometryModel | PlaneCoordinates
+"""Where test points sit: a model with a plane of its own (its :meth:`~PreparedGeometry.plane_coordinates`
+without a reference, the paper's rig's R), or a prepared model's plane coordinates of a captured
+reference plane."""
 
 
-def _test_point_xy(
-    rig: Rig | TestPointFrame, centers: Sequence[tuple[int, int]]
-) -> tuple[np.ndarray, np.ndarray, float]:
+def plane_coordinates(where: TestPoints) -> PlaneCoordinates:
+    """The :class:`PlaneCoordinates` of ``where`` (a model's own plane when given a model)."""
+    if isinstance(where, PlaneCoordinates):
+        return where
+    return where.prepare().plane_coordinates()
+
+
+def _test_point_xy(frame: PlaneCoordinates, centers: Sequence[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray, float]:
     """``(x_mm, y_mm)`` of each centre, ``(n,)`` float64 each, and the field centre's x (mm)."""
     rr = np.array([r for r, _ in centers], dtype=int)
     cc = np.array([c for _, c in centers], dtype=int)
-    if isinstance(rig, TestPointFrame):
-        return np.asarray(rig.x_mm, np.float64)[rr, cc], np.asarray(rig.y_mm, np.float64)[rr, cc], rig.centre_x_mm
-    return rig.column_x_mm()[cc].astype(np.float64), rig.row_y_mm()[rr].astype(np.float64), rig.d_mm
+    return np.asarray(frame.x_mm, np.float64)[rr, cc], np.asarray(frame.y_mm, np.float64)[rr, cc], frame.centre_x_mm
 
 
 def place_test_points(
-    rig: Rig | TestPointFrame,
+    rig: TestPoints,
     n_points: int = 21,
     rows: int | Sequence[int] | None = None,
     margin_frac: float = 0.08,
@@ -185,7 +156,7 @@ def heights_from_code_series(
 
 
 def characterize(
-    rig: Rig | TestPointFrame,
+    rig: TestPoints,
     series: Iterable[SeriesItem] | Mapping[float, Sequence[np.ndarray]],
     *,
     n_points: int = 21,
@@ -198,9 +169,9 @@ def characterize(
 
     Parameters
     ----------
-    rig : Rig or TestPointFrame
-        The rig the heights were measured with (for the test points' coordinates); a
-        :class:`TestPointFrame` for a pinhole rig.
+    rig : GeometryModel or PlaneCoordinates
+        Where the test points sit (:data:`TestPoints`): the rig the heights were measured with,
+        when it has a plane of its own, or the plane coordinates of the captured reference plane.
     series : iterable of (z_in_mm, repeat_index, z_mm), or mapping z_in_mm -> list of z_mm
         Height maps ``(height_px, width_px)`` (float, mm, NaN where invalid) of the
         plane at stage position ``z_in_mm``; consumed once, in any order.
@@ -238,14 +209,15 @@ def characterize(
         For a map of the wrong shape, fewer than two stage positions or bad arguments.
     """
     _check_patch(patch_px)
+    frame = plane_coordinates(rig)
     if centers is None:
-        centers = place_test_points(rig, n_points, rows, margin_frac, patch_px)
+        centers = place_test_points(frame, n_points, rows, margin_frac, patch_px)
     else:
         centers = [(int(r), int(c)) for r, c in centers]
         half = patch_px // 2
         for r, c in centers:
-            if not (half <= r < rig.height_px - half and half <= c < rig.width_px - half):
-                raise ValueError(f"test-point centre {(r, c)} puts its patch outside the image {rig.shape}")
+            if not (half <= r < frame.height_px - half and half <= c < frame.width_px - half):
+                raise ValueError(f"test-point centre {(r, c)} puts its patch outside the image {frame.shape}")
     if isinstance(series, Mapping):
         series = ((z, i, m) for z, maps in series.items() for i, m in enumerate(maps))
 
@@ -256,8 +228,8 @@ def characterize(
         except (TypeError, ValueError) as exc:
             raise ValueError("series items must be (z_in_mm, repeat_index, height_map) triples") from exc
         z_map = np.asarray(z_map)
-        if z_map.shape != rig.shape:
-            raise ValueError(f"height map at z_in = {z_pos} mm has shape {z_map.shape}, expected {rig.shape}")
+        if z_map.shape != frame.shape:
+            raise ValueError(f"height map at z_in = {z_pos} mm has shape {z_map.shape}, expected {frame.shape}")
         if not math.isfinite(float(z_pos)):
             raise ValueError(f"z_in_mm must be finite, got {z_pos!r}")
         samples.setdefault(float(z_pos), []).append(patch_means(z_map, centers, patch_px))
@@ -295,7 +267,7 @@ def characterize(
         dof_within += np.maximum(cnt - 1, 0)
     sigma_tp = np.divide(np.sqrt(ss_within), np.sqrt(dof_within), out=np.full(n_tp, np.nan), where=dof_within > 0)
 
-    x_tp, y_tp, centre_x = _test_point_xy(rig, centers)
+    x_tp, y_tp, centre_x = _test_point_xy(frame, centers)
     points = []
     slopes = []
     for t, (r, c) in enumerate(centers):

@@ -39,11 +39,13 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
+from metrology.core.option_checks import check_number
 from metrology.core.patterns import N_GRAY_BITS, N_PHASE_STEPS, PATTERN_NAMES, binary_from_gray
 from metrology.core.tiling import run_tiled, thread_scratch
 
@@ -126,6 +128,37 @@ class DecodedStack:
     @property
     def valid_fraction(self) -> float:
         return float(self.mask.mean()) if self.mask.size else 0.0
+
+
+MAX_SMOOTHING_PX = 50.0
+"""Largest Gaussian smoothing sigma accepted, px."""
+
+
+@dataclass(frozen=True)
+class GcpsV1Options:
+    """Settings of the paper's gcps-v1 decoder that no other codec has (the codec-independent
+    thresholds are :class:`metrology.core.filters.FilterOptions`).
+
+    ``consistency_codes``: how far, in code units, the combined code may fall outside the gray
+    word's cell after the dPhi correction (Eq. 3); the codec decoder's ``consistency_periods``
+    for the built-in gcps-v1 codec is this over 4 (its phase period is 4 codes).
+    ``smoothing_px``: Gaussian sigma (px) applied along X to the phase images before Eq. 2, the
+    paper's digital smoothing of square-wave fringes; 0 disables it (a codec states its waveform).
+    """
+
+    consistency_codes: float = 0.35
+    smoothing_px: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_number("consistency_codes", self.consistency_codes)
+        check_number("smoothing_px", self.smoothing_px, upper=MAX_SMOOTHING_PX)
+
+    @classmethod
+    def keys(cls) -> tuple[str, ...]:
+        return ("consistency_codes", "smoothing_px")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"consistency_codes": self.consistency_codes, "smoothing_px": self.smoothing_px}
 
 
 def default_min_modulation(dtype: npt.DTypeLike) -> float:

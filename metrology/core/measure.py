@@ -1,27 +1,49 @@
-"""Measurement pipeline: reference + object capture stacks to a height map.
+"""One measurement: capture stacks of any codec to heights or depths, points and sigma, on any
+geometric model.
 
-The reference plane is shared by many measurements, so it is decoded once into a
-:class:`Reference` (its codes, prepared as the rig model's reference surface) and kept.
-Each object stack is then decoded and triangulated tile by tile (Eqs. 1-3 here; the
-geometry, Eqs. 14, 16, 17, is the rig model's: :mod:`metrology.core.geometry`) without
-materialising full-size temporaries.
+Every measurement takes the same three steps::
+
+    decode (the codec's decoder)  ->  code-space filters (:mod:`metrology.core.filters`)
+        ->  the model, prepared (:mod:`metrology.core.geometry`): reference(), triangulate_rows()
+
+1. **Decode.** A stack of any codec goes through the codec decoder
+   (:func:`~metrology.core.codecs.decode.decode_codec`) to projector coordinates ``(u, v)``
+   with their modulation, mean and noise maps.
+2. **Filter.** On each axis the prepared model reads (:meth:`PreparedGeometry.used_axes`), the
+   coordinate in code units ``c = (x + 0.5) s`` (``s``: :meth:`PreparedGeometry.code_scale`, else
+   :data:`CODES_PER_PERIOD` per finest phase period) loses its coded field's margin and its
+   possibly mixed pixels (:func:`~metrology.core.filters.unreliable_mask`), the reference's
+   unreliable pixels where the reference surface is per pixel, and the camera blur's bias
+   (:func:`~metrology.core.blur.correct_blur_bias`, ``s2`` estimated from the reference).
+3. **Triangulate** against the reference surface (:meth:`PreparedGeometry.reference`, a kept
+   :class:`Reference`): heights above it; without a reference the model's own result (heights
+   above its model plane, or depths: :attr:`GeometryModel.unreferenced_result`). With
+   ``sigma``, each point's standard uncertainty from the decoder's noise
+   (:func:`~metrology.core.uncertainty.stage_coordinate_sigma`) through the triangulation.
+
+**The fast path.** gcps-v1 stacks on a model that reads the paper's light codes
+(:attr:`GeometryModel.light_codes`) take the paper's fused decoder instead (Eqs. 1-3,
+:func:`~metrology.core.decode.decode_rows`), which decodes and triangulates each tile of rows in
+one pass without full-size temporaries, and also gives the gray-code-only comparison heights.
+:func:`uses_fused_gcps_v1` is the one place that chooses it; the filters and the geometry are the
+same.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, replace
 from typing import Any
 
-import cv2
 import numpy as np
 import numpy.typing as npt
 
-from metrology.core.blur import blur_bias_exceeds, correct_blur_bias, estimate_blur_variance
+from metrology.core.blur import correct_blur_bias, estimate_blur_variance
+from metrology.core.codecs.decode import CodecDecodeOptions, CodecDecoding, decode_codec, validate_codec_stack
+from metrology.core.codecs.model import Codec, gcps_v1_codec, is_gcps_v1
 from metrology.core.decode import (
-    DecodedStack,
+    GcpsV1Options,
     decode_rows,
     decode_stack,
     default_min_modulation,
@@ -29,165 +51,282 @@ from metrology.core.decode import (
     smooth_fringes,
     validate_stack,
 )
-from metrology.core.geometry.base import PreparedGeometry, ReferenceSurface, triangulate_frame
+from metrology.core.filters import FilterOptions, refuse_outside_field, unreliable_mask
+from metrology.core.geometry.base import (
+    GeometryModel,
+    GeometryOptions,
+    PreparedGeometry,
+    ReferenceSurface,
+    triangulate_frame,
+)
+from metrology.core.option_checks import check_bool, check_keys, check_positive
 from metrology.core.patterns import N_GRAY_BITS
-from metrology.core.rig import Rig
 from metrology.core.tiling import run_tiled, thread_scratch
+from metrology.core.uncertainty import stage_coordinate_sigma
 
-MAX_NLP = 128
-"""Most light codes a gcps-v1 rig may have (7-bit gray code)."""
-MAX_SMOOTHING_PX = 50.0
-"""Largest Gaussian smoothing sigma accepted, px."""
-
-
-def _check_number(name: str, value: Any, *, allow_none: bool = False, upper: float | None = None) -> None:
-    """ValueError naming ``name`` and ``value`` unless ``value`` is a finite number in [0, upper) (or None)."""
-    if value is None and allow_none:
-        return
-    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
-    ok = ok and math.isfinite(value) and value >= 0 and (upper is None or value < upper)
-    if not ok:
-        bound = f"[0, {upper:g})" if upper is not None else "[0, inf)"
-        extra = " or None" if allow_none else ""
-        raise ValueError(f"{name} must be a finite number in {bound}{extra}, got {value!r}")
+CODES_PER_PERIOD = 4.0
+"""Code units per finest phase period on a model without codes of its own: gcps-v1's ratio (its
+phase period is four light codes), so the filters' thresholds mean the same fraction of a fringe."""
+GCPS_V1_NLP = 128
+"""Light codes across the built-in gcps-v1 codec's projector (its phase period is 4 of them)."""
 
 
-@dataclass(frozen=True)
-class DecodeOptions:
-    """Decoding parameters shared by reference and object (see :func:`decode_stack`).
+# --------------------------------------------------------------------------- options
+def decode_block(filters: FilterOptions, gcps_v1: GcpsV1Options) -> dict[str, Any]:
+    """The ``decode`` object of the options' JSON form: the filter thresholds and the gcps-v1
+    settings side by side, as stored since gcps-v1 (``min_modulation`` ... ``max_blur_bias_codes``)."""
+    data = filters.to_dict()
+    data.update(gcps_v1.to_dict())
+    return {key: data[key] for key in DECODE_KEYS}
 
-    ``min_modulation`` in grey levels (None: 4 % of full scale),
-    ``consistency_codes`` in code units, ``smoothing_px`` in pixels,
-    ``discontinuity_codes``: neighbouring codes differing by more than this many
-    code units mark a depth discontinuity; 0 disables the filter.
-    ``field_margin_codes``: codes closer than this to 0 or nlp are refused (the
-    projector's blur biases the phase at the edges of the coded field).
-    ``min_visibility_ratio``: object pixels whose fringe visibility ``B / 2A`` falls
-    below this fraction of the highest visibility in their 3x3 neighbourhood are
-    mixed pixels (two phases averaged across a depth step lower the visibility,
-    whatever the albedo); 0 disables the test.
-    ``blur_variance_px2``: variance of the camera's blur (defocus and pixel area), px^2,
-    whose phase bias ``s2/2 laplacian(l)`` is removed from the object's codes
-    (:mod:`metrology.core.blur`); None estimates it from the reference capture, 0 turns
-    the correction off.
-    ``edge_band_px``: valid pixels closer than this (4-connected steps) to an
-    invalid pixel or a discontinuity are dropped as possibly mixed (shadow edges,
-    the coded field's edges, depth steps); 0 keeps them.
-    ``max_blur_bias_codes``: object pixels where the camera blur's first-order bias
-    ``|s2/2 laplacian(l)|`` exceeds this many code units sit at a crease of the code
-    surface (a riser seen edge-on) or beside a depth step too small for
-    ``discontinuity_codes``, where the blur correction cannot hold: they are dropped with
-    their 4-neighbours (:func:`unreliable_mask`, :func:`~metrology.core.blur.blur_bias_exceeds`).
-    0 disables the test, as do a blur variance of 0 and ``edge_band_px = 0``. The default,
-    0.015 code (about 0.2 mm of height on the paper's rig), is twice the largest bias on
-    smooth surfaces at 1.5 grey levels of noise and half the bias beside a 10 mm riser.
-    """
 
-    min_modulation: float | None = None
-    consistency_codes: float = 0.35
-    smoothing_px: float = 0.0
-    discontinuity_codes: float = 1.0
-    edge_band_px: int = 2
-    field_margin_codes: float = 0.25
-    min_visibility_ratio: float = 0.85
-    blur_variance_px2: float | None = None
-    max_blur_bias_codes: float = 0.015
+DECODE_KEYS: tuple[str, ...] = (
+    "min_modulation",
+    "consistency_codes",
+    "smoothing_px",
+    "discontinuity_codes",
+    "edge_band_px",
+    "field_margin_codes",
+    "min_visibility_ratio",
+    "blur_variance_px2",
+    "max_blur_bias_codes",
+)
+"""Keys of the ``decode`` object (:func:`decode_block`), in its order."""
 
-    def __post_init__(self) -> None:
-        _check_number("min_modulation", self.min_modulation, allow_none=True)
-        _check_number("consistency_codes", self.consistency_codes)
-        _check_number("smoothing_px", self.smoothing_px, upper=MAX_SMOOTHING_PX)
-        _check_number("discontinuity_codes", self.discontinuity_codes)
-        edge_band = self.edge_band_px
-        if isinstance(edge_band, bool) or not isinstance(edge_band, (int, np.integer)) or not 0 <= edge_band <= 100:
-            raise ValueError(f"edge_band_px must be an integer in [0, 100], got {edge_band!r}")
-        object.__setattr__(self, "edge_band_px", int(edge_band))
-        _check_number("field_margin_codes", self.field_margin_codes, upper=MAX_NLP / 2)
-        _check_number("min_visibility_ratio", self.min_visibility_ratio, upper=1.0)
-        _check_number("blur_variance_px2", self.blur_variance_px2, allow_none=True, upper=100.0)
-        _check_number("max_blur_bias_codes", self.max_blur_bias_codes, upper=1.0)
 
-    def check_nlp(self, nlp: int) -> None:
-        """Raise ValueError when ``field_margin_codes`` leaves no coded field for ``nlp`` light codes
-        (the margin must be below ``nlp / 2``)."""
-        if not self.field_margin_codes < nlp / 2:
-            raise ValueError(
-                f"field_margin_codes must be below nlp/2 = {nlp / 2:g} (a wider margin leaves no coded field), "
-                f"got {self.field_margin_codes!r}"
-            )
+def split_decode_block(data: Any) -> tuple[FilterOptions, GcpsV1Options]:
+    """The :class:`FilterOptions` and :class:`GcpsV1Options` of a ``decode`` object (None: the
+    defaults); unknown keys are refused, naming them."""
+    if data is None:
+        return FilterOptions(), GcpsV1Options()
+    if not isinstance(data, Mapping):
+        raise ValueError(f"decode must be an object of decode options, got {data!r}")
+    unknown = sorted(set(data) - set(DECODE_KEYS))
+    if unknown:
+        raise ValueError(f"unknown decode option(s): {', '.join(unknown)}")
+    gcps_keys = set(GcpsV1Options.keys())
+    filters = FilterOptions(**{k: v for k, v in data.items() if k not in gcps_keys})
+    gcps_v1 = GcpsV1Options(**{k: v for k, v in data.items() if k in gcps_keys})
+    return filters, gcps_v1
 
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> DecodeOptions:
-        """Options from :meth:`to_dict`'s object; unknown keys are refused, naming them."""
-        unknown = sorted(set(data) - {f.name for f in fields(cls)})
-        if unknown:
-            raise ValueError(f"unknown decode option(s): {', '.join(unknown)}")
-        return cls(**data)
 
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "min_modulation": self.min_modulation,
-            "consistency_codes": self.consistency_codes,
-            "smoothing_px": self.smoothing_px,
-            "discontinuity_codes": self.discontinuity_codes,
-            "edge_band_px": self.edge_band_px,
-            "field_margin_codes": self.field_margin_codes,
-            "min_visibility_ratio": self.min_visibility_ratio,
-            "blur_variance_px2": self.blur_variance_px2,
-            "max_blur_bias_codes": self.max_blur_bias_codes,
-        }
+SETTINGS_KEYS: tuple[str, ...] = ("decode", "triangulate", "method")
+"""Keys of the measurement settings in an options object's JSON form (:func:`settings_to_dict`)."""
+
+
+def settings_to_dict(filters: FilterOptions, gcps_v1: GcpsV1Options, geometry: GeometryOptions) -> dict[str, Any]:
+    """``{"decode": {...}, "triangulate", "method"}``: how an options object that measures
+    (measure, characterize, acceptance, calibrate) writes its filters, gcps-v1 settings and
+    geometry options."""
+    return {"decode": decode_block(filters, gcps_v1), **geometry.to_dict()}
+
+
+def settings_from_dict(data: Mapping[str, Any]) -> dict[str, Any]:
+    """The ``filters``, ``gcps_v1`` and ``geometry`` keyword arguments of the settings in ``data``
+    (its keys among :data:`SETTINGS_KEYS`; the others are the caller's)."""
+    filters, gcps_v1 = split_decode_block(data.get("decode"))
+    geometry = GeometryOptions.from_dict({k: data[k] for k in ("triangulate", "method") if k in data})
+    return {"filters": filters, "gcps_v1": gcps_v1, "geometry": geometry}
+
+
+def check_settings(options: Any) -> None:
+    """ValueError unless ``options.filters``, ``.gcps_v1`` and ``.geometry`` have their types."""
+    for name, kind in (("filters", FilterOptions), ("gcps_v1", GcpsV1Options), ("geometry", GeometryOptions)):
+        if not isinstance(getattr(options, name), kind):
+            raise ValueError(f"{name} must be {kind.__name__}, got {getattr(options, name)!r}")
 
 
 @dataclass(frozen=True)
-class Reference:
-    """A decoded reference plane, kept for many measurements.
+class MeasureOptions:
+    """Options of :func:`measure` (and of the ``gcps measure`` command and the measurement job).
 
     Attributes
     ----------
-    decoded : DecodedStack
-        Codes of the reference plane (REF of Eq. 16).
-    surface : ReferenceSurface
-        The rig model's reference surface prepared from ``decoded.codes``
-        (:meth:`~metrology.core.geometry.base.PreparedGeometry.reference`).
-    gray_surface : ReferenceSurface
-        The same for the gray-code-only codes (the comparison heights).
-    unreliable : (H, W) bool array
-        Valid reference pixels dropped as possibly mixed (:func:`unreliable_mask`).
-    blur_variance_px2 : float
-        The camera blur's variance used to correct object codes, px^2 (0: no correction).
+    filters : FilterOptions
+        The code-space filters' thresholds (every codec and model).
+    gcps_v1 : GcpsV1Options
+        The paper's decoder's own settings (gcps-v1 stacks).
+    geometry : GeometryOptions
+        Which projector axis the model triangulates, and how.
+    gray_only : bool
+        Also the gray-code-only comparison heights of the paper (gcps-v1 stacks on a model with
+        light codes; default True).
+    sigma : bool
+        Also each point's standard uncertainty from the object's phase noise (default False;
+        needs a final phase sequence of N >= 4 steps on the triangulated axis).
+    max_sigma_mm : float or None
+        Drop the points whose uncertainty exceeds this, mm (implies ``sigma``).
+
+    JSON form (:meth:`to_dict`): ``{"decode": {...}, "gray_only", "sigma", "triangulate",
+    "method", "max_sigma_mm"}``, the filter and gcps-v1 settings together under ``decode``
+    (:func:`decode_block`). :meth:`from_dict` reads any subset of it.
     """
 
-    decoded: DecodedStack
+    filters: FilterOptions = field(default_factory=FilterOptions)
+    gcps_v1: GcpsV1Options = field(default_factory=GcpsV1Options)
+    geometry: GeometryOptions = field(default_factory=GeometryOptions)
+    gray_only: bool = True
+    sigma: bool = False
+    max_sigma_mm: float | None = None
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+        check_bool("gray_only", self.gray_only)
+        check_bool("sigma", self.sigma)
+        if self.max_sigma_mm is not None:
+            try:
+                check_positive("max_sigma_mm", self.max_sigma_mm)
+            except ValueError:
+                raise ValueError(f"max_sigma_mm must be a positive number of mm, got {self.max_sigma_mm!r}") from None
+
+    def with_sigma(self) -> MeasureOptions:
+        """These options, computing sigma too."""
+        return replace(self, sigma=True)
+
+    @property
+    def wants_sigma(self) -> bool:
+        """Sigma is computed: asked for, or needed by ``max_sigma_mm``."""
+        return self.sigma or self.max_sigma_mm is not None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            **settings_to_dict(self.filters, self.gcps_v1, self.geometry),
+            "gray_only": self.gray_only,
+            "sigma": self.sigma,
+            "max_sigma_mm": self.max_sigma_mm,
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> MeasureOptions:
+        own = ("gray_only", "sigma", "max_sigma_mm")
+        check_keys("measure", data, {*SETTINGS_KEYS, *own})
+        return cls(**settings_from_dict(data), **{k: data[k] for k in own if k in data})
+
+    @classmethod
+    def of(cls, settings: Any, **changes: Any) -> MeasureOptions:
+        """The measure options of another options object's settings (``filters``, ``gcps_v1``,
+        ``geometry``), no gray-code-only heights unless ``changes`` say so."""
+        values: dict[str, Any] = {"gray_only": False, **changes}
+        return cls(filters=settings.filters, gcps_v1=settings.gcps_v1, geometry=settings.geometry, **values)
+
+
+# --------------------------------------------------------------------------- results
+@dataclass(frozen=True)
+class Reference:
+    """A capture of the reference plane, decoded once, filtered and prepared for a model: kept for
+    many measurements (:func:`prepare_reference`).
+
+    Attributes
+    ----------
+    model : GeometryModel
+    codec : Codec or None
+        The capture's codec (None: the paper's gcps-v1 through the fused decoder).
+    geometry : GeometryOptions
+    surface : ReferenceSurface
+        The model's reference surface (:meth:`~PreparedGeometry.reference`).
+    codes : (H, W) float32 array
+        The reference's code of the triangulated axis, code units (the paper's light codes REF of
+        Eq. 16 on a crossed-axes rig), NaN where not decoded or filtered out.
+    unreliable : (H, W) bool array or None
+        Valid reference pixels dropped as possibly mixed, where the surface is per pixel (the
+        object's pixels there are dropped too); None for a fitted surface.
+    blur_variance_px2 : float
+        The camera blur's variance used to correct object codes, px^2 (0: no correction).
+    gray_surface : ReferenceSurface or None
+        The surface of the gray-code-only codes (the fused gcps-v1 path's comparison heights).
+    """
+
+    model: GeometryModel
+    codec: Codec | None
+    geometry: GeometryOptions
     surface: ReferenceSurface
-    gray_surface: ReferenceSurface
-    unreliable: np.ndarray
+    codes: np.ndarray
+    unreliable: np.ndarray | None
     blur_variance_px2: float = 0.0
+    gray_surface: ReferenceSurface | None = None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.surface.shape
+
+    def prepared_geometry(self) -> PreparedGeometry:
+        """The model prepared as it was for this reference (cached by the model: no tables rebuilt)."""
+        if self.codec is None:  # the fused gcps-v1 path reads light codes
+            return self.model.prepare(None, None, self.geometry)
+        return _prepared(self.model, self.codec, self.geometry)
 
 
 @dataclass(frozen=True)
-class HeightResult:
-    """Output of :func:`measure_height`.
+class Measurement:
+    """Output of :func:`measure`.
 
     Attributes
     ----------
     z_mm : (H, W) float32 array
-        GCPS height above R, mm, NaN where not measured.
+        Heights above the reference plane (with a reference), else what the model gives alone
+        (:attr:`z_kind`), mm; NaN where not measured.
+    z_kind : {'height', 'depth'}
+        What ``z_mm`` is: a height above the reference (or model) plane, or a depth (camera Z).
+    codes : (H, W) float32 array
+        The object's code of the triangulated axis after the filters and the blur correction,
+        code units (light codes on a crossed-axes rig), NaN where not measured.
+    prepared : PreparedGeometry
+        The model as it triangulated (its ``axis``, ``method``, :meth:`~PreparedGeometry.points_from_heights`).
+    reference : Reference or None
     gray_z_mm : (H, W) float32 array or None
-        Gray-code-only height (codes at the centre of each gray word's cell), mm.
-    obj_codes : (H, W) float32 array
-        Object codes (OBJ of Eq. 16), code units, NaN where invalid.
+        The paper's gray-code-only heights (fused gcps-v1 path with ``gray_only``), mm.
+    sigma_mm : (H, W) float32 array or None
+        Each point's standard uncertainty, mm (``options.sigma``), NaN where not measured.
+    decoding : CodecDecoding or None
+        The codec decoder's output (u/v maps, modulation, reasons); None on the fused path.
+    off_ray_points_mm : (H, W, 3) float32 array or None
+        The triangulated points when the method moves them off the camera rays (a midpoint).
+    dropped_by_max_sigma : int
+        Points dropped by ``options.max_sigma_mm``.
     timings_s : dict
-        Seconds spent per phase.
+        Seconds per phase.
     """
 
     z_mm: np.ndarray
-    gray_z_mm: np.ndarray | None
-    obj_codes: np.ndarray
+    z_kind: str
+    codes: np.ndarray
+    prepared: PreparedGeometry
+    reference: Reference | None
+    gray_z_mm: np.ndarray | None = None
+    sigma_mm: np.ndarray | None = None
+    decoding: CodecDecoding | None = None
+    off_ray_points_mm: np.ndarray | None = None
+    dropped_by_max_sigma: int = 0
     timings_s: dict[str, float] = field(default_factory=dict)
 
-    def statistics(self) -> dict[str, float | int | None]:
-        """Summary of the valid heights: count, fraction, min/max/mean/std in mm."""
-        return height_statistics(self.z_mm)
+    @property
+    def model(self) -> GeometryModel:
+        return self.prepared.model
+
+    @property
+    def z_meaning(self) -> str:
+        """``z_mm`` in words: "height above the reference plane", "depth (camera Z)"..."""
+        if self.reference is not None:
+            return "height above the reference plane"
+        return "depth (camera Z)" if self.z_kind == "depth" else "height above the model plane"
+
+    @property
+    def points_follow_from_heights(self) -> bool:
+        """True when the points are a function of ``z_mm`` alone: on the camera rays of a model with
+        a plane of its own (:meth:`PreparedGeometry.points_from_heights` without a reference gives
+        them exactly), so that storing the heights stores the points too."""
+        return self.off_ray_points_mm is None and self.prepared.has_model_plane and self.z_kind == "height"
+
+    def points_mm(self, dtype: npt.DTypeLike = np.float32) -> np.ndarray:
+        """``(H, W, 3)`` points of ``dtype``, mm, in the model frame (:attr:`GeometryModel.frame`);
+        NaN where not measured. On the camera rays they are computed from ``z_mm`` in float64
+        (:meth:`PreparedGeometry.points_from_heights`), else they are the triangulated ones."""
+        if self.off_ray_points_mm is not None:
+            return self.off_ray_points_mm.astype(dtype, copy=False)
+        surface = None if self.reference is None else self.reference.surface
+        if self.z_kind == "depth":
+            surface = None  # points_from_heights reads a depth when given no reference
+        return self.prepared.points_from_heights(self.z_mm, surface).astype(dtype, copy=False)
 
 
 def height_statistics(z_mm: np.ndarray) -> dict[str, float | int | None]:
@@ -208,254 +347,489 @@ def height_statistics(z_mm: np.ndarray) -> dict[str, float | int | None]:
     return summary
 
 
+# --------------------------------------------------------------------------- the one choice
+def uses_fused_gcps_v1(model: GeometryModel, codec: Codec | None) -> bool:
+    """True when a stack of ``codec`` on ``model`` takes the fused gcps-v1 kernel: gcps-v1 stacks
+    on a model that triangulates the paper's light codes (module docstring). The only place that
+    chooses between the two decoders."""
+    return is_gcps_v1(codec) and model.light_codes is not None
+
+
+# --------------------------------------------------------------------------- public entries
 def prepare_reference(
-    rig: Rig, reference: npt.ArrayLike | DecodedStack, options: DecodeOptions | None = None
-) -> Reference:
-    """Decode (if needed) a reference stack and precompute its abscissae.
-
-    Parameters
-    ----------
-    rig : Rig
-    reference : (11, H, W) image stack or DecodedStack
-        Capture of the reference plane R, shape equal to ``rig.shape``.
-    options : DecodeOptions, optional
-
-    Returns
-    -------
-    Reference
-    """
-    options = options or DecodeOptions()
-    options.check_nlp(rig.nlp)
-    decoded = reference if isinstance(reference, DecodedStack) else _decode(rig, reference, options)
-    _check_shape(rig, decoded.codes.shape, "reference")
-    prepared = rig.prepare()
-    surface = prepared.reference(decoded.codes, None)
-    gray_surface = prepared.reference(decoded.gray_codes, None)
-    unreliable = unreliable_mask(decoded.codes, options.discontinuity_codes, options.edge_band_px)
-    blur = options.blur_variance_px2
-    if blur is None:
-        try:
-            blur = estimate_blur_variance(decoded.codes, decoded.visibility)
-        except ValueError:
-            blur = 0.0  # too small a field to tell: no correction
-    return Reference(
-        decoded=decoded, surface=surface, gray_surface=gray_surface, unreliable=unreliable, blur_variance_px2=blur
-    )
-
-
-def measure_height(
-    rig: Rig,
-    reference: npt.ArrayLike | DecodedStack | Reference,
-    obj: npt.ArrayLike,
-    options: DecodeOptions | None = None,
+    model: GeometryModel,
+    images: npt.ArrayLike,
+    codec: Codec | None = None,
+    options: MeasureOptions | None = None,
     *,
-    gray_only: bool = True,
     threads: int | None = None,
-) -> HeightResult:
-    """Height map of an object from its capture stack and the reference's (Eqs. 1-17).
+) -> Reference:
+    """Decode a capture of the reference plane, filter it and prepare the model's reference surface.
 
     Parameters
     ----------
-    rig : Rig
-        Geometry; ``rig.shape`` must equal the images' shape.
-    reference : (11, H, W) image stack, DecodedStack or Reference
-        The reference plane; pass a :class:`Reference` to reuse its decoding.
-    obj : (11, H, W) image stack, uint8, uint16 or float
-        The object's capture stack.
-    options : DecodeOptions, optional
-    gray_only : bool
-        Also compute the gray-code-only height map (the paper's comparison).
-    threads : int, optional
-        Threads over row tiles; default :data:`~metrology.core.tiling.DEFAULT_THREADS`.
-
-    Returns
-    -------
-    HeightResult
+    model : GeometryModel
+    images : (frames, H, W) image stack of ``codec`` (``(11, H, W)`` for gcps-v1)
+    codec : Codec, optional
+        The capture's codec; None is the paper's gcps-v1.
+    options : MeasureOptions, optional
+        The filters (and the gcps-v1 settings and geometry options) the measurements will use.
 
     Raises
     ------
     ValueError
-        If a stack is malformed or its shape differs from the rig's.
+        On a malformed stack, a stack that does not match its codec or the model's camera, a
+        codec lacking an axis the model needs, or a bad option.
     """
-    options = options or DecodeOptions()
-    if not isinstance(options, DecodeOptions):
-        raise TypeError(f"options must be DecodeOptions, got {type(options).__name__}")
-    options.check_nlp(rig.nlp)
+    options = options or MeasureOptions()
+    if uses_fused_gcps_v1(model, codec):
+        return _fused_reference(model, images, options, threads)
+    assert codec is not None
+    prepared = _prepared(model, codec, options.geometry)
+    coded = _decode_and_filter(prepared, images, codec, options, None, "reference", with_noise=False, threads=threads)
+    blur = options.filters.blur_variance_px2
+    if blur is None:  # from the codes before the mixed-pixel filter drops any
+        blur = _estimated_blur(coded.codes[prepared.axis], coded.visibility[prepared.axis], coded.periods_codes)
+    coded.drop(threads)
+    surface = prepared.reference(coded.axis_map("u"), coded.axis_map("v"), threads)
+    unreliable = coded.dropped if surface.per_pixel else None
+    return Reference(
+        model=model,
+        codec=codec,
+        geometry=options.geometry,
+        surface=surface,
+        codes=coded.codes[prepared.axis],
+        unreliable=unreliable,
+        blur_variance_px2=float(blur),
+    )
+
+
+def measure(
+    model: GeometryModel,
+    obj: npt.ArrayLike,
+    codec: Codec | None = None,
+    *,
+    reference: Reference | npt.ArrayLike | None = None,
+    options: MeasureOptions | None = None,
+    threads: int | None = None,
+) -> Measurement:
+    """Heights or depths, points and sigma of an object capture (module docstring).
+
+    Parameters
+    ----------
+    model : GeometryModel
+    obj : (frames, H, W) image stack of ``codec``, uint8, uint16 or float
+    codec : Codec, optional
+        The stacks' codec; None is the paper's gcps-v1 (eleven named patterns).
+    reference : Reference or (frames, H, W) image stack, optional
+        The reference plane: a kept :class:`Reference` (prepared with the same codec, model and
+        geometry options), or its stack (prepared now). Required by a model whose
+        :attr:`~GeometryModel.requires_reference` is True.
+    options : MeasureOptions, optional
+    threads : int, optional
+        Threads over row tiles (does not change the result).
+
+    Raises
+    ------
+    ValueError
+        On a malformed stack, a stack that does not match its codec or the model's camera, a
+        codec lacking an axis the model needs, a missing or mismatched reference, sigma asked
+        for without a noise estimate, or a bad option.
+    """
+    options = options or MeasureOptions()
+    if not isinstance(options, MeasureOptions):
+        raise TypeError(f"options must be MeasureOptions, got {type(options).__name__}")
     timings: dict[str, float] = {}
-    start = time.perf_counter()
-    if not isinstance(reference, Reference):
-        reference = prepare_reference(rig, reference, options)
+    if reference is None and model.requires_reference:
+        raise ValueError(
+            f"a {model.short_label} rig measures against a capture of the reference plane: give a reference"
+        )
+    if reference is not None and not isinstance(reference, Reference):
+        start = time.perf_counter()
+        reference = prepare_reference(model, reference, codec, options, threads=threads)
         timings["reference_decode_s"] = time.perf_counter() - start
+    if reference is not None:
+        _check_reference(reference, model, codec, options)
+    if uses_fused_gcps_v1(model, codec):
+        return _fused_measure(model, reference, obj, codec, options, timings, threads)
+    assert codec is not None
+    return _codec_measure(model, reference, obj, codec, options, timings, threads)
+
+
+# --------------------------------------------------------------------------- shared steps
+def _check_reference(reference: Reference, model: GeometryModel, codec: Codec | None, options: MeasureOptions) -> None:
+    expected = None if uses_fused_gcps_v1(model, codec) else codec
+    if reference.codec != expected:
+        raise ValueError("the kept reference was captured with another codec than the object")
+    if reference.model != model:
+        raise ValueError("the kept reference was prepared for another rig than the object's")
+    if reference.geometry != options.geometry:
+        raise ValueError("the kept reference was prepared with other triangulation options than the measurement's")
+
+
+def _frames_shape(model: GeometryModel, shape: tuple[int, ...], what: str) -> None:
+    if tuple(shape) != tuple(model.shape):
+        h, w = shape
+        mh, mw = model.shape
+        raise ValueError(f"the {what} frames are {w}x{h} px but the rig's camera is {mw}x{mh} px")
+
+
+def _prepared(model: GeometryModel, codec: Codec, geometry: GeometryOptions) -> PreparedGeometry:
+    return model.prepare(model.shape, (codec.projector_width, codec.projector_height), geometry)
+
+
+def _estimated_blur(codes: np.ndarray, visibility: np.ndarray, period_codes: float | None) -> float:
+    """The camera blur's variance from a reference's codes and visibility (0 when it cannot be told:
+    no phase, or too small a field). The estimator reads ``phi = pi/2 l``: codes of a 4-code period."""
+    if period_codes is None:
+        return 0.0
+    try:
+        return estimate_blur_variance(codes * np.float32(4.0 / period_codes), visibility)
+    except ValueError:
+        return 0.0
+
+
+def _drop_sigma_above(
+    max_sigma_mm: float | None, sigma: np.ndarray | None, arrays: list[np.ndarray], z: np.ndarray
+) -> int:
+    """NaN in every array (z, codes, points...) where sigma exceeds ``max_sigma_mm`` (or is unknown);
+    the count of points dropped."""
+    if max_sigma_mm is None or sigma is None:
+        return 0
+    drop = ~(sigma <= np.float32(max_sigma_mm)) & np.isfinite(z)
+    for array in (*arrays, z, sigma):
+        array[drop] = np.nan
+    return int(drop.sum())
+
+
+def _sigma_of(codec: Codec, axis: str, decoding: CodecDecoding) -> np.ndarray:
+    """The coordinate sigma (projector units) of ``axis`` from the decoder's noise
+    (:func:`~metrology.core.uncertainty.stage_coordinate_sigma`); ValueError when the chain gives
+    no noise estimate (it ends on a gray code or a 3-step phase)."""
+    decoded = decoding.axes[axis]
+    return stage_coordinate_sigma(codec, axis, decoded.noise, decoded.modulation)
+
+
+# --------------------------------------------------------------------------- the codec path
+def finest_period(codec: Codec, axis: str) -> float | None:
+    """Period (projector units) of ``axis``'s last unwrapping stage, or None when it ends on a gray code."""
+    stage = codec.axes[axis].chain()[-1]
+    return None if stage.kind == "gray" else float(stage.period)
+
+
+@dataclass(frozen=True)
+class _Coded:
+    """A decoded capture in code units, filtered: per used axis its code map, scale and visibility."""
+
+    decoding: CodecDecoding
+    codes: dict[str, np.ndarray]
+    scales: dict[str, float]
+    visibility: dict[str, np.ndarray]
+    dropped: np.ndarray
+    periods_codes: float | None
+
+    def drop(self, threads: int | None) -> None:
+        """Set every used axis's codes to NaN where :attr:`dropped`, in place."""
+        keep = ~self.dropped
+        for codes in self.codes.values():
+            set_nan_where_false(codes, keep, threads)
+
+    def axis_map(self, axis: str) -> np.ndarray | None:
+        """Projector coordinates of ``axis`` (projector units), or None when the axis is not used."""
+        if axis not in self.codes:
+            return None
+        return _from_codes(self.codes[axis], self.scales[axis])
+
+
+def _from_codes(codes: np.ndarray, scale: float, out: np.ndarray | None = None) -> np.ndarray:
+    """``x = c / s - 0.5``: code units back to projector units, float32."""
+    x = np.multiply(codes, np.float32(1.0 / scale), out=out)
+    x -= np.float32(0.5)
+    return x
+
+
+def _codec_decode_options(codec: Codec, options: MeasureOptions) -> CodecDecodeOptions:
+    if options.gcps_v1.smoothing_px:
+        raise ValueError(
+            "smoothing_px applies to the paper's fused gcps-v1 decoder only (a codec states its waveform), "
+            f"got {options.gcps_v1.smoothing_px!r}"
+        )
+    return CodecDecodeOptions(min_modulation=options.filters.min_modulation)
+
+
+def _decode_and_filter(
+    prepared: PreparedGeometry,
+    images: npt.ArrayLike,
+    codec: Codec,
+    options: MeasureOptions,
+    reference: Reference | None,
+    what: str,
+    *,
+    with_noise: bool,
+    threads: int | None,
+) -> _Coded:
+    """Decode a stack of ``codec`` and apply the code-space filters on the axes the model reads
+    (module docstring, step 2).
+
+    ``what`` is ``"reference"`` or ``"object"``. A reference capture gets the field margin and
+    the mixed-pixel band (steps, invalid neighbours) marked in ``dropped``, not yet applied (its
+    blur is estimated first: :meth:`_Coded.drop`). An object also gets the visibility and crease
+    tests, the ``reference``'s unreliable pixels and its blur correction, all applied."""
+    missing = [axis for axis in prepared.required_axes if axis not in codec.axes]
+    if missing:
+        raise ValueError(
+            f"the codec does not code the projector's {missing[0]} axis, which the "
+            f"{prepared.model.short_label} rig triangulates; the codec codes "
+            f"{', '.join(sorted(codec.axes)) or 'no axis'}"
+        )
+    stack = validate_codec_stack(np.asarray(images), codec)
+    _frames_shape(prepared.model, stack.shape[1:], what)
+    decoding = decode_codec(stack, codec, _codec_decode_options(codec, options), with_noise=with_noise, threads=threads)
+    filters = options.filters
+    axes = prepared.used_axes(tuple(codec.axes))
+    codes: dict[str, np.ndarray] = {}
+    scales: dict[str, float] = {}
+    visibility: dict[str, np.ndarray] = {}
+    dropped = np.zeros(prepared.shape, bool)
+    for axis in axes:
+        decoded = decoding.axes[axis]
+        period = finest_period(codec, axis)
+        model_scale = prepared.code_scale(axis)
+        if model_scale is not None:
+            scale = model_scale
+        else:
+            unit = period if period is not None else float(codec.axes[axis].gray.word)  # type: ignore[union-attr]
+            scale = CODES_PER_PERIOD / unit
+        extent_codes = codec.extent(axis) * scale
+        filters.check_field(extent_codes)
+        c = decoded.coordinate + np.float32(0.5)
+        c *= np.float32(scale)
+        refuse_outside_field(c, filters.field_margin_codes, extent_codes)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            vis = (decoded.modulation / (np.float32(2) * decoded.mean)).astype(np.float32, copy=False)
+        vis[~np.isfinite(vis)] = np.nan
+        if filters.edge_band_px > 0:
+            obj = what == "object"
+            dropped |= unreliable_mask(
+                c,
+                filters.discontinuity_codes,
+                filters.edge_band_px,
+                vis if obj else None,
+                filters.min_visibility_ratio if obj else 0.0,
+                threads,
+                blur_variance_px2=0.0 if reference is None else reference.blur_variance_px2,
+                max_blur_bias_codes=filters.max_blur_bias_codes if obj else 0.0,
+            )
+        codes[axis], scales[axis], visibility[axis] = c, scale, vis
+    if len(axes) > 1:  # a pixel the model cannot triangulate is dropped on every axis it reads
+        decoded_everywhere = np.logical_and.reduce([np.isfinite(codes[a]) for a in axes])
+        dropped |= ~decoded_everywhere & np.logical_or.reduce([np.isfinite(codes[a]) for a in axes])
+    if reference is not None and reference.unreliable is not None:
+        dropped |= reference.unreliable
+    period = finest_period(codec, prepared.axis)
+    coded = _Coded(
+        decoding=decoding,
+        codes=codes,
+        scales=scales,
+        visibility=visibility,
+        dropped=dropped,
+        periods_codes=None if period is None else period * scales[prepared.axis],
+    )
+    if what == "object":
+        coded.drop(threads)
+        if reference is not None and reference.blur_variance_px2 > 0:
+            for c in codes.values():
+                correct_blur_bias(c, reference.blur_variance_px2)
+    return coded
+
+
+def _codec_measure(
+    model: GeometryModel,
+    reference: Reference | None,
+    obj: npt.ArrayLike,
+    codec: Codec,
+    options: MeasureOptions,
+    timings: dict[str, float],
+    threads: int | None,
+) -> Measurement:
+    start = time.perf_counter()
+    prepared = _prepared(model, codec, options.geometry)
+    coded = _decode_and_filter(
+        prepared, obj, codec, options, reference, "object", with_noise=options.wants_sigma, threads=threads
+    )
+    timings["object_decode_s"] = time.perf_counter() - start
+    start = time.perf_counter()
+    sigma_in = _sigma_of(codec, prepared.axis, coded.decoding) if options.wants_sigma else None
+    surface = None if reference is None else reference.surface
+    h, w = prepared.shape
+    z = np.empty((h, w), np.float32)
+    sigma_mm = np.empty((h, w), np.float32) if sigma_in is not None else None
+    points = None if prepared.points_on_rays else np.empty((h, w, 3), np.float32)
+    heights = surface is not None or prepared.has_model_plane
+    z_kind = "height" if heights else "depth"
+
+    def run(rows: slice) -> None:
+        scratch = thread_scratch()
+        coords: dict[str, np.ndarray | None] = {"u": None, "v": None}
+        for axis, c in coded.codes.items():
+            tile = c[rows]
+            coords[axis] = _from_codes(
+                tile, coded.scales[axis], out=scratch.get(f"coord_{axis}", tile.shape, np.float32)
+            )
+        tile_points = points[rows] if points is not None else None
+        if tile_points is None and not heights:  # depths: the points' Z
+            tile_points = scratch.get("points", (*z[rows].shape, 3), np.float32)
+        prepared.triangulate_rows(
+            rows,
+            coords["u"],
+            coords["v"],
+            reference=surface,
+            points_out=tile_points,
+            height_out=z[rows] if heights else None,
+            sigma_in=None if sigma_in is None else sigma_in[rows],
+            sigma_out=None if sigma_mm is None else sigma_mm[rows],
+        )
+        if not heights:
+            assert tile_points is not None
+            z[rows] = tile_points[..., 2]
+
+    run_tiled(run, h, w, threads)
+    codes = coded.codes[prepared.axis]
+    if sigma_mm is not None:
+        sigma_mm[~np.isfinite(z)] = np.nan
+    dropped = _drop_sigma_above(options.max_sigma_mm, sigma_mm, [codes] + ([] if points is None else [points]), z)
+    timings["object_triangulate_s"] = time.perf_counter() - start
+    return Measurement(
+        z_mm=z,
+        z_kind=z_kind,
+        codes=codes,
+        prepared=prepared,
+        reference=reference,
+        sigma_mm=sigma_mm,
+        decoding=coded.decoding,
+        off_ray_points_mm=points,
+        dropped_by_max_sigma=dropped,
+        timings_s=timings,
+    )
+
+
+# --------------------------------------------------------------------------- the fused gcps-v1 path
+def _light_code_model(model: GeometryModel) -> int:
+    nlp = model.light_codes
+    assert nlp is not None
+    return nlp
+
+
+def _fused_reference(
+    model: GeometryModel, images: npt.ArrayLike, options: MeasureOptions, threads: int | None
+) -> Reference:
+    nlp = _light_code_model(model)
+    filters, gcps = options.filters, options.gcps_v1
+    filters.check_field(nlp)
+    stack = validate_stack(images)
+    _frames_shape(model, stack.shape[1:], "reference")
+    decoded = decode_stack(
+        stack,
+        nlp,
+        min_modulation=filters.min_modulation,
+        consistency_codes=gcps.consistency_codes,
+        smoothing_px=gcps.smoothing_px,
+        field_margin_codes=filters.field_margin_codes,
+        threads=threads,
+    )
+    prepared = model.prepare(None, None, options.geometry)
+    surface = prepared.reference(decoded.codes, None)
+    gray_surface = prepared.reference(decoded.gray_codes, None)
+    unreliable = unreliable_mask(decoded.codes, filters.discontinuity_codes, filters.edge_band_px)
+    blur = filters.blur_variance_px2
+    if blur is None:
+        blur = _estimated_blur(decoded.codes, decoded.visibility, 4.0)
+    return Reference(
+        model=model,
+        codec=None,  # the fused decoder reads any gcps-v1 stack the same way
+        geometry=options.geometry,
+        surface=surface,
+        codes=decoded.codes,
+        unreliable=unreliable,
+        blur_variance_px2=float(blur),
+        gray_surface=gray_surface,
+    )
+
+
+def _fused_measure(
+    model: GeometryModel,
+    reference: Reference | None,
+    obj: npt.ArrayLike,
+    codec: Codec | None,
+    options: MeasureOptions,
+    timings: dict[str, float],
+    threads: int | None,
+) -> Measurement:
+    nlp = _light_code_model(model)
+    filters = options.filters
+    filters.check_field(nlp)
     stack = validate_stack(obj)
-    _check_shape(rig, stack.shape[1:], "object")
+    _frames_shape(model, stack.shape[1:], "object")
+    prepared = model.prepare(None, None, options.geometry)
+    surface = None if reference is None else reference.surface
+    blur_variance = 0.0 if reference is None else reference.blur_variance_px2
 
     start = time.perf_counter()
-    correct_blur = reference.blur_variance_px2 > 0  # then heights come from the corrected codes
-    fused = _fused_height(rig, reference, stack, options, threads, triangulate=not correct_blur, gray_words=gray_only)
-    z_mm, obj_codes, visibility, gray_codes = fused.z_mm, fused.codes, fused.visibility, fused.gray_codes
+    correct_blur = blur_variance > 0  # then heights come from the corrected codes
+    gray_surface = None if reference is None else reference.gray_surface
+    gray_words = options.gray_only and (reference is None or gray_surface is not None)
+    fused = _fused_pass(
+        prepared, nlp, surface, stack, options, threads, triangulate=not correct_blur, gray_words=gray_words
+    )
+    z_mm, codes, visibility, gray_codes = fused.z_mm, fused.codes, fused.visibility, fused.gray_codes
     del fused  # the visibility map goes once the mixed-pixel filter has read it
-    if options.edge_band_px > 0:
+    if filters.edge_band_px > 0:
         drop = unreliable_mask(
-            obj_codes,
-            options.discontinuity_codes,
-            options.edge_band_px,
+            codes,
+            filters.discontinuity_codes,
+            filters.edge_band_px,
             visibility,
-            options.min_visibility_ratio,
+            filters.min_visibility_ratio,
             threads,
-            blur_variance_px2=reference.blur_variance_px2,
-            max_blur_bias_codes=options.max_blur_bias_codes,
+            blur_variance_px2=blur_variance,
+            max_blur_bias_codes=filters.max_blur_bias_codes,
         )
         del visibility
-        drop |= reference.unreliable
+        if reference is not None and reference.unreliable is not None:
+            drop |= reference.unreliable
         keep = np.logical_not(drop, out=drop)
-        set_nan_where_false(obj_codes, keep, threads)
+        set_nan_where_false(codes, keep, threads)
         if z_mm is not None:
             set_nan_where_false(z_mm, keep, threads)
         del drop, keep
     if correct_blur:
-        correct_blur_bias(obj_codes, reference.blur_variance_px2)
-        z_mm = _height_map(rig.prepare(), obj_codes, reference.surface, threads)
+        correct_blur_bias(codes, blur_variance)
+        z_mm = _heights(prepared, codes, surface, threads)
     assert z_mm is not None
     timings["object_decode_triangulate_s"] = time.perf_counter() - start
 
     gray_z = None
     if gray_codes is not None:
         start = time.perf_counter()
-        gray_z = _height_map(rig.prepare(), gray_codes, reference.gray_surface, threads)
+        gray_z = _heights(prepared, gray_codes, gray_surface, threads)
         timings["gray_only_s"] = time.perf_counter() - start
-    return HeightResult(z_mm=z_mm, gray_z_mm=gray_z, obj_codes=obj_codes, timings_s=timings)
-
-
-_VISIBILITY_NEIGHBOURHOOD = np.ones((3, 3), np.uint8)
-_CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
-
-
-def unreliable_mask(
-    codes: np.ndarray,
-    max_step_codes: float,
-    band_px: int,
-    visibility: np.ndarray | None = None,
-    min_visibility_ratio: float = 0.0,
-    threads: int | None = None,
-    *,
-    blur_variance_px2: float = 0.0,
-    max_blur_bias_codes: float = 0.0,
-) -> np.ndarray:
-    """Valid pixels that may be mixed: near an invalid pixel, a depth step or a visibility dip,
-    or at a crease of the codes.
-
-    Parameters
-    ----------
-    codes : (H, W) float32 array
-        Light codes, code units, NaN where invalid.
-    max_step_codes : float
-        Largest code difference between 4-neighbours on a continuous surface; both
-        pixels of a pair that differ by more are discontinuity seeds (0: no seeds).
-    band_px : int
-        Width of the dropped band: valid pixels within ``band_px`` 4-connected steps
-        of an invalid pixel or a seed are marked, and the seeds themselves; 0 marks
-        nothing.
-    visibility : (H, W) float32 array, optional
-        Fringe visibility ``B / 2A`` of each pixel.
-    min_visibility_ratio : float
-        Pixels whose visibility is below this fraction of the maximum of their 3x3
-        neighbourhood are seeds too: a pixel straddling a depth step averages two
-        phases, which lowers its visibility whatever the albedo (a 50/50 mix across
-        a 10 mm step keeps ~77 % of it).
-    threads : int, optional
-        Threads over row tiles.
-    blur_variance_px2, max_blur_bias_codes : float
-        The camera blur's variance (px^2) and the largest first-order blur bias
-        ``|s2/2 laplacian(l)|`` (code units) of a reported pixel: beyond it the pixel lies
-        at a crease of the code surface, e.g. beside a riser seen edge-on, where the blur
-        blends codes from both sides and no correction holds
-        (:func:`~metrology.core.blur.blur_bias_exceeds`). The same bound finds small depth
-        steps, whose code jump is below ``max_step_codes``: the Laplacian of a blurred step
-        peaks about a pixel either side of it and vanishes on it. Such pixels are marked with
-        their 4-neighbours (a band of one pixel, whatever ``band_px``), which covers the
-        pixels on the step. 0 for either: no such test.
-
-    Returns
-    -------
-    (H, W) bool array
-        True where a valid code should not be reported. A camera pixel straddling a
-        shadow edge, the edge of the coded field or a depth step integrates light from
-        two surfaces and decodes to a code between them: such pixels are dropped, not
-        reported wrong.
-    """
-    height, width = codes.shape
-    if band_px <= 0:
-        return np.zeros(codes.shape, bool)
-    seeds = np.empty(codes.shape, np.uint8)
-    limit = np.float32(max_step_codes)
-    ratio = np.float32(min_visibility_ratio)
-    # the visibility map when the visibility test runs, else None
-    tested_visibility = visibility if min_visibility_ratio > 0 else None
-    use_creases = blur_variance_px2 > 0 and max_blur_bias_codes > 0
-    creases = np.empty(codes.shape, bool) if use_creases else None
-    # rows of context: the code steps' reach, or the 5x5 Laplacian's plus the creases' band
-    context = 3 if use_creases else 1
-
-    def run(rows: slice) -> None:
-        top, bottom = max(rows.start - context, 0), min(rows.stop + context, height)
-        c = codes[top:bottom]
-        scratch = thread_scratch()
-        s = np.isfinite(c, out=scratch.get("seeds", c.shape, bool))
-        np.logical_not(s, out=s)
-        if max_step_codes > 0:
-            for axis in (1, 0):
-                ahead = c[:, 1:] if axis == 1 else c[1:]
-                behind = c[:, :-1] if axis == 1 else c[:-1]
-                step = np.subtract(ahead, behind, out=scratch.get("step", ahead.shape, np.float32))
-                np.abs(step, out=step)
-                jump = np.greater(step, limit, out=scratch.get("jump", ahead.shape, bool))
-                (s[:, 1:] if axis == 1 else s[1:])[...] |= jump
-                (s[:, :-1] if axis == 1 else s[:-1])[...] |= jump
-        if tested_visibility is not None:
-            v = tested_visibility[top:bottom]
-            local_max: np.ndarray = cv2.dilate(
-                v, _VISIBILITY_NEIGHBOURHOOD, dst=scratch.get("local_max", c.shape, np.float32)
-            )
-            local_max *= ratio
-            s |= np.less(v, local_max, out=scratch.get("dip", c.shape, bool))
-        if creases is not None:
-            crease = blur_bias_exceeds(
-                c,
-                blur_variance_px2,
-                max_blur_bias_codes,
-                scratch.get("crease", c.shape, bool),
-                scratch.get("laplacian", c.shape, np.float32),
-            )
-            band = cv2.dilate(crease.view(np.uint8), _CROSS, dst=scratch.get("crease_band", c.shape, np.uint8))
-            creases[rows] = band[rows.start - top : rows.stop - top].view(bool)  # with their 4-neighbours
-        seeds[rows] = s[rows.start - top : rows.stop - top].view(np.uint8)
-
-    run_tiled(run, height, width, threads)
-    dropped = cv2.dilate(seeds, _CROSS, iterations=band_px).view(bool)
-    if creases is not None:
-        dropped |= creases
-    dropped &= np.isfinite(codes)
-    return dropped
-
-
-def _decode(rig: Rig, images: npt.ArrayLike | DecodedStack, options: DecodeOptions) -> DecodedStack:
-    if isinstance(images, DecodedStack):
-        return images
-    stack = validate_stack(images)
-    _check_shape(rig, stack.shape[1:], "capture")
-    return decode_stack(
-        stack,
-        rig.nlp,
-        min_modulation=options.min_modulation,
-        consistency_codes=options.consistency_codes,
-        smoothing_px=options.smoothing_px,
-        field_margin_codes=options.field_margin_codes,
+    sigma_mm = None
+    if options.wants_sigma:
+        start = time.perf_counter()
+        sigma_mm = _fused_sigma(prepared, stack, codes, surface, threads)
+        timings["sigma_s"] = time.perf_counter() - start
+    dropped = _drop_sigma_above(options.max_sigma_mm, sigma_mm, [codes], z_mm)
+    return Measurement(
+        z_mm=z_mm,
+        z_kind="height",
+        codes=codes,
+        prepared=prepared,
+        reference=reference,
+        gray_z_mm=gray_z,
+        sigma_mm=sigma_mm,
+        dropped_by_max_sigma=dropped,
+        timings_s=timings,
     )
-
-
-def _check_shape(rig: Rig, shape: tuple[int, ...], what: str) -> None:
-    if tuple(shape) != rig.shape:
-        raise ValueError(f"{what} images are {shape[1]}x{shape[0]} px but the rig is {rig.width_px}x{rig.height_px} px")
 
 
 @dataclass(frozen=True)
@@ -466,44 +840,43 @@ class _FusedPass:
     gray_codes: np.ndarray | None
 
 
-def _fused_height(
-    rig: Rig,
-    reference: Reference,
+def _fused_pass(
+    prepared: PreparedGeometry,
+    nlp: int,
+    surface: ReferenceSurface | None,
     stack: np.ndarray,
-    options: DecodeOptions,
+    options: MeasureOptions,
     threads: int | None,
     *,
     triangulate: bool,
     gray_words: bool,
 ) -> _FusedPass:
-    """Decode the object tile by tile (the fast path), triangulating against ``reference`` in the
+    """Decode the object tile by tile (the fast path), triangulating against ``surface`` in the
     same pass when ``triangulate``, and keeping the gray-code-only codes when ``gray_words``."""
+    filters, gcps = options.filters, options.gcps_v1
     _, height, width = stack.shape
     phase = stack[N_GRAY_BITS:]
-    if options.smoothing_px > 0:
-        phase = smooth_fringes(phase, options.smoothing_px)
-    min_modulation = options.min_modulation
+    if gcps.smoothing_px > 0:
+        phase = smooth_fringes(phase, gcps.smoothing_px)
+    min_modulation = filters.min_modulation
     if min_modulation is None:
         min_modulation = default_min_modulation(stack.dtype)
     codes = np.empty((height, width), np.float32)
     z_mm = np.empty((height, width), np.float32) if triangulate else None
     gray_codes = np.empty((height, width), np.float32) if gray_words else None
     # read by the mixed-pixel pass only
-    needs_visibility = options.edge_band_px > 0 and options.min_visibility_ratio > 0
+    needs_visibility = filters.edge_band_px > 0 and filters.min_visibility_ratio > 0
     visibility = np.empty((height, width), np.float32) if needs_visibility else None
-
-    prepared = rig.prepare()
-    surface = reference.surface
 
     def run(rows: slice) -> None:
         l = codes[rows]
         decode_rows(
             stack[:N_GRAY_BITS, rows],
             phase[:, rows],
-            rig.nlp,
+            nlp,
             min_modulation,
-            options.consistency_codes,
-            options.field_margin_codes,
+            gcps.consistency_codes,
+            filters.field_margin_codes,
             l,
             gray_out=None if gray_codes is None else gray_codes[rows],
             visibility_out=None if visibility is None else visibility[rows],
@@ -515,10 +888,47 @@ def _fused_height(
     return _FusedPass(codes=codes, z_mm=z_mm, visibility=visibility, gray_codes=gray_codes)
 
 
-def _height_map(
-    prepared: PreparedGeometry, codes: np.ndarray, surface: ReferenceSurface, threads: int | None
+def _heights(
+    prepared: PreparedGeometry, codes: np.ndarray, surface: ReferenceSurface | None, threads: int | None
 ) -> np.ndarray:
     """Heights (H, W) float32 mm of light codes against a reference surface, tile by tile."""
     z_mm = triangulate_frame(prepared, codes, None, reference=surface, points=False, threads=threads).height_mm
     assert z_mm is not None
     return z_mm
+
+
+def _fused_sigma(
+    prepared: PreparedGeometry,
+    stack: np.ndarray,
+    codes: np.ndarray,
+    surface: ReferenceSurface | None,
+    threads: int | None,
+) -> np.ndarray:
+    """Height uncertainty on the fused path: the object's noise and modulation from the codec
+    decoder's built-in gcps-v1 (4-step phase, period 4 codes), then the model's propagation."""
+    codec = gcps_v1_codec()
+    decoding = decode_codec(stack, codec, with_noise=True, threads=threads)
+    sigma_u = _sigma_of(codec, "u", decoding)
+    sigma_l = sigma_u * np.float32(GCPS_V1_NLP / codec.projector_width)  # period 4 codes whatever the rig's nlp
+    sigma = triangulate_frame(
+        prepared, codes, None, reference=surface, points=False, heights=False, sigma=sigma_l, threads=threads
+    ).sigma_mm
+    assert sigma is not None
+    sigma[~np.isfinite(codes)] = np.nan
+    return sigma
+
+
+__all__ = [
+    "CODES_PER_PERIOD",
+    "DECODE_KEYS",
+    "MeasureOptions",
+    "Measurement",
+    "Reference",
+    "decode_block",
+    "finest_period",
+    "height_statistics",
+    "measure",
+    "prepare_reference",
+    "split_decode_block",
+    "uses_fused_gcps_v1",
+]

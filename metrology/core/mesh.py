@@ -1,9 +1,11 @@
-"""Point clouds and meshes of height maps (docs/file-formats.md), built with open3d.
+"""Point clouds and meshes of measurements (docs/file-formats.md), for every geometric model.
 
-Vertices are the 3D points of the valid pixels, ``(X_H, Y_H, z)`` of docs/conventions.md
-(:func:`~metrology.core.triangulate.points_from_heights`), in row-major pixel order.
-The mesh joins neighbouring valid pixels of the image grid and does not bridge depth
-discontinuities (:func:`grid_triangles`).
+Vertices are the 3D points of the valid pixels in the model frame (the paper's ``(X_H, Y_H, z)``
+of docs/conventions.md, a pinhole rig's camera frame), in row-major pixel order. The mesh joins
+neighbouring valid pixels of the image grid and does not bridge depth discontinuities
+(:func:`grid_triangles`, on the result's ``z``: heights or depths), with every triangle facing
+the camera (:func:`surface_mesh`). Files are written by the streamed writers (:func:`mesh_file_chunks`)
+or by open3d (:func:`write_mesh`), byte for byte alike.
 
 open3d is slow to import (about a second), so it is imported inside the functions that
 need it, never at module import.
@@ -12,7 +14,7 @@ need it, never at module import.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -20,9 +22,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
+from metrology.core.geometry.base import GeometryModel, ReferenceSurface
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.io import atomic_path
-from metrology.core.rig import Rig
-from metrology.core.triangulate import points_from_heights
 
 if TYPE_CHECKING:  # pragma: no cover
     import open3d
@@ -42,8 +44,10 @@ JUMP_PIXELS = 4.0
 # so its normal points to +Z, towards the rig.
 
 
-def default_max_jump_mm(rig: Rig) -> float:
-    """Default depth-discontinuity threshold: ``max(2 mm, 4 * pixel footprint on R)``.
+def default_max_jump_mm(model: GeometryModel, points_mm: np.ndarray | None = None) -> float:
+    """Default depth-discontinuity threshold: ``max(2 mm, 4 * pixel footprint)`` (the model's
+    :meth:`~metrology.core.geometry.base.GeometryModel.footprint_mm`: on the paper's R, or of
+    ``points_mm`` for a camera that sees its scene at a distance).
 
     Neighbouring pixels whose heights differ by more than this are not joined. Four
     footprints keep surfaces up to about 76 degrees steep (``atan 4``) connected, while
@@ -51,11 +55,11 @@ def default_max_jump_mm(rig: Rig) -> float:
 
     Examples
     --------
-    >>> from metrology.core.rig import PAPER_RIG
+    >>> from metrology.core.geometry.crossed_axes import PAPER_RIG
     >>> round(default_max_jump_mm(PAPER_RIG), 4)  # 500 mm / 640 px = 0.78 mm footprint
     3.125
     """
-    return max(MIN_JUMP_MM, JUMP_PIXELS * rig.pixel_mm)
+    return max(MIN_JUMP_MM, JUMP_PIXELS * model.footprint_mm(points_mm))
 
 
 def grid_triangles(
@@ -162,17 +166,61 @@ def grid_triangles(
     return triangles
 
 
-def _valid_points(rig: Rig, z_mm: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def faces_camera(points_mm: np.ndarray, valid: np.ndarray, camera_mm: np.ndarray) -> bool:
+    """True when the grid's counter-clockwise triangles (corners ``(k, j), (k, j+1), (k+1, j)``)
+    face the camera at ``camera_mm``: the sign of ``sum (b - a) x (c - a) . (camera - a)`` over
+    the cells whose three corners are valid (True when there are none)."""
+    a, b, c = points_mm[:-1, :-1], points_mm[:-1, 1:], points_mm[1:, :-1]
+    cells = valid[:-1, :-1] & valid[:-1, 1:] & valid[1:, :-1]
+    if not cells.any():
+        return True
+    a, b, c = a[cells], b[cells], c[cells]
+    normal = np.cross(b - a, c - a)
+    return float(np.einsum("ij,ij->", normal, camera_mm - a)) >= 0
+
+
+def surface_mesh(
+    model: GeometryModel,
+    z_mm: npt.ArrayLike,
+    *,
+    points_mm: npt.ArrayLike | None = None,
+    reference: ReferenceSurface | None = None,
+    max_jump_mm: float | None = None,
+) -> GridMesh:
+    """The mesh of a measurement: one vertex per finite pixel, grid triangles facing the camera.
+
+    Parameters
+    ----------
+    model : GeometryModel
+        The rig's model (its camera's centre, its pixel footprint).
+    z_mm : (H, W) array_like of float
+        Its heights (or depths), mm, NaN where not measured: the discontinuity test's values.
+    points_mm : (H, W, 3) array_like, optional
+        The points, model frame, mm; default the model's
+        :meth:`~metrology.core.geometry.base.PreparedGeometry.points_from_heights` of ``z_mm``
+        (against ``reference``).
+    max_jump_mm : float, optional
+        Depth-discontinuity threshold of :func:`grid_triangles`, mm; default
+        :func:`default_max_jump_mm`.
+    """
     z = np.asarray(z_mm, dtype=np.float64)
-    if z.shape != rig.shape:
-        raise ValueError(f"z_mm must have the rig's shape {rig.shape} (height_px, width_px), got {z.shape}")
-    valid = np.isfinite(z)
-    xyz = points_from_heights(rig, z)
-    return valid, z, np.ascontiguousarray(xyz[valid])
+    if z.shape != tuple(model.shape):
+        raise ValueError(f"z_mm must have the rig's shape {tuple(model.shape)} (height_px, width_px), got {z.shape}")
+    if points_mm is None:
+        xyz = model.prepare().points_from_heights(z, reference)
+    else:
+        xyz = np.asarray(points_mm, dtype=np.float64)
+    valid = np.isfinite(z) & np.isfinite(xyz).all(axis=-1)
+    jump = default_max_jump_mm(model, xyz) if max_jump_mm is None else float(max_jump_mm)
+    triangles = grid_triangles(valid, z, jump)
+    if not faces_camera(xyz, valid, model.camera_centre_mm):
+        triangles = np.ascontiguousarray(triangles[:, ::-1])
+    return GridMesh(vertices=np.ascontiguousarray(xyz[valid]), triangles=triangles)
 
 
 def mesh_from_heights(rig: Rig, z_mm: npt.ArrayLike, max_jump_mm: float | None = None) -> open3d.geometry.TriangleMesh:
-    """Triangle mesh of a height map (docs/file-formats.md).
+    """Triangle mesh of a crossed-axes height map (docs/file-formats.md): :func:`open3d_mesh` of
+    :func:`surface_mesh`.
 
     Parameters
     ----------
@@ -195,16 +243,21 @@ def mesh_from_heights(rig: Rig, z_mm: npt.ArrayLike, max_jump_mm: float | None =
     ValueError
         If ``z_mm`` does not have the rig's shape.
     """
+    return open3d_mesh(surface_mesh(rig, z_mm, max_jump_mm=max_jump_mm))
+
+
+def open3d_mesh(mesh: GridMesh) -> open3d.geometry.TriangleMesh:
+    """``mesh`` as an open3d triangle mesh with triangle and vertex normals (``(0, 0, 1)`` for
+    vertices in no triangle)."""
     import open3d as o3d
 
-    valid, z, vertices = _valid_points(rig, z_mm)
-    jump = default_max_jump_mm(rig) if max_jump_mm is None else float(max_jump_mm)
-    triangles = grid_triangles(valid, z, jump)
-    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
-    mesh.compute_triangle_normals()
-    mesh.compute_vertex_normals()
-    _fix_isolated_normals(mesh, triangles, len(vertices))
-    return mesh
+    o3d_mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(mesh.vertices), o3d.utility.Vector3iVector(mesh.triangles)
+    )
+    o3d_mesh.compute_triangle_normals()
+    o3d_mesh.compute_vertex_normals()
+    _fix_isolated_normals(o3d_mesh, mesh.triangles, len(mesh.vertices))
+    return o3d_mesh
 
 
 def _fix_isolated_normals(mesh: open3d.geometry.TriangleMesh, triangles: np.ndarray, n_vertices: int) -> None:
@@ -384,13 +437,25 @@ class GridMesh:
     Attributes
     ----------
     vertices : (V, 3) float64 array
-        ``(X_H, Y_H, z)`` of each finite pixel, mm, row-major.
+        The point of each finite pixel, model frame, mm, row-major.
     triangles : (T, 3) int32 array
-        :func:`grid_triangles` of the finite pixels (counter-clockwise seen from +Z).
+        :func:`grid_triangles` of the finite pixels, each counter-clockwise seen from the camera.
+    sigma_mm : (V,) float32 array or None
+        Each vertex's standard uncertainty, mm (NaN where unknown): PLY files carry it as the
+        vertex property ``sigma_mm``.
     """
 
     vertices: np.ndarray
     triangles: np.ndarray
+    sigma_mm: np.ndarray | None = None
+
+    def with_sigma(self, sigma_mm: npt.ArrayLike, valid: npt.ArrayLike) -> GridMesh:
+        """The mesh with the per-vertex sigma of a ``(H, W)`` sigma map at the ``valid`` pixels
+        (the vertices' pixels, row-major)."""
+        sigma = np.asarray(sigma_mm, dtype=np.float32)[np.asarray(valid, dtype=bool)]
+        if sigma.shape != (len(self.vertices),):
+            raise ValueError(f"sigma_mm gives {sigma.size} values for {len(self.vertices)} vertices")
+        return GridMesh(vertices=self.vertices, triangles=self.triangles, sigma_mm=sigma)
 
     def _cross(self, triangles: np.ndarray | None = None) -> np.ndarray:
         """(T, 3) float64 ``(b - a) x (c - a)`` of the triangles ``(a, b, c)``: twice the area times the unit normal."""
@@ -431,7 +496,8 @@ class GridMesh:
 
 
 def grid_mesh_from_heights(rig: Rig, z_mm: npt.ArrayLike, max_jump_mm: float | None = None) -> GridMesh:
-    """The vertices and triangles of :func:`mesh_from_heights`, as numpy arrays (no open3d).
+    """The vertices and triangles of :func:`mesh_from_heights`, as numpy arrays (no open3d):
+    :func:`surface_mesh` of the crossed-axes rig.
 
     Parameters
     ----------
@@ -441,9 +507,7 @@ def grid_mesh_from_heights(rig: Rig, z_mm: npt.ArrayLike, max_jump_mm: float | N
     max_jump_mm : float, optional
         Depth-discontinuity threshold, mm (default :func:`default_max_jump_mm`).
     """
-    valid, z, vertices = _valid_points(rig, z_mm)
-    jump = default_max_jump_mm(rig) if max_jump_mm is None else float(max_jump_mm)
-    return GridMesh(vertices=vertices, triangles=grid_triangles(valid, z, jump))
+    return surface_mesh(rig, z_mm, max_jump_mm=max_jump_mm)
 
 
 _PLY_FACE = np.dtype([("n", "u1"), ("i", "<u4", (3,))])  # packed: 13 bytes, open3d's layout
@@ -455,23 +519,32 @@ def _row_blocks(n: int, rows: int) -> Iterator[slice]:
         yield slice(start, min(start + rows, n))
 
 
+_PLY_VERTEX = np.dtype([("p", "<f8", (3,)), ("n", "<f8", (3,))])
+_PLY_VERTEX_SIGMA = np.dtype([("p", "<f8", (3,)), ("n", "<f8", (3,)), ("sigma_mm", "<f4")])
+
+
 def ply_chunks(mesh: GridMesh, *, chunk_rows: int = STREAM_CHUNK_ROWS) -> Iterator[bytes]:
     """Binary little-endian PLY of ``mesh``, as open3d writes it: float64 ``x y z nx ny nz`` per
-    vertex, ``uchar`` count + ``uint`` indices per face. The header comes first, before the vertex
-    normals are computed."""
+    vertex (plus a float32 ``sigma_mm`` when the mesh has one), ``uchar`` count + ``uint`` indices
+    per face. The header comes first, before the vertex normals are computed."""
     n_vertices, n_triangles = len(mesh.vertices), len(mesh.triangles)
+    sigma = mesh.sigma_mm
     yield (
         "ply\nformat binary_little_endian 1.0\ncomment Created by GCPS Lab (mm)\n"
         f"element vertex {n_vertices}\n"
         "property double x\nproperty double y\nproperty double z\n"
         "property double nx\nproperty double ny\nproperty double nz\n"
-        f"element face {n_triangles}\nproperty list uchar uint vertex_indices\nend_header\n"
+        + ("property float sigma_mm\n" if sigma is not None else "")
+        + f"element face {n_triangles}\nproperty list uchar uint vertex_indices\nend_header\n"
     ).encode("ascii")
     normals = mesh.vertex_normals()
+    layout = _PLY_VERTEX if sigma is None else _PLY_VERTEX_SIGMA
     for rows in _row_blocks(n_vertices, chunk_rows):
-        block = np.empty((rows.stop - rows.start, 6), dtype="<f8")
-        block[:, :3] = mesh.vertices[rows]
-        block[:, 3:] = normals[rows]
+        block = np.empty(rows.stop - rows.start, dtype=layout)
+        block["p"] = mesh.vertices[rows]
+        block["n"] = normals[rows]
+        if sigma is not None:
+            block["sigma_mm"] = sigma[rows]
         yield block.tobytes()
     for rows in _row_blocks(n_triangles, chunk_rows):
         faces = np.empty(rows.stop - rows.start, dtype=_PLY_FACE)
@@ -516,23 +589,36 @@ MESH_FILE_WRITERS = {"ply": ply_chunks, "stl": stl_chunks, "obj": obj_chunks}
 
 
 def mesh_file_chunks(
-    rig: Rig, z_mm: npt.ArrayLike, fmt: str, *, max_jump_mm: float | None = None, chunk_rows: int = STREAM_CHUNK_ROWS
+    mesh: GridMesh | Callable[[], GridMesh], fmt: str, *, chunk_rows: int = STREAM_CHUNK_ROWS
 ) -> Iterator[bytes]:
-    """The mesh file of a height map in format ``fmt`` (``"ply"``, ``"stl"`` or ``"obj"``), as byte chunks.
+    """The mesh file of ``mesh`` (or of what the callable builds) in format ``fmt`` (``"ply"``,
+    ``"stl"`` or ``"obj"``), as byte chunks.
 
-    The concatenated chunks parse (open3d) to the mesh of :func:`mesh_from_heights` (same
-    vertices, triangles and normals). Nothing is computed until the first chunk is asked for.
+    The concatenated chunks parse (open3d) to the mesh of :func:`open3d_mesh` (same vertices,
+    triangles and normals). Given a callable, nothing is computed until the first chunk is
+    asked for.
 
     Raises
     ------
     ValueError
-        On another format (raised at once) or a height map not of the rig's shape (at the first chunk).
+        On another format (raised at once), or from the builder (at the first chunk).
     """
     if fmt not in MESH_FILE_WRITERS:
         raise ValueError(f"fmt must be one of {', '.join(MESH_FILE_WRITERS)}, got {fmt!r}")
     writer = MESH_FILE_WRITERS[fmt]
 
     def chunks() -> Iterator[bytes]:
-        yield from writer(grid_mesh_from_heights(rig, z_mm, max_jump_mm), chunk_rows=chunk_rows)
+        yield from writer(mesh() if callable(mesh) else mesh, chunk_rows=chunk_rows)
 
     return chunks()
+
+
+def write_mesh_file(mesh: GridMesh, path: str | os.PathLike[str]) -> Path:
+    """Write ``mesh`` as binary PLY, binary STL or OBJ (by the extension), atomically, with the
+    streamed writers (:func:`mesh_file_chunks`)."""
+    path = Path(path)
+    ext = _check_extension(path, MESH_EXTENSIONS)
+    with atomic_path(path) as tmp, open(tmp, "wb") as out:
+        for chunk in mesh_file_chunks(mesh, ext[1:]):
+            out.write(chunk)
+    return path

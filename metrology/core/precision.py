@@ -15,8 +15,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.special import erf
 
-from metrology.core.rig import Rig
-from metrology.core.triangulate import abscissa_from_codes
+from metrology.core.geometry.crossed_axes import Rig, abscissa_from_codes
 
 
 def abscissa_per_code(rig: Rig, codes: npt.ArrayLike) -> np.ndarray:

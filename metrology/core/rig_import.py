@@ -308,7 +308,7 @@ def rig_from_values(
         return values[key].tolist() if key in values else []
 
     data = {
-        "model": "pinhole",
+        "model": PinholeRig.model,
         "camera": {
             "width_px": camera_size[0],
             "height_px": camera_size[1],
@@ -325,3 +325,68 @@ def rig_from_values(
         "T": values["T"].tolist(),
     }
     return PinholeRig.from_dict(data)
+
+
+@dataclass(frozen=True)
+class ImportedRig:
+    """What :func:`import_rig` read: the rig, the source of each value, the camera size and where it came from."""
+
+    rig: PinholeRig
+    sources: dict[str, str]
+    camera_size: tuple[int, int]
+    camera_size_from: str | None
+
+    def summary(self) -> dict[str, Any]:
+        """``read`` (each value's source), ``camera_size`` (value and where it came from) and the axis
+        ``triangulate auto`` picks: what ``gcps rig import`` prints and the rig page shows."""
+        return {
+            "read": dict(self.sources),
+            "camera_size": {"value": list(self.camera_size), "from": self.camera_size_from},
+            "triangulate_auto": self.rig.auto_axis(),
+        }
+
+
+def import_rig(
+    *,
+    projector_size: tuple[float, float],
+    camera_size: tuple[int, int] | None = None,
+    opencv: str | None = None,
+    sets: tuple[str, ...] | list[str] = (),
+) -> ImportedRig:
+    """A pinhole rig from calibration outputs: the values an OpenCV FileStorage file holds under the
+    recognised node names (``opencv``, :func:`opencv_sources`) and the ``KEY=SRC`` items of
+    ``sets`` (:func:`read_source`; a ``--set`` overrides what ``--opencv`` found, ``R`` and ``rvec``
+    replacing each other). The one import of ``gcps rig import`` and of the rig page.
+
+    Raises
+    ------
+    RigImportError
+        Naming the source, the key or the missing value (the messages speak of ``--opencv`` and
+        ``--set`` as the command's options).
+    """
+    sources: dict[str, str] = {}
+    size_from = "--camera-size" if camera_size else None
+    if opencv:
+        scan = opencv_sources(opencv)
+        sources.update(scan.sources)
+        if camera_size is None and scan.camera_size is not None:
+            camera_size, size_from = scan.camera_size, scan.camera_size_node
+    set_keys: set[str] = set()
+    for item in sets:
+        key, sep, spec = item.partition("=")
+        if not sep or not spec:
+            raise RigImportError(f"--set takes KEY=SRC, got {item!r}")
+        if key not in KEYS:
+            raise RigImportError(f"--set: unknown key {key!r}; expected one of {', '.join(KEYS)}")
+        sources[key] = spec
+        set_keys.add(key)
+    if "R" in set_keys and "rvec" not in set_keys:
+        sources.pop("rvec", None)  # --set R overrides a rotation vector found by --opencv
+    if "rvec" in set_keys and "R" not in set_keys:
+        sources.pop("R", None)
+    if camera_size is None:
+        raise RigImportError("--camera-size W H is required (no image size node was found)")
+    values = {key: check_count(key, read_source(spec, key)) for key, spec in sources.items()}
+    size = (int(camera_size[0]), int(camera_size[1]))
+    rig = rig_from_values(values, size, (float(projector_size[0]), float(projector_size[1])))
+    return ImportedRig(rig=rig, sources=sources, camera_size=size, camera_size_from=size_from)

@@ -39,12 +39,15 @@ from typing import Any, ClassVar
 import numpy as np
 import numpy.typing as npt
 
-from metrology.core.rig import PAPER_RIG, Rig
+from metrology.core.geometry.base import GeometryModel
+from metrology.core.geometry.crossed_axes import PAPER_RIG
 
 FloatArray = npt.NDArray[np.float64]
 
 FIELD_CENTER_X_MM = PAPER_RIG.d_mm
 """Default X of scene centres: the centre of the paper's field (X = d), mm."""
+FIELD_WIDTH_MM = PAPER_RIG.fw_mm
+"""Width of the field the scenes are laid out in (the paper's FW), mm."""
 
 _BUMP_SLOPE = 6.0 * math.sqrt(0.2) * 0.8**2
 """Maximum of ``|d/dr (1 - r^2)^3|`` (at r^2 = 0.2): about 1.717."""
@@ -769,7 +772,7 @@ def _scene_class(name: str) -> type[Scene]:
         raise ValueError(f"unknown scene {name!r}; expected one of {', '.join(SCENES)}") from None
 
 
-def make_scene(name: str, rig: Rig | None = None, **params: Any) -> Scene:
+def make_scene(name: str, rig: GeometryModel | None = None, **params: Any) -> Scene:
     """Build scene ``name`` from keyword parameters.
 
     Parameters
@@ -777,9 +780,10 @@ def make_scene(name: str, rig: Rig | None = None, **params: Any) -> Scene:
     name : str
         One of :data:`SCENES`: reference, plane, block, sphere, two_spheres, staircase, face,
         flowerpot, stage.
-    rig : Rig, optional
-        When given, scenes with a ``center_x_mm`` default it to the rig's field centre
-        ``rig.d_mm`` instead of the paper's 352 mm.
+    rig : GeometryModel, optional
+        When given, scenes with a ``center_x_mm`` default it to the rig's field centre on its
+        plane (:attr:`~metrology.core.geometry.base.GeometryModel.scene_centre_x_mm`: the
+        crossed-axes rig's ``d_mm``) instead of the paper's 352 mm.
     **params
         The scene's parameters (see :func:`scene_parameters`).
 
@@ -800,8 +804,9 @@ def make_scene(name: str, rig: Rig | None = None, **params: Any) -> Scene:
             f"scene {name!r} has no parameter {', '.join(map(repr, unknown))}; "
             f"it accepts {', '.join(accepted) or 'none'}"
         )
-    if rig is not None and "center_x_mm" in accepted and "center_x_mm" not in params:
-        params["center_x_mm"] = rig.d_mm
+    centre = None if rig is None else rig.scene_centre_x_mm
+    if centre is not None and "center_x_mm" in accepted and "center_x_mm" not in params:
+        params["center_x_mm"] = centre
     return cls(**params)
 
 

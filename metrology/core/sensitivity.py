@@ -31,9 +31,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from metrology.core.rig import Rig
+from metrology.core.geometry.crossed_axes import Rig, abscissa_from_codes, height_from_codes
 from metrology.core.synthetic import exact_codes, reference_codes
-from metrology.core.triangulate import abscissa_from_codes, height_from_codes
 
 Param = Literal["L", "d", "alpha"]
 PARAMS: tuple[Param, ...] = ("L", "d", "alpha")

@@ -32,12 +32,12 @@ import numpy as np
 import numpy.typing as npt
 
 from metrology.core.geometry.crossed_axes import (
+    Rig,
     camera_ray_point,
     codes_from_abscissa,
     codes_of_points,
     height_from_codes,
 )
-from metrology.core.rig import Rig
 
 REALISTIC_SIGMA_CODE = 0.007
 """Code noise per pixel per capture stack, code units (1.5 grey levels on 8-bit fringes)."""
@@ -90,8 +90,8 @@ def exact_codes(rig: Rig, z_mm: npt.ArrayLike) -> np.ndarray:
 
     Examples
     --------
-    >>> from metrology.core.rig import PAPER_RIG as rig
-    >>> from metrology.core.triangulate import height_from_codes
+    >>> from metrology.core.geometry.crossed_axes import PAPER_RIG as rig
+    >>> from metrology.core.geometry.crossed_axes import height_from_codes
     >>> z = height_from_codes(rig, reference_codes(rig), exact_codes(rig, 40.0))
     >>> bool(abs(z[240, 100] - 40.0) < 1e-9)
     True

@@ -1,4 +1,4 @@
-"""Per-point height uncertainty on a crossed-axes rig, from each pixel's phase noise.
+"""Per-point uncertainty from each pixel's phase noise: the decoded coordinate's sigma.
 
 An N-step least-squares phase of period P (projector units) with independent camera noise
 ``sigma_I`` per frame and modulation B (grey levels) has the coordinate standard deviation
@@ -9,14 +9,12 @@ An N-step least-squares phase of period P (projector units) with independent cam
 their phase variances over the beat's period. ``sigma_I`` is the decoder's fit-residual noise
 estimate ``sqrt(R / (N - 3))``, which has only N - 3 degrees of freedom per pixel (one for
 gcps-v1's 4 steps): it is pooled over a ``POOL_PX x POOL_PX`` window, ``sigma_I^2`` averaged over
-the window's decoded pixels, so that its median is unbiased. In light codes,
-``sigma_l = sigma_u nlp / width``; propagated through Eqs. 14, 16, 17 (the height against the
-reference's codes),
+the window's decoded pixels, so that its median is unbiased.
 
-    sigma_z = |dz/dl| sigma_l,
-
-with ``dz/dl`` evaluated by the geometry seam as a central difference of +-``STEP_CODES``
-(exact to float32 rounding for the smooth Eqs. 14-17). The reference's own noise is not
+The geometric model propagates it to the point (``sigma_in`` / ``sigma_out`` of
+:meth:`~metrology.core.geometry.base.PreparedGeometry.triangulate_rows`): on the crossed-axes rig
+``sigma_z = |dz/dl| sigma_l`` with ``sigma_l = sigma_u nlp / width`` and the analytic derivative
+of Eqs. 14, 16, 17; on a pinhole rig along the camera ray. The reference's own noise is not
 included (it is common to every measurement against that reference).
 """
 
@@ -28,14 +26,10 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from metrology.core.codecs.decode import AxisDecoding
 from metrology.core.codecs.model import Codec
-from metrology.core.geometry.base import PreparedGeometry, ReferenceSurface, triangulate_frame
 
 POOL_PX = 7
 """Side of the window over which the per-pixel noise estimate is pooled, px."""
-STEP_CODES = 0.01
-"""Half-step of the central difference of dz/dl, code units."""
 
 
 def coordinate_sigma(
@@ -108,37 +102,3 @@ def stage_coordinate_sigma(
     if stage.kind == "phase":
         return coordinate_sigma(stage.period, steps[0], pooled, modulation)
     return _phase_coordinate_sigma(stage.period, sum(2.0 / n for n in steps), pooled, modulation)  # a beat
-
-
-def axis_coordinate_sigma(codec: Codec, axis: str, decoding: AxisDecoding) -> npt.NDArray[np.float32]:
-    """:func:`stage_coordinate_sigma` of a decoded axis (its noise and modulation maps)."""
-    return stage_coordinate_sigma(codec, axis, decoding.noise, decoding.modulation)
-
-
-def height_sigma(
-    prepared: PreparedGeometry,
-    codes: np.ndarray,
-    sigma_codes: npt.ArrayLike,
-    reference: ReferenceSurface,
-    threads: int | None = None,
-) -> npt.NDArray[np.float32]:
-    """``|dz/dl| sigma_l``: the height uncertainty of each pixel, (H, W) float32 mm.
-
-    Parameters
-    ----------
-    prepared : PreparedGeometry
-        The crossed-axes rig prepared without a projector size (``u`` read as light codes).
-    codes : (H, W) float32 array
-        The object's light codes, NaN where not measured.
-    sigma_codes : (H, W) float array
-        Their standard deviation, code units.
-    reference : ReferenceSurface
-    """
-    step = np.float32(STEP_CODES)
-    up = triangulate_frame(prepared, codes + step, None, reference=reference, points=False, threads=threads)
-    down = triangulate_frame(prepared, codes - step, None, reference=reference, points=False, threads=threads)
-    assert up.height_mm is not None and down.height_mm is not None
-    slope = (up.height_mm - down.height_mm) / (2 * step)
-    sigma = np.abs(slope) * np.asarray(sigma_codes, dtype=np.float32)
-    sigma[~np.isfinite(codes)] = np.nan
-    return sigma.astype(np.float32)

@@ -10,8 +10,6 @@ from metrology.captures.models import Capture
 from metrology.captures.simulation import PRESETS
 from metrology.dashboard.selectors import capture_origin
 
-PAPER_RIG = {"L_mm": 1022.0, "d_mm": 352.0, "alpha_rad": 0.332, "fw_mm": 500.0, "nlp": 128}
-
 # Which scene parameter the "Z" field of the simulate form sets (scenes without one ignore it).
 SCENE_Z_PARAMETER = {"plane": "z_mm", "block": "top_mm", "stage": "z_in_mm", "staircase": "step_height_mm"}
 SCENE_CHOICES = [
@@ -35,37 +33,113 @@ DEFAULT_ROLE_FOR_SCENE = {"reference": "reference", "block": "master", "stage": 
 
 
 class RigForm(forms.Form):
+    """A rig typed value by value: one field per scalar parameter of a model
+    (:attr:`~metrology.core.geometry.base.GeometryModel.scalar_parameters`; the default model
+    unless told), its :meth:`~metrology.core.geometry.base.GeometryModel.example_parameters` as
+    initial values."""
+
     name = forms.CharField(max_length=200, required=False, help_text="A name you will recognise")
-    L_mm = forms.FloatField(label="L (mm)", initial=PAPER_RIG["L_mm"], help_text="Height of the pupils above R")
-    d_mm = forms.FloatField(label="d (mm)", initial=PAPER_RIG["d_mm"], help_text="Projector-camera baseline")
-    alpha_rad = forms.FloatField(label="alpha (rad)", initial=PAPER_RIG["alpha_rad"], help_text="In (0, pi/2)")
-    fw_mm = forms.FloatField(label="FW (mm)", initial=PAPER_RIG["fw_mm"], help_text="Field width on R")
-    nlp = forms.IntegerField(label="nlp", initial=PAPER_RIG["nlp"], help_text="Light codes across the field")
-    width_px = forms.IntegerField(label="width (px)", initial=320, min_value=1)
-    height_px = forms.IntegerField(label="height (px)", initial=240, min_value=1)
     notes = forms.CharField(widget=forms.Textarea(attrs={"rows": 2}), required=False)
 
+    def __init__(self, *args: Any, model_name: str | None = None, **kwargs: Any) -> None:
+        from metrology.core.geometry import MODELS
+        from metrology.rigs.models import DEFAULT_MODEL
 
-class PinholeRigForm(forms.Form):
+        super().__init__(*args, **kwargs)
+        self.model_name = model_name or DEFAULT_MODEL
+        model = MODELS[self.model_name]
+        initial = model.example_parameters()
+        fields: dict[str, forms.Field] = {"name": self.fields.pop("name")}
+        for spec in model.scalar_parameters:
+            label = f"{spec.name} ({spec.unit})" if spec.unit else spec.name
+            field: forms.Field
+            start = initial.get(spec.name)
+            if spec.integer:
+                field = forms.IntegerField(label=label, initial=start, help_text=spec.label, min_value=1)
+            else:
+                field = forms.FloatField(label=label, initial=start, help_text=spec.label)
+            fields[spec.name] = field
+        fields["notes"] = self.fields.pop("notes")
+        self.fields = fields
+
+    def rig_data(self) -> dict[str, Any]:
+        """The rig file of the typed values (for :func:`metrology.rigs.services.create_rig`)."""
+        return {"model": self.model_name, **self.cleaned_data}
+
+
+def _json_upload(upload: Any, what: str) -> Any:
+    import json
+
+    from django.conf import settings
+
+    if upload.size is not None and upload.size > settings.GCPS_MAX_RIG_FILE_BYTES:
+        raise forms.ValidationError(f"a {what} is at most {settings.GCPS_MAX_RIG_FILE_BYTES} bytes")
+    try:
+        data = json.loads(upload.read().decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise forms.ValidationError(f"not a JSON {what}: {exc}") from None
+    if not isinstance(data, dict):
+        raise forms.ValidationError(f"the {what} must be a JSON object")
+    return data
+
+
+class RigFileForm(forms.Form):
+    """A rig file of any model (docs/file-formats.md; ``gcps rig import`` writes pinhole ones)."""
+
     name = forms.CharField(max_length=200, required=False, help_text="A name you will recognise")
     rig_file = forms.FileField(
-        label="Pinhole rig file (.json)",
-        help_text='A rig file with "model": "pinhole" (docs/pinhole.md; `gcps rig import` writes one)',
+        label="Rig file (.json)",
+        help_text="Any model's rig file: the seven crossed-axes values, or a file with a model key (docs/pinhole.md)",
     )
 
-    def clean_rig_file(self):
-        import json
+    def clean_rig_file(self) -> Any:
+        return _json_upload(self.cleaned_data["rig_file"], "rig file")
 
-        upload = self.cleaned_data["rig_file"]
-        if upload.size is not None and upload.size > 1_000_000:
-            raise forms.ValidationError("a rig file is at most 1 MB")
-        try:
-            data = json.loads(upload.read().decode("utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise forms.ValidationError(f"not a JSON rig file: {exc}") from None
-        if not isinstance(data, dict) or data.get("model") != "pinhole":
-            raise forms.ValidationError('the rig file must be a JSON object with "model": "pinhole"')
+
+class CalibrationFileForm(forms.Form):
+    """An OpenCV FileStorage calibration file (YAML/XML), read as ``gcps rig import --opencv`` reads it."""
+
+    calibration_file = forms.FileField(
+        label="Calibration file (.yml, .yaml, .xml)",
+        help_text="OpenCV FileStorage: camera and projector matrices, distortion, R and T, found by their node names",
+    )
+    projector_width = forms.FloatField(min_value=1, label="projector width", help_text="In the codec's units")
+    projector_height = forms.FloatField(min_value=1, label="projector height")
+    camera_width_px = forms.IntegerField(
+        min_value=1, required=False, label="camera width (px)", help_text="When the file gives no image size"
+    )
+    camera_height_px = forms.IntegerField(min_value=1, required=False, label="camera height (px)")
+
+    def clean(self) -> dict[str, Any]:
+        data = super().clean() or {}
+        given = [data.get("camera_width_px") is not None, data.get("camera_height_px") is not None]
+        if any(given) and not all(given):
+            raise forms.ValidationError("Give both camera width and height, or neither (the file's size node).")
         return data
+
+    def import_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of :func:`metrology.rigs.services.read_calibration_upload` and the
+        imports built on it (upload and sizes)."""
+        data = self.cleaned_data
+        camera = None
+        if data.get("camera_width_px") is not None:
+            camera = (data["camera_width_px"], data["camera_height_px"])
+        return {
+            "upload": data["calibration_file"],
+            "projector_size": (data["projector_width"], data["projector_height"]),
+            "camera_size": camera,
+        }
+
+
+class CalibrationImportForm(CalibrationFileForm):
+    """A calibration file that becomes a new rig (the Rigs page), with the rig's name."""
+
+    name = forms.CharField(max_length=200, required=False, help_text="A name you will recognise")
+    field_order = ["name", "calibration_file", "projector_width", "projector_height"]  # noqa: RUF012 (Django reads it as a class attribute)
+
+    def import_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of :func:`metrology.rigs.services.import_calibration_file` (without owner)."""
+        return {**super().import_kwargs(), "name": self.cleaned_data.get("name") or ""}
 
 
 class RigCodecForm(forms.Form):
@@ -185,15 +259,15 @@ class MeasurementForm(forms.Form):
         help_text="Also compute each point's standard uncertainty (mm) from the object's phase noise",
     )
 
-    def __init__(self, *args, captures=(), pinhole: bool = False, **kwargs):
+    def __init__(self, *args, captures=(), reference_optional: bool = False, unreferenced: str = "depth", **kwargs):
         super().__init__(*args, **kwargs)
         captures = list(captures)
         self.fields["reference"].choices = capture_choices([c for c in captures if c.role == "reference"])
         self.fields["object"].choices = capture_choices([c for c in captures if c.role != "reference"])
-        if pinhole:  # a pinhole rig measures depths without a reference
+        if reference_optional:  # the rig's model measures without a reference: depths
             self.fields["reference"].required = False
             self.fields["reference"].choices = capture_choices(
-                [c for c in captures if c.role == "reference"], empty="none: depths (camera Z)"
+                [c for c in captures if c.role == "reference"], empty=f"none: {unreferenced}s (camera Z)"
             )
             self.fields["reference"].empty_value = None
 

@@ -15,6 +15,17 @@ from metrology.dashboard.selectors import finite_or_none
 DISTORTION_NAMES = ("k1", "k2", "p1", "p2", "k3")
 
 
+def rig_change(rig_before: dict[str, Any], rig_file: dict[str, Any] | None) -> dict[str, Any]:
+    """What applying the calibration does to the rig, in the models' own words: ``converts`` (the
+    rig's model changes), ``before`` and ``after`` (the models' labels)."""
+    from metrology.core.geometry import MODELS, model_name
+
+    was = rig_before.get("model") or model_name(rig_before.get("rig_file") or {})
+    names = [was, model_name(rig_file) if rig_file else was]  # no file yet: the calibration has not finished
+    before, after = (MODELS[name].label if name in MODELS else name for name in names)
+    return {"converts": names[0] != names[1], "before": before, "after": after}
+
+
 def device_rows(device: dict[str, Any]) -> list[dict[str, Any]]:
     """One row per intrinsic value of a device's report entry: ``name``, ``value``, ``std`` (one sigma;
     None when the report has none), ``unit`` ("px", or "" for distortion coefficients)."""
@@ -75,7 +86,7 @@ def procam_summary(report: dict[str, Any]) -> dict[str, Any]:
         "rms": {
             "camera": finite_or_none(report.get("camera_rms_px")),
             "projector": finite_or_none(report.get("projector_rms_px")),
-            "stereo": finite_or_none(report.get("stereo_rms_px")),
+            "pair": finite_or_none(report.get("stereo_rms_px")),
         },
         "poses_used": report.get("poses_used"),
         "leave_one_out_median_px": finite_or_none((report.get("leave_one_out") or {}).get("median_px")),

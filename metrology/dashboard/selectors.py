@@ -25,79 +25,74 @@ def load_npy(field) -> np.ndarray | None:
         return np.load(io.BytesIO(handle.read()), allow_pickle=False)
 
 
-def measurement_figures(measurement, row: int | None = None) -> tuple[dict[str, Any], int, int]:
-    """Figures of a finished measurement and the profile row used; returns (figures, row, height_px)."""
-    from metrology.core.mesh import default_max_jump_mm
-    from metrology.core.rig import Rig as CoreRig
-    from metrology.core.triangulate import points_from_heights
-    from metrology.figures.measurement import measurement_figures as build
+def measurement_model(measurement) -> Any:
+    """The model class of the rig values a measurement was made with."""
+    from metrology.core.geometry import model_class
+    from metrology.core.geometry.base import model_name
 
-    if measurement.rig_values.get("model") == "pinhole":
-        return pinhole_measurement_figures(measurement, row)
-    rig = CoreRig.from_dict(measurement.rig_values)
+    return model_class(model_name(measurement.rig_values))
+
+
+def measurement_quantity(measurement) -> str:
+    """What a measurement's ``z`` is: ``"height"`` (above the reference plane, or the model's own
+    plane) or ``"depth"`` (camera Z of a model measured without a reference)."""
+    if measurement.reference_id is not None:
+        return "height"
+    return measurement_model(measurement).unreferenced_result
+
+
+def measurement_figures(measurement, row: int | None = None) -> tuple[dict[str, Any], int, int]:
+    """Figures of a finished measurement and the profile row used; returns (figures, row, height_px).
+
+    The map's axes are the model's (:meth:`~metrology.core.geometry.base.GeometryModel.image_axes`:
+    the paper's X, Y on R, or camera pixels), the titles say height or depth as the result is."""
+    from metrology.core.geometry import model_from_dict
+    from metrology.core.mesh import default_max_jump_mm
+    from metrology.figures.measurement import measurement_figures as build
+    from metrology.measurements.derived import measurement_points
+
+    model = model_from_dict(measurement.rig_values)
     z = load_npy(measurement.height_npy)
     if z is None:
-        return {}, 0, rig.height_px
-    gray = load_npy(measurement.gray_only_npy)
+        return {}, 0, model.shape[0]
+    points = measurement_points(measurement, z)
+    axes = model.image_axes()
     height = z.shape[0]
     row = height // 2 if row is None else min(max(int(row), 0), height - 1)
     figures = build(
         z,
-        points_from_heights(rig, z),
+        points,
         row,
-        gray_z_mm=gray,
-        x_mm=rig.column_x_mm(),
-        y_mm=rig.row_y_mm(),
-        max_jump_mm=default_max_jump_mm(rig),
+        gray_z_mm=load_npy(measurement.gray_only_npy),
+        x_mm=axes.x,
+        y_mm=axes.y,
+        max_jump_mm=default_max_jump_mm(model, points),
+        quantity=measurement_quantity(measurement),
+        x_label=axes.x_label,
+        y_label=axes.y_label,
+        unit=axes.unit,
     )
     sigma = load_npy(measurement.sigma_npy)
     if sigma is not None:  # the per-point uncertainty (options.sigma)
         from metrology.figures.uncertainty import sigma_map_figure
 
-        figures["sigma_map"] = sigma_map_figure(sigma, rig.column_x_mm(), rig.row_y_mm())
-    return figures, row, height
-
-
-def pinhole_measurement_figures(measurement, row: int | None = None) -> tuple[dict[str, Any], int, int]:
-    """Figures of a pinhole rig's measurement: z map and profiles over camera pixels, the 3D view of
-    the stored camera-frame points, the sigma map; returns (figures, row, height_px)."""
-    from metrology.figures.measurement import measurement_figures as build
-    from metrology.measurements.pinhole import load_points
-
-    z = load_npy(measurement.height_npy)
-    points = load_points(measurement)
-    camera = measurement.rig_values.get("camera", {})
-    if z is None or points is None:
-        return {}, 0, int(camera.get("height_px", 0))
-    height, width = z.shape
-    row = height // 2 if row is None else min(max(int(row), 0), height - 1)
-    figures = build(z, points, row)  # axes: camera columns and rows
-    for fig in figures.values():
-        if fig.layout.xaxis.title.text and "X" in fig.layout.xaxis.title.text:
-            fig.update_xaxes(title_text="camera column (px)")
-        if fig.layout.yaxis.title.text and fig.layout.yaxis.title.text.startswith("Y"):
-            fig.update_yaxes(title_text="camera row (px), running down")
-    sigma = load_npy(measurement.sigma_npy)
-    if sigma is not None:
-        from metrology.figures.uncertainty import sigma_map_figure
-
-        figures["sigma_map"] = sigma_map_figure(sigma, np.arange(width, dtype=float), np.arange(height, dtype=float))
-        figures["sigma_map"].update_xaxes(title_text="camera column (px)")
-        figures["sigma_map"].update_yaxes(title_text="camera row (px), running down")
+        figures["sigma_map"] = sigma_map_figure(sigma, axes.x, axes.y)
+        figures["sigma_map"].update_xaxes(title_text=axes.x_label)
+        figures["sigma_map"].update_yaxes(title_text=axes.y_label)
     return figures, row, height
 
 
 def calibration_figures(calibration) -> dict[str, Any]:
-    from metrology.core.rig import Rig as CoreRig
+    from metrology.core.geometry import model_from_dict
     from metrology.figures.calibration import calibration_figures as build
 
-    rig = CoreRig.from_dict(calibration.rig_values)
+    axes = model_from_dict(calibration.rig_values).image_axes()
     return build(
         calibration.iterations or [],
         calibration.master_height_mm,
         residual_mm=load_npy(calibration.residual_npy),
-        x_mm=rig.column_x_mm(),
-        y_mm=rig.row_y_mm(),
+        x_mm=axes.x,
+        y_mm=axes.y,
         result=calibration.result or {},
     )
 
@@ -196,16 +191,29 @@ def calibration_summary(calibration) -> dict[str, Any]:
 
 
 @functools.lru_cache(maxsize=32)
-def _curves(geometry_json: str, z_mm: float) -> dict[str, Any]:
-    from metrology.core.rig import Rig as CoreRig
+def _curves(rig_file_json: str, z_mm: float) -> dict[str, Any]:
+    from metrology.core.geometry import model_from_dict
     from metrology.core.sensitivity import sensitivity_curves
 
-    return sensitivity_curves(CoreRig.from_dict(json.loads(geometry_json)), z_mm=z_mm)
+    return sensitivity_curves(model_from_dict(json.loads(rig_file_json)), z_mm=z_mm)  # type: ignore[arg-type]
 
 
 def sensitivity_curves_for(rig, z_mm: float) -> dict[str, Any]:
-    """Figs. 4-6 data of a rig at height ``z_mm`` (cached per geometry and height)."""
-    return _curves(json.dumps(rig.geometry(), sort_keys=True), float(z_mm))
+    """Figs. 4-6 data of a rig at height ``z_mm`` (cached per rig file and height); the page offers
+    it where the model has the paper's parameters."""
+    return _curves(json.dumps(rig.rig_file(), sort_keys=True), float(z_mm))
+
+
+def import_message(summary: dict[str, Any]) -> str:
+    """What a calibration file's import read, in a sentence: each value's node and the camera size's origin."""
+    read = ", ".join(f"{key} from {source.rsplit('#', 1)[-1]}" for key, source in summary.get("read", {}).items())
+    size = summary.get("camera_size") or {}
+    width, height = (size.get("value") or [None, None])[:2]
+    origin = size.get("from") or "the form"
+    return (
+        f"Imported the calibration: {read}; camera {width} x {height} px (from {origin}); "
+        f"triangulate auto takes the {summary.get('triangulate_auto')} axis."
+    )
 
 
 def job_result_url(job: Job) -> str:
@@ -271,7 +279,7 @@ def plotly_js() -> bytes:
 def capture_decoding(capture) -> tuple[dict[str, Any], dict[str, Any]]:
     """Figures of a stored capture's decoding with its codec (u/v maps, modulation, reasons) and the
     decoding summary; ``({}, {"error": ...})`` when the stack cannot be read or decoded."""
-    from metrology.captures.codecs import load_codec_stack
+    from metrology.captures.stacks import load_codec_stack
     from metrology.core.codecs.decode import decode_codec
     from metrology.figures.capture import decoding_figures
 

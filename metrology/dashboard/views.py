@@ -88,36 +88,57 @@ def favicon(request: HttpRequest) -> HttpResponse:
 # ----------------------------------------------------------------------------- rigs
 
 
+RIG_FORMS = ("values", "rig_file", "calibration")
+"""The three ways the rigs page creates a rig: typed values, a rig file, a calibration file."""
+
+
 @login_required
 @require_http_methods(["GET", "POST"])
 def rig_list(request: HttpRequest) -> HttpResponse:
-    pinhole_post = request.method == "POST" and request.POST.get("action") == "pinhole"
-    form = forms.RigForm(None if pinhole_post else (request.POST or None))
-    pinhole_form = forms.PinholeRigForm(
-        request.POST if pinhole_post else None, request.FILES if pinhole_post else None, prefix="pinhole"
-    )
-    if pinhole_post and pinhole_form.is_valid():
-        try:
-            data = {**pinhole_form.cleaned_data["rig_file"], "name": pinhole_form.cleaned_data.get("name") or ""}
-            rig = rig_services.create_pinhole_rig(owner=request.user, data=data)
-        except SERVICE_ERRORS as exc:
-            pinhole_form.add_error(None, error_sentence(exc))
-        else:
+    """The rigs, and three ways to add one: the model's values typed one by one, a rig file of any
+    model, or an OpenCV FileStorage calibration file read as ``gcps rig import`` reads it (the
+    message says which nodes were read)."""
+    from django.contrib import messages
+
+    posted = request.POST.get("action", "values") if request.method == "POST" else ""
+    data = request.POST if posted else None
+    files = request.FILES if posted else None
+    form = forms.RigForm(data if posted == "values" else None)
+    rig_file_form = forms.RigFileForm(data if posted == "rig_file" else None, files, prefix="file")
+    import_form = forms.CalibrationImportForm(data if posted == "calibration" else None, files, prefix="import")
+    try:
+        if posted == "values" and form.is_valid():
+            rig = rig_services.create_rig(owner=request.user, data=form.rig_data())
             return redirect("dashboard:rig", rig.pk)
-    if request.method == "POST" and not pinhole_post and form.is_valid():
-        try:
-            rig = rig_services.create_rig(owner=request.user, data=form.cleaned_data)
-        except SERVICE_ERRORS as exc:
-            form.add_error(None, error_sentence(exc))
-        else:
+        if posted == "rig_file" and rig_file_form.is_valid():
+            rig_file = {**rig_file_form.cleaned_data["rig_file"], "name": rig_file_form.cleaned_data.get("name") or ""}
+            rig = rig_services.create_rig(owner=request.user, data=rig_file)
             return redirect("dashboard:rig", rig.pk)
-    status = 400 if request.method == "POST" else 200
+        if posted == "calibration" and import_form.is_valid():
+            rig, summary = rig_services.import_calibration_file(owner=request.user, **import_form.import_kwargs())
+            messages.success(request, pages.import_message(summary))
+            return redirect("dashboard:rig", rig.pk)
+    except SERVICE_ERRORS as exc:
+        failed = {"values": form, "rig_file": rig_file_form, "calibration": import_form}[posted]
+        failed.add_error(None, error_sentence(exc))
     return render(
         request,
         "dashboard/rigs.html",
-        {"rigs": rig_selectors.rigs_for(request.user), "form": form, "pinhole_form": pinhole_form},
-        status=status,
+        {
+            "rigs": [(rig, rig.to_core()) for rig in rig_selectors.rigs_for(request.user)],
+            "form": form,
+            "rig_file_form": rig_file_form,
+            "import_form": import_form,
+            "posted": posted,
+        },
+        status=400 if posted else 200,
     )
+
+
+def _codec_label(value: Any) -> str:
+    from metrology.captures.codecs import codec_label
+
+    return codec_label(value)
 
 
 def _codec_initial(rig) -> str:
@@ -129,33 +150,64 @@ def _codec_initial(rig) -> str:
 @login_required
 @require_http_methods(["GET", "POST"])
 def rig_detail(request: HttpRequest, rig_id: int) -> HttpResponse:
+    """A rig's page, and its two forms: the default codec (``action`` ``codec``, the default) and a
+    calibration file imported into the rig (``action`` ``calibration``, read as ``gcps rig import``)."""
+    from django.contrib import messages
+
     rig = rig_selectors.get_rig(request.user, rig_id)
-    codec_form = forms.RigCodecForm(request.POST or None, initial={"codec": _codec_initial(rig)})
-    if request.method == "POST" and codec_form.is_valid():
+    action = request.POST.get("action", "codec") if request.method == "POST" else ""
+    codec_form = forms.RigCodecForm(request.POST if action == "codec" else None, initial={"codec": _codec_initial(rig)})
+    import_form = forms.CalibrationFileForm(
+        request.POST if action == "calibration" else None,
+        request.FILES if action == "calibration" else None,
+        prefix="import",
+    )
+    if action == "codec" and codec_form.is_valid():
         try:
             rig_services.set_rig_codec(rig=rig, codec=codec_form.cleaned_data["codec"])
         except SERVICE_ERRORS as exc:
             codec_form.add_error(None, error_sentence(exc))
         else:
+            if request.POST.get("next") == "captures":  # the captures page's "Use ... as the default codec"
+                return redirect("dashboard:rig-captures", rig.pk)
             return redirect("dashboard:rig", rig.pk)
-    return _rig_page(request, rig, codec_form, status=400 if request.method == "POST" else 200)
+    if action == "calibration" and import_form.is_valid():
+        try:
+            rig, summary = rig_services.import_calibration_into_rig(rig=rig, **import_form.import_kwargs())
+        except SERVICE_ERRORS as exc:
+            import_form.add_error(None, error_sentence(exc))
+        else:
+            messages.success(request, pages.import_message(summary))
+            return redirect("dashboard:rig", rig.pk)
+    return _rig_page(request, rig, codec_form, import_form, status=400 if action else 200)
 
 
-def _rig_page(request: HttpRequest, rig, codec_form, *, status: int = 200, restore_error: str = "") -> HttpResponse:
+def _rig_page(
+    request: HttpRequest,
+    rig,
+    codec_form,
+    import_form=None,
+    *,
+    status: int = 200,
+    restore_error: str = "",
+) -> HttpResponse:
     from metrology.captures.codecs import codec_label
 
     user = request.user
     history = list(reversed(rig_selectors.rig_history(rig)))
+    model = rig.to_core()
     return render(
         request,
         "dashboard/rig.html",
         {
             "codec_form": codec_form,
+            "import_form": import_form if import_form is not None else forms.CalibrationFileForm(prefix="import"),
             "codec_label": codec_label(rig.codec),
             "rig": rig,
+            "model": model,
+            "values": model.value_rows(),
+            "can": rig_selectors.rig_capabilities(rig),
             "history": history,
-            # one Values column when a pinhole file is involved (three numeric columns do not fit it)
-            "values_column": rig.is_pinhole or any(entry["pinhole"] for entry in history),
             "restore_error": restore_error,
             "captures": capture_selectors.captures_for(user, rig).order_by("-id")[:10],
             "measurements": measurement_selectors.measurements_for(user).filter(rig=rig)[:10],
@@ -186,7 +238,7 @@ def rig_sensitivity(request: HttpRequest, rig_id: int) -> HttpResponse:
     from metrology.figures.sensitivity import sensitivity_figures
 
     rig = rig_selectors.get_rig(request.user, rig_id)
-    if rig.is_pinhole:  # Figs. 4-6 are the crossed-axes model's
+    if not rig_selectors.rig_capabilities(rig).sensitivity:  # Figs. 4-6 need the paper's parameters
         return redirect("dashboard:rig", rig.pk)
     error = ""
     try:
@@ -263,6 +315,8 @@ def rig_captures(request: HttpRequest, rig_id: int) -> HttpResponse:
             "upload_form": upload,
             "simulate_form": simulate,
             "stage_form": stage,
+            "can": rig_selectors.rig_capabilities(rig),
+            "codec_label": _codec_label(rig.codec),
             "captures": capture_selectors.captures_for(request.user, rig).order_by("-id")[:200],
             "sessions": pages.stage_sessions(request.user, rig),
         },
@@ -332,8 +386,12 @@ def measurement_new(request: HttpRequest) -> HttpResponse:
     rig = _rig_from_query(request)
     if rig is None:
         return render(request, "dashboard/choose_rig.html", _choose_rig(request, "measurement"))
+    can = rig_selectors.rig_capabilities(rig)
     form = forms.MeasurementForm(
-        request.POST or None, captures=pages.ready_captures(request.user, rig), pinhole=rig.is_pinhole
+        request.POST or None,
+        captures=pages.ready_captures(request.user, rig),
+        reference_optional=not can.requires_reference,
+        unreferenced=can.unreferenced_result,
     )
     if request.method == "POST" and form.is_valid():
         try:
@@ -351,7 +409,7 @@ def measurement_new(request: HttpRequest) -> HttpResponse:
     return render(
         request,
         "dashboard/measurement_new.html",
-        {"rig": rig, "form": form},
+        {"rig": rig, "form": form, "can": can},
         status=400 if request.method == "POST" else 200,
     )
 
@@ -360,7 +418,7 @@ def measurement_new(request: HttpRequest) -> HttpResponse:
 def measurement_detail(request: HttpRequest, measurement_id: int) -> HttpResponse:
     figures: dict[str, Any]
     measurement = measurement_selectors.get_measurement(request.user, measurement_id)
-    figures, row, height = {}, 0, measurement.rig_values.get("height_px", measurement.rig.height_px)
+    figures, row, height = {}, 0, measurement.rig.height_px
     if measurement.job.status == "done":
         requested = request.GET.get("row")
         figures, row, height = pages.measurement_figures(
@@ -381,6 +439,9 @@ def measurement_detail(request: HttpRequest, measurement_id: int) -> HttpRespons
             "max_row": max(0, height - 1),
             "files": files,
             "stats": measurement.statistics or {},
+            "quantity": (quantity := pages.measurement_quantity(measurement)),
+            "quantity_map_title": f"{quantity.capitalize()} map",
+            "model_label": pages.measurement_model(measurement).label,
         },
     )
 
@@ -424,7 +485,7 @@ def calibration_new(request: HttpRequest) -> HttpResponse:
     return render(
         request,
         "dashboard/calibration_new.html",
-        {"rig": rig, "form": form},
+        {"rig": rig, "form": form, "can": rig_selectors.rig_capabilities(rig)},
         status=400 if request.method == "POST" else 200,
     )
 
@@ -515,6 +576,7 @@ def procam_new(request: HttpRequest) -> HttpResponse:
         "dashboard/procam_new.html",
         {
             "rig": rig,
+            "converts_from": procam_services.converted_model(rig),
             "form": form,
             "has_board_captures": bool(form.fields["existing"].choices),
             "option_fields": [
@@ -535,14 +597,14 @@ def procam_new(request: HttpRequest) -> HttpResponse:
 
 
 def _procam_context(request: HttpRequest, calibration, error: str = "") -> dict[str, Any]:
-    from metrology.dashboard.procam_pages import procam_summary
+    from metrology.dashboard.procam_pages import procam_summary, rig_change
 
     done = calibration.job.status == "done"
     return {
         "calibration": calibration,
         "job": calibration.job,
         "summary": procam_summary(calibration.report) if done else {},
-        "rig_before": calibration.rig_before or {},
+        "rig_change": rig_change(calibration.rig_before or {}, calibration.rig_file),
         "pose_ids": calibration_selectors.procam_pose_ids(calibration),
         "error": error,
     }
@@ -645,7 +707,7 @@ def characterization_new(request: HttpRequest) -> HttpResponse:
     return render(
         request,
         "dashboard/characterization_new.html",
-        {"rig": rig, "form": form},
+        {"rig": rig, "form": form, "can": rig_selectors.rig_capabilities(rig)},
         status=400 if request.method == "POST" else 200,
     )
 
@@ -666,6 +728,7 @@ def characterization_detail(request: HttpRequest, characterization_id: int) -> H
             "job": characterization.job,
             "figures": [(key, FIGURE_TITLES[key], fig) for key, fig in figures.items()],
             "summary": summary_rows(results) if done else [],
+            "rig_rows": rig_selectors.rig_value_rows(characterization.rig_values),
             "software_version": software_version(),
         },
     )

@@ -76,17 +76,31 @@ def decimate_axis(coords: npt.ArrayLike, factor: int) -> np.ndarray:
     return np.array([g[np.isfinite(g)].mean() for g in groups])
 
 
-def height_map_figure(z_mm: npt.ArrayLike, x_mm: npt.ArrayLike, y_mm: npt.ArrayLike, title: str = "") -> go.Figure:
-    """Heatmap of a (decimated) height map with a colour bar in mm.
+def height_map_figure(
+    z_mm: npt.ArrayLike,
+    x_mm: npt.ArrayLike,
+    y_mm: npt.ArrayLike,
+    title: str = "",
+    *,
+    quantity: str = "height",
+    x_label: str = "X (mm)",
+    y_label: str = "Y (mm)",
+    unit: str = "mm",
+) -> go.Figure:
+    """Heatmap of a (decimated) map of heights (or depths) with a colour bar in mm.
 
     Parameters
     ----------
     z_mm : (h, w) float array, mm, NaN where invalid (shown blank)
-    x_mm : (w,) float array, X of each column, mm
-    y_mm : (h,) float array, Y of each row, mm
+    x_mm : (w,) float array, the coordinate of each column (``unit``)
+    y_mm : (h,) float array, the coordinate of each row (``unit``)
+    quantity : {'height', 'depth'}
+        What ``z_mm`` is (the title and the colour bar say it).
+    x_label, y_label, unit : str
+        The axes' titles and the coordinates' unit (the paper's X, Y in mm; camera pixels).
     """
     z = np.asarray(z_mm, dtype=np.float32)
-    title = title or "Height map"
+    title = title or f"{quantity.capitalize()} map"
     if not np.isfinite(z).any():
         return empty_figure(title, "No pixel was measured.")
     fig = go.Figure(
@@ -96,20 +110,32 @@ def height_map_figure(z_mm: npt.ArrayLike, x_mm: npt.ArrayLike, y_mm: npt.ArrayL
                 x=np.asarray(x_mm, dtype=np.float32),
                 y=np.asarray(y_mm, dtype=np.float32),
                 colorscale="Viridis",
-                colorbar={"title": {"text": "height (mm)", "side": "right"}},
-                hovertemplate="X = %{x:.1f} mm<br>Y = %{y:.1f} mm<br>z = %{z:.3f} mm<extra></extra>",
+                colorbar={"title": {"text": f"{quantity} (mm)", "side": "right"}},
+                hovertemplate=_hover(x_label, y_label, unit, quantity),
             )
         ],
-        layout=base_layout(title, "X (mm)", "Y (mm)", height=480),
+        layout=base_layout(title, x_label, y_label, height=480),
     )
     return fit_image_axes(fig, x_mm, y_mm)
 
 
+def _hover(x_label: str, y_label: str, unit: str, quantity: str) -> str:
+    """``X = %{x:.1f} mm<br>Y = ...<br>height = %{z:.3f} mm``: the axes' names (their titles before the unit)."""
+    x_name, y_name = x_label.split(" (")[0], y_label.split(" (")[0]
+    return f"{x_name} = %{{x:.1f}} {unit}<br>{y_name} = %{{y:.1f}} {unit}<br>{quantity} = %{{z:.3f}} mm<extra></extra>"
+
+
 def profile_figure(
-    x_mm: npt.ArrayLike, z_row_mm: npt.ArrayLike, row: int, gray_row_mm: npt.ArrayLike | None = None
+    x_mm: npt.ArrayLike,
+    z_row_mm: npt.ArrayLike,
+    row: int,
+    gray_row_mm: npt.ArrayLike | None = None,
+    *,
+    quantity: str = "height",
+    x_label: str = "X (mm)",
 ) -> go.Figure:
-    """Height along one image row (full resolution), GCPS; the gray-code-only profile if given."""
-    fig = go.Figure(layout=base_layout(f"Profile along row {row}", "X (mm)", "height (mm)"))
+    """Height (or depth) along one image row (full resolution), GCPS; the gray-code-only profile if given."""
+    fig = go.Figure(layout=base_layout(f"Profile along row {row}", x_label, f"{quantity} (mm)"))
     fig.add_trace(
         go.Scatter(
             x=np.asarray(x_mm, dtype=np.float32),
@@ -133,12 +159,12 @@ def profile_figure(
 
 
 def gray_vs_gcps_figure(
-    x_mm: npt.ArrayLike, z_row_mm: npt.ArrayLike, gray_row_mm: npt.ArrayLike, row: int
+    x_mm: npt.ArrayLike, z_row_mm: npt.ArrayLike, gray_row_mm: npt.ArrayLike, row: int, *, x_label: str = "X (mm)"
 ) -> go.Figure:
     """Gray-code-only minus GCPS height along one row, in µm: the staircase the phase shift removes."""
     x = np.asarray(x_mm, dtype=np.float32)
     diff = (np.asarray(gray_row_mm, dtype=np.float64) - np.asarray(z_row_mm, dtype=np.float64)) * UM
-    fig = go.Figure(layout=base_layout(f"Gray code only minus GCPS, row {row}", "X (mm)", "difference (µm)"))
+    fig = go.Figure(layout=base_layout(f"Gray code only minus GCPS, row {row}", x_label, "difference (µm)"))
     fig.add_trace(
         go.Scatter(x=x, y=diff.astype(np.float32), mode="lines", name="gray only - GCPS", line={"color": PALETTE[4]})
     )
@@ -204,21 +230,29 @@ def measurement_figures(
     x_mm: npt.ArrayLike | None = None,
     y_mm: npt.ArrayLike | None = None,
     max_jump_mm: float = math.inf,
+    quantity: str = "height",
+    x_label: str = "camera column (px)",
+    y_label: str = "camera row (px)",
+    unit: str = "px",
 ) -> dict[str, go.Figure]:
     """Every figure of a measurement, from full-resolution data (decimated here).
 
     Parameters
     ----------
     z_mm : (H, W) float array
-        GCPS height map, mm, NaN where invalid.
+        GCPS heights (or depths), mm, NaN where invalid.
     xyz_mm : (H, W, 3) float array
-        ``points_from_heights(rig, z_mm)``: X_H, Y_H, z of each pixel, mm.
+        The points of each pixel in the model frame, mm.
     row : int
         Image row of the profiles, in [0, H).
     gray_z_mm : (H, W) float array, optional
         Gray-code-only height map, mm.
     x_mm, y_mm : (W,), (H,) float arrays, optional
-        Coordinates of columns and rows on the reference (default: pixel indices).
+        Coordinates of columns and rows (the model's image axes; default: pixel indices).
+    quantity : {'height', 'depth'}
+        What ``z_mm`` is (titles and colour bars say it).
+    x_label, y_label, unit : str
+        The axes' titles and the coordinates' unit.
     max_jump_mm : float, optional
         Depth-discontinuity threshold of the full-resolution mesh, mm
         (:func:`metrology.core.mesh.default_max_jump_mm`); the 3D view, decimated by blocks of
@@ -244,13 +278,19 @@ def measurement_figures(
             small,
             decimate_axis(x, fc),
             decimate_axis(y, fr),
-            f"Height map ({w} x {h} px, shown as {small.shape[1]} x {small.shape[0]})",
+            f"{quantity.capitalize()} map ({w} x {h} px, shown as {small.shape[1]} x {small.shape[0]})",
+            quantity=quantity,
+            x_label=x_label,
+            y_label=y_label,
+            unit=unit,
         )
     }
     gray = None if gray_z_mm is None else np.asarray(gray_z_mm, dtype=np.float32)
-    figures["profile"] = profile_figure(x, z[row], row, None if gray is None else gray[row])
+    figures["profile"] = profile_figure(
+        x, z[row], row, None if gray is None else gray[row], quantity=quantity, x_label=x_label
+    )
     if gray is not None:
-        figures["gray_vs_gcps"] = gray_vs_gcps_figure(x, z[row], gray[row], row)
+        figures["gray_vs_gcps"] = gray_vs_gcps_figure(x, z[row], gray[row], row, x_label=x_label)
     xyz = np.asarray(xyz_mm)
     xyz_small = np.stack([decimate(xyz[..., i], MAX_ROWS_3D, MAX_COLS_3D) for i in range(3)], axis=-1)
     factor = max(block_factors(z.shape, MAX_ROWS_3D, MAX_COLS_3D))

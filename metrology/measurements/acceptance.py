@@ -1,14 +1,9 @@
 """VDI/VDE 2634-2 acceptance of a stored measurement, computed on request from its stored result.
 
-No job is run: the fit is over the stored points (fast). The quantities are those of
-``gcps acceptance`` (:mod:`metrology.pipeline.acceptance`), with and without the 0.3 % outlier
-rejection:
-
-- crossed-axes rigs: the points of the stored height map ``height.npy`` in the frame of the
-  paper's model (:func:`metrology.pipeline.acceptance.fit_height_map`);
-- pinhole rigs: the stored camera-frame points ``points.npy``
-  (:func:`metrology.pipeline.acceptance.fit_points`); probing and spacing segment the spheres by
-  their height above the reference plane, so they need a measurement made with a reference.
+No job is run: the fit is over the stored points in the model frame (fast;
+:func:`metrology.pipeline.acceptance.fit_points`, as ``gcps acceptance``), with and without the
+0.3 % outlier rejection. Probing and spacing segment the spheres by their height above the
+reference plane, so they need a measurement made with a reference.
 """
 
 from __future__ import annotations
@@ -20,13 +15,12 @@ from typing import Any
 
 import numpy as np
 
-from metrology.core.measure import DecodeOptions
-from metrology.core.rig import Rig as CoreRig
+from metrology.core.measure import settings_from_dict
 from metrology.errors import BadInput, Conflict
 from metrology.jobs.models import Job
+from metrology.measurements.derived import measurement_points
 from metrology.measurements.models import Measurement
-from metrology.measurements.pinhole import load_points
-from metrology.pipeline.acceptance import TESTS, AcceptanceOptions, AcceptanceResult, fit_height_map, fit_points
+from metrology.pipeline.acceptance import TESTS, AcceptanceOptions, AcceptanceResult, fit_points
 from metrology.pipeline.jsonsafe import json_safe
 from metrology.version import software_version
 
@@ -51,12 +45,12 @@ def _millimetres(query: Mapping[str, str], name: str) -> float | None:
     return value
 
 
-def acceptance_options(query: Mapping[str, str], decode: Mapping[str, Any] | None = None) -> AcceptanceOptions:
+def acceptance_options(query: Mapping[str, str], measured: Mapping[str, Any] | None = None) -> AcceptanceOptions:
     """The :class:`AcceptanceOptions` of a request's query parameters; BadInput naming a bad or missing one.
 
     ``test`` is required (flatness, probing, spacing); ``diameter`` (probing) and ``spacing``
     (spacing) are required for their test, mm; ``min_height`` is optional (default 1 mm).
-    ``decode``: the decoding options the measurement was made with (reported, not used).
+    ``measured``: the options the measurement was made with (its settings are reported, not used).
     """
     unknown = sorted(set(query) - set(QUERY_PARAMETERS))
     if unknown:
@@ -79,18 +73,19 @@ def acceptance_options(query: Mapping[str, str], decode: Mapping[str, Any] | Non
             diameter_mm=diameter,
             spacing_mm=spacing,
             min_height_mm=1.0 if min_height is None else min_height,
-            decode=_decode_options(decode),
+            **_measured_settings(measured),
         )
     except (TypeError, ValueError) as exc:
         raise BadInput(str(exc)) from exc
 
 
-def _decode_options(decode: Mapping[str, Any] | None) -> DecodeOptions:
-    """The stored decoding options of a measurement (the defaults when absent or not readable)."""
+def _measured_settings(measured: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The filters, gcps-v1 and geometry settings a measurement was made with (the defaults when
+    absent or not readable)."""
     try:
-        return DecodeOptions.from_dict(decode) if decode else DecodeOptions()
+        return settings_from_dict(measured or {})
     except (TypeError, ValueError):
-        return DecodeOptions()
+        return settings_from_dict({})
 
 
 def _load(field: Any) -> np.ndarray:
@@ -103,13 +98,13 @@ def measurement_acceptance(measurement: Measurement, query: Mapping[str, str]) -
 
     The body of ``gcps acceptance --json`` (test, standard, the quantities with and without the
     0.3 % rejection, options, software version, timings ``load`` and ``fit`` in s) plus
-    ``measurement`` (its id) and, for pinhole rigs, ``model``, ``frame`` and ``triangulate``.
+    ``measurement`` (its id), the rig's ``model``, its ``frame`` and the axis triangulated.
 
     Raises
     ------
     BadInput
-        A bad or missing query parameter; a probing/spacing test of a pinhole measurement made
-        without a reference; spheres that cannot be segmented, too few points.
+        A bad or missing query parameter; a probing/spacing test of a measurement made without a
+        reference; spheres that cannot be segmented, too few points.
     NotDone
         The measurement's job is not done (no stored result).
     """
@@ -118,31 +113,43 @@ def measurement_acceptance(measurement: Measurement, query: Mapping[str, str]) -
         raise NotDone(
             f"measurement {measurement.pk} is not done (its job is {job.status}): acceptance needs its stored result"
         )
-    pinhole = measurement.rig_values.get("model") == "pinhole"
-    decode = None if pinhole else (measurement.options or {}).get("decode")
-    options = acceptance_options(query, decode)
-    timings: dict[str, float] = {}
-    start = time.perf_counter()
-    z_mm = _load(measurement.height_npy)
-    points = load_points(measurement) if pinhole else None
-    timings["load"] = time.perf_counter() - start
-    if pinhole and points is None:
-        raise NotDone(f"measurement {measurement.pk} has no stored points.npy")
-    if pinhole and measurement.reference_id is None and options.test != "flatness":
+    options = acceptance_options(query, measurement.options)
+    if measurement.reference_id is None and options.needs_reference:
         raise BadInput(
             f"test: the {options.test} test segments the spheres by their height above the reference plane, "
             f"and measurement {measurement.pk} was made without a reference capture (its heights are depths)"
         )
+    timings: dict[str, float] = {}
+    start = time.perf_counter()
+    z_mm = _load(measurement.height_npy)
+    try:
+        points = measurement_points(measurement, z_mm)
+    except ValueError as exc:
+        raise NotDone(str(exc)) from exc
+    timings["load"] = time.perf_counter() - start
     start = time.perf_counter()
     try:
-        if points is not None:
-            report = fit_points(points, z_mm, options)
-        else:
-            report = fit_height_map(CoreRig.from_dict(measurement.rig_values), z_mm, options)
+        report = fit_points(points, z_mm, options)
     except ValueError as exc:
         raise BadInput(f"{options.test}: {exc}") from exc
     timings["fit"] = time.perf_counter() - start
-    if pinhole:
-        report.update(model="pinhole", frame="camera", triangulate=(measurement.statistics or {}).get("triangulate"))
+    statistics = measurement.statistics or {}
+    report.update(
+        model=statistics.get("model") or _model_name(measurement),
+        frame=_model_frame(measurement),
+        triangulate=statistics.get("triangulate"),
+    )
     result = AcceptanceResult(report=report, options=options, software_version=software_version(), timings_s=timings)
     return json_safe({"measurement": measurement.pk, **result.to_dict()})
+
+
+def _model_name(measurement: Measurement) -> str:
+    from metrology.core.geometry.base import model_name
+
+    return model_name(measurement.rig_values)
+
+
+def _model_frame(measurement: Measurement) -> str:
+    from metrology.core.geometry import model_class
+
+    return model_class(_model_name(measurement)).frame

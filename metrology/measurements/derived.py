@@ -1,12 +1,14 @@
-"""Result files of a measurement: stored once (height maps), the rest derived on request.
+"""Result files of a measurement: stored once (height maps, points), the rest derived on request.
 
-A measurement job stores ``height.npy`` and ``gray_only_height.npy`` (float32, the only copies
-of the data) and its statistics. The TIFF height map and the PLY, STL and OBJ meshes are
-functions of the height map and the rig, built when first asked for: meshes are streamed while
-they are generated (the PLY header leaves before the vertex normals are computed) and written to
-a bounded cache in the media storage (:class:`~metrology.measurements.derived_cache.DerivedFileCache`,
-``GCPS_MESH_CACHE_BYTES``) that later requests read. Measurements stored before this scheme
-keep their stored mesh and TIFF files, which are served as they are.
+A measurement job stores ``height.npy``, ``points.npy`` (and ``gray_only_height.npy``,
+``sigma.npy``: float32, the only copies of the data) and its statistics. The TIFF height map and
+the PLY, STL and OBJ meshes are functions of those and the rig's model, built when first asked
+for: meshes are streamed while they are generated (the PLY header leaves before the vertex
+normals are computed) and written to a bounded cache in the media storage
+(:class:`~metrology.measurements.derived_cache.DerivedFileCache`, ``GCPS_MESH_CACHE_BYTES``) that
+later requests read. Measurements stored before points were stored take their points from the
+heights and the model (:func:`measurement_points`); those stored before this scheme keep their
+stored mesh and TIFF files, which are served as they are.
 """
 
 from __future__ import annotations
@@ -28,7 +30,8 @@ from metrology.measurements.derived_cache import DerivedFileCache
 from metrology.measurements.models import RESULT_FILES, Measurement
 
 DERIVED_FILES: tuple[str, ...] = ("height.tiff", "mesh.ply", "mesh.stl", "mesh.obj")
-"""Result files built from the stored height map on request."""
+"""Result files built from the stored height map on request (and ``points.npy`` where the heights
+give the points: :func:`points_follow_from_heights`)."""
 
 STORED_FILES: tuple[str, ...] = ("height.npy", "gray_only_height.npy", "sigma.npy", "points.npy")
 """Result files a measurement job stores."""
@@ -72,7 +75,22 @@ def available_files(measurement: Measurement) -> list[str]:
     stored = [name for name, field in RESULT_FILES.items() if getattr(measurement, field)]
     if not measurement.height_npy:
         return stored
-    return [name for name in RESULT_FILES if name in stored or name in DERIVED_FILES]
+    derived = [*DERIVED_FILES, *(["points.npy"] if points_follow_from_heights(measurement) else [])]
+    return [name for name in RESULT_FILES if name in stored or name in derived]
+
+
+def points_follow_from_heights(measurement: Measurement) -> bool:
+    """True when the measurement's points are its heights on its model's camera rays (a model with a
+    plane of its own; :attr:`metrology.core.measure.Measurement.points_follow_from_heights`), so
+    ``points.npy`` is derived from ``height.npy`` when not stored."""
+    from metrology.core.geometry import model_from_dict
+
+    if measurement.points_npy or not measurement.height_npy:
+        return False
+    try:
+        return bool(model_from_dict(measurement.rig_values).prepare().has_model_plane)
+    except ValueError:
+        return False
 
 
 def cache_name(measurement: Measurement, filename: str) -> str:
@@ -85,9 +103,34 @@ def cache_name(measurement: Measurement, filename: str) -> str:
     return f"measurement-{measurement.pk}-{stem}-{digest}.{ext}"
 
 
-def _heights(measurement: Measurement) -> np.ndarray:
-    with measurement.height_npy.open("rb") as handle:
+def _load(field: FieldFile) -> np.ndarray:
+    with field.open("rb") as handle:
         return np.load(io.BytesIO(handle.read()), allow_pickle=False)
+
+
+def _heights(measurement: Measurement) -> np.ndarray:
+    return _load(measurement.height_npy)
+
+
+def measurement_points(measurement: Measurement, z_mm: np.ndarray | None = None) -> np.ndarray:
+    """The ``(H, W, 3)`` points of a done measurement, mm, model frame: the stored ``points.npy``,
+    or, for a measurement stored before points were, its heights on its model's camera rays.
+
+    Raises
+    ------
+    ValueError
+        When there are no stored points and the model needs the reference plane to place heights
+        on its rays (it has no plane of its own).
+    """
+    if measurement.points_npy:
+        return _load(measurement.points_npy)
+    from metrology.core.geometry import model_from_dict
+
+    prepared = model_from_dict(measurement.rig_values).prepare()
+    if not prepared.has_model_plane:
+        raise ValueError(f"measurement {measurement.pk} has no stored points")
+    z = _heights(measurement) if z_mm is None else z_mm
+    return prepared.points_from_heights(z).astype(np.float32)
 
 
 def open_result_file(measurement: Measurement, filename: str) -> ResultFile | None:
@@ -100,7 +143,8 @@ def open_result_file(measurement: Measurement, filename: str) -> ResultFile | No
     stored = getattr(measurement, field)
     if stored:
         return ResultFile(filename, stored=stored)
-    if filename not in DERIVED_FILES or not measurement.height_npy:
+    derived_points = filename == "points.npy" and points_follow_from_heights(measurement)
+    if not derived_points and (filename not in DERIVED_FILES or not measurement.height_npy):
         return None
     cache = derived_cache()
     name = cache_name(measurement, filename)
@@ -110,6 +154,8 @@ def open_result_file(measurement: Measurement, filename: str) -> ResultFile | No
             return ResultFile(filename, path=hit)
     if filename == "height.tiff":
         return _tiff(measurement, cache, name)
+    if derived_points:
+        return _points(measurement, cache, name)
     return ResultFile(filename, chunks=_mesh_chunks(measurement, filename, cache, name))
 
 
@@ -133,18 +179,32 @@ def _tiff(measurement: Measurement, cache: DerivedFileCache | None, name: str) -
     return ResultFile("height.tiff", path=cached)
 
 
+def _points(measurement: Measurement, cache: DerivedFileCache | None, name: str) -> ResultFile:
+    """``points.npy`` of a measurement whose points follow from its heights: ``(H, W, 3)`` float32 mm,
+    the same array a job stores for other models (:func:`measurement_points`)."""
+
+    points = measurement_points(measurement)
+    if cache is None:
+        buffer = io.BytesIO()
+        np.save(buffer, points)
+        return ResultFile("points.npy", chunks=iter([buffer.getvalue()]))
+    with cache.store(name, suffix=".npy") as tmp_path, open(tmp_path, "wb") as out:
+        np.save(out, points)
+    cached = cache.get(name)
+    if cached is None:  # evicted at once (a cache smaller than the file): serve a fresh copy
+        return _points(measurement, None, name)
+    return ResultFile("points.npy", path=cached)
+
+
 def _mesh_chunks(measurement: Measurement, filename: str, cache: DerivedFileCache | None, name: str) -> Iterator[bytes]:
-    from metrology.core.mesh import mesh_file_chunks
-    from metrology.core.rig import Rig as CoreRig
+    from metrology.core.geometry import model_from_dict
+    from metrology.core.mesh import GridMesh, mesh_file_chunks, surface_mesh
 
-    if measurement.rig_values.get("model") == "pinhole":  # codecapp: the stored camera-frame points
-        from metrology.measurements.pinhole import pinhole_mesh_chunks
+    def build() -> GridMesh:
+        z = _heights(measurement)
+        return surface_mesh(model_from_dict(measurement.rig_values), z, points_mm=measurement_points(measurement, z))
 
-        chunks = pinhole_mesh_chunks(measurement, filename.rsplit(".", 1)[1])
-        return chunks if cache is None else cache.fill(name, chunks)
-    rig = CoreRig.from_dict(measurement.rig_values)
-    z = _heights(measurement)
-    chunks = mesh_file_chunks(rig, z, filename.rsplit(".", 1)[1])
+    chunks = mesh_file_chunks(build, filename.rsplit(".", 1)[1])
     return chunks if cache is None else cache.fill(name, chunks)
 
 

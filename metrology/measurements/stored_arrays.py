@@ -1,6 +1,6 @@
 """Result arrays of a measurement job written to storage under the attempt's own prefix.
 
-Every measurement handler (gcps-v1, other codecs, pinhole rigs) stores its maps the same way:
+The measurement handler stores its maps so:
 ``.npy`` files under ``measurements/<id>/<attempt token>/``, referenced by the row only when the
 attempt commits (:mod:`metrology.jobs.services`), so a half-written result is never visible.
 """
@@ -35,3 +35,23 @@ def sigma_statistics(sigma_mm: np.ndarray | None) -> dict[str, Any]:
         return {}
     finite = sigma_mm[np.isfinite(sigma_mm)]
     return {"sigma_mm_median": float(np.median(finite)) if finite.size else None}
+
+
+def remove_other_attempts(prefix: str) -> None:
+    """Delete files that earlier, killed attempts left under sibling prefixes of ``prefix`` (never
+    referenced by a row: an attempt's files are referenced only when it commits)."""
+    parent, _, mine = prefix.rpartition("/")
+    try:
+        folders, _files = default_storage.listdir(parent)
+    except (OSError, NotImplementedError):
+        return
+    for folder in folders:
+        if folder == mine:
+            continue
+        try:
+            _sub, files = default_storage.listdir(f"{parent}/{folder}")
+            for name in files:
+                default_storage.delete(f"{parent}/{folder}/{name}")
+            default_storage.delete(f"{parent}/{folder}")
+        except OSError:
+            continue

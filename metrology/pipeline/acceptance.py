@@ -1,5 +1,12 @@
 """Acceptance: VDI/VDE 2634 part 2 quantities from a capture of a plane, a sphere or a ball bar
-(the ``gcps acceptance`` command)."""
+(the ``gcps acceptance`` command and the acceptance of a measurement), for every codec and
+geometric model.
+
+The capture is measured as any measurement is (:func:`metrology.pipeline.measure.measure`) and the
+fits run on its points in the model frame: flatness from every point (no reference capture
+needed where the model measures without one); probing and spacing on the spheres, the pixels
+standing more than ``min_height_mm`` above the reference plane (a reference is required).
+"""
 
 from __future__ import annotations
 
@@ -11,12 +18,21 @@ import numpy as np
 import numpy.typing as npt
 
 from metrology.core import acceptance as core
-from metrology.core import measure as core_measure
 from metrology.core.codecs.model import Codec
-from metrology.core.geometry.pinhole import PinholeRig
-from metrology.core.measure import DecodeOptions
-from metrology.core.rig import Rig
-from metrology.pipeline.common import PhaseTimer, check_keys, check_positive, decode_options
+from metrology.core.decode import GcpsV1Options
+from metrology.core.filters import FilterOptions
+from metrology.core.geometry.base import GeometryModel, GeometryOptions
+from metrology.core.measure import (
+    SETTINGS_KEYS,
+    MeasureOptions,
+    Reference,
+    check_settings,
+    settings_from_dict,
+    settings_to_dict,
+)
+from metrology.core.option_checks import check_keys, check_positive
+from metrology.pipeline.common import PhaseTimer
+from metrology.pipeline.measure import measure
 from metrology.version import software_version
 
 TESTS = ("flatness", "probing", "spacing")
@@ -35,15 +51,18 @@ class AcceptanceOptions:
     spacing_mm : float or None
         spacing: the calibrated centre distance, mm (required).
     min_height_mm : float
-        probing/spacing: pixels this high above R belong to the spheres, mm (default 1).
-    decode : DecodeOptions
+        probing/spacing: pixels this high above the reference plane belong to the spheres, mm (default 1).
+    filters, gcps_v1, geometry
+        How the capture is measured (JSON: ``decode``, ``triangulate``, ``method``).
     """
 
     test: str
     diameter_mm: float | None = None
     spacing_mm: float | None = None
     min_height_mm: float = 1.0
-    decode: DecodeOptions = field(default_factory=DecodeOptions)
+    filters: FilterOptions = field(default_factory=FilterOptions)
+    gcps_v1: GcpsV1Options = field(default_factory=GcpsV1Options)
+    geometry: GeometryOptions = field(default_factory=GeometryOptions)
 
     def __post_init__(self) -> None:
         if self.test not in TESTS:
@@ -51,7 +70,12 @@ class AcceptanceOptions:
         check_positive("diameter_mm", self.diameter_mm, allow_none=self.test != "probing")
         check_positive("spacing_mm", self.spacing_mm, allow_none=self.test != "spacing")
         check_positive("min_height_mm", self.min_height_mm)
-        object.__setattr__(self, "decode", decode_options(self.decode))
+        check_settings(self)
+
+    @property
+    def needs_reference(self) -> bool:
+        """probing and spacing segment the spheres by their height above the reference plane."""
+        return self.test != "flatness"
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -59,19 +83,21 @@ class AcceptanceOptions:
             "diameter_mm": self.diameter_mm,
             "spacing_mm": self.spacing_mm,
             "min_height_mm": self.min_height_mm,
-            "decode": self.decode.to_dict(),
+            **settings_to_dict(self.filters, self.gcps_v1, self.geometry),
         }
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> AcceptanceOptions:
-        check_keys("acceptance", data, {f for f in cls.__dataclass_fields__})
-        return cls(**data)
+        own = ("test", "diameter_mm", "spacing_mm", "min_height_mm")
+        check_keys("acceptance", data, {*SETTINGS_KEYS, *own})
+        return cls(**settings_from_dict(data), **{k: data[k] for k in own if k in data})
 
 
 @dataclass(frozen=True)
 class AcceptanceResult:
     """Output of :func:`acceptance`: the test's quantities (with and without the 0.3 % outlier
-    rejection), the options, the software version and per-phase timings (``measure``, ``fit``)."""
+    rejection), the model, its frame and the axis triangulated, the options, the software version
+    and per-phase timings (``measure``, ``fit``)."""
 
     report: dict[str, Any]
     options: AcceptanceOptions
@@ -89,53 +115,13 @@ class AcceptanceResult:
         }
 
 
-def fit_height_map(rig: Rig, z_mm: npt.ArrayLike, options: AcceptanceOptions) -> dict[str, Any]:
-    """The VDI/VDE 2634-2 quantities of ``options.test`` from a crossed-axes height map.
-
-    Parameters
-    ----------
-    rig : Rig
-        The crossed-axes rig the heights were measured with (points by
-        :func:`metrology.core.acceptance.points_from_height_map`, DESIGN frame X_H, Y_H, z).
-    z_mm : (H, W) float array
-        Heights above the reference plane, mm, NaN where not measured.
-    options : AcceptanceOptions
-        ``decode`` is not used (the heights are given).
-
-    Returns
-    -------
-    dict
-        The report of :func:`metrology.core.acceptance.flatness_error`, ``probing_error`` or
-        ``sphere_spacing_error`` (with and without the 0.3 % rejection).
-
-    Raises
-    ------
-    ValueError
-        When the spheres cannot be segmented or too few points are valid.
-    """
-    z = np.asarray(z_mm)
-    if options.test == "flatness":
-        return core.flatness_error(core.points_from_height_map(rig, z))
-    if options.test == "probing":
-        assert options.diameter_mm is not None
-        (sphere,) = core.segment_objects(z, 1, options.min_height_mm)
-        return core.probing_error(core.points_from_height_map(rig, z, sphere), options.diameter_mm)
-    assert options.spacing_mm is not None
-    first, second = core.segment_objects(z, 2, options.min_height_mm)
-    return core.sphere_spacing_error(
-        core.points_from_height_map(rig, z, first),
-        core.points_from_height_map(rig, z, second),
-        options.spacing_mm,
-    )
-
-
 def fit_points(points_mm: npt.ArrayLike, z_mm: npt.ArrayLike, options: AcceptanceOptions) -> dict[str, Any]:
-    """The VDI/VDE 2634-2 quantities of ``options.test`` from per-pixel points (pinhole rigs).
+    """The VDI/VDE 2634-2 quantities of ``options.test`` from per-pixel points.
 
     Parameters
     ----------
     points_mm : (H, W, 3) float array
-        Camera-frame points, mm, NaN where not measured.
+        Points in the model frame, mm, NaN where not measured.
     z_mm : (H, W) float array
         Heights above the reference plane, mm (segments the spheres of probing/spacing;
         flatness does not use it).
@@ -144,7 +130,9 @@ def fit_points(points_mm: npt.ArrayLike, z_mm: npt.ArrayLike, options: Acceptanc
     Returns
     -------
     dict
-        As :func:`fit_height_map`, the fits done on the finite points (TLS plane; sphere).
+        The report of :func:`metrology.core.acceptance.flatness_error`, ``probing_error`` or
+        ``sphere_spacing_error`` (with and without the 0.3 % rejection), the fits done on the
+        finite points (total least-squares plane; sphere).
 
     Raises
     ------
@@ -170,49 +158,15 @@ def fit_points(points_mm: npt.ArrayLike, z_mm: npt.ArrayLike, options: Acceptanc
 
 
 def acceptance(
-    rig: Rig,
-    reference: npt.ArrayLike,
+    model: GeometryModel,
+    reference: npt.ArrayLike | Reference | None,
     obj: npt.ArrayLike,
     options: AcceptanceOptions,
     *,
+    codec: Codec | None = None,
     threads: int | None = None,
 ) -> AcceptanceResult:
-    """Measure ``obj`` and compute the VDI/VDE 2634-2 quantity of ``options.test``.
-
-    Raises
-    ------
-    ValueError
-        On a bad option or stack, or when the spheres cannot be segmented.
-    """
-    timer = PhaseTimer()
-    with timer.phase("measure"):
-        z_mm = core_measure.measure_height(rig, reference, obj, options.decode, gray_only=False, threads=threads).z_mm
-    with timer.phase("fit"):
-        report = fit_height_map(rig, z_mm, options)
-    return AcceptanceResult(
-        report=report, options=options, software_version=software_version(), timings_s=timer.timings_s
-    )
-
-
-def acceptance_pinhole(
-    rig: PinholeRig,
-    reference: npt.ArrayLike | None,
-    obj: npt.ArrayLike,
-    codec: Codec,
-    options: AcceptanceOptions,
-    *,
-    triangulate: str = "auto",
-    threads: int | None = None,
-) -> AcceptanceResult:
-    """The VDI/VDE 2634-2 quantity of ``options.test`` from a capture through a pinhole rig
-    (docs/pinhole.md), on the camera-frame points ``(H, W, 3)`` mm of
-    :func:`~metrology.pipeline.measure_pinhole.measure_pinhole_stacks`.
-
-    flatness: the range of the residuals to the total-least-squares plane through every point
-    (no reference capture needed). probing / spacing: the spheres are the pixels higher than
-    ``options.min_height_mm`` above the reference capture's plane (a reference is required),
-    fitted by least squares in the camera frame. ``options.decode`` is not used (the codec
-    decoder has its own).
+    """Measure ``obj`` and compute the VDI/VDE 2634-2 quantity of ``options.test`` (module docstring).
 
     Raises
     ------
@@ -220,20 +174,18 @@ def acceptance_pinhole(
         On a bad option or stack, a probing/spacing test without reference, or spheres that
         cannot be segmented.
     """
-    from metrology.pipeline.measure_pinhole import PinholeMeasureOptions, measure_pinhole_stacks
-
-    if reference is None and options.test != "flatness":
+    if reference is None and options.needs_reference:
         raise ValueError(f"the {options.test} test segments the spheres by height: give a reference capture")
     timer = PhaseTimer()
     with timer.phase("measure"):
-        measured = measure_pinhole_stacks(
-            rig, reference, obj, codec, PinholeMeasureOptions(triangulate=triangulate), threads=threads
-        )
+        measured = measure(model, reference, obj, MeasureOptions.of(options), codec=codec, threads=threads)
     with timer.phase("fit"):
-        report = fit_points(measured.points_mm, measured.z_mm, options)
-    report["model"] = "pinhole"
-    report["frame"] = "camera"
-    report["triangulate"] = measured.axis
+        # the float32 points a measurement stores (points.npy, `gcps measure --xyz`): the same fit as
+        # the application's acceptance of a stored measurement
+        report = fit_points(measured.points_mm(), measured.z_mm, options)
+    report["model"] = model.model
+    report["frame"] = model.frame
+    report["triangulate"] = measured.measurement.prepared.axis
     return AcceptanceResult(
         report=report, options=options, software_version=software_version(), timings_s=timer.timings_s
     )

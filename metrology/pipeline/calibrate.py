@@ -1,9 +1,11 @@
-"""Calibrate: L and alpha (and optionally d) of a crossed-axes rig from captures of a master block
-(the ``gcps calibrate`` command and the calibration job).
+"""Calibrate: L and alpha (and optionally d) of a rig from captures of a master block (paper
+section 4; the ``gcps calibrate`` command and the calibration job).
 
-Both decode the same way: the reference is decoded once, each master is measured against it with
-the mixed-pixel filter and the camera-blur correction (:func:`metrology.core.measure.measure_height`),
-and the calibration fits the master's filtered, corrected codes.
+The paper's calibration adjusts the model's :attr:`~metrology.core.geometry.base.GeometryModel.calibration_parameters`
+(the crossed-axes rig's L, alpha and d); a model without any is refused with what to use instead.
+The reference is decoded once, each master is measured against it as any measurement is (the
+mixed-pixel filter and the camera-blur correction, :func:`metrology.core.measure.measure`), and
+the calibration fits the master's filtered, corrected light codes.
 """
 
 from __future__ import annotations
@@ -15,18 +17,22 @@ from typing import Any
 
 import numpy.typing as npt
 
-from metrology.core import measure as core_measure
 from metrology.core.calibrate import CalibrationResult, MasterCapture, calibrate_lsq, calibrate_paper
-from metrology.core.measure import DecodeOptions
-from metrology.core.rig import Rig
-from metrology.pipeline.common import (
-    PhaseTimer,
-    check_bool,
-    check_int,
-    check_keys,
-    check_positive,
-    decode_options,
+from metrology.core.codecs.model import Codec
+from metrology.core.decode import GcpsV1Options
+from metrology.core.filters import FilterOptions
+from metrology.core.geometry.base import GeometryModel, GeometryOptions
+from metrology.core.geometry.crossed_axes import Rig
+from metrology.core.measure import (
+    MeasureOptions,
+    check_settings,
+    decode_block,
+    measure,
+    prepare_reference,
+    split_decode_block,
 )
+from metrology.core.option_checks import check_bool, check_int, check_keys, check_positive
+from metrology.pipeline.common import PhaseTimer
 from metrology.version import software_version
 
 METHODS = ("lsq", "paper")
@@ -43,7 +49,8 @@ class CalibrateOptions:
         Known height of the master block's top face, mm, > 0.
     method : {'lsq', 'paper'}
         Joint least squares (default) or the paper's iteration (section 4; one master).
-    decode : DecodeOptions
+    filters, gcps_v1
+        How the captures are decoded and filtered (JSON: ``decode``).
     roi : ((row0, row1), (col0, col1)) or None
         Where the top face is looked for, pixels, half-open (default: found automatically).
     fit_d, use_floor, max_iterations, tolerance
@@ -56,7 +63,8 @@ class CalibrateOptions:
 
     master_height_mm: float
     method: str = "lsq"
-    decode: DecodeOptions = field(default_factory=DecodeOptions)
+    filters: FilterOptions = field(default_factory=FilterOptions)
+    gcps_v1: GcpsV1Options = field(default_factory=GcpsV1Options)
     roi: RowsCols | None = None
     fit_d: bool = False
     use_floor: bool = True
@@ -70,7 +78,7 @@ class CalibrateOptions:
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
         check_positive("master_height_mm", self.master_height_mm)
-        object.__setattr__(self, "decode", decode_options(self.decode))
+        check_settings(self)
         if self.roi is not None:
             try:
                 (r0, r1), (c0, c1) = self.roi
@@ -93,6 +101,11 @@ class CalibrateOptions:
             raise ValueError(f"w must be a finite number or None, got {self.w!r}")
 
     @property
+    def geometry(self) -> GeometryOptions:
+        """The paper's calibration measures by the light planes of u (the crossed-axes rig's only way)."""
+        return GeometryOptions()
+
+    @property
     def roi_slices(self) -> tuple[slice, slice] | None:
         if self.roi is None:
             return None
@@ -103,7 +116,7 @@ class CalibrateOptions:
         return {
             "master_height_mm": self.master_height_mm,
             "method": self.method,
-            "decode": self.decode.to_dict(),
+            "decode": decode_block(self.filters, self.gcps_v1),
             "roi": None if self.roi is None else [list(self.roi[0]), list(self.roi[1])],
             "fit_d": self.fit_d,
             "use_floor": self.use_floor,
@@ -116,8 +129,10 @@ class CalibrateOptions:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> CalibrateOptions:
-        check_keys("calibration", data, {f for f in cls.__dataclass_fields__})
+        fields = {f for f in cls.__dataclass_fields__} - {"filters", "gcps_v1"}
+        check_keys("calibration", data, {*fields, "decode"})
         values = dict(data)
+        values["filters"], values["gcps_v1"] = split_decode_block(values.pop("decode", None))
         if values.get("roi") is not None:
             rows, cols = values["roi"]
             values["roi"] = (tuple(rows), tuple(cols))
@@ -149,40 +164,50 @@ class CalibrateResult:
 
 
 def calibrate(
-    rig: Rig,
+    rig: GeometryModel,
     reference: npt.ArrayLike,
     masters: Sequence[npt.ArrayLike],
     options: CalibrateOptions,
     *,
+    codec: Codec | None = None,
     threads: int | None = None,
 ) -> CalibrateResult:
     """Calibrate ``rig`` (the starting values) on captures of a master block.
 
     Parameters
     ----------
-    rig : Rig
-        Initial estimates of L, alpha (and d) and the fixed FW, nlp, image size.
-    reference : (11, H, W) image stack
+    rig : GeometryModel
+        Initial estimates of L, alpha (and d) and the fixed FW, nlp, image size: a model whose
+        :attr:`~metrology.core.geometry.base.GeometryModel.calibration_parameters` name them.
+    reference : image stack of ``codec``
         The reference plane.
-    masters : sequence of (11, H, W) image stacks
+    masters : sequence of image stacks of ``codec``
         The master block on the reference plane (one for the paper's method).
     options : CalibrateOptions
+    codec : Codec, optional
+        The captures' codec (None: the paper's gcps-v1).
 
     Raises
     ------
     ValueError
-        On a bad option, stack or shape, or no master.
+        On a model the paper's calibration cannot adjust, a bad option, stack or shape, or no master.
     """
+    if not rig.calibration_parameters or not isinstance(rig, Rig):
+        raise ValueError(
+            f"the paper's master-block calibration adjusts L and alpha; a {rig.short_label} rig has "
+            "none of them (calibrate it from board poses: gcps calibrate-procam)"
+        )
     if not masters:
         raise ValueError("masters: at least one master capture is needed")
     if options.method == "paper" and len(masters) != 1:
         raise ValueError(f"method 'paper' takes one master capture, got {len(masters)}")
     timer = PhaseTimer()
+    measure_options = MeasureOptions.of(options)
     with timer.phase("decode"):
-        kept = core_measure.prepare_reference(rig, reference, options.decode)
-        ref_codes = kept.decoded.codes
+        kept = prepare_reference(rig, reference, codec, measure_options, threads=threads)
+        ref_codes = kept.codes
         master_codes = [
-            core_measure.measure_height(rig, kept, stack, options.decode, gray_only=False, threads=threads).obj_codes
+            measure(rig, stack, codec, reference=kept, options=measure_options, threads=threads).codes
             for stack in masters
         ]
     roi = options.roi_slices

@@ -19,11 +19,13 @@ import numpy.typing as npt
 from metrology.core.codecs import Codec
 from metrology.core.codecs.decode import CodecDecodeOptions
 from metrology.core.geometry.pinhole import PinholeRig
+from metrology.core.option_checks import check_bool, check_keys
 from metrology.core.procam import calibrate_procam, parse_board
 from metrology.core.procam.board import BoardSpec
 from metrology.core.procam.observe import observe_pose
 from metrology.core.procam.poses import MIN_DECODED_FRACTION, PoseObservation
-from metrology.pipeline.common import PhaseTimer, check_bool, check_keys, json_safe
+from metrology.pipeline.common import PhaseTimer
+from metrology.pipeline.jsonsafe import json_safe
 from metrology.version import software_version
 
 OPTION_KEYS = ("board", "window", "min_decoded", "fix_k3", "joint", "min_modulation", "min_inverse_contrast")

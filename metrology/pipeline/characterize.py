@@ -1,5 +1,15 @@
 """Characterize: linearity and accuracy from a stage series (paper section 5; the ``gcps
-characterize`` command and the characterization job)."""
+characterize`` command and the characterization job), for every codec and geometric model.
+
+Each stage capture is measured against the reference capture, kept once
+(:func:`metrology.pipeline.measure.measure`: the same decoding, filters and triangulation as a
+measurement), and its heights above the reference plane feed
+:func:`metrology.core.characterize.characterize`, with the test points where the model says each
+pixel's ray meets the reference plane (:meth:`~metrology.core.geometry.base.PreparedGeometry.plane_coordinates`).
+
+The stage must move the plane along the reference plane's normal: the heights are distances
+along that normal, so a stage inclined by ``a`` to it reads slopes ``cos a``.
+"""
 
 from __future__ import annotations
 
@@ -12,15 +22,22 @@ import numpy as np
 import numpy.typing as npt
 
 from metrology.core import characterize as core
-from metrology.core import measure as core_measure
-from metrology.core.codecs.decode import decode_codec, validate_codec_stack
 from metrology.core.codecs.model import Codec
-from metrology.core.distortion import undistort_pixels
-from metrology.core.geometry.pinhole import PinholeReference, PinholeRig
-from metrology.core.measure import DecodeOptions
-from metrology.core.pinhole_measure import measure_pinhole
-from metrology.core.rig import Rig
-from metrology.pipeline.common import PhaseTimer, check_int, check_keys, decode_options
+from metrology.core.decode import GcpsV1Options
+from metrology.core.filters import FilterOptions
+from metrology.core.geometry.base import GeometryModel, GeometryOptions
+from metrology.core.measure import (
+    SETTINGS_KEYS,
+    MeasureOptions,
+    Reference,
+    check_settings,
+    prepare_reference,
+    settings_from_dict,
+    settings_to_dict,
+)
+from metrology.core.measure import measure as measure_capture
+from metrology.core.option_checks import check_int, check_keys
+from metrology.pipeline.common import PhaseTimer
 from metrology.version import software_version
 
 SeriesStacks = Iterable[tuple[float, int, npt.ArrayLike]]
@@ -33,7 +50,9 @@ class CharacterizeOptions:
 
     Attributes
     ----------
-    decode : DecodeOptions
+    filters, gcps_v1, geometry
+        How each capture is measured (:class:`~metrology.core.measure.MeasureOptions`); JSON:
+        ``decode``, ``triangulate``, ``method``.
     n_points : int
         Test points along X per row, in [1, 1000] (default 21).
     rows : int, tuple of int or None
@@ -44,14 +63,16 @@ class CharacterizeOptions:
         Fraction of the width left free at each side, in [0, 0.5) (default 0.08).
     """
 
-    decode: DecodeOptions = field(default_factory=DecodeOptions)
+    filters: FilterOptions = field(default_factory=FilterOptions)
+    gcps_v1: GcpsV1Options = field(default_factory=GcpsV1Options)
+    geometry: GeometryOptions = field(default_factory=GeometryOptions)
     n_points: int = 21
     rows: int | tuple[int, ...] | None = None
     patch_px: int = 5
     margin_frac: float = 0.08
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "decode", decode_options(self.decode))
+        check_settings(self)
         check_int("n_points", self.n_points, 1, 1000)
         check_int("patch_px", self.patch_px, 1, 99)
         if self.patch_px % 2 == 0:
@@ -71,7 +92,7 @@ class CharacterizeOptions:
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "decode": self.decode.to_dict(),
+            **settings_to_dict(self.filters, self.gcps_v1, self.geometry),
             "n_points": self.n_points,
             "rows": list(self.rows) if isinstance(self.rows, tuple) else self.rows,
             "patch_px": self.patch_px,
@@ -80,15 +101,18 @@ class CharacterizeOptions:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> CharacterizeOptions:
-        check_keys("characterization", data, {f for f in cls.__dataclass_fields__})
-        return cls(**data)
+        own = ("n_points", "rows", "patch_px", "margin_frac")
+        check_keys("characterization", data, {*SETTINGS_KEYS, *own})
+        return cls(**settings_from_dict(data), **{k: data[k] for k in own if k in data})
 
 
 @dataclass(frozen=True)
 class CharacterizeResult:
     """Output of :func:`characterize`: the section 5 report (see
-    :func:`metrology.core.characterize.characterize`), with the options, the software version and
-    per-phase timings (``reference``, ``measure series``, ``statistics``)."""
+    :func:`metrology.core.characterize.characterize`) plus ``model``, ``triangulate`` (the axis)
+    and ``reference_plane`` (a fitted plane's centroid, normal and point count, else null), with
+    the options, the software version and per-phase timings (``reference``, ``measure series``,
+    ``statistics``)."""
 
     report: dict[str, Any]
     options: CharacterizeOptions
@@ -105,25 +129,28 @@ class CharacterizeResult:
 
 
 def characterize(
-    rig: Rig,
-    reference: npt.ArrayLike | core_measure.Reference,
+    model: GeometryModel,
+    reference: npt.ArrayLike | Reference,
     series: SeriesStacks,
     options: CharacterizeOptions | None = None,
     *,
+    codec: Codec | None = None,
     threads: int | None = None,
 ) -> CharacterizeResult:
     """Measure every capture of a stage series against the reference and compute section 5's figures.
 
     Parameters
     ----------
-    rig : Rig
-    reference : (11, H, W) image stack or Reference
+    model : GeometryModel
+    reference : image stack of ``codec`` or Reference
         The reference plane (a kept :class:`~metrology.core.measure.Reference`, prepared with
-        ``options.decode``, is reused as is).
-    series : iterable of (z_in_mm, repeat, (11, H, W) image stack)
+        the options' settings, is reused as is).
+    series : iterable of (z_in_mm, repeat, image stack of ``codec``)
         Consumed once, capture by capture (a generator may load each stack when asked; an
         exception it raises stops the run).
     options : CharacterizeOptions, optional
+    codec : Codec, optional
+        The stacks' codec (None: the paper's gcps-v1).
 
     Raises
     ------
@@ -131,149 +158,41 @@ def characterize(
         On a bad option, stack, shape or stage position.
     """
     options = options or CharacterizeOptions()
+    measure_options = MeasureOptions.of(options)
     timer = PhaseTimer()
     with timer.phase("reference"):
-        if isinstance(reference, core_measure.Reference):
+        if isinstance(reference, Reference):
             kept = reference
         else:
-            kept = core_measure.prepare_reference(rig, reference, options.decode)
+            kept = prepare_reference(model, reference, codec, measure_options, threads=threads)
 
     def heights() -> Iterable[tuple[float, int, np.ndarray]]:
         for z_in, repeat, stack in series:
             if not math.isfinite(z_in):
                 raise ValueError(f"z_in_mm must be finite, got {z_in!r}")
             with timer.phase("measure series"):
-                z = core_measure.measure_height(rig, kept, stack, options.decode, gray_only=False, threads=threads).z_mm
-            yield float(z_in), repeat, z
+                try:
+                    measured = measure_capture(
+                        model, stack, codec, reference=kept, options=measure_options, threads=threads
+                    )
+                except ValueError as exc:
+                    raise ValueError(f"stage capture at z_in_mm = {z_in}: {exc}") from exc
+            yield float(z_in), repeat, measured.z_mm
 
     rows = list(options.rows) if isinstance(options.rows, tuple) else options.rows
-    report = core.characterize(
-        rig, heights(), n_points=options.n_points, rows=rows, patch_px=options.patch_px, margin_frac=options.margin_frac
-    )
-    return CharacterizeResult(
-        report=report, options=options, software_version=software_version(), timings_s=timer.timings_s
-    )
-
-
-def pinhole_test_point_frame(rig: PinholeRig, reference: PinholeReference) -> core.TestPointFrame:
-    """Test-point coordinates of a pinhole rig: camera-frame ``(X, Y)`` (mm) of the point of the
-    reference plane each pixel's ray meets.
-
-    Ray of pixel ``(r, c)``: ``t (x_n, y_n, 1)`` (undistorted normalized coordinates); on the
-    plane ``n . (p - c0) = 0`` at ``t = n . c0 / n . (x_n, y_n, 1)``. The field centre is the
-    principal point's ray, ``t (0, 0, 1)``.
-    """
-    h, w = rig.shape
-    cols, rows = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    rays = undistort_pixels(np.asarray(rig.camera.K, np.float64), rig.camera.distortion, cols, rows)
-    xn, yn = np.asarray(rays.x, np.float64), np.asarray(rays.y, np.float64)
-    n, c0 = np.asarray(reference.normal, np.float64), np.asarray(reference.centroid, np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = float(n @ c0) / (n[0] * xn + n[1] * yn + n[2])
-    return core.TestPointFrame(x_mm=t * xn, y_mm=t * yn, centre_x_mm=0.0)
-
-
-def heights_above(points_mm: np.ndarray, reference: PinholeReference) -> np.ndarray:
-    """``(H, W)`` float32 heights (mm) of ``(H, W, 3)`` camera-frame points above the reference
-    plane: ``n . (p - c0)``, positive towards the camera, NaN where a point is NaN."""
-    n, c0 = np.asarray(reference.normal, np.float64), np.asarray(reference.centroid, np.float64)
-    return ((points_mm.astype(np.float64) - c0) @ n).astype(np.float32)
-
-
-def _pinhole_check(stack: npt.ArrayLike, codec: Codec, rig: PinholeRig, label: str) -> np.ndarray:
-    checked = validate_codec_stack(np.asarray(stack), codec)
-    if tuple(checked.shape[1:]) != rig.shape:
-        h, w = checked.shape[1:]
-        cam = f"{rig.camera.width_px}x{rig.camera.height_px}"
-        raise ValueError(f"the {label} frames are {w}x{h} px but the rig's camera is {cam} px")
-    return checked
-
-
-def _uv(decoding: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
-    u = decoding.axes["u"].coordinate if "u" in decoding.axes else None
-    v = decoding.axes["v"].coordinate if "v" in decoding.axes else None
-    return u, v
-
-
-def characterize_pinhole(
-    rig: PinholeRig,
-    reference: npt.ArrayLike,
-    series: SeriesStacks,
-    codec: Codec,
-    options: CharacterizeOptions | None = None,
-    *,
-    triangulate: str = "auto",
-    threads: int | None = None,
-) -> CharacterizeResult:
-    """Section 5's figures for a pinhole rig (docs/pinhole.md): each stage capture's heights above
-    the total-least-squares plane of the reference capture (positive towards the camera) feed
-    :func:`metrology.core.characterize.characterize`, with test points along camera columns of the
-    chosen rows and their ``x_mm``, ``y_mm`` the camera-frame point of the reference plane each
-    patch centre sees (:func:`pinhole_test_point_frame`).
-
-    The stage must move the plane along the reference plane's normal: the heights are distances
-    along that normal, so a stage inclined by ``a`` to it reads slopes ``cos a``.
-
-    Parameters
-    ----------
-    rig : PinholeRig
-    reference : (frames, H, W) image stack of ``codec``
-        The reference plane, decoded once.
-    series : iterable of (z_in_mm, repeat, (frames, H, W) image stack of ``codec``)
-    codec : Codec
-    options : CharacterizeOptions, optional
-        ``decode`` (the crossed-axes decoder's options) is not used by the codec decoder.
-    triangulate : {'auto', 'u', 'v'}
-
-    Returns
-    -------
-    CharacterizeResult
-        The report of :func:`metrology.core.characterize.characterize` plus ``model``
-        (``"pinhole"``), ``triangulate`` (the axis used) and ``reference_plane`` (``centroid_mm``,
-        unit ``normal`` towards the camera, ``points``).
-
-    Raises
-    ------
-    ValueError
-        On a bad option, stack, shape or stage position.
-    """
-    options = options or CharacterizeOptions()
-    timer = PhaseTimer()
-    size = (codec.projector_width, codec.projector_height)
-    with timer.phase("reference"):
-        ref_uv = _uv(decode_codec(_pinhole_check(reference, codec, rig, "reference"), codec, threads=threads))
-        prepared = rig.prepare(rig.shape, size, axis=triangulate)
-        plane = prepared.reference(*ref_uv, threads=threads)
-        frame = pinhole_test_point_frame(rig, plane)
-
-    def heights() -> Iterable[tuple[float, int, np.ndarray]]:
-        for z_in, repeat, stack in series:
-            if not math.isfinite(z_in):
-                raise ValueError(f"z_in_mm must be finite, got {z_in!r}")
-            with timer.phase("measure series"):
-                checked = _pinhole_check(stack, codec, rig, f"stage capture at z_in_mm = {z_in}")
-                u, v = _uv(decode_codec(checked, codec, threads=threads))
-                points = measure_pinhole(rig, u, v, axis=triangulate, projector_size=size, threads=threads).points_mm
-                z = heights_above(points, plane)
-            yield float(z_in), repeat, z
-
-    rows = list(options.rows) if isinstance(options.rows, tuple) else options.rows
+    prepared = kept.prepared_geometry()
     with timer.phase("statistics"):
         report = core.characterize(
-            frame,
+            prepared.plane_coordinates(kept.surface),
             heights(),
             n_points=options.n_points,
             rows=rows,
             patch_px=options.patch_px,
             margin_frac=options.margin_frac,
         )
-    report["model"] = "pinhole"
+    report["model"] = model.model
     report["triangulate"] = prepared.axis
-    report["reference_plane"] = {
-        "centroid_mm": plane.centroid.tolist(),
-        "normal": plane.normal.tolist(),
-        "points": plane.n_points,
-    }
+    report["reference_plane"] = kept.surface.describe()
     return CharacterizeResult(
         report=report, options=options, software_version=software_version(), timings_s=timer.timings_s
     )

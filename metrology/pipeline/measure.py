@@ -1,70 +1,29 @@
-"""Measure: reference and object capture stacks to a height map (the ``gcps measure`` command and
-the measurement job).
+"""Measure: capture stacks of any codec to heights or depths, points and sigma on any geometric
+model (the ``gcps measure`` command and the measurement job).
 
-gcps-v1 stacks (no codec, or the built-in ``gcps-v1``) take the paper's fused decoder
-(:func:`metrology.core.measure.measure_height`), unchanged; a stack of any other codec that
-codes the projector's u axis is decoded by the codec decoder, mapped to light codes
-``l = (u + 0.5) nlp / width`` and triangulated through the same crossed-axes geometry with the
-same filters (:mod:`metrology.core.codec_measure`).
+The core's one measurement (:func:`metrology.core.measure.measure`: decode, code-space filters,
+the model's triangulation; the fused gcps-v1 kernel where it applies) with its options, the
+software version and per-phase timings, and the statistics every caller stores.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from metrology.core import measure as core_measure
-from metrology.core.codec_measure import CodecReference, is_gcps_v1, measure_codec_height
-from metrology.core.codecs.decode import CodecDecoding, decode_codec
-from metrology.core.codecs.model import Codec, gcps_v1_codec
-from metrology.core.decode import DecodedStack
-from metrology.core.measure import DecodeOptions, Reference, height_statistics
-from metrology.core.rig import Rig
-from metrology.core.uncertainty import axis_coordinate_sigma, height_sigma
-from metrology.pipeline.common import PhaseTimer, check_bool, check_keys, decode_options
+from metrology.core import measure as core
+from metrology.core.codecs.decode import CodecDecoding
+from metrology.core.codecs.model import CODEC_FORMAT, GCPS_V1, Codec, is_gcps_v1
+from metrology.core.geometry.base import GeometryModel
+from metrology.core.measure import Measurement, MeasureOptions, Reference, height_statistics
+from metrology.pipeline.common import PhaseTimer
 from metrology.version import software_version
 
-GCPS_V1_NLP = 128
-"""Light codes across the built-in gcps-v1 codec's projector (its phase period is 4 of them)."""
-
-
-@dataclass(frozen=True)
-class MeasureOptions:
-    """Options of :func:`measure`.
-
-    Attributes
-    ----------
-    decode : DecodeOptions
-        Decoding and mixed-pixel options (:class:`~metrology.core.measure.DecodeOptions`).
-    gray_only : bool
-        Also compute the gray-code-only comparison heights (default True).
-    sigma : bool
-        Also compute each height's standard uncertainty from the object's phase noise
-        (default False; :mod:`metrology.core.uncertainty`); needs a final phase sequence of
-        N >= 4 steps.
-    """
-
-    decode: DecodeOptions = field(default_factory=DecodeOptions)
-    gray_only: bool = True
-    sigma: bool = False
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "decode", decode_options(self.decode))
-        check_bool("gray_only", self.gray_only)
-        check_bool("sigma", self.sigma)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"decode": self.decode.to_dict(), "gray_only": self.gray_only, "sigma": self.sigma}
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> MeasureOptions:
-        check_keys("measure", data, {"decode", "gray_only", "sigma"})
-        return cls(**data)
+__all__ = ["MeasureOptions", "MeasureResult", "measure", "prepare_reference"]
 
 
 @dataclass(frozen=True)
@@ -73,160 +32,151 @@ class MeasureResult:
 
     Attributes
     ----------
-    z_mm : (H, W) float32 array
-        Height above the reference plane, mm, NaN where not measured.
-    gray_z_mm : (H, W) float32 array or None
-        Gray-code-only heights, mm (when ``options.gray_only``).
-    obj_codes : (H, W) float32 array
-        The object's light codes after the filters (and the blur correction), code units.
+    measurement : Measurement
+        The core's result: ``z_mm`` (heights above the reference, or the model's own ``z``),
+        ``codes``, the gray-code-only heights, ``sigma_mm``, the decoding, the points.
     options : MeasureOptions
+    codec : Codec or None
+        The stacks' codec (None: the paper's gcps-v1).
     software_version : str
     timings_s : dict
-        Seconds per phase: ``measure`` (the whole call) and the core's sub-phases.
-    codec : str
-        ``"gcps-v1"``, or ``"gcps-codec/1"`` for a codec file's stacks.
-    decoding : CodecDecoding or None
-        The object's codec decoding (u/v maps, modulation, reasons) for a non-gcps-v1 codec.
-    sigma_mm : (H, W) float32 array or None
-        Per-point standard uncertainty of the heights, mm (``MeasureOptions(sigma=True)``;
-        :mod:`metrology.core.uncertainty`), NaN where not measured.
+        Seconds per phase: ``measure`` (the whole call) and the core's sub-phases (``measure.*``).
     """
 
-    z_mm: np.ndarray
-    gray_z_mm: np.ndarray | None
-    obj_codes: np.ndarray
+    measurement: Measurement
     options: MeasureOptions
+    codec: Codec | None
     software_version: str
     timings_s: dict[str, float]
-    codec: str = "gcps-v1"
-    decoding: CodecDecoding | None = None
-    sigma_mm: np.ndarray | None = None
 
-    def points_mm(self, rig: Rig) -> np.ndarray:
-        """``(H, W, 3)`` float32 points, mm, in the paper's frame ``(X_H, Y_H, z)``; NaN where not measured."""
-        return rig.prepare().points_from_heights(self.z_mm).astype(np.float32)
+    @property
+    def z_mm(self) -> np.ndarray:
+        """``(H, W)`` float32: heights above the reference plane, or depths (:attr:`Measurement.z_kind`), mm."""
+        return self.measurement.z_mm
+
+    @property
+    def gray_z_mm(self) -> np.ndarray | None:
+        return self.measurement.gray_z_mm
+
+    @property
+    def sigma_mm(self) -> np.ndarray | None:
+        return self.measurement.sigma_mm
+
+    @property
+    def codes(self) -> np.ndarray:
+        """The object's codes of the triangulated axis after the filters (light codes on a crossed-axes rig)."""
+        return self.measurement.codes
+
+    @property
+    def decoding(self) -> CodecDecoding | None:
+        return self.measurement.decoding
+
+    @property
+    def reference(self) -> Reference | None:
+        return self.measurement.reference
+
+    def points_mm(self, dtype: npt.DTypeLike = np.float32) -> np.ndarray:
+        """``(H, W, 3)`` points, mm, model frame (the paper's ``(X_H, Y_H, z)``, or the camera
+        frame), NaN where not measured."""
+        return self.measurement.points_mm(dtype)
+
+    @property
+    def codec_name(self) -> str:
+        """``"gcps-v1"`` for the built-in codec, else ``"gcps-codec/1"`` (a codec file's)."""
+        return GCPS_V1 if is_gcps_v1(self.codec) else CODEC_FORMAT
 
     def statistics(self) -> dict[str, Any]:
-        """Valid pixels and min/max/mean/std of the heights (and of the gray-code-only heights)."""
-        stats: dict[str, Any] = dict(height_statistics(self.z_mm))
-        if self.gray_z_mm is not None:
-            stats["gray_only"] = height_statistics(self.gray_z_mm)
+        """Valid pixels and min/max/mean/std of ``z``, what ``z`` is, the rig's model, the axis and
+        method triangulated, the points dropped by ``max_sigma_mm`` and the median sigma (and the
+        gray-code-only heights' figures where computed)."""
+        m = self.measurement
+        stats: dict[str, Any] = dict(height_statistics(m.z_mm))
+        if m.gray_z_mm is not None:
+            stats["gray_only"] = height_statistics(m.gray_z_mm)
+        stats.update(
+            model=m.model.model,
+            z=m.z_meaning,
+            triangulate=m.prepared.axis,
+            method=m.prepared.method,
+            dropped_by_max_sigma=m.dropped_by_max_sigma,
+        )
+        if m.sigma_mm is not None:
+            finite = m.sigma_mm[np.isfinite(m.sigma_mm)]
+            stats["sigma_mm_median"] = float(np.median(finite)) if finite.size else None
         return stats
 
     def to_dict(self) -> dict[str, Any]:
-        """Statistics, options, software version and timings (JSON-ready); the codec, and for a
-        codec other than gcps-v1 the decoding summary (pixels per reason, slips, validity rules)."""
+        """Statistics, options, software version, timings, the codec, the reference plane (a
+        fitted one; null for a per-pixel reference or none) and the decoding summary of a codec
+        decoding (JSON-ready)."""
+        reference = self.measurement.reference
         data: dict[str, Any] = {
             "statistics": self.statistics(),
             "options": self.options.to_dict(),
             "software_version": self.software_version,
             "timings_s": dict(self.timings_s),
-            "codec": self.codec,
+            "codec": self.codec_name,
+            "reference_plane": None if reference is None else reference.surface.describe(),
         }
-        if self.decoding is not None:
-            data["decoding"] = self.decoding.summary()
+        if self.measurement.decoding is not None:
+            data["decoding"] = self.measurement.decoding.summary()
         return data
 
 
+def prepare_reference(
+    model: GeometryModel,
+    reference: npt.ArrayLike,
+    options: MeasureOptions | None = None,
+    *,
+    codec: Codec | None = None,
+    threads: int | None = None,
+) -> Reference:
+    """The reference plane decoded, filtered and prepared once for many measurements
+    (:func:`metrology.core.measure.prepare_reference`): what the workers keep."""
+    return core.prepare_reference(model, reference, codec, options, threads=threads)
+
+
 def measure(
-    rig: Rig,
-    reference: npt.ArrayLike | DecodedStack | Reference | CodecReference,
+    model: GeometryModel,
+    reference: npt.ArrayLike | Reference | None,
     obj: npt.ArrayLike,
     options: MeasureOptions | None = None,
     *,
     codec: Codec | None = None,
     threads: int | None = None,
 ) -> MeasureResult:
-    """Height map of an object (Eqs. 1-17): decode, filter, correct the blur bias, triangulate.
+    """Heights or depths, points and sigma of an object capture (:func:`metrology.core.measure.measure`).
 
     Parameters
     ----------
-    rig : Rig
-    reference : image stack, DecodedStack, Reference or CodecReference
-        The reference plane: ``(11, H, W)`` for gcps-v1 (a :class:`~metrology.core.measure.Reference`
-        is reused as is), ``(frames, H, W)`` of ``codec`` otherwise (or a kept
-        :class:`~metrology.core.codec_measure.CodecReference`).
-    obj : (11, H, W) or (frames, H, W) image stack
+    model : GeometryModel
+        The rig's geometric model (any: :data:`metrology.core.geometry.MODELS`).
+    reference : image stack, Reference or None
+        The reference plane (a kept :class:`~metrology.core.measure.Reference` is reused as is);
+        None where the model measures without one (depths).
+    obj : (frames, H, W) image stack of ``codec``
     options : MeasureOptions, optional
     codec : Codec, optional
-        The stacks' codec; None or the built-in gcps-v1: the paper's decoder, as before. Any
-        other codec must code the u axis (no gray-code-only comparison heights then).
+        The stacks' codec; None (or the built-in gcps-v1) the paper's eleven patterns.
     threads : int, optional
         Threads over row tiles (does not change the result).
 
     Raises
     ------
     ValueError
-        On a malformed stack, a stack that does not match its codec, a codec without u, a shape
-        that differs from the rig's, or a bad option.
+        On a malformed stack, a stack that does not match its codec or the rig, a codec lacking
+        the axis the model triangulates, a missing reference, or a bad option.
     """
     options = options or MeasureOptions()
-    sigma = options.sigma
     timer = PhaseTimer()
     start = time.perf_counter()
-    if not is_gcps_v1(codec):
-        assert codec is not None
-        if isinstance(reference, (DecodedStack, Reference)):
-            raise ValueError("a gcps-v1 reference cannot serve a stack of another codec")
-        codec_result = measure_codec_height(
-            rig, reference, obj, codec, options.decode, with_noise=sigma, threads=threads
-        )
-        sigma_mm = None
-        if sigma:
-            with timer.phase("measure.sigma_s"):
-                sigma_u = axis_coordinate_sigma(codec, "u", codec_result.decoding.axes["u"])
-                sigma_mm = height_sigma(
-                    rig.prepare(),
-                    codec_result.obj_codes,
-                    sigma_u * np.float32(rig.nlp / codec.projector_width),
-                    codec_result.reference.surface,
-                    threads,
-                )
-        timer.timings_s["measure"] = time.perf_counter() - start
-        timer.add(codec_result.timings_s, "measure.")
-        return MeasureResult(
-            z_mm=codec_result.z_mm,
-            gray_z_mm=None,
-            obj_codes=codec_result.obj_codes,
-            options=options,
-            software_version=software_version(),
-            timings_s=timer.timings_s,
-            codec="gcps-codec/1",
-            decoding=codec_result.decoding,
-            sigma_mm=sigma_mm,
-        )
-    if isinstance(reference, CodecReference):
-        raise ValueError("a reference decoded with a codec cannot serve a gcps-v1 stack")
-    if sigma and not isinstance(reference, Reference):  # kept for the uncertainty's dz/dl
-        reference = core_measure.prepare_reference(rig, reference, options.decode)
-    result = core_measure.measure_height(
-        rig, reference, obj, options.decode, gray_only=options.gray_only, threads=threads
-    )
-    sigma_mm = None
-    if sigma:
-        assert isinstance(reference, Reference)
-        with timer.phase("measure.sigma_s"):
-            sigma_mm = _gcps_v1_sigma(rig, reference, obj, result.obj_codes, threads)
+    measurement = core.measure(model, obj, codec, reference=reference, options=options, threads=threads)
     timer.timings_s["measure"] = time.perf_counter() - start
-    timer.add(result.timings_s, "measure.")
+    timer.add(measurement.timings_s, "measure.")
     return MeasureResult(
-        z_mm=result.z_mm,
-        gray_z_mm=result.gray_z_mm,
-        obj_codes=result.obj_codes,
+        measurement=measurement,
         options=options,
+        codec=codec,
         software_version=software_version(),
         timings_s=timer.timings_s,
-        sigma_mm=sigma_mm,
     )
-
-
-def _gcps_v1_sigma(
-    rig: Rig, reference: Reference, obj: npt.ArrayLike, codes: np.ndarray, threads: int | None
-) -> np.ndarray:
-    """Height uncertainty of a gcps-v1 measurement: the object's noise and modulation from the codec
-    decoder's built-in gcps-v1 (4-step phase, period 4 codes), then |dz/dl| sigma_l."""
-    codec = gcps_v1_codec()
-    decoding = decode_codec(np.asarray(obj), codec, with_noise=True, threads=threads)
-    sigma_u = axis_coordinate_sigma(codec, "u", decoding.axes["u"])
-    sigma_l = sigma_u * np.float32(GCPS_V1_NLP / codec.projector_width)  # period 4 codes whatever the rig's nlp
-    return height_sigma(rig.prepare(), codes, sigma_l, reference.surface, threads)

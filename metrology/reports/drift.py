@@ -129,7 +129,7 @@ def compute_drift(
     old_rig, new_rig = before.get("rig", {}), summary.get("rig", {})
     rig_changes = [
         {"name": name, "previous": old_rig.get(name), "current": new_rig.get(name)}
-        for name in ("L_mm", "d_mm", "alpha_rad", "fw_mm", "nlp", "width_px", "height_px")
+        for name in sorted(set(old_rig) | set(new_rig))
         if old_rig.get(name) != new_rig.get(name)
     ]
     return {

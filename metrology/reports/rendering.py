@@ -106,8 +106,9 @@ def render_report_html(
         )
     changed = {change["name"] for change in drift.get("rig_changes", [])}
     rig_rows = [
-        {"name": name, "value": summary["rig"].get(name), "changed": name in changed}
-        for name in ("L_mm", "d_mm", "alpha_rad", "fw_mm", "nlp", "width_px", "height_px")
+        {"name": name, "value": _rig_value(value), "changed": name in changed}
+        for name, value in summary["rig"].items()
+        if name not in ("id", "name", "model")
     ]
     context = {
         "report": report,
@@ -126,3 +127,13 @@ def render_report_html(
         "generated_at": timezone.now(),
     }
     return render_to_string("reports/report.html", context)
+
+
+def _rig_value(value: Any) -> str:
+    """A rig file's value for the report's table: numbers with six significant digits (matrices
+    and nested values likewise, a nested object as ``key value`` pairs)."""
+    from metrology.core.geometry.base import short_number
+
+    if isinstance(value, dict):
+        return ", ".join(f"{key} {_rig_value(item)}" for key, item in value.items())
+    return short_number(value)

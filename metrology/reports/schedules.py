@@ -6,23 +6,18 @@ in the admin (Periodic tasks).
 
 from __future__ import annotations
 
-import datetime
 import json
 from typing import Any
-from zoneinfo import ZoneInfo
 
 from celery.schedules import crontab as celery_crontab
 from django.conf import settings
 from django.db import transaction
-from django.utils import timezone
 from django_celery_beat.models import CrontabSchedule, IntervalSchedule, PeriodicTask
 
 from metrology.errors import BadInput
 from metrology.reports.options import SOURCES, check_options, checked_number
-from metrology.reports.selectors import REPORT_TASK
+from metrology.reports.selectors import CRONTAB_FIELDS, REPORT_TASK
 from metrology.rigs.models import Rig
-
-CRONTAB_FIELDS = ("minute", "hour", "day_of_month", "month_of_year", "day_of_week")
 
 
 def checked_crontab(spec: str) -> dict[str, str]:
@@ -48,45 +43,6 @@ def _crontab(spec: str) -> CrontabSchedule:
     values = checked_crontab(spec)
     schedule, _ = CrontabSchedule.objects.get_or_create(**values, timezone=settings.TIME_ZONE)
     return schedule
-
-
-def crontab_text(schedule: CrontabSchedule) -> str:
-    """``"30 6 * * * (UTC)"``: the five fields as typed, and the time zone they are read in."""
-    fields = (schedule.minute, schedule.hour, schedule.day_of_month, schedule.month_of_year, schedule.day_of_week)
-    return f"{' '.join(fields)} ({schedule.timezone})"
-
-
-def when_text(task: PeriodicTask) -> str:
-    """A schedule in words: its crontab, or "every N s"."""
-    if task.crontab is not None:
-        return crontab_text(task.crontab)
-    if task.interval is not None:
-        return f"every {task.interval.every} {task.interval.period}"
-    return "no schedule"
-
-
-def next_run_at(task: PeriodicTask, now: datetime.datetime | None = None) -> datetime.datetime | None:
-    """When beat will next send ``task`` (None when disabled or unscheduled); never before ``now``.
-
-    A crontab fires at its next matching minute after ``now`` (in the schedule's time zone); an
-    interval ``every`` after its last run, or at once when it never ran (beat runs a new interval
-    schedule on its first tick).
-    """
-    now = now or timezone.now()
-    if not task.enabled:
-        return None
-    if task.crontab is not None:
-        zone = ZoneInfo(str(task.crontab.timezone))
-        local_now = now.astimezone(zone)
-        values = {name: getattr(task.crontab, name) for name in CRONTAB_FIELDS}
-        cron = celery_crontab(**values, nowfun=lambda: local_now)
-        return (local_now + cron.remaining_estimate(local_now)).astimezone(now.tzinfo)
-    if task.interval is not None:
-        if task.last_run_at is None:
-            return now
-        every = datetime.timedelta(**{str(task.interval.period): task.interval.every})
-        return max(now, task.last_run_at + every)
-    return None
 
 
 def schedule_name(rig: Rig) -> str:

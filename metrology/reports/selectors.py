@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import datetime
 import json
+from zoneinfo import ZoneInfo
 
+from celery.schedules import crontab as celery_crontab
 from django.db.models import QuerySet
 from django.http import Http404
-from django_celery_beat.models import PeriodicTask
+from django.utils import timezone
+from django_celery_beat.models import CrontabSchedule, PeriodicTask
 
 from metrology.captures.models import Capture, CaptureSession
 from metrology.jobs.models import Job
@@ -14,6 +18,9 @@ from metrology.reports.models import Report
 from metrology.rigs.models import Rig
 
 REPORT_TASK = "metrology.reports.tasks.scheduled_characterization_report"
+"""The Celery task that a report schedule (a django-celery-beat ``PeriodicTask``) runs."""
+
+CRONTAB_FIELDS = ("minute", "hour", "day_of_month", "month_of_year", "day_of_week")
 
 
 def reports_for(user) -> QuerySet[Report]:
@@ -67,8 +74,6 @@ def report_schedules(user) -> list[dict]:
     ``task`` (the PeriodicTask), ``rig``, ``when`` (crontab or interval in words), ``source``,
     ``options`` (what the report will be asked for) and ``next_run`` (None when disabled).
     """
-    from metrology.reports.schedules import next_run_at, when_text  # schedules reads REPORT_TASK from here
-
     tasks = PeriodicTask.objects.filter(task=REPORT_TASK).select_related("interval", "crontab")
     rigs = {rig.pk: rig for rig in Rig.objects.filter(owner=user)}
     schedules = []
@@ -95,3 +100,42 @@ def report_schedules(user) -> list[dict]:
 def report_schedule(user, rig: Rig) -> dict | None:
     """The schedule of ``rig`` (one of the user's), as in :func:`report_schedules`, or None."""
     return next((item for item in report_schedules(user) if item["rig"].pk == rig.pk), None)
+
+
+def crontab_text(schedule: CrontabSchedule) -> str:
+    """``"30 6 * * * (UTC)"``: the five fields as typed, and the time zone they are read in."""
+    fields = (schedule.minute, schedule.hour, schedule.day_of_month, schedule.month_of_year, schedule.day_of_week)
+    return f"{' '.join(fields)} ({schedule.timezone})"
+
+
+def when_text(task: PeriodicTask) -> str:
+    """A schedule in words: its crontab, or "every N s"."""
+    if task.crontab is not None:
+        return crontab_text(task.crontab)
+    if task.interval is not None:
+        return f"every {task.interval.every} {task.interval.period}"
+    return "no schedule"
+
+
+def next_run_at(task: PeriodicTask, now: datetime.datetime | None = None) -> datetime.datetime | None:
+    """When beat will next send ``task`` (None when disabled or unscheduled); never before ``now``.
+
+    A crontab fires at its next matching minute after ``now`` (in the schedule's time zone); an
+    interval ``every`` after its last run, or at once when it never ran (beat runs a new interval
+    schedule on its first tick).
+    """
+    now = now or timezone.now()
+    if not task.enabled:
+        return None
+    if task.crontab is not None:
+        zone = ZoneInfo(str(task.crontab.timezone))
+        local_now = now.astimezone(zone)
+        values = {name: getattr(task.crontab, name) for name in CRONTAB_FIELDS}
+        cron = celery_crontab(**values, nowfun=lambda: local_now)
+        return (local_now + cron.remaining_estimate(local_now)).astimezone(now.tzinfo)
+    if task.interval is not None:
+        if task.last_run_at is None:
+            return now
+        every = datetime.timedelta(**{str(task.interval.period): task.interval.every})
+        return max(now, task.last_run_at + every)
+    return None

@@ -15,7 +15,7 @@ from django.views.decorators.http import require_GET, require_POST
 
 from metrology.errors import BadInput
 from metrology.reports import selectors, services
-from metrology.reports.schedules import when_text
+from metrology.reports.selectors import when_text
 from metrology.rigs.selectors import get_rig, rigs_for
 
 

@@ -12,7 +12,16 @@ class RigParametersInline(admin.TabularInline):
 
 @admin.register(Rig)
 class RigAdmin(admin.ModelAdmin):
-    list_display = ("id", "name", "owner", "L_mm", "d_mm", "alpha_rad", "fw_mm", "nlp", "width_px", "height_px")
-    list_filter = ("owner",)
+    list_display = ("id", "name", "owner", "model", "values")
+    list_filter = ("owner", "model")
     search_fields = ("name", "notes")
     inlines = (RigParametersInline,)
+    readonly_fields = ("model", "parameters")
+
+    @admin.display(description="values")
+    def values(self, rig: Rig) -> str:
+        """The model's values in one line (:meth:`~metrology.core.geometry.base.GeometryModel.summary`)."""
+        try:
+            return rig.to_core().summary()
+        except ValueError as exc:
+            return f"unreadable: {exc}"

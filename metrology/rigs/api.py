@@ -1,4 +1,4 @@
-"""REST endpoints for rigs: POST/GET /api/rigs/, GET /api/rigs/{id}/."""
+"""REST endpoints for rigs: POST/GET /api/rigs/, GET /api/rigs/{id}/ (a rig file of any model)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,6 @@ from rest_framework.response import Response
 from rest_framework.views import APIView
 
 from metrology.api_input import BoundedJSONParser, RealNumberField
-from metrology.errors import BadInput
 from metrology.rigs import selectors, services
 from metrology.rigs.models import Rig, RigParameters
 
@@ -33,22 +32,28 @@ class CodecField(serializers.JSONField):
 
 
 class RigInputSerializer(serializers.Serializer):
-    """The rig file of docs/file-formats.md; further keys are kept in ``extra``. A pinhole rig file
-    (``"model": "pinhole"``, docs/pinhole.md) is read by the core's pinhole model instead."""
+    """A rig file (its schema, for the API's documentation; the core validates every value): the flat
+    crossed-axes values of docs/file-formats.md (further keys kept in ``extra``), or a rig file
+    with ``model`` (``"pinhole"``: docs/pinhole.md), plus the optional ``name``, ``notes``, ``codec``."""
 
     name = serializers.CharField(required=False, allow_blank=True, max_length=200)
     notes = serializers.CharField(required=False, allow_blank=True, max_length=10000)
-    L_mm = RealNumberField(help_text="Height of the pupils above the reference plane, mm, > 0")
-    d_mm = RealNumberField(help_text="Projector-camera baseline, mm, > 0")
-    alpha_rad = RealNumberField(help_text="Projector tilt, rad, in (0, pi/2)")
-    fw_mm = RealNumberField(help_text="Camera field width on the reference plane, mm, > 0")
-    nlp = serializers.IntegerField(min_value=1, max_value=128, help_text="Light codes across the field")
+    model = serializers.CharField(required=False, help_text="The geometric model (default crossed_axes)")
+    L_mm = RealNumberField(required=False, help_text="crossed_axes: height of the pupils above the reference plane, mm")
+    d_mm = RealNumberField(required=False, help_text="crossed_axes: projector-camera baseline, mm, > 0")
+    alpha_rad = RealNumberField(required=False, help_text="crossed_axes: projector tilt, rad, in (0, pi/2)")
+    fw_mm = RealNumberField(required=False, help_text="crossed_axes: camera field width on the reference plane, mm")
+    nlp = serializers.IntegerField(required=False, min_value=1, max_value=128, help_text="crossed_axes: light codes")
     width_px = serializers.IntegerField(
-        min_value=1, max_value=settings.GCPS_MAX_IMAGE_SIDE_PX, help_text="Camera columns (GCPS_MAX_IMAGE_SIDE_PX)"
+        required=False, min_value=1, max_value=settings.GCPS_MAX_IMAGE_SIDE_PX, help_text="crossed_axes: camera columns"
     )
     height_px = serializers.IntegerField(
-        min_value=1, max_value=settings.GCPS_MAX_IMAGE_SIDE_PX, help_text="Camera rows (GCPS_MAX_IMAGE_SIDE_PX)"
+        required=False, min_value=1, max_value=settings.GCPS_MAX_IMAGE_SIDE_PX, help_text="crossed_axes: camera rows"
     )
+    camera = serializers.JSONField(required=False, help_text="pinhole: width_px, height_px, K, dist")
+    projector = serializers.JSONField(required=False, help_text="pinhole: width, height, K, dist (gamma, response)")
+    R = serializers.JSONField(required=False, help_text="pinhole: rotation, X_p = R X_c + T")
+    T = serializers.JSONField(required=False, help_text="pinhole: translation, mm")
     codec = CodecField(required=False)
 
 
@@ -58,16 +63,54 @@ class RigHistorySerializer(serializers.ModelSerializer):
         fields = ("id", "values", "source", "calibration", "procam_calibration", "restored_from", "created_at")
 
 
+class LegacyValue(serializers.Field):
+    """A key the rigs API answered before rigs stored their model's parameters
+    (:meth:`~metrology.rigs.models.Rig.legacy_values`), read-only."""
+
+    def __init__(self, **kwargs: object) -> None:
+        super().__init__(source="*", read_only=True, **kwargs)  # type: ignore[arg-type]
+
+    def to_representation(self, value: Rig) -> object:
+        return value.legacy_values()[str(self.field_name)]
+
+
+@extend_schema_field({"type": "number", "nullable": True})
+class LegacyNumber(LegacyValue):
+    """A crossed-axes value; null for a model without it."""
+
+
+@extend_schema_field({"type": "integer", "nullable": True})
+class LegacyInteger(LegacyValue):
+    """An integer crossed-axes value (null for a model without it), or the camera's size."""
+
+
+@extend_schema_field({"type": "object", "nullable": True, "additionalProperties": True})
+class LegacyRigFile(LegacyValue):
+    """A pinhole rig's file (docs/pinhole.md); null for another model."""
+
+
 class RigSerializer(serializers.ModelSerializer):
+    """A rig: its model and parameters, and the keys the API answered before (the crossed-axes
+    values at the top level, null for a model without them; ``pinhole``, a pinhole rig's file)."""
+
     history = RigHistorySerializer(many=True, read_only=True)
+    L_mm = LegacyNumber()
+    d_mm = LegacyNumber()
+    alpha_rad = LegacyNumber()
+    fw_mm = LegacyNumber()
+    nlp = LegacyInteger()
+    width_px = LegacyInteger()
+    height_px = LegacyInteger()
+    pinhole = LegacyRigFile()
 
     class Meta:
         model = Rig
-        fields = (
+        fields: tuple[str, ...] = (
             "id",
             "name",
             "notes",
             "model",
+            "parameters",
             "L_mm",
             "d_mm",
             "alpha_rad",
@@ -82,16 +125,21 @@ class RigSerializer(serializers.ModelSerializer):
             "updated_at",
             "history",
         )
-        read_only_fields = fields
+        read_only_fields: tuple[str, ...] = fields
 
 
-class RigSummarySerializer(serializers.ModelSerializer):
-    """A rig in a list: its geometry, without ``extra`` and ``history`` (see the rig's own URL)."""
+RIG_DETAIL_ONLY: tuple[str, ...] = ("extra", "history", "pinhole")
+"""Fields of a rig's own URL that a list leaves out (``pinhole`` is the legacy key of a pinhole rig's file)."""
 
-    class Meta:
-        model = Rig
-        fields = tuple(name for name in RigSerializer.Meta.fields if name not in ("extra", "history", "pinhole"))
-        read_only_fields = fields
+
+class RigSummarySerializer(RigSerializer):
+    """A rig in a list: its values, without ``extra``, ``history`` and ``pinhole`` (see the rig's own URL)."""
+
+    pinhole = None  # type: ignore[assignment]
+
+    class Meta(RigSerializer.Meta):
+        fields: tuple[str, ...] = tuple(name for name in RigSerializer.Meta.fields if name not in RIG_DETAIL_ONLY)
+        read_only_fields: tuple[str, ...] = fields
 
 
 class RigListCreateApi(APIView):
@@ -103,15 +151,7 @@ class RigListCreateApi(APIView):
     def post(self, request: Request) -> Response:
         if not isinstance(request.data, dict):
             raise serializers.ValidationError({"non_field_errors": ["Send the rig as a JSON object."]})
-        if request.data.get("model") == "pinhole":  # a pinhole rig file (docs/pinhole.md)
-            rig = services.create_pinhole_rig(owner=request.user, data=dict(request.data))
-            return Response(RigSerializer(rig).data, status=status.HTTP_201_CREATED)
-        if request.data.get("model", "crossed_axes") != "crossed_axes":
-            raise BadInput(f"model must be crossed_axes or pinhole, got {request.data.get('model')!r}")
-        serializer = RigInputSerializer(data=request.data)
-        serializer.is_valid(raise_exception=True)
-        extra = {key: value for key, value in request.data.items() if key not in serializer.fields and key != "model"}
-        rig = services.create_rig(owner=request.user, data={**extra, **serializer.validated_data})
+        rig = services.create_rig(owner=request.user, data=dict(request.data))
         return Response(RigSerializer(rig).data, status=status.HTTP_201_CREATED)
 
 

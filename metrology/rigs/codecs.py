@@ -42,3 +42,39 @@ def validate_codec(value: Any) -> Any:
     if codec.n_frames > MAX_CODEC_FRAMES:
         raise BadInput(f"codec: {codec.n_frames} frames, more than the limit of {MAX_CODEC_FRAMES}")
     return value if isinstance(value, str) else codec.to_dict()
+
+
+def capture_default(rig: Any) -> Any:
+    """The rig's default codec value (gcps-v1 when unset)."""
+    return rig.codec if rig.codec is not None else DEFAULT_CODEC
+
+
+def check_codec_for_rig(codec: Codec, rig: Any) -> None:
+    """Raise :class:`BadInput` unless ``rig``'s model can measure captures of ``codec`` (the model's
+    :meth:`~metrology.core.geometry.base.GeometryModel.check_codec`: a projector of the model's own
+    size, the triangulated axis coded)."""
+    from metrology.core.geometry import GeometryError
+
+    try:
+        rig.to_core().check_codec((codec.projector_width, codec.projector_height), tuple(codec.axes))
+    except GeometryError as exc:
+        raise BadInput(f"capture codec refused: {exc}") from None
+
+
+def default_codec_for(model: Any) -> str:
+    """The default codec of a new rig of ``model`` (a core geometric model) when its file names none:
+    the paper's gcps-v1, at the model's own projector size where it has one (a pinhole rig's
+    projector, e.g. ``gcps-v1:1280x800``) and measures with it; else plain gcps-v1 (the rig's pages
+    then say what to set)."""
+    from metrology.core.geometry import GeometryError
+
+    size = model.prepare().projector_size
+    if size is None or not all(float(x).is_integer() for x in size):
+        return DEFAULT_CODEC
+    name = f"{DEFAULT_CODEC}:{int(size[0])}x{int(size[1])}"
+    codec = builtin_codec(name)
+    try:
+        model.check_codec((codec.projector_width, codec.projector_height), tuple(codec.axes))
+    except GeometryError:
+        return DEFAULT_CODEC
+    return name

@@ -1,37 +1,52 @@
-"""A Rig: the seven geometric values of docs/file-formats.md and the history of its calibrated values."""
+"""A Rig: its geometric model (the core's registry name) and the model's parameters, the default codec
+of its captures, and the history of its values.
+
+:meth:`Rig.to_core` is the one place of the application that turns a stored rig into the core's
+model; everything else asks the model what it can do (:class:`metrology.core.geometry.base.GeometryModel`).
+"""
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
 
 from django.conf import settings
 from django.db import models
 
-GEOMETRY_FIELDS: tuple[str, ...] = ("L_mm", "d_mm", "alpha_rad", "fw_mm", "nlp", "width_px", "height_px")
+if TYPE_CHECKING:  # pragma: no cover
+    from metrology.core.geometry.base import GeometryModel
 
 DEFAULT_CODEC = "gcps-v1"
 """A rig's default codec: the paper's eleven named patterns (docs/codecs.md)."""
+
+DEFAULT_MODEL = "crossed_axes"
+"""The model of a rig file without a ``model`` key: the paper's (docs/conventions.md)."""
+
+LEGACY_FIELDS: tuple[str, ...] = ("L_mm", "d_mm", "alpha_rad", "fw_mm", "nlp")
+"""The crossed-axes values that the rigs API has always answered at the top level (None where the
+rig's model has no such parameter)."""
 
 
 def default_codec() -> str:
     return DEFAULT_CODEC
 
 
-class Rig(models.Model):
-    class Model(models.TextChoices):
-        CROSSED_AXES = "crossed_axes", "Crossed optical axes (the paper's model)"
-        PINHOLE = "pinhole", "Calibrated pinhole camera and projector"
+def model_choices() -> list[tuple[str, str]]:
+    """``(name, label)`` of every geometric model of the core's registry."""
+    from metrology.core.geometry import MODELS
 
+    return [(name, cls.label) for name, cls in MODELS.items()]
+
+
+class Rig(models.Model):
     owner = models.ForeignKey(settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="rigs")
     name = models.CharField(max_length=200, blank=True)
     notes = models.TextField(blank=True)
-    model = models.CharField(max_length=16, choices=Model.choices, default=Model.CROSSED_AXES)
-    pinhole = models.JSONField(null=True, blank=True, help_text="The pinhole rig file (model pinhole)")
-    L_mm = models.FloatField(null=True, blank=True, help_text="Height of the pupils above the reference plane, mm")
-    d_mm = models.FloatField(null=True, blank=True, help_text="Projector-camera baseline, mm")
-    alpha_rad = models.FloatField(null=True, blank=True, help_text="Tilt of the projector sensor plane, rad")
-    fw_mm = models.FloatField(null=True, blank=True, help_text="Camera field width on the reference plane, mm")
-    nlp = models.PositiveIntegerField(null=True, blank=True, help_text="Light codes across the field (<= 128)")
-    width_px = models.PositiveIntegerField()
-    height_px = models.PositiveIntegerField()
+    model = models.CharField(
+        max_length=32, choices=model_choices, default=DEFAULT_MODEL, help_text="The rig's geometric model"
+    )
+    parameters = models.JSONField(
+        default=dict, help_text="The model's values: its rig file without the model key (validated by the core)"
+    )
     extra = models.JSONField(default=dict, blank=True, help_text="Further keys of the rig file")
     codec = models.JSONField(
         default=default_codec,
@@ -46,41 +61,59 @@ class Rig(models.Model):
     def __str__(self) -> str:
         return self.name or f"rig {self.pk}"
 
-    def geometry(self) -> dict:
-        """The seven values of the rig file."""
-        return {name: getattr(self, name) for name in GEOMETRY_FIELDS}
+    def to_core(self) -> GeometryModel:
+        """The core's frozen geometric model of these values (cached per instance while they stay the same)."""
+        from metrology.core.geometry import model_from_parameters
+
+        key = (self.model, repr(self.parameters))
+        cached = getattr(self, "_core", None)
+        if cached is None or cached[0] != key:
+            cached = (key, model_from_parameters(self.model, self.parameters))
+            self._core = cached
+        return cached[1]
+
+    def rig_file(self) -> dict[str, Any]:
+        """The rig file of the model's values: ``{"model": ..., **parameters}`` (what measurements
+        record as the values they were made with; the core reads it back)."""
+        return {"model": self.model, **self.parameters}
 
     @property
-    def is_pinhole(self) -> bool:
-        return self.model == self.Model.PINHOLE
+    def shape(self) -> tuple[int, int]:
+        """Camera frame ``(height_px, width_px)``."""
+        return self.to_core().shape
 
-    def rig_file(self) -> dict:
-        """The rig file's values: the pinhole rig file, or the seven crossed-axes values."""
-        return dict(self.pinhole) if self.is_pinhole and self.pinhole else self.geometry()
+    @property
+    def width_px(self) -> int:
+        return self.shape[1]
 
-    def to_core(self):
-        """The core's frozen geometric model: :class:`metrology.core.rig.Rig` for these values, or the
-        :class:`~metrology.core.geometry.pinhole.PinholeRig` of a pinhole rig."""
-        if self.is_pinhole:
-            from metrology.core.geometry.pinhole import PinholeRig
+    @property
+    def height_px(self) -> int:
+        return self.shape[0]
 
-            return PinholeRig.from_dict(self.pinhole or {})
-        from metrology.core.rig import Rig as CoreRig
-
-        return CoreRig.from_dict(self.geometry())
+    def legacy_values(self) -> dict[str, Any]:
+        """The keys the rigs API answered before rigs stored their model's parameters: the
+        crossed-axes values (None where the model has none), the image size, and ``pinhole``, the
+        rig file of a pinhole rig (None otherwise)."""
+        values: dict[str, Any] = {name: self.parameters.get(name) for name in LEGACY_FIELDS}
+        values.update(width_px=self.width_px, height_px=self.height_px)
+        values["pinhole"] = self.rig_file() if self.model == "pinhole" else None
+        return values
 
 
 class RigParameters(models.Model):
-    """One entry of a rig's history: the geometry it had from ``created_at`` on."""
+    """One entry of a rig's history: the values it had from ``created_at`` on."""
 
     class Source(models.TextChoices):
         CREATED = "created", "Created"
         CALIBRATION = "calibration", "Calibration applied"
         MANUAL = "manual", "Edited"
         RESTORED = "restored", "Restored from history"
+        IMPORTED = "imported", "Imported from a calibration file"
 
     rig = models.ForeignKey(Rig, on_delete=models.CASCADE, related_name="history")
-    values = models.JSONField(help_text="The seven geometric values, or the pinhole rig file")
+    values = models.JSONField(
+        help_text="The rig file of the values (read by the core; a crossed-axes file may lack its model key)"
+    )
     source = models.CharField(max_length=16, choices=Source.choices)
     calibration = models.ForeignKey(
         "calibrations.Calibration", null=True, blank=True, on_delete=models.SET_NULL, related_name="+"
@@ -109,3 +142,9 @@ class RigParameters(models.Model):
 
     def __str__(self) -> str:
         return f"{self.rig} {self.source} {self.created_at:%Y-%m-%d %H:%M}"
+
+    def to_core(self) -> GeometryModel:
+        """The core's model of this entry's values."""
+        from metrology.core.geometry import model_from_dict
+
+        return model_from_dict(self.values)

@@ -1,37 +1,45 @@
-"""Writes for rigs: create a rig from its JSON (validated by the core), change its geometry."""
+"""Writes for rigs: create a rig from a rig file of any model (validated by the core), change its
+values, keep their history.
+
+Every change of a rig's values goes through :func:`set_rig_model`, which records the new values in
+the rig's history with what set them (creation, a calibration, an edit, a restore).
+"""
 
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from typing import Any
 
 from django.conf import settings
 from django.db import transaction
 
-from metrology.core.rig import Rig as CoreRig
-from metrology.core.rig import RigError
 from metrology.errors import BadInput
-from metrology.rigs.codecs import validate_codec
-from metrology.rigs.models import DEFAULT_CODEC, GEOMETRY_FIELDS, Rig, RigParameters
+from metrology.rigs.codecs import default_codec_for, validate_codec
+from metrology.rigs.models import Rig, RigParameters
+
+RIG_FIELDS: tuple[str, ...] = ("name", "notes", "codec")
+"""Keys of a rig file that are the application's, not the model's."""
 
 
-def validate_geometry(values: dict[str, Any]) -> dict[str, Any]:
-    """The seven values normalised by the core's :class:`Rig`; raises :class:`BadInput` naming the problem.
+def validate_model(rig_file: Mapping[str, Any]) -> Any:
+    """The core's geometric model of a rig file (any model; the paper's when ``model`` is absent),
+    its camera bounded by ``GCPS_MAX_IMAGE_SIDE_PX`` (every capture, measurement and simulation of
+    the rig is that size). :class:`BadInput` naming the problem (the core's message)."""
+    from metrology.core.geometry import GeometryError, model_from_dict
 
-    The image sides are also bounded by ``GCPS_MAX_IMAGE_SIDE_PX`` (every capture, measurement and
-    simulation of the rig is that size).
-    """
     try:
-        core = CoreRig.from_dict(values)
-    except RigError as exc:
+        model = model_from_dict(rig_file)
+    except GeometryError as exc:
         raise BadInput(str(exc)) from None
-    except (TypeError, OverflowError) as exc:  # e.g. a list where a number belongs
-        raise BadInput(f"rig values are not numbers: {exc}") from None
+    except (TypeError, ValueError, OverflowError) as exc:  # e.g. a list where a number belongs
+        raise BadInput(f"rig values refused: {exc}") from None
     limit = settings.GCPS_MAX_IMAGE_SIDE_PX
-    for name in ("width_px", "height_px"):
-        if getattr(core, name) > limit:
-            raise BadInput(f"{name} must be at most {limit} pixels (GCPS_MAX_IMAGE_SIDE_PX), got {getattr(core, name)}")
-    return {name: getattr(core, name) for name in GEOMETRY_FIELDS}
+    height, width = model.shape
+    for name, value in (("width_px", width), ("height_px", height)):
+        if value > limit:
+            raise BadInput(f"camera {name} must be at most {limit} pixels (GCPS_MAX_IMAGE_SIDE_PX), got {value}")
+    return model
 
 
 def validate_extra(extra: dict[str, Any]) -> dict[str, Any]:
@@ -62,48 +70,74 @@ def validate_extra(extra: dict[str, Any]) -> dict[str, Any]:
     return extra
 
 
+def history_values(model: Any) -> dict[str, Any]:
+    """What a history entry (and a measurement) records of a model: its rig file with the model's name."""
+    return {"model": model.model, **model.parameters()}
+
+
 @transaction.atomic
-def create_rig(*, owner, data: dict[str, Any]) -> Rig:
-    """Create a rig from the rig-file JSON (docs/file-formats.md); ``name``, ``notes`` and ``codec`` (its
-    captures' default codec, docs/codecs.md; gcps-v1 when absent) are optional keys."""
-    geometry = validate_geometry({name: data.get(name) for name in GEOMETRY_FIELDS if name in data})
-    extra = validate_extra(
-        {key: value for key, value in data.items() if key not in (*GEOMETRY_FIELDS, "name", "notes", "codec")}
-    )
-    codec = validate_codec(data["codec"]) if data.get("codec") is not None else DEFAULT_CODEC
+def create_rig(*, owner, data: Mapping[str, Any]) -> Rig:
+    """Create a rig from a rig file of any model (docs/file-formats.md, docs/pinhole.md): the flat
+    crossed-axes values (further keys kept in ``extra``) or a file with ``model``; ``name``,
+    ``notes`` and ``codec`` (its captures' default codec, docs/codecs.md; when absent, gcps-v1 at the
+    model's projector size where it has one, :func:`~metrology.rigs.codecs.default_codec_for`) are
+    optional keys. :class:`BadInput` naming the problem."""
+    if not isinstance(data, Mapping):
+        raise BadInput(f"a rig file is a JSON object, got {type(data).__name__}")
+    rig_file = {key: value for key, value in data.items() if key not in RIG_FIELDS}
+    model = validate_model(rig_file)
+    parameters = model.parameters()
+    extra = validate_extra({k: v for k, v in rig_file.items() if k not in parameters and k != "model"})
+    name, notes = data.get("name") or "", data.get("notes") or ""
+    if not isinstance(name, str) or not isinstance(notes, str):
+        raise BadInput("name and notes must be text")
+    if len(name) > 200:
+        raise BadInput(f"name must be at most 200 characters, got {len(name)}")
+    codec = validate_codec(data["codec"]) if data.get("codec") is not None else default_codec_for(model)
     rig = Rig.objects.create(
-        owner=owner,
-        name=str(data.get("name") or ""),
-        notes=str(data.get("notes") or ""),
-        extra=extra,
-        codec=codec,
-        **geometry,
+        owner=owner, name=name, notes=notes, model=model.model, parameters=parameters, extra=extra, codec=codec
     )
-    RigParameters.objects.create(rig=rig, values=rig.geometry(), source=RigParameters.Source.CREATED)
+    RigParameters.objects.create(rig=rig, values=history_values(model), source=RigParameters.Source.CREATED)
     return rig
 
 
 @transaction.atomic
-def update_rig_geometry(
-    *, rig: Rig, changes: dict[str, Any], source: str, calibration=None, restored_from: RigParameters | None = None
+def set_rig_model(
+    *,
+    rig: Rig,
+    model: Any,
+    source: str,
+    calibration=None,
+    procam=None,
+    restored_from: RigParameters | None = None,
 ) -> Rig:
-    """Replace some geometric values (e.g. a calibration's L and alpha) and record them in the history.
-
-    The rig is a crossed-axes rig afterwards: the seven values are that model's (a pinhole rig's
-    ``changes`` must give all seven, as a restored crossed-axes entry does; its rig file stays in
-    the history). ``restored_from`` is the history entry the values come back from, if any.
-    """
-    geometry = validate_geometry({**rig.geometry(), **changes})
+    """Give ``rig`` the values of ``model`` (a core geometric model, of the rig's model or another:
+    a projector-camera calibration turns a crossed-axes rig into a pinhole one) and record them in
+    its history with what set them: ``source``, the ``calibration`` or ``procam`` calibration, the
+    history entry ``restored_from``."""
+    model = validate_model(history_values(model))
     rig = Rig.objects.select_for_update().get(pk=rig.pk)
-    rig.model = Rig.Model.CROSSED_AXES
-    rig.pinhole = None
-    for name, value in geometry.items():
-        setattr(rig, name, value)
+    rig.model, rig.parameters = model.model, model.parameters()
     rig.save()
     RigParameters.objects.create(
-        rig=rig, values=rig.geometry(), source=source, calibration=calibration, restored_from=restored_from
+        rig=rig,
+        values=history_values(model),
+        source=source,
+        calibration=calibration,
+        procam_calibration=procam,
+        restored_from=restored_from,
     )
     return rig
+
+
+def update_rig_parameters(*, rig: Rig, changes: Mapping[str, Any], source: str, calibration=None) -> Rig:
+    """Replace some of the rig's parameters (e.g. a calibration's L and alpha) and record them
+    (:func:`set_rig_model`); :class:`BadInput` naming a parameter the rig's model does not have."""
+    unknown = sorted(set(changes) - set(rig.parameters))
+    if unknown:
+        raise BadInput(f"a {rig.to_core().short_label} rig has no parameter {', '.join(unknown)}")
+    model = validate_model({**rig.rig_file(), **changes})
+    return set_rig_model(rig=rig, model=model, source=source, calibration=calibration)
 
 
 @transaction.atomic
@@ -116,78 +150,11 @@ def set_rig_codec(*, rig: Rig, codec: Any) -> Rig:
     return rig
 
 
-def validate_pinhole_file(rig_file: dict[str, Any]) -> Any:
-    """The core's :class:`~metrology.core.geometry.pinhole.PinholeRig` of a pinhole rig file
-    (docs/pinhole.md); :class:`BadInput` naming the problem (the core's message) when it is refused."""
-    from metrology.core.geometry import GeometryError
-    from metrology.core.geometry.pinhole import PinholeRig
-
-    try:
-        return PinholeRig.from_dict(rig_file)
-    except GeometryError as exc:
-        raise BadInput(str(exc)) from None
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise BadInput(f"pinhole rig refused: {exc}") from None
-
-
-@transaction.atomic
-def create_pinhole_rig(*, owner, data: dict[str, Any]) -> Rig:
-    """Create a pinhole rig from its rig file (docs/pinhole.md: ``model``, ``camera``, ``projector``, ``R``
-    or ``rvec``... as the core reads it); ``name``, ``notes`` and ``codec`` are optional further keys.
-    Raises :class:`BadInput` naming the problem (the core's message)."""
-    rig_file = {key: value for key, value in data.items() if key not in ("name", "notes", "codec")}
-    core = validate_pinhole_file(rig_file)
-    limit = settings.GCPS_MAX_IMAGE_SIDE_PX
-    for name, value in (("camera width_px", core.camera.width_px), ("camera height_px", core.camera.height_px)):
-        if value > limit:
-            raise BadInput(f"{name} must be at most {limit} pixels (GCPS_MAX_IMAGE_SIDE_PX), got {value}")
-    codec = validate_codec(data["codec"]) if data.get("codec") is not None else DEFAULT_CODEC
-    values = core.to_dict()
-    rig = Rig.objects.create(
-        owner=owner,
-        name=str(data.get("name") or "")[:200],
-        notes=str(data.get("notes") or ""),
-        model=Rig.Model.PINHOLE,
-        pinhole=values,
-        width_px=core.camera.width_px,
-        height_px=core.camera.height_px,
-        codec=codec,
-    )
-    RigParameters.objects.create(rig=rig, values=values, source=RigParameters.Source.CREATED)
-    return rig
-
-
-def require_crossed_axes(rig: Rig, what: str) -> None:
-    """BadInput when ``rig`` is a pinhole rig and ``what`` (a calibration, a simulated capture...) needs
-    the crossed-axes model."""
-    if rig.is_pinhole:
-        raise BadInput(f"rig {rig.pk} is a pinhole rig: {what} needs a crossed-axes rig (docs/pinhole.md)")
-
-
-@transaction.atomic
-def set_pinhole_rig_file(
-    *, rig: Rig, rig_file: dict[str, Any], source: str, procam=None, restored_from: RigParameters | None = None
-) -> Rig:
-    """Make ``rig`` a pinhole rig with ``rig_file`` (docs/pinhole.md), recorded in its history.
-
-    The model becomes ``pinhole``, the image size the camera's and the crossed-axes values are
-    cleared (a crossed-axes rig is converted; its values stay in the history). ``procam`` is the
-    projector-camera calibration that produced the file, if any; ``restored_from`` the history entry
-    it comes back from, if any. :class:`BadInput` naming the problem when the core refuses the file.
-    """
-    core = validate_pinhole_file(rig_file)
-    values = core.to_dict()
-    rig = Rig.objects.select_for_update().get(pk=rig.pk)
-    rig.model = Rig.Model.PINHOLE
-    rig.pinhole = values
-    rig.width_px, rig.height_px = core.camera.width_px, core.camera.height_px
-    for name in ("L_mm", "d_mm", "alpha_rad", "fw_mm", "nlp"):
-        setattr(rig, name, None)
-    rig.save()
-    RigParameters.objects.create(
-        rig=rig, values=values, source=source, procam_calibration=procam, restored_from=restored_from
-    )
-    return rig
+def require_capability(rig: Rig, able: bool, what: str, instead: str = "") -> None:
+    """BadInput saying that the rig's model cannot do ``what`` (``able`` False), and what to do ``instead``."""
+    if not able:
+        label = rig.to_core().short_label
+        raise BadInput(f"rig {rig.pk} is a {label} rig: {what}" + (f" ({instead})" if instead else ""))
 
 
 @transaction.atomic
@@ -195,10 +162,9 @@ def restore_rig_entry(*, rig: Rig, entry_id: Any) -> Rig:
     """Make an earlier entry of the rig's history its current values again, as a new entry (source
     ``restored``, pointing to the entry and to the calibration that had set it).
 
-    A pinhole entry makes the rig a pinhole rig with that rig file; a crossed-axes entry makes it a
-    crossed-axes rig with those seven values (a pinhole rig is converted back; its rig file stays in
-    the history). The default codec is kept: a crossed-axes rig measures with any codec coding u.
-    Measurements made before keep the values they were made with.
+    The entry's model becomes the rig's (a rig converted by a projector-camera calibration goes
+    back to its crossed-axes values, and forth). The default codec is kept. Measurements made
+    before keep the values they were made with.
 
     Raises
     ------
@@ -214,15 +180,74 @@ def restore_rig_entry(*, rig: Rig, entry_id: Any) -> Rig:
     latest = entries.order_by("-created_at", "-id").first()
     if latest is not None and latest.pk == entry.pk:
         raise BadInput(f"history entry {entry.pk} already holds rig {rig.pk}'s current values")
-    source = RigParameters.Source.RESTORED
-    if entry.values.get("model") == "pinhole":
-        return set_pinhole_rig_file(
-            rig=rig, rig_file=entry.values, source=source, procam=entry.procam_calibration, restored_from=entry
-        )
-    return update_rig_geometry(
+    return set_rig_model(
         rig=rig,
-        changes={name: entry.values.get(name) for name in GEOMETRY_FIELDS},
-        source=source,
+        model=validate_model(entry.values),
+        source=RigParameters.Source.RESTORED,
         calibration=entry.calibration,
+        procam=entry.procam_calibration,
         restored_from=entry,
     )
+
+
+def read_calibration_upload(
+    upload: Any, *, projector_size: tuple[float, float], camera_size: tuple[int, int] | None = None
+) -> tuple[Any, dict[str, Any]]:
+    """The pinhole rig of an uploaded OpenCV FileStorage calibration file (YAML or XML), read as
+    ``gcps rig import --opencv FILE`` reads it (:func:`metrology.core.rig_import.import_rig`: the
+    same recognition of node names, the same messages), and what was read (``read``: each value's
+    node, ``camera_size``, ``triangulate_auto``), sources named by the uploaded file's name.
+    :class:`BadInput` with the import's message."""
+    import tempfile
+    from pathlib import Path
+
+    from metrology.core.rig_import import RigImportError, import_rig
+
+    filename = Path(str(getattr(upload, "name", "") or "calibration.yml")).name
+    if Path(filename).suffix.lower() not in (".yml", ".yaml", ".xml"):
+        raise BadInput(f"{filename}: expected an OpenCV FileStorage .yml, .yaml or .xml file")
+    size = getattr(upload, "size", None)
+    if size is not None and size > settings.GCPS_MAX_RIG_FILE_BYTES:
+        raise BadInput(f"{filename}: a calibration file is at most {settings.GCPS_MAX_RIG_FILE_BYTES} bytes")
+    with tempfile.TemporaryDirectory(prefix="gcps-rig-import-") as tmp:
+        path = Path(tmp) / filename
+        with path.open("wb") as out:
+            for chunk in upload.chunks() if hasattr(upload, "chunks") else [upload.read()]:
+                out.write(chunk)
+        try:
+            imported = import_rig(projector_size=projector_size, camera_size=camera_size, opencv=str(path))
+        except (RigImportError, ValueError) as exc:
+            raise BadInput(str(exc).replace(f"{tmp}/", "")) from None
+        summary = json.loads(json.dumps(imported.summary()).replace(f"{tmp}/", ""))
+    return imported.rig, summary
+
+
+def import_calibration_file(
+    *,
+    owner,
+    upload: Any,
+    projector_size: tuple[float, float],
+    camera_size: tuple[int, int] | None = None,
+    name: str = "",
+    codec: Any = None,
+) -> tuple[Rig, dict[str, Any]]:
+    """Create a rig from an uploaded calibration file (:func:`read_calibration_upload`); returns the
+    rig and what was read."""
+    model, summary = read_calibration_upload(upload, projector_size=projector_size, camera_size=camera_size)
+    rig = create_rig(owner=owner, data={**model.to_dict(), "name": name, "codec": codec})
+    return rig, summary
+
+
+def import_calibration_into_rig(
+    *,
+    rig: Rig,
+    upload: Any,
+    projector_size: tuple[float, float],
+    camera_size: tuple[int, int] | None = None,
+) -> tuple[Rig, dict[str, Any]]:
+    """Give an existing rig the values of an uploaded calibration file (:func:`read_calibration_upload`),
+    recorded in its history as ``imported`` (a crossed-axes rig becomes a pinhole rig; its former
+    values stay in the history, and Restore brings them back). The default codec is kept. Returns
+    the rig and what was read."""
+    model, summary = read_calibration_upload(upload, projector_size=projector_size, camera_size=camera_size)
+    return set_rig_model(rig=rig, model=model, source=RigParameters.Source.IMPORTED), summary

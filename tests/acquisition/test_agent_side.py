@@ -15,8 +15,8 @@ from metrology.acquisition.agent.cameras import CameraError, FaultyCamera, GenIC
 from metrology.acquisition.agent.checks import CheckOptions, FrameChecker, auto_exposure, projector_change
 from metrology.acquisition.agent.patterns import resolve_codec
 from metrology.acquisition.agent.sequencer import AcquisitionError, InstantProjector, SequenceOptions, run_sequence
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.io import read_stack
-from metrology.core.rig import Rig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_stack
 from tests.acquisition.helpers import ROOT
@@ -209,9 +209,10 @@ CODEC = {
 def test_gcps_capture_of_a_codec_file_decodes_to_the_true_projector_columns(tmp_path):
     """A 3-step phase (period 32 px) + 7-bit gray codec with its own white/black frames, through the
     virtual camera: the stored stack carries codec.json and decodes (issue 11's decoder) to the true u."""
-    from metrology.core.codecs import codec_from_dict, crossed_rig_truth
+    from metrology.core.codecs import codec_from_dict
     from metrology.core.codecs.decode import decode_codec
     from metrology.core.codecs.stack import read_codec_stack
+    from metrology.core.simulate import crossed_rig_truth
 
     rig_path, codec_path, out = tmp_path / "rig.json", tmp_path / "codec.json", tmp_path / "sphere.zip"
     rig_path.write_text(json.dumps(SMALL_RIG))

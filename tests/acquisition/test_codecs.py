@@ -24,13 +24,13 @@ from metrology.acquisition.agent.client import stack_zip
 from metrology.acquisition.agent.patterns import resolve_codec
 from metrology.acquisition.agent.sequencer import InstantProjector, SequenceOptions, run_sequence
 from metrology.acquisition.models import Acquisition
-from metrology.captures.codecs import load_codec_stack
 from metrology.captures.models import Capture
-from metrology.core.codecs import codec_from_dict, codec_patterns, crossed_rig_truth
+from metrology.captures.stacks import load_codec_stack
+from metrology.core.codecs import codec_from_dict, codec_patterns
 from metrology.core.codecs.decode import decode_codec
-from metrology.core.rig import Rig as CoreRig
+from metrology.core.geometry.crossed_axes import Rig as CoreRig
 from metrology.core.scenes import make_scene
-from metrology.core.simulate import render_stack
+from metrology.core.simulate import crossed_rig_truth, render_stack
 from metrology.jobs.models import Job
 from tests.acquisition.helpers import PROJ_H, PROJ_W, phase_gray_codec
 from tests.app.stacks import SMALL_RIG, plane_zip

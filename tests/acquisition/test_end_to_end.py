@@ -22,9 +22,9 @@ from django.test import Client
 
 from metrology.acquisition.models import Acquisition
 from metrology.captures.models import Capture
-from metrology.captures.services import load_capture_stack
+from metrology.captures.stacks import load_capture_stack
+from metrology.core.geometry.crossed_axes import Rig as CoreRig
 from metrology.core.patterns import projector_patterns
-from metrology.core.rig import Rig as CoreRig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_stack
 from metrology.pipeline.measure import measure
@@ -196,9 +196,10 @@ def test_agent_acquires_a_phase_gray_codec_stored_with_its_codec_decoding_to_the
     """A 4-step phase + gray code with inverses on both axes (30 frames): the page shows the codec's
     patterns, the agent grabs one frame per codec frame (virtual camera, latency faults injected), the
     capture is stored with its codec and decodes to the true projector coordinates of the virtual rig."""
-    from metrology.captures.codecs import load_codec_stack
-    from metrology.core.codecs import codec_from_dict, crossed_rig_truth
+    from metrology.captures.stacks import load_codec_stack
+    from metrology.core.codecs import codec_from_dict
     from metrology.core.codecs.decode import decode_codec
+    from metrology.core.simulate import crossed_rig_truth
     from tests.acquisition.helpers import phase_gray_codec
 
     document = phase_gray_codec(("u", "v"))

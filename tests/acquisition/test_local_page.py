@@ -13,8 +13,8 @@ import sys
 import numpy as np
 import pytest
 
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.io import read_stack
-from metrology.core.rig import Rig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_stack
 from tests.acquisition.helpers import CHROMIUM_ARGS, ROOT

@@ -19,8 +19,8 @@ import pytest
 import requests
 
 from metrology.captures.models import Capture
-from metrology.captures.services import load_capture_stack
-from metrology.core.rig import Rig
+from metrology.captures.stacks import load_capture_stack
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_flat_frames, render_stack
 from tests.acquisition.helpers import CHROMIUM_ARGS

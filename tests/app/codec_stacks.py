@@ -7,7 +7,7 @@ import json
 import numpy as np
 
 from metrology.core.codecs import codec_from_dict, render_codec
-from metrology.core.rig import Rig
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.synthetic import exact_codes
 from tests.app.stacks import SMALL_RIG, png, zip_bytes
 

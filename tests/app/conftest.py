@@ -7,7 +7,7 @@ import pytest
 from rest_framework.test import APIClient
 
 from metrology.accounts.services import create_user_with_token
-from metrology.core.rig import Rig
+from metrology.core.geometry.crossed_axes import Rig
 from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
 from tests.app.uploads import upload
 from tests.pinhole_stacks import RIG as PINHOLE_RIG

@@ -16,11 +16,10 @@ import json
 import numpy as np
 
 from metrology.core.codecs import codec_from_dict
-from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, PinholeRig
+from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, PinholeRig, look_at_rig
 from metrology.core.procam import parse_board
 from metrology.core.procam.virtual import BoardPose, render_board
 from metrology.core.simulate import realistic_8bit
-from metrology.core.simulate_pinhole import look_at_rig
 from tests.app.stacks import SMALL_RIG, png, zip_bytes
 
 CAMERA = PinholeCamera(320, 240, ((400.0, 0, 161.3), (0, 400.4, 119.1), (0, 0, 1)), (-0.12, 0.08, 0.0008, -0.0005, 0.0))

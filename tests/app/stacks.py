@@ -8,8 +8,8 @@ import zipfile
 import cv2
 import numpy as np
 
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.patterns import PATTERN_NAMES, pattern_intensity
-from metrology.core.rig import Rig
 from metrology.core.synthetic import exact_codes
 
 # A small rig with the paper's geometry: fast to decode in tests.

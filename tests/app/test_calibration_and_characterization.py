@@ -10,7 +10,7 @@ import pytest
 
 from metrology.calibrations.models import Calibration
 from metrology.characterizations.models import Characterization
-from metrology.core.rig import Rig
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.jobs.models import Job
 from tests.app.stacks import SMALL_RIG
 from tests.app.uploads import upload_heights

@@ -1,4 +1,5 @@
-"""The same stacks through the ``gcps`` command and through a job give the same results.
+"""The same stacks through the ``gcps`` command and through a job give the same results, on the
+paper's rig and on a pinhole rig.
 
 Realistic 8-bit renders (noise, camera and projector blur), so the mixed-pixel filter and the
 camera-blur correction matter: both doors must run the one pipeline (:mod:`metrology.pipeline`).
@@ -15,12 +16,15 @@ import numpy as np
 import pytest
 
 from metrology.cli import main
+from metrology.core.codecs import codec_from_dict
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.io import write_rig, write_series, write_stack
-from metrology.core.rig import Rig
 from metrology.core.scenes import make_scene
-from metrology.core.simulate import SimulationOptions, render_series, render_stack
+from metrology.core.simulate import ScenePlacement, SimulationOptions, render_capture, render_series, render_stack
 from metrology.version import software_version
-from tests.app.stacks import SMALL_RIG, stack_zip
+from tests.app.stacks import SMALL_RIG, png, stack_zip, zip_bytes
+from tests.pinhole_stacks import CODEC
+from tests.pinhole_stacks import RIG as PINHOLE_RIG
 
 pytestmark = pytest.mark.django_db(transaction=True)
 CORE_RIG = Rig.from_dict(SMALL_RIG)
@@ -151,3 +155,97 @@ def test_result_pages_show_the_options_and_the_commit(api, rig, stacks):
         format="json",
     )
     assert bad.status_code == 400 and "smoothing_px" in bad.json()["error"] and "-2" in bad.json()["error"]
+
+
+def codec_zip(images: np.ndarray) -> bytes:
+    """A capture zip of the pinhole test codec's frames, with its codec.json."""
+    members = {f"frame_{i:02d}.png": png(image) for i, image in enumerate(images)}
+    members["codec.json"] = json.dumps(CODEC).encode()
+    return zip_bytes(members)
+
+
+def upload_zip(api, rig_id: int, data: bytes, role: str, **fields) -> int:
+    handle = io.BytesIO(data)
+    handle.name = f"{role}.zip"
+    response = api.post(f"/api/rigs/{rig_id}/captures/", {"file": handle, "role": role, **fields}, format="multipart")
+    assert response.status_code == 201, response.content
+    return response.json()["id"]
+
+
+def test_a_pinhole_rig_measures_and_characterizes_alike_through_command_and_job(api, tmp_path):
+    """The same realistic captures of a codec through a distorted pinhole rig: depths without a
+    reference, heights above the reference plane with one, the points, and a stage series'
+    characterization, bit-identical between ``gcps`` and the jobs."""
+    codec, placement = codec_from_dict(CODEC), ScenePlacement.facing_camera(600.0)
+    options = SimulationOptions.realistic_8bit(seed=5, supersample=1)
+
+    def render(scene: str, **params: float) -> bytes:
+
+        return codec_zip(
+            render_capture(PINHOLE_RIG, make_scene(scene, **params), codec, options, placement=placement).images
+        )
+
+    rig_file = tmp_path / "pinhole.json"
+    write_rig(PINHOLE_RIG, rig_file)
+    created = api.post("/api/rigs/", {**PINHOLE_RIG.to_dict(), "name": "parity", "codec": CODEC}, format="json")
+    assert created.status_code == 201, created.content
+    rig_id = created.json()["id"]
+    zips = {"reference": render("reference"), "sphere": render("sphere")}
+    for name, data in zips.items():
+        (tmp_path / f"{name}.zip").write_bytes(data)
+    reference = upload_zip(api, rig_id, zips["reference"], "reference")
+    obj = upload_zip(api, rig_id, zips["sphere"], "object")
+
+    def download(measurement_id: int, name: str) -> np.ndarray:
+        return np.load(io.BytesIO(b"".join(api.get(f"/api/measurements/{measurement_id}/{name}").streaming_content)))
+
+    for with_reference in (False, True):
+        args = ["--reference", str(tmp_path / "reference.zip")] if with_reference else []
+        outputs = [
+            "--out",
+            str(tmp_path / "z.npy"),
+            "--xyz",
+            str(tmp_path / "xyz.npy"),
+            "--json",
+            str(tmp_path / "m.json"),
+        ]
+        cli("measure", "--rig", str(rig_file), "--object", str(tmp_path / "sphere.zip"), *args, *outputs)
+        body = {"rig": rig_id, "reference": reference if with_reference else None, "object": obj}
+        started = api.post("/api/measurements/", body, format="json")
+        assert started.status_code == 202, started.content
+        done = api.get(f"/api/measurements/{started.json()['id']}/").json()
+        assert done["status"] == "done", done
+        cli_z = np.load(tmp_path / "z.npy")
+        assert np.isfinite(cli_z).mean() > 0.5
+        np.testing.assert_array_equal(download(done["id"], "height.npy"), cli_z)
+        np.testing.assert_array_equal(download(done["id"], "points.npy"), np.load(tmp_path / "xyz.npy"))
+        stats = json.loads((tmp_path / "m.json").read_text())
+        assert done["options"] == stats["options"]
+        assert (
+            done["statistics"]["z"]
+            == stats["z"]
+            == ("height above the reference plane" if with_reference else "depth (camera Z)")
+        )
+
+    session = api.post(f"/api/rigs/{rig_id}/sessions/", {"name": "stage"}, format="json").json()["id"]
+    captures: dict[float, list[str]] = {}
+    for z in (0.0, 5.0, 10.0):
+        path = tmp_path / f"stage_{z:g}.zip"
+        path.write_bytes(render("stage", z_in_mm=z))
+        captures[z] = [str(path)]
+        upload_zip(api, rig_id, path.read_bytes(), "stage", z_in_mm=z, repeat=0, session=session)
+    write_series(captures, tmp_path / "series.json")
+    cli("characterize", "--rig", str(rig_file), "--reference", str(tmp_path / "reference.zip"),
+        "--series", str(tmp_path / "series.json"), "--points", "5", "--out", str(tmp_path / "c.json"))  # fmt: skip
+    started = api.post(
+        "/api/characterizations/",
+        {"rig": rig_id, "reference": reference, "session": session, "options": {"n_points": 5}},
+        format="json",
+    )
+    body = api.get(f"/api/characterizations/{started.json()['id']}/").json()
+    assert body["status"] == "done", body
+    report = json.loads((tmp_path / "c.json").read_text())
+    for key in ("z_in_mm", "mean_error_mm", "std_error_mm", "n_samples", "test_points", "overall"):
+        assert body["results"][key] == report[key], key
+    assert body["options"] == report["options"] and report["model"] == "pinhole"
+    assert abs(report["overall"]["mean_error_mm"]) < 0.05

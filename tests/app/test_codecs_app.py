@@ -10,7 +10,7 @@ import pytest
 
 from metrology.captures.models import Capture
 from metrology.core.codecs import codec_from_dict
-from metrology.core.rig import Rig
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.measurements.models import Measurement
 from tests.app.codec_stacks import CODEC, codec_images, codec_zip
 from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
@@ -106,7 +106,7 @@ def test_a_job_measures_uploads_of_another_codec_to_the_exact_heights(api, rig, 
     assert ok.sum() > 0.8 * inner.sum()
     # noise-free exact model: within 1 um of the block and the plane
     assert np.abs(z[ok] - truth[ok]).max() < 1e-3
-    assert Measurement.objects.get(pk=body["id"]).rig_values == {**SMALL_RIG}
+    assert Measurement.objects.get(pk=body["id"]).rig_values == {"model": "crossed_axes", **SMALL_RIG}
     # a second measurement against the same reference reuses the kept (decoded) codec reference
     from metrology.captures.references import kept_references
 

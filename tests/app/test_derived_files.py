@@ -12,8 +12,8 @@ from django.core.files.base import ContentFile
 from django.core.files.storage import default_storage
 from django.http import FileResponse, StreamingHttpResponse
 
-from metrology.core.mesh import mesh_from_heights
-from metrology.core.rig import Rig
+from metrology.core.geometry.crossed_axes import Rig
+from metrology.core.mesh import mesh_from_heights, open3d_mesh, surface_mesh
 from metrology.measurements import derived
 from metrology.measurements.derived_cache import DerivedFileCache
 from metrology.measurements.models import Measurement
@@ -50,9 +50,10 @@ def cache_files(media_root: Path) -> list[Path]:
 def test_measurement_stores_heights_only_under_3x_the_height_map(api, measurement_id, media_root):
     body = api.get(f"/api/measurements/{measurement_id}/").json()
     stored_names = {"height.npy", "gray_only_height.npy"}
-    assert set(body["files"]) == stored_names | {"height.tiff", "mesh.ply", "mesh.stl", "mesh.obj"}
+    assert set(body["files"]) == stored_names | {"height.tiff", "mesh.ply", "mesh.stl", "mesh.obj", "points.npy"}
     measurement = Measurement.objects.get(pk=measurement_id)
     assert not (measurement.mesh_ply or measurement.mesh_stl or measurement.mesh_obj or measurement.height_tiff)
+    assert not measurement.points_npy  # the paper's rig: the points are the heights on the camera rays
     folder = media_root / "measurements" / str(measurement_id)
     stored = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
     float32_map = SMALL_RIG["width_px"] * SMALL_RIG["height_px"] * 4
@@ -74,9 +75,14 @@ def test_mesh_is_streamed_then_served_from_the_cache(api, measurement_id, media_
     assert isinstance(second, FileResponse)
     assert b"".join(second.streaming_content) == data
 
-    # the geometry of today's mesh of the stored height map (open3d parses the file)
+    # the geometry of today's mesh of the stored height map and points (open3d parses the file)
     z = heights(api, measurement_id)
-    mesh = mesh_from_heights(Rig.from_dict(SMALL_RIG), z)
+    points = api.get(f"/api/measurements/{measurement_id}/points.npy")
+    points_mm = np.load(io.BytesIO(b"".join(points.streaming_content)))
+    mesh = open3d_mesh(surface_mesh(Rig.from_dict(SMALL_RIG), z, points_mm=points_mm))
+    # the stored float32 points are the heights on the camera rays (mesh_from_heights's vertices)
+    by_heights = np.asarray(mesh_from_heights(Rig.from_dict(SMALL_RIG), z).vertices)
+    np.testing.assert_allclose(np.asarray(mesh.vertices), by_heights, rtol=0, atol=1e-4)
     (tmp_path / f"m.{fmt}").write_bytes(data)
     again = o3d.io.read_triangle_mesh(str(tmp_path / f"m.{fmt}"))
     assert len(again.triangles) == len(mesh.triangles) > 1000
@@ -89,6 +95,23 @@ def test_mesh_is_streamed_then_served_from_the_cache(api, measurement_id, media_
         got = np.unique(np.asarray(again.vertices)[np.asarray(again.triangles)].reshape(-1, 3), axis=0)
         assert got.shape == expected.shape
         np.testing.assert_allclose(got, expected, rtol=0, atol=1e-4)
+
+
+def test_points_of_the_papers_rig_are_derived_from_the_heights_and_cached(api, measurement_id, media_root):
+    """``points.npy`` of a crossed-axes measurement: ``(H, W, 3)`` float32 mm, exactly the heights on
+    the camera rays (what a job stores for a model whose points do not follow from its heights)."""
+    response = api.get(f"/api/measurements/{measurement_id}/points.npy")
+    assert response.status_code == 200
+    points = np.load(io.BytesIO(b"".join(response.streaming_content)))
+    z = heights(api, measurement_id)
+    expected = Rig.from_dict(SMALL_RIG).prepare().points_from_heights(z).astype(np.float32)
+    assert points.shape == (*z.shape, 3) and points.dtype == np.float32
+    np.testing.assert_array_equal(points, expected)
+    assert [p.suffix for p in cache_files(media_root)] == [".npy"]
+    again = api.get(f"/api/measurements/{measurement_id}/points.npy")
+    assert isinstance(again, FileResponse) and np.array_equal(
+        np.load(io.BytesIO(b"".join(again.streaming_content))), points, equal_nan=True
+    )
 
 
 def test_tiff_is_derived_and_cached(api, measurement_id, media_root):

@@ -9,8 +9,8 @@ import pytest
 
 from metrology.captures import references
 from metrology.captures.models import Capture
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.io import StackError, read_stack, read_verified_stack
-from metrology.core.rig import Rig
 from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
 from tests.app.uploads import upload, upload_heights
 
@@ -53,13 +53,14 @@ def test_second_measurement_reuses_the_decoded_reference(api, rig):
     third = measure(api, rig["id"], reference, obj, {"decode": {"edge_band_px": 0}})
     assert third["status"] == "done" and (stats.hits, stats.misses) == (1, 2)
     # a changed rig (a recalibrated L) or a replaced file is another key: decoded again
-    from metrology.core.measure import DecodeOptions
+    from metrology.core.measure import MeasureOptions
 
     capture = Capture.objects.get(pk=reference)
-    key = references.reference_key(capture, SMALL_RIG, DecodeOptions())
-    assert references.reference_key(capture, {**SMALL_RIG, "L_mm": 1030.0}, DecodeOptions()) != key
+    rig_file = {"model": "crossed_axes", **SMALL_RIG}
+    key = references.reference_key(capture, rig_file, None, MeasureOptions())
+    assert references.reference_key(capture, {**rig_file, "L_mm": 1030.0}, None, MeasureOptions()) != key
     capture.checksum_sha256 = "0" * 64
-    assert references.reference_key(capture, SMALL_RIG, DecodeOptions()) != key
+    assert references.reference_key(capture, rig_file, None, MeasureOptions()) != key
 
 
 def test_a_stack_changed_since_upload_is_refused(api, rig, media_root):

@@ -7,7 +7,7 @@ import io
 import numpy as np
 import pytest
 
-from metrology.core.rig import Rig
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
 from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
@@ -41,6 +41,7 @@ def test_measurement_runs_and_serves_heights_and_meshes(api, rig, captures, medi
         "height.npy",
         "height.tiff",
         "gray_only_height.npy",
+        "points.npy",
         "mesh.ply",
         "mesh.stl",
         "mesh.obj",
@@ -59,7 +60,8 @@ def test_measurement_runs_and_serves_heights_and_meshes(api, rig, captures, medi
     assert ok.sum() > 0.8 * inner.sum()
     assert np.abs(z[ok] - truth[ok]).max() < 0.01  # 16-bit quantisation
 
-    # only the referenced files are stored: two stacks and the two height maps (meshes and TIFF on request)
+    # only the referenced files are stored: two stacks and the two height maps (the points follow from
+    # the heights on the paper's rig; meshes, TIFF and points on request)
     assert len(stored_files(media_root)) == 4
     for name, magic in (("mesh.ply", b"ply"), ("mesh.obj", b"# GCPS"), ("mesh.stl", b"GCPS"), ("height.tiff", b"II")):
         response = api.get(f"/api/measurements/{measurement_id}/{name}")
@@ -86,7 +88,7 @@ def test_a_core_error_fails_the_job_with_the_reason(api, rig, captures, monkeypa
     def broken(*_args, **_kwargs):
         raise ValueError("object stack has no valid pixel")
 
-    monkeypatch.setattr(measure, "measure_height", broken)
+    monkeypatch.setattr(measure, "measure", broken)
     reference, obj = captures
     response = api.post("/api/measurements/", {"rig": rig["id"], "reference": reference, "object": obj}, format="json")
     body = api.get(f"/api/measurements/{response.json()['id']}/").json()

@@ -8,6 +8,7 @@ import io
 import numpy as np
 import pytest
 
+from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
 from metrology.rigs.models import Rig
 from tests.app.uploads import post_capture
@@ -78,9 +79,27 @@ def test_pinhole_uploads_must_match_the_rigs_projector_and_crossed_only_jobs_are
     data, _ = capture_zip("sphere", codec=other)
     refused = post_capture(api, rig_id, data, "object")
     assert refused.status_code == 400
-    assert "its projector is 1024x768 but the rig's projector is 640x400" in refused.json()["error"]
+    assert "the codec's projector is 1024x768 but the rig's projector is 640x400" in refused.json()["error"]
+    # the paper's calibration adjusts L and alpha: refused on a pinhole rig, naming it
+    plate, _ = capture_zip("plane", z_mm=0.0)
+    reference = post_capture(api, rig_id, plate, "reference").json()["id"]
+    master = post_capture(api, rig_id, capture_zip("sphere")[0], "master").json()["id"]
+    calibration = api.post(
+        "/api/calibrations/",
+        {"rig": rig_id, "reference": reference, "master": master, "master_height_mm": 40.0},
+        format="json",
+    )
+    assert calibration.status_code == 400, calibration.content
+    message = calibration.json()["error"]
+    assert message.startswith(f"rig {rig_id} is a pinhole rig: "), message
+    assert "the paper's calibration adjusts L and alpha (calibrate it from board poses)" in message
+    # the virtual rig renders every model: simulating a capture of a pinhole rig (in the rig's default
+    # codec, for its projector) is accepted
+    assert api.put(f"/api/rigs/{rig_id}/codec/", {"codec": CODEC}, format="json").status_code == 200
     simulate = api.post(
         f"/api/rigs/{rig_id}/captures/simulate/", {"role": "reference", "scene": {"name": "reference"}}, format="json"
     )
-    assert simulate.status_code == 400 and "pinhole rig" in simulate.json()["error"]
+    assert simulate.status_code == 202, simulate.content
+    job = Job.objects.get(pk=simulate.json()["job"])
+    assert job.status == "done", job.error
     assert Measurement.objects.count() == 0

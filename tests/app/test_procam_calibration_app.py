@@ -166,7 +166,7 @@ def test_apply_before_done_is_refused_and_apply_on_request_applies(api, rig320, 
     body = api.get(f"/api/procam-calibrations/{calibration_id}/").json()
     assert body["applied"] is True and body["report"]["poses_used"] == 3
     rig = Rig.objects.get(pk=rig320["id"])
-    assert rig.model == "pinhole" and rig.pinhole == PinholeRig.from_dict(body["rig_file"]).to_dict()
+    assert rig.model == "pinhole" and rig.rig_file() == PinholeRig.from_dict(body["rig_file"]).to_dict()
 
 
 def test_bad_requests_answer_400_naming_the_field(api, other_api, rig320, poses):
@@ -202,7 +202,8 @@ def test_bad_requests_answer_400_naming_the_field(api, other_api, rig320, poses)
         assert response.status_code == 400, (change, response.content)
         assert message in response.json()["error"], (change, response.json())
     # a stored pose whose size is no longer the rig's camera size (the rig's camera changed)
-    Rig.objects.filter(pk=rig_id).update(width_px=640, height_px=480)
+    stored = Rig.objects.get(pk=rig_id)
+    Rig.objects.filter(pk=rig_id).update(parameters={**stored.parameters, "width_px": 640, "height_px": 480})
     response = request(api, rig_id, poses)
     assert response.status_code == 400
     assert f"poses[0]: capture {poses[0]} is 320x240 px but the rig's camera is 640x480 px" in response.json()["error"]

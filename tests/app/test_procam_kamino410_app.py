@@ -63,4 +63,5 @@ def test_kamino410_poses_calibrate_through_the_job(db, pose_zips, django_user_mo
     assert [p["name"] for p in report["poses"]] == [f"capture_{i}.zip" for i in range(5)]
     apply_procam_calibration(calibration=calibration)
     rig.refresh_from_db()
-    assert rig.is_pinhole and rig.pinhole == calibration.rig_file and (rig.width_px, rig.height_px) == (1280, 1024)
+    assert rig.model == "pinhole" and rig.rig_file() == calibration.rig_file
+    assert (rig.width_px, rig.height_px) == (1280, 1024)

@@ -5,9 +5,9 @@ Refusals (the current entry, another rig's entry, another user's rig) change not
 
 from __future__ import annotations
 
-from metrology.core.rig import Rig as CoreRig
+from metrology.core.geometry.crossed_axes import Rig as CoreRig
 from metrology.rigs.models import Rig, RigParameters
-from metrology.rigs.services import set_pinhole_rig_file
+from metrology.rigs.services import set_rig_model
 from tests.app.procam_stacks import RIG_320, TRUE_RIG
 
 
@@ -15,7 +15,7 @@ def make_converted_rig(api) -> tuple[dict, dict]:
     """A crossed-axes 320x240 rig made a pinhole rig (as applying a projector-camera calibration does)."""
     created = api.post("/api/rigs/", {**RIG_320, "name": "bench"}, format="json").json()
     rig_file = TRUE_RIG.to_dict()
-    set_pinhole_rig_file(rig=Rig.objects.get(pk=created["id"]), rig_file=rig_file, source="calibration")
+    set_rig_model(rig=Rig.objects.get(pk=created["id"]), model=TRUE_RIG, source="calibration")
     return api.get(f"/api/rigs/{created['id']}/").json(), rig_file
 
 

@@ -27,7 +27,7 @@ def test_create_list_and_read_a_rig(api):
         ({"nlp": 0}, "nlp"),
         ({"nlp": 300}, "nlp"),
         ({"width_px": 0}, "width_px"),
-        ({"fw_mm": "wide"}, "fw_mm: A valid number is required"),
+        ({"fw_mm": "wide"}, "fw_mm must be a positive finite number, got 'wide'"),
         ({"d_mm": None}, "d_mm"),
     ],
 )
@@ -43,7 +43,7 @@ def test_missing_key_is_named(api):
     del data["alpha_rad"]
     response = api.post("/api/rigs/", data, format="json")
     assert response.status_code == 400
-    assert response.json()["error"] == "alpha_rad: This field is required."
+    assert response.json()["error"] == "rig is missing required key(s): alpha_rad"
 
 
 def test_degenerate_geometry_is_refused_with_the_core_message(api):

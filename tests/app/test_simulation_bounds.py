@@ -10,7 +10,7 @@ import pytest
 
 from metrology.captures.models import Capture
 from metrology.captures.simulation import DEFAULT_PRESET, PRESETS, estimated_render_bytes
-from metrology.core.rig import Rig
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_stack
 from metrology.dashboard import forms
@@ -71,7 +71,8 @@ def test_simulation_of_an_existing_oversized_rig_is_refused_by_its_memory(api, r
     """A rig stored before the size limit (or with a raised limit) still cannot ask for tens of GiB."""
     from metrology.rigs.models import Rig as RigRow
 
-    RigRow.objects.filter(pk=rig["id"]).update(width_px=100_000, height_px=100_000)
+    row = RigRow.objects.get(pk=rig["id"])
+    RigRow.objects.filter(pk=row.pk).update(parameters={**row.parameters, "width_px": 100_000, "height_px": 100_000})
     response = simulate(api, rig["id"], scene={"name": "plane"})
     assert response.status_code == 400, response.content
     message = response.json()["error"]

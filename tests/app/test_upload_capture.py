@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from metrology.captures.models import Capture, CaptureSession
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.patterns import PATTERN_NAMES
-from metrology.core.rig import Rig
 from tests.app.stacks import SMALL_RIG, plane_zip, png, render_images, stack_zip, zip_bytes
 from tests.conftest import stored_files
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import io
 
-from metrology.core.rig import Rig
+from metrology.core.geometry.crossed_axes import Rig
 from tests.app.stacks import SMALL_RIG, render_images, stack_zip
 
 

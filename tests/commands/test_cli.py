@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from metrology.cli import main
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.io import read_stack, write_rig, write_stack
-from metrology.core.rig import Rig
 from tests.commands.rigs import RIG
 
 

@@ -1,4 +1,4 @@
-"""`gcps measure` with a pinhole rig (the measure_pinhole command): captures of any codec -> points,
+"""`gcps measure` with a pinhole rig file (the one measure command): captures of any codec -> points,
 depth or heights, sigma, mesh. Needs the codec package; skipped, saying so, without it."""
 
 from __future__ import annotations
@@ -11,16 +11,16 @@ import cv2
 import numpy as np
 import pytest
 
-from metrology.commands.measure_pinhole import add_pinhole_measure_arguments, cmd_measure_pinhole, is_pinhole_rig
-from metrology.core.scenes import make_scene
-from metrology.core.simulate_pinhole import PlacedScene, cast_truth
-from tests.pinhole_stacks import CODEC, RIG
+from metrology.cli import build_parser
+from metrology.commands.common import BadInputError, load_model
+from metrology.commands.measure import cmd_measure
+from tests.pinhole_stacks import CODEC, RIG, cast_scene
 
 codecs = pytest.importorskip("metrology.core.codecs", reason="the codec package (issue 11) is not in this tree")
 
 
 def _capture(folder: Path, scene: str, **params: float) -> np.ndarray:
-    truth = cast_truth(RIG, PlacedScene(make_scene(scene, **params), 600.0))
+    truth = cast_scene(scene, 600.0, **params)
     codec = codecs.codec_from_dict(CODEC)
     images = codecs.render_codec(codec, truth.u, None)
     folder.mkdir()
@@ -31,20 +31,17 @@ def _capture(folder: Path, scene: str, **params: float) -> np.ndarray:
 
 
 def _args(tmp: Path, **extra: object) -> argparse.Namespace:
-    parser = argparse.ArgumentParser()
-    for name in ("--rig", "--object", "--out", "--reference", "--codec", "--mesh", "--json"):
-        parser.add_argument(name)
-    add_pinhole_measure_arguments(parser)
-    argv = ["--rig", str(tmp / "rig.json")]
+    """The options of `gcps measure --rig tmp/rig.json` and ``extra`` (``--key value``), as parsed."""
+    argv = ["measure", "--rig", str(tmp / "rig.json")]
     for key, value in extra.items():
         argv += [f"--{key.replace('_', '-')}", str(value)]
-    return parser.parse_args(argv)
+    return build_parser().parse_args(argv)
 
 
 @pytest.mark.slow
 def test_measure_with_pinhole_rig(tmp_path: Path) -> None:
     (tmp_path / "rig.json").write_text(RIG.to_json())
-    assert is_pinhole_rig(str(tmp_path / "rig.json"))
+    assert load_model(str(tmp_path / "rig.json")).model == "pinhole"
     truth = _capture(tmp_path / "sphere", "sphere")
     _capture(tmp_path / "ref", "plane", z_mm=0.0)
     # depth, points, sigma, mesh, stats
@@ -57,7 +54,7 @@ def test_measure_with_pinhole_rig(tmp_path: Path) -> None:
         mesh=tmp_path / "m.ply",
         json=tmp_path / "stats.json",
     )
-    summary = cmd_measure_pinhole(args)
+    summary = cmd_measure(args)
     assert summary["triangulate"] == "u" and summary["z"] == "depth (camera Z)"
     xyz = np.load(tmp_path / "xyz.npy")
     z = np.load(tmp_path / "z.npy")
@@ -77,7 +74,14 @@ def test_measure_with_pinhole_rig(tmp_path: Path) -> None:
     assert b"property float sigma_mm" in head
     n_vertices = int(head.split(b"element vertex ")[1].split(b"\n")[0])
     assert n_vertices == ok.sum()
-    vdtype = np.dtype([("xyz", "<f8", (3,)), ("n", "<f4", (3,)), ("s", "<f4")])
+    # binary little-endian vertices: double x y z, normals nx ny nz (open3d's double, once float),
+    # then float sigma_mm; read with the types the header gives
+    types = {b"double": "<f8", b"float": "<f4"}
+    vertex_head = head.split(b"element vertex ")[1].split(b"element face")[0]
+    props = [line.split()[1:] for line in vertex_head.split(b"\n") if line.startswith(b"property")]
+    assert [name for _, name in props] == [b"x", b"y", b"z", b"nx", b"ny", b"nz", b"sigma_mm"]
+    assert [kind for kind, _ in props][:3] == [b"double"] * 3 and props[-1][0] == b"float"
+    vdtype = np.dtype([("xyz", types[props[0][0]], (3,)), ("n", types[props[3][0]], (3,)), ("s", "<f4")])
     vertices = np.frombuffer(body[: n_vertices * vdtype.itemsize], vdtype)
     assert np.array_equal(vertices["s"], sigma[ok])
     assert np.allclose(vertices["xyz"], xyz[ok])
@@ -88,16 +92,23 @@ def test_measure_with_pinhole_rig(tmp_path: Path) -> None:
     assert len(mesh.vertices) == n_vertices and len(mesh.triangles) > n_vertices // 2
     stats = json.loads((tmp_path / "stats.json").read_text())
     assert stats["rig"]["model"] == "pinhole"
+    # the keys of the pinhole measure's JSON (a contract: commit ac75eb3's, others may be added)
+    assert set(stats) >= {
+        *("out", "model", "valid_pixels", "valid_fraction", "z", "triangulate", "method"),
+        *("dropped_by_max_sigma", "z_mm", "sigma_mm_median", "reference_plane", "decoding", "options"),
+        *("software_version", "timings_s", "rig"),
+    }
+    assert stats["sigma_mm_median"] > 0 and stats["reference_plane"] is None and stats["z_mm"]["min"] > 500
     # heights above the reference plate (Z = 600): the sphere's own heights
     args = _args(tmp_path, object=tmp_path / "sphere", reference=tmp_path / "ref", out=tmp_path / "h.npy")
-    assert cmd_measure_pinhole(args)["z"] == "height above the reference plane"
+    assert cmd_measure(args)["z"] == "height above the reference plane"
     h = np.load(tmp_path / "h.npy")
     assert np.abs(h[ok] - (600.0 - truth[..., 2][ok])).max() < 1e-3
     # --max-sigma drops everything above it
     args = _args(tmp_path, object=tmp_path / "sphere", out=tmp_path / "z2.npy", max_sigma=1e-9)
-    assert cmd_measure_pinhole(args)["valid_pixels"] == 0
-    with pytest.raises(ValueError, match="--max-sigma must be > 0"):
-        cmd_measure_pinhole(_args(tmp_path, object=tmp_path / "sphere", out=tmp_path / "z3.npy", max_sigma=-1))
+    assert cmd_measure(args)["valid_pixels"] == 0
+    with pytest.raises(BadInputError, match="--max-sigma must be a positive number of mm, got -1"):
+        cmd_measure(_args(tmp_path, object=tmp_path / "sphere", out=tmp_path / "z3.npy", max_sigma=-1))
 
 
 def test_gcps_measure_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -115,7 +126,14 @@ def test_gcps_measure_command_line(tmp_path: Path, capsys: pytest.CaptureFixture
     z = np.load(tmp_path / "z.npy")
     ok = np.isfinite(z)
     assert np.abs(z[ok] - truth[..., 2][ok]).max() < 1e-3
+    # --json without sigma: sigma_mm_median is there, null
+    json_argv = ["measure", "--rig", str(tmp_path / "rig.json"), "--object", str(tmp_path / "plane")]
+    json_argv += ["--out", str(tmp_path / "z2.npy"), "--json", str(tmp_path / "stats.json")]
+    assert main(["--quiet", *json_argv]) == 0
+    stats = json.loads((tmp_path / "stats.json").read_text())
+    assert stats["sigma_mm_median"] is None and stats["valid_pixels"] == ok.sum()
     crossed = Path(__file__).resolve().parents[2] / "examples" / "rig.json"
     argv = ["measure", "--rig", str(crossed), "--object", str(tmp_path / "plane"), "--out", str(tmp_path / "c.npy")]
     assert main(argv) == 2
-    assert "--reference is required for a crossed-axes rig" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--reference is required: a crossed-axes rig measures against a capture of the reference plane" in err

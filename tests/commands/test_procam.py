@@ -11,10 +11,9 @@ import numpy as np
 import pytest
 
 from metrology.cli import main
-from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, PinholeRig
+from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, PinholeRig, look_at_rig
 from metrology.core.procam import parse_board
 from metrology.core.procam.virtual import BoardPose, true_corners
-from metrology.core.simulate_pinhole import look_at_rig
 
 CAMERA = PinholeCamera(800, 600, ((1000.0, 0, 403.2), (0, 1001.0, 297.6), (0, 0, 1)), (-0.12, 0.08, 0.0008, -0.0005))
 PROJECTOR = PinholeProjector(1024, 768, ((1300.0, 0, 515.0), (0, 1300.0, 460.0), (0, 0, 1)), (0.04, -0.02, 0.0, 0.0))

@@ -2,9 +2,8 @@
 
 import numpy as np
 
+from metrology.core.geometry.crossed_axes import Rig, codes_from_abscissa
 from metrology.core.patterns import PATTERN_NAMES, pattern_intensity
-from metrology.core.rig import Rig
-from metrology.core.triangulate import codes_from_abscissa
 
 RIG = Rig(L_mm=1022.0, d_mm=352.0, alpha_rad=0.332, fw_mm=500.0, nlp=128, width_px=320, height_px=24)
 

@@ -15,9 +15,8 @@ from metrology.core.acceptance import (
     probing_error,
     sphere_spacing_error,
 )
-from metrology.core.rig import PAPER_RIG
+from metrology.core.geometry.crossed_axes import PAPER_RIG, height_from_codes
 from metrology.core.synthetic import add_code_noise, exact_codes, reference_codes, sphere_heights
-from metrology.core.triangulate import height_from_codes
 
 
 def _sphere_cap(rng, center, radius, n=5000, max_polar=1.2, sigma=0.0):

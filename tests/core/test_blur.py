@@ -6,7 +6,7 @@ import pytest
 
 from metrology.core.blur import blur_bias_exceeds, code_laplacian, correct_blur_bias, estimate_blur_variance
 from metrology.core.decode import decode_stack
-from metrology.core.rig import Rig
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_stack
 

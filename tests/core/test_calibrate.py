@@ -13,9 +13,8 @@ from metrology.core.calibrate import (
     calibrate_paper,
     find_top_face,
 )
-from metrology.core.rig import PAPER_RIG
+from metrology.core.geometry.crossed_axes import PAPER_RIG, height_from_codes
 from metrology.core.synthetic import add_code_noise, block_heights, exact_codes, reference_codes
-from metrology.core.triangulate import height_from_codes
 
 TRUTH = PAPER_RIG.with_parameters(width_px=160, height_px=120)
 START = TRUTH.with_parameters(L_mm=1080.0, alpha_rad=0.4871)  # the paper's rough start

@@ -9,7 +9,7 @@ import pytest
 
 from metrology.core.calibrate import MasterCapture, calibrate_lsq
 from metrology.core.characterize import characterize, heights_from_code_series, patch_means, place_test_points
-from metrology.core.rig import PAPER_RIG
+from metrology.core.geometry.crossed_axes import PAPER_RIG
 from metrology.core.synthetic import (
     add_code_noise,
     block_heights,

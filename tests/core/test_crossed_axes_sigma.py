@@ -4,7 +4,8 @@ the propagation through Eqs. 14-17, and the prediction against the scatter of re
 import numpy as np
 import pytest
 
-from metrology.core.measure import measure_height, prepare_reference
+from metrology.core.geometry.crossed_axes import PAPER_RIG, height_from_codes
+from metrology.core.measure import MeasureOptions, measure, prepare_reference
 from metrology.core.precision import (
     crossed_axes_sigma_mm,
     four_step_noise_grey,
@@ -12,9 +13,7 @@ from metrology.core.precision import (
     gcps_sigma_mm,
     light_code_sigma,
 )
-from metrology.core.rig import PAPER_RIG
 from metrology.core.simulate import SimulationOptions, render_series
-from metrology.core.triangulate import height_from_codes
 
 
 def test_four_step_noise_estimate_recovers_the_camera_noise() -> None:
@@ -71,9 +70,9 @@ def test_predicted_sigma_matches_the_scatter_of_30_realistic_renders_of_a_plane(
     heights, sigmas = [], []
     for ref_images, obj_images in zip(captures[0.0], captures[20.0], strict=True):
         reference = prepare_reference(rig, ref_images)
-        result = measure_height(rig, reference, obj_images, gray_only=False)
+        result = measure(rig, obj_images, reference=reference, options=MeasureOptions(gray_only=False))
         heights.append(result.z_mm)
-        sigmas.append(gcps_sigma_mm(rig, reference.decoded.codes, result.obj_codes, ref_images, obj_images))
+        sigmas.append(gcps_sigma_mm(rig, reference.codes, result.codes, ref_images, obj_images))
     z = np.array(heights)
     sigma = np.array(sigmas)
     assert sigma.dtype == np.float32

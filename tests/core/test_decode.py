@@ -6,10 +6,9 @@ import numpy as np
 import pytest
 
 from metrology.core.decode import DPHI_TABLE, decode_stack
+from metrology.core.geometry.crossed_axes import Rig, height_from_codes
 from metrology.core.patterns import PATTERN_NAMES, pattern_intensity
-from metrology.core.rig import Rig
 from metrology.core.tiling import row_tiles
-from metrology.core.triangulate import height_from_codes
 from tests.core.ideal_stacks import RIG, ideal_stack, plane_codes
 
 

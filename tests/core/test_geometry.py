@@ -5,12 +5,13 @@ import pytest
 
 from metrology.core.geometry import GeometryError, model_from_dict, triangulate_frame
 from metrology.core.geometry.crossed_axes import (
+    PAPER_RIG,
     CrossedAxesReference,
+    Rig,
     codes_on_camera_rays,
     height_from_codes,
     points_from_heights,
 )
-from metrology.core.rig import PAPER_RIG, Rig
 from metrology.core.synthetic import sphere_heights
 
 RIG = Rig(L_mm=1022.0, d_mm=352.0, alpha_rad=0.332, fw_mm=500.0, nlp=128, width_px=160, height_px=120)

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from metrology.core import io as gio
+from metrology.core.geometry.crossed_axes import PAPER_RIG, Rig, RigError
 from metrology.core.io import (
     CaptureStack,
     StackError,
@@ -32,7 +33,6 @@ from metrology.core.io import (
     write_stack,
 )
 from metrology.core.patterns import PATTERN_NAMES
-from metrology.core.rig import PAPER_RIG, Rig, RigError
 
 SHAPE = (24, 32)
 

@@ -4,16 +4,17 @@ import numpy as np
 import pytest
 
 from metrology.core.decode import decode_stack
-from metrology.core.measure import DecodeOptions, measure_height, prepare_reference, unreliable_mask
-from metrology.core.triangulate import height_from_codes
+from metrology.core.filters import FilterOptions, unreliable_mask
+from metrology.core.geometry.crossed_axes import height_from_codes
+from metrology.core.measure import MeasureOptions, height_statistics, measure, prepare_reference
 from tests.core.ideal_stacks import RIG, ideal_stack, plane_codes
 
 
 def test_fused_path_equals_decode_then_triangulate():
     ref_stack = ideal_stack(plane_codes(RIG, 0.0), bits=8, noise=1.5, seed=1)
     obj_stack = ideal_stack(plane_codes(RIG, 25.0), bits=8, noise=1.5, seed=2)
-    options = DecodeOptions(edge_band_px=0, field_margin_codes=0.0, blur_variance_px2=0.0)
-    result = measure_height(RIG, ref_stack, obj_stack, options)
+    options = MeasureOptions(filters=FilterOptions(edge_band_px=0, field_margin_codes=0.0, blur_variance_px2=0.0))
+    result = measure(RIG, obj_stack, reference=ref_stack, options=options)
     ref_codes, obj_codes = decode_stack(ref_stack).codes, decode_stack(obj_stack).codes
     expected = height_from_codes(RIG, ref_codes.astype(np.float64), obj_codes.astype(np.float64))
     # float32 throughout, but D_R = slope (l - r) / (1 + q l) subtracts codes, not two ~500 mm
@@ -22,7 +23,7 @@ def test_fused_path_equals_decode_then_triangulate():
     assert result.z_mm.dtype == np.float32
     assert abs(np.nanmedian(result.z_mm) - 25.0) < 0.02
     assert result.gray_z_mm is not None and np.nanstd(result.gray_z_mm - 25.0) > 1.0  # code-unit steps
-    stats = result.statistics()
+    stats = height_statistics(result.z_mm)
     assert stats["valid_pixels"] == int(np.isfinite(result.z_mm).sum())
 
 
@@ -30,8 +31,9 @@ def test_kept_reference_gives_the_same_heights():
     ref_stack = ideal_stack(plane_codes(RIG, 0.0))
     obj_stack = ideal_stack(plane_codes(RIG, 60.0))
     reference = prepare_reference(RIG, ref_stack)
-    a = measure_height(RIG, reference, obj_stack, gray_only=False)
-    b = measure_height(RIG, ref_stack, obj_stack, gray_only=False)
+    options = MeasureOptions(gray_only=False)
+    a = measure(RIG, obj_stack, reference=reference, options=options)
+    b = measure(RIG, obj_stack, reference=ref_stack, options=options)
     np.testing.assert_array_equal(a.z_mm, b.z_mm)
     assert a.gray_z_mm is None
     valid = np.isfinite(a.z_mm)
@@ -40,8 +42,8 @@ def test_kept_reference_gives_the_same_heights():
 
 def test_shape_unlike_the_rig_is_refused():
     stack = ideal_stack(plane_codes(RIG, 0.0))
-    with pytest.raises(ValueError, match="rig is 320x24"):
-        measure_height(RIG, stack, stack[:, :10])
+    with pytest.raises(ValueError, match="object frames are 320x10 px but the rig's camera is 320x24 px"):
+        measure(RIG, stack[:, :10], reference=stack)
 
 
 def test_unreliable_mask_drops_a_band_at_jumps_and_holes():
@@ -57,7 +59,7 @@ def test_unreliable_mask_drops_a_band_at_jumps_and_holes():
     assert not unreliable_mask(codes, 1.0, 0).any()
     assert not unreliable_mask(codes, 0.0, 1)[:, 17:].any()  # no jump seeds: only the hole's band
     with pytest.raises(ValueError, match="edge_band_px"):
-        DecodeOptions(edge_band_px=-1)
+        FilterOptions(edge_band_px=-1)
 
 
 def test_unreliable_mask_drops_a_crease_with_a_one_pixel_band():
@@ -79,4 +81,4 @@ def test_unreliable_mask_drops_a_crease_with_a_one_pixel_band():
     np.testing.assert_array_equal(tiled, expected)
     assert tiled[2:-2, 18:24].all() and not tiled[:, 24:].any()  # tiles see their neighbours' rows
     with pytest.raises(ValueError, match="max_blur_bias_codes"):
-        DecodeOptions(max_blur_bias_codes=-0.01)
+        FilterOptions(max_blur_bias_codes=-0.01)

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from metrology.core.geometry.crossed_axes import PAPER_RIG, Rig, points_from_heights
 from metrology.core.mesh import (
     default_max_jump_mm,
     grid_mesh_from_heights,
@@ -14,11 +15,10 @@ from metrology.core.mesh import (
     mesh_file_chunks,
     mesh_from_heights,
     point_cloud_from_heights,
+    surface_mesh,
     write_mesh,
     write_point_cloud,
 )
-from metrology.core.rig import PAPER_RIG, Rig
-from metrology.core.triangulate import points_from_heights
 
 o3d = pytest.importorskip("open3d")
 
@@ -301,7 +301,7 @@ def test_streamed_mesh_files_are_the_written_files(tmp_path: Path, fmt: str) -> 
     z = sample_heights(rig)
     mesh = mesh_from_heights(rig, z)
     written = write_mesh(mesh, tmp_path / f"written.{fmt}").read_bytes()
-    chunks = list(mesh_file_chunks(rig, z, fmt, chunk_rows=100))  # several chunks of each part
+    chunks = list(mesh_file_chunks(surface_mesh(rig, z), fmt, chunk_rows=100))  # several chunks of each part
     assert len(chunks) > 3
     streamed = b"".join(chunks)
     assert body(streamed, fmt) == body(written, fmt)
@@ -335,11 +335,11 @@ def test_grid_mesh_normals_match_open3d() -> None:
 def test_mesh_file_chunks_start_before_the_normals_and_check_input() -> None:
     rig = SMALL_RIG
     with pytest.raises(ValueError, match="fmt must be one of ply, stl, obj, got 'vrml'"):
-        mesh_file_chunks(rig, sample_heights(rig), "vrml")
-    lazy = mesh_file_chunks(rig, np.zeros((3, 3)), "ply")  # nothing computed yet
+        mesh_file_chunks(lambda: surface_mesh(rig, sample_heights(rig)), "vrml")  # at once, before building
+    lazy = mesh_file_chunks(lambda: surface_mesh(rig, np.zeros((3, 3))), "ply")  # nothing computed yet
     with pytest.raises(ValueError, match="rig's shape"):
         next(lazy)
-    header = next(mesh_file_chunks(rig, sample_heights(rig), "ply"))
+    header = next(mesh_file_chunks(lambda: surface_mesh(rig, sample_heights(rig)), "ply"))
     assert header.startswith(b"ply\n") and header.endswith(b"end_header\n")
     n_valid = int(np.isfinite(sample_heights(rig)).sum())
     assert f"element vertex {n_valid}\n".encode() in header

@@ -10,10 +10,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from metrology.core.geometry.base import GeometryError, triangulate_frame
-from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, PinholeRig, PinholeRigError
-from metrology.core.scenes import make_scene
-from metrology.core.simulate_pinhole import PinholeTruth, PlacedScene, cast_truth, look_at_rig
+from metrology.core.geometry.base import GeometryError, GeometryOptions, triangulate_frame
+from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, PinholeRig, PreparedPinhole, look_at_rig
+from metrology.core.geometry.rig_file import RigFileError
+from metrology.core.scenes import Scene, make_scene
+from metrology.core.simulate import CastTruth, ScenePlacement, cast_truth
 
 CAMERA = PinholeCamera(
     160, 120, ((200.0, 0.0, 79.5), (0.0, 201.0, 59.5), (0.0, 0.0, 1.0)), (-0.15, 0.05, 0.001, -0.0008, 0.01)
@@ -30,15 +31,25 @@ def _rig(axis: str, projector: PinholeProjector = PROJECTOR) -> PinholeRig:
     return look_at_rig(CAMERA, projector, BASELINES[axis], (0.0, 0.0, Z0))
 
 
-_TRUTHS: dict[tuple[str, str, bool], PinholeTruth] = {}
+def _cast(rig: PinholeRig, scene: Scene, distance_mm: float = Z0) -> CastTruth:
+    """Ground truth of ``scene`` facing the camera, its reference plane at camera Z = distance_mm."""
+    prepared = rig.prepare(rig.shape, (rig.projector.width, rig.projector.height))
+    return cast_truth(prepared, scene, ScenePlacement.facing_camera(distance_mm))
 
 
-def _truth(axis: str, scene: str, projector_distorted: bool = True) -> PinholeTruth:
+_TRUTHS: dict[tuple[str, str, bool], CastTruth] = {}
+
+
+def _truth(axis: str, scene: str, projector_distorted: bool = True) -> CastTruth:
     key = (axis, scene, projector_distorted)
     if key not in _TRUTHS:
         proj = PROJECTOR if projector_distorted else PinholeProjector(320, 200, PROJECTOR.K, ())
-        _TRUTHS[key] = cast_truth(_rig(axis, proj), PlacedScene(make_scene(scene), Z0))
+        _TRUTHS[key] = _cast(_rig(axis, proj), make_scene(scene))
     return _TRUTHS[key]
+
+
+def _prepare(rig: PinholeRig, triangulate: str = "auto", method: str = "plane") -> PreparedPinhole:
+    return rig.prepare(options=GeometryOptions(triangulate=triangulate, method=method))
 
 
 # --------------------------------------------------------------------------- rig file
@@ -114,7 +125,7 @@ _DELETE = object()
     ],
 )
 def test_bad_rig_files_name_the_key(path: str, value: Any, message: str) -> None:
-    with pytest.raises(PinholeRigError, match=message.replace("(", r"\(").replace("[", r"\[")):
+    with pytest.raises(RigFileError, match=message.replace("(", r"\(").replace("[", r"\[")):
         PinholeRig.from_dict(_mutate(path, value))
 
 
@@ -125,9 +136,9 @@ def test_sizes_must_match() -> None:
     with pytest.raises(GeometryError, match=r"frames are 640x480 px but the rig's camera is 160x120 px"):
         rig.prepare(shape=(480, 640))
     with pytest.raises(ValueError, match="triangulate must be one of auto, u, v, got 'w'"):
-        rig.prepare(axis="w")
+        rig.prepare(options=GeometryOptions(triangulate="w"))
     with pytest.raises(ValueError, match="method must be one of plane, midpoint, got 'dlt'"):
-        rig.prepare(method="dlt")
+        rig.prepare(options=GeometryOptions(method="dlt"))
 
 
 def test_auto_axis_follows_the_baseline() -> None:
@@ -151,7 +162,7 @@ def test_exact_through_distorted_rig(scene: str, axis: str, method: str, both_ax
     """Exact (u, v) of ray-cast scenes through a rig distorted on both devices: every valid
     pixel within 1 um of the truth, nothing valid lost."""
     truth = _truth(axis, scene)
-    prep = _rig(axis).prepare(axis="auto", method=method)
+    prep = _prepare(_rig(axis), "auto", method)
     assert prep.axis == axis
     u = truth.u.astype(np.float32)
     v = truth.v.astype(np.float32)
@@ -159,7 +170,7 @@ def test_exact_through_distorted_rig(scene: str, axis: str, method: str, both_ax
         prep, u if both_axes or axis == "u" else None, v if both_axes or axis == "v" else None, heights=False
     )
     assert res.points_mm is not None and res.points_mm.dtype == np.float32
-    valid = truth.valid
+    valid = truth.lit
     assert valid.mean() > 0.5
     err = np.linalg.norm(res.points_mm.astype(np.float64) - truth.points_mm, axis=-1)
     assert np.all(np.isfinite(err[valid]))
@@ -175,7 +186,7 @@ def test_closed_form_without_projector_distortion(axis: str) -> None:
     prep = rig.prepare()
     res = triangulate_frame(prep, coded if axis == "u" else None, coded if axis == "v" else None, heights=False)
     assert res.points_mm is not None
-    err = np.linalg.norm(res.points_mm - truth.points_mm, axis=-1)[truth.valid]
+    err = np.linalg.norm(res.points_mm - truth.points_mm, axis=-1)[truth.lit]
     assert err.max() < TOL_MM
 
 
@@ -183,13 +194,13 @@ def test_heights_above_reference_plane() -> None:
     """Reference: the plane Z = Z0; object: a plane 20 mm nearer; heights 20 mm, positive towards the camera."""
     rig = _rig("u")
     prep = rig.prepare()
-    ref_truth = cast_truth(rig, PlacedScene(make_scene("plane", z_mm=0.0), Z0))
-    obj_truth = cast_truth(rig, PlacedScene(make_scene("plane", z_mm=20.0), Z0))
+    ref_truth = _cast(rig, make_scene("plane", z_mm=0.0))
+    obj_truth = _cast(rig, make_scene("plane", z_mm=20.0))
     reference = prep.reference(ref_truth.u.astype(np.float32), None)
     assert abs(reference.normal @ np.array([0.0, 0.0, 1.0]) + 1) < 1e-9  # normal points to the camera (-Z)
     res = triangulate_frame(prep, obj_truth.u.astype(np.float32), None, reference=reference)
     assert res.height_mm is not None and res.points_mm is not None
-    h = res.height_mm[obj_truth.valid]
+    h = res.height_mm[obj_truth.lit]
     assert np.abs(h - 20.0).max() < TOL_MM
     # points_from_heights inverts the height map onto the camera rays
     back = prep.points_from_heights(res.height_mm, reference)
@@ -218,7 +229,7 @@ def test_sigma_is_the_derivative_of_the_point(projector_distorted: bool, both_ax
     pts2 = np.empty_like(pts)
     prep.triangulate_rows(slice(0, h), u + du, v, points_out=pts2)
     deriv = np.linalg.norm(pts2.astype(np.float64) - pts, axis=-1) / du
-    valid = truth.valid
+    valid = truth.lit
     ratio = sigma[valid] / 0.05 / deriv[valid]
     assert np.median(np.abs(ratio - 1)) < 0.02
     assert np.all(np.isfinite(sigma[valid]))
@@ -231,7 +242,7 @@ def test_strong_projector_distortion_falls_back_to_newton() -> None:
     pixels are solved by Newton per frame, and every valid pixel is still within 1 um."""
     strong = PinholeProjector(320, 200, PROJECTOR.K, (0.35, 0.4, 0.002, -0.001, 0.3))
     rig = look_at_rig(CAMERA, strong, BASELINES["u"], (0.0, 0.0, Z0))
-    truth = cast_truth(rig, PlacedScene(make_scene("sphere"), Z0))
+    truth = _cast(rig, make_scene("sphere"))
     prep = rig.prepare()
     tables = prep.tables()
     assert tables["poly_exact"].any()  # some pixels need the exact path
@@ -239,13 +250,13 @@ def test_strong_projector_distortion_falls_back_to_newton() -> None:
     for v in (None, truth.v.astype(np.float32)):
         res = triangulate_frame(prep, truth.u.astype(np.float32), v, heights=False)
         assert res.points_mm is not None
-        err = np.linalg.norm(res.points_mm - truth.points_mm, axis=-1)[truth.valid]
-        assert truth.valid.sum() > 1000 and err.max() < TOL_MM
+        err = np.linalg.norm(res.points_mm - truth.points_mm, axis=-1)[truth.lit]
+        assert truth.lit.sum() > 1000 and err.max() < TOL_MM
 
 
 def test_undistortion_grid_matches_newton() -> None:
     from metrology.core.distortion import undistort_pixels
-    from metrology.core.geometry.pinhole import GRID_TOL, UndistortionGrid
+    from metrology.core.geometry.projector_grid import GRID_TOL, UndistortionGrid
 
     K = np.asarray(PROJECTOR.K)
     grid = UndistortionGrid.build(K, PROJECTOR.distortion, 320, 200)
@@ -259,26 +270,32 @@ def test_undistortion_grid_matches_newton() -> None:
     assert np.abs(x - exact.x).max() * K[0, 0] < 2 * GRID_TOL
 
 
-def test_measure_pinhole_depth_heights_and_sigma() -> None:
-    from metrology.core.pinhole_measure import measure_pinhole
-
+def test_triangulate_frame_depth_heights_and_sigma() -> None:
+    """Decoded u maps straight to depths (no reference: the points' camera Z), to heights above a
+    reference plane's capture, and to sigma."""
     rig = _rig("u")
     obj = _truth("u", "sphere")
-    ref = cast_truth(rig, PlacedScene(make_scene("plane", z_mm=0.0), Z0))
+    ref = _cast(rig, make_scene("plane", z_mm=0.0))
     u = obj.u.astype(np.float32)
     sigma_u = np.full(u.shape, 0.02, np.float32)
-    depth = measure_pinhole(rig, u, None, sigma=sigma_u, projector_size=(320, 200))
-    assert depth.axis == "u" and depth.reference is None
-    valid = obj.valid
-    assert np.abs(depth.z_mm[valid] - obj.points_mm[..., 2][valid]).max() < TOL_MM
+    prep = rig.prepare(rig.shape, (320, 200))
+    depth = triangulate_frame(prep, u, None, heights=False, sigma=sigma_u)
+    assert prep.axis == "u" and depth.height_mm is None
+    assert depth.points_mm is not None
+    z_mm = depth.points_mm[..., 2]
+    valid = obj.lit
+    assert np.abs(z_mm[valid] - obj.points_mm[..., 2][valid]).max() < TOL_MM
     assert depth.sigma_mm is not None
-    assert np.all(np.isnan(depth.sigma_mm[np.isnan(depth.z_mm)]))
+    assert np.all(np.isnan(depth.sigma_mm[np.isnan(z_mm)]))
     assert np.all(depth.sigma_mm[valid] > 0)
-    heights = measure_pinhole(rig, u, None, reference_uv=(ref.u.astype(np.float32), None))
+    reference = prep.reference(ref.u.astype(np.float32), None)
+    heights = triangulate_frame(prep, u, None, reference=reference, points=False)
+    assert heights.height_mm is not None
     # the scene's own heights above its reference plane Z = Z0
-    assert np.abs(heights.z_mm[valid] - (Z0 - obj.points_mm[..., 2][valid])).max() < TOL_MM
+    assert np.abs(heights.height_mm[valid] - (Z0 - obj.points_mm[..., 2][valid])).max() < TOL_MM
+    np.testing.assert_allclose(heights.height_mm[valid], obj.height_mm[valid], rtol=0, atol=TOL_MM)
     with pytest.raises(GeometryError, match="codec's projector is 1280x800"):
-        measure_pinhole(rig, u, None, projector_size=(1280, 800))
+        rig.prepare(rig.shape, (1280, 800))
 
 
 def test_coordinate_sigma_matches_monte_carlo() -> None:
@@ -356,7 +373,7 @@ def test_coarse_grid_polynomials_match_the_per_pixel_ones(axis: str) -> None:
     from metrology.core.geometry.pinhole import POLY_DEGREE, POLY_INTERP_TOL, POLY_PIXEL_STEPS
 
     rig = _long_focus_rig(axis)
-    prep = rig.prepare(axis=axis)
+    prep = _prepare(rig, axis)
     coarse = next((c for c in map(prep._coarse_polynomials, POLY_PIXEL_STEPS) if c is not None), None)
     assert coarse is not None  # this rig's polynomials are smooth enough across pixels
     full = prep._full_polynomials()
@@ -367,10 +384,10 @@ def test_coarse_grid_polynomials_match_the_per_pixel_ones(axis: str) -> None:
         worst = max(worst, float(np.nanmax(np.abs(q[0] - q[1]))) * scale)
     # each set's float32 monomial coefficients alone round q by up to ~2.5e-5 units at |omega| ~ 1
     assert worst < POLY_INTERP_TOL + 5e-5, f"{worst:.2e} projector units"
-    truth = cast_truth(rig, PlacedScene(make_scene("sphere"), 700.0))
+    truth = _cast(rig, make_scene("sphere"), 700.0)
     coded = truth.u if axis == "u" else truth.v
     kwargs = {"u": coded.astype(np.float32), "v": None} if axis == "u" else {"u": None, "v": coded.astype(np.float32)}
     res = triangulate_frame(prep, kwargs["u"], kwargs["v"], heights=False)
     assert res.points_mm is not None
-    err = np.linalg.norm(res.points_mm - truth.points_mm, axis=-1)[truth.valid]
-    assert truth.valid.sum() > 10000 and err.max() < TOL_MM
+    err = np.linalg.norm(res.points_mm - truth.points_mm, axis=-1)[truth.lit]
+    assert truth.lit.sum() > 10000 and err.max() < TOL_MM

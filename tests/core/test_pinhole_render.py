@@ -1,4 +1,5 @@
-"""Full chain through a distorted pinhole rig: codec render -> decode -> triangulate (noise-free 16-bit).
+"""Full chain through a distorted pinhole rig: codec render -> decode -> triangulate (noise-free 16-bit),
+and the measurement's predicted sigma against the scatter of realistic renders.
 
 Needs the codec package (metrology.core.codecs); skipped, saying so, where it is absent.
 """
@@ -11,10 +12,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from metrology.core.geometry.base import triangulate_frame
-from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector
+from metrology.core.geometry.base import GeometryOptions, triangulate_frame
+from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, look_at_rig
 from metrology.core.scenes import make_scene
-from metrology.core.simulate_pinhole import PlacedScene, cast_truth, look_at_rig
+from metrology.core.simulate import ScenePlacement, cast_truth, render_capture
 
 codecs = pytest.importorskip("metrology.core.codecs", reason="the codec package (issue 11) is not in this tree")
 decode_codec = pytest.importorskip("metrology.core.codecs.decode").decode_codec
@@ -64,16 +65,15 @@ def _codec(axis: str) -> Any:
 @pytest.mark.parametrize("axis", ["u", "v"])
 def test_render_decode_triangulate(scene: str, axis: str) -> None:
     rig = look_at_rig(CAMERA, PROJECTOR, BASELINES[axis], (0.0, 0.0, Z0))
-    truth = cast_truth(rig, PlacedScene(make_scene(scene), Z0))
     codec = _codec(axis)
-    images = codecs.render_codec(codec, truth.u if axis == "u" else None, truth.v if axis == "v" else None)
-    decoded = decode_codec(images, codec)
+    truth = render_capture(rig, make_scene(scene), codec, placement=ScenePlacement.facing_camera(Z0))
+    decoded = decode_codec(truth.images, codec)
     coord = decoded.axes[axis].coordinate
     prep = rig.prepare(projector_size=(PROJ_W, PROJ_H))
     assert prep.axis == axis
     res = triangulate_frame(prep, coord if axis == "u" else None, coord if axis == "v" else None, heights=False)
     assert res.points_mm is not None
-    valid = decoded.axes[axis].valid & truth.valid
+    valid = decoded.axes[axis].valid & truth.lit
     assert valid.mean() > 0.5
     err = np.linalg.norm(res.points_mm.astype(np.float64) - truth.points_mm, axis=-1)[valid]
     assert np.all(np.isfinite(err))
@@ -89,25 +89,20 @@ def test_predicted_sigma_matches_scatter_of_realistic_renders(axis: str) -> None
     """30 realistic 8-bit renders of a plane: the predicted per-point sigma (decoder noise and
     modulation -> coordinate sigma -> triangulation) matches the observed per-pixel scatter of
     the points within 15 % (median over pixels)."""
-    from metrology.core.pinhole_measure import measure_pinhole
+    from metrology.core.measure import MeasureOptions, measure
     from metrology.core.simulate import SimulationOptions
-    from metrology.core.uncertainty import coordinate_sigma
 
     rig = look_at_rig(CAMERA, PROJECTOR, BASELINES[axis], (0.0, 0.0, Z0))
     options = SimulationOptions.realistic_8bit()
-    s = options.supersample
-    # the same camera sampled s times finer (sub-pixel centres): K scaled, c' = s c + (s - 1) / 2
-    (fx, _, cx), (_, fy, cy), _ = CAMERA.K
-    fine = PinholeCamera(
-        CAMERA.width_px * s,
-        CAMERA.height_px * s,
-        ((fx * s, 0.0, cx * s + (s - 1) / 2), (0.0, fy * s, cy * s + (s - 1) / 2), (0.0, 0.0, 1.0)),
-        CAMERA.dist,
-    )
+    # the sub-pixel centres' truth (s x s rays per pixel), rendered area-averaged
     truth = cast_truth(
-        look_at_rig(fine, PROJECTOR, BASELINES[axis], (0.0, 0.0, Z0)), PlacedScene(make_scene("plane", z_mm=0.0), Z0)
+        rig.prepare(rig.shape, (PROJ_W, PROJ_H)),
+        make_scene("plane", z_mm=0.0),
+        ScenePlacement.facing_camera(Z0),
+        supersample=options.supersample,
     )
     codec = _codec(axis)
+    measure_options = MeasureOptions(sigma=True, geometry=GeometryOptions(triangulate=axis))
     n = 30
     points = np.empty((n, *rig.shape, 3), np.float32)
     predicted = np.empty((n, *rig.shape), np.float32)
@@ -115,11 +110,9 @@ def test_predicted_sigma_matches_scatter_of_realistic_renders(axis: str) -> None
         images = codecs.render_codec(
             codec, truth.u if axis == "u" else None, truth.v if axis == "v" else None, options, seed=1000 + i
         )
-        dec = decode_codec(images, codec).axes[axis]
-        coord = np.where(dec.valid, dec.coordinate, np.nan).astype(np.float32)
-        sigma = coordinate_sigma(16.0, 8, dec.noise, dec.modulation)
-        m = measure_pinhole(rig, coord if axis == "u" else None, coord if axis == "v" else None, sigma=sigma, axis=axis)
-        points[i] = m.points_mm
+        m = measure(rig, images, codec, options=measure_options)
+        assert m.prepared.axis == axis
+        points[i] = m.points_mm()
         assert m.sigma_mm is not None
         predicted[i] = m.sigma_mm
     ok = np.isfinite(points[..., 2]).all(axis=0)

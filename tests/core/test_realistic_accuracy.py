@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from metrology.core.measure import DecodeOptions, measure_height, prepare_reference
+from metrology.core.filters import FilterOptions
+from metrology.core.geometry.crossed_axes import PAPER_RIG
+from metrology.core.measure import MeasureOptions, measure, prepare_reference
 from metrology.core.precision import height_sigma_mm, median_abs_error_mm
-from metrology.core.rig import PAPER_RIG
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_stack
 
@@ -16,16 +17,21 @@ SCENES = ["plane", "block", "staircase", "sphere", "two_spheres", "face", "flowe
 
 
 @pytest.fixture(scope="module")
-def reference():
+def reference_images():
     rendered = render_stack(PAPER_RIG, make_scene("reference", PAPER_RIG), SimulationOptions.realistic_8bit(seed=11))
-    return prepare_reference(PAPER_RIG, rendered.images)
+    return rendered.images
+
+
+@pytest.fixture(scope="module")
+def reference(reference_images):
+    return prepare_reference(PAPER_RIG, reference_images)
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("scene", SCENES)
-def test_realistic_capture_meets_acceptance(reference, scene):
+def test_realistic_capture_meets_acceptance(reference, reference_images, scene):
     rendered = render_stack(PAPER_RIG, make_scene(scene, PAPER_RIG), SimulationOptions.realistic_8bit(seed=12))
-    result = measure_height(PAPER_RIG, reference, rendered.images)
+    result = measure(PAPER_RIG, rendered.images, reference=reference)
     z, truth = result.z_mm, rendered.truth_mm
     reported = np.isfinite(z)
     truly_valid = np.isfinite(truth)
@@ -47,9 +53,9 @@ def test_realistic_capture_meets_acceptance(reference, scene):
     both = reported & truly_valid
     sigma = height_sigma_mm(
         PAPER_RIG,
-        reference.decoded.codes[both],
-        result.obj_codes[both],
-        reference.decoded.modulation[both],
+        reference.codes[both],
+        result.codes[both],
+        _modulation(reference_images)[both],
         _modulation(rendered.images)[both],
         NOISE_GREY,
     )
@@ -69,7 +75,7 @@ def test_gray_code_only_vs_gcps_resolution_on_the_flowerpot(reference):
     """The paper's Fig. 11: GCPS resolves the decoration (0.4 mm ridges) that gray code cannot."""
     scene = make_scene("flowerpot", PAPER_RIG)
     rendered = render_stack(PAPER_RIG, scene, SimulationOptions.realistic_8bit(seed=13))
-    result = measure_height(PAPER_RIG, reference, rendered.images)
+    result = measure(PAPER_RIG, rendered.images, reference=reference)
     ok = np.isfinite(result.z_mm) & np.isfinite(result.gray_z_mm) & np.isfinite(rendered.truth_mm)
     gcps_rms = float(np.sqrt(np.mean((result.z_mm - rendered.truth_mm)[ok] ** 2)))
     gray_rms = float(np.sqrt(np.mean((result.gray_z_mm - rendered.truth_mm)[ok] ** 2)))
@@ -88,7 +94,7 @@ def test_sphere_probing_error_vdi_vde_2634(reference):
     rendered = render_stack(
         PAPER_RIG, make_scene("sphere", PAPER_RIG, radius_mm=50.0), SimulationOptions.realistic_8bit(seed=21)
     )
-    z = measure_height(PAPER_RIG, reference, rendered.images).z_mm
+    z = measure(PAPER_RIG, rendered.images, reference=reference).z_mm
     on_sphere = np.isfinite(z) & (rendered.truth_mm > 0.5)
     result = probing_error(points_from_height_map(PAPER_RIG, z, mask=on_sphere), 100.0)
     assert abs(result["size_error_mm"]) < 0.050
@@ -147,10 +153,11 @@ def test_mixed_pixels_at_risers_are_dropped_whatever_the_camera_model(references
     rendered = render_stack(PAPER_RIG, make_scene("staircase", PAPER_RIG, step_height_mm=step_mm), options)
     reference = references_by_camera[sampling]
 
-    off, reported, coverage = _off_and_coverage(measure_height(PAPER_RIG, reference, rendered.images).z_mm, rendered)
+    off, reported, coverage = _off_and_coverage(measure(PAPER_RIG, rendered.images, reference=reference).z_mm, rendered)
     assert off < 1e-4 * reported, f"{off} of {reported} pixels off by > 1 mm"
     assert coverage >= 0.99
 
-    before = measure_height(PAPER_RIG, reference, rendered.images, DecodeOptions(max_blur_bias_codes=0.0)).z_mm
+    unbounded = MeasureOptions(filters=FilterOptions(max_blur_bias_codes=0.0))
+    before = measure(PAPER_RIG, rendered.images, reference=reference, options=unbounded).z_mm
     off_before, reported_before, _ = _off_and_coverage(before, rendered)
     assert off_before >= 1e-4 * reported_before, f"{off_before} of {reported_before} off without the bound"

@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from metrology.core.rig import PAPER_RIG, REQUIRED_KEYS, Rig, RigError
+from metrology.core.geometry.crossed_axes import PAPER_RIG, REQUIRED_KEYS, Rig, RigError
 
 RIG_JSON = {
     "L_mm": 1022.0,

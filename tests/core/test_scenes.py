@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from metrology.core.rig import PAPER_RIG, Rig
+from metrology.core.geometry.crossed_axes import PAPER_RIG, Rig
 from metrology.core.scenes import (
     SCENES,
     BlockScene,

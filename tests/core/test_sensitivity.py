@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from metrology.core.rig import PAPER_RIG
+from metrology.core.geometry.crossed_axes import PAPER_RIG
 from metrology.core.sensitivity import relative_height_error, sensitivity_curves
 
 RIG = PAPER_RIG.with_parameters(width_px=160, height_px=120)

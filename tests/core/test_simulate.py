@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
+from metrology.core.geometry.crossed_axes import PAPER_RIG, Rig, codes_from_abscissa, points_from_heights
 from metrology.core.patterns import PATTERN_NAMES, pattern_intensity
-from metrology.core.rig import PAPER_RIG, Rig
 from metrology.core.scenes import SCENES, StageScene, make_scene
 from metrology.core.simulate import (
     RenderedStack,
@@ -21,7 +21,6 @@ from metrology.core.simulate import (
     series_seed,
     stage_positions,
 )
-from metrology.core.triangulate import codes_from_abscissa, points_from_heights
 
 # The paper's geometry at a quarter of the resolution (3.125 mm pixels): fast tests.
 SMALL = Rig(L_mm=1022.0, d_mm=352.0, alpha_rad=0.332, fw_mm=500.0, nlp=128, width_px=160, height_px=120)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from metrology.core.rig import Rig
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_flat_frames, render_stack
 from tests.app.stacks import SMALL_RIG

@@ -5,8 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from metrology.core.rig import PAPER_RIG, Rig
-from metrology.core.triangulate import (
+from metrology.core.geometry.crossed_axes import (
+    PAPER_RIG,
+    Rig,
     abscissa_from_codes,
     abscissa_from_codes_eq14,
     codes_from_abscissa,

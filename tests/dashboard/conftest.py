@@ -11,7 +11,7 @@ import pytest
 from django.core.files.uploadedfile import SimpleUploadedFile
 
 from metrology.captures.services import upload_capture
-from metrology.core.rig import Rig as CoreRig
+from metrology.core.geometry.crossed_axes import Rig as CoreRig
 from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
 
 

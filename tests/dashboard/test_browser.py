@@ -13,23 +13,13 @@ import pytest
 
 from tests.browser import CHROMIUM, shot
 from tests.conftest import PASSWORD
+from tests.dashboard.browser_forms import create_rig, log_in, simulate, simulate_stage_series
 
 pytestmark = [
     pytest.mark.browser,
     pytest.mark.slow,
     pytest.mark.skipif(not os.path.exists(CHROMIUM), reason=f"{CHROMIUM} is not installed"),
 ]
-
-
-def simulate(page, rig_url: str, scene: str, z: str = "", noise: str = "none", seed: str = "1") -> None:
-    page.goto(f"{rig_url}captures/")
-    page.select_option("#id_simulate-scene", scene)
-    page.fill("#id_simulate-z_mm", z)
-    page.select_option("#id_simulate-noise", noise)
-    page.fill("#id_simulate-seed", seed)
-    page.click("form:has(input[value=simulate]) button[type=submit]")
-    page.wait_for_url("**/jobs/*/**")  # the progress page
-    page.wait_for_url(f"{rig_url}captures/")  # ...which moves on once the job is done
 
 
 def test_measure_and_characterize_in_the_browser(live_server, alice, worker, browser_page, tmp_path, monkeypatch):
@@ -48,12 +38,7 @@ def test_measure_and_characterize_in_the_browser(live_server, alice, worker, bro
 
     # create a rig
     page.click("nav >> text=Rigs")
-    page.fill("#id_name", "browser rig")
-    page.fill("#id_width_px", "320")
-    page.fill("#id_height_px", "240")
-    page.click("text=Create rig")
-    page.wait_for_url("**/rigs/*/")
-    rig_url = page.url
+    rig_url = create_rig(page, "browser rig")
     assert page.locator("h1").inner_text() == "browser rig"
     shot(page, "02-rig")
 
@@ -113,14 +98,7 @@ def test_measure_and_characterize_in_the_browser(live_server, alice, worker, bro
     assert len(mesh.vertices) == vertices and len(mesh.triangles) == faces
 
     # a stage series (0, 4, 8 mm, 2 repeats) then a characterization
-    page.goto(f"{rig_url}captures/")
-    page.fill("#id_stage-z_from_mm", "0")
-    page.fill("#id_stage-z_to_mm", "8")
-    page.fill("#id_stage-z_step_mm", "4")
-    page.fill("#id_stage-repeats", "2")
-    page.select_option("#id_stage-noise", "low")
-    page.click("text=Simulate series")
-    page.wait_for_url("**/characterizations/new/**")
+    simulate_stage_series(page, rig_url, z_to="8", step="4", repeats="2")
     assert "6 stage captures" in page.locator("#id_session").inner_text()
     page.select_option("#id_reference", index=1)
     page.fill("#id_n_points", "9")
@@ -161,14 +139,6 @@ def test_measure_and_characterize_in_the_browser(live_server, alice, worker, bro
     statuses = {status for _job, status in worker}
     assert statuses <= {"done", "skipped"}, worker  # a report runs its sub-jobs inline; their queued copies skip
     assert not page.js_errors, page.js_errors
-
-
-def log_in(page, base: str) -> None:
-    page.goto(f"{base}/login/")
-    page.fill("#id_username", "alice")
-    page.fill("#id_password", PASSWORD)
-    page.click("button[type=submit]")
-    page.wait_for_url(f"{base}/")
 
 
 def test_uploaded_captures_appear_on_every_page_that_lists_captures(

@@ -92,7 +92,7 @@ def test_procam_calibration_in_the_browser(live_server, alice, procam_rig, worke
     history = page.locator("#h-hist").locator("..").inner_text()
     assert "restored, the values of" in history and "pinhole camera and projector" not in page.content()
     assert "New calibration" in page.content()  # the crossed-axes rig's actions again
-    assert f"crossed axes: L {RIG_320['L_mm']:.4f} mm" in history
+    assert f"Crossed optical axes (the paper's model): L {RIG_320['L_mm']:g} mm" in history
     assert page.js_errors == []
     shot(page, "procam-05-restored")
     assert [outcome for _, outcome in worker] == ["done"]

@@ -65,7 +65,10 @@ def test_new_calibration_page_upload_detail_apply(client_alice, alice, rig320, r
     for index in used:
         assert f'/procam-calibrations/{calibration.pk}/residuals/{index}.svg"' in html
     assert f"/residuals/{UNUSABLE_POSE}.svg" not in html
-    assert "This converts the rig from the crossed-axes model to a pinhole rig" in html
+    assert (
+        "This changes the rig's model</strong> from <em>Crossed optical axes (the paper&#x27;s model)</em> "
+        "to <em>Calibrated pinhole camera and projector</em>" in html
+    )
 
     # the figures: well-formed SVG, no script allowed in them
     svg = client_alice.get(f"/procam-calibrations/{calibration.pk}/residuals/{used[0]}.svg")
@@ -84,14 +87,15 @@ def test_new_calibration_page_upload_detail_apply(client_alice, alice, rig320, r
     applied = client_alice.post(f"/procam-calibrations/{calibration.pk}/apply/")
     assert applied.status_code == 302 and applied["Location"] == f"/rigs/{rig320.pk}/"
     rig = Rig.objects.get(pk=rig320.pk)
-    assert rig.model == "pinhole" and rig.pinhole == calibration.rig_file
+    assert rig.model == "pinhole" and rig.rig_file() == calibration.rig_file
     html = client_alice.get(applied["Location"]).content.decode()
     assert "pinhole camera and projector" in html
-    K = rig.pinhole["camera"]["K"]  # six significant digits, not the stored float's seventeen
+    K = rig.parameters["camera"]["K"]  # six significant digits, not the stored float's seventeen
     assert f"K [[{K[0][0]:.6g}, 0, {K[0][2]:.6g}], [0, {K[1][1]:.6g}, {K[1][2]:.6g}], [0, 0, 1]]" in html
     assert f"projector-camera calibration {calibration.pk}</a>" in html
     assert (
-        f"pinhole: camera fx {fx:.2f} px" in html and "crossed axes: L 1022.0000 mm, alpha" in html
+        f"pinhole: camera fx {fx:.2f} px" in html
+        and "Crossed optical axes (the paper&#x27;s model): L 1022 mm, d 352 mm, alpha 0.332 rad" in html
     )  # new entry and the one it replaced
     listing = client_alice.get("/procam-calibrations/").content.decode()
     assert f"Procam calibration {calibration.pk}" in listing and "board_not_found" in listing

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from metrology.core.geometry.crossed_axes import PAPER_RIG, points_from_heights
 from metrology.core.mesh import default_max_jump_mm
-from metrology.core.rig import PAPER_RIG
-from metrology.core.triangulate import points_from_heights
 from metrology.figures.measurement import MAX_COLS_3D, MAX_ROWS_3D, measurement_figures, surface_figure
 
 

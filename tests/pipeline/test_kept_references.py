@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from metrology.core.measure import DecodeOptions, prepare_reference
-from metrology.core.rig import Rig
+from metrology.core.geometry.crossed_axes import Rig
+from metrology.core.measure import prepare_reference
 from metrology.core.synthetic import exact_codes
-from metrology.pipeline import measure
 from metrology.pipeline.kept_references import KeptReferences, reference_nbytes
+from metrology.pipeline.measure import measure
 from tests.app.stacks import SMALL_RIG, render_images
 
 RIG = Rig.from_dict(SMALL_RIG)  # 160 x 120 px
@@ -21,10 +21,10 @@ def reference_images() -> np.ndarray:
 
 
 def test_reference_nbytes_counts_every_array_once(reference_images) -> None:
-    reference = prepare_reference(RIG, reference_images, DecodeOptions())
+    reference = prepare_reference(RIG, reference_images)
     n = reference_nbytes(reference)
-    decoded = reference.decoded
-    assert n >= decoded.codes.nbytes + decoded.gray_codes.nbytes + reference.unreliable.nbytes
+    gray_codes = reference.gray_surface.codes  # type: ignore[union-attr]
+    assert n >= reference.codes.nbytes + gray_codes.nbytes + reference.unreliable.nbytes  # type: ignore[union-attr]
     assert n < 40 * RIG.width_px * RIG.height_px  # no array counted twice (about 20 B/px here)
     base = np.zeros(1000)
     assert reference_nbytes({"a": base, "b": base[:10], "c": (base,)}) == 8000
@@ -36,7 +36,7 @@ def test_hits_misses_and_eviction_by_bytes(reference_images) -> None:
     def prepare(name: str):
         def run():
             calls.append(name)
-            return prepare_reference(RIG, reference_images, DecodeOptions())
+            return prepare_reference(RIG, reference_images)
 
         return run
 
@@ -58,8 +58,8 @@ def test_hits_misses_and_eviction_by_bytes(reference_images) -> None:
 
 def test_a_reference_larger_than_the_bound_is_used_but_not_kept(reference_images) -> None:
     kept = KeptReferences(max_bytes=1000)
-    reference, hit = kept.get("a", lambda: prepare_reference(RIG, reference_images, DecodeOptions()))
-    assert not hit and len(kept) == 0 and reference.decoded.codes.shape == RIG.shape
+    reference, hit = kept.get("a", lambda: prepare_reference(RIG, reference_images))
+    assert not hit and len(kept) == 0 and reference.codes.shape == RIG.shape
     with pytest.raises(ValueError, match="max_bytes must be a non-negative integer, got -5"):
         KeptReferences(-5)
 
@@ -69,7 +69,7 @@ def test_kept_reference_gives_the_heights_of_a_fresh_decode(reference_images) ->
     z_true[30:90, 40:120] = 15.0
     obj = render_images(RIG, z_true, bit_depth=16)
     kept = KeptReferences(max_bytes=10**9)
-    reference, _ = kept.get("r", lambda: prepare_reference(RIG, reference_images, DecodeOptions()))
+    reference, _ = kept.get("r", lambda: prepare_reference(RIG, reference_images))
     fresh = measure(RIG, reference_images, obj).z_mm
     for _ in range(2):
         again = measure(RIG, kept.get("r", lambda: None)[0], obj).z_mm  # type: ignore[arg-type,return-value]

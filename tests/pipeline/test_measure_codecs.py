@@ -13,12 +13,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from metrology.core.codecs import Codec, builtin_codec, codec_from_dict, crossed_rig_truth, render_codec
-from metrology.core.rig import PAPER_RIG as RIG
-from metrology.core.rig import Rig
+from metrology.core.codecs import Codec, builtin_codec, codec_from_dict, render_codec
+from metrology.core.decode import GcpsV1Options
+from metrology.core.geometry.crossed_axes import PAPER_RIG as RIG
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.scenes import make_scene
-from metrology.core.simulate import SimulationOptions, render_stack
-from metrology.pipeline import MeasureOptions, measure
+from metrology.core.simulate import SimulationOptions, crossed_rig_truth, render_stack
+from metrology.pipeline.measure import MeasureOptions, measure
 
 PROJ_W, PROJ_H = 1024, 768
 
@@ -68,7 +69,7 @@ def test_noise_free_codec_heights_within_1um_like_gcps_v1(scene, params, noise_f
     rendered, images = render_both(scene, SimulationOptions.noise_free_16bit(), **params)
     v1 = measure(RIG, ref_v1.images, rendered.images, MeasureOptions(gray_only=False))
     coded = measure(RIG, ref_codec, images, MeasureOptions(gray_only=False), codec=CODEC)
-    assert coded.codec == "gcps-codec/1" and coded.decoding is not None and v1.codec == "gcps-v1"
+    assert coded.codec_name == "gcps-codec/1" and coded.decoding is not None and v1.codec_name == "gcps-v1"
     for result in (v1, coded):
         error = result.z_mm - rendered.truth_mm
         valid = np.isfinite(error)
@@ -109,7 +110,7 @@ def test_gcps_v1_codec_takes_todays_path_bit_identically(noise_free_reference):
     named = measure(RIG, ref_v1.images, rendered.images, codec=builtin_codec("gcps-v1"))
     np.testing.assert_array_equal(today.z_mm, named.z_mm)
     np.testing.assert_array_equal(today.gray_z_mm, named.gray_z_mm)
-    assert named.decoding is None and named.codec == "gcps-v1"
+    assert named.decoding is None and named.codec_name == "gcps-v1"
 
 
 def test_codec_without_u_or_a_stack_unlike_the_codec_is_refused(noise_free_reference):
@@ -128,10 +129,10 @@ def test_codec_without_u_or_a_stack_unlike_the_codec_is_refused(noise_free_refer
         measure(RIG, ref_codec, ref_codec, codec=v_only)
     with pytest.raises(ValueError, match="holds 23 frames but the codec describes 24"):
         measure(RIG, ref_codec, ref_codec[:23], codec=CODEC)
-    with pytest.raises(ValueError, match="object images are 320x480 px but the rig is 640x480 px"):
+    with pytest.raises(ValueError, match="the object frames are 320x480 px but the rig's camera is 640x480 px"):
         measure(RIG, ref_codec, np.ascontiguousarray(ref_codec[:, :, :320]), codec=CODEC)
-    with pytest.raises(ValueError, match="smoothing_px applies to gcps-v1"):
-        measure(RIG, ref_codec, ref_codec, MeasureOptions(decode={"smoothing_px": 1.0}), codec=CODEC)
+    with pytest.raises(ValueError, match="smoothing_px applies to the paper's fused gcps-v1 decoder only"):
+        measure(RIG, ref_codec, ref_codec, MeasureOptions(gcps_v1=GcpsV1Options(smoothing_px=1.0)), codec=CODEC)
 
 
 # ------------------------------------------------------------------ gcps measure --codec
@@ -210,7 +211,6 @@ SMALL = Rig(L_mm=1022.0, d_mm=352.0, alpha_rad=0.332, fw_mm=500.0, nlp=128, widt
 def sigma_against_scatter(use_codec: bool, renders: int = 30) -> tuple[float, float, int]:
     """Median predicted sigma and median observed per-pixel scatter of ``renders`` realistic 8-bit
     renders of a plane 30 mm high (one ray per pixel), against one kept reference."""
-    from metrology.core.codec_measure import prepare_codec_reference
     from metrology.core.measure import prepare_reference
 
     opts = SimulationOptions.realistic_8bit(supersample=1)
@@ -218,7 +218,7 @@ def sigma_against_scatter(use_codec: bool, renders: int = 30) -> tuple[float, fl
     ref = render_stack(SMALL, make_scene("reference", SMALL), opts.with_changes(seed=999))
     if use_codec:
         u, _ = crossed_rig_truth(ref, SMALL, PROJ_W, PROJ_H)
-        reference: Any = prepare_codec_reference(SMALL, render_codec(CODEC, u, None, opts, seed=999), CODEC)
+        reference: Any = prepare_reference(SMALL, render_codec(CODEC, u, None, opts, seed=999), CODEC)
     else:
         reference = prepare_reference(SMALL, ref.images)
     options = MeasureOptions(gray_only=False, sigma=True)

@@ -7,17 +7,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from metrology.core.measure import DecodeOptions
+from metrology.core.filters import FilterOptions
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.patterns import PATTERN_NAMES, pattern_intensity
-from metrology.core.rig import Rig
 from metrology.core.synthetic import exact_codes
 from metrology.pipeline import (
     AcceptanceOptions,
     CalibrateOptions,
     CharacterizeOptions,
     MeasureOptions,
-    measure,
 )
+from metrology.pipeline.measure import measure
 from metrology.version import software_version
 
 PIPELINE = Path(__file__).resolve().parents[2] / "metrology" / "pipeline"
@@ -65,7 +65,7 @@ def test_bad_options_are_named(make, words):
 
 def test_options_round_trip():
     for options in (
-        MeasureOptions(decode=DecodeOptions(edge_band_px=0), gray_only=False),
+        MeasureOptions(filters=FilterOptions(edge_band_px=0), gray_only=False),
         CalibrateOptions(master_height_mm=40.0, method="paper", roi=((1, 9), (2, 8)), max_iterations=12),
         CharacterizeOptions(n_points=7, rows=(3, 9)),
         AcceptanceOptions(test="spacing", spacing_mm=100.0),
@@ -79,7 +79,7 @@ def _stack(z_mm: float) -> np.ndarray:
 
 
 def test_measure_result_carries_options_version_and_timings():
-    options = MeasureOptions(decode=DecodeOptions(edge_band_px=1))
+    options = MeasureOptions(filters=FilterOptions(edge_band_px=1))
     result = measure(RIG, _stack(0.0), _stack(12.0), options)
     assert np.nanmedian(result.z_mm) == pytest.approx(12.0, abs=0.01)
     data = result.to_dict()

@@ -192,7 +192,7 @@ def test_run_a_schedule_now_and_remove_it(rig, alice, bob):
 
 
 def test_next_run_of_crontab_and_interval_schedules(rig):
-    from metrology.reports.schedules import next_run_at
+    from metrology.reports.selectors import next_run_at
 
     now = datetime.datetime(2026, 11, 30, 7, 0, tzinfo=datetime.UTC)
     daily = schedule_report(rig, crontab="30 6 * * *")

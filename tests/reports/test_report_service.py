@@ -16,7 +16,7 @@ from django_celery_beat.models import PeriodicTask
 from metrology.api_errors import BadInput
 from metrology.captures.models import Capture
 from metrology.captures.services import create_session, upload_capture
-from metrology.core.rig import Rig as CoreRig
+from metrology.core.geometry.crossed_axes import Rig as CoreRig
 from metrology.jobs.models import Job
 from metrology.reports import services
 from metrology.reports.models import Report

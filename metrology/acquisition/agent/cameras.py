@@ -6,8 +6,8 @@ A backend is named on the command line by a spec:
   testing: each grab reads the next frame);
 - ``genicam:PRODUCER.cti[:INDEX]`` (GenICam/GigE Vision/USB3 Vision through the optional
   ``harvesters`` package);
-- ``virtual`` (the crossed-axes virtual rig, :mod:`metrology.core.simulate`: it renders what
-  the camera would see under the pattern the projector REPORTS it shows).
+- ``virtual`` (the virtual rig, :mod:`metrology.core.simulate`, through the rig's own model: it
+  renders what the camera would see under the pattern the projector REPORTS it shows).
 
 Frames are single-channel ``(H, W)`` uint8 or uint16 arrays (colour cameras are converted to grey).
 """
@@ -196,15 +196,15 @@ class GenICamCamera:
 class VirtualCamera:
     """The virtual rig as a camera: the frame the camera would see under the pattern the projector reports.
 
-    Scenes: a reference capture sees the reference plane, a stage capture the stage plane at
-    ``z_in_mm``, an object or master capture ``object_scene`` (``{"name": ..., ...}``,
-    :func:`metrology.core.scenes.make_scene`). gcps-v1 frames are those of
-    :func:`metrology.core.simulate.render_stack` with ``options`` (same noise seed: the same
-    images as a direct simulation at the nominal exposure); other codecs' frames are
-    :func:`metrology.core.codecs.render_codec` at the render's true projector coordinates; white
-    and black frames come from :func:`metrology.core.simulate.render_flat_frames` plus the same
-    camera noise. Exposure scales
-    all light linearly: ``ambient`` and ``projector_gain`` times ``exposure / nominal_exposure_ms``.
+    It renders through the rig's own geometric model (any model of the core's registry: the rig
+    file the server sends, ``AcquisitionTarget.rig_geometry``) with the virtual rig's one entry,
+    :func:`metrology.core.simulate.render_capture`. Scenes: a reference capture sees the reference
+    plane, a stage capture the stage plane at ``z_in_mm``, an object or master capture
+    ``object_scene`` (``{"name": ..., ...}``, :func:`metrology.core.scenes.make_scene`). The codec's
+    frames are those of a direct simulation of the codec with ``options`` (same noise seed: the same
+    images as ``gcps simulate`` at the nominal exposure); white and black frames come from
+    :func:`metrology.core.simulate.render_flats` plus the same camera noise. Exposure scales all
+    light linearly: ``ambient`` and ``projector_gain`` times ``exposure / nominal_exposure_ms``.
     """
 
     def __init__(
@@ -229,9 +229,11 @@ class VirtualCamera:
     def prepare(self, target: AcquisitionTarget) -> None:
         if not target.rig_geometry:
             raise CameraError("the virtual camera needs the rig's geometry")
-        if target.codec is not None and not target.codec.is_gcps_v1 and self.base_options.supersample != 1:
-            raise CameraError("the virtual camera renders codec stacks with supersample 1 only")
         self.target = target
+        try:
+            self._rig()
+        except ValueError as exc:
+            raise CameraError(f"the virtual camera cannot render this rig: {exc}") from None
         self._cache = {}
 
     def set_exposure(self, exposure_ms: float) -> None:
@@ -255,10 +257,25 @@ class VirtualCamera:
         return make_scene(name, rig=rig, **spec)
 
     def _rig(self):
-        from metrology.core.rig import Rig
+        """The rig's geometric model (``ValueError`` naming what is wrong with its file)."""
+        from metrology.core.geometry import model_from_dict
 
         assert self.target is not None
-        return Rig.from_dict(self.target.rig_geometry)
+        return model_from_dict(self.target.rig_geometry)
+
+    def _codec(self):
+        """The core's codec of the projected one (None: the paper's gcps-v1 at 1024x768)."""
+        import json
+
+        from metrology.core.codecs import builtin_codec, codec_from_dict
+
+        assert self.target is not None
+        projected = self.target.codec
+        if projected is None:
+            return None
+        if projected.is_gcps_v1:
+            return builtin_codec(projected.spec) if projected.spec.startswith("gcps-v1") else None
+        return codec_from_dict(json.loads(projected.spec))
 
     def _options(self):
         scale = self.exposure_ms / self.nominal_exposure_ms
@@ -272,34 +289,15 @@ class VirtualCamera:
             return self._cache
         if self.target is None:
             raise CameraError("the virtual camera was not prepared for an acquisition")
-        from metrology.core.simulate import render_flat_frames, render_stack
+        from metrology.core.simulate import render_capture, render_flats
 
-        rig, scene, opts = self._rig(), self._scene(), self._options()
-        stack = render_stack(rig, scene, opts)
-        clean = render_stack(rig, scene, opts.with_changes(noise_grey=0.0))
-        white, black = render_flat_frames(rig, scene, opts)
-        codec = self.target.codec
-        if codec is not None and not codec.is_gcps_v1:
-            return self._render_codec(stack, rig, opts, white, black)
-        rng = np.random.default_rng([opts.seed, 4242])
-        flats = {}
-        for key, grey in (("white", white), ("black", black)):
-            noisy = grey + opts.noise_grey * rng.standard_normal(grey.shape) if opts.noise_grey > 0 else grey
-            flats[key] = np.clip(np.rint(noisy), 0, opts.full_scale).astype(opts.dtype)
-        self._cache = {"stack": stack.images, "clean": clean.images, "flats": flats, "full": opts.full_scale}
-        return self._cache
-
-    def _render_codec(self, stack, rig, opts, white, black) -> dict[str, Any]:
-        """Frames of any codec (issue 11's renderer) from the true projector coordinates of the render."""
-        import json
-
-        from metrology.core.codecs import codec_from_dict, crossed_rig_truth, render_codec
-
-        assert self.target is not None and self.target.codec is not None
-        codec = codec_from_dict(json.loads(self.target.codec.spec))
-        u, v = crossed_rig_truth(stack, rig, codec.projector_width, codec.projector_height)
-        images = render_codec(codec, u, v, opts)
-        clean = render_codec(codec, u, v, opts.with_changes(noise_grey=0.0))
+        rig, scene, opts, codec = self._rig(), self._scene(), self._options(), self._codec()
+        try:
+            images = render_capture(rig, scene, codec, opts).images
+            clean = render_capture(rig, scene, codec, opts.with_changes(noise_grey=0.0)).images
+            white, black = render_flats(rig, scene, opts)
+        except ValueError as exc:
+            raise CameraError(f"the virtual camera cannot render this acquisition: {exc}") from None
         rng = np.random.default_rng([opts.seed, 4242])
         flats = {}
         for key, grey in (("white", white), ("black", black)):

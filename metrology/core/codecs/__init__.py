@@ -2,11 +2,14 @@
 
 - :mod:`~metrology.core.codecs.model`: the codec dataclasses, validation, JSON, built-in ``gcps-v1``;
 - :mod:`~metrology.core.codecs.decode`: decoding a stack of any codec to absolute projector coordinates;
-- :mod:`~metrology.core.codecs.render`: projector patterns and virtual-rig camera images of any codec;
+- :mod:`~metrology.core.codecs.render`: projector patterns and virtual-rig camera images of any codec
+  (loaded when first used);
 - :mod:`~metrology.core.codecs.stack`: reading the frames of a capture folder or zip in codec order.
 
 docs/codecs.md describes the file format, the reason codes and the quality file.
 """
+
+from typing import Any
 
 from metrology.core.codecs.model import (
     AXES,
@@ -24,7 +27,6 @@ from metrology.core.codecs.model import (
     read_codec,
     write_codec,
 )
-from metrology.core.codecs.render import codec_patterns, crossed_rig_truth, render_codec
 
 __all__ = [
     "AXES",
@@ -38,10 +40,20 @@ __all__ = [
     "codec_from_dict",
     "codec_from_json",
     "codec_patterns",
-    "crossed_rig_truth",
     "gcps_v1_codec",
     "natural_key",
     "read_codec",
     "render_codec",
     "write_codec",
 ]
+
+_RENDERING = {"codec_patterns", "render_codec"}
+"""Names of :mod:`.render`, loaded when first used (it imports scipy; decoding needs none of it)."""
+
+
+def __getattr__(name: str) -> Any:
+    if name in _RENDERING:
+        from metrology.core.codecs import render
+
+        return getattr(render, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -36,7 +36,9 @@ PRECOMPENSATED_GAMMA_RANGE: tuple[float, float] = (0.2, 5.0)
 """Accepted ``precompensated_gamma`` values (inclusive)."""
 """Largest number of gray-code bits of one axis (65536 words)."""
 
-BUILTIN_NAMES: tuple[str, ...] = ("gcps-v1",)
+GCPS_V1 = "gcps-v1"
+"""Name of the built-in codec of the paper's eleven patterns (:func:`gcps_v1_codec`)."""
+BUILTIN_NAMES: tuple[str, ...] = (GCPS_V1,)
 """Names accepted by :func:`builtin_codec` (``gcps-v1`` or ``gcps-v1:WIDTHxHEIGHT``)."""
 
 
@@ -648,8 +650,13 @@ def gcps_v1_codec(width: int = 1024, height: int = 768, nlp: int = 128) -> Codec
         projector_width=width,
         projector_height=height,
         axes={"u": axis},
-        name="gcps-v1",
+        name=GCPS_V1,
     )
+
+
+def is_gcps_v1(codec: Codec | None) -> bool:
+    """True for no codec (the paper's default) or the built-in gcps-v1 of any projector size."""
+    return codec is None or codec.name == GCPS_V1
 
 
 def builtin_codec(name: str) -> Codec:
@@ -661,7 +668,7 @@ def builtin_codec(name: str) -> Codec:
         For an unknown name or a malformed size.
     """
     base, _, size = name.partition(":")
-    if base != "gcps-v1":
+    if base != GCPS_V1:
         raise CodecError(f"unknown built-in codec {name!r}; built-in codecs: {', '.join(BUILTIN_NAMES)}")
     if not size:
         return gcps_v1_codec()

@@ -24,14 +24,15 @@ Two things live here:
   ``square`` and ``smoothing_codes`` are not used: the codec says which waveform each
   sequence has.
 
-:func:`crossed_rig_truth` gives the true (u, v) of a render of the paper's crossed-axes
-virtual rig (:func:`metrology.core.simulate.render_stack`).
+The virtual rig's one entry, :func:`metrology.core.simulate.render_capture`, gives these true
+coordinates for any geometric model.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -39,8 +40,9 @@ import numpy.typing as npt
 from scipy.ndimage import gaussian_filter1d
 
 from metrology.core.codecs.model import Codec, GrayCode, PhaseSequence
-from metrology.core.rig import Rig
-from metrology.core.simulate import RenderedStack, SimulationOptions
+
+if TYPE_CHECKING:  # imported where used: metrology.core.simulate imports this module
+    from metrology.core.simulate.options import SimulationOptions
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -242,6 +244,8 @@ def render_codec(
     ValueError
         If a coded axis has no coordinates or the shapes disagree.
     """
+    from metrology.core.simulate.options import SimulationOptions
+
     opts = options if options is not None else SimulationOptions()
     coords: dict[str, FloatArray] = {}
     shape: tuple[int, ...] | None = None
@@ -297,33 +301,3 @@ def render_codec(
             grey = grey + opts.noise_grey * rng.standard_normal(grey.shape)
         images[f] = np.clip(np.rint(grey), 0, full).astype(opts.dtype)
     return images
-
-
-def crossed_rig_truth(
-    rendered: RenderedStack, rig: Rig, projector_width: int, projector_height: int
-) -> tuple[FloatArray, FloatArray]:
-    """True projector coordinates (u, v) of a render of the paper's crossed-axes virtual rig.
-
-    ``u = l * width / nlp - 0.5`` from the true light code ``l`` of each pixel
-    (:attr:`RenderedStack.codes`, the inverse of ``l = (u + 0.5) nlp / width``).
-    ``v``: the projector of the paper's rig sits at P = (0, 0, L), beside the camera at
-    C = (d, 0, L) along X, so projector rows are epipolar with camera rows: a point (X, Y, z)
-    projects from P onto R at ``Y_R = Y L / (L - z)``, which for the point seen by camera
-    row k equals the row's ordinate on R, ``Y_A = (k + 0.5 - H/2) FW / W``. We define
-    ``v = (Y_R / FH + 0.5) * height - 0.5`` with ``FH = FW H / W`` the camera field's height on
-    R: the camera field's rows span the projector rows. Both are NaN where the pixel is not lit.
-
-    Returns
-    -------
-    u, v : (H, W) float64 arrays, projector units
-    """
-    codes = rendered.codes
-    H, W = codes.shape
-    u = codes * (projector_width / rig.nlp) - 0.5
-    fw_mm = rig.fw_mm
-    pitch = fw_mm / W
-    y_a = (np.arange(H) + 0.5 - H / 2) * pitch
-    field_h = fw_mm * H / W
-    v_row = (y_a / field_h + 0.5) * projector_height - 0.5
-    v = np.where(np.isfinite(codes), v_row[:, None], np.nan)
-    return u, v

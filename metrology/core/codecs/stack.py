@@ -28,6 +28,7 @@ from pathlib import Path, PurePosixPath
 from typing import IO
 
 import numpy as np
+import numpy.typing as npt
 
 from metrology.core.codecs.model import Codec, CodecError, builtin_codec, codec_from_json, natural_key
 from metrology.core.io import (
@@ -40,6 +41,7 @@ from metrology.core.io import (
     decode_grey_image,
 )
 from metrology.core.io.archives import checked_zip_members, is_junk, read_zip_member, strip_single_folder
+from metrology.core.io.atomic import write_files_new_folder_atomic, write_files_zip_atomic
 from metrology.core.patterns import PATTERN_NAMES
 
 CODEC_FILE_NAME = "codec.json"
@@ -305,3 +307,63 @@ def _read(src: _Source, codec: Codec | None, max_pixels: int) -> CodecStack:
 
 
 __all__ = ["CODEC_FILE_NAME", "CodecError", "CodecStack", "read_capture_codec", "read_codec_stack", "select_frames"]
+
+
+def frame_file_names(codec: Codec) -> list[str]:
+    """File name of each frame of ``codec``, in frame order: the codec's file names (``.png``
+    added where they have no extension), else ``NN.png``; a ``prefix*suffix`` glob of ``files``
+    gives ``prefixNNsuffix``."""
+    n = codec.n_frames
+    if not isinstance(codec.frames, int):
+        return [name if PurePosixPath(name).suffix else f"{name}.png" for name in codec.frames]
+    digits = max(2, len(str(n - 1)))
+    prefix, suffix = "", ".png"
+    if codec.files and codec.files.count("*") == 1 and not any(ch in codec.files for ch in "?[]"):
+        head, tail = codec.files.split("*")
+        if tail.lower().endswith((".png", ".tif", ".tiff", ".bmp")) and "/" not in tail:
+            prefix, suffix = head, tail
+    return [f"{prefix}{i:0{digits}d}{suffix}" for i in range(n)]
+
+
+def write_codec_stack(codec: Codec, images: npt.ArrayLike, dest: str | os.PathLike[str]) -> Path:
+    """Write ``(frames, H, W)`` images of ``codec`` (8- or 16-bit) named by :func:`frame_file_names`,
+    with the codec as ``codec.json``, as a new folder or a .zip (atomic); the folder or zip reads
+    back in codec order (:func:`read_codec_stack`).
+
+    Raises
+    ------
+    ValueError
+        When there is not one image per frame, or the folder exists.
+    """
+    import cv2
+
+    images = np.asarray(images)
+    if images.ndim != 3 or len(images) != codec.n_frames:
+        raise ValueError(f"the codec has {codec.n_frames} frames, got images of shape {images.shape}")
+    files: dict[str, bytes] = {}
+    for name, image in zip(frame_file_names(codec), images, strict=True):
+        ext = PurePosixPath(name).suffix.lower()
+        ok, buf = cv2.imencode(ext, np.ascontiguousarray(image))
+        if not ok:
+            raise OSError(f"OpenCV could not encode {name}")
+        files[name] = buf.tobytes()
+    files["codec.json"] = codec.to_json().encode()
+    target = Path(dest)
+    if target.suffix.lower() == ".zip":
+        return write_files_zip_atomic(files, target)
+    if target.exists():
+        raise ValueError(f"{dest}: already exists; give a new folder or a .zip")
+    return write_files_new_folder_atomic(files, target)
+
+
+def write_capture(images: npt.ArrayLike, dest: str | os.PathLike[str], codec: Codec | None = None) -> Path:
+    """Write a capture stack as a new folder or a .zip (atomic): the eleven named images of gcps-v1
+    (``codec`` None or gcps-v1, :func:`metrology.core.io.write_stack`), else the codec's frames and
+    its ``codec.json`` (:func:`write_codec_stack`)."""
+    from metrology.core.codecs.model import is_gcps_v1
+    from metrology.core.io import write_stack
+
+    if is_gcps_v1(codec):
+        return write_stack(images, dest)
+    assert codec is not None
+    return write_codec_stack(codec, images, dest)

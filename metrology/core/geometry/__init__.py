@@ -1,16 +1,24 @@
 """Geometric models of projector-camera rigs behind one interface (:mod:`.base`).
 
-- :mod:`.pinhole`: a calibrated pinhole camera and projector with lens distortion
-  (``"model": "pinhole"``, docs/pinhole.md).
-- :mod:`.crossed_axes`: the paper's crossed-optical-axes rig (``"model": "crossed_axes"``,
-  the default of a rig file without a ``model`` key).
+Files:
 
+- :mod:`.base`: the seam's conventions (frames, units, axes, NaN), :class:`GeometryModel`,
+  :class:`PreparedGeometry`, :class:`ReferenceSurface`, :class:`GeometryOptions`, and
+  :func:`triangulate_frame`;
+- :mod:`.crossed_axes`: the paper's crossed-optical-axes rig (``"model": "crossed_axes"``, the
+  default of a rig file without a ``model`` key);
+- :mod:`.pinhole`: a calibrated pinhole camera and projector with lens distortion
+  (``"model": "pinhole"``, docs/pinhole.md);
+- :mod:`.rig_file`: parsing and validating calibrated rig files' values (K, dist, R, T);
+- :mod:`.projector_grid`: a distorted projector's undistortion sampled on a grid.
+
+:data:`MODELS` is the registry: a new model is one module here and one entry there.
 :func:`model_from_dict` builds the model a rig file's JSON object describes.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 from metrology.core.geometry.base import (
@@ -18,6 +26,10 @@ from metrology.core.geometry.base import (
     CameraRays,
     GeometryError,
     GeometryModel,
+    GeometryOptions,
+    ImageAxes,
+    ParameterField,
+    PlaneCoordinates,
     PreparedGeometry,
     ReferenceSurface,
     Triangulation,
@@ -27,11 +39,16 @@ from metrology.core.geometry.base import (
 from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.geometry.pinhole import PinholeRig
 
-MODEL_READERS: dict[str, Callable[[Mapping[str, Any]], GeometryModel]] = {
-    "crossed_axes": Rig.from_dict,
-    "pinhole": PinholeRig.from_dict,
-}
-"""Rig-file reader of each model, keyed by the rig file's ``model`` value."""
+MODELS: dict[str, type[GeometryModel]] = {Rig.model: Rig, PinholeRig.model: PinholeRig}
+"""Every geometric model, keyed by the rig file's ``model`` value."""
+
+
+def model_class(name: str) -> type[GeometryModel]:
+    """The model class registered as ``name``; :class:`GeometryError` listing the models otherwise."""
+    cls = MODELS.get(name)
+    if cls is None:
+        raise GeometryError(f"rig model must be one of {', '.join(sorted(MODELS))}, got {name!r}")
+    return cls
 
 
 def model_from_dict(data: Mapping[str, Any]) -> GeometryModel:
@@ -45,24 +62,34 @@ def model_from_dict(data: Mapping[str, Any]) -> GeometryModel:
     """
     if not isinstance(data, Mapping):
         raise GeometryError(f"rig must be a JSON object, got {type(data).__name__}")
-    name = model_name(data)
-    reader = MODEL_READERS.get(name)
-    if reader is None:
-        raise GeometryError(f"rig model must be one of {', '.join(sorted(MODEL_READERS))}, got {name!r}")
-    return reader(data)
+    return model_class(model_name(data)).from_dict(data)
+
+
+def model_from_parameters(name: str, parameters: Mapping[str, Any]) -> GeometryModel:
+    """The model ``name`` with the values :meth:`GeometryModel.parameters` gave (a rig file
+    without its ``model`` key)."""
+    if not isinstance(parameters, Mapping):
+        raise GeometryError(f"rig parameters must be a JSON object, got {type(parameters).__name__}")
+    return model_from_dict({**parameters, "model": name})
 
 
 __all__ = [
     "AXES",
-    "MODEL_READERS",
+    "MODELS",
     "CameraRays",
     "GeometryError",
     "GeometryModel",
+    "GeometryOptions",
+    "ImageAxes",
+    "ParameterField",
     "PinholeRig",
+    "PlaneCoordinates",
     "PreparedGeometry",
     "ReferenceSurface",
     "Rig",
     "Triangulation",
+    "model_class",
     "model_from_dict",
+    "model_from_parameters",
     "triangulate_frame",
 ]

@@ -24,7 +24,7 @@ from __future__ import annotations
 import functools
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, ClassVar
 
@@ -35,10 +35,15 @@ from metrology.core.geometry.base import (
     CameraRays,
     GeometryError,
     GeometryModel,
+    GeometryOptions,
+    ImageAxes,
+    ParameterField,
+    PlaneCoordinates,
     PreparedGeometry,
     ReferenceSurface,
     check_axes,
     check_frame,
+    subpixel_grid,
 )
 from metrology.core.tiling import run_tiled, thread_scratch
 
@@ -55,6 +60,17 @@ REQUIRED_KEYS: tuple[str, ...] = (
     "width_px",
     "height_px",
 )
+
+PARAMETER_FIELDS: tuple[ParameterField, ...] = (
+    ParameterField("L_mm", "Height of the pupils above the reference plane", "mm"),
+    ParameterField("d_mm", "Projector-camera baseline", "mm"),
+    ParameterField("alpha_rad", "Tilt of the projector sensor plane", "rad"),
+    ParameterField("fw_mm", "Camera field width on the reference plane", "mm"),
+    ParameterField("nlp", "Light codes across the field (at most 128)", "", integer=True),
+    ParameterField("width_px", "Camera image width", "px", integer=True),
+    ParameterField("height_px", "Camera image height", "px", integer=True),
+)
+"""The seven values of the rig file, as forms show them (:attr:`Rig.scalar_parameters`)."""
 
 
 class RigError(GeometryError):
@@ -118,6 +134,14 @@ class Rig(GeometryModel):
     extra: Mapping[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
     model: ClassVar[str] = MODEL
+    label: ClassVar[str] = "Crossed optical axes (the paper's model)"
+    short_label: ClassVar[str] = "crossed-axes"
+    requires_reference: ClassVar[bool] = True
+    unreferenced_result: ClassVar[str] = "height"
+    frame: ClassVar[str] = "paper"
+    sigma_direction: ClassVar[str] = "height"
+    calibration_parameters: ClassVar[tuple[str, ...]] = ("L_mm", "alpha_rad", "d_mm")
+    scalar_parameters: ClassVar[tuple[ParameterField, ...]] = PARAMETER_FIELDS
 
     def __post_init__(self) -> None:
         for name in ("L_mm", "d_mm", "fw_mm"):
@@ -183,6 +207,73 @@ class Rig(GeometryModel):
         """A copy with some geometric values replaced (e.g. calibrated L and alpha)."""
         return replace(self, **changes)
 
+    @property
+    def camera_centre_mm(self) -> np.ndarray:
+        """C = (d, 0, L)."""
+        return np.array([self.d_mm, 0.0, self.L_mm])
+
+    def footprint_mm(self, points_mm: np.ndarray | None = None) -> float:
+        """``FW / N``: a pixel's size on R (whatever the points)."""
+        return self.pixel_mm
+
+    def check_codec(
+        self, projector_size: tuple[float, float], coded_axes: Collection[str], options: GeometryOptions | None = None
+    ) -> None:
+        """The rig triangulates projector columns: the codec must code u (of any projector size)."""
+        _check_options(options)
+        if "u" not in coded_axes:
+            raise GeometryError(
+                "the codec does not code the projector's u axis (columns), which a crossed-axes rig "
+                f"triangulates; it codes {', '.join(sorted(coded_axes)) or 'no axis'}"
+            )
+
+    def value_rows(self) -> list[tuple[str, str]]:
+        """L, d (0.1 um), alpha (1 urad), FW (1 um): finer than a calibration moves them, without
+        float noise (trailing zeros dropped: ``1022 mm``); nlp and the image size."""
+        return [
+            ("L", f"{_decimals(self.L_mm, 4)} mm"),
+            ("d", f"{_decimals(self.d_mm, 4)} mm"),
+            ("alpha", f"{_decimals(self.alpha_rad, 6)} rad"),
+            ("FW", f"{_decimals(self.fw_mm, 3)} mm"),
+            ("nlp", str(self.nlp)),
+            ("image", f"{self.width_px} x {self.height_px} px"),
+        ]
+
+    def parameters(self) -> dict[str, Any]:
+        """The seven values (``extra`` is not a parameter of the model)."""
+        return {key: getattr(self, key) for key in REQUIRED_KEYS}
+
+    def image_axes(self) -> ImageAxes:
+        """X of each column's point A on R and Y of each row's, mm (:meth:`column_x_mm`, :meth:`row_y_mm`)."""
+        return ImageAxes(x=self.column_x_mm(), y=self.row_y_mm(), x_label="X (mm)", y_label="Y (mm)", unit="mm")
+
+    def scene_distance_mm(self, field_width_mm: float) -> float:
+        """``L``: the scenes stand on R."""
+        return self.L_mm
+
+    @property
+    def scene_centre_x_mm(self) -> float:
+        """``d``: the camera field is centred under C."""
+        return self.d_mm
+
+    @classmethod
+    def example_parameters(cls) -> dict[str, Any]:
+        """The paper's calibrated rig (section 5) at 320 x 240 px: a small frame, quick to simulate."""
+        return {
+            "L_mm": 1022.0,
+            "d_mm": 352.0,
+            "alpha_rad": 0.332,
+            "fw_mm": 500.0,
+            "nlp": 128,
+            "width_px": 320,
+            "height_px": 240,
+        }
+
+    @property
+    def light_codes(self) -> int:
+        """``nlp``: prepared without a projector size, the model reads ``u`` as light codes."""
+        return self.nlp
+
     # ------------------------------------------------- derived constants
     @property
     def shape(self) -> tuple[int, int]:
@@ -241,14 +332,20 @@ class Rig(GeometryModel):
 
     # ------------------------------------------------------ geometric seam
     def prepare(
-        self, shape: tuple[int, int] | None = None, projector_size: tuple[float, float] | None = None
+        self,
+        shape: tuple[int, int] | None = None,
+        projector_size: tuple[float, float] | None = None,
+        options: GeometryOptions | None = None,
     ) -> PreparedCrossedAxes:
         """This rig prepared for frames of ``shape`` (see :meth:`GeometryModel.prepare`).
 
         ``projector_size = (width, height)``: the projector coordinates passed to the prepared
         model are a codec's, mapped to light codes by ``l = (u + 0.5) nlp / width``; None: they
         are light codes already (the gcps-v1 decoder's output). Cached per rig and sizes.
+        ``options``: the rig triangulates its u axis by its light planes only (``triangulate``
+        ``auto`` or ``u``, ``method`` ``plane``).
         """
+        _check_options(options)
         shape = self.shape if shape is None else (int(shape[0]), int(shape[1]))
         if shape != self.shape:
             raise GeometryError(
@@ -260,6 +357,15 @@ class Rig(GeometryModel):
                 raise GeometryError(f"projector_size must be two positive numbers, got {projector_size!r}")
             projector_size = (width, height)
         return _prepare(self, projector_size)
+
+
+def _check_options(options: GeometryOptions | None) -> None:
+    if options is not None and (options.triangulate not in ("auto", "u") or options.method != "plane"):
+        raise GeometryError(
+            "a crossed-axes rig triangulates the projector's u axis by its light planes "
+            f"(triangulate auto or u, method plane), got triangulate {options.triangulate!r}, "
+            f"method {options.method!r}"
+        )
 
 
 def _is_real(value: Any) -> bool:
@@ -328,7 +434,7 @@ def abscissa_from_codes(rig: Rig, codes: npt.ArrayLike) -> FloatArray:
 
     Examples
     --------
-    >>> from metrology.core.rig import PAPER_RIG as rig
+    >>> from metrology.core.geometry.crossed_axes import PAPER_RIG as rig
     >>> [round(float(x), 9) for x in abscissa_from_codes(rig, [0.0, rig.nlp])]
     [102.0, 602.0]
     """
@@ -557,7 +663,9 @@ class PreparedCrossedAxes(PreparedGeometry):
         self.rig = rig
         self.shape = rig.shape
         self.projector_size = projector_size
-        self.code_scale = None if projector_size is None else np.float32(rig.nlp / projector_size[0])
+        self.axis = "u"
+        self.method = "plane"
+        self.code_scale_u = None if projector_size is None else np.float32(rig.nlp / projector_size[0])
         height, width = rig.shape
         self.x_a_mm = rig.column_x_mm()
         self.y_a_mm = rig.row_y_mm()
@@ -578,14 +686,55 @@ class PreparedCrossedAxes(PreparedGeometry):
     def has_model_plane(self) -> bool:
         return True
 
-    def camera_rays(self) -> CameraRays:
+    def camera_rays(self, supersample: int = 1) -> CameraRays:
+        """Rays from C = (d, 0, L) to the points A of R each pixel (or sub-pixel) sees."""
         rig = self.rig
-        direction = np.empty((*rig.shape, 3), np.float64)
-        direction[..., 0] = (self.x_a_mm - rig.d_mm)[None, :]
-        direction[..., 1] = self.y_a_mm[:, None]
+        pitch = rig.pixel_mm
+        x_a = rig.d_mm - rig.fw_mm / 2 + (subpixel_grid(rig.width_px, supersample) + 0.5) * pitch
+        y_a = (subpixel_grid(rig.height_px, supersample) + 0.5 - rig.height_px / 2) * pitch
+        direction = np.empty((y_a.size, x_a.size, 3), np.float64)
+        direction[..., 0] = (x_a - rig.d_mm)[None, :]
+        direction[..., 1] = y_a[:, None]
         direction[..., 2] = -rig.L_mm
         direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
         return CameraRays(origin_mm=np.array([rig.d_mm, 0.0, rig.L_mm]), direction=direction)
+
+    @property
+    def projector_centre_mm(self) -> np.ndarray:
+        """P = (0, 0, L)."""
+        return np.array([0.0, 0.0, self.rig.L_mm])
+
+    def projector_coordinates(self, points_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``u = l w / nlp - 0.5`` from the light code ``l`` of each point (the light plane through it,
+        :func:`codes_of_points`; ``l`` itself without a projector size) and ``v`` the projector row
+        that lights it: from P, a point (X, Y, z) lands on R at ``Y_R = Y L / (L - z)``, and the
+        camera field's height ``FH = FW H / W`` on R spans the projector's rows,
+        ``v = (Y_R / FH + 0.5) h - 0.5`` (:func:`~metrology.core.codecs.render.crossed_rig_truth`)."""
+        rig = self.rig
+        p = np.asarray(points_mm, dtype=np.float64)
+        X, Y, z = p[..., 0], p[..., 1], p[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            l = np.asarray(codes_of_points(rig, X, z), dtype=np.float64)
+            behind = ~(z < rig.L_mm)
+            if self.projector_size is None:
+                return np.where(behind, np.nan, l), np.full(l.shape, np.nan)
+            width, height = self.projector_size
+            u = l * (width / rig.nlp) - 0.5
+            field_h = rig.fw_mm * rig.height_px / rig.width_px
+            v = (Y * rig.L_mm / (rig.L_mm - z) / field_h + 0.5) * height - 0.5
+        return np.where(behind, np.nan, u), np.where(behind, np.nan, v)
+
+    def code_scale(self, axis: str) -> float:
+        """Light codes per projector unit of ``u``: ``nlp / width`` (1 without a projector size)."""
+        return 1.0 if self.code_scale_u is None else float(self.code_scale_u)
+
+    def plane_coordinates(self, reference: ReferenceSurface | None = None) -> PlaneCoordinates:
+        """The paper's ``(x_A, Y_A)`` of each pixel on R (the captured reference plane is R); the
+        field centre is ``x = d``, under the camera."""
+        rig = self.rig
+        x = np.broadcast_to(self.x_a_mm[None, :], rig.shape)
+        y = np.broadcast_to(self.y_a_mm[:, None], rig.shape)
+        return PlaneCoordinates(x_mm=x, y_mm=y, centre_x_mm=rig.d_mm)
 
     def light_codes(self, u: np.ndarray) -> np.ndarray:
         """``u`` as float32 light codes: unchanged without a projector size, else ``(u + 0.5) nlp / width``."""
@@ -608,11 +757,14 @@ class PreparedCrossedAxes(PreparedGeometry):
         reference: ReferenceSurface | None = None,
         points_out: np.ndarray | None = None,
         height_out: np.ndarray | None = None,
+        sigma_in: np.ndarray | None = None,
+        sigma_out: np.ndarray | None = None,
     ) -> None:
         """Eqs. 14, 16, 17 for a tile: heights against ``reference`` (a :class:`CrossedAxesReference`)
-        or, without one, against the modelled reference codes (absolute); points on the camera rays.
-        ``v`` is not used (the light planes are parallel to Y)."""
-        if points_out is None and height_out is None:
+        or, without one, against the modelled reference codes (absolute); points on the camera rays;
+        with ``sigma_in`` (of ``u``, in its unit) the heights' standard uncertainty
+        (:meth:`sigma_rows`). ``v`` is not used (the light planes are parallel to Y)."""
+        if points_out is None and height_out is None and sigma_out is None:
             return
         check_axes(self, u, v)
         assert u is not None
@@ -623,15 +775,17 @@ class PreparedCrossedAxes(PreparedGeometry):
         else:
             raise GeometryError(f"a crossed-axes rig needs a crossed-axes reference, got {type(reference).__name__}")
         scratch = thread_scratch()
-        if self.code_scale is not None:
+        if self.code_scale_u is not None:
             l = np.add(u, np.float32(0.5), out=scratch.get("light_codes", u.shape, np.float32))
-            l *= self.code_scale
+            l *= self.code_scale_u
         else:
             l = u
         z = height_out if height_out is not None else scratch.get("height", u.shape, np.float32)
         self.height_rows(l, ref_codes, slope, z)
         if points_out is not None:
             self.points_rows(rows, z, points_out)
+        if sigma_in is not None and sigma_out is not None:
+            self.sigma_rows(l, ref_codes, slope, sigma_in, sigma_out)
 
     def height_rows(self, l: np.ndarray, ref_codes: np.ndarray, slope_mm: np.ndarray, z_out: np.ndarray) -> None:
         """The in-place float32 kernel of Eqs. 14, 16, 17 on a tile (temporaries in the thread's scratch):
@@ -646,6 +800,35 @@ class PreparedCrossedAxes(PreparedGeometry):
         num *= self._L
         np.divide(num, den, out=z_out)
 
+    def sigma_rows(
+        self, l: np.ndarray, ref_codes: np.ndarray, slope_mm: np.ndarray, sigma_in: np.ndarray, sigma_out: np.ndarray
+    ) -> None:
+        """``|dz/dl| sigma_l``: the height uncertainty of a tile, float32 mm, from the derivative of
+        Eqs. 14, 16, 17 (``sigma_l`` is ``sigma_in`` in light codes: times ``nlp / width`` when
+        the input is a codec's projector coordinate).
+
+        With ``D = slope (l - r) / (1 + q l)`` and ``z = L D / (d + D)``:
+        ``dz/dl = L d / (d + D)^2 * slope (1 + q r) / (1 + q l)^2``.
+        """
+        scratch = thread_scratch()
+        one_ql = np.multiply(l, self._q, out=scratch.get("one_ql", l.shape, np.float32))
+        one_ql += np.float32(1)
+        disp = np.subtract(l, ref_codes, out=scratch.get("displacement", l.shape, np.float32))
+        disp *= slope_mm
+        disp /= one_ql  # D, mm
+        disp += self._d  # d + D
+        disp *= one_ql  # (d + D)(1 + q l)
+        np.multiply(disp, disp, out=disp)
+        num = np.multiply(ref_codes, self._q, out=scratch.get("one_qr", l.shape, np.float32))
+        num += np.float32(1)
+        num *= slope_mm
+        num *= self._L * self._d
+        np.divide(num, disp, out=sigma_out)
+        np.abs(sigma_out, out=sigma_out)
+        sigma_out *= sigma_in
+        if self.code_scale_u is not None:
+            sigma_out *= self.code_scale_u
+
     def points_rows(self, rows: slice, z: np.ndarray, points_out: np.ndarray) -> None:
         """``(X_H, Y_H, z)`` of a tile of heights, float32 (:func:`camera_ray_point`)."""
         scratch = thread_scratch()
@@ -658,3 +841,69 @@ class PreparedCrossedAxes(PreparedGeometry):
 
     def points_from_heights(self, z_mm: np.ndarray, reference: ReferenceSurface | None = None) -> np.ndarray:
         return points_from_heights(self.rig, z_mm)
+
+
+def equivalent_pinhole(rig: Rig, projector_width: int, projector_height: int) -> GeometryModel:
+    """The paper's rig written as the equivalent pinhole rig (docs/pinhole.md), for a codec of
+    projector columns ``u`` with ``l = (u + 0.5) nlp / projector_width``.
+
+    Camera frame: ``x_c = X - d``, ``y_c = Y``, ``z_c = L - Z`` (the camera at C looks down; the
+    paper's frame mirrored, which the pinhole model does not mind). The camera's pixel ``(k, j)``
+    sees ``A = (x_A, Y_A, 0)``: ``K = [[W L / FW, 0, (W - 1) / 2], [0, W L / FW, (H - 1) / 2], [0, 0, 1]]``,
+    no distortion. The projector sits at ``P``, ``(-d, 0, 0)`` in the camera frame. Eq. 14 is a
+    pinhole projection: with ``s = C1 l``, ``x(l) / L = tan(gamma + atan(s cos b / (1 + s sin b)))``
+    (``b = gamma - alpha``, :class:`MobiusMap`), the angle at P of the point ``r + s e`` of the line
+    through ``r`` (the unit vector of ray PS) along ``e = sin b r + cos b r_perp``: a projector whose
+    image x axis is ``e``, optical axis the unit normal ``a`` of ``e`` (``a . r > 0``), focal length
+    ``k (a . r)`` and principal point ``-0.5 - k sin b``, ``k = width / (nlp C1)`` projector units
+    per unit of ``s``. Its rows are arbitrary (``fy = fx``, centred): the crossed-axes rig codes
+    columns only.
+
+    Returns
+    -------
+    PinholeRig
+        Triangulating ``u`` by the light planes, it gives the crossed-axes rig's heights above a
+        captured reference plane.
+    """
+    from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, PinholeRig
+
+    f_cam = rig.width_px * rig.L_mm / rig.fw_mm
+    camera = PinholeCamera(
+        width_px=rig.width_px,
+        height_px=rig.height_px,
+        K=((f_cam, 0.0, (rig.width_px - 1) / 2), (0.0, f_cam, (rig.height_px - 1) / 2), (0.0, 0.0, 1.0)),
+    )
+    g, b = rig.gamma_rad, rig.gamma_rad - rig.alpha_rad
+    r = np.array([math.sin(g), -math.cos(g)])  # (X, Z) of the unit vector of ray PS
+    r_perp = np.array([math.cos(g), math.sin(g)])  # the direction of growing codes
+    e = math.sin(b) * r + math.cos(b) * r_perp
+    a = np.array([-e[1], e[0]])
+    if a @ r < 0:
+        a = -a
+    k = projector_width / (rig.nlp * rig.C1)
+    f_proj = k * float(a @ r)
+    projector = PinholeProjector(
+        width=projector_width,
+        height=projector_height,
+        K=((f_proj, 0.0, -0.5 - k * math.sin(b)), (0.0, f_proj, (projector_height - 1) / 2), (0.0, 0.0, 1.0)),
+    )
+    # the projector's axes in the camera frame (x_c = X, z_c = -Z): rows of R
+    e_c = np.array([e[0], 0.0, -e[1]])
+    a_c = np.array([a[0], 0.0, -a[1]])
+    y_c = np.cross(a_c, e_c)  # so that R = [e; y; a] is a rotation (x cross y = z)
+    R = np.stack([e_c, y_c, a_c])
+    T = -R @ np.array([-rig.d_mm, 0.0, 0.0])
+    rows = tuple(tuple(float(v) for v in row) for row in R)
+    return PinholeRig(
+        camera=camera,
+        projector=projector,
+        R=(rows[0], rows[1], rows[2]),  # type: ignore[arg-type]
+        T=(float(T[0]), float(T[1]), float(T[2])),
+    )
+
+
+def _decimals(value: float, decimals: int) -> str:
+    """``value`` rounded to ``decimals`` places, trailing zeros dropped (``1021.98533`` -> ``1021.9853``,
+    ``1022.0`` -> ``1022``)."""
+    text = f"{value:.{decimals}f}".rstrip("0").rstrip(".")
+    return "0" if text in ("-0", "") else text

@@ -50,22 +50,40 @@ import functools
 import json
 import math
 import threading
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Collection, Mapping
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
-import numpy.typing as npt
 
-from metrology.core.distortion import DIST_COUNTS, Distortion, check_dist, undistort_pixels
+from metrology.core.distortion import Distortion, check_dist, project_normalized, undistort_pixels
 from metrology.core.geometry.base import (
+    AXES,
     CameraRays,
     GeometryError,
     GeometryModel,
+    GeometryOptions,
+    PlaneCoordinates,
     PreparedGeometry,
     ReferenceSurface,
     check_axes,
     check_frame,
+    short_number,
+    subpixel_grid,
+)
+from metrology.core.geometry.projector_grid import UndistortionGrid
+from metrology.core.geometry.rig_file import (
+    Matrix3,
+    RigFileError,
+    check_rotation,
+    checked_keys,
+    distortion_coefficients,
+    intrinsics,
+    matrix3,
+    number,
+    positive,
+    positive_int,
+    vector3,
 )
 from metrology.core.tiling import run_tiled
 
@@ -77,9 +95,6 @@ PROJECTOR_GAMMA_RANGE: tuple[float, float] = (0.2, 5.0)
 """Accepted ``projector.gamma`` values (inclusive)."""
 RESPONSE_LEVELS = 256
 """Entries of ``projector.response``: one per 8-bit pattern level."""
-AXIS_CHOICES: tuple[str, ...] = ("auto", "u", "v")
-METHOD_CHOICES: tuple[str, ...] = ("plane", "midpoint")
-ROTATION_TOL = 1e-6
 PROJECTOR_TOL = 1e-6
 """Convergence tolerance of the projector coordinate's undistortion, projector units."""
 PROJECTOR_MAX_ITER = 30
@@ -98,81 +113,15 @@ POLY_TOL = 5e-6
 """A pixel's polynomial is used when its Chebyshev tail (the truncated terms) is below this, in
 projector units; other pixels are solved by Newton on the epipolar line at every frame."""
 
-Matrix3 = tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
 
-GRID_TOL = 2e-5
-"""Largest bilinear-interpolation error (projector units, estimated from the grid's second
-differences) accepted for the projector's undistortion grid (both axes decoded)."""
-GRID_STEPS: tuple[float, ...] = (1.0, 0.5)
-"""Grid spacings tried, projector units, coarsest first; without one that meets
-:data:`GRID_TOL` both-axes pixels are undistorted by Newton at every frame."""
-
-
-class PinholeRigError(GeometryError):
-    """A pinhole rig file is malformed (the message names the key)."""
-
-
-# --------------------------------------------------------------------------- parsing helpers
-def _number(value: Any, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise PinholeRigError(f"{name} must be a number, got {value!r}")
-    f = float(value)
-    if not math.isfinite(f):
-        raise PinholeRigError(f"{name} must be finite, got {value!r}")
-    return f
-
-
-def _matrix(value: Any, name: str) -> Matrix3:
-    if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise PinholeRigError(f"{name} must be a 3x3 matrix (three rows of three numbers), got {value!r}")
-    rows: list[tuple[float, float, float]] = []
-    for i, row in enumerate(value):
-        if not isinstance(row, (list, tuple)) or len(row) != 3:
-            raise PinholeRigError(f"{name} row {i} must hold three numbers, got {row!r}")
-        a, b, c = (_number(x, f"{name}[{i}][{j}]") for j, x in enumerate(row))
-        rows.append((a, b, c))
-    return (rows[0], rows[1], rows[2])
-
-
-def _check_keys(data: Any, allowed: tuple[str, ...], required: tuple[str, ...], where: str) -> Mapping[str, Any]:
-    if not isinstance(data, Mapping):
-        raise PinholeRigError(f"{where} must be a JSON object, got {type(data).__name__}")
-    unknown = [key for key in data if key not in allowed]
-    if unknown:
-        raise PinholeRigError(f"{where} has unknown key {unknown[0]!r} (allowed: {', '.join(allowed)})")
-    missing = [key for key in required if key not in data]
-    if missing:
-        raise PinholeRigError(f"{where} is missing key {missing[0]!r}")
-    return data
-
-
-def _intrinsics(value: Any, name: str) -> Matrix3:
-    k = _matrix(value, name)
-    if k[0][0] <= 0 or k[1][1] <= 0:
-        raise PinholeRigError(f"{name} must have fx > 0 and fy > 0, got fx={k[0][0]!r}, fy={k[1][1]!r}")
-    if k[1][0] != 0 or k[2][0] != 0 or k[2][1] != 0 or k[2][2] != 1:
-        raise PinholeRigError(f"{name} must have the form [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {list(k)}")
-    return k
-
-
-def _dist(value: Any, name: str) -> tuple[float, ...]:
-    if value is None:
-        return ()
-    if not isinstance(value, (list, tuple)):
-        raise PinholeRigError(f"{name} must be a list of 4, 5, 8, 12 or 14 numbers, got {value!r}")
-    coeffs = tuple(_number(x, f"{name}[{i}]") for i, x in enumerate(value))
-    if coeffs and len(coeffs) not in DIST_COUNTS:
-        raise PinholeRigError(f"{name} must hold 4, 5, 8, 12 or 14 coefficients (or none), got {len(coeffs)}")
-    return coeffs
-
-
+# --------------------------------------------------------------------------- projector response
 def _gamma(value: Any, name: str) -> float | None:
     if value is None:
         return None
-    g = _number(value, name)
+    g = number(value, name)
     lo, hi = PROJECTOR_GAMMA_RANGE
     if not lo <= g <= hi:
-        raise PinholeRigError(f"{name} must be in {lo:g}..{hi:g}, got {value!r}")
+        raise RigFileError(f"{name} must be in {lo:g}..{hi:g}, got {value!r}")
     return g
 
 
@@ -181,41 +130,16 @@ def _response(value: Any, name: str) -> tuple[float, ...] | None:
         return None
     if not isinstance(value, (list, tuple)) or len(value) != RESPONSE_LEVELS:
         got = f"{len(value)} entries" if isinstance(value, (list, tuple)) else repr(value)
-        raise PinholeRigError(f"{name} must be a list of {RESPONSE_LEVELS} numbers in 0..1, got {got}")
-    table = tuple(_number(x, f"{name}[{i}]") for i, x in enumerate(value))
+        raise RigFileError(f"{name} must be a list of {RESPONSE_LEVELS} numbers in 0..1, got {got}")
+    table = tuple(number(x, f"{name}[{i}]") for i, x in enumerate(value))
     for i, x in enumerate(table):
         if not 0.0 <= x <= 1.0:
-            raise PinholeRigError(f"{name}[{i}] must be in 0..1, got {x!r}")
+            raise RigFileError(f"{name}[{i}] must be in 0..1, got {x!r}")
         if i and x < table[i - 1]:
-            raise PinholeRigError(
+            raise RigFileError(
                 f"{name} must be non-decreasing: {name}[{i}] = {x!r} < {name}[{i - 1}] = {table[i - 1]!r}"
             )
     return table
-
-
-def _positive_int(value: Any, name: str) -> int:
-    f = _number(value, name)
-    if not f.is_integer() or f <= 0:
-        raise PinholeRigError(f"{name} must be a positive integer, got {value!r}")
-    return int(f)
-
-
-def _positive(value: Any, name: str) -> float:
-    f = _number(value, name)
-    if f <= 0:
-        raise PinholeRigError(f"{name} must be positive, got {value!r}")
-    return f
-
-
-def check_rotation(R: npt.ArrayLike, name: str = "R") -> None:
-    """Raise :class:`PinholeRigError` naming ``name`` unless ``|R^T R - I| < 1e-6`` and ``det R = +1``."""
-    r = np.asarray(R, dtype=np.float64)
-    err = float(np.abs(r.T @ r - np.eye(3)).max())
-    if not err < ROTATION_TOL:
-        raise PinholeRigError(f"{name} is not a rotation: max |R^T R - I| = {err:.3g} (must be < {ROTATION_TOL:g})")
-    det = float(np.linalg.det(r))
-    if det < 0:
-        raise PinholeRigError(f"{name} is not a rotation: det R = {det:.6g} (a reflection; must be +1)")
 
 
 # --------------------------------------------------------------------------- the rig
@@ -263,6 +187,12 @@ class PinholeRig(GeometryModel):
     T: tuple[float, float, float]
 
     model: ClassVar[str] = MODEL_NAME
+    label: ClassVar[str] = "Calibrated pinhole camera and projector"
+    short_label: ClassVar[str] = "pinhole"
+    requires_reference: ClassVar[bool] = False
+    unreferenced_result: ClassVar[str] = "depth"
+    frame: ClassVar[str] = "camera"
+    sigma_direction: ClassVar[str] = "camera ray"
 
     def __post_init__(self) -> None:
         check_rotation(self.R)
@@ -270,32 +200,27 @@ class PinholeRig(GeometryModel):
     # ------------------------------------------------------------------ I/O
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> PinholeRig:
-        """Parse and validate a rig file's JSON object; :class:`PinholeRigError` names the bad key."""
-        data = _check_keys(data, TOP_KEYS, TOP_KEYS, "pinhole rig")
+        """Parse and validate a rig file's JSON object; :class:`RigFileError` names the bad key."""
+        data = checked_keys(data, TOP_KEYS, TOP_KEYS, "pinhole rig")
         if data["model"] != MODEL_NAME:
-            raise PinholeRigError(f"rig model must be {MODEL_NAME!r} here, got {data['model']!r}")
-        cam = _check_keys(data["camera"], CAMERA_KEYS, CAMERA_KEYS[:3], "camera")
-        proj = _check_keys(data["projector"], PROJECTOR_KEYS, PROJECTOR_KEYS[:3], "projector")
+            raise RigFileError(f"rig model must be {MODEL_NAME!r} here, got {data['model']!r}")
+        cam = checked_keys(data["camera"], CAMERA_KEYS, CAMERA_KEYS[:3], "camera")
+        proj = checked_keys(data["projector"], PROJECTOR_KEYS, PROJECTOR_KEYS[:3], "projector")
         camera = PinholeCamera(
-            width_px=_positive_int(cam["width_px"], "camera width_px"),
-            height_px=_positive_int(cam["height_px"], "camera height_px"),
-            K=_intrinsics(cam["K"], "camera K"),
-            dist=_dist(cam.get("dist"), "camera dist"),
+            width_px=positive_int(cam["width_px"], "camera width_px"),
+            height_px=positive_int(cam["height_px"], "camera height_px"),
+            K=intrinsics(cam["K"], "camera K"),
+            dist=distortion_coefficients(cam.get("dist"), "camera dist"),
         )
         projector = PinholeProjector(
-            width=_positive(proj["width"], "projector width"),
-            height=_positive(proj["height"], "projector height"),
-            K=_intrinsics(proj["K"], "projector K"),
-            dist=_dist(proj.get("dist"), "projector dist"),
+            width=positive(proj["width"], "projector width"),
+            height=positive(proj["height"], "projector height"),
+            K=intrinsics(proj["K"], "projector K"),
+            dist=distortion_coefficients(proj.get("dist"), "projector dist"),
             gamma=_gamma(proj.get("gamma"), "projector gamma"),
             response=_response(proj.get("response"), "projector response"),
         )
-        R = _matrix(data["R"], "R")
-        t = data["T"]
-        if not isinstance(t, (list, tuple)) or len(t) != 3:
-            raise PinholeRigError(f"T must be a list of three numbers (mm), got {t!r}")
-        T = (_number(t[0], "T[0]"), _number(t[1], "T[1]"), _number(t[2], "T[2]"))
-        return cls(camera=camera, projector=projector, R=R, T=T)
+        return cls(camera=camera, projector=projector, R=matrix3(data["R"], "R"), T=vector3(data["T"], "T"))
 
     @classmethod
     def from_json(cls, text: str) -> PinholeRig:
@@ -303,7 +228,7 @@ class PinholeRig(GeometryModel):
         try:
             data = json.loads(text)
         except json.JSONDecodeError as exc:
-            raise PinholeRigError(f"rig file is not valid JSON: {exc.msg} at line {exc.lineno}") from exc
+            raise RigFileError(f"rig file is not valid JSON: {exc.msg} at line {exc.lineno}") from exc
         return cls.from_dict(data)
 
     def to_dict(self) -> dict[str, Any]:
@@ -338,9 +263,63 @@ class PinholeRig(GeometryModel):
             "T": list(self.T),
         }
 
-    def to_json(self) -> str:
-        """The rig file's text (indented JSON, full float precision, trailing newline)."""
-        return json.dumps(self.to_dict(), indent=2) + "\n"
+    def scene_distance_mm(self, field_width_mm: float) -> float:
+        """``fx FW / W``: the distance at which ``field_width_mm`` spans the image's width (pinhole
+        approximation, the lens's distortion left out)."""
+        return self.camera.K[0][0] * field_width_mm / self.camera.width_px
+
+    @property
+    def camera_centre_mm(self) -> np.ndarray:
+        """The origin: the camera frame is the model frame."""
+        return np.zeros(3)
+
+    def _check_projector(self, projector_size: tuple[float, float]) -> None:
+        w, h = projector_size
+        if abs(w - self.projector.width) > 1e-9 or abs(h - self.projector.height) > 1e-9:
+            raise GeometryError(
+                f"the codec's projector is {w:g}x{h:g} but the rig's projector is "
+                f"{self.projector.width:g}x{self.projector.height:g}"
+            )
+
+    def check_codec(
+        self, projector_size: tuple[float, float], coded_axes: Collection[str], options: GeometryOptions | None = None
+    ) -> None:
+        """The codec's projector must be the rig's, and it must code the axis the rig triangulates."""
+        self._check_projector(projector_size)
+        options = options or GeometryOptions()
+        axis = self.auto_axis() if options.triangulate == "auto" else options.triangulate
+        if axis not in coded_axes:
+            raise GeometryError(
+                f"the codec does not code the projector's {axis} axis, which the rig triangulates "
+                f"(triangulate {options.triangulate}); it codes {', '.join(sorted(coded_axes)) or 'no axis'}"
+            )
+
+    def value_rows(self) -> list[tuple[str, str]]:
+        """Camera (size, K, distortion), projector (size, K, distortion), R, T and the baseline |T|."""
+        cam, proj = self.camera, self.projector
+        rows = [
+            (
+                "camera",
+                f"{cam.width_px} x {cam.height_px} px, K {short_number(cam.K)}"
+                + (f", dist {short_number(cam.dist, 4)}" if cam.dist else ""),
+            ),
+            (
+                "projector",
+                f"{short_number(proj.width)} x {short_number(proj.height)}, K {short_number(proj.K)}"
+                + (f", dist {short_number(proj.dist, 4)}" if proj.dist else ""),
+            ),
+            ("R", short_number(self.R)),
+            ("T", f"{short_number(self.T)} mm"),
+        ]
+        return rows
+
+    def summary(self) -> str:
+        """Camera and projector focal lengths and the baseline, in one line."""
+        baseline = math.sqrt(sum(t * t for t in self.T))
+        return (
+            f"pinhole: camera fx {self.camera.K[0][0]:.2f} px, projector fx {self.projector.K[0][0]:.2f}, "
+            f"baseline {baseline:.2f} mm"
+        )
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -360,33 +339,24 @@ class PinholeRig(GeometryModel):
         self,
         shape: tuple[int, int] | None = None,
         projector_size: tuple[float, float] | None = None,
-        *,
-        axis: str = "auto",
-        method: str = "plane",
+        options: GeometryOptions | None = None,
     ) -> PreparedPinhole:
         """The model prepared for ``shape`` (must be the camera size) and the codec's projector size
-        (must equal the rig's), triangulating on ``axis`` (auto|u|v) by ``method`` (plane|midpoint).
+        (must equal the rig's), triangulating on ``options.triangulate`` (auto|u|v) by
+        ``options.method`` (plane|midpoint).
 
-        Cached per (rig, sizes, axis, method); the camera rays are cached per rig.
+        Cached per (rig, axis, method); the camera rays are cached per rig.
         """
-        if axis not in AXIS_CHOICES:
-            raise ValueError(f"triangulate must be one of {', '.join(AXIS_CHOICES)}, got {axis!r}")
-        if method not in METHOD_CHOICES:
-            raise ValueError(f"method must be one of {', '.join(METHOD_CHOICES)}, got {method!r}")
+        options = options or GeometryOptions()
         if shape is not None and tuple(shape) != self.shape:
             raise GeometryError(
                 f"frames are {shape[1]}x{shape[0]} px but the rig's camera is "
                 f"{self.camera.width_px}x{self.camera.height_px} px"
             )
         if projector_size is not None:
-            w, h = projector_size
-            if abs(w - self.projector.width) > 1e-9 or abs(h - self.projector.height) > 1e-9:
-                raise GeometryError(
-                    f"the codec's projector is {w:g}x{h:g} but the rig's projector is "
-                    f"{self.projector.width:g}x{self.projector.height:g}"
-                )
-        resolved = self.auto_axis() if axis == "auto" else axis
-        return _prepare_cached(self, resolved, method)
+            self._check_projector(projector_size)
+        resolved = self.auto_axis() if options.triangulate == "auto" else options.triangulate
+        return _prepare_cached(self, resolved, options.method)
 
 
 def _table_threads() -> int | None:
@@ -426,124 +396,6 @@ def _camera_tables(rig_camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
 
 
 @dataclass(frozen=True)
-class UndistortionGrid:
-    """The projector's undistortion sampled on a grid, for bilinear look-ups.
-
-    ``(x_p, y_p) = K^-1 (u, v) + (dx, dy)(u, v)``: the corrections ``dx, dy`` (float32
-    ``(n_v, n_u)``) at ``u = -1 + step i``, ``v = -1 + step k``, exact (Newton, 1e-9 units).
-    ``error`` is the estimated worst bilinear error (projector units). ``cx4``, ``cy4`` hold, per
-    cell (``(n_v - 1) (n_u - 1), 4`` float32), the bilinear coefficients of the undistorted
-    normalized coordinate itself, ``x_p = c0 + c1 a_u + c2 a_v + c3 a_u a_v`` (``a_u, a_v`` the
-    position inside the cell, 0..1): bilinear interpolation reproduces the affine part
-    ``K^-1 (u, v)`` exactly, so one gather of 16 bytes and five multiply-adds give ``x_p``.
-    """
-
-    step: float
-    dx: np.ndarray
-    dy: np.ndarray
-    error: float
-    intrinsics: tuple[float, float, float, float, float] = (1.0, 0.0, 0.0, 1.0, 0.0)
-    cx4: np.ndarray = field(repr=False, default_factory=lambda: np.empty((0, 4), np.float32))
-    cy4: np.ndarray = field(repr=False, default_factory=lambda: np.empty((0, 4), np.float32))
-
-    @staticmethod
-    def _cells(t: np.ndarray) -> np.ndarray:
-        """Per-cell bilinear coefficients ``(c0, c1, c2, c3)`` of a float64 grid, float32 ``(cells, 4)``."""
-        f00, f01, f10, f11 = t[:-1, :-1], t[:-1, 1:], t[1:, :-1], t[1:, 1:]
-        coef = np.stack([f00, f01 - f00, f10 - f00, f11 - f10 - f01 + f00], axis=-1)
-        return np.ascontiguousarray(coef.reshape(-1, 4).astype(np.float32))
-
-    @classmethod
-    def build(cls, K: np.ndarray, dist: Distortion, width: float, height: float) -> UndistortionGrid | None:
-        """The coarsest grid of :data:`GRID_STEPS` meeting :data:`GRID_TOL`, or None."""
-        fx, s, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
-        for step in GRID_STEPS:
-            gu = -1.0 + step * np.arange(math.ceil((width + 1) / step) + 2)
-            gv = -1.0 + step * np.arange(math.ceil((height + 1) / step) + 2)
-            uu, vv = np.meshgrid(gu, gv)
-            res = undistort_pixels(K, dist, uu, vv, tol_px=1e-9, max_iter=PROJECTOR_MAX_ITER)
-            if res.n_failed:
-                return None
-            y_lin = (vv - cy) / fy
-            x_lin = (uu - cx - s * y_lin) / fx
-            dx, dy = res.x - x_lin, res.y - y_lin
-            # bilinear error at a cell centre ~ (|F_uu| + |F_vv|) step^2 / 8 = (|D2_u F| + |D2_v F|) / 8
-            err = 0.0
-            for f, scale in ((dx, fx), (dy, fy)):
-                d2u = np.abs(f[:, 2:] - 2 * f[:, 1:-1] + f[:, :-2]).max()
-                d2v = np.abs(f[2:] - 2 * f[1:-1] + f[:-2]).max()
-                err = max(err, float(d2u + d2v) / 8 * scale)
-            if err <= GRID_TOL:
-                return cls(
-                    step=step,
-                    dx=dx.astype(np.float32),
-                    dy=dy.astype(np.float32),
-                    error=err,
-                    intrinsics=(float(fx), float(s), float(cx), float(fy), float(cy)),
-                    cx4=cls._cells(res.x),
-                    cy4=cls._cells(res.y),
-                )
-        return None
-
-    def normalized(
-        self, axis: str, u: np.ndarray, v: np.ndarray, derivative: bool = False
-    ) -> tuple[np.ndarray, np.ndarray | None]:
-        """Bilinear undistorted normalized coordinate ``x_p`` (``axis="u"``) or ``y_p`` (``"v"``) at
-        ``(u, v)`` and, with ``derivative``, its derivative along ``u`` (``x_p``) or ``v`` (``y_p``);
-        float32, same shape. Coordinates beyond the grid (one unit outside the projector) are
-        clamped to its border; NaN coordinates give NaN."""
-        coef = self.cx4 if axis == "u" else self.cy4
-        n_cols = self.dx.shape[1] - 1
-        n_rows = self.dx.shape[0] - 1
-        inv = np.float32(1.0 / self.step)
-        gu = np.add(u, np.float32(1.0), dtype=np.float32)
-        gv = np.add(v, np.float32(1.0), dtype=np.float32)
-        if self.step != 1.0:
-            gu *= inv
-            gv *= inv
-        np.clip(gu, np.float32(0.0), np.float32(n_cols - 1e-3), out=gu)  # NaN stays NaN
-        np.clip(gv, np.float32(0.0), np.float32(n_rows - 1e-3), out=gv)
-        with np.errstate(invalid="ignore"):  # NaN: an arbitrary index, clipped by take(); NaN propagates
-            iu = gu.astype(np.int32)
-            iv = gv.astype(np.int32)
-        gu -= iu  # a_u
-        gv -= iv  # a_v
-        iv *= np.int32(n_cols)
-        iv += iu
-        c = coef.take(iv, axis=0, mode="clip")
-        c0, c1, c2, c3 = c[..., 0], c[..., 1], c[..., 2], c[..., 3]
-        slope = np.multiply(c3, gv if axis == "u" else gu)
-        slope += c1 if axis == "u" else c2  # d/d(a_u) for x_p, d/d(a_v) for y_p
-        if axis == "u":
-            value = np.multiply(c2, gv)
-            deriv = slope * inv if derivative else None
-            slope *= gu
-        else:
-            value = np.multiply(c1, gu)
-            deriv = slope * inv if derivative else None
-            slope *= gv
-        value += slope
-        value += c0
-        return value, deriv
-
-    def lookup(
-        self, table: np.ndarray, u: np.ndarray, v: np.ndarray, derivative: bool = True
-    ) -> tuple[np.ndarray, np.ndarray | None]:
-        """The correction ``dx`` (``table`` is ``self.dx``) or ``dy`` at ``(u, v)``: :meth:`normalized`
-        minus the affine ``K^-1 (u, v)``; with ``derivative`` its derivative along ``u`` (``dx``) or
-        ``v`` (``dy``); float32 (the affine part from the grid's ``intrinsics``)."""
-        axis = "u" if table is self.dx else "v"
-        value, deriv = self.normalized(axis, u, v, derivative)
-        fx, skew, cx, fy, cy = self.intrinsics
-        y_lin = (np.asarray(v, np.float64) - cy) / fy
-        lin = y_lin if axis == "v" else (np.asarray(u, np.float64) - cx - skew * y_lin) / fx
-        value = (value - lin).astype(np.float32)
-        if deriv is not None:
-            deriv = (deriv - np.float32(1.0 / (fx if axis == "u" else fy))).astype(np.float32)
-        return value, deriv
-
-
-@dataclass(frozen=True)
 class PinholeReference(ReferenceSurface):
     """The total-least-squares plane through a reference capture's points, normal towards the camera.
 
@@ -558,6 +410,14 @@ class PinholeReference(ReferenceSurface):
     @property
     def shape(self) -> tuple[int, int]:
         return self.frame_shape
+
+    @property
+    def per_pixel(self) -> bool:
+        return False
+
+    def describe(self) -> dict[str, Any]:
+        """``{"centroid_mm", "normal", "points"}``: the fitted plane."""
+        return {"centroid_mm": self.centroid.tolist(), "normal": self.normal.tolist(), "points": self.n_points}
 
 
 class PreparedPinhole(PreparedGeometry):
@@ -598,6 +458,33 @@ class PreparedPinhole(PreparedGeometry):
     @property
     def has_model_plane(self) -> bool:
         return False
+
+    def used_axes(self, decoded: Collection[str]) -> tuple[str, ...]:
+        """The triangulated axis, and the other one where it is decoded and read: by the midpoint
+        method, and by the plane method through a distorted projector (both undistorted jointly)."""
+        other = "v" if self.axis == "u" else "u"
+        reads_other = other in decoded and (self.method == "midpoint" or self._p_distorted)
+        return tuple(a for a in AXES if a == self.axis or (a == other and reads_other))
+
+    @property
+    def points_on_rays(self) -> bool:
+        return self.method == "plane"
+
+    def plane_coordinates(self, reference: ReferenceSurface | None = None) -> PlaneCoordinates:
+        """Camera-frame ``(X, Y)`` (mm) of the point of the reference plane each pixel's ray meets.
+
+        Ray of pixel ``(r, c)``: ``t (x_n, y_n, 1)`` (undistorted normalized coordinates); on the
+        plane ``n . (p - c0) = 0`` at ``t = n . c0 / n . (x_n, y_n, 1)``. The field centre is the
+        principal point's ray, ``t (0, 0, 1)``.
+        """
+        if not isinstance(reference, PinholeReference):
+            raise GeometryError("a pinhole rig's plane coordinates need its reference plane (a reference capture)")
+        tab = self.tables()
+        xn, yn = tab["xn"], tab["yn"]
+        n, c0 = np.asarray(reference.normal, np.float64), np.asarray(reference.centroid, np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = float(n @ c0) / (n[0] * xn + n[1] * yn + n[2])
+        return PlaneCoordinates(x_mm=t * xn, y_mm=t * yn, centre_x_mm=0.0)
 
     def tables(self) -> dict[str, np.ndarray]:
         """The per-pixel tables (computed on first use, then kept)."""
@@ -786,11 +673,34 @@ class PreparedPinhole(PreparedGeometry):
         run_tiled(run, h, w, threads=_table_threads(), tile_px=1 << 14)
         return {"poly": coeffs, "poly_exact": exact}
 
-    def camera_rays(self) -> CameraRays:
-        t = self.tables()
-        d = np.stack([t["xn"], t["yn"], np.ones_like(t["xn"])], axis=-1)
+    def camera_rays(self, supersample: int = 1) -> CameraRays:
+        """Rays ``(x_n, y_n, 1) / |.|`` from the camera centre (the origin), undistorted (Newton to
+        1e-6 px) at the pixel (or sub-pixel) centres."""
+        if supersample == 1:
+            t = self.tables()
+            xn, yn = t["xn"], t["yn"]
+        else:
+            cam = self.rig.camera
+            jj, kk = np.meshgrid(subpixel_grid(cam.width_px, supersample), subpixel_grid(cam.height_px, supersample))
+            und = undistort_pixels(np.asarray(cam.K), cam.distortion, jj, kk)
+            xn, yn = und.x, und.y
+        d = np.stack([xn, yn, np.ones_like(xn)], axis=-1)
         d /= np.linalg.norm(d, axis=-1, keepdims=True)
         return CameraRays(origin_mm=np.zeros(3), direction=d)
+
+    @property
+    def projector_centre_mm(self) -> np.ndarray:
+        return self._C_p.copy()
+
+    def projector_coordinates(self, points_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``X_p = R X + T`` projected through the projector's ``K`` and distortion (OpenCV's
+        ``projectPoints``); NaN where ``Z_p <= 0``."""
+        p = np.asarray(points_mm, dtype=np.float64)
+        xp = p @ self._R.T + self._T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u, v = project_normalized(self._Kp, self._pdist, xp[..., 0] / xp[..., 2], xp[..., 1] / xp[..., 2])
+        in_front = xp[..., 2] > 0
+        return np.where(in_front, u, np.nan), np.where(in_front, v, np.nan)
 
     def reference(self, u: np.ndarray | None, v: np.ndarray | None, threads: int | None = None) -> PinholeReference:
         from metrology.core.acceptance import fit_plane
@@ -1116,3 +1026,36 @@ class PreparedPinhole(PreparedGeometry):
             with np.errstate(divide="ignore", invalid="ignore"):
                 t = (z + n @ c) / (n[0] * tab["xn"] + n[1] * tab["yn"] + n[2])
         return np.stack([t * tab["xn"], t * tab["yn"], t], axis=-1)
+
+
+def look_at_rig(
+    camera: PinholeCamera,
+    projector: PinholeProjector,
+    projector_center_mm: tuple[float, float, float],
+    target_mm: tuple[float, float, float],
+) -> PinholeRig:
+    """A rig whose projector sits at ``projector_center_mm`` (camera frame) and looks at
+    ``target_mm``, its x axis as close to the camera's as the direction allows.
+
+    ``R`` has rows ``(r1, r2, r3)``: ``r3`` the unit direction to the target,
+    ``r1 = e_y x r3 / |e_y x r3|``, ``r2 = r3 x r1``; ``T = -R C_p``.
+    """
+    c = np.asarray(projector_center_mm, dtype=np.float64)
+    r3 = np.asarray(target_mm, dtype=np.float64) - c
+    r3 /= np.linalg.norm(r3)
+    r1 = np.cross([0.0, 1.0, 0.0], r3)
+    r1 /= np.linalg.norm(r1)
+    r2 = np.cross(r3, r1)
+    R = np.stack([r1, r2, r3])
+    T = -R @ c
+    return PinholeRig(
+        camera=camera,
+        projector=projector,
+        R=(_triple(R[0]), _triple(R[1]), _triple(R[2])),
+        T=_triple(T),
+    )
+
+
+def _triple(values: np.ndarray) -> tuple[float, float, float]:
+    """The three entries of a length-3 vector as Python floats."""
+    return (float(values[0]), float(values[1]), float(values[2]))

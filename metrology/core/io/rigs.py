@@ -7,8 +7,8 @@ import os
 from pathlib import Path
 
 from metrology.core.geometry.base import GeometryError, GeometryModel
+from metrology.core.geometry.crossed_axes import Rig, RigError
 from metrology.core.io.atomic import _write_bytes_atomic
-from metrology.core.rig import Rig, RigError
 
 
 def read_rig(path: str | os.PathLike[str]) -> Rig:

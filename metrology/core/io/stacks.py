@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from metrology.core.geometry.base import GeometryModel
 from metrology.core.io.archives import (
     DEFAULT_MAX_BYTES,
     DEFAULT_MAX_RATIO,
@@ -32,7 +33,6 @@ from metrology.core.io.atomic import _write_bytes_atomic, write_files_new_folder
 from metrology.core.io.errors import StackError
 from metrology.core.io.images import DEFAULT_MAX_PIXELS, checked_header, decode_grey_image
 from metrology.core.patterns import PATTERN_NAMES
-from metrology.core.rig import Rig
 
 
 @dataclass(frozen=True, eq=False)
@@ -83,7 +83,7 @@ class CaptureStack:
 def read_stack(
     source: str | os.PathLike[str] | IO[bytes],
     *,
-    rig: Rig | None = None,
+    rig: GeometryModel | None = None,
     expected_bit_depth: int | None = None,
     max_pixels: int = DEFAULT_MAX_PIXELS,
     max_bytes: int = DEFAULT_MAX_BYTES,
@@ -96,7 +96,7 @@ def read_stack(
     source : path or binary file object
         A folder, a ``.zip`` file, or a readable binary file object holding a zip
         (an upload). A file object's ``name`` attribute, if any, labels messages.
-    rig : Rig, optional
+    rig : GeometryModel, optional
         When given, every image must have the rig's shape ``(height_px, width_px)``.
     expected_bit_depth : {None, 8, 16}
         When given, the stack's bit depth must equal it.
@@ -165,7 +165,7 @@ def _decode_stack(
     label: str,
     files: Mapping[str, tuple[str, bytes]],
     *,
-    rig: Rig | None,
+    rig: GeometryModel | None,
     expected_bit_depth: int | None,
     max_pixels: int,
 ) -> CaptureStack:

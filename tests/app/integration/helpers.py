@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.io import write_stack
-from metrology.core.rig import Rig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_stack
 from tests.app.stacks import SMALL_RIG

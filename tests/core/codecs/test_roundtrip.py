@@ -14,12 +14,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from metrology.core.codecs import Codec, builtin_codec, codec_from_dict, crossed_rig_truth, render_codec
+from metrology.core.codecs import Codec, builtin_codec, codec_from_dict, render_codec
 from metrology.core.codecs.decode import REASON_SLIP_REPAIRED, decode_codec
 from metrology.core.codecs.render import default_projector_blur_px, square_wave_bias_px
-from metrology.core.rig import PAPER_RIG
+from metrology.core.geometry.crossed_axes import PAPER_RIG
 from metrology.core.scenes import make_scene
-from metrology.core.simulate import SimulationOptions, render_stack
+from metrology.core.simulate import SimulationOptions, crossed_rig_truth, render_stack
 
 PROJ_W, PROJ_H = 256, 192
 CAM_H, CAM_W = 72, 100

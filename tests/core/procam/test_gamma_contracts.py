@@ -16,7 +16,8 @@ import pytest
 from metrology.core.codecs import codec_from_dict, codec_from_json, codec_patterns, render_codec
 from metrology.core.codecs.decode import decode_codec
 from metrology.core.codecs.model import CodecError
-from metrology.core.geometry.pinhole import PinholeRig, PinholeRigError
+from metrology.core.geometry.pinhole import PinholeRig
+from metrology.core.geometry.rig_file import RigFileError
 from metrology.core.procam.board import parse_board
 from metrology.core.procam.calibrate import calibrate_procam
 from metrology.core.procam.correspondences import read_correspondences
@@ -77,7 +78,7 @@ def test_rig_gamma_and_response_round_trip() -> None:
     ],
 )
 def test_rig_bad_gamma_keys_are_named(projector: dict[str, Any], message: str) -> None:
-    with pytest.raises(PinholeRigError, match=message):
+    with pytest.raises(RigFileError, match=message):
         PinholeRig.from_dict(_rig(**projector))
 
 

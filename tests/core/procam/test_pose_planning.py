@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from metrology.core.geometry.pinhole import look_at_rig
 from metrology.core.procam.virtual import (
     BoardPose,
     board_in_view,
@@ -18,7 +19,6 @@ from metrology.core.procam.virtual import (
     project_points,
     true_corners,
 )
-from metrology.core.simulate_pinhole import look_at_rig
 
 from .virtual_rig import BOARD, CAMERA, PROJECTOR, RIG
 

@@ -9,11 +9,10 @@ import numpy as np
 
 from metrology.core.codecs import codec_from_dict
 from metrology.core.codecs.model import Codec
-from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, PinholeRig
+from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, PinholeRig, look_at_rig
 from metrology.core.procam import parse_board
 from metrology.core.procam.virtual import BoardPose, plan_board_poses
 from metrology.core.simulate import realistic_8bit
-from metrology.core.simulate_pinhole import look_at_rig
 
 CAMERA = PinholeCamera(
     800, 600, ((1000.0, 0, 403.2), (0, 1001.0, 297.6), (0, 0, 1)), (-0.12, 0.08, 0.0008, -0.0005, 0.0)
@@ -91,9 +90,11 @@ def pose(i: int) -> BoardPose:
 def plane_flatness_mm(rig: PinholeRig, u: np.ndarray, v: np.ndarray) -> float:
     """RMS distance of the triangulated points to their total-least-squares plane, mm, after
     dropping points more than 5 robust sigmas (1.4826 MAD) off (the field's edge pixels)."""
-    from metrology.core.pinhole_measure import measure_pinhole
+    from metrology.core.geometry.base import triangulate_frame
 
-    pts = measure_pinhole(rig, u, v).points_mm.reshape(-1, 3).astype(np.float64)
+    prepared = rig.prepare(rig.shape, (rig.projector.width, rig.projector.height))
+    xyz = triangulate_frame(prepared, u, v, heights=False).points_mm
+    pts = xyz.reshape(-1, 3).astype(np.float64)
     pts = pts[np.isfinite(pts).all(axis=1)]
     for _ in range(3):
         centred = pts - pts.mean(axis=0)

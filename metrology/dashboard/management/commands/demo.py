@@ -47,7 +47,11 @@ class Command(BaseCommand):
             self.say(f"created user {user!r} with password {user!r} (for the dashboard's login page)")
         token, _ = Token.objects.get_or_create(user=owner)
         self.timeout = timeout
-        rig = Rig.objects.filter(owner=owner, name=RIG_NAME, width_px=width, height_px=height).order_by("pk").first()
+        rig = (
+            Rig.objects.filter(owner=owner, name=RIG_NAME, parameters__width_px=width, parameters__height_px=height)
+            .order_by("pk")
+            .first()
+        )
         if rig is not None:
             finished = self.finished_results(rig)
             if finished is not None:
@@ -73,7 +77,7 @@ class Command(BaseCommand):
                 "height_px": height,
             },
         )
-        self.say(f"rig {rig.pk}: {rig.width_px}x{rig.height_px} px, L = {rig.L_mm} mm, alpha = {rig.alpha_rad} rad")
+        self.say(f"rig {rig.pk}: {rig.to_core().summary()}")
         return rig
 
     @staticmethod

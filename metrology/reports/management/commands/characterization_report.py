@@ -81,7 +81,7 @@ class Command(BaseCommand):
                     source=opts["source"],
                     options=options,
                 )
-                from metrology.reports.schedules import next_run_at, when_text
+                from metrology.reports.selectors import next_run_at, when_text
 
                 upcoming = next_run_at(task)
                 when = f"{upcoming:%Y-%m-%d %H:%M %Z}" if upcoming else "never (disabled)"

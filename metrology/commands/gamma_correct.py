@@ -1,11 +1,11 @@
 """``gcps gamma-correct``: decoded projector coordinates of a capture already taken, with the
 projector's gamma error removed (docs/procam-calibration.md, "Projector gamma").
 
-    gcps gamma-correct --stack DIR_OR_ZIP [--codec C] --gamma G [--blur-px B] --out UV.npy [--rig PINHOLE.json]
+    gcps gamma-correct --stack DIR_OR_ZIP [--codec C] --gamma G [--blur-px B] --out UV.npy [--rig RIG.json]
 
 Each coded axis whose last unwrapping stage is a sine phase sequence is corrected
 (:func:`metrology.core.procam.gamma.correct_coordinate`); ``UV.npy`` is as ``gcps decode``'s.
-With ``--rig`` (a pinhole rig), the summary reports the RMS and largest change of the depth the
+With ``--rig`` (any model; a pinhole rig gives depths), the summary reports the RMS and largest change of the depth the
 correction makes, in micrometres: the periodic height error it removes.
 """
 
@@ -25,7 +25,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--gamma", type=float, required=True, help="projector gamma (e.g. the report's gamma_estimate)")
     p.add_argument("--blur-px", type=float, default=0.0, help="projector blur sigma, projector units (default 0)")
     p.add_argument("--out", required=True, help="(H, W, 2) float32 u, v corrected (.npy)")
-    p.add_argument("--rig", help="pinhole rig file: report the depth change in micrometres")
+    p.add_argument("--rig", help="rig file: report the change of depth (pinhole) or height in micrometres")
     p.set_defaults(func=cmd_gamma_correct)
 
 
@@ -49,13 +49,9 @@ def cmd_gamma_correct(args: argparse.Namespace) -> dict[str, Any]:
         raise ValueError(f"--blur-px must be >= 0, got {args.blur_px}")
     rig = None
     if args.rig:
-        from metrology.core.geometry.pinhole import PinholeRig
+        from metrology.core.io import read_model
 
-        try:
-            text = Path(args.rig).read_text()
-        except OSError as exc:
-            raise ValueError(f"--rig {args.rig}: cannot read ({exc.strerror})") from None
-        rig = PinholeRig.from_json(text)  # PinholeRigError (a ValueError) names the bad key
+        rig = read_model(args.rig)  # a GeometryError (a ValueError) names the file and the bad key
     codec = read_codec(args.codec) if args.codec else None
     stack = read_codec_stack(args.stack, codec)
     decoded = decode_codec(stack.images, stack.codec, with_noise=False)
@@ -90,14 +86,19 @@ def cmd_gamma_correct(args: argparse.Namespace) -> dict[str, Any]:
         }
     summary: dict[str, Any] = {"out": args.out, "gamma": args.gamma, "blur_px": args.blur_px, "axes": axes}
     if rig is not None:
-        from metrology.core.pinhole_measure import measure_pinhole
+        from metrology.core.geometry.base import triangulate_frame
 
         coded = [n for n in ("u", "v") if n in stack.codec.axes]
         pick = {n: (uv[..., i] if n in coded else None) for i, n in enumerate(("u", "v"))}
         fixed = {n: (corrected[..., i] if n in coded else None) for i, n in enumerate(("u", "v"))}
-        size = (stack.codec.projector_width, stack.codec.projector_height)
-        before = measure_pinhole(rig, pick["u"], pick["v"], projector_size=size).z_mm
-        after = measure_pinhole(rig, fixed["u"], fixed["v"], projector_size=size).z_mm
+        prepared = rig.prepare(rig.shape, (stack.codec.projector_width, stack.codec.projector_height))
+
+        def depth(coordinates: dict[str, Any]) -> Any:
+            points = triangulate_frame(prepared, coordinates["u"], coordinates["v"], heights=False).points_mm
+            assert points is not None
+            return points[..., 2]
+
+        before, after = depth(pick), depth(fixed)
         dz = (after - before)[np.isfinite(after) & np.isfinite(before)].astype(np.float64) * 1000.0
         summary["depth_change_um"] = {
             "rms": float(np.sqrt(np.mean(dz**2))) if dz.size else None,

@@ -1,4 +1,5 @@
-"""The virtual rig: renders the eleven gcps-v1 camera images of a scene (docs/conventions.md).
+"""The paper's crossed-axes virtual rig: the exact forward model of Figs. 1 and 3, rendering the
+eleven gcps-v1 camera images of a scene (docs/conventions.md) and its true light codes.
 
 The forward model is the exact crossed-optical-axes geometry of the paper (Figs. 1 and 3):
 
@@ -12,7 +13,7 @@ The forward model is the exact crossed-optical-axes geometry of the paper (Figs.
 2. **Projector shadows.** A hit H is lit only if the segment H -> P = (0, 0, L) stays above
    the height field up to ``z_max`` (same sideways step), which also gives attached shadows.
 3. **Light code.** The light plane through H lands on R at ``x_B = X L / (L - z)``; its code is
-   the inverse of Eq. 14 (:func:`~metrology.core.triangulate.codes_from_abscissa`). Outside
+   the inverse of Eq. 14 (:func:`~metrology.core.geometry.crossed_axes.codes_from_abscissa`). Outside
    [0, nlp] the projector emits no light.
 4. **Radiometry.** ``I = albedo * (ambient + gain * E(l))`` in fractions of full scale, where
    ``E = G_sigma * (pattern(l)^gamma * [0 <= l <= nlp])`` is the light the projector emits
@@ -34,7 +35,7 @@ The module does no file I/O: writing a capture stack is :mod:`metrology.core.io`
 
 Examples
 --------
->>> from metrology.core.rig import PAPER_RIG
+>>> from metrology.core.geometry.crossed_axes import PAPER_RIG
 >>> from metrology.core.scenes import make_scene
 >>> stack = render_stack(PAPER_RIG, make_scene("plane", z_mm=20.0))
 >>> stack.images.shape, stack.images.dtype.name, float(np.nanmax(np.abs(stack.truth_mm - 20.0)))
@@ -43,11 +44,9 @@ Examples
 
 from __future__ import annotations
 
-import json
 import math
-import zlib
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import cv2
@@ -55,10 +54,11 @@ import numpy as np
 import numpy.typing as npt
 from scipy.ndimage import gaussian_filter1d
 
-from metrology.core.geometry.crossed_axes import camera_ray_point, codes_of_points
+from metrology.core.geometry.crossed_axes import Rig, camera_ray_point, codes_of_points
 from metrology.core.patterns import GRAY_NAMES, PATTERN_NAMES, PHASE_NAMES, pattern_intensity
-from metrology.core.rig import Rig
 from metrology.core.scenes import Scene, StageScene
+from metrology.core.simulate.options import SimulationOptions, _is_int
+from metrology.core.simulate.series import series_seed, stack_seed
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -77,166 +77,6 @@ EDGE_JUMP_MM = 2.0
 
 CODE_GRID_STEP = 1.0 / 256.0
 """Sampling of the projector patterns in code space when they are blurred, code units."""
-
-CAMERA_SAMPLINGS = ("area", "centre")
-"""Values of :attr:`SimulationOptions.camera_sampling`: a pixel's mean over its area, or its centre ray."""
-
-
-# --------------------------------------------------------------------------- options
-@dataclass(frozen=True)
-class SimulationOptions:
-    """Radiometric and camera options of the virtual rig.
-
-    Parameters
-    ----------
-    bit_depth : {8, 16}
-        Output image depth; full scale is ``2**bit_depth - 1``. Default 16.
-    noise_grey : float
-        Standard deviation of additive Gaussian camera noise, in grey levels of the output
-        depth, >= 0. Default 0.
-    ambient : float
-        Ambient illumination, fraction of full scale on albedo 1, >= 0. Default 0.05.
-    projector_gain : float
-        Camera signal of a white pattern on albedo 1, fraction of full scale, > 0. Default 0.8.
-        ``ambient + projector_gain > 1`` saturates (values are clipped).
-    projector_gamma : float
-        Projector response ``emitted = value ** gamma``, > 0. Default 1.
-    projector_defocus_codes : float
-        Gaussian sigma of the projector blur across the fringes, code units, >= 0. Default 0.
-    camera_defocus_px : float
-        Gaussian sigma of the camera blur, pixels, >= 0. Default 0.
-    square : bool
-        Project square-wave phase patterns instead of sinusoids. Default False.
-    smoothing_codes : float
-        Gaussian sigma, in code units, applied to the phase patterns only (projector side):
-        the smoothing that turns square fringes into near-sinusoids (sigma ~ 0.8-1 code
-        leaves a third harmonic below 1e-3 of the fundamental), >= 0. Default 0.
-    supersample : int
-        Sub-rays per pixel along each axis (1 to 8); > 1 renders mixed pixels at
-        discontinuities. Default 1 (exact pixel-centre rendering). With
-        ``camera_sampling="centre"`` the sub-rays only find the depth edges inside each pixel
-        (:attr:`RenderedStack.edges`); the images take the centre ray.
-    camera_sampling : {"area", "centre"}
-        How a pixel gathers light before the camera blur. ``"area"`` (default): the mean of its
-        ``supersample x supersample`` sub-rays, i.e. the pixel's area (a box of one pixel, variance
-        1/12 px^2 per axis, plus ``camera_defocus_px``). ``"centre"``: the light of the ray through
-        the pixel's centre only, then the Gaussian of ``camera_defocus_px``: a camera whose whole
-        blur is Gaussian (no box), which makes the mixing at a depth step a Gaussian-weighted blend
-        of the two sides instead of a sharp area split. With ``supersample=1`` both are the same.
-    seed : int
-        Seed of the camera noise, >= 0. Default 0.
-
-    Raises
-    ------
-    ValueError
-        Naming the option and the value, when an option is out of range.
-
-    Notes
-    -----
-    ``SimulationOptions()`` equals :meth:`noise_free_16bit`; :meth:`realistic_8bit` is the
-    acceptance tests' realistic camera.
-    """
-
-    bit_depth: int = 16
-    noise_grey: float = 0.0
-    ambient: float = 0.05
-    projector_gain: float = 0.8
-    projector_gamma: float = 1.0
-    projector_defocus_codes: float = 0.0
-    camera_defocus_px: float = 0.0
-    square: bool = False
-    smoothing_codes: float = 0.0
-    supersample: int = 1
-    seed: int = 0
-    camera_sampling: str = "area"
-
-    def __post_init__(self) -> None:
-        if _is_bool(self.bit_depth) or self.bit_depth not in (8, 16):
-            raise ValueError(f"option bit_depth must be 8 or 16, got {self.bit_depth!r}")
-        object.__setattr__(self, "bit_depth", int(self.bit_depth))
-        for name in ("noise_grey", "ambient", "projector_defocus_codes", "camera_defocus_px", "smoothing_codes"):
-            self._check_real(name, lower=0.0, strict=False)
-        for name in ("projector_gain", "projector_gamma"):
-            self._check_real(name, lower=0.0, strict=True)
-        if not isinstance(self.square, (bool, np.bool_)):
-            raise ValueError(f"option square must be a bool, got {self.square!r}")
-        object.__setattr__(self, "square", bool(self.square))
-        if not _is_int(self.supersample) or not 1 <= self.supersample <= 8:
-            raise ValueError(f"option supersample must be an integer in 1..8, got {self.supersample!r}")
-        object.__setattr__(self, "supersample", int(self.supersample))
-        if not _is_int(self.seed) or self.seed < 0:
-            raise ValueError(f"option seed must be a non-negative integer, got {self.seed!r}")
-        object.__setattr__(self, "seed", int(self.seed))
-        if not isinstance(self.camera_sampling, str) or self.camera_sampling not in CAMERA_SAMPLINGS:
-            expected = " or ".join(repr(v) for v in CAMERA_SAMPLINGS)
-            raise ValueError(f"option camera_sampling must be {expected}, got {self.camera_sampling!r}")
-
-    def _check_real(self, name: str, lower: float, strict: bool) -> None:
-        value = getattr(self, name)
-        if _is_bool(value) or not isinstance(value, (int, float, np.integer, np.floating)):
-            raise ValueError(f"option {name} must be a real number, got {value!r}")
-        value = float(value)
-        if not math.isfinite(value) or value < lower or (strict and value == lower):
-            relation = ">" if strict else ">="
-            raise ValueError(f"option {name} must be finite and {relation} {lower:g}, got {value!r}")
-        object.__setattr__(self, name, value)
-
-    def to_dict(self) -> dict[str, Any]:
-        """Every option by name (JSON types); ``SimulationOptions(**d)`` rebuilds the same options."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
-
-    @property
-    def full_scale(self) -> int:
-        """Largest grey level: 255 or 65535."""
-        return (1 << self.bit_depth) - 1
-
-    @property
-    def dtype(self) -> type[np.unsignedinteger[Any]]:
-        """Image dtype: ``np.uint8`` or ``np.uint16``."""
-        return np.uint8 if self.bit_depth == 8 else np.uint16
-
-    def with_changes(self, **changes: Any) -> SimulationOptions:
-        """A validated copy with some options replaced."""
-        unknown = sorted(set(changes) - {f.name for f in fields(self)})
-        if unknown:
-            raise ValueError(f"unknown simulation option(s): {', '.join(unknown)}")
-        return replace(self, **changes)
-
-    @classmethod
-    def noise_free_16bit(cls, **changes: Any) -> SimulationOptions:
-        """Exact rendering: 16-bit, no noise, no blur, sinusoids, one ray per pixel."""
-        return cls().with_changes(**changes)
-
-    @classmethod
-    def realistic_8bit(cls, **changes: Any) -> SimulationOptions:
-        """A realistic camera: 8-bit, 1.5 grey levels of noise, slight camera and projector
-        defocus (0.7 px, 0.15 code), 3 x 3 sub-rays per pixel."""
-        base = cls(
-            bit_depth=8,
-            noise_grey=1.5,
-            camera_defocus_px=0.7,
-            projector_defocus_codes=0.15,
-            supersample=3,
-        )
-        return base.with_changes(**changes)
-
-
-def noise_free_16bit(**changes: Any) -> SimulationOptions:
-    """Shorthand for :meth:`SimulationOptions.noise_free_16bit`."""
-    return SimulationOptions.noise_free_16bit(**changes)
-
-
-def realistic_8bit(**changes: Any) -> SimulationOptions:
-    """Shorthand for :meth:`SimulationOptions.realistic_8bit`."""
-    return SimulationOptions.realistic_8bit(**changes)
-
-
-def _is_bool(value: Any) -> bool:
-    return isinstance(value, (bool, np.bool_))
-
-
-def _is_int(value: Any) -> bool:
-    return isinstance(value, (int, np.integer)) and not _is_bool(value)
 
 
 # --------------------------------------------------------------------------- results
@@ -379,17 +219,7 @@ def render_flat_frames(
     return frames[0], frames[1]
 
 
-def stack_seed(options: SimulationOptions, scene: Scene) -> np.random.SeedSequence:
-    """The noise seed of :func:`render_stack`: ``options.seed`` and a digest of the scene.
-
-    Captures of different scenes (a reference and an object) thus get independent noise with
-    the same options, while a capture is reproducible from its seed and scene parameters.
-    """
-    digest = zlib.crc32(json.dumps(scene.params(), sort_keys=True, default=str).encode())
-    return np.random.SeedSequence([options.seed, digest])
-
-
-def render_series(
+def paper_series(
     rig: Rig,
     z_in_mm: Sequence[float],
     repeats: int,
@@ -448,52 +278,6 @@ def _series(
         for repeat in range(repeats):
             capture_opts = replace(opts, seed=series_seed(opts.seed, index, repeat))
             yield z, repeat, _capture(clean, np.random.default_rng(stack_seed(capture_opts, scene)))
-
-
-def series_seed(seed: int, position_index: int, repeat: int) -> int:
-    """The noise seed (``SimulationOptions.seed``) of one capture of a stage series.
-
-    ``SeedSequence([seed, position index, repeat])`` reduced to one 32-bit integer: capture
-    ``(i, r)`` of a series seeded ``seed`` is :func:`render_stack` of the stage scene at
-    position ``i`` with ``options.seed = series_seed(seed, i, r)``, so a series rendered
-    capture by capture (the application's jobs) has the same images as :func:`render_series`
-    (``gcps simulate --scene stage``). The reference of a series uses ``seed`` itself.
-
-    Raises
-    ------
-    ValueError
-        If an argument is not a non-negative integer (naming it).
-    """
-    for name, value in (("seed", seed), ("position_index", position_index), ("repeat", repeat)):
-        if not _is_int(value) or value < 0:
-            raise ValueError(f"{name} must be a non-negative integer, got {value!r}")
-    state = np.random.SeedSequence([int(seed), int(position_index), int(repeat)]).generate_state(1, np.uint32)
-    return int(state[0])
-
-
-def stage_positions(start_mm: float, stop_mm: float, step_mm: float) -> list[float]:
-    """Stage positions Z_in from ``start_mm`` to ``stop_mm`` *inclusive*, every ``step_mm``, mm.
-
-    ``start + i step`` for ``i = 0, 1, ...`` while it does not pass ``stop`` (1e-9 of a step of
-    slack for rounding; values rounded to 1e-9 mm): ``0:8:3`` gives 0, 3, 6 and ``0:8:4`` gives
-    0, 4, 8. The one definition used by ``gcps simulate --z-in``, the dashboard and reports.
-
-    Raises
-    ------
-    ValueError
-        If a value is not finite, ``step_mm <= 0`` or ``stop_mm < start_mm`` (naming it).
-    """
-    for name, value in (("start_mm", start_mm), ("stop_mm", stop_mm), ("step_mm", step_mm)):
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-            raise ValueError(f"{name} must be a number, got {value!r}")
-        if not math.isfinite(value):
-            raise ValueError(f"{name} must be finite, got {value!r}")
-    if step_mm <= 0:
-        raise ValueError(f"step_mm must be positive, got {step_mm!r}")
-    if stop_mm < start_mm:
-        raise ValueError(f"stop_mm ({stop_mm!r}) must not be below start_mm ({start_mm!r})")
-    count = math.floor((stop_mm - start_mm) / step_mm + 1e-9) + 1
-    return [round(start_mm + i * step_mm, 9) for i in range(count)]
 
 
 def emitted_pattern(codes: npt.ArrayLike, name: str, nlp: int, options: SimulationOptions) -> FloatArray:
@@ -1067,3 +851,33 @@ def _wall_occludes(
         best = _golden_min(lambda zv: zv - height_at(zv, rows), a, zeta_b)
         occluded |= height_at(best, rows) > best + SHADOW_EPS_MM
     return occluded
+
+
+def crossed_rig_truth(
+    rendered: RenderedStack, rig: Rig, projector_width: int, projector_height: int
+) -> tuple[FloatArray, FloatArray]:
+    """True projector coordinates (u, v) of a render of the paper's crossed-axes virtual rig.
+
+    ``u = l * width / nlp - 0.5`` from the true light code ``l`` of each pixel
+    (:attr:`RenderedStack.codes`, the inverse of ``l = (u + 0.5) nlp / width``).
+    ``v``: the projector of the paper's rig sits at P = (0, 0, L), beside the camera at
+    C = (d, 0, L) along X, so projector rows are epipolar with camera rows: a point (X, Y, z)
+    projects from P onto R at ``Y_R = Y L / (L - z)``, which for the point seen by camera
+    row k equals the row's ordinate on R, ``Y_A = (k + 0.5 - H/2) FW / W``. We define
+    ``v = (Y_R / FH + 0.5) * height - 0.5`` with ``FH = FW H / W`` the camera field's height on
+    R: the camera field's rows span the projector rows. Both are NaN where the pixel is not lit.
+
+    Returns
+    -------
+    u, v : (H, W) float64 arrays, projector units
+    """
+    codes = rendered.codes
+    H, W = codes.shape
+    u = codes * (projector_width / rig.nlp) - 0.5
+    fw_mm = rig.fw_mm
+    pitch = fw_mm / W
+    y_a = (np.arange(H) + 0.5 - H / 2) * pitch
+    field_h = fw_mm * H / W
+    v_row = (y_a / field_h + 0.5) * projector_height - 0.5
+    v = np.where(np.isfinite(codes), v_row[:, None], np.nan)
+    return u, v

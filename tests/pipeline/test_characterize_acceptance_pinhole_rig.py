@@ -1,7 +1,8 @@
-"""Characterization and VDI/VDE 2634-2 acceptance with a pinhole rig (issue 12), on the pinhole
-virtual rig: a stage series of a plane moved along the reference plane's normal.
+"""The pipeline's one characterize and acceptance (and `gcps characterize` / `gcps acceptance`)
+with a pinhole rig (issue 12), on the pinhole virtual rig: a stage series of a plane moved along
+the reference plane's normal.
 
-The virtual rig's scenes face the camera (:class:`PlacedScene`: reference plane ``Z = 600`` mm),
+The virtual rig's scenes face the camera (:meth:`ScenePlacement.facing_camera`: reference plane ``Z = 600`` mm),
 so the reference plane's normal is the camera's Z axis and a plane scene at height ``z_mm``
 sits at ``Z = 600 - z_mm``: the stage moves along that normal, the direction in which the
 heights (distances to the reference plane) are measured, so the true in-out slope is 1.
@@ -18,36 +19,22 @@ import pytest
 
 from metrology.cli import main
 from metrology.core.codecs import codec_from_dict, render_codec
-from metrology.core.geometry.pinhole import PinholeCamera, PinholeRig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions
-from metrology.core.simulate_pinhole import PlacedScene, cast_truth
-from metrology.pipeline import (
-    AcceptanceOptions,
-    CharacterizeOptions,
-    PinholeMeasureOptions,
-    acceptance_pinhole,
-    characterize_pinhole,
-    measure_pinhole_stacks,
-)
-from tests.pinhole_stacks import CODEC, RIG
+from metrology.pipeline.acceptance import AcceptanceOptions, acceptance
+from metrology.pipeline.characterize import CharacterizeOptions, characterize
+from metrology.pipeline.measure import MeasureOptions, measure
+from tests.pinhole_stacks import CODEC, RIG, cast_scene
 
 DISTANCE_MM = 600.0
 STAGE_MM = (0.0, 4.0, 8.0, 12.0, 16.0)
 
 
-def _fine_rig(s: int) -> PinholeRig:
-    """The same rig with its camera sampled ``s`` times finer (sub-pixel centres:
-    ``K`` scaled, ``c' = s c + (s - 1) / 2``), for supersampled renders."""
-    (fx, _, cx), (_, fy, cy), _ = RIG.camera.K
-    K = ((fx * s, 0.0, cx * s + (s - 1) / 2), (0.0, fy * s, cy * s + (s - 1) / 2), (0.0, 0.0, 1.0))
-    camera = PinholeCamera(RIG.camera.width_px * s, RIG.camera.height_px * s, K, RIG.camera.dist)
-    return PinholeRig(camera=camera, projector=RIG.projector, R=RIG.R, T=RIG.T)
-
-
 def _plane(z_mm: float, options: SimulationOptions | None = None, seed: int | None = None) -> np.ndarray:
-    rig = RIG if options is None else _fine_rig(options.supersample)
-    truth = cast_truth(rig, PlacedScene(make_scene("plane", z_mm=z_mm), DISTANCE_MM))
+    """Frames of the codec of a plane ``z_mm`` above the reference plane; with ``options``, rendered
+    from ``options.supersample`` rays per pixel and axis."""
+    supersample = 1 if options is None else options.supersample
+    truth = cast_scene("plane", DISTANCE_MM, supersample=supersample, z_mm=z_mm)
     return render_codec(codec_from_dict(CODEC), truth.u, None, options, seed=seed)
 
 
@@ -55,7 +42,7 @@ def test_noise_free_stage_series_slopes_one_errors_under_one_micron() -> None:
     codec = codec_from_dict(CODEC)
     reference = _plane(0.0)
     series = [(z, 0, _plane(z)) for z in STAGE_MM]
-    result = characterize_pinhole(RIG, reference, series, codec, CharacterizeOptions(n_points=9, rows=3))
+    result = characterize(RIG, reference, series, CharacterizeOptions(n_points=9, rows=3), codec=codec)
     report = result.report
     assert report["model"] == "pinhole" and report["z_in_mm"] == list(STAGE_MM)
     points = report["test_points"]
@@ -66,7 +53,7 @@ def test_noise_free_stage_series_slopes_one_errors_under_one_micron() -> None:
     assert max(abs(e) for e in report["mean_error_mm"]) < 1e-3
     assert abs(report["overall"]["mean_error_mm"]) < 1e-3 and report["overall"]["std_error_mm"] < 1e-3
     # test points: camera-frame X, Y of the reference plane (Z = 600) seen by the patch centre
-    truth = cast_truth(RIG, PlacedScene(make_scene("plane", z_mm=0.0), DISTANCE_MM)).points_mm
+    truth = cast_scene("plane", DISTANCE_MM, z_mm=0.0).points_mm
     for p in points:
         assert p["x_mm"] == pytest.approx(truth[p["row_px"], p["column_px"], 0], abs=1e-3)
         assert p["y_mm"] == pytest.approx(truth[p["row_px"], p["column_px"], 1], abs=1e-3)
@@ -77,21 +64,21 @@ def test_noise_free_stage_series_slopes_one_errors_under_one_micron() -> None:
 
 def test_noise_free_flatness_and_probing_in_camera_frame() -> None:
     codec = codec_from_dict(CODEC)
-    flat = acceptance_pinhole(RIG, None, _plane(5.0), codec, AcceptanceOptions(test="flatness")).to_dict()
+    flat = acceptance(RIG, None, _plane(5.0), AcceptanceOptions(test="flatness"), codec=codec).to_dict()
     assert flat["model"] == "pinhole" and flat["frame"] == "camera"
     assert flat["flatness_mm"] < 2e-3, flat
-    sphere = cast_truth(RIG, PlacedScene(make_scene("sphere"), DISTANCE_MM))
+    sphere = cast_scene("sphere", DISTANCE_MM)
     diameter = 2 * make_scene("sphere").radius_mm  # type: ignore[attr-defined]
-    probe = acceptance_pinhole(
+    probe = acceptance(
         RIG,
         _plane(0.0),
         render_codec(codec, sphere.u, None),
-        codec,
         AcceptanceOptions(test="probing", diameter_mm=diameter),
+        codec=codec,
     ).to_dict()
     assert abs(probe["size_error_mm"]) < 1e-3 and probe["form_error_mm"] < 5e-3, probe
     with pytest.raises(ValueError, match="give a reference capture"):
-        acceptance_pinhole(RIG, None, _plane(5.0), codec, AcceptanceOptions(test="probing", diameter_mm=diameter))
+        acceptance(RIG, None, _plane(5.0), AcceptanceOptions(test="probing", diameter_mm=diameter), codec=codec)
 
 
 @pytest.mark.slow
@@ -105,15 +92,15 @@ def test_realistic_flatness_consistent_with_noise() -> None:
     # by ~0.8 mm (a renderer edge effect, not noise); 8-bit, grey noise, ambient, projector blur stay
     options = SimulationOptions.realistic_8bit(camera_defocus_px=0.0)
     plane = _plane(5.0, options, seed=1)
-    flat = acceptance_pinhole(RIG, None, plane, codec, AcceptanceOptions(test="flatness"))
+    flat = acceptance(RIG, None, plane, AcceptanceOptions(test="flatness"), codec=codec)
     report = flat.report
-    predicted = measure_pinhole_stacks(RIG, None, plane, codec, PinholeMeasureOptions(sigma=True)).statistics()
+    predicted = measure(RIG, None, plane, MeasureOptions(sigma=True), codec=codec).statistics()
     rms = report["rms_mm"]
     assert rms == pytest.approx(predicted["sigma_mm_median"], rel=0.25), (report, predicted)
     assert 4 * rms < report["flatness_mm"] < 12 * rms, report
     reference = _plane(0.0, options, seed=2)
     series = [(z, r, _plane(z, options, seed=10 + 3 * i + r)) for i, z in enumerate(STAGE_MM) for r in range(2)]
-    result = characterize_pinhole(RIG, reference, series, codec, CharacterizeOptions(n_points=9))
+    result = characterize(RIG, reference, series, CharacterizeOptions(n_points=9), codec=codec)
     overall = result.report["overall"]
     assert overall["max_abs_slope_deviation"] < 2e-3, overall
     assert abs(overall["mean_error_mm"]) < 0.05 and overall["std_error_mm"] < 0.05, overall
@@ -153,15 +140,24 @@ def test_cli_characterize_and_acceptance_with_pinhole_rig(tmp_path: Path) -> Non
     assert not (tmp_path / "p.json").exists()
 
 
-def test_cli_crossed_axes_rig_keeps_needing_a_reference_and_refuses_codec(tmp_path: Path, capsys) -> None:
-    from metrology.core.io import write_rig
+def test_cli_crossed_axes_rig_keeps_needing_a_reference_and_takes_a_codec(tmp_path: Path, capsys) -> None:
+    """A crossed-axes rig still needs --reference (exit 2, nothing written). --codec, once refused
+    on a crossed-axes rig, now names the captures' codec for every model (issue 20: one path for
+    every codec and model): gcps-v1 captures of the paper's rig measured with --codec gcps-v1."""
+    from metrology.core.io import write_rig, write_stack
+    from tests.app.stacks import render_images
     from tests.commands.rigs import RIG as CROSSED
 
     write_rig(CROSSED, tmp_path / "rig.json")
     base = ["--quiet", "acceptance", "--rig", str(tmp_path / "rig.json"), "--object", str(tmp_path / "obj")]
     assert main([*base, "--test", "flatness", "--out", str(tmp_path / "f.json")]) == 2
-    assert "--reference is required for a crossed-axes rig" in capsys.readouterr().err
-    with_ref = [*base, "--reference", str(tmp_path / "ref"), "--test", "flatness", "--out", str(tmp_path / "f.json")]
-    assert main([*with_ref, "--codec", "gcps-v1"]) == 2
-    assert "--codec applies to pinhole rigs only" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--reference is required: a crossed-axes rig measures against a capture of the reference plane" in err
     assert not (tmp_path / "f.json").exists()
+    write_stack(render_images(CROSSED, 0.0, bit_depth=16), tmp_path / "ref")
+    write_stack(render_images(CROSSED, 10.0, bit_depth=16), tmp_path / "obj")
+    with_ref = [*base, "--reference", str(tmp_path / "ref"), "--test", "flatness", "--out", str(tmp_path / "f.json")]
+    assert main([*with_ref, "--codec", "gcps-v1"]) == 0
+    result = json.loads((tmp_path / "f.json").read_text())
+    assert result["model"] == "crossed_axes" and result["codec"]["codec"] == "gcps-codec/1"
+    assert result["flatness_mm"] < 2e-3, result

@@ -1,0 +1,147 @@
+"""Capture stacks of any codec: uploads read and validated before anything is stored, and stored
+stacks read back in a worker (docs/codecs.md, docs/file-formats.md).
+
+gcps-v1 stacks (the eleven named patterns) are read by the core's gcps-v1 reader
+(:func:`metrology.core.io.read_stack`), every other codec by the codec reader
+(:func:`metrology.core.codecs.stack.read_codec_stack`), which checks the frames against the codec;
+both within :func:`stack_limits` (pixels per image, expanded bytes of the zip).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from django.conf import settings
+
+from metrology.captures.codecs import capture_codec
+from metrology.captures.models import Capture
+from metrology.core.codecs.model import CodecError, is_gcps_v1
+from metrology.errors import BadInput
+from metrology.rigs.codecs import MAX_CODEC_FRAMES, capture_default, check_codec_for_rig, codec_of, validate_codec
+from metrology.rigs.models import Rig
+
+MIB = 1024 * 1024
+
+
+def stack_limits(rig: Rig, frames: int | None = None) -> dict[str, int]:
+    """Bounds passed to the core's readers: pixels per image, and the expanded bytes of a zip of the
+    eleven gcps-v1 images (``frames`` None) or of ``frames`` images of a codec plus its codec.json,
+    each of at most 4 channels x 16 bit with generous room for file headers."""
+    pixels = rig.width_px * rig.height_px
+    expanded = 11 * (pixels * 8 + MIB) if frames is None else (frames + 1) * (pixels * 8 + MIB)
+    return {
+        "max_pixels": min(pixels, settings.GCPS_MAX_STACK_PIXELS),
+        "max_bytes": min(expanded, max(settings.GCPS_MAX_UPLOAD_BYTES, 64 * MIB) * 4),
+    }
+
+
+def read_capture_stack(source: Any, rig: Rig, *, expected_bit_depth: int | None = None):
+    """Read and validate a stack (path or binary file-like zip) for ``rig`` with the core's reader.
+
+    Raises
+    ------
+    BadInput
+        With the core's one-line message when the stack is refused.
+    """
+    from metrology.core.io import StackError, read_stack
+
+    try:
+        return read_stack(source, rig=rig.to_core(), expected_bit_depth=expected_bit_depth, **stack_limits(rig))
+    except StackError as exc:
+        raise BadInput(f"capture stack refused: {exc}") from None
+
+
+def load_capture_stack(capture: Capture):
+    """The stored stack of a capture (in a worker). Raises ``ValueError`` if it is not stored.
+
+    A stack validated when it was stored (its sha256 recorded) is read without validating it again,
+    after checking that its hash still matches (:func:`metrology.core.io.read_verified_stack`);
+    one without a recorded hash is validated like an upload.
+    """
+    if not capture.file:
+        raise ValueError(f"capture {capture.pk} has no stored stack yet (its simulation has not finished)")
+    from metrology.core.io import read_stack, read_verified_stack
+
+    with capture.file.open("rb") as handle:
+        if capture.checksum_sha256:
+            return read_verified_stack(handle.read(), capture.checksum_sha256, shape=capture.rig.to_core().shape)
+        return read_stack(handle, rig=capture.rig.to_core(), **stack_limits(capture.rig))
+
+
+def read_upload_stack(
+    upload: Any, rig: Any, *, expected_bit_depth: int | None = None, codec: Any = None
+) -> tuple[Any, Any]:
+    """Validate an uploaded zip for ``rig`` with its codec: returns ``(stored codec value, stack)``.
+
+    The codec is the zip's own ``codec.json``, else the rig's default; or, when ``codec`` is given
+    (the codec an acquisition projected), that one, and a ``codec.json`` in the zip must then be
+    the same codec. gcps-v1 stacks are read by the gcps-v1 reader (the eleven named patterns); any
+    other codec by the codec reader, which checks the frames against the codec. The frames must be
+    the rig's camera size, and the rig's model must measure with the codec
+    (:func:`check_codec_for_rig`). ``stack`` has ``images`` ``(frames, H, W)`` and ``bit_depth``.
+
+    Raises
+    ------
+    BadInput
+        Naming the problem (bad codec.json, a stack that does not match its codec, ...).
+    """
+    from metrology.core.codecs.stack import read_capture_codec, read_codec_stack
+    from metrology.core.io import StackError
+
+    try:
+        own = read_capture_codec(upload, max_bytes=stack_limits(rig, MAX_CODEC_FRAMES)["max_bytes"])
+    except CodecError as exc:
+        raise BadInput(f"capture codec refused: {exc}") from None
+    except StackError as exc:
+        raise BadInput(f"capture stack refused: {exc}") from None
+    if codec is not None:
+        value = validate_codec(codec)
+        if own is not None and own.to_dict() != codec_of(value).to_dict():
+            raise BadInput("capture codec refused: the zip's codec.json is not the codec that was projected")
+    else:
+        value = validate_codec(own.to_dict()) if own is not None else capture_default(rig)
+    codec = codec_of(value)
+    check_codec_for_rig(codec, rig)
+    if is_gcps_v1(codec):
+        return value, read_capture_stack(upload, rig, expected_bit_depth=expected_bit_depth)
+    upload.seek(0)
+    limits = stack_limits(rig, codec.n_frames)
+    try:
+        stack = read_codec_stack(upload, codec, max_pixels=limits["max_pixels"], max_bytes=limits["max_bytes"])
+    except (StackError, CodecError) as exc:
+        raise BadInput(f"capture stack refused: {exc}") from None
+    height, width = stack.images.shape[1:]
+    if (height, width) != (rig.height_px, rig.width_px):
+        raise BadInput(
+            f"capture stack refused: the frames are {width}x{height} px "
+            f"but the rig is {rig.width_px}x{rig.height_px} px"
+        )
+    if expected_bit_depth is not None and stack.bit_depth != expected_bit_depth:
+        raise BadInput(
+            f"capture stack refused: the images are {stack.bit_depth}-bit "
+            f"but bit_depth {expected_bit_depth} was declared"
+        )
+    return value, stack
+
+
+def load_capture_images(capture: Any) -> Any:
+    """The ``(frames, H, W)`` images of a stored capture in its codec's order: the eleven named
+    patterns of gcps-v1, or a codec's frames (in a worker). Raises ``ValueError`` when not stored."""
+    if is_gcps_v1(capture_codec(capture)):
+        return load_capture_stack(capture).images
+    return load_codec_stack(capture).images
+
+
+def load_codec_stack(capture: Any) -> Any:
+    """The stored stack of a capture of any codec, in codec order (a :class:`CodecStack`); in a worker.
+
+    Raises ``ValueError`` if it is not stored or does not match its codec.
+    """
+    from metrology.core.codecs.stack import read_codec_stack
+
+    if not capture.file:
+        raise ValueError(f"capture {capture.pk} has no stored stack yet (its simulation has not finished)")
+    codec = capture_codec(capture)
+    limits = stack_limits(capture.rig, codec.n_frames)
+    with capture.file.open("rb") as handle:
+        return read_codec_stack(handle, codec, max_pixels=limits["max_pixels"], max_bytes=limits["max_bytes"])

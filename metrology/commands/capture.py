@@ -1,0 +1,89 @@
+"""``gcps capture``: acquire one stack locally, without a server (docs/acquisition.md).
+
+``gcps capture --camera BACKEND --out STACK.zip [--codec gcps-v1|FILE.json]`` shows the patterns on
+a local projector page (or none, with the virtual camera), grabs each frame, checks it, and
+writes the stack with its checks beside it (``STACK.checks.json``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from metrology.commands.acquisition import add_camera_options, bad, open_camera, sequence_options
+
+
+def register(subparsers: Any) -> None:
+    """Add ``capture`` to the ``gcps`` subcommands."""
+    p = subparsers.add_parser("capture", help="acquire one stack locally, without a server")
+    add_camera_options(p)
+    p.add_argument("--out", required=True, help="the stack, a .zip (checks beside it in .checks.json)")
+    p.add_argument("--codec", default="gcps-v1", help="gcps-v1 or gcps-v1:WIDTHxHEIGHT (default gcps-v1, 1024x768)")
+    p.add_argument("--role", choices=["reference", "object", "master", "stage"], default="object")
+    p.add_argument("--z-in", type=float, help="stage position, mm (role stage; the virtual camera's stage height)")
+    p.add_argument("--rig", help="rig JSON (the virtual camera's geometry)")
+    p.add_argument("--exposure", type=float, help="exposure, ms (default: auto-exposure from the white frame)")
+    p.add_argument("--projector", choices=["page", "none"], default="page", help="page: serve the projector page")
+    p.add_argument("--port", type=int, default=8765, help="port of the local projector page (default 8765)")
+    p.add_argument("--confirm-timeout", type=float, default=60.0, help="seconds to wait for the page to show a pattern")
+    p.set_defaults(func=cmd_capture)
+
+
+def cmd_capture(args: argparse.Namespace) -> dict[str, Any]:
+    from metrology.acquisition.agent.cameras import AcquisitionTarget, CameraError
+    from metrology.acquisition.agent.client import stack_zip
+    from metrology.acquisition.agent.patterns import resolve_codec
+    from metrology.acquisition.agent.sequencer import AcquisitionError, InstantProjector, run_sequence
+    from metrology.core.io.atomic import atomic_path, write_text_atomic
+
+    try:
+        codec = resolve_codec(args.codec)
+    except ValueError as exc:
+        raise bad(str(exc)) from None
+    out = Path(args.out)
+    if out.suffix.lower() != ".zip":
+        raise bad(f"--out {args.out}: give a .zip path for the stack")
+    if not out.resolve().parent.is_dir():
+        raise bad(f"--out {args.out}: folder {out.resolve().parent} does not exist")
+    geometry: dict[str, Any] = {}
+    if args.rig:
+        geometry = json.loads(Path(args.rig).read_text())
+    if args.role == "stage" and args.z_in is None:
+        raise bad("--z-in is required for --role stage")
+    camera = open_camera(args)
+    if args.projector == "none" and camera.name.split("+")[0] != "virtual":
+        raise bad("--projector none works with the virtual camera only; use --projector page")
+    projector: Any
+    if args.projector == "page":
+        from metrology.acquisition.agent.local_projector import LocalPageProjector
+
+        projector = LocalPageProjector(codec, port=args.port, timeout_s=args.confirm_timeout)
+        print(f"projector page: {projector.url} (open it full screen on the projector)", flush=True)
+    else:
+        projector = InstantProjector()
+    try:
+        camera.open()
+        camera.prepare(AcquisitionTarget(role=args.role, z_in_mm=args.z_in, codec=codec, rig_geometry=geometry))
+        result = run_sequence(projector, camera, codec, exposure_ms=args.exposure, options=sequence_options(args))
+    except (AcquisitionError, CameraError) as exc:
+        raise bad(str(exc)) from None
+    finally:
+        camera.close()
+        if args.projector == "page":
+            projector.close()
+    reports = result.frame_reports()
+    data = stack_zip(result.images, codec)
+    with atomic_path(out) as tmp:
+        tmp.write_bytes(data)
+    checks_path = out.with_suffix(".checks.json")
+    checks = {"camera": camera.name, "exposure_ms": result.exposure_ms, "frames": reports}
+    write_text_atomic(json.dumps(checks, indent=2) + "\n", checks_path)
+    return {
+        "out": str(out),
+        "checks": str(checks_path),
+        "camera": camera.name,
+        "exposure_ms": result.exposure_ms,
+        "regrabs": sum(r["regrabs"] for r in reports),
+    }

@@ -1,0 +1,150 @@
+"""``gcps measure``: heights or depths, points, sigma and a mesh of an object capture, for a rig file
+of any model and captures of any codec (docs/command-line.md, docs/pinhole.md).
+
+::
+
+    gcps measure --rig RIG.json --object OBJ [--reference REF] [--codec C] --out Z.npy
+                 [--xyz XYZ.npy] [--sigma SIGMA.npy] [--mesh MESH.ply|.stl|.obj] [--json STATS.json]
+                 [--max-sigma MM] [--triangulate auto|u|v] [--method plane|midpoint] [decoding options]
+
+``--reference`` is required by a model that measures against the reference plane (the
+crossed-axes rig); without one a pinhole rig gives depths (camera Z). The captures' codec is
+``--codec``, else their ``codec.json``, else gcps-v1 (the eleven named patterns). The command
+reads its inputs, calls the pipeline's :func:`~metrology.pipeline.measure.measure` (as the
+measurement job does) and writes its outputs, each atomically, only once all are computed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Any
+
+from metrology.commands.common import (
+    BadInputError,
+    add_measure_options,
+    captures_codec,
+    check_output,
+    load_model,
+    measure_options,
+    read_capture,
+    write_json,
+)
+
+MESH_SUFFIXES = (".ply", ".stl", ".obj")
+
+
+def register(subparsers: Any) -> None:
+    """Add ``measure`` to the ``gcps`` subcommands."""
+    p = subparsers.add_parser("measure", help="heights or depths, points and a mesh of an object")
+    p.add_argument("--rig", required=True, help="rig file of any model (docs/file-formats.md, docs/pinhole.md)")
+    p.add_argument(
+        "--reference",
+        help="capture of the reference plane (folder or .zip); required where the rig's model needs one",
+    )
+    p.add_argument("--object", required=True, help="capture of the object (folder or .zip)")
+    p.add_argument("--out", required=True, help="heights (or depths), float32 mm, NaN where not measured (.npy)")
+    p.add_argument("--xyz", help="points (H, W, 3) float32 mm in the model frame, NaN where not measured (.npy)")
+    p.add_argument("--sigma", help="per-point standard uncertainty (H, W) float32 mm (.npy)")
+    p.add_argument("--max-sigma", type=float, metavar="MM", help="drop points whose sigma exceeds this, mm")
+    p.add_argument("--mesh", help="mesh output (.ply, .stl or .obj); a PLY carries sigma_mm per vertex when known")
+    p.add_argument("--json", help="statistics, options and timings (.json)")
+    p.add_argument(
+        "--codec",
+        help="codec file (gcps-codec/1) or built-in name of both captures (default: their codec.json, else gcps-v1)",
+    )
+    add_measure_options(p)
+    p.set_defaults(func=cmd_measure)
+
+
+def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
+    """Read the rig and the captures, measure (the pipeline), write the outputs; the summary."""
+    import numpy as np
+
+    from metrology.core.io import atomic_path, write_height_npy
+    from metrology.core.mesh import surface_mesh, write_mesh_file
+    from metrology.pipeline.measure import measure
+
+    check_output(args.out, (".npy",), "--out")
+    check_output(args.xyz, (".npy",), "--xyz")
+    check_output(args.sigma, (".npy",), "--sigma")
+    check_output(args.mesh, MESH_SUFFIXES, "--mesh")
+    check_output(args.json, (".json",), "--json")
+    if args.max_sigma is not None and not (0 < args.max_sigma < float("inf")):
+        raise BadInputError(f"--max-sigma must be a positive number of mm, got {args.max_sigma!r}")
+    asked_sigma = bool(args.sigma) or args.max_sigma is not None
+    ply_mesh = bool(args.mesh) and args.mesh.lower().endswith(".ply")
+    started = time.perf_counter()
+    model = load_model(args.rig)
+    if args.reference is None and model.requires_reference:
+        raise BadInputError(
+            f"--reference is required: a {model.short_label} rig measures against a capture of the reference plane"
+        )
+    codec = captures_codec(args.codec, [("reference", args.reference), ("object", args.object)])
+    reference = None if args.reference is None else read_capture(args.reference, codec, model, "reference")
+    obj = read_capture(args.object, codec, model, "object")
+    read_s = time.perf_counter() - started
+    options = measure_options(args, gray_only=bool(args.json), sigma=asked_sigma, max_sigma_mm=args.max_sigma)
+    result = None
+    if ply_mesh and not asked_sigma:  # a PLY mesh carries sigma_mm per vertex when the codec gives it
+        try:
+            result = measure(model, reference, obj, options.with_sigma(), codec=codec)
+        except ValueError as exc:
+            if "uncertainty" not in str(exc):
+                raise
+    if result is None:
+        result = measure(model, reference, obj, options, codec=codec)
+    measurement = result.measurement
+    z = result.z_mm
+    points = measurement.points_mm() if (args.xyz or args.mesh) else None
+    mesh = None
+    if args.mesh:
+        reference_surface = None if measurement.reference is None else measurement.reference.surface
+        mesh = surface_mesh(model, z, points_mm=points, reference=reference_surface)
+        if ply_mesh and result.sigma_mm is not None:
+            assert points is not None
+            mesh = mesh.with_sigma(result.sigma_mm, np.isfinite(z) & np.isfinite(points).all(axis=-1))
+
+    write_height_npy(z, args.out)
+    if args.xyz:
+        assert points is not None
+        with atomic_path(args.xyz) as tmp:
+            np.save(tmp, points)
+    if args.sigma and result.sigma_mm is not None:
+        with atomic_path(args.sigma) as tmp:
+            np.save(tmp, result.sigma_mm)
+    if mesh is not None:
+        write_mesh_file(mesh, args.mesh)
+    stats = result.statistics()
+    summary: dict[str, Any] = {
+        "out": args.out,
+        **{key: value for key, value in stats.items() if key != "gray_only" and not key.endswith("_mm")},
+    }
+    if asked_sigma or result.sigma_mm is not None:
+        summary["sigma_mm_median"] = stats.get("sigma_mm_median")
+    if args.json:
+        data = result.to_dict()
+        gray = stats.get("gray_only") or {}
+        finite = z[np.isfinite(z)]
+        report = {
+            **summary,
+            **{key: value for key, value in stats.items() if key != "gray_only"},
+            "sigma_mm_median": stats.get("sigma_mm_median"),  # null when sigma was not computed
+            "z_mm": {
+                "min": float(finite.min()) if finite.size else None,
+                "max": float(finite.max()) if finite.size else None,
+                "mean": float(finite.mean()) if finite.size else None,
+            },
+            "gray_only_valid_pixels": gray.get("valid_pixels"),
+            "gray_only": gray or None,
+            "reference_plane": data["reference_plane"],
+            "timings_s": {"read_s": read_s, **result.timings_s},
+            "options": options.to_dict(),  # as asked (a PLY mesh's sigma is computed beside them)
+            "software_version": result.software_version,
+            "rig": model.to_dict(),
+            "codec": result.codec_name if codec is None else codec.to_dict(),
+        }
+        if "decoding" in data:
+            report["decoding"] = data["decoding"]
+        write_json(report, args.json)
+    return summary

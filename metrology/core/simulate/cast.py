@@ -1,0 +1,242 @@
+"""Exact ground truth for any geometric model, by ray casting a scene placed in the model frame.
+
+The scenes of :mod:`metrology.core.scenes` are height fields ``h(X, Y)`` over a reference plane.
+A :class:`ScenePlacement` puts that plane in a model's frame: scene point ``(X, Y, h)`` sits at
+``origin + X e_x + Y e_y + h e_n``, ``e_n`` the plane's normal towards the camera. The model
+gives the rest through its seam (:class:`~metrology.core.geometry.base.PreparedGeometry`): the
+camera rays (:meth:`~PreparedGeometry.camera_rays`), the projector's centre and the projector
+coordinates that light a point (:meth:`~PreparedGeometry.projector_coordinates`). So one caster
+serves every model:
+
+1. **First hit.** Each ray ``O + t d`` (``d`` a unit vector) is marched between the scene's top
+   and bottom in steps that move it at most :data:`MARCH_STEP_MM` sideways (and at most
+   :data:`MAX_HEIGHT_STEP_MM` in height); the first sign change of ``g(t) = s(t) - h(X(t), Y(t))``
+   (``s`` the ray point's height above the plane) is refined by 60 bisections (to ~1e-13 mm; at
+   a vertical wall of the height field, to the wall).
+2. **Shadow.** A hit is unlit when a sample of the segment to the projector's centre (samples
+   again at most :data:`MARCH_STEP_MM` apart sideways, until the segment rises above the scene's
+   top) lies more than 1e-6 mm inside the object.
+3. **Projector coordinates** ``(u, v)`` of each lit hit; NaN where the point is shadowed, behind
+   the projector or outside its image ``[-0.5, size - 0.5]``.
+
+The result, :class:`CastTruth`, feeds a codec renderer (:func:`~metrology.core.codecs.render.render_codec`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from metrology.core.geometry.base import PreparedGeometry
+from metrology.core.scenes import FIELD_CENTER_X_MM, Scene
+
+FloatArray = npt.NDArray[np.float64]
+
+MARCH_STEP_MM = 0.25
+"""Largest sideways move of a camera or shadow ray between two samples of the height field, mm."""
+MAX_HEIGHT_STEP_MM = 2.0
+"""Largest height step of the marches, mm (rays nearly along the plane's normal move little sideways)."""
+INSIDE_EPS_MM = 1e-6
+"""A segment is blocked only where it lies deeper than this inside the object, mm."""
+
+
+@dataclass(frozen=True)
+class ScenePlacement:
+    """Where a scene's reference plane sits in a model frame (module docstring).
+
+    Attributes
+    ----------
+    origin_mm : (3,) float64 array
+        Model-frame position of the scene's origin ``(X, Y) = (0, 0)`` on its reference plane, mm.
+    e_x, e_y : (3,) float64 arrays
+        Unit vectors of the scene's X and Y in the model frame.
+    e_n : (3,) float64 array
+        Unit normal of the reference plane, towards the camera (the direction of the heights).
+    """
+
+    origin_mm: np.ndarray
+    e_x: np.ndarray
+    e_y: np.ndarray
+    e_n: np.ndarray
+
+    @classmethod
+    def model_plane(cls) -> ScenePlacement:
+        """The scene on the model's own plane: its frame is the model frame (the paper's R, Z up)."""
+        eye = np.eye(3)
+        return cls(origin_mm=np.zeros(3), e_x=eye[0], e_y=eye[1], e_n=eye[2])
+
+    @classmethod
+    def facing_camera(cls, distance_mm: float, x0_mm: float = FIELD_CENTER_X_MM, y0_mm: float = 0.0) -> ScenePlacement:
+        """The reference plane ``Z = distance_mm`` of a camera frame (OpenCV: Z along the optical
+        axis), facing the camera, with scene point ``(x0, y0)`` on the optical axis: scene point
+        ``(X, Y, h)`` at camera point ``(X - x0, Y - y0, distance - h)``."""
+        if not (math.isfinite(distance_mm) and distance_mm > 0):
+            raise ValueError(f"distance_mm must be a positive number, got {distance_mm!r}")
+        eye = np.eye(3)
+        return cls(origin_mm=np.array([-x0_mm, -y0_mm, distance_mm]), e_x=eye[0], e_y=eye[1], e_n=-eye[2])
+
+    def scene_coordinates(self, points_mm: np.ndarray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """``(X, Y, s)`` of model-frame points ``(..., 3)``: scene coordinates and height above the plane."""
+        rel = np.asarray(points_mm, dtype=np.float64) - self.origin_mm
+        return rel @ self.e_x, rel @ self.e_y, rel @ self.e_n
+
+
+@dataclass(frozen=True)
+class CastTruth:
+    """Ground truth per camera pixel (or sub-pixel) of a cast scene.
+
+    Attributes
+    ----------
+    points_mm : (H, W, 3) float64
+        The surface point each ray hits first, model frame, mm (NaN where the ray misses).
+    height_mm : (H, W) float64
+        Its height above the scene's reference plane, mm (NaN where the ray misses).
+    u, v : (H, W) float64
+        Projector coordinates lighting it (projector units); NaN where not lit (shadow, behind
+        the projector, outside its image).
+    """
+
+    points_mm: FloatArray
+    height_mm: FloatArray
+    u: FloatArray
+    v: FloatArray
+
+    @property
+    def lit(self) -> npt.NDArray[np.bool_]:
+        """Pixels whose point is lit by the projector (both coordinates finite)."""
+        return np.isfinite(self.u) & np.isfinite(self.v)
+
+
+def cast_truth(
+    prepared: PreparedGeometry,
+    scene: Scene,
+    placement: ScenePlacement,
+    *,
+    supersample: int = 1,
+    march_step_mm: float = MARCH_STEP_MM,
+) -> CastTruth:
+    """Ray-cast ``scene`` (placed by ``placement``) through the prepared model (module docstring).
+
+    Parameters
+    ----------
+    prepared : PreparedGeometry
+        The model, prepared with the projector size of the codec to render (``v`` needs it).
+    scene : Scene
+    placement : ScenePlacement
+    supersample : int
+        Sub-pixel rays per pixel along each axis (``(H s, W s)`` outputs).
+
+    Raises
+    ------
+    ValueError
+        When the camera's pupil is not above the scene's top (the scene would hide the camera).
+    """
+    rays = prepared.camera_rays(supersample)
+    origin, d = rays.origin_mm, rays.direction
+    s_origin = float((origin - placement.origin_mm) @ placement.e_n)
+    top, bottom = float(scene.z_max_mm), float(scene.z_min_mm)
+    if not s_origin > top:
+        raise ValueError(f"the scene's top ({top:g} mm above its plane) reaches the camera ({s_origin:g} mm)")
+    rate = d @ placement.e_n  # ds/dt, < 0 on rays going down to the plane
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_near = np.where(rate < 0, (top - s_origin) / rate, np.nan)
+        t_far = np.where(rate < 0, (bottom - s_origin) / rate, np.nan)
+    o_xy = np.array([(origin - placement.origin_mm) @ placement.e_x, (origin - placement.origin_mm) @ placement.e_y])
+    d_x, d_y = d @ placement.e_x, d @ placement.e_y
+
+    def g(t: FloatArray, rows: npt.NDArray[np.intp]) -> FloatArray:
+        return s_origin + t * rate[rows] - scene.height_mm(o_xy[0] + t * d_x[rows], o_xy[1] + t * d_y[rows])
+
+    flat = rate.size
+    rate, d_x, d_y = rate.ravel(), d_x.ravel(), d_y.ravel()
+    t_near, t_far = t_near.ravel(), t_far.ravel()
+    height_step = _height_step(rate, march_step_mm)
+    n_steps = max(1, math.ceil((top - bottom) / height_step))
+    hi = np.full(flat, np.nan)
+    lo = t_near.copy()
+    pending = np.flatnonzero(np.isfinite(t_near))  # rays still marching
+    with np.errstate(invalid="ignore"):
+        for i in range(n_steps + 1):
+            if not pending.size:
+                break
+            t = t_near[pending] + (t_far[pending] - t_near[pending]) * (i / n_steps)
+            hit = g(t, pending) <= 0
+            hi[pending[hit]] = t[hit]
+            lo[pending[~hit]] = t[~hit]
+            pending = pending[~hit]
+        found = np.isfinite(hi)
+        a, b = lo.copy(), hi.copy()
+        refine = np.flatnonzero(found & (a < b))
+        aa, bb = a[refine], b[refine]
+        for _ in range(60):
+            mid = 0.5 * (aa + bb)
+            down = g(mid, refine) <= 0
+            bb = np.where(down, mid, bb)
+            aa = np.where(down, aa, mid)
+        b[refine] = bb
+    found = found.reshape(d.shape[:-1])
+    b = b.reshape(d.shape[:-1])
+    t_hit = np.where(found, b, np.nan)
+    points = origin + t_hit[..., None] * d
+    _, _, height = placement.scene_coordinates(points)
+
+    u, v = prepared.projector_coordinates(points)
+    size = prepared.projector_size
+    lit = np.isfinite(u) & np.isfinite(v)
+    if size is not None:
+        with np.errstate(invalid="ignore"):
+            lit &= (u >= -0.5) & (u <= size[0] - 0.5) & (v >= -0.5) & (v <= size[1] - 0.5)
+    lit &= ~_shadowed(prepared.projector_centre_mm, scene, placement, points, march_step_mm)
+    return CastTruth(points_mm=points, height_mm=height, u=np.where(lit, u, np.nan), v=np.where(lit, v, np.nan))
+
+
+def _height_step(rate: FloatArray, sideways_mm: float) -> float:
+    """The height step of a march whose rays (height rate ``ds/dt`` per unit length, ``rate``)
+    move at most ``sideways_mm`` sideways per step: ``sideways * min |rate| / sqrt(1 - rate^2)``,
+    at most :data:`MAX_HEIGHT_STEP_MM`."""
+    r = np.abs(rate[np.isfinite(rate)])
+    if not r.size:
+        return MAX_HEIGHT_STEP_MM
+    tangent = np.sqrt(np.maximum(1.0 - r * r, 0.0)) / np.maximum(r, 1e-12)
+    return float(min(MAX_HEIGHT_STEP_MM, sideways_mm / max(float(tangent.max()), 1e-12)))
+
+
+def _shadowed(
+    centre_mm: np.ndarray, scene: Scene, placement: ScenePlacement, points: FloatArray, sideways_mm: float
+) -> npt.NDArray[np.bool_]:
+    """Pixels whose segment to the projector's centre passes inside the object: samples at most
+    ``sideways_mm`` apart sideways, from the point up to the scene's top."""
+    p = points.reshape(-1, 3)
+    finite = np.isfinite(p).all(axis=1)
+    out = np.zeros(len(p), dtype=bool)
+    if scene.z_max_mm == scene.z_min_mm or not finite.any():
+        return out.reshape(points.shape[:2])  # a plane shadows nothing
+    q0 = p[finite]
+    direction = centre_mm - q0
+    x0, y0, s0 = placement.scene_coordinates(q0)
+    dx, dy, ds = direction @ placement.e_x, direction @ placement.e_y, direction @ placement.e_n
+    norms = np.linalg.norm(direction, axis=1)
+    rate = ds / norms  # height per unit length along the segment
+    # the part of the segment below the scene's top, as a fraction of it (capped at the centre)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s_top = np.clip(np.where(ds > 0, (scene.z_max_mm - s0) / ds, 1.0), 0.0, 1.0)
+    # each segment sampled at its own count of steps, at most one height step apart
+    rise = np.where(ds > 0, scene.z_max_mm - s0, np.abs(ds))
+    steps = np.maximum(2, np.ceil(rise / _height_step(rate, sideways_mm))).astype(np.int64)
+    blocked = np.zeros(len(q0), dtype=bool)
+    pending = np.flatnonzero(s_top > 0)
+    i = 0
+    while pending.size:
+        i += 1
+        frac = s_top[pending] * (i / steps[pending])
+        X = x0[pending] + frac * dx[pending]
+        Y = y0[pending] + frac * dy[pending]
+        s = s0[pending] + frac * ds[pending]
+        inside = (s < scene.height_mm(X, Y) - INSIDE_EPS_MM) & (frac * norms[pending] > INSIDE_EPS_MM)
+        blocked[pending[inside]] = True
+        pending = pending[~inside & (steps[pending] > i)]
+    out[np.flatnonzero(finite)] = blocked
+    return out.reshape(points.shape[:2])

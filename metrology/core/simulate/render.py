@@ -1,0 +1,319 @@
+"""The virtual rig's one entry: a capture of any codec, through any geometric model.
+
+:func:`render_capture` renders a scene (:mod:`metrology.core.scenes`) as a capture stack of a
+codec and returns it with its ground truth; :func:`render_series` renders a stage series.
+
+- On a model that reads the paper's light codes (:attr:`~metrology.core.geometry.base.GeometryModel.light_codes`)
+  with the scene on its reference plane R, the paper's exact forward model renders it
+  (:mod:`metrology.core.simulate.paper_rig`: area sampling of sub-rays, the projector's blur in
+  code space): gcps-v1 stacks directly, any other codec rendered with one ray per pixel from
+  its true light codes (:func:`~metrology.core.simulate.paper_rig.crossed_rig_truth`). This is the
+  fast path, and the oracle every existing crossed-axes result was checked against
+  (:func:`uses_paper_renderer` chooses it).
+- Every other model (or placement) is ray cast through its seam (:mod:`metrology.core.simulate.cast`)
+  and the codec's frames rendered from the true projector coordinates
+  (:func:`~metrology.core.codecs.render.render_codec`). Without a placement, a model with a
+  plane of its own takes the scene on it; one without (a pinhole camera) takes the scene's
+  reference plane facing the camera at the distance where its field fills the image's width.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+import numpy.typing as npt
+
+from metrology.core.codecs.model import Codec, gcps_v1_codec, is_gcps_v1
+from metrology.core.codecs.render import render_codec
+from metrology.core.geometry.base import GeometryModel
+from metrology.core.scenes import FIELD_WIDTH_MM, Scene, StageScene
+from metrology.core.simulate.cast import CastTruth, ScenePlacement, cast_truth
+from metrology.core.simulate.options import SimulationOptions, _is_int
+from metrology.core.simulate.paper_rig import (
+    EDGE_JUMP_MM,
+    RenderedStack,
+    crossed_rig_truth,
+    paper_series,
+    render_flat_frames,
+    render_stack,
+)
+from metrology.core.simulate.series import series_seed, stack_seed
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class RenderedCapture:
+    """One simulated capture of a codec and its ground truth per camera pixel.
+
+    Attributes
+    ----------
+    images : (frames, H, W) uint8 or uint16 array
+        Camera images in the codec's frame order.
+    truth_mm : (H, W) float32 array
+        Height above the scene's reference plane of the point each pixel centre sees, mm; NaN
+        where the point is not lit by the coded field (shadow, outside the projector).
+    points_mm : (H, W, 3) float64 array
+        That point in the model frame, mm (NaN where not lit).
+    u, v : (H, W) float64 arrays
+        Its true projector coordinates, projector units (NaN where not lit; ``v`` NaN on the
+        paper's rig rendered without a projector size).
+    edges : (H, W) bool array
+        Pixels at a depth discontinuity (a height jump of more than ``EDGE_JUMP_MM`` to a
+        4-neighbour) or at a lit/unlit boundary.
+    codec : Codec or None
+        The codec rendered (None: gcps-v1).
+    options : SimulationOptions
+    """
+
+    images: np.ndarray
+    truth_mm: npt.NDArray[np.float32]
+    points_mm: FloatArray
+    u: FloatArray
+    v: FloatArray
+    edges: npt.NDArray[np.bool_]
+    codec: Codec | None
+    options: SimulationOptions
+
+    @property
+    def lit(self) -> npt.NDArray[np.bool_]:
+        """Pixels whose centre sees a lit point (``isfinite(truth_mm)``)."""
+        return np.isfinite(self.truth_mm)
+
+
+def uses_paper_renderer(
+    model: GeometryModel, codec: Codec | None, options: SimulationOptions, placement: ScenePlacement | None
+) -> bool:
+    """True when the paper's exact forward model renders the capture (module docstring): the one
+    place that chooses it. It serves a model with light codes and the scene on its plane, for
+    gcps-v1 stacks, and for other codecs with one ray per pixel (it gives the true light codes of
+    the pixel centres only; sub-pixel rays of another codec are cast)."""
+    return model.light_codes is not None and placement is None and (is_gcps_v1(codec) or options.supersample == 1)
+
+
+def default_placement(model: GeometryModel, field_width_mm: float = FIELD_WIDTH_MM) -> ScenePlacement:
+    """The scene on the model's own plane (a model with a field centre there), or facing the camera
+    at :meth:`~metrology.core.geometry.base.GeometryModel.scene_distance_mm`."""
+    if model.scene_centre_x_mm is not None:
+        return ScenePlacement.model_plane()
+    return ScenePlacement.facing_camera(model.scene_distance_mm(field_width_mm))
+
+
+def render_capture(
+    model: GeometryModel,
+    scene: Scene,
+    codec: Codec | None = None,
+    options: SimulationOptions | None = None,
+    *,
+    placement: ScenePlacement | None = None,
+) -> RenderedCapture:
+    """Render ``scene`` as a capture of ``codec`` through ``model`` (module docstring).
+
+    Parameters
+    ----------
+    model : GeometryModel
+    scene : Scene
+    codec : Codec, optional
+        The codec to render (None: gcps-v1, the paper's eleven patterns).
+    options : SimulationOptions, optional
+        Default noise-free 16-bit.
+    placement : ScenePlacement, optional
+        Where the scene's reference plane sits in the model frame (default :func:`default_placement`).
+
+    The camera noise is seeded by :func:`~metrology.core.simulate.series.stack_seed` of the
+    options and the scene, on either path.
+
+    Raises
+    ------
+    ValueError
+        On a scene that reaches the camera, or a codec the model's projector does not match.
+    """
+    opts = options if options is not None else SimulationOptions()
+    noise_seed = stack_seed(opts, scene)
+    if uses_paper_renderer(model, codec, opts, placement):
+        rendered = render_stack(model, scene, opts)  # type: ignore[arg-type]
+        return _from_paper(model, rendered, codec, opts, noise_seed)
+    if codec is None:  # the eleven patterns as a codec, at the built-in projector size
+        codec = gcps_v1_codec()
+    prepared = model.prepare(model.shape, (codec.projector_width, codec.projector_height))
+    where = placement if placement is not None else default_placement(model)
+    truth = cast_truth(prepared, scene, where)
+    sub_rays = truth if opts.supersample == 1 else cast_truth(prepared, scene, where, supersample=opts.supersample)
+    return _from_cast(scene, where, truth, sub_rays, codec, opts, noise_seed)
+
+
+def render_flats(
+    model: GeometryModel,
+    scene: Scene,
+    options: SimulationOptions | None = None,
+    *,
+    placement: ScenePlacement | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """The noise-free camera images of ``scene`` under a white and under a black projector frame,
+    through any model (the paper's light path where :func:`uses_paper_renderer` takes a gcps-v1
+    stack: :func:`~metrology.core.simulate.paper_rig.render_flat_frames`).
+
+    Elsewhere the scene is cast as :func:`render_capture` casts it (``options.supersample`` rays
+    per pixel and axis): ``I = full_scale * albedo * (ambient + gain * lit * e)`` with ``e = 1``
+    (white) or 0 (black), ``lit`` where the projector's image reaches the point unshadowed,
+    area-averaged to pixels, then the camera's defocus blur.
+
+    Returns
+    -------
+    white, black : (H, W) float64 arrays
+        Grey levels of the output depth, unquantised and unclipped (the caller adds noise).
+    """
+    import cv2
+
+    opts = options if options is not None else SimulationOptions()
+    if uses_paper_renderer(model, None, opts, placement):
+        return render_flat_frames(model, scene, opts)  # type: ignore[arg-type]
+    where = placement if placement is not None else default_placement(model)
+    s = opts.supersample
+    rays = cast_truth(model.prepare(model.shape), scene, where, supersample=s)
+    X, Y, _ = where.scene_coordinates(rays.points_mm)
+    hit = np.isfinite(X) & np.isfinite(Y)
+    albedo = np.where(hit, scene.albedo(np.where(hit, X, 0.0), np.where(hit, Y, 0.0)), 1.0)
+    lit = np.isfinite(rays.u) | np.isfinite(rays.v)  # a model without a projector size gives no v
+    height, width = model.shape
+    frames = []
+    for emitted in (1.0, 0.0):
+        intensity = albedo * (opts.ambient + opts.projector_gain * lit * emitted) * float(opts.full_scale)
+        img = cv2.resize(intensity, (width, height), interpolation=cv2.INTER_AREA) if s > 1 else intensity
+        if opts.camera_defocus_px > 0:
+            sigma = opts.camera_defocus_px
+            img = cv2.GaussianBlur(img, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REPLICATE)
+        frames.append(np.asarray(img, dtype=np.float64))
+    return frames[0], frames[1]
+
+
+def render_series(
+    model: GeometryModel,
+    z_in_mm: Sequence[float],
+    repeats: int,
+    options: SimulationOptions | None = None,
+    *,
+    codec: Codec | None = None,
+    scene_factory: Callable[[float], Scene] | None = None,
+    placement: ScenePlacement | None = None,
+) -> Iterator[tuple[float, int, RenderedCapture]]:
+    """Render a stage series (paper section 5): ``repeats`` captures at each ``Z_in``, the plane
+    moved along the reference plane's normal.
+
+    Capture ``(i, r)`` is :func:`render_capture` of the stage scene at position ``i`` with
+    ``options.seed = series_seed(seed, i, r)`` (so a series rendered capture by capture, as the
+    application's jobs do, has the same images).
+
+    Raises
+    ------
+    ValueError
+        If ``repeats`` < 1 or a position is not finite (checked before rendering).
+    """
+    opts = options if options is not None else SimulationOptions()
+    if not _is_int(repeats) or repeats < 1:
+        raise ValueError(f"repeats must be a positive integer, got {repeats!r}")
+    positions = [float(z) for z in z_in_mm]
+    for z in positions:
+        if not math.isfinite(z):
+            raise ValueError(f"z_in_mm must be finite, got {z!r}")
+    factory: Callable[[float], Scene] = scene_factory or (lambda z: StageScene(z_in_mm=z))
+    if uses_paper_renderer(model, codec, opts, placement):
+        return (
+            (z, r, _from_paper(model, stack, codec, stack.options, stack_seed(stack.options, stack.scene)))
+            for z, r, stack in paper_series(model, positions, int(repeats), opts, factory)  # type: ignore[arg-type]
+        )
+    return _cast_series(model, positions, int(repeats), opts, codec, factory, placement)
+
+
+def _cast_series(
+    model: GeometryModel,
+    positions: list[float],
+    repeats: int,
+    opts: SimulationOptions,
+    codec: Codec | None,
+    factory: Callable[[float], Scene],
+    placement: ScenePlacement | None,
+) -> Iterator[tuple[float, int, RenderedCapture]]:
+    for index, z in enumerate(positions):
+        for repeat in range(repeats):
+            capture_opts = replace(opts, seed=series_seed(opts.seed, index, repeat))
+            yield z, repeat, render_capture(model, factory(z), codec, capture_opts, placement=placement)
+
+
+def _edges(height: FloatArray, lit: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+    edges = np.zeros(height.shape, dtype=bool)
+    with np.errstate(invalid="ignore"):
+        jump_x = (np.abs(np.diff(height, axis=1)) > EDGE_JUMP_MM) | (lit[:, 1:] != lit[:, :-1])
+        jump_y = (np.abs(np.diff(height, axis=0)) > EDGE_JUMP_MM) | (lit[1:, :] != lit[:-1, :])
+    edges[:, 1:] |= jump_x
+    edges[:, :-1] |= jump_x
+    edges[1:, :] |= jump_y
+    edges[:-1, :] |= jump_y
+    return edges
+
+
+def _from_paper(
+    model: GeometryModel,
+    rendered: RenderedStack,
+    codec: Codec | None,
+    opts: SimulationOptions,
+    seed: int | np.random.SeedSequence,
+) -> RenderedCapture:
+    prepared = model.prepare()
+    points = prepared.points_from_heights(rendered.truth_mm.astype(np.float64))
+    if is_gcps_v1(codec):
+        u = rendered.codes
+        v = np.full(u.shape, np.nan)
+        images = rendered.images
+    else:
+        assert codec is not None
+        u, v = crossed_rig_truth(rendered, model, codec.projector_width, codec.projector_height)  # type: ignore[arg-type]
+        coded_u, coded_v = (u if "u" in codec.axes else None), (v if "v" in codec.axes else None)
+        images = render_codec(codec, coded_u, coded_v, opts, seed=seed)
+    return RenderedCapture(
+        images=images,
+        truth_mm=rendered.truth_mm,
+        points_mm=points,
+        u=u,
+        v=v,
+        edges=rendered.edges,
+        codec=codec,
+        options=opts,
+    )
+
+
+def _from_cast(
+    scene: Scene,
+    placement: ScenePlacement,
+    truth: CastTruth,
+    sub_rays: CastTruth,
+    codec: Codec,
+    opts: SimulationOptions,
+    seed: int | np.random.SeedSequence,
+) -> RenderedCapture:
+    """The codec's frames from the sub-rays' true coordinates, the truth from the pixel centres'."""
+    X, Y, _ = placement.scene_coordinates(sub_rays.points_mm)
+    hit = np.isfinite(X) & np.isfinite(Y)
+    albedo = np.where(hit, scene.albedo(np.where(hit, X, 0.0), np.where(hit, Y, 0.0)), 1.0)
+    images = render_codec(
+        codec,
+        sub_rays.u if "u" in codec.axes else None,
+        sub_rays.v if "v" in codec.axes else None,
+        opts,
+        albedo=albedo,
+        seed=seed,
+    )
+    lit = truth.lit
+    return RenderedCapture(
+        images=images,
+        truth_mm=np.where(lit, truth.height_mm, np.nan).astype(np.float32),
+        points_mm=np.where(lit[..., None], truth.points_mm, np.nan),
+        u=truth.u,
+        v=truth.v,
+        edges=_edges(truth.height_mm, lit),
+        codec=codec,
+        options=opts,
+    )
