@@ -74,19 +74,25 @@ def assert_shows_the_uncertainty(html: str, report: dict[str, Any]) -> None:
         assert "they agree within a factor 4" in html
 
 
-def test_page_shows_std_spread_and_correlation(client_alice: Any, alice: Any) -> None:
+@pytest.fixture(scope="module")
+def six_report() -> dict[str, Any]:
+    """The report of noisy_corners.py's six poses (0.1 px noise, joint fit)."""
+    report: dict[str, Any] = calibrate(observations(np.random.default_rng(2)), True).report
+    return report
+
+
+def test_page_shows_std_spread_and_correlation(client_alice: Any, alice: Any, six_report: dict[str, Any]) -> None:
     """Six poses tilted up to 25 degrees, 0.1 px noise: separable (correlations 0.99 < 0.999)."""
-    report = calibrate(observations(np.random.default_rng(2)), True).report
+    report = six_report
     html = page(client_alice, stored(alice, report))
     assert_shows_the_uncertainty(html, report)
     assert "focal_distance_coupled" not in html and '<strong class="disagree">no</strong>' not in html
     assert html.count('<td class="separable">yes</td>') == 2
 
 
-def test_page_of_a_report_without_uncertainty(client_alice: Any, alice: Any) -> None:
+def test_page_of_a_report_without_uncertainty(client_alice: Any, alice: Any, six_report: dict[str, Any]) -> None:
     """Reports stored before keep their page, without the section or the columns."""
-    report = calibrate(observations(np.random.default_rng(3)), True).report
-    report.pop("uncertainty")
+    report = {key: value for key, value in six_report.items() if key != "uncertainty"}
     html = page(client_alice, stored(alice, report))
     assert "What the poses cannot determine" not in html and "left-out spread" not in html
     assert f"{report['camera']['std']['fx']:.2g}" in html

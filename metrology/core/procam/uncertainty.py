@@ -49,8 +49,8 @@ degrees 0.99997 (also at three distances); the real kamino410 poses 0.990 and 0.
 SPREAD_FACTOR = 4.0
 """The leave-one-pose-out spread and the covariance's standard deviation agree when their ratio is
 within ``1 / 4 .. 4``: the spread of a few refits is itself uncertain. Over 40 draws of 6 poses with
-0.1 px Gaussian corner noise, where the covariance is right (the draws' spread is 0.93 to 1.18
-times it), the ratio of 16 intrinsics ranged 0.10 to 3.07, 99 % of them within 0.33 to 2.3: a
+0.1 px Gaussian corner noise, where the covariance is right (its std is 0.93 to 1.18 times the
+draws' spread), the ratio of 16 intrinsics ranged 0.10 to 3.07, 99 % of them within 0.33 to 2.3: a
 factor 4 flags 0.3 % of them, one calibration in 40; a factor 3 would flag one in 8."""
 
 

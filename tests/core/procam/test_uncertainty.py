@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from metrology.core.procam.bundle import covariance_of, device_covariance
-from metrology.core.procam.calibrate import calibrate_procam
+from metrology.core.procam.calibrate import PoseObservation, ProcamCalibration, calibrate_procam
 from metrology.core.procam.uncertainty import CORRELATION_LIMIT, SPREAD_FACTOR, jackknife_std
 from metrology.core.procam.virtual import BoardPose
 
@@ -67,27 +67,33 @@ def test_jackknife_of_means_is_their_standard_error() -> None:
     assert jackknife_std(np.array([1.0, 2.0, np.nan])) is None  # fewer than 3 finite values
 
 
-def test_per_device_covariance_is_opencvs() -> None:
+@pytest.fixture(scope="module")
+def six() -> tuple[list[PoseObservation], dict[bool, ProcamCalibration]]:
+    """The six poses of noisy_corners.py (0.1 px noise) and their calibrations, joint and held."""
+    obs = observations(np.random.default_rng(5))
+    return obs, {joint: calibrate(obs, joint) for joint in (True, False)}
+
+
+def test_per_device_covariance_is_opencvs(six) -> None:  # type: ignore[no-untyped-def]
     """Intrinsics held (``joint=False``): the full covariance of each device's own fit gives
     ``calibrateCameraExtended``'s standard deviations (to 1e-4), and the report's ``uncertainty``
     says so; with the joint fit its std is the report's."""
-    obs = observations(np.random.default_rng(5))
+    obs, results = six
     obj = [BOARD.object_points().astype(np.float32)] * len(obs)
-    cam = [p.camera_px.astype(np.float32) for p in obs]  # type: ignore[union-attr]
+    cam = [p.camera_px.astype(np.float32) for p in obs]
     _, K, d, rvecs, tvecs, std, _, _ = cv2.calibrateCameraExtended(  # type: ignore[call-overload]
         obj, cam, (800, 600), None, None, flags=cv2.CALIB_FIX_K3
     )
     cov = device_covariance("camera", obj, cam, [p.name for p in obs], (K, d.ravel()), rvecs, tvecs, True)
     np.testing.assert_allclose(cov.std()[:8], std.ravel()[:8], rtol=1e-4)
     assert len(cov.names) == 8 + 6 * len(obs) and cov.names[8] == "camera.pose[pose0].rx"
-    for joint in (False, True):
-        report = calibrate(obs, joint)
-        u = report.report["uncertainty"]
+    for joint, result in results.items():
+        u = result.report["uncertainty"]
         assert u["fit"] == ("joint" if joint else "per_device")
         for device in ("camera", "projector"):
             for name, entry in u[device]["intrinsics"].items():
                 assert entry["std"] == pytest.approx(entry["std_reported"], rel=1e-3), (joint, device, name)
-            assert u[device]["intrinsics"]["fx"]["std_reported"] == report.report[device]["std"]["fx"]
+            assert u[device]["intrinsics"]["fx"]["std_reported"] == result.report[device]["std"]["fx"]
         n = len(u["covariance"]["parameters"])
         # both devices' 8 intrinsics, then the stereo pose and each board's pose in the camera's
         # frame (joint), or each board's pose in each device's frame (the devices' own fits)
@@ -95,11 +101,11 @@ def test_per_device_covariance_is_opencvs() -> None:
         assert len(u["covariance"]["matrix"]) == n and len(u["covariance"]["matrix"][0]) == n
 
 
-def test_distances_of_the_report_are_the_poses() -> None:
+def test_distances_of_the_report_are_the_poses(six) -> None:  # type: ignore[no-untyped-def]
     """The camera's board distances are the per-pose ``distance_mm``; the projector's those of the
-    stereo pose (``|R t_i + T|``, computed here from the report's R, T)."""
-    obs = observations(np.random.default_rng(6))
-    result = calibrate(obs, True)
+    stereo pose (``|R t_i + T|``, each board located from its camera corners by ``solvePnP``)."""
+    obs, results = six
+    result = results[True]
     u = result.report["uncertainty"]
     camera = [p["distance_mm"] for p in result.report["poses"]]
     assert u["camera"]["mean_distance_mm"] == pytest.approx(float(np.mean(camera)), rel=1e-9)
