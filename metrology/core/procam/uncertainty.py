@@ -50,8 +50,9 @@ SPREAD_FACTOR = 4.0
 """The leave-one-pose-out spread and the covariance's standard deviation agree when their ratio is
 within ``1 / 4 .. 4``: the spread of a few refits is itself uncertain. Over 40 draws of 6 poses with
 0.1 px Gaussian corner noise, where the covariance is right (its std is 0.93 to 1.18 times the
-draws' spread), the ratio of 16 intrinsics ranged 0.10 to 3.07, 99 % of them within 0.33 to 2.3: a
-factor 4 flags 0.3 % of them, one calibration in 40; a factor 3 would flag one in 8."""
+draws' spread), the ratio of 16 intrinsics ranged 0.10 to 3.07, 99 % of them within 0.30 to
+2.6: a factor 4 flags 0.3 % of them, one calibration in 40; a factor 3 would flag one in 8
+(``benchmarks/procam_uncertainty.py``)."""
 
 
 def jackknife_std(values: FloatArray) -> float | None:
