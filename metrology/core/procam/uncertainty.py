@@ -30,7 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from metrology.core.procam.bundle import INTRINSIC_NAMES, ParameterCovariance, board_distances
-from metrology.core.procam.fit import LeftOutFit, StereoFit, intrinsic_std
+from metrology.core.procam.fit import LeftOutFit, StereoFit
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -189,7 +189,7 @@ def _device_uncertainty(
     values, derived_cov, cross = covariance.derived(distances_and_mean)
     variance = np.diag(covariance.covariance)
     corr = _correlations(cross, variance, np.diag(derived_cov))
-    reported = intrinsic_std(covariance, device) if stereo.joint else getattr(stereo, device).std
+    reported = np.ravel(getattr(stereo, device).std)  # the report's std: the final fit's
     std = covariance.std()
     items = []
     for k, name in enumerate(INTRINSIC_NAMES):
@@ -202,7 +202,7 @@ def _device_uncertainty(
                 name=name,
                 value=float(covariance.values[j]),
                 std=float(std[j]),
-                std_reported=float(np.ravel(reported)[k]) if k < np.size(reported) else math.nan,
+                std_reported=float(reported[k]) if k < reported.size else math.nan,
                 leave_one_out_std=spreads.get(name),
                 distance_correlation=float(corr[-1, j]),
                 pose_distance_correlations=tuple(float(x) for x in corr[:-1, j]),
