@@ -1,8 +1,10 @@
 """What the projector-camera calibration page shows, read from the stored report (gcps-procam-report/1).
 
 Nothing is computed again: the numbers are the report's (docs/procam-calibration.md), arranged
-for the template: the devices' intrinsics and distortion with their standard deviations, the
-stereo pose (baseline, rotation angle), coverage, the warnings and the per-pose table.
+for the template: the devices' intrinsics and distortion with their standard deviations (beside
+them the leave-one-pose-out spread and the correlation with the boards' distance, from the
+report's ``uncertainty``), what the poses cannot determine, the stereo pose (baseline, rotation
+angle), coverage, the warnings and the per-pose table.
 """
 
 from __future__ import annotations
@@ -26,9 +28,24 @@ def rig_change(rig_before: dict[str, Any], rig_file: dict[str, Any] | None) -> d
     return {"converts": names[0] != names[1], "before": before, "after": after}
 
 
-def device_rows(device: dict[str, Any]) -> list[dict[str, Any]]:
+def _uncertainty_columns(entry: dict[str, Any] | None) -> dict[str, Any]:
+    """A row's columns from the report's ``uncertainty.DEVICE.intrinsics.NAME`` entry: ``spread``
+    (leave-one-pose-out), ``spread_ratio``, ``agrees`` (None when not compared) and
+    ``distance_corr``; all None without the entry (reports made before it)."""
+    entry = entry or {}
+    agrees = entry.get("agrees")
+    return {
+        "spread": finite_or_none(entry.get("leave_one_out_std")),
+        "spread_ratio": finite_or_none(entry.get("spread_ratio")),
+        "agrees": agrees if isinstance(agrees, bool) else None,
+        "distance_corr": finite_or_none(entry.get("distance_correlation")),
+    }
+
+
+def device_rows(device: dict[str, Any], uncertainty: dict[str, Any] | None = None) -> list[dict[str, Any]]:
     """One row per intrinsic value of a device's report entry: ``name``, ``value``, ``std`` (one sigma;
-    None when the report has none), ``unit`` ("px", or "" for distortion coefficients)."""
+    None when the report has none), ``unit`` ("px", or "" for distortion coefficients), and the
+    columns of :func:`_uncertainty_columns` from the device's ``uncertainty`` entry."""
     K = device.get("K") or [[None] * 3] * 3
     std = device.get("std") or {}
     rows = [
@@ -42,7 +59,43 @@ def device_rows(device: dict[str, Any]) -> list[dict[str, Any]]:
         name = DISTORTION_NAMES[index] if index < len(DISTORTION_NAMES) else f"d{index}"
         sigma = finite_or_none(dist_std[index]) if index < len(dist_std) else None
         rows.append({"name": name, "value": finite_or_none(value), "std": sigma, "unit": ""})
-    return rows
+    intrinsics = (uncertainty or {}).get("intrinsics") or {}
+    return [{**row, **_uncertainty_columns(intrinsics.get(row["name"]))} for row in rows]
+
+
+def determinacy(report: dict[str, Any]) -> dict[str, Any]:
+    """What the poses cannot determine, from the report's ``uncertainty`` (empty dict without it):
+    ``limit`` (the correlation beyond which focal length and distance are not separable),
+    ``factor`` (the spread/std agreement factor), ``fit``, ``left_out`` (left-out fits), and per
+    device (``devices``: label, ``focal`` name, ``corr`` with the mean distance, ``coupled``,
+    ``distance_mm`` and ``distance_std_mm``), ``disagreements`` (``device.name`` list) and
+    ``parameters`` (the full covariance's size)."""
+    u = report.get("uncertainty")
+    if not isinstance(u, dict):
+        return {}
+    coupled = set(u.get("coupled") or [])
+    devices = []
+    for key, label in (("camera", "Camera"), ("projector", "Projector")):
+        entry = u.get(key) or {}
+        devices.append(
+            {
+                "label": label,
+                "focal": entry.get("focal_parameter") or "fx",
+                "corr": finite_or_none(entry.get("focal_distance_correlation")),
+                "coupled": key in coupled,
+                "distance_mm": finite_or_none(entry.get("mean_distance_mm")),
+                "distance_std_mm": finite_or_none(entry.get("mean_distance_std_mm")),
+            }
+        )
+    return {
+        "limit": finite_or_none(u.get("correlation_limit")),
+        "factor": finite_or_none(u.get("spread_factor")),
+        "fit": u.get("fit"),
+        "left_out": u.get("leave_one_out_fits"),
+        "devices": devices,
+        "disagreements": list(u.get("disagreements") or []),
+        "parameters": len((u.get("covariance") or {}).get("parameters") or []),
+    }
 
 
 def rotation_angle_deg(R: Any) -> float | None:
@@ -93,9 +146,13 @@ def procam_summary(report: dict[str, Any]) -> dict[str, Any]:
         "joint": report.get("intrinsics_refined_jointly"),
         "poses_total": report.get("poses_total"),
         "devices": [
-            ("Camera", device_rows(report.get("camera") or {})),
-            ("Projector", device_rows(report.get("projector") or {})),
+            ("Camera", device_rows(report.get("camera") or {}, (report.get("uncertainty") or {}).get("camera"))),
+            (
+                "Projector",
+                device_rows(report.get("projector") or {}, (report.get("uncertainty") or {}).get("projector")),
+            ),
         ],
+        "determinacy": determinacy(report),
         "baseline_mm": finite_or_none(report.get("baseline_mm")),
         "rotation_deg": rotation_angle_deg(report.get("R")),
         "T": report.get("T"),

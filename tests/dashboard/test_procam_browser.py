@@ -72,6 +72,13 @@ def test_procam_calibration_in_the_browser(live_server, alice, procam_rig, worke
         images.nth(i).scroll_into_view_if_needed()
         page.wait_for_function("el => el.complete && el.naturalWidth > 0", arg=images.nth(i).element_handle())
     assert f"/residuals/{UNUSABLE_POSE}.svg" not in page.content()
+    # what the poses cannot determine: both devices' focal-distance correlation, and the
+    # intrinsics' tables with their spread and correlation columns fitting their cards
+    determinacy = page.locator("#h-determinacy").locator("..")
+    assert "focal length vs. board distance" in determinacy.inner_text()
+    assert determinacy.locator("td.separable").count() == 2
+    for card in page.locator("section.card", has=page.locator("th", has_text="left-out spread")).all():
+        assert card.evaluate("el => el.scrollWidth <= el.clientWidth + 1"), card.inner_text()[:200]
     assert page.js_errors == []
     shot(page, "procam-03-detail")
 

@@ -8,6 +8,9 @@
   :func:`calibrate_procam`, a composition of the steps of the next five modules;
 - :mod:`~metrology.core.procam.poses`: a pose as observed, the selection of used poses and corners;
 - :mod:`~metrology.core.procam.fit`: the OpenCV fits (each device, stereo, leave-one-pose-out);
+- :mod:`~metrology.core.procam.bundle`: the fits' model, residuals and the covariance of every parameter;
+- :mod:`~metrology.core.procam.uncertainty`: what the poses cannot determine (each intrinsic's std,
+  its correlation with the boards' distances, the leave-one-pose-out spread);
 - :mod:`~metrology.core.procam.rejection`: mirrored and flipped poses, outlier corners;
 - :mod:`~metrology.core.procam.diagnostics`: coverage and edge gaps, pose diversity, gamma;
 - :mod:`~metrology.core.procam.advice`: the report's warnings, one function per cause;

@@ -26,6 +26,7 @@ from metrology.core.procam.board import BoardSpec
 from metrology.core.procam.diagnostics import COVERAGE_CELLS, SIMILAR_ANGLE_DEG, SIMILAR_SHIFT, Coverage, PoseDiversity
 from metrology.core.procam.poses import PoseObservation
 from metrology.core.procam.rejection import outlier_reason
+from metrology.core.procam.uncertainty import CORRELATION_LIMIT, DeviceUncertainty, Uncertainty
 
 RECOMMENDED_POSES = 5
 INCONSISTENT_POSE_RATIO = 3.0
@@ -224,6 +225,40 @@ def similar_poses_warnings(diversity: PoseDiversity, n_used: int) -> list[Calibr
             )
         )
     return entries
+
+
+def _coupled_figures(device: DeviceUncertainty) -> str:
+    """``the camera's fx 1000.0 +- 25.3 px and the boards' mean distance from it 480.0 +- 12.1 mm are
+    correlated 0.9993`` (``not determined at all`` for a singular covariance)."""
+    focal = device.focal()
+    if math.isnan(focal.distance_correlation):
+        return f"the {device.device}'s focal length and the boards' distances are not determined at all (singular fit)"
+    return (
+        f"the {device.device}'s {focal.name} {focal.value:.1f} +- {focal.std:.3g} px and the boards' mean distance "
+        f"from it {device.mean_distance_mm:.1f} +- {device.mean_distance_std_mm:.3g} mm are correlated "
+        f"{focal.distance_correlation:.5f}"
+    )
+
+
+def focal_distance_coupled_warnings(uncertainty: Uncertainty) -> list[CalibrationWarning]:
+    """Focal length and board distance not separable from the poses given (cause
+    ``focal_distance_coupled``): a device's fx or fy correlated with the boards' mean distance
+    beyond :data:`~metrology.core.procam.uncertainty.CORRELATION_LIMIT` in magnitude, or its
+    covariance singular. One entry naming the devices, each with its figures."""
+    coupled = uncertainty.coupled()
+    if not coupled:
+        return []
+    figures = "; ".join(_coupled_figures(device) for device in coupled)
+    message = (
+        f"{figures} (beyond {CORRELATION_LIMIT} in magnitude): these poses do not tell a longer focal length from a "
+        "farther board, so the focal length is known only as well as the boards' distance."
+    )
+    action = (
+        "Tilt the board by 20 to 40 degrees about both of its axes across the poses (top towards and away from the "
+        "camera, left and right side towards it) and vary its distance by 20 % or more; boards facing the camera "
+        "do not separate the two at any distance."
+    )
+    return [CalibrationWarning("focal_distance_coupled", message, action)]
 
 
 def inconsistent_pose_warnings(leave_one_out_px: Mapping[str, float | None]) -> list[CalibrationWarning]:

@@ -36,8 +36,10 @@ given are never changed):
 - :func:`~metrology.core.procam.rejection.mirrored_poses`, then 1. and 2.
   (:func:`~metrology.core.procam.fit.fit_devices`), :func:`~metrology.core.procam.rejection.flipped_poses`
   and :func:`~metrology.core.procam.rejection.outlier_corners`, each change fitted again;
-- 3. (:func:`~metrology.core.procam.fit.stereo_fit`) and
-  :func:`~metrology.core.procam.fit.leave_one_out`;
+- 3. (:func:`~metrology.core.procam.fit.stereo_fit`, with the covariance of every parameter of
+  the fit that gave the intrinsics) and :func:`~metrology.core.procam.fit.leave_one_out_fits`;
+- :func:`~metrology.core.procam.uncertainty.intrinsics_uncertainty`: each intrinsic's std, its
+  correlation with the boards' distances and the spread of the left-out fits;
 - the diagnostics (:mod:`~metrology.core.procam.diagnostics`), one function per warning cause
   (:mod:`~metrology.core.procam.advice`) and the report (:mod:`~metrology.core.procam.report`).
 """
@@ -55,6 +57,7 @@ from metrology.core.procam.advice import (
     CalibrationWarning,
     board_unit_warnings,
     coverage_warnings,
+    focal_distance_coupled_warnings,
     gamma_warnings,
     high_rms_warnings,
     inconsistent_pose_warnings,
@@ -65,7 +68,7 @@ from metrology.core.procam.advice import (
 )
 from metrology.core.procam.board import BoardSpec
 from metrology.core.procam.diagnostics import gamma_estimate, image_coverage, pose_diversity, rotation_angle_deg
-from metrology.core.procam.fit import DeviceFits, fit_devices, leave_one_out, stereo_fit
+from metrology.core.procam.fit import DeviceFits, fit_devices, leave_one_out_fits, stereo_fit
 from metrology.core.procam.poses import (
     MIN_DECODED_FRACTION,
     PoseObservation,
@@ -82,6 +85,7 @@ from metrology.core.procam.rejection import (
     reject_outlier_corners,
 )
 from metrology.core.procam.report import procam_report
+from metrology.core.procam.uncertainty import intrinsics_uncertainty
 
 __all__ = [
     "MIN_DECODED_FRACTION",
@@ -195,7 +199,9 @@ def calibrate_procam(
     selection, devices = _chosen_poses(selection, board, cam_size, proj_size, fix_k3)
     points = fit_points(selection)
     stereo = stereo_fit(points, devices, cam_size, joint=joint, fix_k3=fix_k3)
-    left_out = leave_one_out(points, cam_size, proj_size, joint=joint, fix_k3=fix_k3)
+    refits = leave_one_out_fits(points, cam_size, proj_size, joint=joint, fix_k3=fix_k3)
+    left_out = {fit.name: fit.projector_rms_px for fit in refits}
+    uncertainty = intrinsics_uncertainty(stereo, refits)
     coverage = image_coverage(selection, cam_size, proj_size)
     diversity = pose_diversity(stereo)
     gamma = gamma_estimate(selection)
@@ -204,6 +210,7 @@ def calibrate_procam(
         *left_out_warnings(selection.poses),
         *too_few_poses_warnings(n_used),
         *similar_poses_warnings(diversity, n_used),
+        *focal_distance_coupled_warnings(uncertainty),
         *inconsistent_pose_warnings(left_out),
         *coverage_warnings(coverage),
         *board_unit_warnings(diversity.median_distance_mm, float(np.linalg.norm(stereo.T)), board),
@@ -223,6 +230,7 @@ def calibrate_procam(
         diversity=diversity,
         gamma_estimate=gamma,
         warnings=warnings,
+        uncertainty=uncertainty,
     )
     rig = _with_measured_gamma(stereo.rig(cam_size, proj_size), gamma, codec_gamma_precompensated)
     return ProcamCalibration(rig=rig, report=report, poses=selection.poses)

@@ -5,8 +5,13 @@ the leave-one-pose-out refits (the equations are in :mod:`metrology.core.procam.
   (:class:`DeviceFits`);
 - :func:`stereo_fit`: ``cv2.stereoCalibrateExtended`` from those, refining both devices'
   intrinsics with the pose or holding them (:class:`StereoFit`), and its rig (:meth:`StereoFit.rig`);
-- :func:`leave_one_out`: each pose's projector corners predicted by a calibration of the others;
-- :func:`project_board`: board points through a pose and a device, ``cv2.projectPoints``.
+- :func:`final_covariance`: the covariance of every parameter of the fit that gave the
+  intrinsics, board poses included (:mod:`~metrology.core.procam.bundle`), and
+  :func:`intrinsic_std`: a device's standard deviations from it;
+- :func:`leave_one_out_fits`: each pose's projector corners predicted by a calibration of the
+  others, and those calibrations' intrinsics;
+- :func:`project_board` (from :mod:`~metrology.core.procam.bundle`): board points through a pose
+  and a device, ``cv2.projectPoints``.
 
 Every fit runs to convergence (:data:`CRITERIA`) with the same flags (:func:`device_flags`,
 :func:`stereo_flags`). Poses are in :class:`~metrology.core.procam.poses.FitPoints` order.
@@ -22,7 +27,32 @@ import numpy as np
 import numpy.typing as npt
 
 from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, PinholeRig
+from metrology.core.procam.bundle import (
+    INTRINSIC_NAMES,
+    ParameterCovariance,
+    device_covariance,
+    independent,
+    joint_covariance,
+    project_board,
+)
 from metrology.core.procam.poses import FitPoints, Float32Array
+
+__all__ = [
+    "CRITERIA",
+    "DeviceFit",
+    "DeviceFits",
+    "Intrinsics",
+    "LeftOutFit",
+    "StereoFit",
+    "device_flags",
+    "final_covariance",
+    "fit_devices",
+    "intrinsic_std",
+    "leave_one_out_fits",
+    "project_board",
+    "stereo_fit",
+    "stereo_flags",
+]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -39,13 +69,6 @@ def stereo_flags(joint: bool, fix_k3: bool) -> int:
     """``stereoCalibrate``'s flags: refine both devices' intrinsics from the given start (``joint``),
     or hold them fixed."""
     return (cv2.CALIB_USE_INTRINSIC_GUESS | device_flags(fix_k3)) if joint else cv2.CALIB_FIX_INTRINSIC
-
-
-def project_board(obj: FloatArray, rvec: FloatArray, tvec: FloatArray, K: FloatArray, dist: FloatArray) -> FloatArray:
-    """Board points ``obj`` (n, 3) mm through the pose ``rvec``, ``tvec`` (3,) (Rodrigues vector,
-    mm) and the device ``K`` (3, 3), ``dist`` (5,): ``(n, 2)`` float64 pixels / projector units."""
-    pts, _ = cv2.projectPoints(obj.reshape(-1, 1, 3), rvec, tvec, K, dist)
-    return np.asarray(pts, dtype=np.float64).reshape(-1, 2)
 
 
 @dataclass(frozen=True)
@@ -135,6 +158,9 @@ class StereoFit:
         Each pose's camera and projector RMS, pixels.
     joint : bool
         The intrinsics were refined with the pose (else held at :class:`DeviceFits`').
+    covariance : ParameterCovariance or None
+        Every parameter of the fit that gave the intrinsics (:func:`final_covariance`): the joint
+        fit's, or both devices' own fits' when the intrinsics were held.
     """
 
     rms: float
@@ -147,6 +173,7 @@ class StereoFit:
     tvecs: tuple[FloatArray, ...]
     pose_rms: FloatArray
     joint: bool
+    covariance: ParameterCovariance | None = None
 
     def board_pose(self, name: str) -> tuple[FloatArray, FloatArray]:
         """Pose ``name``'s board in the camera's frame: ``R_i`` (3, 3), ``t_i`` (3,) mm (``X_c = R_i X_b + t_i``)."""
@@ -192,8 +219,9 @@ def stereo_fit(
     """``cv2.stereoCalibrateExtended`` started from both devices' own fits.
 
     ``joint``: refine both devices' intrinsics and distortion with the pose (one bundle
-    adjustment), standard deviations from :func:`_joint_std`; else hold them at ``devices``
-    (``CALIB_FIX_INTRINSIC``), standard deviations those of ``devices``.
+    adjustment), standard deviations from its covariance (:func:`final_covariance`); else hold them
+    at ``devices`` (``CALIB_FIX_INTRINSIC``), standard deviations those of ``devices``
+    (``calibrateCameraExtended``'s) and the covariance that of ``devices``' fits.
     """
     cam, prj = devices.camera.intrinsics, devices.projector.intrinsics
     stereo = cv2.stereoCalibrateExtended(  # type: ignore[call-overload]
@@ -217,8 +245,9 @@ def stereo_fit(
     R = np.asarray(stereo[5], dtype=np.float64)
     T = np.asarray(stereo[6], dtype=np.float64).ravel()
     rvecs, tvecs = tuple(stereo[9]), tuple(stereo[10])
+    covariance = final_covariance(points, (Kc, dc), (Kp, dp), R, T, rvecs, tvecs, None if joint else devices, fix_k3)
     if joint:
-        cam_std, proj_std = _joint_std(points, Kc, dc, Kp, dp, R, T, rvecs, tvecs, fix_k3)
+        cam_std, proj_std = intrinsic_std(covariance, "camera"), intrinsic_std(covariance, "projector")
     else:
         cam_std, proj_std = cam.std, prj.std
     return StereoFit(
@@ -232,123 +261,122 @@ def stereo_fit(
         tvecs=tvecs,
         pose_rms=np.asarray(stereo[11]).reshape(-1, 2),
         joint=joint,
+        covariance=covariance,
     )
 
 
-def _joint_std(
+def intrinsic_std(covariance: ParameterCovariance, device: str) -> FloatArray:
+    """A device's standard deviations from a covariance (:mod:`~metrology.core.procam.bundle`'s
+    names), (9,) float64 in ``calibrateCameraExtended``'s order ``(fx, fy, cx, cy, k1, k2, p1, p2,
+    k3)``; 0 for a coefficient the fit held (k3 with ``fix_k3``)."""
+    std = covariance.std()
+    out = np.zeros(len(INTRINSIC_NAMES))
+    for k, name in enumerate(INTRINSIC_NAMES):
+        if f"{device}.{name}" in covariance.names:
+            out[k] = std[covariance.index(f"{device}.{name}")]
+    return out
+
+
+def final_covariance(
     points: FitPoints,
-    Kc: FloatArray,
-    dc: FloatArray,
-    Kp: FloatArray,
-    dp: FloatArray,
+    camera: tuple[FloatArray, FloatArray],
+    projector: tuple[FloatArray, FloatArray],
     R: FloatArray,
     T: FloatArray,
     rvecs: tuple[FloatArray, ...],
     tvecs: tuple[FloatArray, ...],
+    devices: DeviceFits | None,
     fix_k3: bool,
-) -> tuple[FloatArray, FloatArray]:
-    """Standard deviations of both devices' intrinsics after the joint stereo fit.
-
-    Parameters ``theta`` = camera ``(fx, fy, cx, cy, k1, k2, p1, p2[, k3])``, the projector's
-    likewise, the stereo ``rvec(R)``, ``T`` and each pose's camera-frame ``rvec_i``, ``t_i``; the
-    residuals are every used corner's camera and projector reprojection errors (pixels; the
-    projector sees pose ``(R R_i, R t_i + T)``). ``cov = s^2 (J^T J)^-1``, ``s^2 = sum r^2 / (m - n)``,
-    ``J`` by central differences (steps ``1e-6 max(1, |theta|)``). Returns two ``(9,)`` float64
-    arrays in ``calibrateCameraExtended``'s order ``(fx, fy, cx, cy, k1, k2, p1, p2, k3)`` (k3's
-    entry 0 when it is held at 0); NaN when ``J^T J`` is singular.
-    """
-    obj = [o.reshape(-1, 3).astype(np.float64) for o in points.object_mm]
-    cam = [c.reshape(-1, 2).astype(np.float64) for c in points.camera_px]
-    prj = [q.reshape(-1, 2).astype(np.float64) for q in points.projector_px]
-    n_int = 8 if fix_k3 else 9
-
-    def pack_int(K: FloatArray, d: FloatArray) -> list[float]:
-        return [K[0, 0], K[1, 1], K[0, 2], K[1, 2], *list(np.asarray(d, np.float64).ravel()[:5])][:n_int]
-
-    def unpack_int(v: FloatArray) -> tuple[FloatArray, FloatArray]:
-        K = np.array([[v[0], 0.0, v[2]], [0.0, v[1], v[3]], [0.0, 0.0, 1.0]])
-        d = np.zeros(5)
-        d[: n_int - 4] = v[4:n_int]
-        return K, d
-
-    theta0 = np.array(
-        [
-            *pack_int(Kc, dc),
-            *pack_int(Kp, dp),
-            *np.asarray(cv2.Rodrigues(R)[0], np.float64).ravel(),
-            *np.asarray(T, np.float64).ravel(),
-            *[x for k in range(len(obj)) for x in (*np.ravel(rvecs[k]), *np.ravel(tvecs[k]))],
-        ],
-        dtype=np.float64,
-    )
-    observed = np.concatenate([np.concatenate([c.reshape(-1), q.reshape(-1)]) for c, q in zip(cam, prj, strict=True)])
-
-    def residuals(theta: FloatArray) -> FloatArray:
-        Kc_, dc_ = unpack_int(theta[:n_int])
-        Kp_, dp_ = unpack_int(theta[n_int : 2 * n_int])
-        Rs = np.asarray(cv2.Rodrigues(theta[2 * n_int : 2 * n_int + 3])[0], np.float64)
-        Ts = theta[2 * n_int + 3 : 2 * n_int + 6]
-        out = []
-        for k, o in enumerate(obj):
-            base = 2 * n_int + 6 + 6 * k
-            rv, tv = theta[base : base + 3], theta[base + 3 : base + 6]
-            Ri = np.asarray(cv2.Rodrigues(rv)[0], np.float64)
-            out.append(project_board(o, rv, tv, Kc_, dc_).reshape(-1))
-            rp = np.asarray(cv2.Rodrigues(Rs @ Ri)[0], np.float64).ravel()
-            out.append(project_board(o, rp, Rs @ tv + Ts, Kp_, dp_).reshape(-1))
-        return np.concatenate(out)
-
-    r0 = residuals(theta0) - observed
-    m, n = r0.size, theta0.size
-    J = np.empty((m, n))
-    for j in range(n):
-        h = 1e-6 * max(1.0, abs(float(theta0[j])))
-        up, down = theta0.copy(), theta0.copy()
-        up[j] += h
-        down[j] -= h
-        J[:, j] = (residuals(up) - residuals(down)) / (2 * h)
-    nan = np.full(9, np.nan)
-    if m <= n:
-        return nan, nan.copy()
-    s2 = float(r0 @ r0) / (m - n)
-    try:
-        cov = np.linalg.inv(J.T @ J) * s2
-    except np.linalg.LinAlgError:
-        return nan, nan.copy()
-    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    cam_std, proj_std = np.zeros(9), np.zeros(9)
-    cam_std[:n_int] = std[:n_int]
-    proj_std[:n_int] = std[n_int : 2 * n_int]
-    return cam_std, proj_std
+) -> ParameterCovariance:
+    """The covariance of every parameter of the fit that gave the intrinsics: the joint stereo fit
+    (:func:`~metrology.core.procam.bundle.joint_covariance`; ``devices`` None) or, when the
+    intrinsics are held at both devices' own fits (``devices``), those two fits'
+    (:func:`~metrology.core.procam.bundle.device_covariance`, block diagonal)."""
+    obj = [np.asarray(o, np.float64).reshape(-1, 3) for o in points.object_mm]
+    if devices is None:
+        return joint_covariance(
+            obj, points.camera_px, points.projector_px, points.names, camera, projector, R, T, rvecs, tvecs, fix_k3
+        )
+    own = [
+        device_covariance(
+            name,
+            obj,
+            image,
+            points.names,
+            (fit.intrinsics.K, fit.intrinsics.dist),
+            fit.rvecs,
+            fit.tvecs,
+            fix_k3,
+        )
+        for name, image, fit in (
+            ("camera", points.camera_px, devices.camera),
+            ("projector", points.projector_px, devices.projector),
+        )
+    ]
+    return independent(own[0], own[1])
 
 
 MIN_LEAVE_ONE_OUT_POSES = 3
 """Leave-one-out needs this many poses (two left to calibrate on)."""
 
 
-def leave_one_out(
+@dataclass(frozen=True)
+class LeftOutFit:
+    """Pose ``name`` left out: the calibration of the other poses and its prediction of the pose.
+
+    Attributes
+    ----------
+    name : str
+    projector_rms_px : float
+        ``sqrt(mean |p_observed - p_predicted|^2)`` over the pose's projector corners (NaN when a
+        fit failed).
+    camera, projector : (9,) float64
+        The other poses' intrinsics ``(fx, fy, cx, cy, k1, k2, p1, p2, k3)`` (NaN when a fit failed).
+    """
+
+    name: str
+    projector_rms_px: float
+    camera: FloatArray
+    projector: FloatArray
+
+
+def _intrinsic_values(K: FloatArray, dist: FloatArray) -> FloatArray:
+    d = np.zeros(5)
+    given = np.asarray(dist, np.float64).ravel()[:5]
+    d[: given.size] = given
+    return np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], *d], dtype=np.float64)
+
+
+def _failed(name: str) -> LeftOutFit:
+    nan = np.full(len(INTRINSIC_NAMES), np.nan)
+    return LeftOutFit(name, math.nan, nan, nan.copy())
+
+
+def leave_one_out_fits(
     points: FitPoints,
     camera_size: tuple[int, int],
     projector_size: tuple[int, int],
     *,
     joint: bool,
     fix_k3: bool,
-) -> dict[str, float]:
-    """Each pose's projector corners predicted by a calibration of the other poses, RMS pixels, by name.
+) -> tuple[LeftOutFit, ...]:
+    """Each pose left out in turn: the others calibrated as the full fit is, and the pose's
+    projector corners predicted (:class:`LeftOutFit`, in pose order).
 
     For pose ``k``: calibrate both devices and the stereo pose on the others (as the full fit
     does), find pose ``k``'s board from its camera corners alone (``cv2.solvePnP`` with the
     camera's intrinsics), carry it into the projector (``R R_k``, ``R t_k + T``), project, and
-    return ``sqrt(mean |p_observed - p_predicted|^2)``. Empty for fewer than
-    :data:`MIN_LEAVE_ONE_OUT_POSES` poses; NaN where a fit fails. It measures what a calibration
-    is for, predicting poses it has not seen, which the reprojection RMS of the poses it was
-    fitted to does not.
+    compare with the decoded corners. Empty for fewer than :data:`MIN_LEAVE_ONE_OUT_POSES` poses.
+    It measures what a calibration is for, predicting poses it has not seen, which the
+    reprojection RMS of the poses it was fitted to does not; the spread of the intrinsics over
+    the refits is the jackknife's measure of their uncertainty
+    (:mod:`~metrology.core.procam.uncertainty`).
     """
     obj, cam, prj = points.object_mm, points.camera_px, points.projector_px
     if len(obj) < MIN_LEAVE_ONE_OUT_POSES:
-        return {}
+        return ()
     flags, s_flags = device_flags(fix_k3), stereo_flags(joint, fix_k3)
-    out: dict[str, float] = {}
+    out: list[LeftOutFit] = []
     for k, name in enumerate(points.names):
         o = [obj[i] for i in range(len(obj)) if i != k]
         c = [cam[i] for i in range(len(obj)) if i != k]
@@ -362,14 +390,15 @@ def leave_one_out(
             R, T = np.asarray(st[5], np.float64), np.asarray(st[6], np.float64)
             ok, rvec, tvec = cv2.solvePnP(obj[k], cam[k], Kc, dc)
         except cv2.error:
-            out[name] = math.nan
+            out.append(_failed(name))
             continue
         if not ok:
-            out[name] = math.nan
+            out.append(_failed(name))
             continue
         Rb = np.asarray(cv2.Rodrigues(rvec)[0], np.float64)
         rp = np.asarray(cv2.Rodrigues(R @ Rb)[0], np.float64).ravel()
         predicted = project_board(obj[k].reshape(-1, 3).astype(np.float64), rp, (R @ tvec).ravel() + T.ravel(), Kp, dp)
         err = predicted - prj[k].reshape(-1, 2)
-        out[name] = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
-    return out
+        rms = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
+        out.append(LeftOutFit(name, rms, _intrinsic_values(Kc, dc), _intrinsic_values(Kp, dp)))
+    return tuple(out)

@@ -24,6 +24,7 @@ from metrology.core.procam.board import BoardSpec
 from metrology.core.procam.diagnostics import COVERAGE_CELLS, Coverage, PoseDiversity, tilt_deg
 from metrology.core.procam.fit import DeviceFits, Intrinsics, StereoFit
 from metrology.core.procam.poses import BoolArray, PoseObservation, PoseSelection
+from metrology.core.procam.uncertainty import Uncertainty, uncertainty_report
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -158,16 +159,19 @@ def procam_report(
     diversity: PoseDiversity,
     gamma_estimate: float | None,
     warnings: Sequence[CalibrationWarning],
+    uncertainty: Uncertainty | None = None,
 ) -> dict[str, Any]:
     """The report's dict, keys in the documented order (docs/procam-calibration.md).
 
     ``camera_rms_px`` and ``projector_rms_px`` are the devices' own fits' (``devices``), the
     intrinsics, their standard deviations, ``R``, ``T`` and the per-pose entries the stereo
-    fit's; ``leave_one_out.median_px`` is the median of the finite values (None without).
+    fit's; ``leave_one_out.median_px`` is the median of the finite values (None without);
+    ``uncertainty`` (:func:`~metrology.core.procam.uncertainty.uncertainty_report`, before
+    ``warnings``) when given.
     """
     finite_loo = [v for v in leave_one_out_px.values() if v is not None and math.isfinite(v)]
     tilts = diversity.tilts_deg
-    return {
+    report: dict[str, Any] = {
         "format": REPORT_FORMAT,
         "board": board.spec(),
         "camera_size": list(camera_size),
@@ -201,6 +205,9 @@ def procam_report(
         },
         "median_board_distance_mm": diversity.median_distance_mm,
         "gamma_estimate": gamma_estimate,
-        "warnings": [w.to_dict() for w in warnings],
-        "poses": [pose_report(p, selection.masks.get(p.name), stereo, leave_one_out_px) for p in selection.poses],
     }
+    if uncertainty is not None:
+        report["uncertainty"] = uncertainty_report(uncertainty)
+    report["warnings"] = [w.to_dict() for w in warnings]
+    report["poses"] = [pose_report(p, selection.masks.get(p.name), stereo, leave_one_out_px) for p in selection.poses]
+    return report

@@ -156,3 +156,27 @@ def test_our_calibration_predicts_left_out_poses_better_than_the_datasets(calibr
     theirs = _dataset_convention_leave_one_out(report)
     assert np.median(theirs) > 1.0 and np.median(theirs) > 3 * report["leave_one_out"]["median_px"], theirs
     assert "inconsistent_pose" not in {w["cause"] for w in report["warnings"]}
+
+
+def test_report_says_what_the_five_poses_cannot_determine(calibrated) -> None:  # type: ignore[no-untyped-def]
+    """The joint fit's full covariance (both devices' 9 intrinsics, the stereo pose and 5 board
+    poses: 54 parameters) gives the report's std; focal length and distance are separable (the camera's fy
+    correlates 0.990 with the boards' mean distance, the projector's fx 0.909, both below
+    0.999: no warning); but the five poses' left-out spread exceeds the std by a factor 4 to 5
+    for the camera's fx and fy (15.8 px against 3.0 px), which the report says."""
+    _, report = calibrated
+    u = report["uncertainty"]
+    assert u["fit"] == "joint" and u["leave_one_out_fits"] == 5
+    assert len(u["covariance"]["parameters"]) == 2 * 9 + 6 + 5 * 6
+    for device in ("camera", "projector"):
+        for name, entry in u[device]["intrinsics"].items():
+            assert entry["std"] == pytest.approx(entry["std_reported"], rel=1e-9), (device, name)
+    assert u["camera"]["focal_distance_correlation"] == pytest.approx(0.990, abs=0.005)
+    assert u["projector"]["focal_distance_correlation"] == pytest.approx(0.909, abs=0.02)
+    assert u["coupled"] == [] and "focal_distance_coupled" not in {w["cause"] for w in report["warnings"]}
+    fx = u["camera"]["intrinsics"]["fx"]
+    assert fx["std"] == pytest.approx(3.05, rel=0.05) and fx["leave_one_out_std"] == pytest.approx(15.8, rel=0.1)
+    assert fx["agrees"] is False and {"camera.fx", "camera.fy"} <= set(u["disagreements"])
+    assert u["camera"]["mean_distance_mm"] == pytest.approx(
+        float(np.mean([p["distance_mm"] for p in report["poses"]])), rel=1e-9
+    )
