@@ -13,7 +13,8 @@ Per coded axis (u = projector columns, v = rows) and camera pixel:
   phase sequence; ``inverted`` flips the bits; the word's centre is ``origin + (n + 0.5) word``;
 * the unwrapping chain, coarse to fine: a stage of period P turns the previous stage's
   coordinate ``x_c`` into ``x = x_w + P * round((x_c - x_w) / P)``; a beat of two sequences
-  has ``theta_b = theta_s - theta_l`` and ``P_b = P_s P_l / (P_l - P_s)``; a first stage
+  has ``theta_b = theta_s - theta_l`` and ``P_b = P_s P_l / (P_l - P_s)`` (its operands s and l
+  may themselves be beats: beats of beats, computed recursively); a first stage
   without gray code is unwrapped against the projector's centre (its period covers the
   projector); a gray-only axis gives the word's centre.
 
@@ -179,7 +180,7 @@ class AxisDecoding:
     coordinate : (H, W) float32
         Absolute projector coordinate, projector units; NaN where not decoded.
     modulation : (H, W) float32
-        B of the chain's final phase sequence (a beat: the smaller of its two), grey levels;
+        B of the chain's final phase sequence (a beat: the smallest of its sequences'), grey levels;
         gray-only axes: half the white-black difference (or the smallest inverse contrast).
     mean : (H, W) float32
         A of the axis's first phase sequence, or the white/black mean, grey levels (NaN if none).
@@ -801,13 +802,7 @@ def _decode_axis_tile(
             np.copyto(x, centre)
             previous = stage
             continue
-        if stage.kind == "phase":
-            frac = results[stage.indices[0]].frac
-        else:
-            i, j = stage.indices
-            s_i, l_i = (i, j) if plan.sequences[i].period < plan.sequences[j].period else (j, i)
-            frac = np.subtract(results[s_i].frac, results[l_i].frac, out=scratch.get("beat", shape, np.float32))
-            frac += np.float32(1) * (frac < 0)
+        frac = _stage_frac(stage, results, scratch, shape)
         # x_w = origin + P frac; x = x_w + P round((x_c - x_w) / P) = origin + P (frac + round((x_c - origin)/P - frac))
         if previous is None:
             x.fill((plan.extent - 1) / 2)
@@ -843,6 +838,8 @@ def _decode_axis_tile(
                 np.copyto(out["modulation"], final[0])
         else:
             np.minimum(final[0], final[1], out=out["modulation"])
+            for more in final[2:]:  # a final beat of beats
+                np.minimum(out["modulation"], more, out=out["modulation"])
     noise_out = out["noise"]
     noise = next((results[i].noise for i in plan.used if results[i].noise is not None), None)
     if noise is not None:
@@ -869,6 +866,23 @@ def _decode_axis_tile(
             np.bitwise_or(flags, flag, out=flags)
     reason = cv2.LUT(flags, _REASON_LUT, dst=out["reason"])
     x += cv2.LUT(reason, _NAN_UNLESS_VALID_LUT, dst=scratch.get("nan_or_zero", shape, np.float32))
+
+
+def _stage_frac(stage: Stage, results: Mapping[int, _PhaseResult], scratch: Any, shape: tuple[int, int]) -> np.ndarray:
+    """(h, w) float32 ``theta / 2 pi`` of a phase or beat stage, in [0, 1].
+
+    A beat is ``frac_s - frac_l`` (+1 where negative), s its operand of the shorter period;
+    operands that are beats are computed first, recursively (beats of beats).
+    """
+    if stage.kind == "phase":
+        return results[stage.indices[0]].frac
+    short, long_ = stage.ordered_parts()
+    frac_s = _stage_frac(short, results, scratch, shape)
+    frac_l = _stage_frac(long_, results, scratch, shape)
+    # one scratch array per beat of the tree, named by its operand text
+    frac = np.subtract(frac_s, frac_l, out=scratch.get(f"beat{stage.operand}", shape, np.float32))
+    frac += np.float32(1) * (frac < 0)
+    return frac
 
 
 def _reason_lut() -> np.ndarray:

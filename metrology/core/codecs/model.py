@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from metrology.core.codecs.chain import ChainSyntaxError, Operand, parse_stage_label
+
 CODEC_FORMAT = "gcps-codec/1"
 """Value of the ``codec`` key of every codec file."""
 
@@ -35,6 +37,11 @@ MAX_GRAY_BITS = 16
 PRECOMPENSATED_GAMMA_RANGE: tuple[float, float] = (0.2, 5.0)
 """Accepted ``precompensated_gamma`` values (inclusive)."""
 """Largest number of gray-code bits of one axis (65536 words)."""
+
+COVER_TOLERANCE = 1e-9
+"""A first stage without a gray code covers the projector when its period is at least
+``extent * (1 - COVER_TOLERANCE)`` (a beat of beats of periods W/64, W/58, W/53 has period W up
+to rounding)."""
 
 GCPS_V1 = "gcps-v1"
 """Name of the built-in codec of the paper's eleven patterns (:func:`gcps_v1_codec`)."""
@@ -116,22 +123,57 @@ class GrayCode:
 class Stage:
     """One stage of an unwrapping chain.
 
-    ``kind`` is ``"gray"``, ``"phase"`` (``indices = (i,)``) or ``"beat"`` (``indices = (i, j)``).
-    ``period`` and ``origin`` are the stage's (for a beat: ``P_b = P_s P_l / (P_l - P_s)``,
-    ``o_b = P_b (o_s / P_s - o_l / P_l)``, with s the shorter and l the longer period);
-    a gray stage has period 0.
+    ``kind`` is ``"gray"``, ``"phase"`` (``indices = (i,)``) or ``"beat"``. A beat has ``parts``,
+    its two operands as stages (each a phase or a beat: beats of beats nest to any depth), and
+    ``indices``, the phase sequences it reads (for ``beat:i,j``: ``(i, j)``). ``period`` and
+    ``origin`` are the stage's (for a beat of operands s, the shorter period, and l, the longer:
+    ``P_b = P_s P_l / (P_l - P_s)``, ``o_b = P_b (o_s / P_s - o_l / P_l)``); a gray stage has
+    period 0.
     """
 
     kind: str
     indices: tuple[int, ...]
     period: float
     origin: float
+    parts: tuple[Stage, ...] = ()
 
     @property
     def label(self) -> str:
+        """The chain entry: ``gray``, ``phase:I`` or ``beat:X,Y`` (X, Y an index or a ``(X,Y)`` pair)."""
         if self.kind == "gray":
             return "gray"
-        return f"{self.kind}:{','.join(str(i) for i in self.indices)}"
+        if self.kind == "phase":
+            return f"phase:{self.indices[0]}"
+        return f"beat:{self.parts[0].operand},{self.parts[1].operand}"
+
+    @property
+    def operand(self) -> str:
+        """The stage as an operand of a beat: ``I`` for a phase, ``(X,Y)`` for a beat."""
+        if self.kind == "phase":
+            return str(self.indices[0])
+        return f"({self.parts[0].operand},{self.parts[1].operand})"
+
+    def ordered_parts(self) -> tuple[Stage, Stage]:
+        """A beat's operands as (shorter period, longer period)."""
+        a, b = self.parts
+        return (a, b) if a.period < b.period else (b, a)
+
+    def phase_weights(self) -> dict[int, int]:
+        """Integer weights ``w_i`` with ``theta = sum_i w_i theta_i (mod 2 pi)`` over the phase sequences.
+
+        A phase stage is ``{i: 1}``; a beat ``theta_s - theta_l`` (s the operand of the shorter
+        period), e.g. ``beat:(0,1),(1,2)`` with periods falling from 0 to 2 is
+        ``theta_0 - 2 theta_1 + theta_2``. Its phase variance is ``sum_i w_i^2 var(theta_i)``.
+        """
+        if self.kind == "phase":
+            return {self.indices[0]: 1}
+        if self.kind == "gray":
+            return {}
+        short, long_ = self.ordered_parts()
+        weights = dict(short.phase_weights())
+        for i, w in long_.phase_weights().items():
+            weights[i] = weights.get(i, 0) - w
+        return {i: w for i, w in weights.items() if w != 0}
 
 
 @dataclass(frozen=True)
@@ -272,21 +314,25 @@ class Codec:
 # ----------------------------------------------------------------------------- parsing
 def _parse_stage(label: str, phase: Sequence[PhaseSequence]) -> Stage:
     """A chain entry as a :class:`Stage` (indices already validated by :func:`validate_codec`)."""
-    if label == "gray":
+    parsed = parse_stage_label(label)
+    if parsed.tree is None:
         return Stage("gray", (), 0.0, 0.0)
-    kind, _, rest = label.partition(":")
-    indices = tuple(int(t) for t in rest.split(","))
-    if kind == "phase":
-        p = phase[indices[0]]
-        return Stage("phase", indices, p.period, p.origin)
-    a, b = phase[indices[0]], phase[indices[1]]
+    return _operand_stage(parsed.tree, phase)
+
+
+def _operand_stage(tree: Operand, phase: Sequence[PhaseSequence]) -> Stage:
+    """The stage of a parsed operand: a phase sequence, or the beat of two operands (recursively)."""
+    if tree.index is not None:
+        p = phase[tree.index]
+        return Stage("phase", (tree.index,), p.period, p.origin)
+    a, b = (_operand_stage(part, phase) for part in tree.parts)
     short, long_ = (a, b) if a.period < b.period else (b, a)
+    if long_.period == short.period:  # refused by validation: a beat needs two different periods
+        return Stage("beat", tuple(dict.fromkeys(tree.leaves())), math.inf, 0.0, parts=(a, b))
     period = short.period * long_.period / (long_.period - short.period)
     origin = period * (short.origin / short.period - long_.origin / long_.period)
-    return Stage("beat", indices, period, origin)
-
-
-_STAGE_RE = re.compile(r"^(gray|phase:(\d+)|beat:(\d+),(\d+))$")
+    indices = tuple(dict.fromkeys(tree.leaves()))
+    return Stage("beat", indices, period, origin, parts=(a, b))
 
 
 def _is_int(value: Any) -> bool:
@@ -569,27 +615,37 @@ def _validate_chain(where: str, axis: Axis, extent: int) -> None:
     if labels is not None:
         if not labels:
             raise CodecError(f"codec field {where}.unwrap must not be empty")
+        canonical: list[str] = []
         for k, label in enumerate(labels):
-            m = _STAGE_RE.match(label) if isinstance(label, str) else None
-            if m is None:
+            try:
+                parsed = parse_stage_label(label) if isinstance(label, str) else None
+            except ChainSyntaxError as exc:
+                raise CodecError(
+                    f"codec field {where}.unwrap[{k}] = {label!r} is not 'gray', 'phase:I' or 'beat:I,J' "
+                    f"(I, J a phase index or a pair such as (0,1)): {exc}"
+                ) from None
+            if parsed is None:
                 raise CodecError(f"codec field {where}.unwrap[{k}] = {label!r} is not 'gray', 'phase:I' or 'beat:I,J'")
-            if label == "gray":
+            canonical.append(parsed.text)
+            if parsed.tree is None:
                 if axis.gray is None:
                     raise CodecError(f"codec field {where}.unwrap[{k}] is 'gray' but the axis has no gray code")
                 if k != 0:
                     raise CodecError(f"codec field {where}.unwrap[{k}]: 'gray' can only be the first stage")
                 continue
-            indices = [int(t) for t in (m.group(2), m.group(3), m.group(4)) if t is not None]
-            for i in indices:
+            for i in parsed.tree.leaves():
                 if i >= len(axis.phase):
                     raise CodecError(
                         f"codec field {where}.unwrap[{k}] = {label!r}: the axis has {len(axis.phase)} phase sequence(s)"
                     )
-            if len(indices) == 2:
-                a, b = (axis.phase[i].period for i in indices)
-                if indices[0] == indices[1] or a == b:
-                    raise CodecError(f"codec field {where}.unwrap[{k}] = {label!r}: a beat needs two different periods")
-        if len(set(labels)) != len(labels):
+            for beat in _beats(_operand_stage(parsed.tree, axis.phase)):
+                a, b = beat.parts
+                if a.period == b.period:
+                    raise CodecError(
+                        f"codec field {where}.unwrap[{k}] = {label!r}: a beat needs two different periods "
+                        f"({beat.operand} beats {a.operand} with {b.operand}, both of period {a.period:g})"
+                    )
+        if len(set(canonical)) != len(canonical):
             raise CodecError(f"codec field {where}.unwrap repeats a stage: {labels}")
     chain = axis.chain()
     previous: Stage | None = None
@@ -597,7 +653,7 @@ def _validate_chain(where: str, axis: Axis, extent: int) -> None:
         if stage.kind == "gray":
             previous = stage
             continue
-        if previous is None and stage.period < extent:
+        if previous is None and stage.period < extent * (1 - COVER_TOLERANCE):
             raise CodecError(
                 f"codec field {where}: the first unwrapping stage {stage.label} has period {stage.period:g}, "
                 f"shorter than the projector's {extent} px, and there is no gray code to unwrap it"
@@ -610,6 +666,13 @@ def _validate_chain(where: str, axis: Axis, extent: int) -> None:
         previous = stage
     if not chain:
         raise CodecError(f"codec field {where} has an empty unwrapping chain")
+
+
+def _beats(stage: Stage) -> list[Stage]:
+    """Every beat of a stage's tree (the stage itself included), outermost first."""
+    if stage.kind != "beat":
+        return []
+    return [stage, *_beats(stage.parts[0]), *_beats(stage.parts[1])]
 
 
 # ----------------------------------------------------------------------------- frame files
