@@ -9,7 +9,8 @@ JSON reading and writing, the natural order of frame files, and the built-in ``g
 
 Phase sequence (N >= 3 frames): frame k shows
 ``I_k = A + B cos(2 pi (x - origin) / period + 2 pi shift k / N)``.
-Gray code (``bits`` frames): word n (reflected gray code ``g = n ^ (n >> 1)``) covers
+Gray code (``bits`` frames): word n (reflected gray code ``g = n ^ (n >> 1)``; with ``levels``
+L > 2 its base-L reflected gray digits, shown as grey levels ``d / (L - 1)``) covers
 ``[origin + n word, origin + (n + 1) word)``.
 """
 
@@ -34,9 +35,13 @@ AXES: tuple[str, ...] = ("u", "v")
 WAVEFORMS: tuple[str, ...] = ("sine", "square")
 GRAY_ORDERS: tuple[str, ...] = ("msb_first", "lsb_first")
 MAX_GRAY_BITS = 16
+"""Largest number of gray-code bits of one axis (65536 words)."""
+MIN_GRAY_LEVELS, MAX_GRAY_LEVELS = 2, 8
+"""Accepted ``levels`` of a gray code (2: binary, the default)."""
+MAX_GRAY_WORDS = 65536
+"""Largest ``levels ** digits`` of a gray code."""
 PRECOMPENSATED_GAMMA_RANGE: tuple[float, float] = (0.2, 5.0)
 """Accepted ``precompensated_gamma`` values (inclusive)."""
-"""Largest number of gray-code bits of one axis (65536 words)."""
 
 COVER_TOLERANCE = 1e-9
 """A first stage without a gray code covers the projector when its period is at least
@@ -100,6 +105,10 @@ class GrayCode:
         Each bit's inverse image (same length as ``frames``): the bit's threshold.
     inverted : bool
         Flip every bit after thresholding.
+    levels : int
+        L, 2 (binary, the default) to 8: each frame shows one base-L digit of the word's
+        reflected gray code as the grey level ``d / (L - 1)`` (``metrology.core.codecs.gray``);
+        ``inverse_frames`` and ``inverted`` apply to L = 2 only; ``L**bits <= 65536``.
     """
 
     frames: tuple[int, ...]
@@ -108,11 +117,17 @@ class GrayCode:
     origin: float = 0.0
     inverse_frames: tuple[int, ...] | None = None
     inverted: bool = False
+    levels: int = 2
 
     @property
     def bits(self) -> int:
-        """Number of bit frames."""
+        """Number of bit (digit) frames."""
         return len(self.frames)
+
+    @property
+    def words(self) -> int:
+        """Number of code words, ``levels ** bits``."""
+        return int(self.levels) ** self.bits
 
     def centre(self, n: int) -> float:
         """Projector coordinate of the centre of word ``n``: ``origin + (n + 0.5) word``."""
@@ -300,6 +315,8 @@ class Codec:
                     "inverse_frames": None if g.inverse_frames is None else list(g.inverse_frames),
                     "inverted": g.inverted,
                 }
+                if g.levels != 2:
+                    entry["gray"]["levels"] = g.levels
             if axis.unwrap is not None:
                 entry["unwrap"] = list(axis.unwrap)
             axes[name] = entry
@@ -379,7 +396,9 @@ def _phase_from_dict(where: str, data: Any) -> PhaseSequence:
 
 
 def _gray_from_dict(where: str, data: Any) -> GrayCode:
-    _check_keys(where, data, ("frames", "order", "word", "origin", "inverse_frames", "inverted"), ("frames", "word"))
+    _check_keys(
+        where, data, ("frames", "order", "word", "origin", "inverse_frames", "inverted", "levels"), ("frames", "word")
+    )
     frames = _int_list(f"{where}.frames", data["frames"])
     word = _real(f"{where}.word", data["word"])
     origin = _real(f"{where}.origin", data.get("origin", 0.0))
@@ -392,6 +411,7 @@ def _gray_from_dict(where: str, data: Any) -> GrayCode:
         origin=origin,
         inverse_frames=inverse_frames,
         inverted=data.get("inverted", False),
+        levels=data.get("levels", 2),
     )
 
 
@@ -517,7 +537,8 @@ def validate_codec(codec: Codec) -> None:
     ------
     CodecError
         Naming the field: N < 3, period <= 0, shift not +-1, unknown waveform or order, word
-        <= 0, more than 16 gray bits, inverse list of the wrong length, frame index out of range,
+        <= 0, more than 16 gray bits, gray levels outside 2..8 or ``levels ** digits`` above 65536,
+        inverse frames or ``inverted`` with levels > 2, inverse list of the wrong length, frame index out of range,
         a frame used twice, a gray code with no threshold source, a bad unwrap chain, an axis
         with nothing coded, a first stage that does not cover the projector, no axis at all.
     """
@@ -584,8 +605,22 @@ def validate_codec(codec: Codec) -> None:
         g = axis.gray
         if g is not None:
             gw = f"{where}.gray"
+            if not _is_int(g.levels) or not MIN_GRAY_LEVELS <= g.levels <= MAX_GRAY_LEVELS:
+                raise CodecError(
+                    f"codec field {gw}.levels must be an integer from {MIN_GRAY_LEVELS} to {MAX_GRAY_LEVELS}, "
+                    f"got {g.levels!r}"
+                )
             if not 1 <= len(g.frames) <= MAX_GRAY_BITS:
                 raise CodecError(f"codec field {gw}.frames must hold 1..{MAX_GRAY_BITS} bits, got {len(g.frames)}")
+            if g.words > MAX_GRAY_WORDS:
+                raise CodecError(
+                    f"codec field {gw}.frames: {len(g.frames)} digits of {g.levels} levels make {g.words} words; "
+                    f"levels ** digits must be at most {MAX_GRAY_WORDS}"
+                )
+            if g.levels != 2 and g.inverse_frames is not None:
+                raise CodecError(f"codec field {gw}.inverse_frames applies to levels = 2 only, not {g.levels}")
+            if g.levels != 2 and g.inverted is not False:
+                raise CodecError(f"codec field {gw}.inverted applies to levels = 2 only, not {g.levels}")
             if not _is_real(g.word) or g.word <= 0:
                 raise CodecError(f"codec field {gw}.word must be > 0, got {g.word!r}")
             if not _is_real(g.origin):
