@@ -112,7 +112,10 @@ class LevelModel:
     message : str
         Why, when not estimated; names the field.
     shown : int
-        Separable levels found in the pooled frames (0 when not estimated).
+        Separable levels found in the pooled frames: L when estimated, fewer (or L + 1: at least
+        that many) when refused, 0 when nominal.
+    separations : tuple of float
+        Distances between adjacent pooled centres in combined robust spreads (when estimated).
     """
 
     levels: int
@@ -147,10 +150,10 @@ def _model(levels: int, centres: np.ndarray, status: str, message: str = "", sho
     )
 
 
-def nominal_levels(levels: int, digits: int, status: str = "nominal", message: str = "") -> LevelModel:
+def nominal_levels(levels: int, digits: int, status: str = "nominal", message: str = "", shown: int = 0) -> LevelModel:
     """Centres ``d / (L - 1)`` for every frame (the projector's levels, as if seen linearly)."""
     centres = np.tile(np.arange(levels, dtype=np.float64) / (levels - 1), (digits, 1))
-    return _model(levels, centres, status, message)
+    return _model(levels, centres, status, message, shown)
 
 
 def optimal_partitions(values: npt.ArrayLike, max_clusters: int) -> list[np.ndarray]:
@@ -256,13 +259,13 @@ def estimate_levels(t: np.ndarray, levels: int, where: str) -> LevelModel:
             f"levels {weakest:.1f} spreads apart, smallest share {shares.min():.3f}): check the level count, "
             "or the words are too narrow for the camera"
         )
-        return nominal_levels(levels, digits, "refused", message)
+        return nominal_levels(levels, digits, "refused", message, shown)
     if more:
         message = (
             f"codec field {where}.levels = {levels}, but the gray frames show at least {levels + 1} separable "
             "grey levels: check the level count"
         )
-        return nominal_levels(levels, digits, "refused", message)
+        return nominal_levels(levels, digits, "refused", message, shown)
     per_frame = np.tile(centres, (digits, 1))
     for d in range(digits):
         values = t[d]

@@ -242,6 +242,7 @@ def test_a_wrong_level_count_is_refused_naming_the_field(
     levels = decoded.summary()["gray_levels"]["u"]
     assert levels["status"] == "refused"
     assert f"axes.u.gray.levels = {described}" in levels["message"] and shown in levels["message"]
+    assert levels["levels_shown"] == int(shown.split()[-1] if shown.startswith("at least") else shown.split()[0])
 
 
 @pytest.mark.parametrize(("true_levels", "described"), [(4, 3), (3, 4), (2, 4)])
