@@ -763,7 +763,13 @@ def _decode_axis_tile(
             assert first is not None  # validation: a gray code has a threshold source
             np.subtract(mean, first.modulation, out=lo)
             np.multiply(first.modulation, np.float32(2), out=span)
-        index, ambiguous = classify_tile(tile, g, plan.levels, lo, span, scratch, plan.name)
+        # a digit misread at a word edge gives the neighbouring word, which a phase stage of at
+        # least two words' period unwraps correctly: such pixels are kept
+        chain = plan.chain
+        adjacent_ok = len(chain) > 1 and chain[0].kind == "gray" and chain[1].period >= 2 * g.word
+        index, ambiguous = classify_tile(
+            tile, g, plan.levels, lo, span, scratch, plan.name, resolve_adjacent=adjacent_ok
+        )
         centre = np.take(plan.gray_lut, index, out=scratch.get(f"centre{plan.name}", shape, np.float32))
     elif g is not None:
         assert plan.gray_lut is not None

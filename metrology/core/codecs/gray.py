@@ -342,6 +342,8 @@ def classify_tile(
     span: np.ndarray,
     scratch: Any,
     tag: str,
+    *,
+    resolve_adjacent: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The gray index (base-L number of the digits, (h, w) int32) and the ambiguous mask ((h, w) bool).
 
@@ -349,8 +351,14 @@ def classify_tile(
     lo``, grey levels). Per digit frame ``t = (I - lo) / span``; the digit counts the thresholds
     below t; a pixel with ``|t - threshold| < margin`` for some threshold is ambiguous; every
     pixel is ambiguous when the model is refused.
+
+    ``resolve_adjacent``: a pixel ambiguous in exactly one digit whose other reading (one level
+    up below the threshold, down above it) is the neighbouring word, as at a blurred word edge,
+    is kept: the caller's next stage (a phase of at least two words' period) unwraps either
+    reading to the same coordinate.
     """
     shape = tile.shape[1:]
+    levels = gray.levels
     index = scratch.get(f"mlindex{tag}", shape, np.int32)
     index.fill(0)
     ambiguous = scratch.get(f"mlambig{tag}", shape, bool)
@@ -361,16 +369,36 @@ def classify_tile(
     t = scratch.get(f"mlt{tag}", shape, np.float32)
     digit = scratch.get(f"mldigit{tag}", shape, np.int32)
     near = scratch.get(f"mlnear{tag}", shape, np.float32)
+    above = scratch.get(f"mlabove{tag}", shape, bool)
+    close = scratch.get(f"mlclose{tag}", shape, bool)
+    resolve = resolve_adjacent and not model.refused
+    if resolve:  # the other reading's index offset and the number of ambiguous digits
+        offset = scratch.get(f"mloffset{tag}", shape, np.int32)
+        offset.fill(0)
+        count = scratch.get(f"mlcount{tag}", shape, np.int32)
+        count.fill(0)
     for i, (f, position) in enumerate(zip(gray.frames, digit_positions(gray), strict=True)):
         np.subtract(tile[f], lo, out=t, casting="unsafe")
         with np.errstate(invalid="ignore"):  # 0 * inf where the span is 0: NaN, no digit, refused as dark
             t *= inverse
         digit.fill(0)
-        for k in range(gray.levels - 1):
+        place = np.int32(levels**position)
+        for k in range(levels - 1):
             threshold = model.thresholds[i, k]
-            digit += t > threshold
+            np.greater(t, threshold, out=above)
+            digit += above
             np.subtract(t, threshold, out=near)
             np.abs(near, out=near)
-            ambiguous |= near < model.margins[i, k]
-        index += digit * np.int32(gray.levels**position)
+            np.less(near, model.margins[i, k], out=close)
+            ambiguous |= close
+            if resolve:
+                # other reading: -place above the threshold, +place below it
+                offset += close * (place - 2 * place * above)
+                count += close
+        index += digit * place
+    if resolve:
+        other = np.clip(index + offset, 0, levels**gray.bits - 1)
+        lut = centre_lut(gray)
+        adjacent = np.abs(lut[other] - lut[index]) <= np.float32(1.5 * gray.word)
+        ambiguous &= ~((count == 1) & adjacent)
     return index, ambiguous

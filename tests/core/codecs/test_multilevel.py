@@ -187,7 +187,7 @@ def realistic_case(codec: Codec, gamma: float = 1.0, seed: int = 0) -> tuple[Any
 
 
 def decode_inner_lenient(images: np.ndarray, codec: Codec) -> tuple[Any, np.ndarray]:
-    """Decode; the valid pixels 3 px from the border (digits at word edges may be refused as ambiguous)."""
+    """Decode; the valid pixels 3 px from the border (the caller says how many must be valid)."""
     axis = decode_codec(images, codec).axes["u"]
     inner = np.zeros(axis.coordinate.shape, bool)
     inner[3:-3, 3:-3] = True
@@ -201,8 +201,9 @@ def test_realistic_noise_at_the_decoders_estimate(levels: int, digits: int) -> N
     for seed in range(2):
         axis, valid, error = realistic_case(codec, seed=seed)
         inner_count = (axis.coordinate.shape[0] - 6) * (axis.coordinate.shape[1] - 6)
-        # refused: only digits within 5 % of a level gap of a threshold (blurred word edges)
-        assert valid.sum() > 0.9 * inner_count
+        # digits near a threshold at blurred word edges read the neighbouring word: kept (the
+        # 16-px phase unwraps either reading of 8-px words alike)
+        assert valid.sum() > 0.999 * inner_count
         assert np.abs(error).max() < 8.0  # no pixel half a period off
         sigma = stage_coordinate_sigma(codec, "u", axis.noise, axis.modulation)[valid].astype(np.float64)
         measured.append(float(np.mean(error**2)))
@@ -214,7 +215,7 @@ def test_realistic_noise_at_the_decoders_estimate(levels: int, digits: int) -> N
 
 def test_realistic_gamma_2_2_decodes_a_4_level_code() -> None:
     _, valid, error = realistic_case(multilevel_codec(4, 3, 8.0), gamma=2.2)
-    assert valid.sum() > 0.9 * (24 * 194)
+    assert valid.sum() > 0.999 * (24 * 194)
     assert np.abs(error).max() < 1.0
 
 
@@ -255,3 +256,16 @@ def test_a_wrong_level_count_is_refused_on_realistic_renders(true_levels: int, d
     decoded = decode_codec(render_codec(truth, u_fine, None, opts), wrong)
     assert not decoded.axes["u"].valid.any()
     assert "axes.u.gray.levels" in decoded.summary()["gray_levels"]["u"]["message"]
+
+
+def test_ambiguous_digits_are_refused_without_a_phase_to_settle_them() -> None:
+    # word = period: a digit read as its neighbour's moves the pixel by a whole period, so digits
+    # near a threshold are refused (reason 7); with the phase at twice the word they are kept
+    opts = SimulationOptions.realistic_8bit()
+    u_fine, _ = affine_truth(30, 200, opts.supersample, 20.0, 1.0, 0.1)
+    refused = {}
+    for period in (8.0, 16.0):
+        codec = multilevel_codec(4, 3, 8.0, period=period)
+        axis = decode_codec(render_codec(codec, u_fine, None, opts), codec).axes["u"]
+        refused[period] = float((axis.reason[3:-3, 3:-3] == REASON_LEVEL_AMBIGUOUS).mean())
+    assert refused[8.0] > 0.01 and refused[16.0] < 0.001, refused
