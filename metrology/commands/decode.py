@@ -6,7 +6,7 @@
 code or a pixel not decoded. ``Q.npz``: per coded axis a in {u, v}, ``modulation_a`` and
 ``noise_a`` (float32, grey levels) and ``reason_a`` (uint8: 0 valid, 1 too dark, 2 saturated,
 3 outside the projector, 4 gray/phase inconsistent, 5 low inverse contrast, 6 slip repaired
-but kept). The codec is ``--codec`` (a file or a built-in name), else the capture's
+but kept, 7 gray level ambiguous). The codec is ``--codec`` (a file or a built-in name), else the capture's
 ``codec.json``, else gcps-v1 for a stack of the eleven named patterns. Exit 2 with one line on a
 bad codec field or a stack that does not match its codec; nothing is written then.
 """

@@ -83,7 +83,9 @@ def stage_coordinate_sigma(
 
     An N-step phase (N >= 4) gives :func:`coordinate_sigma`; a beat of two sequences,
     ``theta_b = theta_s - theta_l``, adds their phase variances over the beat's period:
-    ``sigma_b = P_b / (2 pi) * sqrt(sum_i 2 / N_i) * sigma_I / B``.
+    ``sigma_b = P_b / (2 pi) * sqrt(sum_i 2 / N_i) * sigma_I / B``; a beat of beats with phase
+    weights ``w_i`` (:meth:`~metrology.core.codecs.model.Stage.phase_weights`, e.g. 1, -2, 1)
+    ``sigma_b = P_b / (2 pi) * sqrt(sum_i w_i^2 2 / N_i) * sigma_I / B``.
 
     Raises
     ------
@@ -92,7 +94,8 @@ def stage_coordinate_sigma(
     """
     stage = codec.axes[axis].chain()[-1]
     phase = codec.axes[axis].phase
-    steps = [len(phase[i].frames) for i in stage.indices]
+    weights = stage.phase_weights()
+    steps = [len(phase[i].frames) for i in weights]
     if stage.kind == "gray" or min(steps, default=0) < 4:
         raise ValueError(
             f"a per-point uncertainty needs the {axis} axis to end on a phase sequence of N >= 4 steps "
@@ -101,4 +104,6 @@ def stage_coordinate_sigma(
     pooled = pooled_noise(noise)
     if stage.kind == "phase":
         return coordinate_sigma(stage.period, steps[0], pooled, modulation)
-    return _phase_coordinate_sigma(stage.period, sum(2.0 / n for n in steps), pooled, modulation)  # a beat
+    # a beat (of beats): theta = sum_i w_i theta_i, var = sum_i w_i^2 (2 / N_i) (sigma_I / B)^2
+    variance_factor = sum(w * w * 2.0 / len(phase[i].frames) for i, w in weights.items())
+    return _phase_coordinate_sigma(stage.period, variance_factor, pooled, modulation)

@@ -28,6 +28,7 @@ REASON_COLOURS: dict[int, tuple[str, str]] = {
     4: ("gray/phase inconsistent", "#edae49"),
     5: ("low inverse contrast", "#00798c"),
     6: ("slip repaired but kept", "#1f5fa8"),
+    7: ("gray level ambiguous", "#8c564b"),
 }
 """Name and colour of each reason code (docs/codecs.md, "Reason codes")."""
 

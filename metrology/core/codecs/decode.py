@@ -11,9 +11,13 @@ Per coded axis (u = projector columns, v = rows) and camera pixel:
 * the gray code: bit = frame > threshold (strictly), with the threshold the bit's inverse
   frame, else the mean of the white and black frames, else the mean A of the axis's first
   phase sequence; ``inverted`` flips the bits; the word's centre is ``origin + (n + 0.5) word``;
+  a multi-level code (``levels`` L > 2) classifies each digit against level centres estimated
+  from the stack (:mod:`metrology.core.codecs.gray`), normalised by the white and black frames,
+  else by the first phase sequence's ``A -+ B``;
 * the unwrapping chain, coarse to fine: a stage of period P turns the previous stage's
   coordinate ``x_c`` into ``x = x_w + P * round((x_c - x_w) / P)``; a beat of two sequences
-  has ``theta_b = theta_s - theta_l`` and ``P_b = P_s P_l / (P_l - P_s)``; a first stage
+  has ``theta_b = theta_s - theta_l`` and ``P_b = P_s P_l / (P_l - P_s)`` (its operands s and l
+  may themselves be beats: beats of beats, computed recursively); a first stage
   without gray code is unwrapped against the projector's centre (its period covers the
   projector); a gray-only axis gives the word's centre.
 
@@ -21,7 +25,10 @@ Reason codes (uint8, one per pixel and axis; the first that applies wins, in thi
 1 too dark (B of a phase sequence in the chain below ``min_modulation``; gray-only axes:
 half the white-black difference, or half the smallest inverse contrast), 2 saturated (a
 phase frame at or above ``saturation_level``), 5 low inverse contrast (``|frame - inverse|``
-below ``min_inverse_contrast`` for some bit), 4 gray/phase inconsistent (the first phase
+below ``min_inverse_contrast`` for some bit), 7 gray level ambiguous (a multi-level gray digit
+within ``LEVEL_MARGIN`` of a level gap from its threshold, or every pixel of an axis whose frames
+do not show the described number of levels: ``metrology.core.codecs.gray``), 4 gray/phase
+inconsistent (the first phase
 stage lies more than ``consistency_periods`` of its period outside the gray word's cell, or a
 phase stage lies more than ``unwrap_consistency_periods`` of its period from the coarser phase
 stage it was unwrapped from),
@@ -43,13 +50,14 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
+from metrology.core.codecs.gray import LevelModel, centre_lut, classify_tile, digit_positions, sample_levels
 from metrology.core.codecs.model import Axis, Codec, Stage
 from metrology.core.patterns import binary_from_gray
 from metrology.core.tiling import run_tiled, thread_scratch
@@ -61,6 +69,7 @@ REASON_OUTSIDE = 3
 REASON_INCONSISTENT = 4
 REASON_LOW_INVERSE_CONTRAST = 5
 REASON_SLIP_REPAIRED = 6
+REASON_LEVEL_AMBIGUOUS = 7
 REASONS: dict[int, str] = {
     REASON_VALID: "valid",
     REASON_TOO_DARK: "too dark",
@@ -69,6 +78,7 @@ REASONS: dict[int, str] = {
     REASON_INCONSISTENT: "gray/phase inconsistent",
     REASON_LOW_INVERSE_CONTRAST: "low inverse contrast",
     REASON_SLIP_REPAIRED: "slip repaired but kept",
+    REASON_LEVEL_AMBIGUOUS: "gray level ambiguous",
 }
 """Reason codes of the quality maps."""
 
@@ -179,7 +189,7 @@ class AxisDecoding:
     coordinate : (H, W) float32
         Absolute projector coordinate, projector units; NaN where not decoded.
     modulation : (H, W) float32
-        B of the chain's final phase sequence (a beat: the smaller of its two), grey levels;
+        B of the chain's final phase sequence (a beat: the smallest of its sequences'), grey levels;
         gray-only axes: half the white-black difference (or the smallest inverse contrast).
     mean : (H, W) float32
         A of the axis's first phase sequence, or the white/black mean, grey levels (NaN if none).
@@ -261,6 +271,7 @@ class CodecDecoding:
             },
             "saturated_pixels": self.saturated_pixels,
             "options": self.options.to_dict(),
+            **({"gray_levels": self.stats["gray_levels"]} if "gray_levels" in self.stats else {}),
         }
 
 
@@ -308,6 +319,7 @@ class _AxisPlan:
     gray_lut: np.ndarray | None  # gray word -> centre, float32
     gray_positions: tuple[int, ...]  # bit position of each gray frame
     slip_period: float  # > 0 when slips are possible: period of the stage after the gray
+    levels: LevelModel | None = None  # multi-level gray codes: level centres estimated from the stack
 
 
 def _plan(codec: Codec, with_noise: bool = True) -> list[_AxisPlan]:
@@ -343,7 +355,9 @@ def _plan(codec: Codec, with_noise: bool = True) -> list[_AxisPlan]:
         positions: tuple[int, ...] = ()
         slip = 0.0
         g = axis.gray
-        if g is not None:
+        if g is not None and g.levels != 2:
+            positions, lut = digit_positions(g), centre_lut(g)
+        elif g is not None:
             bits = g.bits
             positions = tuple(bits - 1 - i if g.order == "msb_first" else i for i in range(bits))
             words = np.arange(2**bits, dtype=np.int64)
@@ -416,7 +430,7 @@ def decode_codec(
         stack = stack.astype(np.float32)
     opts = (options or CodecDecodeOptions()).resolved(codec, stack.dtype)
     _, height, width = stack.shape
-    plans = _plan(codec, with_noise)
+    plans = [_with_levels(plan, stack, codec, opts) for plan in _plan(codec, with_noise)]
     outputs: dict[str, dict[str, np.ndarray]] = {}
     for plan in plans:
         outputs[plan.name] = {
@@ -484,7 +498,25 @@ def decode_codec(
             reason=out["reason"],
             slips_repaired=slips,
         )
-    return CodecDecoding(axes=axes, options=opts, saturated_pixels=int(sum(saturated_counts)), shape=(height, width))
+    levels = {plan.name: plan.levels.summary() for plan in plans if plan.levels is not None}
+    return CodecDecoding(
+        axes=axes,
+        options=opts,
+        saturated_pixels=int(sum(saturated_counts)),
+        shape=(height, width),
+        stats={"gray_levels": levels} if levels else {},
+    )
+
+
+def _with_levels(plan: _AxisPlan, stack: np.ndarray, codec: Codec, opts: CodecDecodeOptions) -> _AxisPlan:
+    """The plan with the level centres of its multi-level gray code estimated from ``stack`` (else as is)."""
+    g = plan.axis.gray
+    if g is None or g.levels == 2:
+        return plan
+    assert opts.min_modulation is not None
+    first = plan.axis.phase[0] if plan.axis.phase else None
+    model = sample_levels(stack, g, codec.white, codec.black, first, opts.min_modulation, f"axes.{plan.name}.gray")
+    return replace(plan, levels=model)
 
 
 def _decode_tile(
@@ -716,8 +748,30 @@ def _decode_axis_tile(
     # gray code
     centre: np.ndarray | None = None
     low_contrast: np.ndarray | None = None
+    ambiguous: np.ndarray | None = None
+    min_contrast: np.ndarray | None = None
     g = plan.axis.gray
-    if g is not None:
+    if g is not None and g.levels != 2:
+        assert plan.gray_lut is not None and plan.levels is not None
+        # references: black and white frames, else the first phase sequence's A -+ B
+        lo = scratch.get(f"mllo{plan.name}", shape, np.float32)
+        span = scratch.get(f"mlspan{plan.name}", shape, np.float32)
+        if white_black_mid is not None and white_black_half is not None:
+            np.subtract(white_black_mid, white_black_half, out=lo)
+            np.multiply(white_black_half, np.float32(2), out=span)
+        else:
+            assert first is not None  # validation: a gray code has a threshold source
+            np.subtract(mean, first.modulation, out=lo)
+            np.multiply(first.modulation, np.float32(2), out=span)
+        # a digit misread at a word edge gives the neighbouring word, which a phase stage of at
+        # least two words' period unwraps correctly: such pixels are kept
+        chain = plan.chain
+        adjacent_ok = len(chain) > 1 and chain[0].kind == "gray" and chain[1].period >= 2 * g.word
+        index, ambiguous = classify_tile(
+            tile, g, plan.levels, lo, span, scratch, plan.name, resolve_adjacent=adjacent_ok
+        )
+        centre = np.take(plan.gray_lut, index, out=scratch.get(f"centre{plan.name}", shape, np.float32))
+    elif g is not None:
         assert plan.gray_lut is not None
         word_dtype = np.uint8 if g.bits <= 8 else np.uint16
         word = scratch.get(f"word{plan.name}", shape, word_dtype)
@@ -725,7 +779,6 @@ def _decode_axis_tile(
         weighted = scratch.get(f"weighted{plan.name}", shape, word_dtype)
         bit = scratch.get("bit", shape, bool)
         threshold: np.ndarray | None = None
-        min_contrast: np.ndarray | None = None
         if g.inverse_frames is None:
             if white_black is not None:
                 threshold = white_black
@@ -775,6 +828,8 @@ def _decode_axis_tile(
             centre = cv2.LUT(word, lut, dst=scratch.get(f"centre{plan.name}", shape, np.float32))
         else:
             centre = np.take(plan.gray_lut, word, out=scratch.get(f"centre{plan.name}", shape, np.float32))
+    if g is not None:
+        assert centre is not None
         if "centre" in out:
             np.copyto(out["centre"], centre)
         if not plan.used:
@@ -801,13 +856,7 @@ def _decode_axis_tile(
             np.copyto(x, centre)
             previous = stage
             continue
-        if stage.kind == "phase":
-            frac = results[stage.indices[0]].frac
-        else:
-            i, j = stage.indices
-            s_i, l_i = (i, j) if plan.sequences[i].period < plan.sequences[j].period else (j, i)
-            frac = np.subtract(results[s_i].frac, results[l_i].frac, out=scratch.get("beat", shape, np.float32))
-            frac += np.float32(1) * (frac < 0)
+        frac = _stage_frac(stage, results, scratch, shape)
         # x_w = origin + P frac; x = x_w + P round((x_c - x_w) / P) = origin + P (frac + round((x_c - origin)/P - frac))
         if previous is None:
             x.fill((plan.extent - 1) / 2)
@@ -843,6 +892,8 @@ def _decode_axis_tile(
                 np.copyto(out["modulation"], final[0])
         else:
             np.minimum(final[0], final[1], out=out["modulation"])
+            for more in final[2:]:  # a final beat of beats
+                np.minimum(out["modulation"], more, out=out["modulation"])
     noise_out = out["noise"]
     noise = next((results[i].noise for i in plan.used if results[i].noise is not None), None)
     if noise is not None:
@@ -851,8 +902,8 @@ def _decode_axis_tile(
     else:
         noise_out.fill(np.nan)
 
-    # reasons: the flags form a 5-bit index (dark 16, saturated 8, low contrast 4, inconsistent 2,
-    # outside 1) that a table turns into the first applicable reason
+    # reasons: the flags form a 6-bit index (ambiguous level 32, dark 16, saturated 8, low contrast 4,
+    # inconsistent 2, outside 1) that a table turns into the first applicable reason
     flags = scratch.get("flags", shape, np.uint8)
     flag = scratch.get("flag", shape, np.uint8)
     inside = np.greater_equal(x, np.float32(-0.5), out=scratch.get("inside", shape, bool))
@@ -863,6 +914,7 @@ def _decode_axis_tile(
         (low_contrast, 4),
         (phase_saturated if plan.used else None, 8),
         (dark, 16),
+        (ambiguous, 32),
     ):
         if mask is not None:
             np.multiply(mask.view(np.uint8), np.uint8(weight), out=flag)
@@ -871,13 +923,31 @@ def _decode_axis_tile(
     x += cv2.LUT(reason, _NAN_UNLESS_VALID_LUT, dst=scratch.get("nan_or_zero", shape, np.float32))
 
 
+def _stage_frac(stage: Stage, results: Mapping[int, _PhaseResult], scratch: Any, shape: tuple[int, int]) -> np.ndarray:
+    """(h, w) float32 ``theta / 2 pi`` of a phase or beat stage, in [0, 1].
+
+    A beat is ``frac_s - frac_l`` (+1 where negative), s its operand of the shorter period;
+    operands that are beats are computed first, recursively (beats of beats).
+    """
+    if stage.kind == "phase":
+        return results[stage.indices[0]].frac
+    short, long_ = stage.ordered_parts()
+    frac_s = _stage_frac(short, results, scratch, shape)
+    frac_l = _stage_frac(long_, results, scratch, shape)
+    # one scratch array per beat of the tree, named by its operand text
+    frac = np.subtract(frac_s, frac_l, out=scratch.get(f"beat{stage.operand}", shape, np.float32))
+    frac += np.float32(1) * (frac < 0)
+    return frac
+
+
 def _reason_lut() -> np.ndarray:
     lut = np.zeros(256, np.uint8)
-    for index in range(32):
+    for index in range(64):
         for bit, code in (
             (16, REASON_TOO_DARK),
             (8, REASON_SATURATED),
             (4, REASON_LOW_INVERSE_CONTRAST),
+            (32, REASON_LEVEL_AMBIGUOUS),
             (2, REASON_INCONSISTENT),
             (1, REASON_OUTSIDE),
         ):

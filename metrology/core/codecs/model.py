@@ -9,7 +9,8 @@ JSON reading and writing, the natural order of frame files, and the built-in ``g
 
 Phase sequence (N >= 3 frames): frame k shows
 ``I_k = A + B cos(2 pi (x - origin) / period + 2 pi shift k / N)``.
-Gray code (``bits`` frames): word n (reflected gray code ``g = n ^ (n >> 1)``) covers
+Gray code (``bits`` frames): word n (reflected gray code ``g = n ^ (n >> 1)``; with ``levels``
+L > 2 its base-L reflected gray digits, shown as grey levels ``d / (L - 1)``) covers
 ``[origin + n word, origin + (n + 1) word)``.
 """
 
@@ -23,6 +24,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from metrology.core.codecs.chain import ChainSyntaxError, Operand, parse_stage_label
+
 CODEC_FORMAT = "gcps-codec/1"
 """Value of the ``codec`` key of every codec file."""
 
@@ -32,9 +35,18 @@ AXES: tuple[str, ...] = ("u", "v")
 WAVEFORMS: tuple[str, ...] = ("sine", "square")
 GRAY_ORDERS: tuple[str, ...] = ("msb_first", "lsb_first")
 MAX_GRAY_BITS = 16
+"""Largest number of gray-code bits of one axis (65536 words)."""
+MIN_GRAY_LEVELS, MAX_GRAY_LEVELS = 2, 8
+"""Accepted ``levels`` of a gray code (2: binary, the default)."""
+MAX_GRAY_WORDS = 65536
+"""Largest ``levels ** digits`` of a gray code."""
 PRECOMPENSATED_GAMMA_RANGE: tuple[float, float] = (0.2, 5.0)
 """Accepted ``precompensated_gamma`` values (inclusive)."""
-"""Largest number of gray-code bits of one axis (65536 words)."""
+
+COVER_TOLERANCE = 1e-9
+"""A first stage without a gray code covers the projector when its period is at least
+``extent * (1 - COVER_TOLERANCE)`` (a beat of beats of periods W/64, W/58, W/53 has period W up
+to rounding)."""
 
 GCPS_V1 = "gcps-v1"
 """Name of the built-in codec of the paper's eleven patterns (:func:`gcps_v1_codec`)."""
@@ -93,6 +105,10 @@ class GrayCode:
         Each bit's inverse image (same length as ``frames``): the bit's threshold.
     inverted : bool
         Flip every bit after thresholding.
+    levels : int
+        L, 2 (binary, the default) to 8: each frame shows one base-L digit of the word's
+        reflected gray code as the grey level ``d / (L - 1)`` (``metrology.core.codecs.gray``);
+        ``inverse_frames`` and ``inverted`` apply to L = 2 only; ``L**bits <= 65536``.
     """
 
     frames: tuple[int, ...]
@@ -101,11 +117,17 @@ class GrayCode:
     origin: float = 0.0
     inverse_frames: tuple[int, ...] | None = None
     inverted: bool = False
+    levels: int = 2
 
     @property
     def bits(self) -> int:
-        """Number of bit frames."""
+        """Number of bit (digit) frames."""
         return len(self.frames)
+
+    @property
+    def words(self) -> int:
+        """Number of code words, ``levels ** bits``."""
+        return int(self.levels) ** self.bits
 
     def centre(self, n: int) -> float:
         """Projector coordinate of the centre of word ``n``: ``origin + (n + 0.5) word``."""
@@ -116,22 +138,57 @@ class GrayCode:
 class Stage:
     """One stage of an unwrapping chain.
 
-    ``kind`` is ``"gray"``, ``"phase"`` (``indices = (i,)``) or ``"beat"`` (``indices = (i, j)``).
-    ``period`` and ``origin`` are the stage's (for a beat: ``P_b = P_s P_l / (P_l - P_s)``,
-    ``o_b = P_b (o_s / P_s - o_l / P_l)``, with s the shorter and l the longer period);
-    a gray stage has period 0.
+    ``kind`` is ``"gray"``, ``"phase"`` (``indices = (i,)``) or ``"beat"``. A beat has ``parts``,
+    its two operands as stages (each a phase or a beat: beats of beats nest to any depth), and
+    ``indices``, the phase sequences it reads (for ``beat:i,j``: ``(i, j)``). ``period`` and
+    ``origin`` are the stage's (for a beat of operands s, the shorter period, and l, the longer:
+    ``P_b = P_s P_l / (P_l - P_s)``, ``o_b = P_b (o_s / P_s - o_l / P_l)``); a gray stage has
+    period 0.
     """
 
     kind: str
     indices: tuple[int, ...]
     period: float
     origin: float
+    parts: tuple[Stage, ...] = ()
 
     @property
     def label(self) -> str:
+        """The chain entry: ``gray``, ``phase:I`` or ``beat:X,Y`` (X, Y an index or a ``(X,Y)`` pair)."""
         if self.kind == "gray":
             return "gray"
-        return f"{self.kind}:{','.join(str(i) for i in self.indices)}"
+        if self.kind == "phase":
+            return f"phase:{self.indices[0]}"
+        return f"beat:{self.parts[0].operand},{self.parts[1].operand}"
+
+    @property
+    def operand(self) -> str:
+        """The stage as an operand of a beat: ``I`` for a phase, ``(X,Y)`` for a beat."""
+        if self.kind == "phase":
+            return str(self.indices[0])
+        return f"({self.parts[0].operand},{self.parts[1].operand})"
+
+    def ordered_parts(self) -> tuple[Stage, Stage]:
+        """A beat's operands as (shorter period, longer period)."""
+        a, b = self.parts
+        return (a, b) if a.period < b.period else (b, a)
+
+    def phase_weights(self) -> dict[int, int]:
+        """Integer weights ``w_i`` with ``theta = sum_i w_i theta_i (mod 2 pi)`` over the phase sequences.
+
+        A phase stage is ``{i: 1}``; a beat ``theta_s - theta_l`` (s the operand of the shorter
+        period), e.g. ``beat:(0,1),(1,2)`` with periods falling from 0 to 2 is
+        ``theta_0 - 2 theta_1 + theta_2``. Its phase variance is ``sum_i w_i^2 var(theta_i)``.
+        """
+        if self.kind == "phase":
+            return {self.indices[0]: 1}
+        if self.kind == "gray":
+            return {}
+        short, long_ = self.ordered_parts()
+        weights = dict(short.phase_weights())
+        for i, w in long_.phase_weights().items():
+            weights[i] = weights.get(i, 0) - w
+        return {i: w for i, w in weights.items() if w != 0}
 
 
 @dataclass(frozen=True)
@@ -258,6 +315,8 @@ class Codec:
                     "inverse_frames": None if g.inverse_frames is None else list(g.inverse_frames),
                     "inverted": g.inverted,
                 }
+                if g.levels != 2:
+                    entry["gray"]["levels"] = g.levels
             if axis.unwrap is not None:
                 entry["unwrap"] = list(axis.unwrap)
             axes[name] = entry
@@ -272,21 +331,25 @@ class Codec:
 # ----------------------------------------------------------------------------- parsing
 def _parse_stage(label: str, phase: Sequence[PhaseSequence]) -> Stage:
     """A chain entry as a :class:`Stage` (indices already validated by :func:`validate_codec`)."""
-    if label == "gray":
+    parsed = parse_stage_label(label)
+    if parsed.tree is None:
         return Stage("gray", (), 0.0, 0.0)
-    kind, _, rest = label.partition(":")
-    indices = tuple(int(t) for t in rest.split(","))
-    if kind == "phase":
-        p = phase[indices[0]]
-        return Stage("phase", indices, p.period, p.origin)
-    a, b = phase[indices[0]], phase[indices[1]]
+    return _operand_stage(parsed.tree, phase)
+
+
+def _operand_stage(tree: Operand, phase: Sequence[PhaseSequence]) -> Stage:
+    """The stage of a parsed operand: a phase sequence, or the beat of two operands (recursively)."""
+    if tree.index is not None:
+        p = phase[tree.index]
+        return Stage("phase", (tree.index,), p.period, p.origin)
+    a, b = (_operand_stage(part, phase) for part in tree.parts)
     short, long_ = (a, b) if a.period < b.period else (b, a)
+    if long_.period == short.period:  # refused by validation: a beat needs two different periods
+        return Stage("beat", tuple(dict.fromkeys(tree.leaves())), math.inf, 0.0, parts=(a, b))
     period = short.period * long_.period / (long_.period - short.period)
     origin = period * (short.origin / short.period - long_.origin / long_.period)
-    return Stage("beat", indices, period, origin)
-
-
-_STAGE_RE = re.compile(r"^(gray|phase:(\d+)|beat:(\d+),(\d+))$")
+    indices = tuple(dict.fromkeys(tree.leaves()))
+    return Stage("beat", indices, period, origin, parts=(a, b))
 
 
 def _is_int(value: Any) -> bool:
@@ -333,7 +396,9 @@ def _phase_from_dict(where: str, data: Any) -> PhaseSequence:
 
 
 def _gray_from_dict(where: str, data: Any) -> GrayCode:
-    _check_keys(where, data, ("frames", "order", "word", "origin", "inverse_frames", "inverted"), ("frames", "word"))
+    _check_keys(
+        where, data, ("frames", "order", "word", "origin", "inverse_frames", "inverted", "levels"), ("frames", "word")
+    )
     frames = _int_list(f"{where}.frames", data["frames"])
     word = _real(f"{where}.word", data["word"])
     origin = _real(f"{where}.origin", data.get("origin", 0.0))
@@ -346,6 +411,7 @@ def _gray_from_dict(where: str, data: Any) -> GrayCode:
         origin=origin,
         inverse_frames=inverse_frames,
         inverted=data.get("inverted", False),
+        levels=data.get("levels", 2),
     )
 
 
@@ -471,7 +537,8 @@ def validate_codec(codec: Codec) -> None:
     ------
     CodecError
         Naming the field: N < 3, period <= 0, shift not +-1, unknown waveform or order, word
-        <= 0, more than 16 gray bits, inverse list of the wrong length, frame index out of range,
+        <= 0, more than 16 gray bits, gray levels outside 2..8 or ``levels ** digits`` above 65536,
+        inverse frames or ``inverted`` with levels > 2, inverse list of the wrong length, frame index out of range,
         a frame used twice, a gray code with no threshold source, a bad unwrap chain, an axis
         with nothing coded, a first stage that does not cover the projector, no axis at all.
     """
@@ -538,8 +605,22 @@ def validate_codec(codec: Codec) -> None:
         g = axis.gray
         if g is not None:
             gw = f"{where}.gray"
+            if not _is_int(g.levels) or not MIN_GRAY_LEVELS <= g.levels <= MAX_GRAY_LEVELS:
+                raise CodecError(
+                    f"codec field {gw}.levels must be an integer from {MIN_GRAY_LEVELS} to {MAX_GRAY_LEVELS}, "
+                    f"got {g.levels!r}"
+                )
             if not 1 <= len(g.frames) <= MAX_GRAY_BITS:
                 raise CodecError(f"codec field {gw}.frames must hold 1..{MAX_GRAY_BITS} bits, got {len(g.frames)}")
+            if g.words > MAX_GRAY_WORDS:
+                raise CodecError(
+                    f"codec field {gw}.frames: {len(g.frames)} digits of {g.levels} levels make {g.words} words; "
+                    f"levels ** digits must be at most {MAX_GRAY_WORDS}"
+                )
+            if g.levels != 2 and g.inverse_frames is not None:
+                raise CodecError(f"codec field {gw}.inverse_frames applies to levels = 2 only, not {g.levels}")
+            if g.levels != 2 and g.inverted is not False:
+                raise CodecError(f"codec field {gw}.inverted applies to levels = 2 only, not {g.levels}")
             if not _is_real(g.word) or g.word <= 0:
                 raise CodecError(f"codec field {gw}.word must be > 0, got {g.word!r}")
             if not _is_real(g.origin):
@@ -569,27 +650,37 @@ def _validate_chain(where: str, axis: Axis, extent: int) -> None:
     if labels is not None:
         if not labels:
             raise CodecError(f"codec field {where}.unwrap must not be empty")
+        canonical: list[str] = []
         for k, label in enumerate(labels):
-            m = _STAGE_RE.match(label) if isinstance(label, str) else None
-            if m is None:
+            try:
+                parsed = parse_stage_label(label) if isinstance(label, str) else None
+            except ChainSyntaxError as exc:
+                raise CodecError(
+                    f"codec field {where}.unwrap[{k}] = {label!r} is not 'gray', 'phase:I' or 'beat:I,J' "
+                    f"(I, J a phase index or a pair such as (0,1)): {exc}"
+                ) from None
+            if parsed is None:
                 raise CodecError(f"codec field {where}.unwrap[{k}] = {label!r} is not 'gray', 'phase:I' or 'beat:I,J'")
-            if label == "gray":
+            canonical.append(parsed.text)
+            if parsed.tree is None:
                 if axis.gray is None:
                     raise CodecError(f"codec field {where}.unwrap[{k}] is 'gray' but the axis has no gray code")
                 if k != 0:
                     raise CodecError(f"codec field {where}.unwrap[{k}]: 'gray' can only be the first stage")
                 continue
-            indices = [int(t) for t in (m.group(2), m.group(3), m.group(4)) if t is not None]
-            for i in indices:
+            for i in parsed.tree.leaves():
                 if i >= len(axis.phase):
                     raise CodecError(
                         f"codec field {where}.unwrap[{k}] = {label!r}: the axis has {len(axis.phase)} phase sequence(s)"
                     )
-            if len(indices) == 2:
-                a, b = (axis.phase[i].period for i in indices)
-                if indices[0] == indices[1] or a == b:
-                    raise CodecError(f"codec field {where}.unwrap[{k}] = {label!r}: a beat needs two different periods")
-        if len(set(labels)) != len(labels):
+            for beat in _beats(_operand_stage(parsed.tree, axis.phase)):
+                a, b = beat.parts
+                if a.period == b.period:
+                    raise CodecError(
+                        f"codec field {where}.unwrap[{k}] = {label!r}: a beat needs two different periods "
+                        f"({beat.operand} beats {a.operand} with {b.operand}, both of period {a.period:g})"
+                    )
+        if len(set(canonical)) != len(canonical):
             raise CodecError(f"codec field {where}.unwrap repeats a stage: {labels}")
     chain = axis.chain()
     previous: Stage | None = None
@@ -597,7 +688,7 @@ def _validate_chain(where: str, axis: Axis, extent: int) -> None:
         if stage.kind == "gray":
             previous = stage
             continue
-        if previous is None and stage.period < extent:
+        if previous is None and stage.period < extent * (1 - COVER_TOLERANCE):
             raise CodecError(
                 f"codec field {where}: the first unwrapping stage {stage.label} has period {stage.period:g}, "
                 f"shorter than the projector's {extent} px, and there is no gray code to unwrap it"
@@ -610,6 +701,13 @@ def _validate_chain(where: str, axis: Axis, extent: int) -> None:
         previous = stage
     if not chain:
         raise CodecError(f"codec field {where} has an empty unwrapping chain")
+
+
+def _beats(stage: Stage) -> list[Stage]:
+    """Every beat of a stage's tree (the stage itself included), outermost first."""
+    if stage.kind != "beat":
+        return []
+    return [stage, *_beats(stage.parts[0]), *_beats(stage.parts[1])]
 
 
 # ----------------------------------------------------------------------------- frame files

@@ -39,6 +39,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.ndimage import gaussian_filter1d
 
+from metrology.core.codecs.gray import gray_digits
 from metrology.core.codecs.model import Codec, GrayCode, PhaseSequence
 
 if TYPE_CHECKING:  # imported where used: metrology.core.simulate imports this module
@@ -96,9 +97,11 @@ def pattern_value(role: FrameRole, x: npt.ArrayLike) -> FloatArray:
 
     Phase: ``0.5 + 0.5 cos(2 pi (x - origin) / period + 2 pi shift k / N)``, or for a square
     waveform 1 where that cosine is >= 0, else 0. Gray bit b of word
-    ``n = clip(floor((x - origin) / word), 0, 2**bits - 1)``: ``(g >> b) & 1`` with
+    ``n = clip(floor((x - origin) / word), 0, levels**bits - 1)``: ``(g >> b) & 1`` with
     ``g = n ^ (n >> 1)``, complemented when the code is ``inverted`` and again for an inverse
-    frame. White 1, black and unused 0.
+    frame; with ``levels`` L > 2 the grey level ``d / (L - 1)`` of the base-L gray digit d of
+    place value ``L**b`` (:func:`metrology.core.codecs.gray.gray_digits`). White 1, black and
+    unused 0.
     """
     x = np.asarray(x, dtype=np.float64)
     if role.kind == "white":
@@ -116,7 +119,11 @@ def pattern_value(role: FrameRole, x: npt.ArrayLike) -> FloatArray:
     assert g is not None
     with np.errstate(invalid="ignore"):
         n = np.floor((np.nan_to_num(x) - g.origin) / g.word)
-    words = np.clip(n, 0, 2**g.bits - 1).astype(np.int64)
+    words = np.clip(n, 0, g.words - 1).astype(np.int64)
+    if g.levels != 2:
+        # digit of place value L**bit: column bits - 1 - bit of the MSB-first digits; level d / (L - 1)
+        digit = gray_digits(words, g.levels, g.bits)[..., g.bits - 1 - role.bit]
+        return digit.astype(np.float64) / (g.levels - 1)
     bit = ((words ^ (words >> 1)) >> role.bit) & 1
     flip = int(g.inverted) ^ int(role.inverse)
     return (bit ^ flip).astype(np.float64)

@@ -14,114 +14,22 @@ from typing import Any
 import numpy as np
 import pytest
 
-from metrology.core.codecs import Codec, builtin_codec, codec_from_dict, render_codec
-from metrology.core.codecs.decode import REASON_SLIP_REPAIRED, decode_codec
+from metrology.core.codecs import builtin_codec, codec_from_dict, render_codec
+from metrology.core.codecs.decode import decode_codec
 from metrology.core.codecs.render import default_projector_blur_px, square_wave_bias_px
 from metrology.core.geometry.crossed_axes import PAPER_RIG
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, crossed_rig_truth, render_stack
-
-PROJ_W, PROJ_H = 256, 192
-CAM_H, CAM_W = 72, 100
-
-
-def truth_maps(
-    height: int = CAM_H, width: int = CAM_W, proj_w: int = PROJ_W, proj_h: int = PROJ_H, shadow: bool = True
-) -> tuple[np.ndarray, np.ndarray]:
-    """Smooth, slightly curved maps covering the projector, with a shadowed disc (NaN)."""
-    yy, xx = np.mgrid[0:height, 0:width].astype(np.float64)
-    sx, sy = xx / (width - 1), yy / (height - 1)
-    u = -0.45 + (proj_w - 0.1) * (0.97 * sx + 0.03 * sx**2) + 0.6 * np.sin(3 * sy)
-    v = -0.45 + (proj_h - 0.1) * (0.96 * sy + 0.04 * sy * sx) + 0.4 * np.cos(2 * sx)
-    u = np.clip(u, -0.45, proj_w - 0.55)
-    v = np.clip(v, -0.45, proj_h - 0.55)
-    if shadow:
-        disc = (xx - 0.7 * width) ** 2 + (yy - 0.3 * height) ** 2 < (0.1 * width) ** 2
-        u[disc] = np.nan
-        v[disc] = np.nan
-    return u, v
-
-
-def axis_spec(
-    first: int,
-    steps: int | None,
-    period: float,
-    *,
-    bits: int = 0,
-    word: float | None = None,
-    order: str = "msb_first",
-    inverse: bool = False,
-    inverted: bool = False,
-    shift: int = 1,
-    origin: float = -0.5,
-    gray_origin: float = -0.5,
-    waveform: str = "sine",
-) -> tuple[dict[str, Any], int]:
-    """An axis of one phase sequence (``steps`` frames, or none) + an optional gray code; frames from ``first``."""
-    spec: dict[str, Any] = {}
-    f = first
-    if steps:
-        spec["phase"] = [
-            {
-                "frames": list(range(f, f + steps)),
-                "period": period,
-                "shift": shift,
-                "origin": origin,
-                "waveform": waveform,
-            }
-        ]
-        f += steps
-    if bits:
-        frames = list(range(f, f + bits))
-        f += bits
-        inverse_frames = None
-        if inverse:
-            inverse_frames = list(range(f, f + bits))
-            f += bits
-        spec["gray"] = {
-            "frames": frames,
-            "word": word if word is not None else period,
-            "order": order,
-            "origin": gray_origin,
-            "inverse_frames": inverse_frames,
-            "inverted": inverted,
-        }
-    return spec, f
-
-
-def make_codec(u: dict[str, Any] | None, v: dict[str, Any] | None, frames: int, **extra: Any) -> Codec:
-    axes = {name: spec for name, spec in (("u", u), ("v", v)) if spec is not None}
-    return codec_from_dict(
-        {
-            "codec": "gcps-codec/1",
-            "frames": frames,
-            "projector": {"width": PROJ_W, "height": PROJ_H},
-            "axes": axes,
-            **extra,
-        }
-    )
-
-
-def bits_for(word: float, extent: int = PROJ_W) -> int:
-    return max(1, math.ceil(math.log2((extent + 1) / word)))
-
-
-def assert_round_trip(codec: Codec, u: np.ndarray, v: np.ndarray, tol: float = 0.01, **render: Any) -> None:
-    images = render_codec(codec, u if "u" in codec.axes else None, v if "v" in codec.axes else None, **render)
-    decoded = decode_codec(images, codec)
-    for name, truth in (("u", u), ("v", v)):
-        if name not in codec.axes:
-            assert np.isnan(decoded.uv()[..., 0 if name == "u" else 1]).all()
-            continue
-        axis = decoded.axes[name]
-        lit = np.isfinite(truth)
-        valid = axis.valid
-        assert not (valid & ~lit).any(), f"{name}: decoded pixels in the shadow"
-        error = np.abs(axis.coordinate[valid] - truth[valid])
-        assert error.max() < tol, f"{name}: max error {error.max():.4g} px"
-        assert valid[lit].mean() > 0.999, f"{name}: only {valid[lit].mean():.4f} of the lit pixels decoded"
-        assert axis.slips_repaired == 0 and not (axis.reason == REASON_SLIP_REPAIRED).any()
-
+from tests.core.codecs.roundtrips import (
+    PROJ_H,
+    affine_truth,
+    assert_round_trip,
+    axis_spec,
+    bits_for,
+    decode_inner,
+    make_codec,
+    truth_maps,
+)
 
 U, V = truth_maps()
 
@@ -245,25 +153,16 @@ def test_square_wave_bias_for_small_n_is_as_documented() -> None:
 @pytest.mark.parametrize(("steps", "word_fraction"), [(4, 0.5), (12, 0.5), (18, 1.0)])
 def test_realistic_8bit_noise_matches_the_derived_limit(steps: int, word_fraction: float) -> None:
     opts = SimulationOptions.realistic_8bit()
-    s = opts.supersample
     height, width = 120, 120
     period = 16.0
-    # an affine map (camera blur of a linear map is unbiased): sub-pixel centres of an s-times finer grid
-    yy, xx = np.mgrid[0 : height * s, 0 : width * s].astype(np.float64)
-    xs, ys = (xx + 0.5) / s - 0.5, (yy + 0.5) / s - 0.5
-    u_fine = 2.0 + 2.05 * xs + 0.1 * ys
-    u_centre = 2.0 + 2.05 * np.arange(width)[None, :] + 0.1 * np.arange(height)[:, None]
+    u_fine, u_centre = affine_truth(height, width, opts.supersample, 2.0, 2.05, 0.1)
     word = period * word_fraction
     u_spec, n = axis_spec(0, steps, period, bits=bits_for(word), word=word)
     codec = make_codec(u_spec, None, n)
     repeats = []
     for seed in range(3):
         images = render_codec(codec, u_fine, None, opts, seed=seed)
-        axis = decode_codec(images, codec).axes["u"]
-        inner = np.zeros((height, width), bool)
-        inner[3:-3, 3:-3] = True
-        valid = axis.valid & inner
-        assert valid[inner].mean() > 0.999
+        axis, valid = decode_inner(images, codec)
         error = axis.coordinate[valid] - u_centre[valid]
         far = np.abs(error) > period / 2
         assert far.mean() < 1e-4, (far.sum(), axis.slips_repaired)
