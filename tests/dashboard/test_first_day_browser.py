@@ -76,3 +76,62 @@ def test_tables_fit_their_cards_at_1366_px(
         overflow = page.evaluate(OVERFLOW_JS)
         assert overflow and all(px == 0 for px in overflow), (name, overflow)
     assert not page.js_errors, page.js_errors
+
+
+def test_on_the_embedded_default_a_measurement_page_shows_progress_then_its_maps(
+    live_server, transactional_db, alice, rig, captures, browser_page, settings
+):
+    """No worker fixture: the live server's process runs the job in its embedded background thread
+    (GCPS_EMBEDDED_JOBS=background, the default outside the tests), after the form's request has
+    answered; the page shows the progress bar, then reloads onto the figures, the height map
+    coloured between p1 and p99 with the full range on its colour bar."""
+    from metrology.jobs.services import EmbeddedWorker
+
+    settings.GCPS_EMBEDDED_JOBS = "background"
+    settings.GCPS_JOB_PHASE_PAUSE_SECONDS = 0.5  # slow enough for the bar to be seen
+    reference, obj = captures
+    page = browser_page
+    page.set_viewport_size({"width": 1366, "height": 900})
+    log_in(page, live_server.url)
+    page.goto(f"{live_server.url}/measurements/new/?rig={rig.pk}")
+    page.select_option("#id_reference", str(reference.pk))
+    page.select_option("#id_object", str(obj.pk))
+    page.click("text=Run measurement")
+    page.wait_for_url("**/measurements/*/")
+    bar = page.locator(".js-job .progress")
+    assert bar.count() == 1 and bar.get_attribute("data-status") in ("queued", "running")
+    shot(page, "first-day-embedded-progress")
+    page.wait_for_selector("#fig-height_map .main-svg", timeout=120_000)  # reloaded once the job is done
+    colour_bar = page.locator("#fig-height_map .colorbar").text_content() or ""
+    assert "full range" in colour_bar and "p1-p99" in colour_bar, colour_bar
+    shot(page, "first-day-embedded-done")
+    assert EmbeddedWorker.get().wait_idle(60)
+    assert not page.js_errors, page.js_errors
+
+
+def test_an_upload_names_its_capture_and_codec_and_the_capture_page_gives_valid_pixels_in_percent(
+    live_server, transactional_db, alice, rig, browser_page, tmp_path
+):
+    from tests.app.stacks import SMALL_RIG, plane_zip
+
+    path = tmp_path / "plane-r.zip"
+    path.write_bytes(plane_zip(SMALL_RIG))
+    page = browser_page
+    page.set_viewport_size({"width": 1366, "height": 900})
+    log_in(page, live_server.url)
+    page.goto(f"{live_server.url}/rigs/{rig.pk}/captures/")
+    assert "the rig's default codec (gcps-v1)" in page.locator("#h-up + form .helptext").first.inner_text()
+    page.set_input_files("#id_upload-file", str(path))
+    page.select_option("#id_upload-role", "reference")
+    page.click("form:has(input[value=upload]) button[type=submit]")
+    page.wait_for_url(f"**/rigs/{rig.pk}/captures/")
+    message = page.locator("p.alert.info[role=status]").inner_text()
+    assert message.startswith("Stored capture #") and "(reference plane, plane-r.zip)" in message, message
+    assert "decoded with gcps-v1, the rig's default codec (used when the zip has no codec.json)" in message
+    shot(page, "first-day-upload-message")
+    capture_id = message.split("#", 1)[1].split(" ", 1)[0]
+    page.goto(f"{live_server.url}/captures/{capture_id}/")
+    cell = page.locator("#h-decoding ~ table td.num").first.inner_text()
+    assert " % (" in cell and cell.endswith(" px)"), cell
+    shot(page, "first-day-capture-valid-pixels")
+    assert not page.js_errors, page.js_errors
