@@ -100,6 +100,8 @@ def test_on_the_embedded_default_a_measurement_page_shows_progress_then_its_maps
     page.wait_for_url("**/measurements/*/")
     bar = page.locator(".js-job .progress")
     assert bar.count() == 1 and bar.get_attribute("data-status") in ("queued", "running")
+    # the heading's badge follows the job, as the progress card does
+    page.wait_for_function("() => document.querySelector('h1 [data-job-badge]').textContent === 'running'")
     shot(page, "first-day-embedded-progress")
     page.wait_for_selector("#fig-height_map .main-svg", timeout=120_000)  # reloaded once the job is done
     colour_bar = page.locator("#fig-height_map .colorbar").text_content() or ""
