@@ -105,7 +105,7 @@ def virtual(results: dict[str, Any]) -> None:
 
 def kamino(results: dict[str, Any]) -> None:
     if not (KAMINO / "capture_0").is_dir():
-        print(f"kamino410: dataset not found at {KAMINO}; skipped")
+        print(f"kamino410: dataset not found at {KAMINO} (docs/datasets.md says where to get it); skipped")
         return
     codec = read_codec(ROOT / "examples" / "kamino410-procam.codec.json")
     board = parse_board("chessboard:9x7:75")

@@ -212,7 +212,10 @@ else:
         "default": {
             "ENGINE": "django.db.backends.sqlite3",
             "NAME": VAR_DIR / "gcps.sqlite3",
-            "OPTIONS": {"timeout": 20},
+            # writers wait for each other (timeout, s) and take the write lock as their transaction
+            # begins (IMMEDIATE), so that two of them (a request and the embedded job thread) never
+            # deadlock on upgrading a read lock; WAL lets pages read while a job writes
+            "OPTIONS": {"timeout": 20, "transaction_mode": "IMMEDIATE", "init_command": "PRAGMA journal_mode=WAL;"},
             # tests get a file, not Django's shared in-memory database: the live server, the
             # test and in-process job threads then each have their own connection, and
             # concurrent writers wait (timeout) instead of failing with "table is locked"
@@ -364,6 +367,12 @@ GCPS_JOB_STALE_SECONDS = env_int("GCPS_JOB_STALE_SECONDS", 15, minimum=2)
 GCPS_JOB_MAX_ATTEMPTS = env_int("GCPS_JOB_MAX_ATTEMPTS", 3, minimum=1)
 GCPS_JOB_SWEEP_SECONDS = env_int("GCPS_JOB_SWEEP_SECONDS", 5, minimum=1)
 GCPS_JOB_RESEND_SECONDS = env_int("GCPS_JOB_RESEND_SECONDS", 120, minimum=1)
+# The embedded default (no broker) runs jobs in the web process: "background" (default) in one
+# thread of its own, after the request that created them has committed and answered (the page
+# shows their progress); "inline" in the request itself, which then waits (the tests' choice).
+GCPS_EMBEDDED_JOBS = env_str("GCPS_EMBEDDED_JOBS", "background")
+if GCPS_EMBEDDED_JOBS not in ("background", "inline"):
+    raise ImproperlyConfigured(f"GCPS_EMBEDDED_JOBS must be background or inline, got {GCPS_EMBEDDED_JOBS!r}")
 # Fault injection for tests: pause between the phases of a job (0 in production).
 GCPS_JOB_PHASE_PAUSE_SECONDS = float(env_int("GCPS_JOB_PHASE_PAUSE_MS", 0, minimum=0)) / 1000.0
 

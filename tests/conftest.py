@@ -31,6 +31,14 @@ def raised_throttle_rates(settings) -> None:
 
 
 @pytest.fixture(autouse=True)
+def jobs_run_inline(settings) -> None:
+    """On the embedded default, a job runs in the request that created it (``GCPS_EMBEDDED_JOBS=inline``),
+    so that a test finds it finished when the request returns; the tests of the background thread
+    (tests/app/test_embedded_jobs.py) and the browser tests' ``worker`` set their own way."""
+    settings.GCPS_EMBEDDED_JOBS = "inline"
+
+
+@pytest.fixture(autouse=True)
 def fast_password_hasher(settings) -> None:
     """Passwords hashed with MD5, not PBKDF2's million rounds (a quarter of a second for each user
     made with a password, each password log-in and each failed one): the tests check who may log

@@ -33,7 +33,10 @@ def require_dataset(path: Path, what: str) -> None:
     test reads, e.g. a dataset's first capture) exists; ``what`` names the dataset in the message."""
     if path.exists():
         return
-    message = f"{what} not found at {path.parent} (docs/datasets.md says where to get it); real-capture test skipped"
+    message = (
+        f"{what} not found: {path} is missing (docs/datasets.md says where to get it and how to prepare it); "
+        "real-capture test skipped"
+    )
     if os.environ.get("CI", "").lower() == "true":
         pytest.fail(message.replace("skipped", "required under CI=true"))
     pytest.skip(message)

@@ -54,19 +54,43 @@ def capture_zip(scene: str, codec: dict = CODEC, **params: float) -> tuple[bytes
     return zip_bytes(members), truth.points_mm
 
 
-def write_filestorage_yaml(path) -> None:
-    """The pinhole test rig written as an OpenCV FileStorage YAML, with the node names of a stereo
-    calibration script (``cam_int``, ``cam_dist``, ``proj_int``, ``proj_dist``, ``rotation``,
-    ``translation``) and the image size as ``img_shape`` (height, width)."""
+STEREO_SCRIPT_NODES = {
+    "size": "img_shape",
+    "camera_K": "cam_int",
+    "camera_dist": "cam_dist",
+    "projector_K": "proj_int",
+    "projector_dist": "proj_dist",
+    "R": "rotation",
+    "T": "translation",
+}
+"""The node names of a stereo calibration script (the image size as (height, width))."""
+
+NUMBERED_DEVICE_NODES = {
+    "size": "S",
+    "camera_K": "M1",
+    "camera_dist": "D1",
+    "projector_K": "M4",
+    "projector_dist": "D4",
+    "R": "Rlp",
+    "T": "Tlp",
+}
+"""The node names of a layout that numbers its devices (the image size ``S`` as (width, height))."""
+
+
+def write_filestorage_yaml(path, nodes: dict[str, str] = STEREO_SCRIPT_NODES) -> None:
+    """The pinhole test rig written as an OpenCV FileStorage YAML with the node names ``nodes``
+    (:data:`STEREO_SCRIPT_NODES` by default: ``cam_int``, ``cam_dist``, ``proj_int``, ``proj_dist``,
+    ``rotation``, ``translation`` and the image size as ``img_shape`` (height, width))."""
     import cv2
 
     rig = RIG
+    size = [rig.camera.width_px, rig.camera.height_px]
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-    fs.write("img_shape", np.array([[rig.camera.height_px, rig.camera.width_px]], dtype=np.float64))
-    fs.write("cam_int", np.asarray(rig.camera.K, dtype=np.float64))
-    fs.write("cam_dist", np.asarray(rig.camera.dist, dtype=np.float64).reshape(1, -1))
-    fs.write("proj_int", np.asarray(rig.projector.K, dtype=np.float64))
-    fs.write("proj_dist", np.asarray(rig.projector.dist, dtype=np.float64).reshape(1, -1))
-    fs.write("rotation", np.asarray(rig.R, dtype=np.float64))
-    fs.write("translation", np.asarray(rig.T, dtype=np.float64).reshape(3, 1))
+    fs.write(nodes["size"], np.array([size if nodes["size"] == "S" else size[::-1]], dtype=np.float64))
+    fs.write(nodes["camera_K"], np.asarray(rig.camera.K, dtype=np.float64))
+    fs.write(nodes["camera_dist"], np.asarray(rig.camera.dist, dtype=np.float64).reshape(1, -1))
+    fs.write(nodes["projector_K"], np.asarray(rig.projector.K, dtype=np.float64))
+    fs.write(nodes["projector_dist"], np.asarray(rig.projector.dist, dtype=np.float64).reshape(1, -1))
+    fs.write(nodes["R"], np.asarray(rig.R, dtype=np.float64))
+    fs.write(nodes["T"], np.asarray(rig.T, dtype=np.float64).reshape(3, 1))
     fs.release()

@@ -50,13 +50,15 @@ COUNTS: dict[str, tuple[int, ...]] = {
 OPENCV_NODE_NAMES: dict[str, tuple[str, ...]] = {
     "camera_K": ("cam_int", "camera_matrix", "cameraMatrix", "cam_K", "camera_K", "K1", "M1", "cam_mtx", "mtx_cam"),
     "camera_dist": ("cam_dist", "dist_coeffs", "distCoeffs", "camera_dist", "cam_dist_coeffs", "D1", "dist_cam"),
-    "projector_K": ("proj_int", "projector_matrix", "proj_K", "projector_K", "K2", "M2", "proj_mtx", "mtx_proj"),
-    "projector_dist": ("proj_dist", "projector_dist", "proj_dist_coeffs", "D2", "dist_proj"),
-    "R": ("rotation", "R", "rot", "rotation_matrix"),
+    "projector_K": ("proj_int", "projector_matrix", "proj_K", "projector_K", "K2", "M2", "M4", "proj_mtx", "mtx_proj"),
+    "projector_dist": ("proj_dist", "projector_dist", "proj_dist_coeffs", "D2", "D4", "dist_proj"),
+    "R": ("rotation", "R", "rot", "rotation_matrix", "Rlp"),
     "rvec": ("rvec", "rotation_vector", "om"),
-    "T": ("translation", "T", "tvec", "trans", "translation_vector"),
+    "T": ("translation", "T", "tvec", "trans", "translation_vector", "Tlp"),
 }
-"""FileStorage node names recognised by ``--opencv`` for each key (exact names)."""
+"""FileStorage node names recognised by ``--opencv`` for each key (exact names). Besides the names
+of OpenCV's samples and common stereo scripts, the layout that numbers its devices (``M1 D1``
+camera, ``M4 D4`` projector) and names the projector's pose from the camera ``Rlp Tlp``."""
 
 CAMERA_SIZE_NODES: dict[str, str] = {
     "img_shape": "HW",
@@ -65,6 +67,7 @@ CAMERA_SIZE_NODES: dict[str, str] = {
     "imageSize": "WH",
     "img_size": "WH",
     "camera_size": "WH",
+    "S": "WH",
 }
 """Nodes giving the camera image size: ``HW`` a NumPy shape (rows, cols), ``WH`` an OpenCV Size."""
 

@@ -9,6 +9,7 @@ from django import forms
 from metrology.captures.models import Capture
 from metrology.captures.simulation import PRESETS
 from metrology.dashboard.selectors import capture_origin
+from metrology.jobs.models import Job
 
 # Which scene parameter the "Z" field of the simulate form sets (scenes without one ignore it).
 SCENE_Z_PARAMETER = {"plane": "z_mm", "block": "top_mm", "stage": "z_in_mm", "staircase": "step_height_mm"}
@@ -30,6 +31,18 @@ NOISE_PRESETS: dict[str, tuple[str, dict]] = {
     "high": ("noisy, 8 bit (4 grey levels, blur)", {"bit_depth": 8, "noise_grey": 4.0, "camera_defocus_px": 0.8}),
 }
 DEFAULT_ROLE_FOR_SCENE = {"reference": "reference", "block": "master", "stage": "stage"}
+
+
+class JobFilterForm(forms.Form):
+    """The filters of the jobs page: a kind and a state, each optional (GET parameters)."""
+
+    kind = forms.ChoiceField(required=False, choices=[("", "every kind"), *Job.Kind.choices])
+    status = forms.ChoiceField(required=False, label="State", choices=[("", "every state"), *Job.Status.choices])
+
+    def filters(self) -> dict[str, str]:
+        """``{"kind": ..., "status": ...}`` for :func:`metrology.jobs.selectors.jobs_filtered` (empty: no filter)."""
+        data = self.cleaned_data if self.is_valid() else {}
+        return {"kind": data.get("kind", ""), "status": data.get("status", "")}
 
 
 class RigForm(forms.Form):

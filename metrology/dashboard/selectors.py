@@ -261,6 +261,23 @@ def capture_origin(capture) -> str:
     return str(capture.original_name or scene_name or capture.source)
 
 
+def upload_message(capture) -> str:
+    """What an upload stored, in a sentence: the capture (number, role, file, frames) and the codec
+    it is decoded with, saying when that is the rig's default (a zip without ``codec.json``)."""
+    from metrology.captures.codecs import codec_label
+    from metrology.rigs.codecs import capture_default
+
+    codec = codec_label(capture.codec)
+    if capture.codec == capture_default(capture.rig):
+        codec = f"{codec}, the rig's default codec (used when the zip has no codec.json)"
+    else:
+        codec = f"{codec}, from the zip's codec.json"
+    return (
+        f"Stored capture #{capture.pk} ({capture.get_role_display().lower()}, {capture_origin(capture)}): "
+        f"{capture.width_px} x {capture.height_px} px, {capture.bit_depth} bit, decoded with {codec}."
+    )
+
+
 def ready_captures(user, rig):
     """The user's stored captures of ``rig`` (newest first), for the forms' choices."""
     from metrology.captures.selectors import captures_for

@@ -33,6 +33,7 @@ from metrology.measurements import services as measurement_services
 from metrology.measurements.derived import available_files
 from metrology.rigs import selectors as rig_selectors
 from metrology.rigs import services as rig_services
+from metrology.rigs.codecs import capture_default
 from metrology.service_errors import SERVICE_ERRORS, error_sentence
 from metrology.version import software_version
 
@@ -56,6 +57,33 @@ def home(request: HttpRequest) -> HttpResponse:
             "jobs": job_selectors.jobs_for(user)[:10],
             "measurements": measurement_selectors.measurements_for(user)[:5],
             "characterizations": characterization_selectors.characterizations_for(user)[:5],
+        },
+    )
+
+
+JOBS_PER_PAGE = 50
+
+
+@login_required
+def job_list(request: HttpRequest) -> HttpResponse:
+    """The user's jobs, newest first, filtered by kind and state, 50 a page, each with its result's page."""
+    from django.core.paginator import Paginator
+
+    form = forms.JobFilterForm(request.GET or None)
+    filters = form.filters() if request.GET else {"kind": "", "status": ""}
+    page = Paginator(job_selectors.jobs_filtered(request.user, **filters), JOBS_PER_PAGE).get_page(
+        request.GET.get("page")
+    )
+    query = urlencode({key: value for key, value in filters.items() if value})
+    return render(
+        request,
+        "dashboard/jobs.html",
+        {
+            "form": form if request.GET else forms.JobFilterForm(),
+            "page": page,
+            "jobs": [(job, pages.job_result_url(job)) for job in page],
+            "filtered": any(filters.values()),
+            "query": query,
         },
     )
 
@@ -316,7 +344,7 @@ def rig_captures(request: HttpRequest, rig_id: int) -> HttpResponse:
             "simulate_form": simulate,
             "stage_form": stage,
             "can": rig_selectors.rig_capabilities(rig),
-            "codec_label": _codec_label(rig.codec),
+            "codec_label": _codec_label(capture_default(rig)),  # the codec itself, also when unset (gcps-v1)
             "captures": capture_selectors.captures_for(request.user, rig).order_by("-id")[:200],
             "sessions": pages.stage_sessions(request.user, rig),
         },
@@ -328,7 +356,9 @@ def _start_capture(request: HttpRequest, rig, action: str, form) -> str:
     """Call the capture service for the submitted form; returns where to go next."""
     data = form.cleaned_data
     if action == "upload":
-        capture_services.upload_capture(
+        from django.contrib import messages
+
+        capture = capture_services.upload_capture(
             owner=request.user,
             rig=rig,
             upload=data["file"],
@@ -336,6 +366,7 @@ def _start_capture(request: HttpRequest, rig, action: str, form) -> str:
             z_in_mm=data.get("z_in_mm"),
             repeat=data.get("repeat") or 0,
         )
+        messages.success(request, pages.upload_message(capture))
         return reverse("dashboard:rig-captures", args=[rig.pk])
     if action == "simulate":
         capture = capture_services.request_simulated_capture(owner=request.user, rig=rig, **form.request_kwargs())

@@ -20,6 +20,38 @@ MAX_COLS = 400
 MAX_ROWS_3D = 160
 MAX_COLS_3D = 200
 UM = 1000.0
+ROBUST_PERCENTILES = (1.0, 99.0)
+"""The colours of a map and the 3D view's box span these percentiles of the finite values, so that a
+few outliers (a shattered border, a reflection) neither wash out the colours nor flatten the
+object; the full range stays in the hover, the colour bar's title and the statistics."""
+
+
+def robust_range(values: npt.ArrayLike) -> tuple[float, float] | None:
+    """The (p1, p99) percentiles of the finite ``values`` (:data:`ROBUST_PERCENTILES`); ``None`` when none is finite.
+
+    A range of zero width (a flat map) is returned as it is.
+
+    >>> robust_range(np.r_[np.arange(101.0), np.nan, 1e6])
+    (1.01, 99.99)
+    """
+    v = np.asarray(values, dtype=np.float64)
+    finite = v[np.isfinite(v)]
+    if finite.size == 0:
+        return None
+    low, high = np.percentile(finite, ROBUST_PERCENTILES)
+    return round(float(low), 9), round(float(high), 9)
+
+
+def full_range(values: npt.ArrayLike) -> tuple[float, float] | None:
+    """(min, max) of the finite ``values``; ``None`` when none is finite."""
+    v = np.asarray(values, dtype=np.float64)
+    finite = v[np.isfinite(v)]
+    return (float(finite.min()), float(finite.max())) if finite.size else None
+
+
+def _range_note(colour: tuple[float, float], full: tuple[float, float]) -> str:
+    """``colours p1-p99: 0.012 to 25.1 mm; full range -61.2 to 58.7 mm`` (what a colour bar stands for)."""
+    return f"colours p1-p99: {colour[0]:.4g} to {colour[1]:.4g} mm; full range {full[0]:.4g} to {full[1]:.4g} mm"
 
 
 def block_factors(shape: tuple[int, int], max_rows: int = MAX_ROWS, max_cols: int = MAX_COLS) -> tuple[int, int]:
@@ -86,8 +118,16 @@ def height_map_figure(
     x_label: str = "X (mm)",
     y_label: str = "Y (mm)",
     unit: str = "mm",
+    colour_range: tuple[float, float] | None = None,
+    value_range: tuple[float, float] | None = None,
 ) -> go.Figure:
     """Heatmap of a (decimated) map of heights (or depths) with a colour bar in mm.
+
+    The colours span ``colour_range`` (default: :func:`robust_range` of ``z_mm``, its p1-p99), so
+    that outliers do not wash out the object; values beyond it take the end colours. The hover
+    shows every cell's own value, and the colour bar's title the full range ``value_range``
+    (default: that of ``z_mm``; give the full-resolution map's, as decimation averages extremes
+    away). ``layout.meta`` holds both (``colour_range_mm``, ``full_range_mm``).
 
     Parameters
     ----------
@@ -98,10 +138,14 @@ def height_map_figure(
         What ``z_mm`` is (the title and the colour bar say it).
     x_label, y_label, unit : str
         The axes' titles and the coordinates' unit (the paper's X, Y in mm; camera pixels).
+    colour_range, value_range : (low, high) mm, optional
+        The colours' span and the full range of the values (see above).
     """
     z = np.asarray(z_mm, dtype=np.float32)
     title = title or f"{quantity.capitalize()} map"
-    if not np.isfinite(z).any():
+    colours = colour_range or robust_range(z)
+    full = value_range or full_range(z)
+    if colours is None or full is None:
         return empty_figure(title, "No pixel was measured.")
     fig = go.Figure(
         data=[
@@ -109,13 +153,18 @@ def height_map_figure(
                 z=z,
                 x=np.asarray(x_mm, dtype=np.float32),
                 y=np.asarray(y_mm, dtype=np.float32),
+                zmin=colours[0],
+                zmax=colours[1],
                 colorscale="Viridis",
-                colorbar={"title": {"text": f"{quantity} (mm)", "side": "right"}},
+                colorbar={
+                    "title": {"text": f"{quantity} (mm)<br><sub>{_range_note(colours, full)}</sub>", "side": "right"}
+                },
                 hovertemplate=_hover(x_label, y_label, unit, quantity),
             )
         ],
         layout=base_layout(title, x_label, y_label, height=480),
     )
+    fig.update_layout(meta={"colour_range_mm": list(colours), "full_range_mm": list(full)})
     return fit_image_axes(fig, x_mm, y_mm)
 
 
@@ -178,6 +227,11 @@ def surface_figure(xyz_mm: npt.ArrayLike, title: str = "3D view", max_jump_mm: f
     The triangles are those of the measurement's mesh files (:func:`metrology.core.mesh.grid_triangles`
     on the decimated grid): neighbouring finite points joined, steps higher than ``max_jump_mm``
     not bridged, NaN leaves holes. Drawn as a plotly ``Mesh3d`` coloured by z.
+
+    The box fits the object, not its outliers: its aspect comes from the p1-p99 span of each
+    coordinate (:func:`robust_range`), z is shown (and coloured) over its p1-p99 range widened by a
+    tenth on each side, and the title says so when points lie beyond it (the hover shows every
+    point's own value). ``layout.meta`` holds the z ranges (``z_shown_mm``, ``full_range_mm``).
     """
     from metrology.core.mesh import grid_triangles
 
@@ -190,16 +244,24 @@ def surface_figure(xyz_mm: npt.ArrayLike, title: str = "3D view", max_jump_mm: f
     z = xyz[..., 2]
     triangles = grid_triangles(valid, np.where(valid, z, 0.0), max_jump_mm)
     points = xyz[valid]
-    span = [float(np.ptp(points[:, i])) or 1.0 for i in range(3)]
+    ranges = [robust_range(points[:, i]) or (0.0, 0.0) for i in range(3)]
+    span = [(high - low) or 1.0 for low, high in ranges]
     biggest = max(span[0], span[1])
+    z_low, z_high = ranges[2][0] - 0.1 * span[2], ranges[2][1] + 0.1 * span[2]
+    full = full_range(points[:, 2]) or (z_low, z_high)
+    beyond = int(np.count_nonzero((points[:, 2] < z_low) | (points[:, 2] > z_high)))
+    if beyond:
+        title = f"{title}; z shown over p1-p99, {beyond} point(s) beyond (full range {full[0]:.4g} to {full[1]:.4g} mm)"
     layout = base_layout(title, "", "", height=520, margin={"l": 0, "r": 0, "t": 50, "b": 0})
     layout["scene"] = {
         "xaxis": {"title": {"text": "X (mm)"}},
         "yaxis": {"title": {"text": "Y (mm)"}},
-        "zaxis": {"title": {"text": "z (mm)"}, "nticks": 4, "tickformat": ".4~g"},  # a flat box: few z labels
+        # a flat box: few z labels
+        "zaxis": {"title": {"text": "z (mm)"}, "nticks": 4, "tickformat": ".4~g", "range": [z_low, z_high]},
         "aspectmode": "manual",
         "aspectratio": {"x": span[0] / biggest, "y": span[1] / biggest, "z": max(0.15, min(1.0, span[2] / biggest))},
     }
+    layout["meta"] = {"z_shown_mm": [z_low, z_high], "full_range_mm": list(full)}
     fig = go.Figure(
         data=[
             go.Mesh3d(
@@ -210,6 +272,8 @@ def surface_figure(xyz_mm: npt.ArrayLike, title: str = "3D view", max_jump_mm: f
                 j=triangles[:, 1],
                 k=triangles[:, 2],
                 intensity=points[:, 2],
+                cmin=ranges[2][0],
+                cmax=ranges[2][1],
                 colorscale="Viridis",
                 colorbar={"title": {"text": "z (mm)"}},
                 flatshading=False,
@@ -273,6 +337,8 @@ def measurement_figures(
     y = np.arange(h, dtype=np.float64) if y_mm is None else np.asarray(y_mm, dtype=np.float64)
     fr, fc = block_factors(z.shape)
     small = decimate(z)
+    # the colours from the full-resolution map: decimation averages outliers into their blocks
+    colours, full = robust_range(z), full_range(z)
     figures = {
         "height_map": height_map_figure(
             small,
@@ -283,6 +349,8 @@ def measurement_figures(
             x_label=x_label,
             y_label=y_label,
             unit=unit,
+            colour_range=colours,
+            value_range=full,
         )
     }
     gray = None if gray_z_mm is None else np.asarray(gray_z_mm, dtype=np.float32)

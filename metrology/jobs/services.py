@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import queue
 import re
 import threading
 import time
@@ -97,11 +98,20 @@ def check_broker() -> None:
 
 
 def _send(job_id: int) -> None:
-    """Publish the job's message; on a broker failure, log it and leave the job queued for the sweep."""
+    """Publish the job's message; on a broker failure, log it and leave the job queued for the sweep.
+
+    On the embedded default (no broker) the job runs in this process: in the background thread of
+    :class:`EmbeddedWorker` when ``GCPS_EMBEDDED_JOBS`` is ``background`` (the default: the request
+    answers at once and the page shows the job's progress), else at once in the calling thread
+    (``inline``: what the tests use, so that a job is done when its request returns).
+    """
     from kombu.exceptions import OperationalError as BrokerOperationalError
 
     from metrology.jobs.tasks import run_job
 
+    if settings.CELERY_TASK_ALWAYS_EAGER and settings.GCPS_EMBEDDED_JOBS == "background":
+        EmbeddedWorker.get().submit(job_id)
+        return
     try:
         result = run_job.apply_async(args=[job_id])
     except (BrokerOperationalError, ConnectionError, OSError):
@@ -111,6 +121,63 @@ def _send(job_id: int) -> None:
         return
     if not settings.CELERY_TASK_ALWAYS_EAGER:
         Job.objects.filter(pk=job_id, celery_task_id="").update(celery_task_id=result.id or "")
+
+
+class EmbeddedWorker(threading.Thread):
+    """The embedded default's job worker: one daemon thread of the web (or command) process that runs
+    the jobs sent to it one after the other, outside the requests that created them.
+
+    One thread, so that SQLite sees at most one job writing besides the requests (its writers wait
+    for each other: ``timeout`` and ``transaction_mode`` of the database settings). Each job runs
+    with a heartbeat (:func:`execute_job`), and the thread, when it starts, sweeps once
+    (:func:`sweep_jobs`): a job left running by a process that stopped (a server restarted
+    mid-job) is run again, or failed after ``GCPS_JOB_MAX_ATTEMPTS``, instead of staying "running".
+    """
+
+    _instance: EmbeddedWorker | None = None
+    _lock = threading.Lock()
+
+    def __init__(self) -> None:
+        super().__init__(name="gcps-embedded-jobs", daemon=True)
+        self.jobs: queue.Queue[int] = queue.Queue()
+        self.idle = threading.Event()
+        self.idle.set()
+
+    @classmethod
+    def get(cls) -> EmbeddedWorker:
+        """The process's worker, started on first use."""
+        with cls._lock:
+            if cls._instance is None or not cls._instance.is_alive():
+                cls._instance = cls()
+                cls._instance.start()
+            return cls._instance
+
+    def submit(self, job_id: int) -> None:
+        """Run the job ``job_id`` when the jobs sent before it are done."""
+        self.idle.clear()
+        self.jobs.put(job_id)
+
+    def wait_idle(self, timeout: float | None = None) -> bool:
+        """Wait until every job sent so far has run; False if ``timeout`` (s) passed first."""
+        return self.idle.wait(timeout)
+
+    def run(self) -> None:
+        try:
+            sweep_jobs()
+        except Exception:  # a sweep that fails must not stop the worker
+            logger.warning("the embedded worker's first sweep failed", exc_info=True)
+        finally:
+            connection.close()
+        while True:
+            job_id = self.jobs.get()
+            try:
+                execute_job(job_id, heartbeat=True)
+            except Exception:  # execute_job fails the job itself; this is a fault of the database
+                logger.exception("embedded worker: job %s stopped", job_id)
+            finally:
+                connection.close()  # a fresh connection for the next job (SQLite: no lock held meanwhile)
+                if self.jobs.empty():
+                    self.idle.set()
 
 
 # ----------------------------------------------------------------------------- running
@@ -274,11 +341,18 @@ def _handler(kind: str) -> JobHandler:
     return handler_for(kind)
 
 
-def execute_job(job_id: int, *, task_id: str = "", transient: tuple[type[BaseException], ...] = ()) -> str:
+def execute_job(
+    job_id: int,
+    *,
+    task_id: str = "",
+    transient: tuple[type[BaseException], ...] = (),
+    heartbeat: bool | None = None,
+) -> str:
     """Run one attempt of a job. Returns what happened: skipped, busy, done, failed or superseded.
 
     Exceptions listed in ``transient`` release the job and propagate (the task retries them);
-    every other exception fails the job with a message.
+    every other exception fails the job with a message. ``heartbeat`` (default: unless tasks run
+    eagerly inside the request) keeps ``heartbeat_at`` fresh from a second thread while it runs.
     """
     if not connection.in_atomic_block:  # a worker's stale connection; never one a caller is using
         close_old_connections()
@@ -288,9 +362,11 @@ def execute_job(job_id: int, *, task_id: str = "", transient: tuple[type[BaseExc
     if not isinstance(run, JobRun):
         return BUSY
     job = Job.objects.get(pk=job_id)
-    heartbeat = None if settings.CELERY_TASK_ALWAYS_EAGER else _Heartbeat(run)
-    if heartbeat:
-        heartbeat.start()
+    if heartbeat is None:
+        heartbeat = not settings.CELERY_TASK_ALWAYS_EAGER
+    beat = _Heartbeat(run) if heartbeat else None
+    if beat:
+        beat.start()
     try:
         _handler(job.kind)(job, run)
         return "done"
@@ -316,8 +392,8 @@ def execute_job(job_id: int, *, task_id: str = "", transient: tuple[type[BaseExc
         fail_job(run, reason)
         return "failed"
     finally:
-        if heartbeat:
-            heartbeat.stop()
+        if beat:
+            beat.stop()
 
 
 def _reason(exc: Exception, phase: str = "") -> str:

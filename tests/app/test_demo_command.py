@@ -1,4 +1,5 @@
-"""The demo command (scripts/demo.sh): run twice, it adds nothing the second time; its hint uses PORT."""
+"""The demo command (scripts/demo.sh): run twice, it adds nothing the second time and reports its own
+results (not a measurement made on its rig since); its hint uses PORT; its output is its summary."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from metrology.captures.models import Capture
 from metrology.characterizations.models import Characterization
 from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
+from metrology.measurements.services import request_measurement
 from metrology.rigs.models import Rig
 
 
@@ -39,3 +41,28 @@ def test_demo_twice_adds_no_duplicate_and_prints_the_port(monkeypatch):
     assert "http://127.0.0.1:8123/" in second
     measurement = Measurement.objects.get()
     assert f"measurement {measurement.pk}:" in second
+    # a measurement made on the demo rig afterwards is not the demo's
+    owner, rig = measurement.owner, measurement.rig
+    later = request_measurement(
+        owner=owner, rig=rig, reference_id=measurement.reference_id, object_id=measurement.object_id
+    )
+    assert Job.objects.get(pk=later.job_id).status == Job.Status.DONE
+    third = run_demo()
+    assert f"measurement {measurement.pk}:" in third and f"measurement {later.pk}:" not in third
+    assert f"/api/measurements/{measurement.pk}/" in third
+
+
+@pytest.mark.slow
+@pytest.mark.django_db(transaction=True)
+def test_the_demo_prints_its_summary_without_the_jobs_log_lines(caplog):
+    """The jobs run in-process (inline here, as in every test) log "Task ... succeeded" at INFO
+    through Celery's logger, which the console shows under the demo's summary; the demo keeps those
+    lines out (the loggers' levels are restored after it)."""
+    import logging
+
+    with caplog.at_level(logging.INFO):
+        out = run_demo()
+    lines = [record.getMessage() for record in caplog.records if record.levelno < logging.WARNING]
+    assert not [line for line in lines if "succeeded in" in line], lines[:5]
+    assert out.splitlines()[0].startswith("created user 'demo'") and "succeeded in" not in out
+    assert logging.getLogger("celery").level == logging.NOTSET

@@ -35,8 +35,11 @@ def _sets(sources: dict[str, str]) -> list[str]:
     return [arg for key, src in sources.items() for arg in ("--set", f"{key}={src}")]
 
 
-def _write_filestorage(path: Path, names: dict[str, str]) -> None:
+def _write_filestorage(path: Path, names: dict[str, str], first: dict[str, np.ndarray] | None = None) -> None:
+    """The values of ``names`` (key -> node) as a FileStorage file, after the nodes ``first`` (node -> value)."""
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    for node, value in (first or {}).items():
+        fs.write(node, value)
     for key, node in names.items():
         value = VALUES[key]
         fs.write(node, value if value.ndim == 2 else value.reshape(1, -1))
@@ -113,6 +116,24 @@ def test_opencv_file_found_by_node_names(
     assert main(["rig", "import", "--out", str(out), *SIZES, "--opencv", str(path)]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["read"] == {key: f"{path}#{node}" for key, node in names.items()}
+    assert out.read_bytes() == reference_file
+
+
+def test_a_file_that_numbers_its_devices_is_read_by_its_node_names(
+    tmp_path: Path, reference_file: bytes, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``M1 D1`` camera, ``M4 D4`` projector, ``Rlp Tlp`` pose and ``S`` the image size as (width, height):
+    the same rig as the reference, and the summary names each node and where the size came from."""
+    path = tmp_path / "numbered.yml"
+    names = {"camera_K": "M1", "camera_dist": "D1", "projector_K": "M4", "projector_dist": "D4"}
+    names.update({"R": "Rlp", "T": "Tlp"})
+    _write_filestorage(path, names, first={"S": np.array([[2048.0, 1536.0]])})
+    out = tmp_path / "rig.json"
+    args = ["rig", "import", "--out", str(out), "--projector-size", "1280", "800", "--opencv", str(path)]
+    assert main(args) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["read"] == {key: f"{path}#{node}" for key, node in names.items()}
+    assert summary["camera_size"] == {"value": [2048, 1536], "from": f"{path}#S (width, height)"}
     assert out.read_bytes() == reference_file
 
 

@@ -60,8 +60,8 @@ def test_capture_page_of_a_gcps_v1_capture(client_alice, rig, captures):
     html = client_alice.get(f"/captures/{reference.pk}/").content.decode()
     assert "gcps-v1" in html
     assert figure_data(html, "coordinate_u")["data"][0]["type"] == "heatmap"
-    decoded = re.search(r'<td>u</td><td class="num">(\d+)</td>', html)
-    assert decoded and int(decoded.group(1)) > 0.9 * reference.width_px * reference.height_px
+    decoded = re.search(r'<td>u</td><td class="num">[\d.]+ % \(([\d,]+) of [\d,]+ px\)</td>', html)
+    assert decoded and int(decoded.group(1).replace(",", "")) > 0.9 * reference.width_px * reference.height_px
 
 
 def test_capture_page_of_another_user_is_not_found(client_bob, rig, captures):

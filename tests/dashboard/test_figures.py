@@ -141,3 +141,42 @@ def test_empty_figures_say_why_and_offer_no_download():
     drawn = str(plotly_figure(residual_figure(np.zeros((120, 160)), *paper_rig_axes(160, 120)), "residual"))
     assert "js-download" in drawn and "PNG" in drawn
     assert not is_empty(empty_figure("t", "m").add_scatter(x=[1], y=[1]))  # a figure with data is not empty
+
+
+def test_maps_and_the_3d_view_fit_the_object_not_its_outliers():
+    """A 25 mm block on a plane, with a shattered border of +-60 mm: the colours span p1-p99 (the
+    object), the colour bar states the full range, and the 3D box's z fits the object."""
+    from metrology.figures.measurement import measurement_figures
+
+    rng = np.random.default_rng(3)
+    h, w = 120, 160
+    z = np.zeros((h, w), dtype=np.float32)
+    z[40:80, 50:110] = 25.0
+    border = rng.random((h, w)) < 0.004
+    z[border] = rng.choice([-60.0, 60.0], size=int(border.sum()))
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    xyz = np.stack([xx * 0.5, yy * 0.5, z], axis=-1)
+    figures = measurement_figures(z, xyz, 60)
+    heatmap = figures["height_map"].data[0]
+    assert (heatmap.zmin, heatmap.zmax) == (0.0, 25.0)
+    assert figures["height_map"].layout.meta["full_range_mm"] == [-60.0, 60.0]
+    assert "full range -60 to 60 mm" in heatmap.colorbar.title.text
+    surface = figures["surface"]
+    low, high = surface.layout.scene.zaxis.range
+    assert -5.0 < low < 0.0 and 25.0 < high < 30.0, (low, high)
+    assert (surface.data[0].cmin, surface.data[0].cmax) == (0.0, 25.0)
+    assert surface.layout.scene.aspectratio.z == pytest.approx(25.0 / (w * 0.5 - 0.5), rel=0.05)
+    assert "point(s) beyond (full range -60 to 60 mm)" in surface.layout.title.text
+    # the hover shows each cell's own value, not the clipped colour
+    assert "%{z:.3f} mm" in heatmap.hovertemplate
+
+
+def test_a_map_without_outliers_keeps_its_whole_range_and_a_plain_title():
+    from metrology.figures.measurement import measurement_figures
+
+    z = np.tile(np.linspace(0.0, 10.0, 100, dtype=np.float32), (50, 1))
+    yy, xx = np.mgrid[0:50, 0:100].astype(np.float32)
+    figures = measurement_figures(z, np.stack([xx, yy, z], axis=-1), 10)
+    heatmap = figures["height_map"].data[0]
+    assert 0.0 <= heatmap.zmin < 0.2 and 9.8 < heatmap.zmax <= 10.0
+    assert "beyond" not in figures["surface"].layout.title.text

@@ -156,3 +156,31 @@ def test_the_rig_page_imports_a_calibration_file_into_the_rig_or_says_why_not(cl
     assert rig.to_core() == RIG and rig.history.latest("id").source == RigParameters.Source.IMPORTED
     page = unescape(client_alice.get(done["Location"]).content.decode())
     assert "camera_K from cam_int" in page and "imported" in page
+
+
+def test_the_rigs_page_imports_a_file_that_numbers_its_devices_and_names_its_nodes(client_alice, alice, tmp_path):
+    """A FileStorage file with the camera ``M1 D1``, the projector ``M4 D4``, its pose ``Rlp Tlp`` and
+    the image size ``S`` (width, height) makes the same rig as the stereo script's layout; the
+    message on the new rig's page names every node it read and where the camera size came from."""
+    from tests.pinhole_stacks import NUMBERED_DEVICE_NODES, PROJ_H, PROJ_W, write_filestorage_yaml
+
+    path = tmp_path / "calibration.yml"
+    write_filestorage_yaml(path, NUMBERED_DEVICE_NODES)
+    done = client_alice.post(
+        "/rigs/",
+        {
+            "action": "calibration",
+            "import-name": "numbered",
+            "import-calibration_file": SimpleUploadedFile("calibration.yml", path.read_bytes()),
+            "import-projector_width": PROJ_W,
+            "import-projector_height": PROJ_H,
+        },
+    )
+    assert done.status_code == 302, unescape(done.content.decode())[:3000]
+    rig = Rig.objects.get(owner=alice)
+    assert rig.to_core() == RIG
+    page = unescape(client_alice.get(done["Location"]).content.decode())
+    for key, node in NUMBERED_DEVICE_NODES.items():
+        if key != "size":
+            assert f"{key} from {node}" in page, (key, node)
+    assert f"camera {RIG.camera.width_px} x {RIG.camera.height_px} px" in page and "#S (width, height)" in page

@@ -135,6 +135,20 @@ def pct(value, digits: int = 1):
 
 
 @register.filter
+def pct_of(count, capture) -> str:
+    """``count`` pixels of ``capture``'s frames in the one format of valid pixels: the percentage
+    (:func:`pct`) first, then the count, e.g. ``70.2 % (217,353 of 309,760 px)``."""
+    try:
+        total = int(capture.width_px) * int(capture.height_px)
+        number = int(count)
+    except (TypeError, ValueError, AttributeError):
+        return "n/a"
+    if total <= 0:
+        return f"{number:,} px"
+    return f"{pct(number / total)} ({number:,} of {total:,} px)"
+
+
+@register.filter
 def pinhole_summary(values) -> str:
     """A pinhole rig file in a line: camera and projector fx, baseline |T| (for the rig's history)."""
     try:

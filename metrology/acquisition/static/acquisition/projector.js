@@ -22,6 +22,14 @@
   var bitmaps = new Map();
   var status = "connecting";
 
+  // what the test pattern's last line says; data-status on the page holds it too
+  function setStatus(text) {
+    if (text === status) return;
+    status = text;
+    root.dataset.status = text;
+    if (current.kind === "test") draw(current);
+  }
+
   function sleep(ms) { return new Promise(function (r) { setTimeout(r, ms); }); }
 
   function fitCanvas() {
@@ -125,12 +133,14 @@
   async function loop() {
     for (;;) {
       try {
-        var response = await fetch(stateUrl + "?page=1&wait=20&after=" + handled, {
+        // the first question is answered at once, so that an idle page says "connected" at once
+        var wait = status === "connected" ? 20 : 0;
+        var response = await fetch(stateUrl + "?page=1&wait=" + wait + "&after=" + handled, {
           credentials: "same-origin", cache: "no-store",
         });
         if (!response.ok) throw new Error("HTTP " + response.status);
         var state = await response.json();
-        status = "connected";
+        setStatus("connected"); // idle too: the server answered, whether or not there is a new pattern
         if (state.seq > handled) {
           var size = await draw(state);
           await afterPaint();
@@ -138,8 +148,7 @@
           handled = state.seq;
         }
       } catch (err) {
-        status = "retrying (" + err.message + ")";
-        if (current.kind === "test") draw(current);
+        setStatus("retrying (" + err.message + ")");
         await sleep(1000);
       }
     }
@@ -158,10 +167,7 @@
       await afterPaint();
       return size;
     },
-    setStatus: function (text) {
-      status = text;
-      if (current.kind === "test") draw(current);
-    },
+    setStatus: setStatus,
   };
 
   document.addEventListener("click", fullScreen);
@@ -170,6 +176,7 @@
     if (event.key === "t") draw({ kind: "test", frame: -1, seq: handled });
   });
   window.addEventListener("resize", function () { draw(current); });
+  root.dataset.status = status;
   draw(current);
   if (root.dataset.mode !== "webcam") loop();
 })();

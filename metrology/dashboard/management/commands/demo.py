@@ -1,12 +1,16 @@
 """``python manage.py demo``: a virtual rig, simulated captures, a measurement, a calibration, a characterization.
 
 Works on the embedded default (jobs run in-process) and with workers (it waits for their jobs).
-Running it again adds nothing once a run has finished: it finds the demo rig and its results and
-prints them again (a run stopped part-way is completed on the same rig).
+Running it again adds nothing once a run has finished: it finds the demo rig and its own results
+(the first finished measurement, calibration and characterization of that rig, not whatever was
+made on it since) and prints them again (a run stopped part-way is completed on the same rig).
+Its output is its summary only: the log lines of the jobs it runs in-process (Celery's
+"Task ... succeeded") are kept out of it.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import time
 
@@ -28,6 +32,8 @@ from metrology.rigs.services import create_rig
 
 NOISE = PRESETS["realistic"]  # the API's and the dashboard's default
 RIG_NAME = "virtual rig (paper geometry)"
+QUIET_LOGGERS = ("celery", "metrology.jobs")
+"""Loggers whose INFO lines (a job run in-process) would interleave with the demo's summary."""
 
 
 class Command(BaseCommand):
@@ -40,6 +46,17 @@ class Command(BaseCommand):
         parser.add_argument("--timeout", type=float, default=900.0, help="Seconds to wait for the jobs")
 
     def handle(self, *args, user: str, width: int, height: int, timeout: float, **options) -> None:
+        quiet = [logging.getLogger(name) for name in QUIET_LOGGERS]
+        levels = [logger.level for logger in quiet]
+        for logger in quiet:
+            logger.setLevel(logging.WARNING)  # warnings and errors still show
+        try:
+            self.run(user=user, width=width, height=height, timeout=timeout)
+        finally:
+            for logger, level in zip(quiet, levels, strict=True):
+                logger.setLevel(level)
+
+    def run(self, *, user: str, width: int, height: int, timeout: float) -> None:
         owner, created = get_user_model().objects.get_or_create(username=user)
         if created:  # a throw-away demo account: log in to the dashboard as demo / demo
             owner.set_password(user)
@@ -82,12 +99,14 @@ class Command(BaseCommand):
 
     @staticmethod
     def finished_results(rig: Rig) -> tuple[Measurement, Calibration, Characterization] | None:
-        """The latest finished measurement, calibration and characterization of ``rig``, if all exist."""
+        """The demo's own results on its rig, if all exist: the first finished measurement,
+        calibration and characterization of ``rig`` (the demo made the rig and those first; what a
+        person made on the rig later is not the demo's)."""
         done = Job.Status.DONE
         found = (
-            Measurement.objects.filter(rig=rig, job__status=done).order_by("-pk").first(),
-            Calibration.objects.filter(rig=rig, job__status=done).order_by("-pk").first(),
-            Characterization.objects.filter(rig=rig, job__status=done).order_by("-pk").first(),
+            Measurement.objects.filter(rig=rig, job__status=done).order_by("pk").first(),
+            Calibration.objects.filter(rig=rig, job__status=done).order_by("pk").first(),
+            Characterization.objects.filter(rig=rig, job__status=done).order_by("pk").first(),
         )
         if found[0] is None or found[1] is None or found[2] is None:
             return None
