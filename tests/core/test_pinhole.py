@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import json
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -390,3 +391,45 @@ def test_epipolar_table_matches_newton_on_the_line(axis: str) -> None:
     assert res.points_mm is not None
     err_mm = np.linalg.norm(res.points_mm - truth.points_mm, axis=-1)[truth.lit]
     assert truth.lit.sum() > 10000 and err_mm.max() < TOL_MM
+
+
+ISSUE_22_RIG = PinholeRig.from_json(
+    (Path(__file__).resolve().parents[2] / "examples" / "distorted-pinhole-rig.json").read_text()
+)
+ISSUE_22_CAMERA, ISSUE_22_PROJECTOR = ISSUE_22_RIG.camera, ISSUE_22_RIG.projector
+
+
+@pytest.mark.parametrize("device", [ISSUE_22_CAMERA, ISSUE_22_PROJECTOR], ids=["camera", "projector"])
+def test_undistortion_round_trip_of_a_strongly_distorted_calibration(device: Any) -> None:
+    """Every pixel of the issue-22 camera and projector, corners included (and one pixel
+    beyond): undistorted, then distorted again, back within 1e-6 px."""
+    from metrology.core.distortion import project_normalized, undistort_pixels
+
+    w, h = (device.width_px, device.height_px) if isinstance(device, PinholeCamera) else (device.width, device.height)
+    jj, kk = np.meshgrid(np.arange(-1.0, w + 1.0), np.arange(-1.0, h + 1.0))
+    res = undistort_pixels(np.asarray(device.K), device.distortion, jj, kk)
+    assert res.n_failed == 0
+    u, v = project_normalized(np.asarray(device.K), device.distortion, res.x, res.y)
+    assert float(np.hypot(u - jj, v - kk).max()) < 1e-6
+
+
+def test_prepared_tables_come_back_from_the_local_cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A second preparation (as in a new process: the in-memory caches cleared) reads the tables
+    the first stored, and triangulates to the same numbers."""
+    from metrology.core import local_cache
+    from metrology.core.geometry.pinhole import _camera_tables, _prepare_cached
+
+    monkeypatch.setenv(local_cache.DIR_ENV, str(tmp_path))
+    rig = _rig("u")
+    truth = _truth("u", "sphere")
+    _prepare_cached.cache_clear()
+    first = triangulate_frame(rig.prepare(), truth.u.astype(np.float32), None, heights=False)
+    assert local_cache.info(tmp_path).kinds["pinhole"][0] == 1
+    _prepare_cached.cache_clear()
+    _camera_tables.cache_clear()
+    monkeypatch.setattr(
+        "metrology.core.geometry.pinhole._camera_tables", lambda camera: pytest.fail("tables computed again")
+    )
+    second = triangulate_frame(rig.prepare(), truth.u.astype(np.float32), None, heights=False)
+    np.testing.assert_array_equal(first.points_mm, second.points_mm)
+    _prepare_cached.cache_clear()
