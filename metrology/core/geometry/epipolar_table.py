@@ -13,10 +13,13 @@ exactly (Newton to 1e-9 projector units) at ``u_k = lo + k h_w`` and ``c0_j = c_
 and interpolates it as a cubic Hermite polynomial in ``u`` (values and exact slopes at the
 nodes: error ~ h_w^4 |Q''''| / 384) and linearly in ``c0`` (error ~ h_c^2 |Q_cc| / 8). Since
 ``c0`` of a camera pixel is fixed, its row of cells and its weight between the two rows are
-computed once per pixel; a frame costs one gather of eight float32 coefficients per pixel and a
+computed once per pixel; a frame costs one gather of four complex64 coefficients per pixel and a
 cubic in the position ``tau`` inside the cell::
 
     Q = sum_m tau^m (A_m + a_c B_m),   A: the cubic of row j, B: row j+1 minus row j
+
+evaluated as ``Z = sum_m tau^m z_m`` with ``z_m = A_m + i B_m`` (complex Horner), ``Q = Re Z +
+a_c Im Z``.
 
 For the coded axis ``v`` exchange the roles of ``x`` and ``y``.
 """
@@ -53,9 +56,10 @@ class EpipolarTable:
 
     Attributes
     ----------
-    cells : (n_rows * n_cols, 8) float32
-        Per cell ``(A_0..A_3, B_0..B_3)``; column 0 and the last column of each row are NaN
-        guards (coded coordinates outside ``[lo, hi]`` give NaN), so flat index 0 is a guard.
+    cells : (n_rows * n_cols, 4) complex64
+        Per cell ``z_m = A_m + i B_m``, ``m = 0..3`` (one gather of 32 bytes per pixel, one complex
+        Horner); column 0 and the last column of each row are NaN guards (coded coordinates
+        outside ``[lo, hi]`` give NaN), so flat index 0 is a guard.
     lo, step_w : float
         The first node and the spacing along the coded axis, projector units.
     n_cols : int
@@ -135,10 +139,9 @@ class EpipolarTable:
     ) -> EpipolarTable:
         n_lines, n_w = q.shape
         herm = _hermite(q, dq * step_w)  # (n_lines, n_w - 1, 4)
-        cells = np.full((n_lines - 1, n_w + 1, 8), np.nan, np.float32)
-        cells[:, 1:-1, :4] = herm[:-1]
-        cells[:, 1:-1, 4:] = herm[1:] - herm[:-1]
-        return cls(cells.reshape(-1, 8), lo, step_w, n_w + 1, c_lo, step_c, n_lines, error)
+        cells = np.full((n_lines - 1, n_w + 1, 4), np.nan, np.complex64)
+        cells[:, 1:-1] = herm[:-1] + 1j * (herm[1:] - herm[:-1])
+        return cls(cells.reshape(-1, 4), lo, step_w, n_w + 1, c_lo, step_c, n_lines, error)
 
     def pixel_rows(self, c0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per camera pixel of line intercept ``c0`` (any shape): the flat index of its row's
@@ -168,23 +171,28 @@ class EpipolarTable:
             idx = g.astype(np.int32)  # NaN: an arbitrary index, clipped to the guard below
         g -= idx  # tau
         np.add(idx, base, out=idx)
-        np.maximum(idx, 0, out=idx)
-        c = self.cells.take(idx, axis=0, mode="clip")
-        q = c[..., 7] * frac
-        q += c[..., 3]
+        # one gather of the row's cubic and its difference to the next row as complex numbers
+        # z_m = A_m + i B_m, one complex Horner in tau (real): Z = P_A(tau) + i P_B(tau)
+        z = self.cells.take(idx, axis=0, mode="clip")
+        tau = g.astype(np.complex64)
+        acc = z[..., 3] * tau
         deriv = None
-        if derivative:  # d/dtau = (A1 + a B1) + 2 tau (A2 + a B2) + 3 tau^2 (A3 + a B3)
-            d = q * np.float32(3.0)
-            d *= g
-            d += np.float32(2.0) * (c[..., 2] + c[..., 6] * frac)
-            d *= g
-            d += c[..., 1] + c[..., 5] * frac
-            d *= inv
-            deriv = d
-        for m in (2, 1, 0):
-            q *= g
-            q += c[..., m]
-            q += c[..., 4 + m] * frac
+        if derivative:  # dZ/dtau = z_1 + 2 z_2 tau + 3 z_3 tau^2
+            d = acc * np.complex64(3.0)
+            d += np.complex64(2.0) * z[..., 2]
+            d *= tau
+            d += z[..., 1]
+            dq = d.imag * frac
+            dq += d.real
+            dq *= inv
+            deriv = dq
+        acc += z[..., 2]
+        acc *= tau
+        acc += z[..., 1]
+        acc *= tau
+        acc += z[..., 0]
+        q = acc.imag * frac
+        q += acc.real
         return q, deriv
 
 

@@ -104,7 +104,7 @@ PROJECTOR_TOL = 1e-6
 """Convergence tolerance of the projector coordinate's undistortion, projector units."""
 PROJECTOR_MAX_ITER = 30
 
-TABLES_FORMAT = 1
+TABLES_FORMAT = 2
 """Version of the prepared tables' layout in the local cache (:mod:`metrology.core.local_cache`)."""
 CACHE_KIND = "pinhole"
 """The local cache's folder for prepared pinhole tables."""
