@@ -31,6 +31,7 @@ import json
 import os
 import struct
 import tempfile
+import threading
 import time
 import warnings
 from collections.abc import Mapping
@@ -149,6 +150,7 @@ def store(kind: str, key: str, arrays: Mapping[str, np.ndarray], root: Path | No
         with os.fdopen(fd, "wb") as fh:
             for chunk in payload:
                 fh.write(chunk)
+        os.chmod(tmp_name, 0o644)  # mkstemp's 0600 would hide the entry from the host's other users
         os.replace(tmp_name, _entry_path(root, kind, key))
         tmp_name = None
     except OSError as exc:
@@ -159,6 +161,29 @@ def store(kind: str, key: str, arrays: Mapping[str, np.ndarray], root: Path | No
             _unlink(Path(tmp_name))
     evict(root, max_bytes())
     return True
+
+
+_PENDING: list[threading.Thread] = []
+_PENDING_LOCK = threading.Lock()
+
+
+def store_later(kind: str, key: str, arrays: Mapping[str, np.ndarray], root: Path | None = None) -> None:
+    """:func:`store` on a background thread, so that the caller goes on while the file is
+    written; the arrays must not change afterwards. The thread is not a daemon: the interpreter
+    waits for it before exiting, and :func:`wait` joins the pending ones."""
+    thread = threading.Thread(target=store, args=(kind, key, dict(arrays), root), name="gcps-local-cache")
+    with _PENDING_LOCK:
+        _PENDING[:] = [t for t in _PENDING if t.is_alive()]
+        _PENDING.append(thread)
+    thread.start()
+
+
+def wait() -> None:
+    """Wait for the writes started by :func:`store_later`."""
+    with _PENDING_LOCK:
+        pending = list(_PENDING)
+    for thread in pending:
+        thread.join()
 
 
 def _encode(arrays: Mapping[str, np.ndarray]) -> list[bytes | memoryview]:
@@ -282,4 +307,6 @@ __all__ = [
     "load",
     "max_bytes",
     "store",
+    "store_later",
+    "wait",
 ]

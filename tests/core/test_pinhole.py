@@ -424,6 +424,7 @@ def test_prepared_tables_come_back_from_the_local_cache(tmp_path: Path, monkeypa
     truth = _truth("u", "sphere")
     _prepare_cached.cache_clear()
     first = triangulate_frame(rig.prepare(), truth.u.astype(np.float32), None, heights=False)
+    local_cache.wait()  # the tables are written on a background thread
     assert local_cache.info(tmp_path).kinds["pinhole"][0] == 1
     _prepare_cached.cache_clear()
     _camera_tables.cache_clear()

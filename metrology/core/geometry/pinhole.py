@@ -559,15 +559,11 @@ class PreparedPinhole(PreparedGeometry):
             if "line_cells" in stored:
                 self._line = EpipolarTable.from_arrays(stored)
         else:
+            stored = None
             xn, yn = _camera_tables(self.rig.camera)
             kept = {}
             if self._p_distorted:
                 self._line = self._build_line_table(xn, yn)
-                if self._line is not None:
-                    kept = self._line_rows(xn, yn, self._line)
-            if key is not None:
-                line = self._line.to_arrays() if self._line is not None else {}
-                local_cache.store(CACHE_KIND, key, {"xn": xn, "yn": yn, **line, **kept})
         T, Kp = self._T, self._Kp
         fx, s, cx, fy, cy = Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]
         if self.axis == "u":
@@ -585,6 +581,12 @@ class PreparedPinhole(PreparedGeometry):
         )
         tables: dict[str, np.ndarray] = {"xn": xn, "yn": yn, "ab": np.array([a, b, centre]), **kept}
         tables.update({name: np.empty(self.shape, np.float32) for name in names})
+        line = self._line
+        # each pixel's row of the epipolar table, from its line's intercept c0
+        need_rows = line is not None and "line_base" not in kept
+        if need_rows:
+            tables["line_base"] = np.empty(self.shape, np.int32)
+            tables["line_frac"] = np.empty(self.shape, np.float32)
         R = self._R
         i = 0 if self.axis == "u" else 1
 
@@ -592,15 +594,24 @@ class PreparedPinhole(PreparedGeometry):
             x, y = xn[rows], yn[rows]
             tables["xn32"][rows], tables["yn32"][rows] = x, y
             tables["norm_d"][rows] = np.sqrt(x * x + y * y + 1.0)
+            if self._p_distorted:
+                rd, c0, _ = self._ray_terms(x, y)
+                tables["rdi32"][rows], tables["rdz32"][rows] = rd[i], rd[2]
+                if need_rows and line is not None:
+                    tables["line_base"][rows], tables["line_frac"][rows] = line.pixel_rows(c0)
+                return
             rdz = R[2, 0] * x + R[2, 1] * y + R[2, 2]
             rdi = R[i, 0] * x + R[i, 1] * y + R[i, 2]
-            if self._p_distorted:
-                tables["rdi32"][rows], tables["rdz32"][rows] = rdi, rdz
-                return
             rdi = fx * rdi + s * (R[1, 0] * x + R[1, 1] * y + R[1, 2]) if self.axis == "u" else fy * rdi
             tables["A"][rows], tables["B"][rows] = rdi, -rdz
 
         run_tiled(run, self.shape[0], self.shape[1], threads=_table_threads(), tile_px=1 << 15)
+        if key is not None and stored is None:  # written while the caller goes on measuring
+            rows_of_line: dict[str, np.ndarray] = {k: tables[k] for k in ("line_base", "line_frac") if k in tables}
+            arrays: dict[str, np.ndarray] = {"xn": xn, "yn": yn, **rows_of_line}
+            if line is not None:
+                arrays.update(line.to_arrays())
+            local_cache.store_later(CACHE_KIND, key, arrays)
         return tables
 
     def _coded_domain(self) -> tuple[float, float]:
@@ -670,20 +681,6 @@ class PreparedPinhole(PreparedGeometry):
 
         scale_w, scale_c = (fx, fy) if self.axis == "u" else (fy, fx)
         return EpipolarTable.build(solve, self._line_slope, self._coded_domain(), c_range, scale_w, scale_c)
-
-    def _line_rows(self, xn: np.ndarray, yn: np.ndarray, line: EpipolarTable) -> dict[str, np.ndarray]:
-        """Each camera pixel's row of the epipolar table: ``line_base`` (int32) and ``line_frac``
-        (float32), ``(H, W)`` (:meth:`EpipolarTable.pixel_rows` of its line's intercept)."""
-        h, w = self.shape
-        base = np.empty((h, w), np.int32)
-        frac = np.empty((h, w), np.float32)
-
-        def run(rows: slice) -> None:
-            _, c0, _ = self._ray_terms(xn[rows], yn[rows])
-            base[rows], frac[rows] = line.pixel_rows(c0)
-
-        run_tiled(run, h, w, threads=_table_threads(), tile_px=1 << 15)
-        return {"line_base": base, "line_frac": frac}
 
     def undistortion_grid(self) -> UndistortionGrid | None:
         """The projector's undistortion grid (both axes decoded, plane method): built on first
