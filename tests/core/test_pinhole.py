@@ -434,3 +434,26 @@ def test_prepared_tables_come_back_from_the_local_cache(tmp_path: Path, monkeypa
     second = triangulate_frame(rig.prepare(), truth.u.astype(np.float32), None, heights=False)
     np.testing.assert_array_equal(first.points_mm, second.points_mm)
     _prepare_cached.cache_clear()
+
+
+def test_projector_grid_only_for_codecs_of_both_axes(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A u-only codec never builds the projector's undistortion grid; a codec of both axes builds
+    it once, when the measurement asks which axes the model reads (on the caller's thread)."""
+    from metrology.core.geometry import pinhole
+    from metrology.core.geometry.pinhole import _prepare_cached
+
+    built: list[object] = []
+    real = pinhole._projector_grid
+    monkeypatch.setattr(pinhole, "_projector_grid", lambda projector: built.append(projector) or real(projector))
+    _prepare_cached.cache_clear()
+    rig = _rig("u")
+    truth = _truth("u", "sphere")
+    prep = rig.prepare()
+    assert prep.used_axes(("u",)) == ("u",)
+    triangulate_frame(prep, truth.u.astype(np.float32), None, heights=False)
+    assert built == [] and prep._grid is None
+    assert prep.used_axes(("u", "v")) == ("u", "v")
+    assert len(built) == 1
+    triangulate_frame(prep, truth.u.astype(np.float32), truth.v.astype(np.float32), heights=False)
+    assert len(built) == 1
+    _prepare_cached.cache_clear()
