@@ -25,6 +25,16 @@ RAISED_RATE = "1000000/hour"
 PASSWORD = "a-long-test-password-42"
 
 
+@pytest.fixture(autouse=True, scope="session")
+def local_cache_dir(tmp_path_factory):
+    """The local cache of prepared tables (metrology.core.local_cache) in a folder of the session,
+    never the user's ~/.cache/gcps; processes started by the tests inherit it."""
+    with pytest.MonkeyPatch.context() as mp:
+        root = tmp_path_factory.mktemp("local-cache")
+        mp.setenv("GCPS_LOCAL_CACHE_DIR", str(root))
+        yield root
+
+
 @pytest.fixture(autouse=True)
 def raised_throttle_rates(settings) -> None:
     settings.GCPS_THROTTLE_RATES = dict.fromkeys(settings.GCPS_THROTTLE_RATES, RAISED_RATE)

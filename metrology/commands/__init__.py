@@ -26,5 +26,6 @@ SUBCOMMANDS: tuple[str, ...] = (
     "rig",
     "calibrate_procam",
     "gamma_correct",
+    "cache",
 )
 """The subcommand modules of this package, in the order ``gcps --help`` lists them."""

@@ -28,11 +28,14 @@ undistorted normalized coordinates (computed once per rig and frame size, Newton
   meets it at ``t = -(T_x - x_p T_z) / ((R d)_x - x_p (R d)_z)``. Without projector distortion
   ``x_p`` is affine in ``u`` and ``t = -(a + b u) / (A + B u)`` with per-pixel tables ``A, B``
   (a Mobius map of ``u``, no iteration). With distortion the decoded ``u`` is a distorted
-  coordinate: with ``v`` decoded too, ``(u, v)`` is undistorted jointly; with ``u`` alone the
-  uncoded coordinate follows the pixel's epipolar line ``y_p = c0 + c1 x_p`` (exact in
-  undistorted projector coordinates) and ``x_p`` solves ``fx D_x(x_p, c0 + c1 x_p) + s D_y + cx
-  = u`` by Newton's method to 1e-6 projector units (the reprojection of the uncoded coordinate,
-  iterated to convergence in closed form). Axis ``v`` is the same with rows (``n = (0, 1, -y_p)``).
+  coordinate: with ``v`` decoded too, ``(u, v)`` is undistorted jointly (a bilinear grid, built
+  only for codecs that code both axes); with ``u`` alone the uncoded coordinate follows the
+  pixel's epipolar line ``y_p = c0 + c1 x_p`` (exact in undistorted projector coordinates) and
+  ``x_p`` solves ``fx D_x(x_p, c0 + c1 x_p) + s D_y + cx = u``: every epipolar line passes
+  through the epipole, so ``x_p = Q(u, c0)`` is tabulated once per rig
+  (:mod:`metrology.core.geometry.epipolar_table`: exact at the nodes, cubic in ``u``, linear in
+  ``c0``, within 2e-5 projector units) and read per pixel with one gather (Newton on the line
+  where the table cannot be built). Axis ``v`` is the same with rows (``n = (0, 1, -y_p)``).
 - **midpoint**: the midpoint of the shortest segment between the camera ray and the projector
   ray of ``(x_p, y_p)`` (both axes decoded, or one axis and its epipolar line).
 
@@ -56,6 +59,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from metrology.core import local_cache
 from metrology.core.distortion import Distortion, check_dist, project_normalized, undistort_pixels
 from metrology.core.geometry.base import (
     AXES,
@@ -71,6 +75,7 @@ from metrology.core.geometry.base import (
     short_number,
     subpixel_grid,
 )
+from metrology.core.geometry.epipolar_table import EpipolarTable
 from metrology.core.geometry.projector_grid import UndistortionGrid
 from metrology.core.geometry.rig_file import (
     Matrix3,
@@ -99,19 +104,14 @@ PROJECTOR_TOL = 1e-6
 """Convergence tolerance of the projector coordinate's undistortion, projector units."""
 PROJECTOR_MAX_ITER = 30
 
-POLY_DEGREE = 9
-"""Degree of the per-pixel polynomial ``x_p(u)`` along the epipolar line (projector distortion, one axis)."""
-POLY_NODES = 14
-"""Chebyshev nodes at which each pixel's ``x_p(u)`` is solved exactly (Newton) to build the polynomial."""
-POLY_PIXEL_STEPS: tuple[tuple[int, int], ...] = ((4, 8), (2, 8), (2, 4))
-"""Spacings (camera rows, camera columns) of the coarse grids the polynomials are solved on,
-coarsest first (:meth:`PreparedPinhole._build_polynomials`)."""
-POLY_INTERP_TOL = 2e-5
-"""Largest estimated bilinear-interpolation error of a coarse grid's polynomials accepted,
-projector units (as :data:`GRID_TOL`)."""
-POLY_TOL = 5e-6
-"""A pixel's polynomial is used when its Chebyshev tail (the truncated terms) is below this, in
-projector units; other pixels are solved by Newton on the epipolar line at every frame."""
+TABLES_FORMAT = 2
+"""Version of the prepared tables' layout in the local cache (:mod:`metrology.core.local_cache`)."""
+CACHE_KIND = "pinhole"
+"""The local cache's folder for prepared pinhole tables."""
+GRID_CACHE_KIND = "projector-grid"
+"""The local cache's folder for projector undistortion grids."""
+LINE_SOLVE_TOL = 1e-9
+"""Tolerance of the exact solves at the epipolar table's nodes, projector units."""
 
 
 # --------------------------------------------------------------------------- projector response
@@ -370,6 +370,21 @@ def _prepare_cached(rig: PinholeRig, axis: str, method: str) -> PreparedPinhole:
     return PreparedPinhole(rig, axis, method)
 
 
+def _projector_grid(projector: PinholeProjector) -> UndistortionGrid | None:
+    """The projector's :class:`UndistortionGrid` from the local cache, else built (and stored)."""
+    parts = {
+        "projector": {"width": projector.width, "height": projector.height, "K": projector.K, "dist": projector.dist}
+    }
+    key = local_cache.entry_key(GRID_CACHE_KIND, {**parts, "format": TABLES_FORMAT})
+    stored = local_cache.load(GRID_CACHE_KIND, key)
+    if stored is not None:
+        return UndistortionGrid.from_arrays(stored) if stored else None
+    K = np.asarray(projector.K, dtype=np.float64)
+    grid = UndistortionGrid.build(K, projector.distortion, projector.width, projector.height)
+    local_cache.store(GRID_CACHE_KIND, key, grid.to_arrays() if grid is not None else {})
+    return grid
+
+
 @functools.lru_cache(maxsize=4)
 def _camera_tables(rig_camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
     """Undistorted normalized coordinates ``(x_n, y_n)`` of every camera pixel, ``(H, W)`` float64 each."""
@@ -424,10 +439,10 @@ class PreparedPinhole(PreparedGeometry):
     """A :class:`PinholeRig` prepared for its camera frame (tables computed once, kept).
 
     Per pixel: ``x_n, y_n`` (ray ``d = (x_n, y_n, 1)``, float64 and float32), ``|d|``; without
-    projector distortion the Mobius tables ``A, B`` of the closed form; with it the polynomials
-    ``poly`` along each pixel's epipolar line (one axis), ``(Rd)_i, (Rd)_z`` (float32) and the
-    undistortion grid (both axes). ``R d`` and the epipolar lines ``c0, c1`` of the Newton paths
-    are recomputed per tile from ``x_n, y_n`` (:meth:`_rows_terms`).
+    projector distortion the Mobius tables ``A, B`` of the closed form; with it ``(Rd)_i, (Rd)_z``
+    (float32), the epipolar table and each pixel's row of it (one axis) and, built on first use
+    by a codec that codes both axes, the undistortion grid. ``R d`` and the epipolar lines
+    ``c0, c1`` of the Newton paths are recomputed per tile from ``x_n, y_n`` (:meth:`_rows_terms`).
     """
 
     def __init__(self, rig: PinholeRig, axis: str, method: str) -> None:
@@ -448,6 +463,9 @@ class PreparedPinhole(PreparedGeometry):
         self._p_distorted = not self._pdist.is_identity
         self._C_p = -R.T @ T
         self._grid: UndistortionGrid | None = None
+        self._grid_built = False
+        self._grid_lock = threading.Lock()
+        self._line: EpipolarTable | None = None
         self.tables()  # now, on the caller's thread: never lazily inside a tile worker
 
     # ------------------------------------------------------------------ interface
@@ -464,6 +482,8 @@ class PreparedPinhole(PreparedGeometry):
         method, and by the plane method through a distorted projector (both undistorted jointly)."""
         other = "v" if self.axis == "u" else "u"
         reads_other = other in decoded and (self.method == "midpoint" or self._p_distorted)
+        if reads_other and self.method == "plane":
+            self.undistortion_grid()  # built now, on the caller's thread, for codecs that need it
         return tuple(a for a in AXES if a == self.axis or (a == other and reads_other))
 
     @property
@@ -516,10 +536,35 @@ class PreparedPinhole(PreparedGeometry):
         tab = self.tables()
         return self._ray_terms(tab["xn"][rows], tab["yn"][rows])
 
+    def _cache_key(self) -> str | None:
+        """The local-cache key of this preparation (rig, frame size, axis, method, table layout),
+        or None when nothing here is worth caching (no distortion: the tables are a few passes)."""
+        if self.rig.camera.distortion.is_identity and not self._p_distorted:
+            return None
+        parts = {
+            "rig": self.rig.to_dict(),
+            "shape": list(self.shape),
+            "axis": self.axis,
+            "method": self.method,
+            "format": TABLES_FORMAT,
+        }
+        return local_cache.entry_key(CACHE_KIND, parts)
+
     def _build_tables(self) -> dict[str, np.ndarray]:
-        xn, yn = _camera_tables(self.rig.camera)
+        key = self._cache_key()
+        stored = local_cache.load(CACHE_KIND, key) if key is not None else None
+        if stored is not None and stored["xn"].shape == self.shape:
+            xn, yn = stored["xn"], stored["yn"]
+            kept: dict[str, np.ndarray] = {k: stored[k] for k in ("line_base", "line_frac") if k in stored}
+            if "line_cells" in stored:
+                self._line = EpipolarTable.from_arrays(stored)
+        else:
+            stored = None
+            xn, yn = _camera_tables(self.rig.camera)
+            kept = {}
+            if self._p_distorted:
+                self._line = self._build_line_table(xn, yn)
         T, Kp = self._T, self._Kp
-        rd = [self._R[i, 0] * xn + self._R[i, 1] * yn + self._R[i, 2] for i in range(3)]
         fx, s, cx, fy, cy = Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]
         if self.axis == "u":
             # Column u (no distortion): fx X + s Y - (u - cx) Z = 0 in the projector frame, i.e.
@@ -527,151 +572,127 @@ class PreparedPinhole(PreparedGeometry):
             a, b, centre = fx * T[0] + s * T[1], -T[2], cx
         else:
             a, b, centre = fy * T[1], -T[2], cy
-        tables: dict[str, np.ndarray] = {
-            "xn": xn,
-            "yn": yn,
-            "xn32": xn.astype(np.float32),
-            "yn32": yn.astype(np.float32),
-            "norm_d": np.sqrt(xn * xn + yn * yn + 1.0).astype(np.float32),
-            "ab": np.array([a, b, centre]),
-        }
-        if not self._p_distorted:  # the Mobius tables of the closed form
-            A = fx * rd[0] + s * rd[1] if self.axis == "u" else fy * rd[1]
-            tables["A"] = A.astype(np.float32)
-            tables["B"] = (-rd[2]).astype(np.float32)
-        else:  # the per-pixel polynomials (one axis) and the undistortion grid (both axes)
-            tables.update(self._build_polynomials())
-            rdi = rd[0] if self.axis == "u" else rd[1]
-            tables["rdi32"] = rdi.astype(np.float32)
-            tables["rdz32"] = rd[2].astype(np.float32)
-            self._grid = UndistortionGrid.build(Kp, self._pdist, self.rig.projector.width, self.rig.projector.height)
+        # without projector distortion the Mobius tables A, B of the closed form; with it the
+        # plane of the coded axis' undistorted coordinate, (Rd)_i and (Rd)_z
+        names = (
+            ("xn32", "yn32", "norm_d", "A", "B")
+            if not self._p_distorted
+            else ("xn32", "yn32", "norm_d", "rdi32", "rdz32")
+        )
+        tables: dict[str, np.ndarray] = {"xn": xn, "yn": yn, "ab": np.array([a, b, centre]), **kept}
+        tables.update({name: np.empty(self.shape, np.float32) for name in names})
+        line = self._line
+        # each pixel's row of the epipolar table, from its line's intercept c0
+        need_rows = line is not None and "line_base" not in kept
+        if need_rows:
+            tables["line_base"] = np.empty(self.shape, np.int32)
+            tables["line_frac"] = np.empty(self.shape, np.float32)
+        R = self._R
+        i = 0 if self.axis == "u" else 1
+
+        def run(rows: slice) -> None:
+            x, y = xn[rows], yn[rows]
+            tables["xn32"][rows], tables["yn32"][rows] = x, y
+            tables["norm_d"][rows] = np.sqrt(x * x + y * y + 1.0)
+            if self._p_distorted:
+                rd, c0, _ = self._ray_terms(x, y)
+                tables["rdi32"][rows], tables["rdz32"][rows] = rd[i], rd[2]
+                if need_rows and line is not None:
+                    tables["line_base"][rows], tables["line_frac"][rows] = line.pixel_rows(c0)
+                return
+            rdz = R[2, 0] * x + R[2, 1] * y + R[2, 2]
+            rdi = R[i, 0] * x + R[i, 1] * y + R[i, 2]
+            rdi = fx * rdi + s * (R[1, 0] * x + R[1, 1] * y + R[1, 2]) if self.axis == "u" else fy * rdi
+            tables["A"][rows], tables["B"][rows] = rdi, -rdz
+
+        run_tiled(run, self.shape[0], self.shape[1], threads=_table_threads(), tile_px=1 << 15)
+        if key is not None and stored is None:  # written while the caller goes on measuring
+            rows_of_line: dict[str, np.ndarray] = {k: tables[k] for k in ("line_base", "line_frac") if k in tables}
+            arrays: dict[str, np.ndarray] = {"xn": xn, "yn": yn, **rows_of_line}
+            if line is not None:
+                arrays.update(line.to_arrays())
+            local_cache.store_later(CACHE_KIND, key, arrays)
         return tables
 
     def _coded_domain(self) -> tuple[float, float]:
-        """``(mid, half)``: the polynomial's variable is ``omega = (w - mid) / half`` in [-1, 1]."""
+        """``(lo, hi)``: the coded coordinates triangulated (projector units), half a unit beyond
+        the projector's first and last pixel centres and one more on the far side (as before)."""
         size = self.rig.projector.width if self.axis == "u" else self.rig.projector.height
-        return (size - 1) / 2, size / 2 + 1.0
+        mid, half = (size - 1) / 2, size / 2 + 1.0
+        return mid - half, mid + half
 
-    def _node_values(self, c0: np.ndarray, c1: np.ndarray) -> np.ndarray:
-        """``q`` solved by Newton at the :data:`POLY_NODES` Chebyshev nodes of ``omega`` for rays of
-        epipolar lines ``(c0, c1)``: ``(POLY_NODES, *c0.shape)`` float64, NaN where Newton fails."""
+    def _line_slope(self, c0: np.ndarray) -> np.ndarray:
+        """``c1`` of the epipolar line of intercept ``c0`` (it passes through the epipole):
+        ``c1 = (T_o - c0 T_z) / T_a``."""
+        T = self._T
+        ta, to = (T[0], T[1]) if self.axis == "u" else (T[1], T[0])
+        return np.asarray((to - c0 * T[2]) / ta)
+
+    def _line_range(self) -> tuple[float, float] | None:
+        """The intercepts of the lines that cross the projector's image grown by
+        :data:`~metrology.core.geometry.epipolar_table.LINE_MARGIN` (from its undistorted border),
+        or None when the epipole lies inside it (or the coded axis' baseline is zero)."""
+        from metrology.core.geometry.epipolar_table import LINE_MARGIN
+
+        T = self._T
+        ta, to = (T[0], T[1]) if self.axis == "u" else (T[1], T[0])
+        if ta == 0.0:
+            return None
+        w, h = self.rig.projector.width, self.rig.projector.height
+        m = LINE_MARGIN
+        side = np.linspace(0.0, 1.0, 512)
+        lo_u, hi_u, lo_v, hi_v = -0.5 - m, w - 0.5 + m, -0.5 - m, h - 0.5 + m
+        bu = np.concatenate(
+            [lo_u + (hi_u - lo_u) * side, np.full(512, hi_u), hi_u - (hi_u - lo_u) * side, np.full(512, lo_u)]
+        )
+        bv = np.concatenate(
+            [np.full(512, lo_v), lo_v + (hi_v - lo_v) * side, np.full(512, hi_v), hi_v - (hi_v - lo_v) * side]
+        )
+        und = undistort_pixels(self._Kp, self._pdist, bu, bv)
+        if und.n_failed:
+            return None
+        a, o = (und.x, und.y) if self.axis == "u" else (und.y, und.x)
+        den = 1.0 - a * T[2] / ta
+        if not (np.all(den > 0) or np.all(den < 0)):
+            return None
+        c0 = (o - a * to / ta) / den
+        return float(c0.min()), float(c0.max())
+
+    def _build_line_table(self, xn: np.ndarray, yn: np.ndarray) -> EpipolarTable | None:
+        """The epipolar table of this rig's coded axis (None: Newton per frame)."""
+        c_range = self._line_range()
+        if c_range is None:
+            return None
         Kp = self._Kp
         fx, s, cx, fy, cy = Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]
-        mid, half = self._coded_domain()
-        n = POLY_NODES
-        nodes = np.cos(np.pi * (np.arange(n) + 0.5) / n)
-        q = np.empty((n, *c0.shape))
-        guess: np.ndarray | None = None
-        with np.errstate(all="ignore"):
-            for j in range(n):  # nodes in increasing order of w; each starts from the previous one
-                target = np.full(c0.shape, mid + half * nodes[n - 1 - j])
-                xp, yp, dqdw = self._solve_on_line(target, c0, c1, fx, s, cx, fy, cy, guess)
-                q[n - 1 - j] = xp if self.axis == "u" else yp
-                if j + 1 < n:
-                    guess = q[n - 1 - j] + dqdw * half * (nodes[n - 2 - j] - nodes[n - 1 - j])
-        return q
 
-    def _chebyshev(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Monomial coefficients in ``omega`` (``(POLY_DEGREE + 1, *shape)`` float64) of the degree
-        :data:`POLY_DEGREE` truncation of the Chebyshev interpolant of node values ``q``, and the
-        truncated tail (projector units)."""
-        from numpy.polynomial import chebyshev
+        def solve(w: np.ndarray, c0: np.ndarray, c1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            q = np.empty_like(w)
+            dq = np.empty_like(w)
 
-        Kp = self._Kp
-        scale = Kp[0, 0] if self.axis == "u" else Kp[1, 1]
-        n, deg = POLY_NODES, POLY_DEGREE
-        theta = np.pi * (np.arange(n) + 0.5) / n
-        cheb_t = np.cos(np.outer(np.arange(n), theta))  # T_k(omega_j)
-        to_mono = np.zeros((deg + 1, deg + 1))  # column k: monomial coefficients of T_k
-        for k in range(deg + 1):
-            mono = chebyshev.cheb2poly(np.eye(deg + 1)[k])
-            to_mono[: len(mono), k] = mono
-        shape = q.shape[1:]
-        cheb = np.einsum("jk,kp->jp", cheb_t, q.reshape(n, -1)) * (2.0 / n)  # no BLAS threads in threads
-        cheb[0] *= 0.5
-        tail = np.abs(cheb[deg + 1 :]).sum(axis=0) * scale
-        mono = np.einsum("ij,jp->ip", to_mono, cheb[: deg + 1])
-        return mono.reshape(deg + 1, *shape), tail.reshape(shape)
+            def run(rows: slice) -> None:
+                with np.errstate(all="ignore"):
+                    xp, yp, d = self._solve_on_line(w[rows], c0[rows], c1[rows], fx, s, cx, fy, cy, tol=LINE_SOLVE_TOL)
+                q[rows] = xp if self.axis == "u" else yp
+                dq[rows] = d
 
-    def _build_polynomials(self) -> dict[str, np.ndarray]:
-        """Per pixel, the undistorted normalized coordinate ``q`` of the coded axis along the
-        pixel's epipolar line as a polynomial of ``omega`` (degree :data:`POLY_DEGREE`, monomial
-        coefficients, float32, shape ``(POLY_DEGREE + 1, H, W)``): Chebyshev interpolation of
-        ``q`` solved by Newton at :data:`POLY_NODES` nodes, truncated; ``poly_exact`` marks the
-        pixels whose truncated tail exceeds :data:`POLY_TOL` (they are solved exactly per frame).
+            run_tiled(run, w.shape[0], w.shape[1], threads=_table_threads(), tile_px=1 << 14)
+            return q, dq
 
-        ``q`` at a fixed ``omega`` varies slowly from pixel to pixel, so the polynomials are
-        solved on a coarse grid of pixels (spacings :data:`POLY_PIXEL_STEPS`, coarsest first)
-        and interpolated bilinearly, when the interpolation error (estimated from the coarse
-        grid's second differences of ``q`` at every node) is below :data:`POLY_INTERP_TOL`; else
-        on every pixel."""
-        h, w = self.shape
-        for step in POLY_PIXEL_STEPS:
-            if h < 4 * step[0] or w < 4 * step[1]:
-                continue
-            found = self._coarse_polynomials(step)
-            if found is not None:
-                return found
-        return self._full_polynomials()
+        scale_w, scale_c = (fx, fy) if self.axis == "u" else (fy, fx)
+        return EpipolarTable.build(solve, self._line_slope, self._coded_domain(), c_range, scale_w, scale_c)
 
-    def _coarse_polynomials(self, step: tuple[int, int]) -> dict[str, np.ndarray] | None:
-        """:meth:`_build_polynomials` from a grid of every ``step = (rows, columns)`` pixels (one
-        more outside each border), or None when the estimated interpolation error exceeds
-        :data:`POLY_INTERP_TOL`."""
-        import cv2
-
-        cam = self.rig.camera
-        h, w = self.shape
-        sr, sc = step
-        hc, wc = -(-h // sr) + 2, -(-w // sc) + 2
-        # coarse sample i sits at pixel s (i - 1) + (s - 1) / 2: cv2.resize (INTER_LINEAR) by the
-        # factors (sc, sr) then interpolates bilinearly at every pixel after a crop of (sr, sc)
-        kk = sr * (np.arange(hc, dtype=np.float64) - 1) + (sr - 1) / 2
-        jj = sc * (np.arange(wc, dtype=np.float64) - 1) + (sc - 1) / 2
-        jg, kg = np.meshgrid(jj, kk)
-        und = undistort_pixels(np.asarray(cam.K), cam.distortion, jg, kg)
-        _, c0, c1 = self._ray_terms(und.x, und.y)
-        q = self._node_values(c0, c1)
-        scale = self._Kp[0, 0] if self.axis == "u" else self._Kp[1, 1]
-        d2_rows = np.abs(q[:, 2:] - 2 * q[:, 1:-1] + q[:, :-2])
-        d2_cols = np.abs(q[:, :, 2:] - 2 * q[:, :, 1:-1] + q[:, :, :-2])
-        if not (np.isfinite(d2_rows).any() and np.isfinite(d2_cols).any()):
+    def undistortion_grid(self) -> UndistortionGrid | None:
+        """The projector's undistortion grid (both axes decoded, plane method): built on first
+        use, kept, and kept in the local cache; None without projector distortion or when no
+        grid meets its tolerance (Newton per frame then)."""
+        if not self._p_distorted:
             return None
-        if (float(np.nanmax(d2_rows)) + float(np.nanmax(d2_cols))) / 8 * scale > POLY_INTERP_TOL:
-            return None
-        mono, tail = self._chebyshev(q)
-        coeffs = np.empty((POLY_DEGREE + 1, h, w), np.float32)
-        size = (wc * sc, hc * sr)
-        crop = (slice(sr, sr + h), slice(sc, sc + w))
-        for k in range(POLY_DEGREE + 1):
-            c = mono[k]
-            offset = float(np.nanmedian(c))  # interpolate the small variation, not the constant
-            full = cv2.resize(c - offset, size, interpolation=cv2.INTER_LINEAR)[crop]
-            full += offset
-            coeffs[k] = full
-        # the interpolated tail bounds the tail of the interpolated polynomial (positive weights);
-        # NaN (Newton failed near a pixel) marks the pixel for the exact path too
-        tail_full = cv2.resize(np.nan_to_num(tail, nan=np.inf), size, interpolation=cv2.INTER_LINEAR)[crop]
-        exact = ~(tail_full <= POLY_TOL) | ~np.isfinite(coeffs).all(axis=0)
-        return {"poly": coeffs, "poly_exact": exact}
-
-    def _full_polynomials(self) -> dict[str, np.ndarray]:
-        """:meth:`_build_polynomials` solved at every pixel."""
-        h, w = self.shape
-        xn, yn = _camera_tables(self.rig.camera)
-        deg = POLY_DEGREE
-        coeffs = np.empty((deg + 1, h, w), np.float32)
-        exact = np.zeros((h, w), bool)
-
-        def run(rows: slice) -> None:
-            _, c0, c1 = self._ray_terms(xn[rows], yn[rows])  # not tables(): it holds the lock now
-            mono, tail = self._chebyshev(self._node_values(c0, c1))
-            exact[rows] = ~(tail <= POLY_TOL)
-            coeffs[:, rows] = mono.astype(np.float32)
-
-        # threads over row blocks of ~16k pixels (cache-sized)
-        run_tiled(run, h, w, threads=_table_threads(), tile_px=1 << 14)
-        return {"poly": coeffs, "poly_exact": exact}
+        with self._grid_lock:
+            if not self._grid_built:
+                self._grid = _projector_grid(self.rig.projector)
+                self._grid_built = True
+            return self._grid
 
     def camera_rays(self, supersample: int = 1) -> CameraRays:
         """Rays ``(x_n, y_n, 1) / |.|`` from the camera centre (the origin), undistorted (Newton to
@@ -794,9 +815,9 @@ class PreparedPinhole(PreparedGeometry):
                     sigma_out *= sigma_in
             t[~(t > 0)] = np.nan
             return t, None
-        if other is None and self.method == "plane":
-            return self._plane_from_polynomial(rows, coded, sigma_in, sigma_out), None
-        if other is not None and self.method == "plane" and self._grid is not None:
+        if other is None and self.method == "plane" and self._line is not None:
+            return self._plane_from_line(rows, coded, sigma_in, sigma_out), None
+        if other is not None and self.method == "plane" and self.undistortion_grid() is not None:
             return self._plane_from_grid(rows, coded, other, sigma_in, sigma_out), None
         xp, yp, dxp_dw = self._projector_normalized(rows, coded, other)
         return self._intersect(rows, xp, yp, dxp_dw, sigma_in, sigma_out)
@@ -810,15 +831,40 @@ class PreparedPinhole(PreparedGeometry):
         sigma_out: np.ndarray | None,
     ) -> np.ndarray:
         """Both axes through a distorted projector: ``(u, v)`` undistorted by the grid (bilinear,
-        error below :data:`GRID_TOL`), then the plane of the coded axis
-        ``t = (q T_z - T_i) / (Rd_i - q Rd_z)``; float32 ``(n, W)``."""
+        error below :data:`GRID_TOL`), then :meth:`_plane_of`; float32 ``(n, W)``."""
         grid = self._grid
         assert grid is not None
-        tab = self.tables()
-        T = self._T
         want_sigma = sigma_in is not None and sigma_out is not None
         u, v = (coded, other) if self.axis == "u" else (other, coded)
         q, dq = grid.normalized(self.axis, u, v, want_sigma)
+        return self._plane_of(rows, q, dq, sigma_in, sigma_out)
+
+    def _plane_from_line(
+        self, rows: slice, coded: np.ndarray, sigma_in: np.ndarray | None, sigma_out: np.ndarray | None
+    ) -> np.ndarray:
+        """One coded axis through a distorted projector: ``q`` from the epipolar table (one
+        gather and a cubic per pixel), then :meth:`_plane_of`; float32 ``(n, W)``, NaN for coded
+        coordinates outside :meth:`_coded_domain`."""
+        line = self._line
+        assert line is not None
+        tab = self.tables()
+        want_sigma = sigma_in is not None and sigma_out is not None
+        q, dq = line.evaluate(coded, tab["line_base"][rows], tab["line_frac"][rows], want_sigma)
+        return self._plane_of(rows, q, dq, sigma_in, sigma_out)
+
+    def _plane_of(
+        self,
+        rows: slice,
+        q: np.ndarray,
+        dq: np.ndarray | None,
+        sigma_in: np.ndarray | None,
+        sigma_out: np.ndarray | None,
+    ) -> np.ndarray:
+        """The plane of the coded axis' undistorted normalized coordinate ``q`` (float32, used
+        as scratch): ``t = (q T_z - T_i) / (Rd_i - q Rd_z)``, NaN unless ``t > 0``; with
+        ``dq = dq/dw`` the sigma ``|dt/dq dq/dw| |d| sigma_in``."""
+        tab = self.tables()
+        T = self._T
         Ti = T[0] if self.axis == "u" else T[1]
         rdi, rdz = tab["rdi32"][rows], tab["rdz32"][rows]
         num = q * np.float32(T[2])
@@ -832,61 +878,6 @@ class PreparedPinhole(PreparedGeometry):
                 sigma_out *= sigma_in
             t = np.divide(num, den, out=num)
             np.copyto(t, np.float32(np.nan), where=~(t > 0))
-        return t
-
-    def _coded_from_polynomial(self, rows: slice, coded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``q`` (float32, undistorted normalized coordinate of the coded axis) and ``omega``."""
-        tab = self.tables()
-        mid, half = self._coded_domain()
-        poly = tab["poly"][:, rows]
-        omega = np.asarray(coded, dtype=np.float32) - np.float32(mid)
-        omega *= np.float32(1.0 / half)
-        q = poly[POLY_DEGREE] * omega
-        for k in range(POLY_DEGREE - 1, 0, -1):
-            q += poly[k]
-            q *= omega
-        q += poly[0]
-        exact = tab["poly_exact"][rows]
-        if exact.any():
-            sel = exact & np.isfinite(omega)
-            if sel.any():
-                Kp = self._Kp
-                w = np.asarray(coded, dtype=np.float64)[sel]
-                _, c0_rows, c1_rows = self._rows_terms(rows)
-                c0, c1 = c0_rows[sel], c1_rows[sel]
-                with np.errstate(all="ignore"):
-                    xp, yp, _ = self._solve_on_line(w, c0, c1, Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2])
-                q[sel] = xp if self.axis == "u" else yp
-        return q, omega
-
-    def _plane_from_polynomial(
-        self, rows: slice, coded: np.ndarray, sigma_in: np.ndarray | None, sigma_out: np.ndarray | None
-    ) -> np.ndarray:
-        """One coded axis through a distorted projector: ``q`` from the per-pixel polynomial, then
-        the plane ``t = (q T_z - T_i) / (Rd_i - q Rd_z)``; float32 ``(n, W)``."""
-        tab = self.tables()
-        T = self._T
-        Ti = T[0] if self.axis == "u" else T[1]
-        q, omega = self._coded_from_polynomial(rows, coded)
-        rdi, rdz = tab["rdi32"][rows], tab["rdz32"][rows]
-        num = q * np.float32(T[2])
-        num -= np.float32(Ti)
-        den = q * rdz
-        np.subtract(rdi, den, out=den)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = num / den
-            if sigma_in is not None and sigma_out is not None:
-                # dq/dw from the polynomial's derivative; dt/dq = (T_z den + num Rd_z) / den^2
-                half = self._coded_domain()[1]
-                poly = tab["poly"][:, rows]
-                dq = POLY_DEGREE * poly[POLY_DEGREE]
-                for k in range(POLY_DEGREE - 1, 0, -1):
-                    dq = dq * omega + k * poly[k]
-                dq *= np.float32(1.0 / half)
-                dtdq = (np.float32(T[2]) * den + num * rdz) / (den * den)
-                np.multiply(np.abs(dtdq * dq), tab["norm_d"][rows], out=sigma_out)
-                sigma_out *= sigma_in
-        t[~((t > 0) & (np.abs(omega) <= 1))] = np.nan
         return t
 
     def _projector_normalized(
@@ -922,9 +913,10 @@ class PreparedPinhole(PreparedGeometry):
         fy: float,
         cy: float,
         q0: np.ndarray | None = None,
+        tol: float = PROJECTOR_TOL,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Newton on the epipolar line: the coded normalized coordinate ``q`` with
-        ``pixel(q, c0 + c1 q) = w`` to :data:`PROJECTOR_TOL`, from ``q0`` (default: the
+        ``pixel(q, c0 + c1 q) = w`` to ``tol`` projector units, from ``q0`` (default: the
         undistorted guess); NaN where it does not converge. Returns ``x_p, y_p, dq/dw``."""
         dist = self._pdist
         axis_u = self.axis == "u"
@@ -949,7 +941,7 @@ class PreparedPinhole(PreparedGeometry):
             step = g / dg
             q = np.where(done, q, q - step)
             dq = dg
-            conv = np.abs(g) <= PROJECTOR_TOL
+            conv = np.abs(g) <= tol
             done |= conv
             if done.all():
                 break

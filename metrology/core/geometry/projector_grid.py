@@ -53,6 +53,24 @@ class UndistortionGrid:
         coef = np.stack([f00, f01 - f00, f10 - f00, f11 - f10 - f01 + f00], axis=-1)
         return np.ascontiguousarray(coef.reshape(-1, 4).astype(np.float32))
 
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """The grid as arrays (for the local cache); :meth:`from_arrays` inverts it."""
+        meta = np.asarray([self.step, self.error, *self.intrinsics], np.float64)
+        return {"meta": meta, "dx": self.dx, "dy": self.dy, "cx4": self.cx4, "cy4": self.cy4}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> UndistortionGrid:
+        step, error, fx, s, cx, fy, cy = (float(x) for x in arrays["meta"])
+        return cls(
+            step=step,
+            dx=arrays["dx"],
+            dy=arrays["dy"],
+            error=error,
+            intrinsics=(fx, s, cx, fy, cy),
+            cx4=arrays["cx4"],
+            cy4=arrays["cy4"],
+        )
+
     @classmethod
     def build(cls, K: np.ndarray, dist: Distortion, width: float, height: float) -> UndistortionGrid | None:
         """The coarsest grid of :data:`GRID_STEPS` meeting :data:`GRID_TOL`, or None."""
