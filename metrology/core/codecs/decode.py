@@ -50,6 +50,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from metrology.core.codecs.check import AxisCheck, check_axis, checkable, summary_of
 from metrology.core.codecs.model import Axis, Codec, Stage
 from metrology.core.patterns import binary_from_gray
 from metrology.core.tiling import run_tiled, thread_scratch
@@ -229,6 +230,7 @@ class CodecDecoding:
     saturated_pixels: int
     shape: tuple[int, int]
     stats: dict[str, Any] = field(default_factory=dict)
+    codec_check: Mapping[str, AxisCheck] = field(default_factory=dict)
 
     def uv(self) -> np.ndarray:
         """``(H, W, 2)`` float32: u and v, NaN for an axis that is not coded or a pixel not decoded."""
@@ -261,6 +263,7 @@ class CodecDecoding:
             },
             "saturated_pixels": self.saturated_pixels,
             "options": self.options.to_dict(),
+            "codec_check": summary_of(self.codec_check),
         }
 
 
@@ -426,8 +429,10 @@ def decode_codec(
             "noise": np.empty((height, width), np.float32),
             "reason": np.empty((height, width), np.uint8),
         }
-        if opts.repair_slips and plan.slip_period > 0:  # the decoded gray words bound the repair
+        if (opts.repair_slips and plan.slip_period > 0) or checkable(plan.axis):  # slip repair, self-check
             outputs[plan.name]["centre"] = np.empty((height, width), np.float32)
+        if checkable(plan.axis):  # the coordinate before the filters, for the self-check (check.py)
+            outputs[plan.name]["unfiltered"] = np.empty((height, width), np.float32)
     used_frames = sorted(
         {f for plan in plans for s in plan.used for f in plan.sequences[s].frames}
         | {f for plan in plans if plan.axis.gray is not None for f in plan.axis.gray.frames}
@@ -460,8 +465,12 @@ def decode_codec(
 
     run_tiled(run, height, width, threads)
     axes: dict[str, AxisDecoding] = {}
+    checks: dict[str, AxisCheck] = {}
     for plan in plans:
         out = outputs[plan.name]
+        if "unfiltered" in out:  # judged by the gray/phase tolerance: reasons 0, 3, 4 (and 6, none yet)
+            judged = cv2.LUT(out["reason"], _JUDGED_LUT).view(bool)
+            checks[plan.name] = check_axis(out["unfiltered"], out["centre"], judged, plan.axis, plan.extent)
         slips = 0
         if opts.repair_slips and plan.slip_period > 0:
             final_period = plan.chain[-1].period
@@ -484,7 +493,13 @@ def decode_codec(
             reason=out["reason"],
             slips_repaired=slips,
         )
-    return CodecDecoding(axes=axes, options=opts, saturated_pixels=int(sum(saturated_counts)), shape=(height, width))
+    return CodecDecoding(
+        axes=axes,
+        options=opts,
+        saturated_pixels=int(sum(saturated_counts)),
+        shape=(height, width),
+        codec_check=checks,
+    )
 
 
 def _decode_tile(
@@ -868,6 +883,8 @@ def _decode_axis_tile(
             np.multiply(mask.view(np.uint8), np.uint8(weight), out=flag)
             np.bitwise_or(flags, flag, out=flags)
     reason = cv2.LUT(flags, _REASON_LUT, dst=out["reason"])
+    if "unfiltered" in out:
+        np.copyto(out["unfiltered"], x)
     x += cv2.LUT(reason, _NAN_UNLESS_VALID_LUT, dst=scratch.get("nan_or_zero", shape, np.float32))
 
 
@@ -888,6 +905,7 @@ def _reason_lut() -> np.ndarray:
 
 
 _REASON_LUT = _reason_lut()
+_JUDGED_LUT = np.isin(np.arange(256), (REASON_VALID, REASON_OUTSIDE, REASON_INCONSISTENT)).astype(np.uint8)
 _NAN_UNLESS_VALID_LUT = np.where(np.arange(256) == REASON_VALID, 0, np.nan).astype(np.float32)
 
 
