@@ -126,15 +126,16 @@ def _row_step(shape: tuple[int, ...]) -> int:
 
 
 def _jumps(
-    x: np.ndarray, centre: np.ndarray, judged: np.ndarray, jump: float, step: int, vertical: bool
+    x: np.ndarray, centre: np.ndarray, judged: np.ndarray, jump: float, step: int, vertical: bool | str
 ) -> tuple[int, int]:
     """(coordinate jumps, word changes) over 4-neighbour pairs of judged pixels: the horizontal
-    pairs of every ``step``-th row, the vertical pairs of those rows and the rows after them."""
-    rows = slice(None, None, step)
-    pairs = [((rows, slice(1, None)), (rows, slice(None, -1)))]
-    below = x[1::step].shape[0]
+    pairs of every ``step``-th row, the vertical pairs of those rows and the rows after them
+    (``vertical`` False: none; ``"paired"``: rows 2k and 2k + 1 only, ``step`` 1)."""
+    every = 2 if vertical == "paired" else step
+    pairs = [((slice(None, None, step), slice(1, None)), (slice(None, None, step), slice(None, -1)))]
+    below = x[1::every].shape[0]
     if below and vertical:
-        pairs.append(((slice(1, None, step), slice(None)), (slice(0, below * step, step), slice(None))))
+        pairs.append(((slice(1, None, every), slice(None)), (slice(0, below * every, every), slice(None))))
     jumps = changes = 0
     for a, b in pairs:
         both = judged[a] & judged[b]
@@ -145,17 +146,24 @@ def _jumps(
 
 
 def _statistics(
-    x: np.ndarray, centre: np.ndarray, judged: np.ndarray, axis: Axis, extent: int, jump: float, vertical: bool = True
+    x: np.ndarray,
+    centre: np.ndarray,
+    judged: np.ndarray,
+    axis: Axis,
+    extent: int,
+    jump: float,
+    vertical: bool | str = True,
 ) -> _Stats:
     g = axis.gray
     assert g is not None
     word = g.word
-    step = _row_step(x.shape)
+    step = 1 if vertical == "paired" else _row_step(x.shape)
     sample = judged[::step]
-    xs = x[::step][sample].astype(np.float64)
-    cs = centre[::step][sample].astype(np.float64)
+    xs = x[::step][sample]
+    cs = centre[::step][sample]
     d = xs - cs
-    offset = float(np.median(d))
+    q25, median, q75 = (float(q) for q in np.quantile(d, [0.25, 0.5, 0.75]))
+    offset = median
     n = np.rint((cs - g.origin) / word - 0.5).astype(np.int64)
     digit = (n ^ (n >> 1)) & 1  # the least significant digit of the word's gray code
     digit_offsets = tuple(float(np.median(d[digit == v])) if np.any(digit == v) else None for v in (0, 1))
@@ -171,8 +179,7 @@ def _statistics(
         count = np.bincount(index).astype(np.float64)
         up = np.bincount(index, weights=above.astype(np.float64), minlength=count.size)
         imbalance = float(np.sum(np.abs(2 * up - count)) / np.sum(count))
-    q25, q75 = np.percentile(d, [25, 75])
-    spread = float((q75 - q25) / word)
+    spread = (q75 - q25) / word
     jumps, changes = _jumps(x, centre, judged, jump, step, vertical)
     jump_ratio = jumps / changes if changes >= MIN_WORD_CHANGES else None
     return _Stats(
@@ -283,7 +290,15 @@ def _likely_correction(
     return "the gray code and the phase disagree: check the origins, the word and the shift"
 
 
-def check_axis(coordinate: np.ndarray, centre: np.ndarray, judged: np.ndarray, axis: Axis, extent: int) -> AxisCheck:
+def check_axis(
+    coordinate: np.ndarray,
+    centre: np.ndarray,
+    judged: np.ndarray,
+    axis: Axis,
+    extent: int,
+    *,
+    paired_rows: bool = False,
+) -> AxisCheck:
     """The self-check of one axis.
 
     Parameters
@@ -298,6 +313,9 @@ def check_axis(coordinate: np.ndarray, centre: np.ndarray, judged: np.ndarray, a
         Its description (gray code and chain); :func:`checkable` must hold.
     extent : int
         The projector's size along the axis, px.
+    paired_rows : bool
+        The rows are samples of a larger image in neighbouring pairs (rows 2k and 2k + 1 are
+        neighbours, 2k + 1 and 2k + 2 are not): :func:`sampled_rows`.
     """
     g = axis.gray
     assert g is not None
@@ -313,7 +331,7 @@ def check_axis(coordinate: np.ndarray, centre: np.ndarray, judged: np.ndarray, a
             word_px=word,
         )
     jump = 0.5 * min(stage.period for stage in axis.chain() if stage.kind != "gray")
-    s = _statistics(coordinate, centre, judged, axis, extent, jump)
+    s = _statistics(coordinate, centre, judged, axis, extent, jump, "paired" if paired_rows else True)
     status, wrong, undecided = _verdict(s, word)
     if status == CONSISTENT:
         message = ""
@@ -334,6 +352,15 @@ def check_axis(coordinate: np.ndarray, centre: np.ndarray, judged: np.ndarray, a
         spread=s.spread,
         jump_ratio=s.jump_ratio,
     )
+
+
+def sampled_rows(height: int, pairs: int = 32) -> np.ndarray:
+    """Row indices of about ``pairs`` evenly spaced pairs of neighbouring rows (``r``, ``r + 1``) of an
+    image ``height`` rows high: what a check on a sample decodes (``paired_rows``)."""
+    if height < 4 * pairs:
+        return np.arange(height - height % 2)
+    starts = np.linspace(0, height - 2, pairs).astype(np.intp)
+    return np.stack([starts, starts + 1], axis=1).ravel()
 
 
 def summary_of(checks: Mapping[str, AxisCheck]) -> dict[str, dict[str, Any]]:

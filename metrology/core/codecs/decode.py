@@ -388,6 +388,7 @@ def decode_codec(
     *,
     with_noise: bool = True,
     threads: int | None = None,
+    paired_rows: bool = False,
 ) -> CodecDecoding:
     """Decode a stack of ``codec`` to absolute projector coordinates.
 
@@ -403,6 +404,9 @@ def decode_codec(
         decoding skips the sums of squares (``gcps decode`` asks for them with ``--quality``).
     threads : int, optional
         Worker threads over row tiles (default :data:`~metrology.core.tiling.DEFAULT_THREADS`).
+    paired_rows : bool
+        The images are rows of a larger capture sampled in neighbouring pairs
+        (:func:`~metrology.core.codecs.check.sampled_rows`), for the self-check.
 
     Returns
     -------
@@ -470,7 +474,9 @@ def decode_codec(
         out = outputs[plan.name]
         if "unfiltered" in out:  # judged by the gray/phase tolerance: reasons 0, 3, 4 (and 6, none yet)
             judged = cv2.LUT(out["reason"], _JUDGED_LUT).view(bool)
-            checks[plan.name] = check_axis(out["unfiltered"], out["centre"], judged, plan.axis, plan.extent)
+            checks[plan.name] = check_axis(
+                out["unfiltered"], out["centre"], judged, plan.axis, plan.extent, paired_rows=paired_rows
+            )
         slips = 0
         if opts.repair_slips and plan.slip_period > 0:
             final_period = plan.chain[-1].period
