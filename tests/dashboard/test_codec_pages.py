@@ -84,3 +84,17 @@ def test_measurement_page_shows_the_sigma_map(client_alice, rig, captures, run_j
     # the form offers it
     form = client_alice.get(f"/measurements/new/?rig={rig.pk}").content.decode()
     assert 'name="sigma"' in form
+
+
+def test_capture_page_and_api_show_the_codec_self_check(client_alice, rig, alice):
+    capture = upload_capture(
+        owner=alice,
+        rig=rig,
+        upload=SimpleUploadedFile("ref.zip", codec_zip(codec_images(0.0)), "application/zip"),
+        role="reference",
+    )
+    html = client_alice.get(f"/captures/{capture.pk}/").content.decode()
+    assert "Codec self-check" in html and 'class="badge codec-consistent">consistent<' in html
+    data = client_alice.get(f"/api/captures/{capture.pk}/").json()
+    assert data["codec_check"]["u"]["status"] == "consistent"
+    assert set(data["codec_check"]["u"]) >= {"status", "offset_px", "outside_share", "message"}
