@@ -40,7 +40,7 @@ import numpy as np
 import numpy.typing as npt
 
 from metrology.core.blur import correct_blur_bias, estimate_blur_variance
-from metrology.core.codecs.check import AxisCheck, inconsistent_message, sampled_rows
+from metrology.core.codecs.check import INCONSISTENT, AxisCheck, inconsistent_message, sampled_rows, with_suggestion
 from metrology.core.codecs.decode import CodecDecodeOptions, CodecDecoding, decode_codec, validate_codec_stack
 from metrology.core.codecs.model import Codec, gcps_v1_codec, is_gcps_v1
 from metrology.core.decode import (
@@ -745,10 +745,13 @@ def check_gcps_v1_sample(stack: np.ndarray, codec: Codec | None, nlp: int) -> Ma
     (a few per cent of its time: benchmarks/decode.py)."""
     width = codec.projector_width if codec is not None else 1024
     height = codec.projector_height if codec is not None else 768
+    codec = gcps_v1_codec(width, height, nlp)
     sample = np.ascontiguousarray(stack[:, sampled_rows(stack.shape[1], pairs=16)])
-    return decode_codec(
-        sample, gcps_v1_codec(width, height, nlp), with_noise=False, threads=1, paired_rows=True
-    ).codec_check
+    checks = decode_codec(sample, codec, with_noise=False, threads=1, paired_rows=True).codec_check
+    return {
+        name: with_suggestion(check, stack, codec, name, decode_codec) if check.status == INCONSISTENT else check
+        for name, check in checks.items()
+    }
 
 
 # --------------------------------------------------------------------------- the fused gcps-v1 path

@@ -31,18 +31,25 @@ only), ``spread <= 0.3`` (a fraction of the cell) or ``jump_ratio >= 0.6``; ``co
 ``|offset| <= max(1, word / 8)``, ``outside_share <= 0.05``, ``imbalance <= 0.25``, ``0.35 <=
 spread <= 0.65`` and ``jump_ratio <= 0.35``; ``undetermined`` otherwise, or on fewer than
 :data:`MIN_PIXELS` pixels, the message saying why.
+
+The message of an ``inconsistent`` axis names the likely correction: :func:`with_suggestion`
+decodes 32 pairs of rows of the stack under descriptions that differ by one likely mistake
+(reversed shift, bit order, inversion, word twice too wide or narrow, a phase origin off by
+eighths of its period, all origins off by twelfths, the gray origin off by a quarter or half a
+word, swapped axes) and names the first that is ``consistent``; else a hint from the statistics.
 """
 
 from __future__ import annotations
 
+import json
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
-from metrology.core.codecs.model import Axis, Codec
+from metrology.core.codecs.model import Axis, Codec, CodecError, codec_from_dict
 
 CONSISTENT = "consistent"
 INCONSISTENT = "inconsistent"
@@ -63,13 +70,15 @@ class AxisCheck:
     """The self-check of one axis (module docstring).
 
     ``status``, ``offset_px``, ``outside_share`` and ``message`` are the contract of
-    ``"codec_check"``; the other attributes say what they were computed from.
+    ``"codec_check"``; ``findings`` is what the statistics found wrong (the message's second part)
+    and the other attributes say what they were computed from.
     """
 
     status: str
     offset_px: float | None
     outside_share: float | None
     message: str
+    findings: str = ""
     pixels: int = 0
     word_px: float = 0.0
     outside_projector_share: float | None = None
@@ -229,49 +238,11 @@ def _verdict(s: _Stats, word: float) -> tuple[str, list[str], list[str]]:
     return CONSISTENT, wrong, undecided
 
 
-def _wrap(value: np.ndarray, period: float) -> np.ndarray:
-    """``value`` wrapped to ``[-period / 2, period / 2)``."""
-    return value - period * np.floor(value / period + 0.5)
-
-
-def _likely_correction(
-    x: np.ndarray, centre: np.ndarray, judged: np.ndarray, axis: Axis, extent: int, jump: float, s: _Stats
-) -> str:
-    """The description change that makes the decoding consistent, tried on every 4th row and column
-    (reversed shift, the phase origin in steps of 1/16 of the finest period, on every 8th sampled row), else a
-    hint read from the statistics."""
+def _likely_correction(axis: Axis, s: _Stats) -> str:
+    """A hint read from the statistics (:func:`with_suggestion` replaces it by a tried correction)."""
     g = axis.gray
     assert g is not None
     word = g.word
-    final = axis.chain()[-1]
-    period = final.period
-    step = 8 * _row_step(x.shape)
-    xs, cs, js = x[::step], centre[::step], judged[::step]
-    if word <= period + 1e-9:
-        candidates: list[tuple[str, np.ndarray]] = []
-        origin = final.origin
-        reflected = cs + _wrap(2 * origin - xs - cs, period)
-        candidates.append(("shift looks reversed (every phase sequence's shift should change sign)", reflected))
-        for k in range(1, 16):
-            delta = period * k / 16
-            delta = delta - period if delta > period / 2 else delta
-            label = (
-                f"origin should be {origin - delta:.4g}, not {origin:.4g} "
-                f"({final.label}; or the gray origin {g.origin + delta:.4g})"
-            )
-            candidates.append((label, cs + _wrap(xs - delta - cs, period)))
-        best: tuple[float, str] | None = None
-        for label, hypothesis in candidates:
-            if np.count_nonzero(js) < MIN_PIXELS // 4:
-                break
-            h = _statistics(hypothesis.astype(np.float32), cs, js, axis, extent, jump, vertical=False)
-            status, _, _ = _verdict(h, word)
-            if status == CONSISTENT:
-                score = h.outside + (h.jump_ratio or 0.0) + abs(h.offset) / word
-                if best is None or score < best[0]:
-                    best = (score, label)
-        if best is not None:
-            return best[1]
     if s.outside_projector > 0.05:
         return "many coordinates fall outside the projector: are the axes swapped, or the word or origin wrong?"
     if s.spread <= 0.3 and s.outside < 0.2:
@@ -333,17 +304,19 @@ def check_axis(
     jump = 0.5 * min(stage.period for stage in axis.chain() if stage.kind != "gray")
     s = _statistics(coordinate, centre, judged, axis, extent, jump, "paired" if paired_rows else True)
     status, wrong, undecided = _verdict(s, word)
+    findings = "; ".join(wrong)
     if status == CONSISTENT:
         message = ""
     elif status == INCONSISTENT:
-        message = f"{_likely_correction(coordinate, centre, judged, axis, extent, jump, s)}: {'; '.join(wrong)}."
+        message = _sentence(_likely_correction(axis, s), findings)
     else:
-        message = f"undetermined: {'; '.join(undecided)}."
+        message = _sentence("undetermined", "; ".join(undecided))
     return AxisCheck(
         status=status,
         offset_px=s.offset,
         outside_share=s.outside,
-        message=message[0].upper() + message[1:] if message else "",
+        message=message,
+        findings=findings,
         pixels=pixels,
         word_px=word,
         outside_projector_share=s.outside_projector,
@@ -361,6 +334,124 @@ def sampled_rows(height: int, pairs: int = 32) -> np.ndarray:
         return np.arange(height - height % 2)
     starts = np.linspace(0, height - 2, pairs).astype(np.intp)
     return np.stack([starts, starts + 1], axis=1).ravel()
+
+
+def _sentence(hint: str, findings: str) -> str:
+    return f"{hint[0].upper()}{hint[1:]}: {findings}."
+
+
+def _variants(codec: Codec, name: str) -> list[tuple[str, str, dict[str, Any]]]:
+    """Descriptions differing from ``codec`` by one likely mistake on axis ``name``: (group, the
+    sentence naming the correction, the codec's dict), the simplest groups first."""
+    base = codec.to_dict()
+    where = f"axes.{name}"
+    axis = base["axes"][name]
+    out: list[tuple[str, str, dict[str, Any]]] = []
+
+    def variant(group: str, label: str, change: Any) -> None:
+        data = json.loads(json.dumps(base))
+        change(data["axes"][name])
+        out.append((group, label, data))
+
+    def moved(origin: float, fraction: float, period: float) -> float:
+        """``origin`` moved by ``fraction`` of ``period``, the move taken in [-period / 2, period / 2)."""
+        return origin + ((fraction + 0.5) % 1.0 - 0.5) * period
+
+    phases = axis.get("phase", [])
+    shifts = [p["shift"] for p in phases]
+    variant(
+        "shift",
+        f"shift looks reversed ({where}.phase[*].shift should be {[-v for v in shifts]}, not {shifts})",
+        lambda a: [p.__setitem__("shift", -p["shift"]) for p in a["phase"]],
+    )
+    gray = axis["gray"]
+    other = "lsb_first" if gray["order"] == "msb_first" else "msb_first"
+    variant(
+        "order",
+        f"bit order looks wrong ({where}.gray.order should be {other})",
+        lambda a: a["gray"].__setitem__("order", other),
+    )
+    variant(
+        "inverted",
+        f"bits look inverted ({where}.gray.inverted should be {str(not gray['inverted']).lower()})",
+        lambda a: a["gray"].__setitem__("inverted", not gray["inverted"]),
+    )
+    for factor, words in ((0.5, "twice too wide"), (2.0, "twice too narrow")):
+        word = gray["word"] * factor
+        variant(
+            "word",
+            f"word looks {words} ({where}.gray.word should be {word:.4g}, not {gray['word']:.4g})",
+            lambda a, word=word: a["gray"].__setitem__("word", word),
+        )
+    for k in range(1, 8):
+        for i, p in enumerate(phases):
+            origin = moved(p["origin"], k / 8, p["period"])
+            variant(
+                "origin",
+                f"origin should be {origin:.6g}, not {p['origin']:.6g} ({where}.phase[{i}].origin)",
+                lambda a, i=i, origin=origin: a["phase"][i].__setitem__("origin", origin),
+            )
+    if len(phases) > 1:
+        olds = ", ".join(f"{p['origin']:.6g}" for p in phases)
+        for k in range(1, 12):
+            news = [moved(p["origin"], k / 12, p["period"]) for p in phases]
+            variant(
+                "origins",
+                f"origins should be {', '.join(f'{v:.6g}' for v in news)}, not {olds} ({where}.phase[*].origin)",
+                lambda a, news=news: [p.__setitem__("origin", v) for p, v in zip(a["phase"], news, strict=True)],
+            )
+    for k in range(1, 4):
+        origin = moved(gray["origin"], k / 4, gray["word"])
+        variant(
+            "gray origin",
+            f"gray origin should be {origin:.6g}, not {gray['origin']:.6g} ({where}.gray.origin)",
+            lambda a, origin=origin: a["gray"].__setitem__("origin", origin),
+        )
+    if set(base["axes"]) == {"u", "v"}:
+        data = json.loads(json.dumps(base))
+        data["axes"]["u"], data["axes"]["v"] = data["axes"]["v"], data["axes"]["u"]
+        out.append(("axes", "axes look swapped (the u description codes v, and the v description u)", data))
+    return out
+
+
+def suggest_correction(
+    images: np.ndarray, codec: Codec, name: str, decode: Callable[..., Any], options: Any = None
+) -> str | None:
+    """The likely correction of an ``inconsistent`` axis ``name``, as a sentence: group by group of
+    :func:`_variants`, the description under which 32 pairs of rows of ``images`` ((frames, H, W),
+    the stack; :func:`sampled_rows`) are ``consistent`` with the smallest ``|offset| / word +
+    outside_share``; None when no group has one. Each variant is one ``decode`` of the sample rows
+    (:func:`~metrology.core.codecs.decode.decode_codec`, passed in: the decoder calls this module)
+    with ``options`` (``CodecDecodeOptions`` or None)."""
+
+    sample = np.ascontiguousarray(images[:, sampled_rows(images.shape[1])])
+    best: tuple[float, str] | None = None
+    variants = _variants(codec, name)
+    for index, (group, label, data) in enumerate(variants):
+        try:
+            variant = codec_from_dict(data)
+        except CodecError:
+            variant = None  # e.g. a word wider than the period it unwraps
+        if variant is not None:
+            checks = decode(sample, variant, options, with_noise=False, threads=1, paired_rows=True).codec_check
+            judged = list(checks.values()) if group == "axes" else [checks[name]]
+            if judged and all(c.status == CONSISTENT for c in judged):
+                score = sum(abs(c.offset_px or 0.0) / c.word_px + (c.outside_share or 0.0) for c in judged)
+                if best is None or score < best[0]:
+                    best = (score, label)
+        last_of_group = index + 1 == len(variants) or variants[index + 1][0] != group
+        if last_of_group and best is not None:
+            return best[1]
+    return None
+
+
+def with_suggestion(
+    check: AxisCheck, images: np.ndarray, codec: Codec, name: str, decode: Callable[..., Any], options: Any = None
+) -> AxisCheck:
+    """``check`` (inconsistent) with the message naming :func:`suggest_correction`'s correction when
+    one is found (``decode``: :func:`~metrology.core.codecs.decode.decode_codec`)."""
+    label = suggest_correction(images, codec, name, decode, options)
+    return check if label is None else replace(check, message=_sentence(label, check.findings))
 
 
 def summary_of(checks: Mapping[str, AxisCheck]) -> dict[str, dict[str, Any]]:

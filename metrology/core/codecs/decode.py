@@ -50,7 +50,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from metrology.core.codecs.check import AxisCheck, check_axis, checkable, summary_of
+from metrology.core.codecs.check import INCONSISTENT, AxisCheck, check_axis, checkable, summary_of, with_suggestion
 from metrology.core.codecs.model import Axis, Codec, Stage
 from metrology.core.patterns import binary_from_gray
 from metrology.core.tiling import run_tiled, thread_scratch
@@ -477,6 +477,8 @@ def decode_codec(
             checks[plan.name] = check_axis(
                 out["unfiltered"], out["centre"], judged, plan.axis, plan.extent, paired_rows=paired_rows
             )
+            if checks[plan.name].status == INCONSISTENT and not paired_rows:  # name the likely correction
+                checks[plan.name] = with_suggestion(checks[plan.name], stack, codec, plan.name, decode_codec, options)
         slips = 0
         if opts.repair_slips and plan.slip_period > 0:
             final_period = plan.chain[-1].period

@@ -139,15 +139,22 @@ def test_swapped_axes_are_inconsistent(rendered: tuple[Codec, np.ndarray]) -> No
     assert check["v"]["status"] == INCONSISTENT
     assert "outside the projector" in check["v"]["message"]
     assert worst_status(check) == INCONSISTENT
+    if codec.axes["u"].gray.word >= 8:  # type: ignore[union-attr]
+        assert check["v"]["message"].startswith("Axes look swapped")
 
 
 @pytest.mark.parametrize(
     ("wrong", "word", "says"),
     [
-        ("phase origin off by half a period", 8.0, "origin should be -0.5, not 7.5"),
-        ("phase origin off by a quarter period", 16.0, "origin should be -0.5, not 3.5"),
-        ("reversed shift", 16.0, "shift looks reversed"),
+        ("phase origin off by half a period", 8.0, "origin should be -0.5, not 7.5 (axes.u.phase[0].origin)"),
+        ("phase origin off by a quarter period", 16.0, "origin should be -0.5, not 3.5 (axes.u.phase[0].origin)"),
+        ("phase origin off by minus a quarter period", 4.0, "origin should be -0.5, not -4.5"),
+        ("reversed shift", 16.0, "shift looks reversed (axes.u.phase[*].shift should be [1], not [-1])"),
         ("reversed shift", 4.0, "shift looks reversed"),
+        ("word twice too wide", 8.0, "word looks twice too wide (axes.u.gray.word should be 8, not 16)"),
+        ("word twice too narrow", 16.0, "word looks twice too narrow (axes.u.gray.word should be 16, not 8)"),
+        ("bit order", 8.0, "bit order looks wrong (axes.u.gray.order should be msb_first)"),
+        ("inverted bits", 16.0, "bits look inverted (axes.u.gray.inverted should be false)"),
     ],
 )
 def test_the_message_names_the_likely_correction(wrong: str, word: float, says: str) -> None:

@@ -87,3 +87,23 @@ def test_wrong_descriptions_are_inconsistent(capture: tuple[Codec, np.ndarray], 
     check = decode_codec(images, described, with_noise=False).summary()["codec_check"]
     assert worst_status(check) == INCONSISTENT, check
     assert all(axis["message"] for axis in check.values() if axis["status"] != CONSISTENT)
+
+
+@pytest.mark.parametrize(
+    ("wrong", "says"),
+    [
+        ("100 px origin off by half a period", "origin should be 33.3333, not 83.3333 (axes.u.phase[1].origin)"),
+        ("66.7 px origin off by half a period", "origin should be 22.2222, not 55.5556 (axes.u.phase[0].origin)"),
+        ("origins off by half a period", "origins should be 22.2222, 33.3333, not 55.5556, 83.3333"),
+        ("reversed shifts", "shift looks reversed"),
+        ("word twice too wide", "word looks twice too wide (axes.u.gray.word should be 100, not 200)"),
+        ("lsb first", "bit order looks wrong (axes.u.gray.order should be msb_first)"),
+        ("gray origin off by half a word", "gray origin should be 0, not 50 (axes.u.gray.origin)"),
+    ],
+)
+def test_the_message_names_the_correction(capture: tuple[Codec, np.ndarray], wrong: str, says: str) -> None:
+    codec, images = capture
+    data = copy.deepcopy(codec.to_dict())
+    WRONG[wrong](data["axes"]["u"])
+    check = decode_codec(images, codec_from_dict(data), with_noise=False).summary()["codec_check"]
+    assert says in check["u"]["message"].lower(), check["u"]["message"]
