@@ -35,8 +35,13 @@ spread <= 0.65`` and ``jump_ratio <= 0.35``; ``undetermined`` otherwise, or on f
 The message of an ``inconsistent`` axis names the likely correction: :func:`with_suggestion`
 decodes 32 pairs of rows of the stack under descriptions that differ by one likely mistake
 (reversed shift, bit order, inversion, word twice too wide or narrow, a phase origin off by
-eighths of its period, all origins off by twelfths, the gray origin off by a quarter or half a
-word, swapped axes) and names the first that is ``consistent``; else a hint from the statistics.
+eighths of its period, all origins off by twelfths, the gray origin off by quarters of a word,
+swapped axes), group by group, and names the best ``consistent`` one of the first group that has
+one; else a hint from the statistics. Statistics of images above :data:`SAMPLE_PIXELS` pixels
+are computed on every s-th row (and the row after each, for the vertical neighbour pairs).
+
+Contract (``"codec_check"`` in ``gcps decode``'s summary, measurements, the capture API):
+``{axis: {"status", "offset_px", "outside_share", "message", ...}}`` (:meth:`AxisCheck.to_dict`).
 """
 
 from __future__ import annotations
