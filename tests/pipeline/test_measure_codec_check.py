@@ -1,5 +1,5 @@
 """The codec self-check in measurements: every measurement carries the object's ``codec_check``
-(the fused gcps-v1 path from 16 pairs of rows decoded by the codec decoder), and a capture
+(the fused gcps-v1 path from the fused kernel's values on 8 pairs of rows), and a capture
 ``inconsistent`` with its codec fails with the check's message unless the options say
 ``allow_inconsistent_codec``."""
 
