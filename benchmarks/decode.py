@@ -15,6 +15,10 @@ noisy shared machine affects all rows alike, each after flushing the caches):
   ``both stacks`` decodes the reference inside the timed call too (and estimates its
   blur); ``no blur-bias bound`` leaves out the filter's crease test
   (``max_blur_bias_codes=0``), the cost of that test by difference.
+* ``codec self-check (8 row pairs)``: what the fused path adds for the codec self-check
+  (:func:`~metrology.core.measure.check_gcps_v1_sample`: the fused kernel's intermediate values
+  on 8 pairs of rows, then checked); it is inside the ``decode + triangulate`` rows, this row alone says
+  how much of them it is.
 * ``memory bound``: ``np.copyto`` of the bytes the job must touch (11 uint8
   images in, one float32 out: 15 bytes per pixel) -- the floor.
 * ``OpenCV GrayCodePattern``/``PSP``: OpenCV-contrib's structured_light
@@ -56,7 +60,7 @@ from metrology.core.geometry.crossed_axes import (  # noqa: E402
     camera_ray_point,
     codes_of_points,
 )
-from metrology.core.measure import MeasureOptions, measure, prepare_reference  # noqa: E402
+from metrology.core.measure import MeasureOptions, check_gcps_v1_sample, measure, prepare_reference  # noqa: E402
 from metrology.core.patterns import PATTERN_NAMES, pattern_intensity  # noqa: E402
 from metrology.core.tiling import scratch_nbytes  # noqa: E402
 
@@ -120,6 +124,7 @@ def run_size(width: int, height: int, repeats: int, with_opencv: bool) -> dict:
         "decode + triangulate vs kept reference": lambda: measure(
             rig, obj_stack, reference=bare_reference, options=bare
         ),
+        "  codec self-check (8 row pairs)": lambda: check_gcps_v1_sample(obj_stack, None, rig.nlp),
         "  same, 1 thread": lambda: measure(rig, obj_stack, reference=bare_reference, options=bare, threads=1),
         "decode + triangulate, both stacks decoded": lambda: measure(rig, obj_stack, reference=ref_stack, options=bare),
         "full pipeline vs kept reference": lambda: measure(rig, obj_stack, reference=reference, options=options),

@@ -209,7 +209,9 @@ class RigSessionsApi(APIView):
 class CaptureDetailApi(APIView):
     @extend_schema(responses=CaptureSerializer, operation_id="captures_retrieve")
     def get(self, request: Request, capture_id: int) -> Response:
-        return Response(CaptureSerializer(selectors.get_capture(request.user, capture_id)).data)
+        """The capture, with ``codec_check``: the codec self-check of its stored stack (null until stored)."""
+        capture = selectors.get_capture(request.user, capture_id)
+        return Response({**CaptureSerializer(capture).data, "codec_check": selectors.capture_codec_check(capture)})
 
 
 class CaptureFileApi(APIView):

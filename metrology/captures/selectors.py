@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from django.db.models import QuerySet
 from django.http import Http404
 
@@ -41,3 +43,20 @@ def capture_for_job(user, rig: Rig, capture_id: int, *, field: str, roles: tuple
         state = f"its job {job.pk} is {job.status}" + (f": {job.error}" if job and job.error else "") if job else ""
         raise BadInput(f"{field}: capture {capture_id} is not stored yet ({state}); retry when its job is done")
     return capture
+
+
+def capture_codec_check(capture: Capture) -> dict[str, Any] | None:
+    """The codec self-check of a stored capture's stack with its codec (``{axis: {"status",
+    "offset_px", "outside_share", "message", ...}}``, docs/codecs.md), or None when it is not
+    stored yet or cannot be read."""
+    from metrology.captures.stacks import load_codec_stack
+    from metrology.core.codecs.check import summary_of
+    from metrology.core.codecs.decode import decode_codec
+
+    if not capture.ready:
+        return None
+    try:
+        stack = load_codec_stack(capture)
+        return summary_of(decode_codec(stack.images, stack.codec, with_noise=False).codec_check)
+    except (ValueError, OSError):
+        return None

@@ -53,6 +53,11 @@ def register(subparsers: Any) -> None:
         "--codec",
         help="codec file (gcps-codec/1) or built-in name of both captures (default: their codec.json, else gcps-v1)",
     )
+    p.add_argument(
+        "--allow-inconsistent-codec",
+        action="store_true",
+        help="measure even when the codec self-check finds the object inconsistent with its codec (docs/codecs.md)",
+    )
     add_measure_options(p)
     p.set_defaults(func=cmd_measure)
 
@@ -61,6 +66,7 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     """Read the rig and the captures, measure (the pipeline), write the outputs; the summary."""
     import numpy as np
 
+    from metrology.core.codecs.check import summary_of
     from metrology.core.io import atomic_path, write_height_npy
     from metrology.core.mesh import surface_mesh, write_mesh_file
     from metrology.pipeline.measure import measure
@@ -84,7 +90,13 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     reference = None if args.reference is None else read_capture(args.reference, codec, model, "reference")
     obj = read_capture(args.object, codec, model, "object")
     read_s = time.perf_counter() - started
-    options = measure_options(args, gray_only=bool(args.json), sigma=asked_sigma, max_sigma_mm=args.max_sigma)
+    options = measure_options(
+        args,
+        gray_only=bool(args.json),
+        sigma=asked_sigma,
+        max_sigma_mm=args.max_sigma,
+        allow_inconsistent_codec=args.allow_inconsistent_codec,
+    )
     result = None
     if ply_mesh and not asked_sigma:  # a PLY mesh carries sigma_mm per vertex when the codec gives it
         try:
@@ -122,6 +134,7 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     }
     if asked_sigma or result.sigma_mm is not None:
         summary["sigma_mm_median"] = stats.get("sigma_mm_median")
+    summary["codec_check"] = summary_of(measurement.codec_check)
     if args.json:
         data = result.to_dict()
         gray = stats.get("gray_only") or {}
@@ -143,6 +156,7 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
             "software_version": result.software_version,
             "rig": model.to_dict(),
             "codec": result.codec_name if codec is None else codec.to_dict(),
+            "codec_check": summary["codec_check"],
         }
         if "decoding" in data:
             report["decoding"] = data["decoding"]

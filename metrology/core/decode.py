@@ -304,6 +304,8 @@ def decode_rows(
     modulation_out: np.ndarray | None = None,
     mask_out: np.ndarray | None = None,
     visibility_out: np.ndarray | None = None,
+    fraction_out: np.ndarray | None = None,
+    word_out: np.ndarray | None = None,
 ) -> None:
     """Decode one tile of rows into the given outputs (the hot loop: see benchmarks/decode.py).
 
@@ -320,6 +322,10 @@ def decode_rows(
     gray_out, modulation_out, mask_out, visibility_out : (h, W) arrays, optional
         Receive the gray-code-only codes (float32), the modulation ``B`` (float32), the
         validity (bool) and ``B / 4A`` (float32, half the visibility).
+    fraction_out, word_out : (h, W) float32 arrays, optional
+        Receive, before any validity test, ``l - l^`` (the combined code within the gray word's
+        cell ``[0, 1)`` when consistent; NaN where gray and phase disagree by two codes) and the
+        binary word ``l^``: what the codec self-check reads (:func:`metrology.core.measure.check_gcps_v1_sample`).
 
     Notes
     -----
@@ -378,6 +384,10 @@ def decode_rows(
     fraction = cv2.scaleAdd(phase, _CODES_PER_RADIAN, fraction, dst=fraction)  # l - l^
     word = cv2.LUT(gray_word, _BINARY_FROM_GRAY_F32_LUT, dst=f32("cos"))
     np.add(word, fraction, out=codes_out)
+    if fraction_out is not None:
+        np.copyto(fraction_out, fraction)
+    if word_out is not None:
+        np.copyto(word_out, word)
 
     # validity: within the gray word's cell +- consistency_codes, modulated, inside the field
     valid = scratch.get("valid", shape, bool)

@@ -40,6 +40,14 @@ import numpy as np
 import numpy.typing as npt
 
 from metrology.core.blur import correct_blur_bias, estimate_blur_variance
+from metrology.core.codecs.check import (
+    INCONSISTENT,
+    AxisCheck,
+    check_axis,
+    inconsistent_message,
+    sampled_rows,
+    with_suggestion,
+)
 from metrology.core.codecs.decode import CodecDecodeOptions, CodecDecoding, decode_codec, validate_codec_stack
 from metrology.core.codecs.model import Codec, gcps_v1_codec, is_gcps_v1
 from metrology.core.decode import (
@@ -156,9 +164,13 @@ class MeasureOptions:
         needs a final phase sequence of N >= 4 steps on the triangulated axis).
     max_sigma_mm : float or None
         Drop the points whose uncertainty exceeds this, mm (implies ``sigma``).
+    allow_inconsistent_codec : bool
+        Measure even when the codec self-check (:mod:`metrology.core.codecs.check`) finds the
+        object capture ``inconsistent`` with its codec (default False: the measurement fails
+        with the check's message).
 
     JSON form (:meth:`to_dict`): ``{"decode": {...}, "gray_only", "sigma", "triangulate",
-    "method", "max_sigma_mm"}``, the filter and gcps-v1 settings together under ``decode``
+    "method", "max_sigma_mm", "allow_inconsistent_codec"}``, the filter and gcps-v1 settings together under ``decode``
     (:func:`decode_block`). :meth:`from_dict` reads any subset of it.
     """
 
@@ -168,11 +180,13 @@ class MeasureOptions:
     gray_only: bool = True
     sigma: bool = False
     max_sigma_mm: float | None = None
+    allow_inconsistent_codec: bool = False
 
     def __post_init__(self) -> None:
         check_settings(self)
         check_bool("gray_only", self.gray_only)
         check_bool("sigma", self.sigma)
+        check_bool("allow_inconsistent_codec", self.allow_inconsistent_codec)
         if self.max_sigma_mm is not None:
             try:
                 check_positive("max_sigma_mm", self.max_sigma_mm)
@@ -194,11 +208,12 @@ class MeasureOptions:
             "gray_only": self.gray_only,
             "sigma": self.sigma,
             "max_sigma_mm": self.max_sigma_mm,
+            "allow_inconsistent_codec": self.allow_inconsistent_codec,
         }
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> MeasureOptions:
-        own = ("gray_only", "sigma", "max_sigma_mm")
+        own = ("gray_only", "sigma", "max_sigma_mm", "allow_inconsistent_codec")
         check_keys("measure", data, {*SETTINGS_KEYS, *own})
         return cls(**settings_from_dict(data), **{k: data[k] for k in own if k in data})
 
@@ -285,6 +300,9 @@ class Measurement:
         Points dropped by ``options.max_sigma_mm``.
     timings_s : dict
         Seconds per phase.
+    codec_check : mapping of str to AxisCheck
+        The codec self-check of the object capture per checked axis (on the fused gcps-v1 path,
+        of 8 pairs of rows decoded by the codec decoder: :func:`check_gcps_v1_sample`).
     """
 
     z_mm: np.ndarray
@@ -298,6 +316,7 @@ class Measurement:
     off_ray_points_mm: np.ndarray | None = None
     dropped_by_max_sigma: int = 0
     timings_s: dict[str, float] = field(default_factory=dict)
+    codec_check: Mapping[str, AxisCheck] = field(default_factory=dict)
 
     @property
     def model(self) -> GeometryModel:
@@ -658,6 +677,7 @@ def _codec_measure(
         prepared, obj, codec, options, reference, "object", with_noise=options.wants_sigma, threads=threads
     )
     timings["object_decode_s"] = time.perf_counter() - start
+    refuse_inconsistent(coded.decoding.codec_check, options)
     start = time.perf_counter()
     sigma_in = _sigma_of(codec, prepared.axis, coded.decoding) if options.wants_sigma else None
     surface = None if reference is None else reference.surface
@@ -710,7 +730,63 @@ def _codec_measure(
         off_ray_points_mm=points,
         dropped_by_max_sigma=dropped,
         timings_s=timings,
+        codec_check=coded.decoding.codec_check,
     )
+
+
+def refuse_inconsistent(checks: Mapping[str, AxisCheck], options: MeasureOptions) -> None:
+    """ValueError with the self-check's message when an axis is ``inconsistent`` with its codec,
+    unless ``options.allow_inconsistent_codec``."""
+    message = inconsistent_message(checks)
+    if message is not None and not options.allow_inconsistent_codec:
+        raise ValueError(
+            f"the capture does not match its codec ({message}) Correct the codec, or measure anyway with "
+            "allow_inconsistent_codec (--allow-inconsistent-codec)."
+        )
+
+
+def check_gcps_v1_sample(
+    stack: np.ndarray, codec: Codec | None, nlp: int, min_modulation: float | None = None
+) -> Mapping[str, AxisCheck]:
+    """The codec self-check of a gcps-v1 stack measured on the fused path, from the fused kernel's
+    own intermediate values on 8 evenly spaced pairs of neighbouring rows
+    (:func:`~metrology.core.codecs.check.sampled_rows`): the combined code within the gray word,
+    ``l - l^`` (NaN where gray and phase disagree by two codes: counted outside the cell), and the
+    word ``l^``, as projector coordinates ``x = (l^ + (l - l^)) w - 0.5`` and word centres
+    ``c = (l^ + 0.5) w - 0.5`` (``w = width / nlp``), judged where the modulation reaches
+    ``min_modulation``. The full-size kernel is untouched; an ``inconsistent`` check names its
+    likely correction with the codec decoder (:func:`~metrology.core.codecs.check.with_suggestion`).
+
+    ``stack``: (11, H, W) gcps-v1 images; ``codec``: the stacks' codec (None: gcps-v1 1024x768).
+    """
+    width = codec.projector_width if codec is not None else 1024
+    height = codec.projector_height if codec is not None else 768
+    v1 = gcps_v1_codec(width, height, nlp)
+    if min_modulation is None:
+        min_modulation = default_min_modulation(stack.dtype)
+    rows = sampled_rows(stack.shape[1], pairs=8)
+    shape = (rows.size, stack.shape[2])
+    fraction, word, modulation = (np.empty(shape, np.float32) for _ in range(3))
+    decode_rows(
+        np.ascontiguousarray(stack[:N_GRAY_BITS, rows]),
+        np.ascontiguousarray(stack[N_GRAY_BITS:, rows]),
+        nlp,
+        min_modulation,
+        0.0,
+        0.0,
+        np.empty(shape, np.float32),
+        modulation_out=modulation,
+        fraction_out=fraction,
+        word_out=word,
+    )
+    w = np.float32(width / nlp)
+    centre = (word + np.float32(0.5)) * w - np.float32(0.5)
+    x = np.where(np.isfinite(fraction), (word + fraction) * w - np.float32(0.5), centre + 2 * w)
+    judged = modulation >= np.float32(min_modulation)
+    check = check_axis(x, centre, judged, v1.axes["u"], width, paired_rows=True)
+    if check.status == INCONSISTENT:
+        check = with_suggestion(check, stack, v1, "u", decode_codec)
+    return {"u": check}
 
 
 # --------------------------------------------------------------------------- the fused gcps-v1 path
@@ -775,6 +851,11 @@ def _fused_measure(
     blur_variance = 0.0 if reference is None else reference.blur_variance_px2
 
     start = time.perf_counter()
+    codec_check = check_gcps_v1_sample(stack, codec, nlp, filters.min_modulation)
+    timings["codec_check_s"] = time.perf_counter() - start
+    refuse_inconsistent(codec_check, options)
+
+    start = time.perf_counter()
     correct_blur = blur_variance > 0  # then heights come from the corrected codes
     gray_surface = None if reference is None else reference.gray_surface
     gray_words = options.gray_only and (reference is None or gray_surface is not None)
@@ -829,6 +910,7 @@ def _fused_measure(
         sigma_mm=sigma_mm,
         dropped_by_max_sigma=dropped,
         timings_s=timings,
+        codec_check=codec_check,
     )
 
 
@@ -924,11 +1006,13 @@ __all__ = [
     "MeasureOptions",
     "Measurement",
     "Reference",
+    "check_gcps_v1_sample",
     "decode_block",
     "finest_period",
     "height_statistics",
     "measure",
     "prepare_reference",
+    "refuse_inconsistent",
     "split_decode_block",
     "uses_fused_gcps_v1",
 ]

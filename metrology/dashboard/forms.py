@@ -271,6 +271,17 @@ class MeasurementForm(forms.Form):
         label="Per-point uncertainty",
         help_text="Also compute each point's standard uncertainty (mm) from the object's phase noise",
     )
+    allow_inconsistent_codec = forms.BooleanField(
+        required=False,
+        label="Measure even if the codec self-check fails",
+        help_text="A capture inconsistent with its codec (see the capture's page) is otherwise refused",
+    )
+
+    def options(self) -> dict[str, Any] | None:
+        """The measurement options the form sets (None: the defaults)."""
+        data = self.cleaned_data
+        chosen = {key: True for key in ("sigma", "allow_inconsistent_codec") if data.get(key)}
+        return chosen or None
 
     def __init__(self, *args, captures=(), reference_optional: bool = False, unreferenced: str = "depth", **kwargs):
         super().__init__(*args, **kwargs)

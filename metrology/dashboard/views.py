@@ -431,7 +431,7 @@ def measurement_new(request: HttpRequest) -> HttpResponse:
                 rig=rig,
                 reference_id=form.cleaned_data.get("reference"),
                 object_id=form.cleaned_data["object"],
-                options={"sigma": True} if form.cleaned_data.get("sigma") else None,
+                options=form.options(),
             )
         except SERVICE_ERRORS as exc:
             form.add_error(None, error_sentence(exc))

@@ -128,6 +128,7 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
     statistics["reference_plane"] = json_safe(data["reference_plane"])
     if "decoding" in data:
         statistics["decoding"] = json_safe(data["decoding"])
+    statistics["codec_check"] = json_safe(data["codec_check"])  # the object's codec self-check
 
     def publish(job_row: Job) -> None:
         start = time.perf_counter()

@@ -16,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from metrology.core import measure as core
+from metrology.core.codecs.check import summary_of
 from metrology.core.codecs.decode import CodecDecoding
 from metrology.core.codecs.model import CODEC_FORMAT, GCPS_V1, Codec, is_gcps_v1
 from metrology.core.geometry.base import GeometryModel
@@ -107,8 +108,8 @@ class MeasureResult:
 
     def to_dict(self) -> dict[str, Any]:
         """Statistics, options, software version, timings, the codec, the reference plane (a
-        fitted one; null for a per-pixel reference or none) and the decoding summary of a codec
-        decoding (JSON-ready)."""
+        fitted one; null for a per-pixel reference or none), the decoding summary of a codec
+        decoding and the object's codec self-check (``codec_check``; JSON-ready)."""
         reference = self.measurement.reference
         data: dict[str, Any] = {
             "statistics": self.statistics(),
@@ -120,6 +121,7 @@ class MeasureResult:
         }
         if self.measurement.decoding is not None:
             data["decoding"] = self.measurement.decoding.summary()
+        data["codec_check"] = summary_of(self.measurement.codec_check)
         return data
 
 

@@ -84,3 +84,49 @@ def test_measurement_page_shows_the_sigma_map(client_alice, rig, captures, run_j
     # the form offers it
     form = client_alice.get(f"/measurements/new/?rig={rig.pk}").content.decode()
     assert 'name="sigma"' in form
+
+
+def test_capture_page_and_api_show_the_codec_self_check(client_alice, rig, alice):
+    capture = upload_capture(
+        owner=alice,
+        rig=rig,
+        upload=SimpleUploadedFile("ref.zip", codec_zip(codec_images(0.0)), "application/zip"),
+        role="reference",
+    )
+    html = client_alice.get(f"/captures/{capture.pk}/").content.decode()
+    assert "Codec self-check" in html and 'class="badge codec-consistent">consistent<' in html
+    data = client_alice.get(f"/api/captures/{capture.pk}/").json()
+    assert data["codec_check"]["u"]["status"] == "consistent"
+    assert set(data["codec_check"]["u"]) >= {"status", "offset_px", "outside_share", "message"}
+
+
+def test_a_measurement_of_an_inconsistent_capture_fails_unless_allowed(client_alice, rig, alice, run_jobs):
+    from metrology.measurements.models import Measurement
+
+    wrong = json.loads(json.dumps(CODEC))
+    wrong["axes"]["u"]["phase"][0]["origin"] = 15.5  # the frames were made with -0.5: half a period off
+    ids = []
+    for name, role, z_mm in (("ref.zip", "reference", 0.0), ("obj.zip", "object", 5.0)):
+        upload = SimpleUploadedFile(name, codec_zip(codec_images(z_mm), wrong), "application/zip")
+        ids.append(upload_capture(owner=alice, rig=rig, upload=upload, role=role).pk)
+    page = client_alice.get(f"/captures/{ids[1]}/").content.decode()
+    assert 'class="badge codec-inconsistent">inconsistent<' in page
+    assert "Origin should be -0.5, not 15.5 (axes.u.phase[0].origin)" in page
+    form = client_alice.get(f"/measurements/new/?rig={rig.pk}").content.decode()
+    assert 'name="allow_inconsistent_codec"' in form
+    for allow in (False, True):
+        post = {"reference": ids[0], "object": ids[1], **({"allow_inconsistent_codec": "on"} if allow else {})}
+        with run_jobs():
+            answer = client_alice.post(f"/measurements/new/?rig={rig.pk}", post)
+        assert answer.status_code == 302
+        measurement = Measurement.objects.latest("pk")
+        assert measurement.options["allow_inconsistent_codec"] is allow
+        measurement.job.refresh_from_db()
+        if allow:
+            assert measurement.job.status == "done"
+            measurement.refresh_from_db()
+            assert measurement.statistics["codec_check"]["u"]["status"] == "inconsistent"
+        else:
+            assert measurement.job.status == "failed"
+            assert "does not match its codec" in measurement.job.error
+            assert "Origin should be -0.5, not 15.5" in measurement.job.error

@@ -57,6 +57,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from metrology.core.codecs.check import INCONSISTENT, AxisCheck, check_axis, checkable, summary_of, with_suggestion
 from metrology.core.codecs.gray import LevelModel, centre_lut, classify_tile, digit_positions, sample_levels
 from metrology.core.codecs.model import Axis, Codec, Stage
 from metrology.core.patterns import binary_from_gray
@@ -239,6 +240,7 @@ class CodecDecoding:
     saturated_pixels: int
     shape: tuple[int, int]
     stats: dict[str, Any] = field(default_factory=dict)
+    codec_check: Mapping[str, AxisCheck] = field(default_factory=dict)
 
     def uv(self) -> np.ndarray:
         """``(H, W, 2)`` float32: u and v, NaN for an axis that is not coded or a pixel not decoded."""
@@ -272,6 +274,7 @@ class CodecDecoding:
             "saturated_pixels": self.saturated_pixels,
             "options": self.options.to_dict(),
             **({"gray_levels": self.stats["gray_levels"]} if "gray_levels" in self.stats else {}),
+            "codec_check": summary_of(self.codec_check),
         }
 
 
@@ -399,6 +402,7 @@ def decode_codec(
     *,
     with_noise: bool = True,
     threads: int | None = None,
+    paired_rows: bool = False,
 ) -> CodecDecoding:
     """Decode a stack of ``codec`` to absolute projector coordinates.
 
@@ -414,6 +418,9 @@ def decode_codec(
         decoding skips the sums of squares (``gcps decode`` asks for them with ``--quality``).
     threads : int, optional
         Worker threads over row tiles (default :data:`~metrology.core.tiling.DEFAULT_THREADS`).
+    paired_rows : bool
+        The images are rows of a larger capture sampled in neighbouring pairs
+        (:func:`~metrology.core.codecs.check.sampled_rows`), for the self-check.
 
     Returns
     -------
@@ -440,8 +447,10 @@ def decode_codec(
             "noise": np.empty((height, width), np.float32),
             "reason": np.empty((height, width), np.uint8),
         }
-        if opts.repair_slips and plan.slip_period > 0:  # the decoded gray words bound the repair
+        if (opts.repair_slips and plan.slip_period > 0) or checkable(plan.axis):  # slip repair, self-check
             outputs[plan.name]["centre"] = np.empty((height, width), np.float32)
+        if checkable(plan.axis):  # the coordinate before the filters, for the self-check (check.py)
+            outputs[plan.name]["unfiltered"] = np.empty((height, width), np.float32)
     used_frames = sorted(
         {f for plan in plans for s in plan.used for f in plan.sequences[s].frames}
         | {f for plan in plans if plan.axis.gray is not None for f in plan.axis.gray.frames}
@@ -474,8 +483,16 @@ def decode_codec(
 
     run_tiled(run, height, width, threads)
     axes: dict[str, AxisDecoding] = {}
+    checks: dict[str, AxisCheck] = {}
     for plan in plans:
         out = outputs[plan.name]
+        if "unfiltered" in out:  # judged by the gray/phase tolerance: reasons 0, 3, 4 (and 6, none yet)
+            judged = cv2.LUT(out["reason"], _JUDGED_LUT).view(bool)
+            checks[plan.name] = check_axis(
+                out["unfiltered"], out["centre"], judged, plan.axis, plan.extent, paired_rows=paired_rows
+            )
+            if checks[plan.name].status == INCONSISTENT and not paired_rows:  # name the likely correction
+                checks[plan.name] = with_suggestion(checks[plan.name], stack, codec, plan.name, decode_codec, options)
         slips = 0
         if opts.repair_slips and plan.slip_period > 0:
             final_period = plan.chain[-1].period
@@ -505,6 +522,7 @@ def decode_codec(
         saturated_pixels=int(sum(saturated_counts)),
         shape=(height, width),
         stats={"gray_levels": levels} if levels else {},
+        codec_check=checks,
     )
 
 
@@ -920,6 +938,8 @@ def _decode_axis_tile(
             np.multiply(mask.view(np.uint8), np.uint8(weight), out=flag)
             np.bitwise_or(flags, flag, out=flags)
     reason = cv2.LUT(flags, _REASON_LUT, dst=out["reason"])
+    if "unfiltered" in out:
+        np.copyto(out["unfiltered"], x)
     x += cv2.LUT(reason, _NAN_UNLESS_VALID_LUT, dst=scratch.get("nan_or_zero", shape, np.float32))
 
 
@@ -958,6 +978,7 @@ def _reason_lut() -> np.ndarray:
 
 
 _REASON_LUT = _reason_lut()
+_JUDGED_LUT = np.isin(np.arange(256), (REASON_VALID, REASON_OUTSIDE, REASON_INCONSISTENT)).astype(np.uint8)
 _NAN_UNLESS_VALID_LUT = np.where(np.arange(256) == REASON_VALID, 0, np.nan).astype(np.float32)
 
 

@@ -539,7 +539,8 @@ def validate_codec(codec: Codec) -> None:
         Naming the field: N < 3, period <= 0, shift not +-1, unknown waveform or order, word
         <= 0, more than 16 gray bits, gray levels outside 2..8 or ``levels ** digits`` above 65536,
         inverse frames or ``inverted`` with levels > 2, inverse list of the wrong length, frame index out of range,
-        a frame used twice, a gray code with no threshold source, a bad unwrap chain, an axis
+        a frame used twice, a gray code with no threshold source, a bad unwrap chain (a gray word
+        wider than the period of the stage it unwraps), an axis
         with nothing coded, a first stage that does not cover the projector, no axis at all.
     """
     if codec.precompensated_gamma is not None:
@@ -692,6 +693,13 @@ def _validate_chain(where: str, axis: Axis, extent: int) -> None:
             raise CodecError(
                 f"codec field {where}: the first unwrapping stage {stage.label} has period {stage.period:g}, "
                 f"shorter than the projector's {extent} px, and there is no gray code to unwrap it"
+            )
+        if previous is not None and previous.kind == "gray" and axis.gray is not None and axis.gray.word > stage.period:
+            # the stage unwraps within +-P/2 of the word's centre: a wider word leaves whole periods undecided
+            raise CodecError(
+                f"codec field {where}: the gray word ({axis.gray.word:g}) is wider than the period "
+                f"{stage.period:g} of {stage.label}, the stage it unwraps, which cannot tell the periods "
+                "in one word apart (a word at most as wide as that period is needed)"
             )
         if previous is not None and previous.kind != "gray" and stage.period >= previous.period:
             raise CodecError(

@@ -138,3 +138,37 @@ def decode_inner(images: np.ndarray, codec: Codec, axis_name: str = "u", border:
     valid = axis.valid & inner
     assert valid[inner].mean() > 0.999, valid[inner].mean()
     return axis, valid
+
+
+def multilevel_codec(
+    levels: int,
+    digits: int,
+    word: float,
+    *,
+    period: float | None = 16.0,
+    white_black: bool = True,
+    order: str = "msb_first",
+    axis: str = "u",
+    **gray: Any,
+) -> Codec:
+    """One axis: a ``levels``-level gray code of ``digits`` frames, an optional 8-step phase, white/black."""
+    spec: dict[str, Any] = {
+        "gray": {"frames": list(range(digits)), "word": word, "origin": -0.5, "levels": levels, "order": order, **gray}
+    }
+    n = digits
+    if period is not None:
+        spec["phase"] = [{"frames": list(range(n, n + 8)), "period": period, "origin": -0.5}]
+        n += 8
+    extra: dict[str, Any] = {}
+    if white_black:
+        extra = {"white": [n], "black": [n + 1]}
+        n += 2
+    return codec_from_dict(
+        {
+            "codec": "gcps-codec/1",
+            "frames": n,
+            "projector": {"width": PROJ_W, "height": PROJ_H},
+            "axes": {axis: spec},
+            **extra,
+        }
+    )

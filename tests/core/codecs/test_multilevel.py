@@ -22,43 +22,9 @@ from metrology.core.codecs.decode import REASON_LEVEL_AMBIGUOUS, decode_codec
 from metrology.core.codecs.gray import centre_lut, gray_digits, words_from_gray
 from metrology.core.simulate import SimulationOptions
 from metrology.core.uncertainty import stage_coordinate_sigma
-from tests.core.codecs.roundtrips import PROJ_H, PROJ_W, affine_truth, assert_round_trip, truth_maps
+from tests.core.codecs.roundtrips import PROJ_W, affine_truth, assert_round_trip, multilevel_codec, truth_maps
 
 U, V = truth_maps()
-
-
-def multilevel_codec(
-    levels: int,
-    digits: int,
-    word: float,
-    *,
-    period: float | None = 16.0,
-    white_black: bool = True,
-    order: str = "msb_first",
-    axis: str = "u",
-    **gray: Any,
-) -> Codec:
-    """One axis: a ``levels``-level gray code of ``digits`` frames, an optional 8-step phase, white/black."""
-    spec: dict[str, Any] = {
-        "gray": {"frames": list(range(digits)), "word": word, "origin": -0.5, "levels": levels, "order": order, **gray}
-    }
-    n = digits
-    if period is not None:
-        spec["phase"] = [{"frames": list(range(n, n + 8)), "period": period, "origin": -0.5}]
-        n += 8
-    extra: dict[str, Any] = {}
-    if white_black:
-        extra = {"white": [n], "black": [n + 1]}
-        n += 2
-    return codec_from_dict(
-        {
-            "codec": "gcps-codec/1",
-            "frames": n,
-            "projector": {"width": PROJ_W, "height": PROJ_H},
-            "axes": {axis: spec},
-            **extra,
-        }
-    )
 
 
 # ---------------------------------------------------------------- the code
