@@ -135,5 +135,9 @@ def test_an_upload_names_its_capture_and_codec_and_the_capture_page_gives_valid_
     page.goto(f"{live_server.url}/captures/{capture_id}/")
     cell = page.locator("#h-decoding ~ table td.num").first.inner_text()
     assert " % (" in cell and cell.endswith(" px)"), cell
+    # the codec self-check of the stored stack (issue 21 item 1): the paper's codec, rightly described
+    check_rows = page.locator("#h-codec-check + table tbody tr")
+    assert check_rows.count() >= 1
+    assert check_rows.first.locator(".badge").inner_text() == "consistent", check_rows.first.inner_text()
     shot(page, "first-day-capture-valid-pixels")
     assert not page.js_errors, page.js_errors

@@ -17,9 +17,16 @@ Statistics (codec units, i.e. projector pixels, unless said):
 * ``outside_share``: the fraction of pixels outside their word's cell by more than
   ``word / 8`` (the gray bits' own edge blur), or outside the projector ``[-0.5, extent - 0.5]``;
   ``outside_projector_share`` the latter alone;
-* ``imbalance``: per word, ``|n_above - n_below| / (n_above + n_below)`` of the pixels inside its
-  cell, averaged over the words weighted by their pixels (0: both halves equally filled; 1:
-  every word filled on one side only);
+* ``imbalance``: per word ``w`` with ``n_w`` pixels inside its cell, ``a_w = |n_above - n_below|``,
+  as an excess over what an even fill gives for that many pixels:
+  ``(sum a_w - sum E[a_w]) / (sum n_w - sum E[a_w])``, with ``E[a_w] = E|2B - n_w|`` for
+  ``B ~ Binomial(n_w, 1/2)`` (:func:`expected_binomial_imbalance`). 0: both halves filled as an
+  even fill would; 1: every word filled on one side only. A word seen by one pixel is one-sided
+  whatever the description, so it adds nothing (a camera that sees each word with a pixel or
+  two, e.g. gcps-v1 on a small sensor, is judged by the other statistics); 0 when no word has
+  more than one pixel; not judged (null) where the camera sees fewer than
+  :data:`MIN_PIXELS_PER_WORD` pixels across a word (``pixels_per_word``: the word over the
+  coordinate's median step between neighbouring pixels of one word);
 * ``spread``: the interquartile range of ``d`` over the word (0.5 for a uniform fill of the cell);
 * ``jump_ratio``: 4-neighbour pairs of judged pixels whose coordinates differ by more than half
   the chain's finest period, over the pairs whose gray words differ (a right description jumps
@@ -46,6 +53,7 @@ Contract (``"codec_check"`` in ``gcps decode``'s summary, measurements, the capt
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from collections.abc import Callable, Mapping
@@ -91,6 +99,7 @@ class AxisCheck:
     imbalance: float | None = None
     spread: float | None = None
     jump_ratio: float | None = None
+    pixels_per_word: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: the contract keys first, then the statistics behind them."""
@@ -106,6 +115,7 @@ class AxisCheck:
             "imbalance": _rounded(self.imbalance),
             "spread": _rounded(self.spread),
             "jump_ratio": _rounded(self.jump_ratio),
+            "pixels_per_word": _rounded(self.pixels_per_word),
         }
 
 
@@ -125,10 +135,16 @@ class _Stats:
     digit_offsets: tuple[float | None, ...]
     outside: float
     outside_projector: float
-    imbalance: float
+    imbalance: float | None  # None: words seen by too few pixels across to judge their halves
     spread: float
     jump_ratio: float | None
+    pixels_per_word: float | None
 
+
+MIN_PIXELS_PER_WORD = 4.0
+"""Camera pixels across a gray word below which its halves are not compared: a word seen by a pixel
+or two is sampled at the same few places in every row (a plane seen by a small camera), so its
+halves are unevenly filled whatever the description; the other statistics still judge it."""
 
 SAMPLE_PIXELS = 300_000
 """About how many pixels the statistics read: every ``s``-th row of a larger image (and the row
@@ -145,22 +161,68 @@ def _row_step(shape: tuple[int, ...]) -> int:
 
 def _jumps(
     x: np.ndarray, centre: np.ndarray, judged: np.ndarray, jump: float, step: int, vertical: bool | str
-) -> tuple[int, int]:
-    """(coordinate jumps, word changes) over 4-neighbour pairs of judged pixels: the horizontal
-    pairs of every ``step``-th row, the vertical pairs of those rows and the rows after them
-    (``vertical`` False: none; ``"paired"``: rows 2k and 2k + 1 only, ``step`` 1)."""
+) -> tuple[int, int, float | None]:
+    """(coordinate jumps, word changes, coordinate step per pixel) over 4-neighbour pairs of judged
+    pixels: the horizontal pairs of every ``step``-th row, the vertical pairs of those rows and the
+    rows after them (``vertical`` False: none; ``"paired"``: rows 2k and 2k + 1 only, ``step`` 1).
+
+    The step per pixel is ``hypot(median |dx_h|, median |dx_v|)`` over the pairs inside one word
+    (codec units per camera pixel; None without such pairs): how finely the camera samples the
+    coded direction."""
     every = 2 if vertical == "paired" else step
     pairs = [((slice(None, None, step), slice(1, None)), (slice(None, None, step), slice(None, -1)))]
     below = x[1::every].shape[0]
     if below and vertical:
         pairs.append(((slice(1, None, every), slice(None)), (slice(0, below * every, every), slice(None))))
     jumps = changes = 0
+    medians: list[float] = []
     for a, b in pairs:
         both = judged[a] & judged[b]
         with np.errstate(invalid="ignore"):
-            jumps += int(np.count_nonzero(both & (np.abs(x[a] - x[b]) > jump)))
-        changes += int(np.count_nonzero(both & (centre[a] != centre[b])))
-    return jumps, changes
+            difference = np.abs(x[a] - x[b])
+            jumps += int(np.count_nonzero(both & (difference > jump)))
+        other_word = centre[a] != centre[b]
+        changes += int(np.count_nonzero(both & other_word))
+        within = difference[both & ~other_word]
+        medians.append(float(np.median(within)) if within.size else 0.0)
+    per_pixel = math.hypot(*medians)
+    return jumps, changes, (per_pixel if per_pixel > 0 else None)
+
+
+def expected_binomial_imbalance(count: np.ndarray) -> np.ndarray:
+    """``E|2B - n|`` for ``B ~ Binomial(n, 1/2)``, per element of ``count``.
+
+    Parameters
+    ----------
+    count : (K,) integer array, >= 0
+        Pixels per word.
+
+    Returns
+    -------
+    (K,) float64 array
+        The mean absolute difference between the pixels above and below a word's centre when each
+        pixel falls on either side with probability 1/2: ``n C(n - 1, floor((n - 1) / 2)) / 2^(n - 1)``
+        (1 for n = 1, 1 for n = 2, 1.5 for n = 3, ...; about ``sqrt(2 n / pi)`` for large n),
+        0 for n = 0. Exact up to n = 1024 (a table from log-gamma), the asymptote beyond.
+
+    >>> expected_binomial_imbalance(np.array([0, 1, 2, 3, 4])).round(4).tolist()
+    [0.0, 1.0, 1.0, 1.5, 1.5]
+    """
+    n = np.asarray(count, dtype=np.int64)
+    table = _binomial_imbalance_table()
+    exact = table[np.minimum(n, table.size - 1)]
+    return np.where(n >= table.size, np.sqrt(2 * n / math.pi), exact)
+
+
+@functools.cache
+def _binomial_imbalance_table(size: int = 1025) -> np.ndarray:
+    """``E|2B - n|`` for n = 0 .. size - 1 (:func:`expected_binomial_imbalance`), from log-gamma."""
+    values = [0.0]
+    for n in range(1, size):
+        m = (n - 1) // 2
+        log_c = math.lgamma(n) - math.lgamma(m + 1) - math.lgamma(n - m)
+        values.append(n * math.exp(log_c - (n - 1) * math.log(2.0)))
+    return np.array(values)
 
 
 def _statistics(
@@ -194,14 +256,20 @@ def _statistics(
     # per-word halves: pixels inside their cell, above and below its centre
     inside_n = n[inside_cell]
     above = d[inside_cell] > 0
-    imbalance = 1.0
-    if inside_n.size:
+    jumps, changes, per_pixel = _jumps(x, centre, judged, jump, step, vertical)
+    pixels_per_word = word / per_pixel if per_pixel else None
+    imbalance: float | None = 1.0
+    if pixels_per_word is not None and pixels_per_word < MIN_PIXELS_PER_WORD:
+        imbalance = None  # the camera samples each word at a few fixed places: its halves cannot be told
+    elif inside_n.size:
         index = inside_n - inside_n.min()
-        count = np.bincount(index).astype(np.float64)
+        count = np.bincount(index)
         up = np.bincount(index, weights=above.astype(np.float64), minlength=count.size)
-        imbalance = float(np.sum(np.abs(2 * up - count)) / np.sum(count))
+        expected = expected_binomial_imbalance(count)
+        informative = float(np.sum(count) - np.sum(expected))
+        excess = float(np.sum(np.abs(2 * up - count)) - np.sum(expected))
+        imbalance = min(1.0, max(0.0, excess / informative)) if informative > 1e-9 else 0.0
     spread = (q75 - q25) / word
-    jumps, changes = _jumps(x, centre, judged, jump, step, vertical)
     jump_ratio = jumps / changes if changes >= MIN_WORD_CHANGES else None
     return _Stats(
         pixels=int(xs.size),
@@ -212,6 +280,7 @@ def _statistics(
         imbalance=imbalance,
         spread=spread,
         jump_ratio=jump_ratio,
+        pixels_per_word=pixels_per_word,
     )
 
 
@@ -226,7 +295,7 @@ def _verdict(s: _Stats, word: float) -> tuple[str, list[str], list[str]]:
         wrong.append(f"{s.outside_projector:.1%} are decoded outside the projector")
     if s.outside >= 0.2:
         wrong.append(f"{s.outside:.1%} lie outside their word's cell")
-    if s.imbalance >= 0.8:
+    if s.imbalance is not None and s.imbalance >= 0.8:
         wrong.append("the words' cells are filled on one side only")
     if s.spread <= 0.3:
         wrong.append(f"the words' cells are filled over {2 * s.spread:.0%} of their width only")
@@ -237,7 +306,7 @@ def _verdict(s: _Stats, word: float) -> tuple[str, list[str], list[str]]:
         undecided.append(f"an offset of {worst:+.3g} px from the words' centres")
     if s.outside > 0.05:
         undecided.append(f"{s.outside:.1%} outside their word's cell")
-    if s.imbalance > 0.25:
+    if s.imbalance is not None and s.imbalance > 0.25:
         undecided.append(f"the words' halves unevenly filled (imbalance {s.imbalance:.2f})")
     if not 0.35 <= s.spread <= 0.65:
         undecided.append(f"the cells' fill spread over {s.spread:.2f} words (0.5 expected)")
@@ -260,7 +329,7 @@ def _likely_correction(axis: Axis, s: _Stats) -> str:
     if s.spread <= 0.3 and s.outside < 0.2:
         factor = 0.5 / max(s.spread, 1e-6)
         return f"word looks {factor:.2g} times too wide ({g.word:g} px)"
-    if abs(s.offset) >= word / 4 and s.imbalance >= 0.8:
+    if abs(s.offset) >= word / 4 and s.imbalance is not None and s.imbalance >= 0.8:
         return (
             f"origin looks off by {s.offset:+.3g} px: the gray origin should be {g.origin + s.offset:.4g}, "
             f"not {g.origin:.4g} (or every phase origin should move by {-s.offset:+.3g} px)"
@@ -336,6 +405,7 @@ def check_axis(
         imbalance=s.imbalance,
         spread=s.spread,
         jump_ratio=s.jump_ratio,
+        pixels_per_word=s.pixels_per_word,
     )
 
 
