@@ -71,6 +71,7 @@ def measurement_figures(measurement, row: int | None = None) -> tuple[dict[str, 
         x_label=axes.x_label,
         y_label=axes.y_label,
         unit=axes.unit,
+        camera_frame=model.frame == "camera",
     )
     sigma = load_npy(measurement.sigma_npy)
     if sigma is not None:  # the per-point uncertainty (options.sigma)

@@ -221,8 +221,10 @@ def gray_vs_gcps_figure(
     return fig
 
 
-def surface_figure(xyz_mm: npt.ArrayLike, title: str = "3D view", max_jump_mm: float = math.inf) -> go.Figure:
-    """3D view: the mesh of (decimated) grid points ``(h, w, 3)`` = X_H, Y_H, z in mm.
+def surface_figure(
+    xyz_mm: npt.ArrayLike, title: str = "3D view", max_jump_mm: float = math.inf, *, camera_frame: bool = False
+) -> go.Figure:
+    """3D view: the mesh of (decimated) grid points ``(h, w, 3)`` = X, Y, z in mm of the model frame.
 
     The triangles are those of the measurement's mesh files (:func:`metrology.core.mesh.grid_triangles`
     on the decimated grid): neighbouring finite points joined, steps higher than ``max_jump_mm``
@@ -232,6 +234,11 @@ def surface_figure(xyz_mm: npt.ArrayLike, title: str = "3D view", max_jump_mm: f
     coordinate (:func:`robust_range`), z is shown (and coloured) over its p1-p99 range widened by a
     tenth on each side, and the title says so when points lie beyond it (the hover shows every
     point's own value). ``layout.meta`` holds the z ranges (``z_shown_mm``, ``full_range_mm``).
+
+    With ``camera_frame`` (points in a camera frame, OpenCV's axes: y down, z away from the camera)
+    the y and z axes are drawn reversed, a rotation of 180 degrees about x (no mirror image), so the
+    object faces the viewer as the camera saw it, nearer points up; otherwise (the paper's frame,
+    z the height towards the rig) z is drawn upwards as it is.
     """
     from metrology.core.mesh import grid_triangles
 
@@ -261,7 +268,11 @@ def surface_figure(xyz_mm: npt.ArrayLike, title: str = "3D view", max_jump_mm: f
         "aspectmode": "manual",
         "aspectratio": {"x": span[0] / biggest, "y": span[1] / biggest, "z": max(0.15, min(1.0, span[2] / biggest))},
     }
-    layout["meta"] = {"z_shown_mm": [z_low, z_high], "full_range_mm": list(full)}
+    if camera_frame:  # y down and z away from the camera: turned 180 degrees about x to face the viewer
+        y_low, y_high = ranges[1][0] - 0.1 * span[1], ranges[1][1] + 0.1 * span[1]
+        layout["scene"]["yaxis"]["range"] = [y_high, y_low]
+        layout["scene"]["zaxis"]["range"] = [z_high, z_low]
+    layout["meta"] = {"z_shown_mm": [z_low, z_high], "full_range_mm": list(full), "camera_frame": camera_frame}
     fig = go.Figure(
         data=[
             go.Mesh3d(
@@ -298,6 +309,7 @@ def measurement_figures(
     x_label: str = "camera column (px)",
     y_label: str = "camera row (px)",
     unit: str = "px",
+    camera_frame: bool = False,
 ) -> dict[str, go.Figure]:
     """Every figure of a measurement, from full-resolution data (decimated here).
 
@@ -317,6 +329,9 @@ def measurement_figures(
         What ``z_mm`` is (titles and colour bars say it).
     x_label, y_label, unit : str
         The axes' titles and the coordinates' unit.
+    camera_frame : bool
+        ``xyz_mm`` is in a camera frame (y down, z away from the camera): the 3D view is turned to
+        face the viewer (:func:`surface_figure`).
     max_jump_mm : float, optional
         Depth-discontinuity threshold of the full-resolution mesh, mm
         (:func:`metrology.core.mesh.default_max_jump_mm`); the 3D view, decimated by blocks of
@@ -363,6 +378,9 @@ def measurement_figures(
     xyz_small = np.stack([decimate(xyz[..., i], MAX_ROWS_3D, MAX_COLS_3D) for i in range(3)], axis=-1)
     factor = max(block_factors(z.shape, MAX_ROWS_3D, MAX_COLS_3D))
     figures["surface"] = surface_figure(
-        xyz_small, f"3D view (mesh of {xyz_small.shape[1]} x {xyz_small.shape[0]} points)", factor * max_jump_mm
+        xyz_small,
+        f"3D view (mesh of {xyz_small.shape[1]} x {xyz_small.shape[0]} points)",
+        factor * max_jump_mm,
+        camera_frame=camera_frame,
     )
     return figures

@@ -128,6 +128,23 @@ def test_surface_z_axis_has_few_ticks():
     assert zaxis.nticks is not None and zaxis.nticks <= 4
 
 
+def test_a_camera_frame_surface_faces_the_viewer_nearer_points_up():
+    """Camera-frame points (y down, z away from the camera, a pinhole rig's): the 3D view reverses y
+    and z (a 180-degree turn about x, no mirror), so a sphere standing 60 mm out of a plane 1300 mm
+    away is drawn above it, not behind it; the paper's frame keeps z upwards."""
+    from metrology.figures.measurement import surface_figure
+
+    yy, xx = np.mgrid[-100:100:41j, -150:150:61j]
+    z = 1300.0 - 60.0 * np.clip(1 - (xx**2 + yy**2) / 50.0**2, 0, None)
+    xyz = np.stack([xx, yy, z], axis=-1)
+    camera = surface_figure(xyz, camera_frame=True).layout.scene
+    assert camera.zaxis.range[0] > camera.zaxis.range[1]  # nearer (smaller z) drawn higher
+    assert camera.yaxis.range[0] > camera.yaxis.range[1]  # and y turned with it: not mirrored
+    assert camera.zaxis.range[0] >= 1300.0 > 1240.0 >= camera.zaxis.range[1]
+    paper = surface_figure(xyz).layout.scene
+    assert paper.zaxis.range[0] < paper.zaxis.range[1] and paper.yaxis.range is None
+
+
 def test_empty_figures_say_why_and_offer_no_download():
     from metrology.dashboard.templatetags.dashboard import plotly_figure
     from metrology.figures import empty_figure, is_empty
