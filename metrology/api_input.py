@@ -5,14 +5,18 @@
   (plus room for the form's other fields) for multipart uploads.
 - :class:`BoundedJSONParser` reads at most ``DATA_UPLOAD_MAX_MEMORY_SIZE`` bytes (bodies sent
   without a length too) and refuses JSON nested deeper than :data:`MAX_JSON_DEPTH` levels, or so
-  deep that Python's parser gives up, with a 400 instead of a ``RecursionError``; and NUL
-  characters in strings (PostgreSQL refuses them: a 500 at the first write otherwise).
+  deep that Python's parser gives up, with a 400 instead of a ``RecursionError``; NUL
+  characters in strings (PostgreSQL refuses them: a 500 at the first write otherwise); and
+  numbers that are not finite (``1e400`` and ``-1e400``, which Python's parser reads as
+  infinities, and the non-standard ``NaN``/``Infinity``/``-Infinity``), naming the key by its
+  JSON path (``extra.a.b``, ``codec.axes.u.phase[0].period``).
 - :class:`RealNumberField` is DRF's ``FloatField`` without ``true``/``false`` (``float(True)`` is 1.0).
 """
 
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -67,29 +71,50 @@ class RequestBodyLimitMiddleware:
         return self.get_response(request)
 
 
+def _child_path(path: str, key: str | int) -> str:
+    """The JSON path of ``key`` inside the value at ``path``: ``a.b``, ``a[0]``, ``$`` at the top."""
+    if isinstance(key, int):
+        return f"{path}[{key}]"
+    return key if path == "$" else f"{path}.{key}"
+
+
 def json_problem(value: Any, max_depth: int) -> str | None:
     """What is wrong with a parsed JSON ``value``, or None: arrays/objects nested deeper than
-    ``max_depth`` levels, or a NUL character in a key or string (PostgreSQL cannot store it).
-    Iterative, so it cannot itself run out of stack."""
-    stack: list[tuple[Any, int]] = [(value, 1)]
+    ``max_depth`` levels, a NUL character in a key or string (PostgreSQL cannot store it), or a
+    number that is not finite (named by its JSON path, e.g. ``extra.a.b`` or ``axes.u.phase[0].period``;
+    ``$`` is the whole body). Iterative, so it cannot itself run out of stack; the first problem
+    in document order is reported."""
+    stack: list[tuple[Any, int, str]] = [(value, 1, "$")]
     while stack:
-        item, depth = stack.pop()
+        item, depth, path = stack.pop()
         if isinstance(item, str):
             if "\x00" in item:
                 return "a string holds a NUL character (\\u0000)"
+        elif isinstance(item, float):
+            if not math.isfinite(item):
+                return f"{path} must be a finite number, got {_number_text(item)}"
         elif isinstance(item, dict | list):
             if depth > max_depth:
                 return f"nested deeper than {max_depth} levels"
             if isinstance(item, dict):
-                stack.extend((key, depth) for key in item)
-                stack.extend((child, depth + 1) for child in item.values())
+                children = [(child, depth + 1, _child_path(path, key)) for key, child in item.items()]
+                children += [(key, depth, path) for key in item]
             else:
-                stack.extend((child, depth + 1) for child in item)
+                children = [(child, depth + 1, _child_path(path, index)) for index, child in enumerate(item)]
+            stack.extend(reversed(children))
     return None
 
 
+def _number_text(number: float) -> str:
+    """How a non-finite number is named in a message: NaN, Infinity or -Infinity (out of range)."""
+    if math.isnan(number):
+        return "NaN"
+    return "Infinity (or a number out of range)" if number > 0 else "-Infinity (or a number out of range)"
+
+
 class BoundedJSONParser(JSONParser):
-    """DRF's JSON parser with a size bound and a nesting bound (400, never a RecursionError)."""
+    """DRF's JSON parser with a size bound and a nesting bound (400, never a RecursionError), no NUL
+    characters and only finite numbers (400 naming the key's JSON path)."""
 
     def parse(self, stream, media_type=None, parser_context=None):
         parser_context = parser_context or {}
@@ -100,7 +125,8 @@ class BoundedJSONParser(JSONParser):
             raise PayloadTooLarge(too_large_message(f"more than {limit}", limit, setting))
         try:
             text = data.decode(encoding)
-            value = json.loads(text, parse_constant=_refuse_constant) if self.strict else json.loads(text)
+            # NaN/Infinity are read as floats so that the check below names their key (as 1e400's).
+            value = json.loads(text, parse_constant=float)
         except RecursionError:
             raise exceptions.ParseError(f"JSON parse error - nested deeper than {MAX_JSON_DEPTH} levels") from None
         except ValueError as exc:
@@ -109,10 +135,6 @@ class BoundedJSONParser(JSONParser):
         if problem:
             raise exceptions.ParseError(f"JSON refused - {problem}")
         return value
-
-
-def _refuse_constant(name: str) -> float:
-    raise ValueError(f"{name} is not valid JSON")
 
 
 class RealNumberField(serializers.FloatField):
