@@ -178,6 +178,10 @@ def test_every_bad_codec_field_exits_2(
         (lambda c: c["axes"]["v"]["gray"]["frames"].__setitem__(0, 0), "already used by axes.u.phase[0].frames[0]"),
         (lambda c: c["axes"]["v"]["gray"]["frames"].__setitem__(0, 18), "out of range"),
         (lambda c: c.update(extra=1), "unknown key 'extra'"),
+        (lambda c: c["axes"]["u"]["phase"][0].update(period=1e308), "axes.u.phase[0].period must be at most 64 times"),
+        (lambda c: c["axes"]["v"]["gray"].update(word=64 * 96 + 1), "(64 x 96 = 6144 px), got 6145"),
+        (lambda c: c["projector"].update(width=10**9), "projector.width must be at most 16384 pixels"),
+        (lambda c: c["axes"]["u"]["phase"][0].update(origin=float("inf")), "origin must be a finite number"),
     ]
     for mutate, message in cases:
         codec = json.loads(json.dumps(CODEC))
