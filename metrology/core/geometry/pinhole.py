@@ -88,7 +88,7 @@ from metrology.core.geometry.rig_file import (
     number,
     positive,
     positive_int,
-    vector3,
+    translation,
 )
 from metrology.core.tiling import run_tiled
 
@@ -220,7 +220,7 @@ class PinholeRig(GeometryModel):
             gamma=_gamma(proj.get("gamma"), "projector gamma"),
             response=_response(proj.get("response"), "projector response"),
         )
-        return cls(camera=camera, projector=projector, R=matrix3(data["R"], "R"), T=vector3(data["T"], "T"))
+        return cls(camera=camera, projector=projector, R=matrix3(data["R"], "R"), T=translation(data["T"], "T"))
 
     @classmethod
     def from_json(cls, text: str) -> PinholeRig:
