@@ -9,14 +9,14 @@
   characters in strings (PostgreSQL refuses them: a 500 at the first write otherwise); and
   numbers that are not finite (``1e400`` and ``-1e400``, which Python's parser reads as
   infinities, and the non-standard ``NaN``/``Infinity``/``-Infinity``), naming the key by its
-  JSON path (``extra.a.b``, ``codec.axes.u.phase[0].period``).
+  JSON path (``extra.a.b``, ``codec.axes.u.phase[0].period``); the checks themselves are
+  :mod:`metrology.json_input`'s, which the pages' JSON fields use too.
 - :class:`RealNumberField` is DRF's ``FloatField`` without ``true``/``false`` (``float(True)`` is 1.0).
 """
 
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -25,11 +25,26 @@ from django.http import HttpRequest, HttpResponse, JsonResponse
 from rest_framework import exceptions, serializers, status
 from rest_framework.parsers import JSONParser
 
+from metrology.json_input import MAX_JSON_DEPTH, json_problem, load_json_text
+
+# json_problem, load_json_text and MAX_JSON_DEPTH (metrology/json_input.py, free of DRF so that the
+# forms use them too) stay importable from here.
+__all__ = [
+    "MAX_JSON_DEPTH",
+    "MULTIPART_OVERHEAD_BYTES",
+    "BoundedJSONParser",
+    "PayloadTooLarge",
+    "RealNumberField",
+    "RequestBodyLimitMiddleware",
+    "body_limit",
+    "json_problem",
+    "load_json_text",
+    "too_large_message",
+]
+
 if TYPE_CHECKING:
     from django_stubs_ext import StrOrPromise
 
-#: Deepest nesting of arrays and objects a request body may have.
-MAX_JSON_DEPTH = 32
 #: Room for a multipart upload's other fields and boundaries, bytes.
 MULTIPART_OVERHEAD_BYTES = 64 * 1024
 
@@ -69,47 +84,6 @@ class RequestBodyLimitMiddleware:
             if length > limit:
                 return JsonResponse({"error": too_large_message(length, limit, setting)}, status=413)
         return self.get_response(request)
-
-
-def _child_path(path: str, key: str | int) -> str:
-    """The JSON path of ``key`` inside the value at ``path``: ``a.b``, ``a[0]``, ``$`` at the top."""
-    if isinstance(key, int):
-        return f"{path}[{key}]"
-    return key if path == "$" else f"{path}.{key}"
-
-
-def json_problem(value: Any, max_depth: int) -> str | None:
-    """What is wrong with a parsed JSON ``value``, or None: arrays/objects nested deeper than
-    ``max_depth`` levels, a NUL character in a key or string (PostgreSQL cannot store it), or a
-    number that is not finite (named by its JSON path, e.g. ``extra.a.b`` or ``axes.u.phase[0].period``;
-    ``$`` is the whole body). Iterative, so it cannot itself run out of stack; the first problem
-    in document order is reported."""
-    stack: list[tuple[Any, int, str]] = [(value, 1, "$")]
-    while stack:
-        item, depth, path = stack.pop()
-        if isinstance(item, str):
-            if "\x00" in item:
-                return "a string holds a NUL character (\\u0000)"
-        elif isinstance(item, float):
-            if not math.isfinite(item):
-                return f"{path} must be a finite number, got {_number_text(item)}"
-        elif isinstance(item, dict | list):
-            if depth > max_depth:
-                return f"nested deeper than {max_depth} levels"
-            if isinstance(item, dict):
-                children = [(child, depth + 1, _child_path(path, key)) for key, child in item.items()]
-                children += [(key, depth, path) for key in item]
-            else:
-                children = [(child, depth + 1, _child_path(path, index)) for index, child in enumerate(item)]
-            stack.extend(reversed(children))
-    return None
-
-
-def _number_text(number: float) -> str:
-    """How a non-finite number is named in a message: NaN, Infinity or -Infinity (out of range)."""
-    if math.isnan(number):
-        return "NaN"
-    return "Infinity (or a number out of range)" if number > 0 else "-Infinity (or a number out of range)"
 
 
 class BoundedJSONParser(JSONParser):

@@ -166,3 +166,43 @@ def test_non_finite_number_in_extra_is_refused_by_the_service_and_the_rig_file_p
     )
     assert page.status_code == 400 and "lens.k[1] must be a finite number" in page.content.decode()
     assert Rig.objects.count() == 0
+
+
+DEEP_OBJECT = '{"a": ' + "[" * 50_000 + "]" * 50_000 + "}"  # under the codec fields' 200,000 characters
+
+
+def test_json_typed_into_pages_is_checked_like_a_json_body(api, rig, media_root):
+    """The codec fields of the rig and acquire pages, the rig-file upload and an agent's multipart
+    ``frames``: deep nesting and non-finite numbers answer 400 in words, never a RecursionError."""
+    from django.core.files.uploadedfile import SimpleUploadedFile
+
+    from tests.conftest import logged_in
+
+    client = logged_in(api.user)
+    codec_nan = '{"codec": "gcps-codec/1", "frames": 3, "projector": {"width": 64, "height": NaN}}'
+    for text, message in ((DEEP_OBJECT, "nested deeper than 32 levels"), (codec_nan, "projector.height must be")):
+        page = client.post(f"/rigs/{rig['id']}/", {"codec": text})
+        assert page.status_code == 400 and message in page.content.decode(), page.content[-2000:]
+        acquire = client.post(f"/rigs/{rig['id']}/acquire/", {"role": "reference", "codec": text})
+        assert acquire.status_code == 400 and message in acquire.content.decode(), acquire.content[-2000:]
+    upload = SimpleUploadedFile("rig.json", DEEP_OBJECT.encode())
+    page = client.post("/rigs/", {"action": "rig_file", "file-rig_file": upload})
+    assert page.status_code == 400 and "nested deeper than 32 levels" in page.content.decode()
+    assert api.get(f"/api/rigs/{rig['id']}/codec/").json() == {"codec": "gcps-v1"}
+    assert Rig.objects.count() == 1
+
+
+def test_an_agents_multipart_frames_field_is_checked_like_a_json_body(api, rig):
+    import io
+
+    rig_id = rig["id"]
+    session = api.post(f"/api/rigs/{rig_id}/agent/register/", {"camera": "virtual"}, format="json").json()["session"]
+    queued = api.post(f"/api/rigs/{rig_id}/captures/acquire/", {"role": "reference"}, format="json").json()
+    taken = api.post(f"/api/rigs/{rig_id}/agent/take/", {"session": session}, format="json")
+    assert taken.status_code == 200 and taken.json()["id"] == queued["id"]
+    for frames, message in (("[" * 100_000 + "]" * 100_000, "nested deeper"), ('[{"mean": NaN}]', "[0].mean")):
+        upload = io.BytesIO(b"PK\x05\x06" + b"\x00" * 18)
+        upload.name = "stack.zip"
+        body = {"session": session, "file": upload, "frames": frames}
+        response = api.post(f"/api/acquisitions/{queued['id']}/upload/", body, format="multipart")
+        assert response.status_code == 400 and message in response.json()["error"], response.content[:500]

@@ -49,5 +49,5 @@ def test_the_rig_file_page_refuses_unbounded_rig_values_naming_the_key(api):
         assert page.status_code == 400 and message in page.content.decode(), change
     text = json.dumps(RIG.to_dict()).replace(str(RIG.to_dict()["T"][0]), "1e400", 1)
     page = client.post("/rigs/", {"action": "rig_file", "file-rig_file": SimpleUploadedFile("rig.json", text.encode())})
-    assert page.status_code == 400 and "T[0] must be finite" in page.content.decode()
+    assert page.status_code == 400 and "T[0] must be a finite number" in page.content.decode()
     assert Rig.objects.count() == 0
