@@ -5,8 +5,12 @@
   (plus room for the form's other fields) for multipart uploads.
 - :class:`BoundedJSONParser` reads at most ``DATA_UPLOAD_MAX_MEMORY_SIZE`` bytes (bodies sent
   without a length too) and refuses JSON nested deeper than :data:`MAX_JSON_DEPTH` levels, or so
-  deep that Python's parser gives up, with a 400 instead of a ``RecursionError``; and NUL
-  characters in strings (PostgreSQL refuses them: a 500 at the first write otherwise).
+  deep that Python's parser gives up, with a 400 instead of a ``RecursionError``; NUL
+  characters in strings (PostgreSQL refuses them: a 500 at the first write otherwise); and
+  numbers that are not finite (``1e400`` and ``-1e400``, which Python's parser reads as
+  infinities, and the non-standard ``NaN``/``Infinity``/``-Infinity``), naming the key by its
+  JSON path (``extra.a.b``, ``codec.axes.u.phase[0].period``); the checks themselves are
+  :mod:`metrology.json_input`'s, which the pages' JSON fields use too.
 - :class:`RealNumberField` is DRF's ``FloatField`` without ``true``/``false`` (``float(True)`` is 1.0).
 """
 
@@ -21,11 +25,26 @@ from django.http import HttpRequest, HttpResponse, JsonResponse
 from rest_framework import exceptions, serializers, status
 from rest_framework.parsers import JSONParser
 
+from metrology.json_input import MAX_JSON_DEPTH, json_problem, load_json_text
+
+# json_problem, load_json_text and MAX_JSON_DEPTH (metrology/json_input.py, free of DRF so that the
+# forms use them too) stay importable from here.
+__all__ = [
+    "MAX_JSON_DEPTH",
+    "MULTIPART_OVERHEAD_BYTES",
+    "BoundedJSONParser",
+    "PayloadTooLarge",
+    "RealNumberField",
+    "RequestBodyLimitMiddleware",
+    "body_limit",
+    "json_problem",
+    "load_json_text",
+    "too_large_message",
+]
+
 if TYPE_CHECKING:
     from django_stubs_ext import StrOrPromise
 
-#: Deepest nesting of arrays and objects a request body may have.
-MAX_JSON_DEPTH = 32
 #: Room for a multipart upload's other fields and boundaries, bytes.
 MULTIPART_OVERHEAD_BYTES = 64 * 1024
 
@@ -67,29 +86,9 @@ class RequestBodyLimitMiddleware:
         return self.get_response(request)
 
 
-def json_problem(value: Any, max_depth: int) -> str | None:
-    """What is wrong with a parsed JSON ``value``, or None: arrays/objects nested deeper than
-    ``max_depth`` levels, or a NUL character in a key or string (PostgreSQL cannot store it).
-    Iterative, so it cannot itself run out of stack."""
-    stack: list[tuple[Any, int]] = [(value, 1)]
-    while stack:
-        item, depth = stack.pop()
-        if isinstance(item, str):
-            if "\x00" in item:
-                return "a string holds a NUL character (\\u0000)"
-        elif isinstance(item, dict | list):
-            if depth > max_depth:
-                return f"nested deeper than {max_depth} levels"
-            if isinstance(item, dict):
-                stack.extend((key, depth) for key in item)
-                stack.extend((child, depth + 1) for child in item.values())
-            else:
-                stack.extend((child, depth + 1) for child in item)
-    return None
-
-
 class BoundedJSONParser(JSONParser):
-    """DRF's JSON parser with a size bound and a nesting bound (400, never a RecursionError)."""
+    """DRF's JSON parser with a size bound and a nesting bound (400, never a RecursionError), no NUL
+    characters and only finite numbers (400 naming the key's JSON path)."""
 
     def parse(self, stream, media_type=None, parser_context=None):
         parser_context = parser_context or {}
@@ -100,7 +99,8 @@ class BoundedJSONParser(JSONParser):
             raise PayloadTooLarge(too_large_message(f"more than {limit}", limit, setting))
         try:
             text = data.decode(encoding)
-            value = json.loads(text, parse_constant=_refuse_constant) if self.strict else json.loads(text)
+            # NaN/Infinity are read as floats so that the check below names their key (as 1e400's).
+            value = json.loads(text, parse_constant=float)
         except RecursionError:
             raise exceptions.ParseError(f"JSON parse error - nested deeper than {MAX_JSON_DEPTH} levels") from None
         except ValueError as exc:
@@ -109,10 +109,6 @@ class BoundedJSONParser(JSONParser):
         if problem:
             raise exceptions.ParseError(f"JSON refused - {problem}")
         return value
-
-
-def _refuse_constant(name: str) -> float:
-    raise ValueError(f"{name} is not valid JSON")
 
 
 class RealNumberField(serializers.FloatField):

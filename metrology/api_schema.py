@@ -3,7 +3,8 @@ request examples (drf-spectacular post-processing hook, so the views stay as the
 
 Every operation under ``/api/`` documents ``{"error": "..."}`` answers: 400 (refused input; body
 endpoints and ones with query or path values), 401 (no or bad credentials), 404 (an id that is not
-among yours), 413 (body too large), 429 (rate limit, with ``Retry-After``).
+among yours), 413 (body too large), 429 (rate limit, with ``Retry-After``); and the operations of
+:data:`CONFLICT_OPERATIONS`, whose services raise :class:`metrology.errors.Conflict`, document 409.
 """
 
 from __future__ import annotations
@@ -30,6 +31,29 @@ ERROR_RESPONSES: dict[str, str] = {
     "404": "No such object among yours (others' objects are not shown).",
     "413": "Request body larger than the limit (DATA_UPLOAD_MAX_MEMORY_SIZE, GCPS_MAX_UPLOAD_BYTES for uploads).",
     "429": "Rate limit reached (GCPS_THROTTLE_*): wait Retry-After seconds.",
+}
+
+_AGENT_GONE = "the agent session is unknown or was disconnected (register again)"
+
+#: Operations answering 409 (their services raise :class:`metrology.errors.Conflict`): operation id ->
+#: when. Documented by :func:`add_errors_and_examples`; ``tests/app/test_schema_conflicts.py`` checks
+#: that each one does answer 409 and that every 409 the API answers is documented here.
+CONFLICT_OPERATIONS: dict[str, str] = {
+    "rig_agent_register": "Another capture agent of the rig is connected: stop it first.",
+    "rig_agent_heartbeat": f"The state refuses it: {_AGENT_GONE}.",
+    "rig_agent_disconnect": f"The state refuses it: {_AGENT_GONE}.",
+    "rig_agent_take": f"The state refuses it: {_AGENT_GONE}.",
+    "rig_projector_show": f"The state refuses it: {_AGENT_GONE}.",
+    "acquisitions_progress": (
+        f"The state refuses it: {_AGENT_GONE}, or the acquisition is not running or not taken by this agent."
+    ),
+    "acquisitions_fail": (
+        f"The state refuses it: {_AGENT_GONE}, or the acquisition is not running or not taken by this agent."
+    ),
+    "acquisitions_upload": (
+        f"The state refuses it: {_AGENT_GONE}, or the acquisition is not running or not taken by this agent."
+    ),
+    "measurements_acceptance": "The measurement is not done (queued, running or failed): no stored result to fit.",
 }
 
 PAPER_RIG = {"L_mm": 1022.0, "d_mm": 352.0, "alpha_rad": 0.332, "fw_mm": 500.0, "nlp": 128}
@@ -137,6 +161,9 @@ def add_errors_and_examples(result: dict[str, Any], generator: Any, request: Any
                 codes.append("413")
             for code in sorted(codes):
                 operation["responses"].setdefault(code, _error_response(code, ERROR_RESPONSES[code]))
+            conflict = CONFLICT_OPERATIONS.get(operation.get("operationId", ""))
+            if conflict is not None:
+                operation["responses"].setdefault("409", _error_response("409", conflict))
             examples = REQUEST_EXAMPLES.get(operation.get("operationId", ""))
             body = operation.get("requestBody", {}).get("content", {}).get("application/json")
             if examples and body is not None:

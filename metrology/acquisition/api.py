@@ -24,6 +24,7 @@ from metrology.acquisition.models import Acquisition, Agent, ProjectorState
 from metrology.api_input import BoundedJSONParser
 from metrology.captures.models import Capture
 from metrology.errors import BadInput
+from metrology.json_input import load_json_text
 from metrology.rigs.selectors import get_rig
 
 MAX_INT32 = 2**31 - 1
@@ -243,9 +244,11 @@ def _frames(value: Any) -> list | None:
         return None
     if isinstance(value, str):
         try:
-            value = json.loads(value)
-        except ValueError:
+            value = load_json_text(value)
+        except json.JSONDecodeError:
             raise BadInput("frames must be a JSON list of per-frame checks") from None
+        except ValueError as exc:
+            raise BadInput(f"frames refused: {exc}") from None
     if not isinstance(value, list):
         raise BadInput("frames must be a JSON list of per-frame checks")
     return value

@@ -8,6 +8,7 @@ from typing import Any
 from django import forms
 
 from metrology.captures.models import Capture
+from metrology.json_input import load_json_text
 
 
 class AcquireForm(forms.Form):
@@ -32,6 +33,8 @@ class AcquireForm(forms.Form):
         if not text.startswith("{"):
             return text or None
         try:
-            return json.loads(text)
-        except ValueError as exc:
+            return load_json_text(text)
+        except json.JSONDecodeError as exc:
             raise forms.ValidationError(f"codec: not a JSON object ({exc})") from None
+        except ValueError as exc:
+            raise forms.ValidationError(f"codec refused: {exc}") from None

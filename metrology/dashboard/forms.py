@@ -87,10 +87,14 @@ def _json_upload(upload: Any, what: str) -> Any:
 
     if upload.size is not None and upload.size > settings.GCPS_MAX_RIG_FILE_BYTES:
         raise forms.ValidationError(f"a {what} is at most {settings.GCPS_MAX_RIG_FILE_BYTES} bytes")
+    from metrology.json_input import load_json_text
+
     try:
-        data = json.loads(upload.read().decode("utf-8"))
+        data = load_json_text(upload.read().decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise forms.ValidationError(f"not a JSON {what}: {exc}") from None
+    except ValueError as exc:
+        raise forms.ValidationError(f"{what} refused: {exc}") from None
     if not isinstance(data, dict):
         raise forms.ValidationError(f"the {what} must be a JSON object")
     return data
@@ -169,12 +173,16 @@ class RigCodecForm(forms.Form):
     def clean_codec(self):
         import json
 
+        from metrology.json_input import load_json_text
+
         text = self.cleaned_data["codec"].strip()
         if text.startswith("{"):
             try:
-                return json.loads(text)
+                return load_json_text(text)
             except json.JSONDecodeError as exc:
                 raise forms.ValidationError(f"not valid JSON: {exc.msg} at line {exc.lineno}") from None
+            except ValueError as exc:
+                raise forms.ValidationError(f"codec refused: {exc}") from None
         return text
 
 

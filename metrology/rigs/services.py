@@ -8,6 +8,7 @@ the rig's history with what set them (creation, a calibration, an edit, a restor
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -43,7 +44,8 @@ def validate_model(rig_file: Mapping[str, Any]) -> Any:
 
 
 def validate_extra(extra: dict[str, Any]) -> dict[str, Any]:
-    """The rig file's further keys: no NUL character anywhere, at most ``GCPS_MAX_RIG_EXTRA_BYTES`` of JSON.
+    """The rig file's further keys: no NUL character anywhere, only finite numbers, at most
+    ``GCPS_MAX_RIG_EXTRA_BYTES`` of JSON.
 
     Raises :class:`BadInput` naming the key (PostgreSQL refuses NUL in JSON; a large blob would be
     stored and sent back with the rig).
@@ -60,6 +62,8 @@ def validate_extra(extra: dict[str, Any]) -> dict[str, Any]:
             stack.extend((f"{where}[{index}]", item) for index, item in enumerate(value))
         elif isinstance(value, str) and "\x00" in value:
             raise BadInput(f"extra value {where} contains a NUL character")
+        elif isinstance(value, float) and not math.isfinite(value):
+            raise BadInput(f"extra value {where} must be a finite number, got {value!r}")
     size = len(json.dumps(extra, ensure_ascii=False).encode())
     limit = settings.GCPS_MAX_RIG_EXTRA_BYTES
     if size > limit:

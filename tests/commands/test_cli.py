@@ -384,3 +384,25 @@ def test_simulate_camera_sampling(captures, tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "camera_sampling" in err and "'center'" in err
     assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ('{"L_mm": ' + "[" * 100_000 + "]" * 100_000 + "}", "nested too deeply"),
+        ('{"model": "pinhole", "T": ' + "[" * 100_000 + "]" * 100_000 + "}", "nested too deeply"),
+        (
+            '{"L_mm": 1e400, "d_mm": 352, "alpha_rad": 0.332, "fw_mm": 500, "nlp": 128, '
+            '"width_px": 320, "height_px": 240}',
+            "L_mm",
+        ),
+    ],
+)
+def test_a_deeply_nested_or_non_finite_rig_file_exits_2_with_one_line(captures, tmp_path, capsys, text, words):
+    """Issue 23 item 6: no RecursionError traceback from a rig file nested 100,000 levels deep."""
+    (tmp_path / "rig.json").write_text(text)
+    out = tmp_path / "h.npy"
+    args = ["--rig", str(tmp_path / "rig.json"), "--reference", str(captures / "ref")]
+    code = main(["measure", *args, "--object", str(captures / "block.zip"), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and words in err and err.count("\n") == 1 and not out.exists(), err

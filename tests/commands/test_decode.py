@@ -178,6 +178,10 @@ def test_every_bad_codec_field_exits_2(
         (lambda c: c["axes"]["v"]["gray"]["frames"].__setitem__(0, 0), "already used by axes.u.phase[0].frames[0]"),
         (lambda c: c["axes"]["v"]["gray"]["frames"].__setitem__(0, 18), "out of range"),
         (lambda c: c.update(extra=1), "unknown key 'extra'"),
+        (lambda c: c["axes"]["u"]["phase"][0].update(period=1e308), "axes.u.phase[0].period must be at most 64 times"),
+        (lambda c: c["axes"]["v"]["gray"].update(word=64 * 96 + 1), "(64 x 96 = 6144 px), got 6145"),
+        (lambda c: c["projector"].update(width=10**9), "projector.width must be at most 16384 pixels"),
+        (lambda c: c["axes"]["u"]["phase"][0].update(origin=float("inf")), "origin must be a finite number"),
     ]
     for mutate, message in cases:
         codec = json.loads(json.dumps(CODEC))
@@ -228,3 +232,26 @@ def test_capture_zip_as_an_upload_file_object(capture: tuple[Path, np.ndarray, n
         stack = read_codec_stack(fh)
     assert stack.codec_source == "codec.json" and stack.images.shape == (18, 40, 60)
     assert stack.images.dtype == np.uint16
+
+
+def test_a_nested_or_deeply_nested_codec_json_exits_2_with_one_line(
+    capture: tuple[Path, np.ndarray, np.ndarray], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 23 item 6: a codec.json in a sub-folder, or nested 100,000 levels deep, is refused (no traceback)."""
+    folder = capture[0]
+    frames = {child.name: child.read_bytes() for child in folder.iterdir() if child.name != "codec.json"}
+    deep = b'{"codec": "gcps-codec/1", "axes": ' + b"[" * 100_000 + b"]" * 100_000 + b"}"
+    cases = {
+        "sub.zip": ({**frames, "stack/codec.json": json.dumps(CODEC).encode()}, "in a sub-folder (stack/codec.json)"),
+        "deep.zip": ({**frames, "a/b/c/d/e/codec.json": json.dumps(CODEC).encode()}, "(a/b/c/d/e/codec.json)"),
+        "deepjson.zip": ({**frames, "codec.json": deep}, "codec.json is nested deeper than 16 levels"),
+    }
+    for name, (members, message) in cases.items():
+        with zipfile.ZipFile(tmp_path / name, "w") as zf:
+            for member, data in members.items():
+                zf.writestr(member, data)
+        assert message in bad(capsys, tmp_path, "--stack", str(tmp_path / name)), name
+    nested_folder = write_capture(tmp_path / "nested", np.zeros((18, 4, 4), np.uint8), codec=None)
+    (nested_folder / "more").mkdir()
+    (nested_folder / "more" / "codec.json").write_text(json.dumps(CODEC))
+    assert "in a sub-folder (more/codec.json)" in bad(capsys, tmp_path, "--stack", str(nested_folder))

@@ -197,6 +197,8 @@ def test_every_malformed_source_is_named(tmp_path: Path, capsys: pytest.CaptureF
         ({"T": None}, "T is missing"),
         ({"R": None}, "R is missing"),
         ({"camera_K": "neg"}, "camera K must have fx > 0"),
+        ({"T": "far"}, "T[2] must be within +-100000 mm, got 1e+308"),
+        ({"camera_dist": "wild"}, "camera dist[0] must be within +-10000, got 1e+300"),
     ],
 )
 def test_bad_values_are_named(tmp_path: Path, capsys: pytest.CaptureFixture[str], change: dict, message: str) -> None:
@@ -204,6 +206,8 @@ def test_bad_values_are_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]
         np.save(tmp_path / f"{key}.npy", value)
     np.save(tmp_path / "diag.npy", np.diag([1.0, 1.0, 1.001]))
     np.save(tmp_path / "neg.npy", CAM_K * np.array([[-1.0], [1.0], [1.0]]))
+    np.save(tmp_path / "far.npy", np.array([0.0, 0.0, 1e308]))
+    np.save(tmp_path / "wild.npy", np.array([1e300, 0.0, 0.0, 0.0, 0.0]))
     sources: dict[str, str] = {key: str(tmp_path / f"{key}.npy") for key in VALUES}
     for key, name in change.items():
         if name is None:

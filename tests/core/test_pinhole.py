@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import json
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -123,11 +124,25 @@ _DELETE = object()
         ("T", _DELETE, "missing key 'T'"),
         ("camera.K", _DELETE, "camera is missing key 'K'"),
         ("model", "pinhole2", "rig model must be 'pinhole'"),
+        # bounded values (issue 23 item 6)
+        ("camera.dist", [1e300, 0, 0, 0, 0], "camera dist[0] must be within +-10000, got 1e+300"),
+        ("projector.dist", [0, 0, 0, -10000.5], "projector dist[3] must be within +-10000, got -10000.5"),
+        ("camera.dist", [0, float("nan"), 0, 0], "camera dist[1] must be finite"),
+        ("T", [0, 0, 1e308], "T[2] must be within +-100000 mm, got 1e+308"),
+        ("T", [-100000.5, 0, 0], "T[0] must be within +-100000 mm"),
+        ("T", [0, float("inf"), 0], "T[1] must be finite"),
     ],
 )
 def test_bad_rig_files_name_the_key(path: str, value: Any, message: str) -> None:
-    with pytest.raises(RigFileError, match=message.replace("(", r"\(").replace("[", r"\[")):
+    with pytest.raises(RigFileError, match=re.escape(message)):
         PinholeRig.from_dict(_mutate(path, value))
+
+
+def test_the_bounds_themselves_are_accepted() -> None:
+    rig = PinholeRig.from_dict(_mutate("T", [100000.0, -100000.0, 0.0]))
+    assert rig.T == (100000.0, -100000.0, 0.0)
+    rig = PinholeRig.from_dict(_mutate("camera.dist", [10000.0, -10000.0, 0.0, 0.0]))
+    assert rig.camera.dist[:2] == (10000.0, -10000.0)
 
 
 def test_sizes_must_match() -> None:

@@ -40,8 +40,17 @@ MIN_GRAY_LEVELS, MAX_GRAY_LEVELS = 2, 8
 """Accepted ``levels`` of a gray code (2: binary, the default)."""
 MAX_GRAY_WORDS = 65536
 """Largest ``levels ** digits`` of a gray code."""
+MAX_PROJECTOR_SIDE = 16384
+"""Largest projector width or height, pixels (a codec describing a larger one is refused)."""
+MAX_EXTENTS_PER_LENGTH = 64
+"""Largest phase period or gray word, in multiples of the projector's extent along the axis
+(longer ones code nothing a real stack could show, and overflow the decoders' arithmetic)."""
 PRECOMPENSATED_GAMMA_RANGE: tuple[float, float] = (0.2, 5.0)
 """Accepted ``precompensated_gamma`` values (inclusive)."""
+
+MAX_CODEC_DEPTH = 16
+"""Deepest nesting of arrays and objects in a codec file (a codec needs 5; deeper is refused, not
+parsed into a ``RecursionError``)."""
 
 COVER_TOLERANCE = 1e-9
 """A first stage without a gray code covers the projector when its period is at least
@@ -492,13 +501,30 @@ def codec_from_json(text: str | bytes, label: str = "codec") -> Codec:
     Raises
     ------
     CodecError
-        If the text is not JSON (naming ``label``) or the codec is invalid.
+        If the text is not JSON (naming ``label``), is nested deeper than :data:`MAX_CODEC_DEPTH`
+        levels, or the codec is invalid.
     """
     try:
         data = json.loads(text)
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise CodecError(f"{label} is not valid JSON ({exc})") from None
+    except RecursionError:
+        raise CodecError(f"{label} is nested deeper than {MAX_CODEC_DEPTH} levels") from None
+    if _nesting_depth(data) > MAX_CODEC_DEPTH:
+        raise CodecError(f"{label} is nested deeper than {MAX_CODEC_DEPTH} levels")
     return codec_from_dict(data)
+
+
+def _nesting_depth(value: Any) -> int:
+    """Deepest nesting of lists and dicts in a parsed JSON ``value`` (iterative: any depth)."""
+    deepest = 0
+    stack: list[tuple[Any, int]] = [(value, 0)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, dict | list):
+            deepest = max(deepest, depth + 1)
+            stack.extend((child, depth + 1) for child in (item.values() if isinstance(item, dict) else item))
+    return deepest
 
 
 def read_codec(path: str | Path) -> Codec:
@@ -536,12 +562,14 @@ def validate_codec(codec: Codec) -> None:
     Raises
     ------
     CodecError
-        Naming the field: N < 3, period <= 0, shift not +-1, unknown waveform or order, word
-        <= 0, more than 16 gray bits, gray levels outside 2..8 or ``levels ** digits`` above 65536,
-        inverse frames or ``inverted`` with levels > 2, inverse list of the wrong length, frame index out of range,
-        a frame used twice, a gray code with no threshold source, a bad unwrap chain (a gray word
-        wider than the period of the stage it unwraps), an axis
-        with nothing coded, a first stage that does not cover the projector, no axis at all.
+        Naming the field: projector sides above 16384 px, N < 3, period <= 0, not finite or
+        above 64 times the projector's extent, shift not +-1, unknown waveform or order, word
+        <= 0, not finite or above 64 times the extent, more than 16 gray bits, gray levels
+        outside 2..8 or ``levels ** digits`` above 65536, inverse frames or ``inverted`` with
+        levels > 2, inverse list of the wrong length, frame index out of range, a frame used
+        twice, a gray code with no threshold source, a bad unwrap chain (a gray word wider than
+        the period of the stage it unwraps), an axis with nothing coded, a first stage that does
+        not cover the projector, no axis at all.
     """
     if codec.precompensated_gamma is not None:
         pg = codec.precompensated_gamma
@@ -569,6 +597,8 @@ def validate_codec(codec: Codec) -> None:
     for key, value in (("projector.width", codec.projector_width), ("projector.height", codec.projector_height)):
         if not _is_int(value) or value <= 0:
             raise CodecError(f"codec field {key} must be a positive integer, got {value!r}")
+        if value > MAX_PROJECTOR_SIDE:
+            raise CodecError(f"codec field {key} must be at most {MAX_PROJECTOR_SIDE} pixels, got {value!r}")
     if not codec.axes:
         raise CodecError("codec field axes must code at least one axis (u or v)")
     n = codec.n_frames
@@ -594,8 +624,11 @@ def validate_codec(codec: Codec) -> None:
             pw = f"{where}.phase[{i}]"
             if len(p.frames) < 3:
                 raise CodecError(f"codec field {pw}.frames must hold N >= 3 frames, got N = {len(p.frames)}")
-            if not _is_real(p.period) or p.period <= 0:
+            if not _is_real(p.period):
+                raise CodecError(f"codec field {pw}.period must be a finite number, got {p.period!r}")
+            if p.period <= 0:
                 raise CodecError(f"codec field {pw}.period must be > 0, got {p.period!r}")
+            _check_length(f"{pw}.period", p.period, codec.extent(name))
             if not _is_int(p.shift) or p.shift not in (1, -1):
                 raise CodecError(f"codec field {pw}.shift must be 1 or -1, got {p.shift!r}")
             if not _is_real(p.origin):
@@ -622,8 +655,11 @@ def validate_codec(codec: Codec) -> None:
                 raise CodecError(f"codec field {gw}.inverse_frames applies to levels = 2 only, not {g.levels}")
             if g.levels != 2 and g.inverted is not False:
                 raise CodecError(f"codec field {gw}.inverted applies to levels = 2 only, not {g.levels}")
-            if not _is_real(g.word) or g.word <= 0:
+            if not _is_real(g.word):
+                raise CodecError(f"codec field {gw}.word must be a finite number, got {g.word!r}")
+            if g.word <= 0:
                 raise CodecError(f"codec field {gw}.word must be > 0, got {g.word!r}")
+            _check_length(f"{gw}.word", g.word, codec.extent(name))
             if not _is_real(g.origin):
                 raise CodecError(f"codec field {gw}.origin must be a finite number, got {g.origin!r}")
             if g.order not in GRAY_ORDERS:
@@ -644,6 +680,16 @@ def validate_codec(codec: Codec) -> None:
                     "or a phase sequence on the axis"
                 )
         _validate_chain(where, axis, codec.extent(name))
+
+
+def _check_length(where: str, value: float, extent: int) -> None:
+    """Refuse a period or word longer than :data:`MAX_EXTENTS_PER_LENGTH` times the axis' ``extent``."""
+    limit = MAX_EXTENTS_PER_LENGTH * extent
+    if value > limit:
+        raise CodecError(
+            f"codec field {where} must be at most {MAX_EXTENTS_PER_LENGTH} times the projector's extent "
+            f"along the axis ({MAX_EXTENTS_PER_LENGTH} x {extent} = {limit} px), got {value!r}"
+        )
 
 
 def _validate_chain(where: str, axis: Axis, extent: int) -> None:

@@ -2,7 +2,8 @@
 
 A capture of any codec is a folder or a ``.zip`` of image files (``.png .bmp .tif .tiff``,
 8- or 16-bit, grey or colour converted to grey), possibly inside one single sub-folder,
-possibly with its ``codec.json``. Which files are the frames, and in what order, the codec says:
+possibly with its ``codec.json`` at its root (a ``codec.json`` in a sub-folder is refused, naming
+it, when the capture's own codec is looked up). Which files are the frames, and in what order, the codec says:
 
 * ``"frames": [names]``: exactly these files (a name without an image extension matches the
   file of that stem with any accepted extension); other files are ignored;
@@ -75,13 +76,38 @@ class CodecStack:
 
 
 class _Source:
-    """Files of a folder or zip: top-level names and a reader of their bytes."""
+    """Files of a folder or zip: top-level names, a reader of their bytes, and the paths of the
+    ``codec.json`` files lying in sub-folders (refused: a capture's codec lies at its root)."""
 
-    def __init__(self, label: str, names: list[str], read: Callable[[str], bytes], size: Callable[[str], int]):
+    def __init__(
+        self,
+        label: str,
+        names: list[str],
+        read: Callable[[str], bytes],
+        size: Callable[[str], int],
+        nested_codecs: list[str] | None = None,
+    ):
         self.label = label
         self.names = names
         self.read = read
         self.size = size
+        self.nested_codecs = nested_codecs or []
+
+
+def _nested_codec_files(entries: list[str]) -> list[str]:
+    """The entries (relative paths) named ``codec.json`` that lie in a sub-folder."""
+    return sorted(e for e in entries if "/" in e and PurePosixPath(e).name == CODEC_FILE_NAME)
+
+
+def _check_no_nested_codec(src: _Source) -> None:
+    """Refuse a capture holding a ``codec.json`` in a sub-folder: it would be silently ignored (or
+    taken for the capture's codec when it is not), so the capture is refused, naming the file."""
+    if src.nested_codecs:
+        shown = ", ".join(src.nested_codecs[:3]) + (" ..." if len(src.nested_codecs) > 3 else "")
+        raise StackError(
+            f"capture {src.label} holds {CODEC_FILE_NAME} in a sub-folder ({shown}); a capture's "
+            f"{CODEC_FILE_NAME} lies at its root, beside the frames"
+        )
 
 
 def _folder_source(label: str, folder: Path) -> _Source:
@@ -95,6 +121,9 @@ def _folder_source(label: str, folder: Path) -> _Source:
             child.name + ("/" if child.is_dir() else "") for child in root.iterdir() if not is_junk(child.name)
         )
     files = [e for e in entries if not e.endswith("/")]
+    nested = _nested_codec_files(
+        [path.relative_to(root).as_posix() for path in root.rglob(CODEC_FILE_NAME) if path.parent != root]
+    )
 
     def read(name: str) -> bytes:
         try:
@@ -102,7 +131,7 @@ def _folder_source(label: str, folder: Path) -> _Source:
         except OSError as exc:
             raise StackError(f"capture {label}: cannot read {name} ({exc.strerror or exc})") from None
 
-    return _Source(label, files, read, lambda name: (root / name).stat().st_size)
+    return _Source(label, files, read, lambda name: (root / name).stat().st_size, nested)
 
 
 def _zip_source(label: str, archive: zipfile.ZipFile, max_bytes: int, max_ratio: float) -> _Source:
@@ -113,7 +142,10 @@ def _zip_source(label: str, archive: zipfile.ZipFile, max_bytes: int, max_ratio:
     def read(name: str) -> bytes:
         return read_zip_member(archive, prefix + name, label)
 
-    return _Source(label, sorted(top), read, lambda name: archive.getinfo(prefix + name).file_size)
+    def size(name: str) -> int:
+        return archive.getinfo(prefix + name).file_size
+
+    return _Source(label, sorted(top), read, size, _nested_codec_files(entries))
 
 
 def select_frames(codec: Codec, names: list[str], label: str = "capture") -> list[str]:
@@ -257,6 +289,7 @@ def read_capture_codec(
 
 
 def _own_codec(src: _Source) -> Codec | None:
+    _check_no_nested_codec(src)
     if CODEC_FILE_NAME not in src.names:
         return None
     return codec_from_json(src.read(CODEC_FILE_NAME), label=f"capture {src.label} {CODEC_FILE_NAME}")
@@ -266,6 +299,7 @@ def _read(src: _Source, codec: Codec | None, max_pixels: int) -> CodecStack:
     label = src.label
     origin = "given"
     if codec is None:
+        _check_no_nested_codec(src)
         if CODEC_FILE_NAME in src.names:
             codec = codec_from_json(src.read(CODEC_FILE_NAME), label=f"capture {label} {CODEC_FILE_NAME}")
             origin = CODEC_FILE_NAME

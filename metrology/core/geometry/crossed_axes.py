@@ -193,6 +193,8 @@ class Rig(GeometryModel):
             data = json.loads(text)
         except json.JSONDecodeError as exc:
             raise RigError(f"rig file is not valid JSON: {exc.msg} at line {exc.lineno}") from exc
+        except RecursionError:
+            raise RigError("rig file is nested too deeply to be a rig file") from None
         return cls.from_dict(data)
 
     def to_dict(self) -> dict[str, Any]:

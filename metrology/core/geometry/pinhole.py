@@ -88,7 +88,7 @@ from metrology.core.geometry.rig_file import (
     number,
     positive,
     positive_int,
-    vector3,
+    translation,
 )
 from metrology.core.tiling import run_tiled
 
@@ -220,7 +220,7 @@ class PinholeRig(GeometryModel):
             gamma=_gamma(proj.get("gamma"), "projector gamma"),
             response=_response(proj.get("response"), "projector response"),
         )
-        return cls(camera=camera, projector=projector, R=matrix3(data["R"], "R"), T=vector3(data["T"], "T"))
+        return cls(camera=camera, projector=projector, R=matrix3(data["R"], "R"), T=translation(data["T"], "T"))
 
     @classmethod
     def from_json(cls, text: str) -> PinholeRig:
@@ -229,6 +229,8 @@ class PinholeRig(GeometryModel):
             data = json.loads(text)
         except json.JSONDecodeError as exc:
             raise RigFileError(f"rig file is not valid JSON: {exc.msg} at line {exc.lineno}") from exc
+        except RecursionError:
+            raise RigFileError("rig file is nested too deeply to be a rig file") from None
         return cls.from_dict(data)
 
     def to_dict(self) -> dict[str, Any]:

@@ -7,7 +7,8 @@ each error names the key (``camera K``, ``T[2]``...) and the value it got.
 - numbers are finite reals (not booleans);
 - ``K`` is ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` with ``fx, fy > 0``;
 - ``dist`` holds 4, 5, 8, 12 or 14 OpenCV coefficients (:mod:`metrology.core.distortion`), or
-  none;
+  none, each within +-:data:`MAX_DISTORTION_COEFFICIENT`;
+- a translation ``T`` holds three numbers within +-:data:`MAX_TRANSLATION_MM` mm;
 - a rotation ``R`` satisfies ``|R^T R - I| < 1e-6`` and ``det R = +1``;
 - a JSON object has only the allowed keys and every required one.
 """
@@ -31,6 +32,14 @@ ROTATION_TOL = 1e-6
 """Largest ``|R^T R - I|`` entry accepted for a rotation."""
 
 
+MAX_DISTORTION_COEFFICIENT = 1e4
+"""Largest magnitude of an OpenCV distortion coefficient (real lenses stay far below; larger values
+overflow the undistortion's polynomial)."""
+
+MAX_TRANSLATION_MM = 1e5
+"""Largest magnitude of a translation component, mm (100 m)."""
+
+
 class RigFileError(GeometryError):
     """A rig file is malformed (the message names the key and the value)."""
 
@@ -42,6 +51,15 @@ def number(value: Any, name: str) -> float:
     f = float(value)
     if not math.isfinite(f):
         raise RigFileError(f"{name} must be finite, got {value!r}")
+    return f
+
+
+def bounded(value: Any, name: str, limit: float, unit: str = "") -> float:
+    """``value`` as a finite float within ``+-limit``; :class:`RigFileError` naming ``name`` otherwise."""
+    f = number(value, name)
+    if abs(f) > limit:
+        suffix = f" {unit}" if unit else ""
+        raise RigFileError(f"{name} must be within +-{limit:g}{suffix}, got {value!r}")
     return f
 
 
@@ -63,6 +81,14 @@ def vector3(value: Any, name: str, unit: str = "mm") -> tuple[float, float, floa
     if not isinstance(value, (list, tuple)) or len(value) != 3:
         raise RigFileError(f"{name} must be a list of three numbers ({unit}), got {value!r}")
     return (number(value[0], f"{name}[0]"), number(value[1], f"{name}[1]"), number(value[2], f"{name}[2]"))
+
+
+def translation(value: Any, name: str) -> tuple[float, float, float]:
+    """``value`` as a translation: three finite numbers within +-:data:`MAX_TRANSLATION_MM` mm."""
+    x, y, z = vector3(value, name)
+    for i, component in enumerate((x, y, z)):
+        bounded(component, f"{name}[{i}]", MAX_TRANSLATION_MM, "mm")
+    return (x, y, z)
 
 
 def checked_keys(data: Any, allowed: tuple[str, ...], required: tuple[str, ...], where: str) -> Mapping[str, Any]:
@@ -89,12 +115,13 @@ def intrinsics(value: Any, name: str) -> Matrix3:
 
 
 def distortion_coefficients(value: Any, name: str) -> tuple[float, ...]:
-    """OpenCV distortion coefficients: 4, 5, 8, 12 or 14 numbers, or none (``None`` or ``[]``)."""
+    """OpenCV distortion coefficients: 4, 5, 8, 12 or 14 numbers within +-:data:`MAX_DISTORTION_COEFFICIENT`,
+    or none (``None`` or ``[]``)."""
     if value is None:
         return ()
     if not isinstance(value, (list, tuple)):
         raise RigFileError(f"{name} must be a list of 4, 5, 8, 12 or 14 numbers, got {value!r}")
-    coeffs = tuple(number(x, f"{name}[{i}]") for i, x in enumerate(value))
+    coeffs = tuple(bounded(x, f"{name}[{i}]", MAX_DISTORTION_COEFFICIENT) for i, x in enumerate(value))
     if coeffs and len(coeffs) not in DIST_COUNTS:
         raise RigFileError(f"{name} must hold 4, 5, 8, 12 or 14 coefficients (or none), got {len(coeffs)}")
     return coeffs

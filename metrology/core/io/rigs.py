@@ -59,6 +59,8 @@ def read_model(path: str | os.PathLike[str]) -> GeometryModel:
         raise GeometryError(f"rig file {path.name!r} cannot be read ({exc})") from None
     except json.JSONDecodeError as exc:
         raise GeometryError(f"rig file {path.name!r} is not valid JSON: {exc.msg} at line {exc.lineno}") from None
+    except RecursionError:
+        raise GeometryError(f"rig file {path.name!r} is nested too deeply to be a rig file") from None
     try:
         return model_from_dict(data)
     except GeometryError as exc:

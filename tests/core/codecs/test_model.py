@@ -111,6 +111,16 @@ def _bad(mutate: Any) -> str:
         (lambda d: d.update(frames="x"), "frames must be a number of frames or a list"),
         (lambda d: d.pop("projector"), "missing the required key 'projector'"),
         (lambda d: d["axes"]["u"]["phase"][0].pop("period"), "axes.u.phase[0] is missing the required key 'period'"),
+        # bounded values (issue 23 item 6): projector sides, periods and words
+        (lambda d: d["projector"].update(width=16385), "projector.width must be at most 16384 pixels, got 16385"),
+        (lambda d: d["projector"].update(height=10**9), "projector.height must be at most 16384 pixels"),
+        (lambda d: d["axes"]["u"]["phase"][0].update(period=1e308), "axes.u.phase[0].period must be at most 64 times"),
+        (lambda d: d["axes"]["u"]["phase"][0].update(period=float("inf")), "axes.u.phase[0].period must be a finite"),
+        (lambda d: d["axes"]["u"]["phase"][0].update(period=float("nan")), "axes.u.phase[0].period must be a finite"),
+        (lambda d: d["axes"]["u"]["gray"].update(word=64 * 1280 + 1), "axes.u.gray.word must be at most 64 times"),
+        (lambda d: d["axes"]["v"]["gray"].update(word=64 * 800 + 1), "(64 x 800 = 51200 px), got 51201"),
+        (lambda d: d["axes"]["v"]["phase"][0].update(period=1e300), "axes.v.phase[0].period must be at most 64"),
+        (lambda d: d["axes"]["u"]["gray"].update(origin=float("-inf")), "axes.u.gray.origin must be a finite"),
     ],
 )
 def test_every_bad_field_is_named(mutate: Any, expected: str) -> None:
@@ -196,3 +206,24 @@ def test_gcps_v1_codec_reproduces_the_eleven_patterns() -> None:
     np.testing.assert_array_equal(codec_patterns(small), projector_patterns(640, 16, nlp=64))
     with pytest.raises(CodecError, match="WIDTHxHEIGHT"):
         builtin_codec("gcps-v1:big")
+
+
+def test_a_codec_file_with_out_of_range_numbers_or_deep_nesting_is_refused_naming_it() -> None:
+    text = json.dumps(ISSUE_EXAMPLE).replace('"period": 16.0, "shift"', '"period": 1e400, "shift"')
+    with pytest.raises(CodecError, match=r"axes\.u\.phase\[0\]\.period must be a finite number, got inf"):
+        codec_from_json(text)
+    for depth in (17, 100_000):
+        nested = json.dumps(ISSUE_EXAMPLE).replace('"white": [38]', '"white": ' + "[" * depth + "]" * depth)
+        with pytest.raises(CodecError, match=r"c\.json is nested deeper than 16 levels"):
+            codec_from_json(nested, label="c.json")
+
+
+def test_the_largest_projector_and_longest_period_are_accepted() -> None:
+    data = copy.deepcopy(ISSUE_EXAMPLE)
+    data["projector"] = {"width": 16384, "height": 16384}
+    data["axes"]["u"]["phase"].append({"frames": [37, 38, 39], "period": 64.0 * 16384})
+    data.pop("white")
+    data.pop("black")
+    data["axes"]["u"]["unwrap"] = ["gray", "phase:0"]
+    codec = codec_from_dict(data)
+    assert codec.projector_width == 16384 and codec.axes["u"].phase[1].period == 64 * 16384
