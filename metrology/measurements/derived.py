@@ -1,7 +1,11 @@
 """Result files of a measurement: stored once (height maps, points), the rest derived on request.
 
-A measurement job stores ``height.npy``, ``points.npy`` (and ``gray_only_height.npy``,
-``sigma.npy``: float32, the only copies of the data) and its statistics. The TIFF height map and
+A measurement job stores ``height.npy``, its points (``points.npz``, the measured pixels' points
+and a bit mask: :mod:`metrology.core.io.points`; dense ``(H, W, 3)`` ``.npy`` files stored before
+are read too), ``gray_only_height.npy`` and ``sigma.npy`` (float32, the only copies of the data)
+and its statistics. Every reader of the points (the ``points.npy`` download, meshes, figures,
+acceptance) reads them through :func:`measurement_points`, which returns the dense ``(H, W, 3)``
+float32 map bit for bit as measured. The TIFF height map and
 the PLY, STL and OBJ meshes are functions of those and the rig's model, built when first asked
 for: meshes are streamed while they are generated (the PLY header leaves before the vertex
 normals are computed) and written to a bounded cache in the media storage
@@ -113,8 +117,9 @@ def _heights(measurement: Measurement) -> np.ndarray:
 
 
 def measurement_points(measurement: Measurement, z_mm: np.ndarray | None = None) -> np.ndarray:
-    """The ``(H, W, 3)`` points of a done measurement, mm, model frame: the stored ``points.npy``,
-    or, for a measurement stored before points were, its heights on its model's camera rays.
+    """The ``(H, W, 3)`` float32 points of a done measurement, mm, model frame, NaN where not
+    measured: the stored points (a stored point map, or the dense ``.npy`` stored before it: bit
+    for bit as measured), or, where none are stored, its heights on its model's camera rays.
 
     Raises
     ------
@@ -123,7 +128,10 @@ def measurement_points(measurement: Measurement, z_mm: np.ndarray | None = None)
         on its rays (it has no plane of its own).
     """
     if measurement.points_npy:
-        return _load(measurement.points_npy)
+        from metrology.core.io.points import read_point_map
+
+        with measurement.points_npy.open("rb") as handle:
+            return read_point_map(handle.read())
     from metrology.core.geometry import model_from_dict
 
     prepared = model_from_dict(measurement.rig_values).prepare()
@@ -141,6 +149,8 @@ def open_result_file(measurement: Measurement, filename: str) -> ResultFile | No
     """
     field = RESULT_FILES[filename]
     stored = getattr(measurement, field)
+    if stored and filename == "points.npy":  # stored compactly: sent as the dense map
+        return ResultFile(filename, chunks=npy_chunks(measurement_points(measurement)))
     if stored:
         return ResultFile(filename, stored=stored)
     derived_points = filename == "points.npy" and points_follow_from_heights(measurement)
@@ -157,6 +167,21 @@ def open_result_file(measurement: Measurement, filename: str) -> ResultFile | No
     if derived_points:
         return _points(measurement, cache, name)
     return ResultFile(filename, chunks=_mesh_chunks(measurement, filename, cache, name))
+
+
+NPY_CHUNK_BYTES = 1 << 20
+"""Bytes per chunk of a streamed ``.npy``."""
+
+
+def npy_chunks(array: np.ndarray) -> Iterator[bytes]:
+    """The bytes of ``numpy.save(file, array)`` for a C-contiguous numeric array, in chunks of at most
+    :data:`NPY_CHUNK_BYTES` after the header (no second copy of the array is made)."""
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, np.lib.format.header_data_from_array_1_0(array))
+    yield header.getvalue()
+    data = np.ascontiguousarray(array).reshape(-1).view(np.uint8)
+    for start in range(0, data.size, NPY_CHUNK_BYTES):
+        yield data[start : start + NPY_CHUNK_BYTES].tobytes()
 
 
 def _tiff(measurement: Measurement, cache: DerivedFileCache | None, name: str) -> ResultFile:

@@ -3,8 +3,9 @@
 One request and one job handler for every geometric model and codec: the job reads the kept
 reference (decoded once per worker process) and the object's stack in its codec's order, calls the
 pipeline's :func:`~metrology.pipeline.measure.measure` (as ``gcps measure`` does), and stores
-``height.npy`` (heights above the reference plane, or depths), ``points.npy`` (``(H, W, 3)``
-float32 mm, the model frame) unless the heights alone give them (the paper's rig:
+``height.npy`` (heights above the reference plane, or depths), the points (``(H, W, 3)``
+float32 mm, the model frame, stored as the measured pixels' points and a bit mask, ``points.npz``:
+:func:`~metrology.measurements.stored_arrays.save_point_map`) unless the heights alone give them (the paper's rig:
 :attr:`~metrology.core.measure.Measurement.points_follow_from_heights`), and when computed
 ``gray_only_height.npy`` and ``sigma.npy``; the TIFF, the meshes and points the heights give are
 derived on request (:mod:`metrology.measurements.derived`).
@@ -26,7 +27,12 @@ from metrology.errors import BadInput
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
-from metrology.measurements.stored_arrays import remove_other_attempts, save_arrays, sigma_statistics
+from metrology.measurements.stored_arrays import (
+    remove_other_attempts,
+    save_arrays,
+    save_point_map,
+    sigma_statistics,
+)
 from metrology.pipeline.jsonsafe import json_safe
 from metrology.rigs.models import Rig
 
@@ -112,14 +118,15 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
     z_mm = np.asarray(result.z_mm, dtype=np.float32)
     prefix = f"measurements/{measurement.pk}/{run.token.hex}"
     arrays = {"height.npy": z_mm}
-    if not result.measurement.points_follow_from_heights:  # else derived from the heights on request
-        arrays["points.npy"] = result.points_mm()
+    points = None if result.measurement.points_follow_from_heights else result.points_mm()  # else derived
     if result.gray_z_mm is not None:
         arrays["gray_only_height.npy"] = np.asarray(result.gray_z_mm, dtype=np.float32)
     if result.sigma_mm is not None:  # options.sigma
         arrays["sigma.npy"] = np.asarray(result.sigma_mm, dtype=np.float32)
     with run.phase("store", 80):
         names = save_arrays(run, prefix, arrays)
+        if points is not None:
+            names["points.npy"] = save_point_map(run, prefix, points)
     data = result.to_dict()
     statistics = json_safe(data["statistics"])
     statistics["shape"] = list(z_mm.shape)

@@ -1,7 +1,8 @@
 """Result arrays of a measurement job written to storage under the attempt's own prefix.
 
 The measurement handler stores its maps so:
-``.npy`` files under ``measurements/<id>/<attempt token>/``, referenced by the row only when the
+``.npy`` files (the points as a stored point map, ``points.npz``:
+:mod:`metrology.core.io.points`) under ``measurements/<id>/<attempt token>/``, referenced by the row only when the
 attempt commits (:mod:`metrology.jobs.services`), so a half-written result is never visible.
 """
 
@@ -26,6 +27,18 @@ def save_arrays(run: JobRun, prefix: str, arrays: dict[str, np.ndarray]) -> dict
         buffer.seek(0)
         names[filename] = run.save_file(default_storage, f"{prefix}/{filename}", File(buffer, name=filename))
     return names
+
+
+def save_point_map(run: JobRun, prefix: str, points_mm: np.ndarray) -> str:
+    """Save a ``(H, W, 3)`` float32 point map (mm, NaN where not measured) as ``prefix/points.npz``,
+    the measured pixels' points and a bit mask (:func:`metrology.core.io.points.write_point_map`,
+    12 bytes per measured pixel and 1 bit per pixel); returns the stored name."""
+    from metrology.core.io.points import write_point_map
+
+    buffer = io.BytesIO()
+    write_point_map(buffer, points_mm)
+    buffer.seek(0)
+    return run.save_file(default_storage, f"{prefix}/points.npz", File(buffer, name="points.npz"))
 
 
 def sigma_statistics(sigma_mm: np.ndarray | None) -> dict[str, Any]:

@@ -27,14 +27,16 @@ Other files
 -----------
 Rig files are JSON (:func:`read_rig`, :func:`write_rig`; :func:`read_model` for any geometric
 model); height maps are float32
-``.npy`` or float32 TIFF (:func:`write_height_npy`, :func:`write_height_tiff`); stage
+``.npy`` or float32 TIFF (:func:`write_height_npy`, :func:`write_height_tiff`); the application's stored
+point maps are the measured pixels' points and a bit mask (:func:`write_point_map`,
+:func:`read_point_map`, to and from file objects and bytes); stage
 series are ``SERIES.json`` files (:func:`read_series`, :func:`write_series`). Every
 writer is atomic: it writes a temporary file in the destination folder and renames it
 into place (``os.replace``), so no partial output is ever visible under the final name.
 
 Modules: :mod:`.atomic` (atomic writes), :mod:`.images` (image headers and decoding),
 :mod:`.archives` (folder and zip reading, zip-bomb checks), :mod:`.stacks` (capture stacks),
-:mod:`.rigs`, :mod:`.heights` and :mod:`.series`; every public name is importable from
+:mod:`.rigs`, :mod:`.heights`, :mod:`.points` and :mod:`.series`; every public name is importable from
 ``metrology.core.io`` as before.
 """
 
@@ -56,6 +58,7 @@ from metrology.core.io.atomic import atomic_path, write_text_atomic
 from metrology.core.io.errors import StackError
 from metrology.core.io.heights import read_height_npy, write_height_npy, write_height_tiff
 from metrology.core.io.images import DEFAULT_MAX_PIXELS, checked_header, decode_grey_image, image_header_size
+from metrology.core.io.points import read_point_map, write_point_map
 from metrology.core.io.rigs import read_model, read_rig, write_rig
 from metrology.core.io.series import StagePosition, StageSeries, read_series, series_capture_name, write_series
 from metrology.core.io.stacks import CaptureStack, encode_stack, read_stack, read_verified_stack, write_stack
@@ -80,6 +83,7 @@ __all__ = [
     "os",
     "read_height_npy",
     "read_model",
+    "read_point_map",
     "read_rig",
     "read_series",
     "read_stack",
@@ -87,6 +91,7 @@ __all__ = [
     "series_capture_name",
     "write_height_npy",
     "write_height_tiff",
+    "write_point_map",
     "write_rig",
     "write_series",
     "write_stack",
