@@ -34,7 +34,6 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import cv2
 import numpy as np
 import numpy.typing as npt
 from scipy.ndimage import gaussian_filter1d
@@ -251,7 +250,7 @@ def render_codec(
     ValueError
         If a coded axis has no coordinates or the shapes disagree.
     """
-    from metrology.core.simulate.options import SimulationOptions
+    from metrology.core.simulate.options import SimulationOptions, camera_image
 
     opts = options if options is not None else SimulationOptions()
     coords: dict[str, FloatArray] = {}
@@ -299,10 +298,7 @@ def render_codec(
         else:
             emitted = _emitted(role, np.zeros(lit_index.size), 0.0, gamma)
         intensity.ravel()[lit_index] += gain * emitted
-        img = cv2.resize(intensity, (width, height), interpolation=cv2.INTER_AREA) if s > 1 else intensity
-        if opts.camera_defocus_px > 0:
-            sigma = opts.camera_defocus_px
-            img = cv2.GaussianBlur(img, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REPLICATE)
+        img = camera_image(intensity, height, width, opts)
         grey = img * full
         if opts.noise_grey > 0:
             grey = grey + opts.noise_grey * rng.standard_normal(grey.shape)

@@ -169,3 +169,22 @@ def _is_bool(value: Any) -> bool:
 
 def _is_int(value: Any) -> bool:
     return isinstance(value, (int, np.integer)) and not _is_bool(value)
+
+
+def camera_image(intensity: np.ndarray, height: int, width: int, opts: SimulationOptions) -> np.ndarray:
+    """What the virtual camera's pixels see of a light field sampled on its sensor.
+
+    ``intensity`` (any shape ``(height * s, width * s)``, float64, s >= 1 sub-rays per side) is
+    averaged over each pixel's area (``cv2.INTER_AREA``) when ``s > 1``, then blurred by a Gaussian
+    of ``opts.camera_defocus_px`` pixels (replicated borders) when that is positive. Returns
+    ``(height, width)`` float64, same units as ``intensity``.
+    """
+    import cv2
+
+    img = intensity
+    if img.shape != (height, width):
+        img = cv2.resize(intensity, (width, height), interpolation=cv2.INTER_AREA)
+    if opts.camera_defocus_px > 0:
+        sigma = opts.camera_defocus_px
+        img = cv2.GaussianBlur(img, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REPLICATE)
+    return img

@@ -49,7 +49,6 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
-import cv2
 import numpy as np
 import numpy.typing as npt
 from scipy.ndimage import gaussian_filter1d
@@ -57,7 +56,7 @@ from scipy.ndimage import gaussian_filter1d
 from metrology.core.geometry.crossed_axes import Rig, camera_ray_point, codes_of_points
 from metrology.core.patterns import GRAY_NAMES, PATTERN_NAMES, PHASE_NAMES, pattern_intensity
 from metrology.core.scenes import Scene, StageScene
-from metrology.core.simulate.options import SimulationOptions, _is_int
+from metrology.core.simulate.options import SimulationOptions, _is_int, camera_image
 from metrology.core.simulate.series import series_seed, stack_seed
 
 FloatArray = npt.NDArray[np.float64]
@@ -211,10 +210,7 @@ def render_flat_frames(
     frames = []
     for emitted in (1.0, 0.0):
         intensity = albedo * opts.ambient + albedo * opts.projector_gain * illuminated * emitted
-        img = cv2.resize(intensity, (W, H), interpolation=cv2.INTER_AREA) if s > 1 else intensity
-        if opts.camera_defocus_px > 0:
-            sigma = opts.camera_defocus_px
-            img = cv2.GaussianBlur(img, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REPLICATE)
+        img = camera_image(intensity, H, W, opts)
         frames.append(np.asarray(img, dtype=np.float64) * full)
     return frames[0], frames[1]
 
@@ -407,10 +403,7 @@ def _render_clean(rig: Rig, scene: Scene, opts: SimulationOptions) -> _CleanRend
         else:
             emitted = sampler.sample(_blurred_table(name, rig.nlp, sigmas[p], opts.square, opts.projector_gamma, pad))
         intensity = ambient + signal * emitted
-        img = cv2.resize(intensity, (W, H), interpolation=cv2.INTER_AREA) if rows > H else intensity
-        if opts.camera_defocus_px > 0:
-            sigma = opts.camera_defocus_px
-            img = cv2.GaussianBlur(img, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REPLICATE)
+        img = camera_image(intensity, H, W, opts)
         grey[p] = img * full
     return _CleanRender(grey, truth, codes, lit_c, edges, z_c, scene, opts)
 

@@ -31,7 +31,7 @@ from metrology.core.codecs.render import render_codec
 from metrology.core.geometry.base import GeometryModel
 from metrology.core.scenes import FIELD_WIDTH_MM, Scene, StageScene
 from metrology.core.simulate.cast import CastTruth, ScenePlacement, cast_truth
-from metrology.core.simulate.options import SimulationOptions, _is_int
+from metrology.core.simulate.options import SimulationOptions, _is_int, camera_image
 from metrology.core.simulate.paper_rig import (
     EDGE_JUMP_MM,
     RenderedStack,
@@ -166,7 +166,6 @@ def render_flats(
     white, black : (H, W) float64 arrays
         Grey levels of the output depth, unquantised and unclipped (the caller adds noise).
     """
-    import cv2
 
     opts = options if options is not None else SimulationOptions()
     if uses_paper_renderer(model, None, opts, placement):
@@ -182,10 +181,7 @@ def render_flats(
     frames = []
     for emitted in (1.0, 0.0):
         intensity = albedo * (opts.ambient + opts.projector_gain * lit * emitted) * float(opts.full_scale)
-        img = cv2.resize(intensity, (width, height), interpolation=cv2.INTER_AREA) if s > 1 else intensity
-        if opts.camera_defocus_px > 0:
-            sigma = opts.camera_defocus_px
-            img = cv2.GaussianBlur(img, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REPLICATE)
+        img = camera_image(intensity, height, width, opts)
         frames.append(np.asarray(img, dtype=np.float64))
     return frames[0], frames[1]
 
