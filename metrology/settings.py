@@ -141,6 +141,8 @@ INSTALLED_APPS = [
 ]
 
 MIDDLEWARE = [
+    # under ASGI, streamed files are sent as they are read (Django would read them whole first)
+    "metrology.streaming.AsyncStreamingMiddleware",
     "django.middleware.security.SecurityMiddleware",
     "metrology.security_headers.ContentSecurityPolicyMiddleware",
     "metrology.api_input.RequestBodyLimitMiddleware",
