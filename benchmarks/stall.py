@@ -4,7 +4,7 @@ For each checkout (this one; ``--checkout PATH`` for another, e.g. the commit be
 measured in the same run) it starts a fresh PostgreSQL database, its own redis-server, one Celery
 worker and the documented web server with 3 workers: for a checkout with ``metrology/streaming.py``
 (the ASGI one) ``gunicorn metrology.asgi:application -k uvicorn_worker.UvicornWorker -w 3``, else
-``gunicorn metrology.wsgi -w 3`` (sync workers, as documented before). It stores one measurement
+``gunicorn metrology.wsgi -w 3 --timeout 120`` (sync workers, as documented before). It stores one measurement
 (realistic 8-bit stacks of the virtual paper rig, ``--size``), then for ``--seconds``:
 
 - ``--long-polls`` clients (3) each loop on the projector long-poll of the owner's rig
@@ -52,8 +52,8 @@ class StallStack(Stack):
             args += ["-k", "uvicorn_worker.UvicornWorker"]
             self.server = "gunicorn metrology.asgi -k uvicorn_worker.UvicornWorker -w 3"
         else:
-            args = [sys.executable, "-m", "gunicorn", "metrology.wsgi"]
-            self.server = "gunicorn metrology.wsgi -w 3 (sync)"
+            args = [sys.executable, "-m", "gunicorn", "metrology.wsgi", "--timeout", "120"]  # as its README said
+            self.server = "gunicorn metrology.wsgi -w 3 --timeout 120 (sync)"
         self._spawn("web", [*args, "-w", "3", "-b", f"127.0.0.1:{port}", "--no-control-socket"])
         self.base = f"http://127.0.0.1:{port}"
         deadline = time.monotonic() + 90
