@@ -12,7 +12,7 @@ channel ``{GCPS_CACHE_KEY_PREFIX}:projector:{rig_id}`` once the write has commit
 the state again at once. It also reads it every :data:`RECHECK_WITH_REDIS_S` seconds in case a
 message was missed (Redis restarted, a write made elsewhere). Without Redis (the embedded default)
 or when the subscription fails, it reads the state every :data:`POLL_S` seconds instead, each read
-in a short ``sync_to_async`` call that closes its connection afterwards. A client that disconnects
+in a short ``sync_to_async`` call that closes its connection afterwards (PostgreSQL). A client that disconnects
 ends its wait: Django cancels the view's task (``asyncio.CancelledError``) and the subscription is
 closed.
 """
@@ -109,9 +109,14 @@ class LongPoll:
 
 
 def release_connection() -> None:
-    """Close this thread's database connection unless a transaction holds it (the tests' one does)."""
+    """Close this thread's database connection, so that a waiting long-poll holds none.
+
+    Not inside a transaction (the tests' one), and not on SQLite (the embedded default: one
+    process under ``runserver``, no server-side connection limit to protect): there the request's
+    connection is kept, as the synchronous long-poll kept it.
+    """
     connection = connections["default"]
-    if not connection.in_atomic_block:
+    if not connection.in_atomic_block and connection.vendor != "sqlite":
         connection.close()
 
 
