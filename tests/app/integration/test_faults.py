@@ -355,6 +355,27 @@ def test_redis_killed_while_jobs_run_the_worker_stays_up_and_no_job_is_lost(priv
     assert worker.poll() is None
 
 
+def test_redis_killed_while_a_worker_holds_a_countdown_message_the_worker_stays_up(private_stack, redis_server):
+    """The countdown point: the worker holds a message whose countdown has not ended (unacknowledged,
+    in its timer) when Redis is SIGKILLed and comes back empty. It stays up and takes new work."""
+    from celery import Celery
+
+    stack = private_stack
+    http = session_for(stack)
+    rig_id, reference, obj = measurement_inputs(stack, http, "plane", z_mm=10.0)
+    worker = stack.start_worker("worker-1")
+    sender = Celery(broker=redis_server.url)
+    held = sender.send_task("workers.tasks.sweep_stale_jobs", countdown=60, queue=stack.queue)
+    wait_until(lambda: f"sweep_stale_jobs[{held.id}] received" in worker_log(stack, "worker-1"), 30, "the held task")
+    redis_server.restart(down_s=2.0)
+    job = http.post(url(http, "/api/measurements/"), json={"rig": rig_id, "reference": reference, "object": obj})
+    assert job.status_code == 202, job.text
+    body = wait_for(http, f"/api/jobs/{job.json()['job']}/", finished, timeout=90)
+    log = worker_log(stack, "worker-1")
+    assert body["status"] == "done", body
+    assert worker.poll() is None and "AttributeError" not in log, log[-4000:]
+
+
 def closed_channel_with_a_message(redis_url: str):
     """A message taken (unacknowledged) from a queue on the project's transport, and its channel
     closed as the worker closes it when the connection drops; (connection, message)."""
