@@ -141,6 +141,8 @@ INSTALLED_APPS = [
 ]
 
 MIDDLEWARE = [
+    # under ASGI, streamed files are sent as they are read (Django would read them whole first)
+    "metrology.streaming.AsyncStreamingMiddleware",
     "django.middleware.security.SecurityMiddleware",
     "metrology.security_headers.ContentSecurityPolicyMiddleware",
     "metrology.api_input.RequestBodyLimitMiddleware",
@@ -197,11 +199,15 @@ _database_url = env_url("DATABASE_URL", ("postgres", "postgresql", "pgsql", "sql
 DATABASES: dict[str, Mapping[str, Any]]
 if _database_url:
     try:
-        # connections are kept 60 s and checked before reuse (one killed while idle is reopened);
-        # GCPS_DB_HEALTH_CHECKS=0 leaves only the in-request retry (metrology/unavailable.py)
+        # connections are kept 60 s (GCPS_DB_CONN_MAX_AGE; the ASGI entry point sets 0: its requests run in
+        # threads of their own, so a kept connection would never be reused) and checked before reuse (one
+        # killed while idle is reopened); GCPS_DB_HEALTH_CHECKS=0 leaves only the in-request retry
+        # (metrology/unavailable.py)
         DATABASES = {
             "default": dj_database_url.parse(
-                _database_url, conn_max_age=60, conn_health_checks=env_bool("GCPS_DB_HEALTH_CHECKS", True)
+                _database_url,
+                conn_max_age=env_int("GCPS_DB_CONN_MAX_AGE", 60, minimum=0),
+                conn_health_checks=env_bool("GCPS_DB_HEALTH_CHECKS", True),
             )
         }
     except ValueError as exc:

@@ -5,19 +5,25 @@ Rates are ``"N/period"`` strings (period: second, minute, hour, day) in
 environment (``GCPS_THROTTLE_USER``, ``GCPS_THROTTLE_ANON``, ``GCPS_THROTTLE_LOGIN``,
 ``GCPS_THROTTLE_BAD_TOKEN``) and by tests. Counts live in Django's default cache: Redis when
 ``REDIS_URL`` is set, so every web process shares them; process memory otherwise (the embedded
-default runs one process). Exceeding a rate answers 429 with ``Retry-After`` (seconds).
+default runs one process). Counts are atomic (:class:`WindowCounter`: ``add`` then ``incr``), so
+parallel requests in any number of processes pass no more than the rate. A window starts at the
+first event counted and lasts the rate's period. Exceeding a rate answers 429 with
+``Retry-After`` (seconds until the window ends).
 
 - ``user``: API requests of an authenticated user (by user id).
 - ``anon``: API requests without valid credentials (by client address), counted before the
   401 too, so an anonymous client cannot probe protected endpoints at full speed.
-- ``bad_token``: ``Authorization: Token`` headers that match no user (by client address); past the
-  rate every token from that client is refused with 429 until the window moves on.
+- ``bad_token``: ``Authorization: Token`` headers that match no user, counted per client address
+  and per address and token; past the rate unknown tokens from that address answer 429 (the same
+  unknown token again, without being looked up) until the window moves on. Valid tokens are never
+  refused by it: one bad client behind a shared address does not lock the others out.
 - ``login``: failed log-ins on ``/login/`` and ``/admin/login/`` (by client address, through
   Django's ``user_login_failed`` signal); past the rate the log-in form answers 429.
 """
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import time
 from collections.abc import Callable
@@ -32,23 +38,81 @@ LOGIN_PATHS = ("/login/", "/admin/login/")
 logger = logging.getLogger(__name__)
 
 
-class SettingsRateMixin(throttling.SimpleRateThrottle):
-    """Reads the rate of ``scope`` from ``settings.GCPS_THROTTLE_RATES`` on every request.
+class WindowCounter:
+    """An atomic count of events per key in a window of ``duration`` seconds that starts at the key's first event.
 
-    A cache that cannot be reached lets the request through (logged): rate limiting must not
-    take the API down with it. Listed first among the bases of a DRF throttle class.
+    ``cache.add`` (Redis ``SET NX EX``) creates the count with its expiry, ``cache.incr`` (Redis
+    ``INCRBY``) counts: concurrent requests in any number of processes are each counted once, so no
+    more than the limit pass (DRF's ``SimpleRateThrottle`` reads, appends and writes back a list of
+    times, and parallel requests overwrite each other's counts). The window's start is kept beside
+    the count for ``Retry-After``.
     """
+
+    def __init__(self, key: str, duration: int) -> None:
+        self.key = key
+        self.duration = duration
+
+    def hit(self) -> int:
+        """Count one event now; returns the count in the current window, this one included."""
+        cache.add(self.key, 0, self.duration)
+        try:
+            count = int(cache.incr(self.key))
+        except ValueError:  # expired between add and incr: a new window
+            cache.add(self.key, 0, self.duration)
+            count = int(cache.incr(self.key))
+        if count == 1:  # a new window (and, should Redis's INCR have made the key afresh, its expiry)
+            cache.touch(self.key, self.duration)
+            cache.set(self.key + ":start", time.time(), self.duration)
+        return count
+
+    def count(self) -> int:
+        """Events counted in the current window (0 when none)."""
+        return int(cache.get(self.key, 0))
+
+    def wait_seconds(self) -> float:
+        """Seconds until the current window ends (at least 1)."""
+        start = cache.get(self.key + ":start")
+        if start is None:
+            return float(self.duration)
+        return max(1.0, self.duration - (time.time() - float(start)))
+
+
+class SettingsRateMixin(throttling.SimpleRateThrottle):
+    """A DRF throttle with the rate of ``scope`` from ``settings.GCPS_THROTTLE_RATES`` and an atomic count.
+
+    The rate is read on every request. A cache that cannot be reached lets the request through
+    (logged): rate limiting must not take the API down with it. Listed first among the bases of a
+    DRF throttle class.
+    """
+
+    # set by SimpleRateThrottle.__init__ from parse_rate(rate): both None when no rate is set
+    # (the DRF stubs do not declare them)
+    num_requests: int | None
+    duration: int | None
+    _wait: float | None = None
 
     def get_rate(self) -> str | None:
         rates = getattr(settings, "GCPS_THROTTLE_RATES", {})
         return rates.get(self.scope)
 
     def allow_request(self, request, view) -> bool:
+        if self.num_requests is None or self.duration is None:
+            return True
+        key = self.get_cache_key(request, view)
+        if key is None:
+            return True
         try:
-            return super().allow_request(request, view)
+            counter = WindowCounter(key, self.duration)
+            if counter.hit() <= self.num_requests:
+                return True
+            self._wait = counter.wait_seconds()
+            return False
         except Exception as exc:  # the cache (Redis) is down
             logger.warning("rate limit %s not applied: cache unavailable (%s)", self.scope, exc)
             return True
+
+    def wait(self) -> float | None:
+        return self._wait
 
 
 class UserRateThrottle(SettingsRateMixin, throttling.UserRateThrottle):
@@ -69,68 +133,77 @@ class AnonRateThrottle(SettingsRateMixin, throttling.AnonRateThrottle):
 
 
 class FailureCounter(SettingsRateMixin, throttling.SimpleRateThrottle):
-    """Counts failures (not requests) per client address; :meth:`wait_seconds` tells whether it is blocked.
+    """Counts failures (not requests) per client address, or per address and ``detail``;
+    :meth:`wait_seconds` tells whether it is blocked."""
 
-    ``history`` in the cache is the list of failure times (newest first) within the rate's window.
-    """
-
-    # set by SimpleRateThrottle.__init__ from parse_rate(rate): both None when no rate is set
-    # (the DRF stubs do not declare them)
-    num_requests: int | None
-    duration: int | None
-
-    def __init__(self, scope: str) -> None:
+    def __init__(self, scope: str, detail: str = "") -> None:
         self.scope = scope
+        self.detail = detail
         super().__init__()
 
     def get_cache_key(self, request, view=None) -> str:
-        return self.cache_format % {"scope": self.scope, "ident": self.get_ident(request)}
+        ident = self.get_ident(request) + (f":{self.detail}" if self.detail else "")
+        return self.cache_format % {"scope": self.scope, "ident": ident}
 
-    def _history(self, request, duration: int) -> tuple[str, list[float], float]:
-        key = self.get_cache_key(request)
-        now = time.time()
-        history = [moment for moment in cache.get(key, []) if moment > now - duration]
-        return key, history, now
+    def _counter(self, request) -> WindowCounter | None:
+        if self.num_requests is None or self.duration is None:
+            return None
+        return WindowCounter(self.get_cache_key(request), self.duration)
 
     def wait_seconds(self, request) -> float | None:
         """Seconds until the next attempt is allowed, or None when not blocked (or no rate is set)."""
-        if self.num_requests is None or self.duration is None:
+        counter = self._counter(request)
+        if counter is None or self.num_requests is None:
             return None
         try:
-            _key, history, now = self._history(request, self.duration)
+            if counter.count() < self.num_requests:
+                return None
+            return counter.wait_seconds()
         except Exception as exc:
             logger.warning("rate limit %s not applied: cache unavailable (%s)", self.scope, exc)
             return None
-        if len(history) < self.num_requests:
-            return None
-        return max(1.0, self.duration - (now - history[-1]))
 
-    def record(self, request) -> None:
-        """Count one failure now."""
-        if self.num_requests is None or self.duration is None:
-            return
+    def record(self, request) -> float | None:
+        """Count one failure now; returns the seconds to wait when this failure is past the rate, else None."""
+        counter = self._counter(request)
+        if counter is None or self.num_requests is None:
+            return None
         try:
-            key, history, now = self._history(request, self.duration)
-            cache.set(key, [now, *history][: self.num_requests + 1], self.duration)
+            if counter.hit() <= self.num_requests:
+                return None
+            return counter.wait_seconds()
         except Exception as exc:
             logger.warning("rate limit %s not applied: cache unavailable (%s)", self.scope, exc)
+            return None
 
 
 class ThrottledTokenAuthentication(TokenAuthentication):
-    """Token authentication that counts unknown tokens per client and refuses (429) past the ``bad_token`` rate."""
+    """Token authentication that refuses (429) unknown tokens from a client past the ``bad_token`` rate.
+
+    Never a valid token: one bad client behind a shared address (a proxy, a NAT) does not lock the
+    others out. Two counts, both of failures: per address and token (a client repeating the same
+    unknown token past the rate is answered 429 without looking the token up), and per address
+    over all unknown tokens (past the rate, unknown tokens answer 429 instead of 401; a valid token
+    is looked up and accepted as always).
+    """
 
     def authenticate(self, request):
-        counter = FailureCounter("bad_token")
-        has_token = request.META.get("HTTP_AUTHORIZATION", "").split(" ", 1)[0].lower() == self.keyword.lower()
-        if has_token:
-            wait = counter.wait_seconds(request)
-            if wait is not None:
-                raise exceptions.Throttled(wait, detail="Too many invalid API tokens from this address.")
+        header = request.META.get("HTTP_AUTHORIZATION", "")
+        parts = header.split()
+        if not parts or parts[0].lower() != self.keyword.lower():
+            return super().authenticate(request)
+        token = FailureCounter("bad_token", hashlib.sha256(header.encode()).hexdigest()[:16])
+        address = FailureCounter("bad_token")
+        wait = token.wait_seconds(request)
+        if wait is not None:
+            raise exceptions.Throttled(wait, detail="Too many requests with this invalid API token from this address.")
         try:
             return super().authenticate(request)
         except exceptions.AuthenticationFailed:
-            if has_token:
-                counter.record(request)
+            token.record(request)
+            wait = address.record(request)
+            if wait is not None:
+                raise exceptions.Throttled(wait, detail="Too many invalid API tokens from this address.") from None
             raise
 
 

@@ -1,5 +1,6 @@
 """Packaging: the SPDX licence string (no setuptools deprecation warning), and the README's production
-command ``gunicorn metrology.wsgi`` works with the installed dependencies."""
+command ``gunicorn metrology.asgi:application -k uvicorn_worker.UvicornWorker`` (and the WSGI entry
+point) works with the installed dependencies."""
 
 from __future__ import annotations
 
@@ -22,12 +23,17 @@ def test_licence_is_an_spdx_string_and_gunicorn_a_dependency():
 
 
 @pytest.mark.slow
-def test_gunicorn_loads_the_application(tmp_path):
+@pytest.mark.parametrize(
+    "command",
+    [["metrology.wsgi"], ["metrology.asgi:application", "-k", "uvicorn_worker.UvicornWorker"]],
+    ids=["wsgi", "asgi"],
+)
+def test_gunicorn_loads_the_application(tmp_path, command):
     env = {key: value for key, value in os.environ.items() if not key.startswith(("GCPS", "DATABASE", "REDIS"))}
     env.update(DJANGO_SETTINGS_MODULE="metrology.settings", GCPS_VAR_DIR=str(tmp_path), DEBUG="1")
     gunicorn = Path(sys.executable).with_name("gunicorn")
     result = subprocess.run(
-        [str(gunicorn), "--check-config", "metrology.wsgi"],
+        [str(gunicorn), "--check-config", *command],
         cwd=ROOT,
         env=env,
         capture_output=True,

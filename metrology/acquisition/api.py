@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 from typing import Any
 
+from asgiref.sync import sync_to_async
+from django.http import HttpRequest, HttpResponse
 from django.utils import timezone
 from drf_spectacular.utils import extend_schema
 from rest_framework import serializers, status
@@ -19,7 +21,7 @@ from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
-from metrology.acquisition import services
+from metrology.acquisition import longpoll, services
 from metrology.acquisition.models import Acquisition, Agent, ProjectorState
 from metrology.api_input import BoundedJSONParser
 from metrology.captures.models import Capture
@@ -364,8 +366,12 @@ class RigProjectorApi(APIView):
             services.projector_state(rig)
             services.mark_page_seen(rig)
             services.expire_agents(rig)
-        state = services.wait_for_state(rig, seq_above=after, shown_at_least=shown, timeout_s=wait)
-        return Response(projector_data(state))
+        state = services.projector_state(rig)
+        response = Response(projector_data(state))
+        poll = longpoll.LongPoll.start(rig.pk, seq_above=after, shown_at_least=shown, timeout_s=wait)
+        if poll.remaining() > 0 and not poll.reached(state):
+            response.long_poll = (poll, state)  # type: ignore[attr-defined]  # waited for by rig_projector
+        return response
 
     @extend_schema(request=ShowSerializer, responses=dict, operation_id="rig_projector_show")
     def post(self, request: Request, rig_id: int) -> Response:
@@ -395,3 +401,31 @@ class RigProjectorShownApi(APIView):
         screen = data.get("screen") if isinstance(data.get("screen"), dict) else {}
         state = services.confirm_shown(rig, seq=data["seq"], kind=data["kind"], frame=data["frame"], screen=screen)
         return Response(projector_data(state))
+
+
+_rig_projector_api = RigProjectorApi.as_view()
+
+
+async def rig_projector(request: HttpRequest, rig_id: int) -> HttpResponse:
+    """``/api/rigs/{id}/projector/``: :class:`RigProjectorApi`, whose long-poll waits here, on the event loop.
+
+    The DRF view runs first in a thread (authentication, rate limits, permissions, parameters, the
+    state as it is now, the same errors and JSON as every endpoint); when it leaves a long-poll to
+    wait for, the thread and its database connection are released and the wait is a coroutine
+    (:mod:`metrology.acquisition.longpoll`), after which the same response carries the new state.
+    """
+    response = await sync_to_async(_rig_projector_api)(request, rig_id=rig_id)
+    pending = getattr(response, "long_poll", None)
+    if pending is not None:
+        poll, state = pending
+        await sync_to_async(longpoll.release_connection)()
+        state = await longpoll.wait(poll, state)
+        response.data = projector_data(state)  # a DRF Response, rendered later
+    return response
+
+
+# CSRF is DRF's business (SessionAuthentication checks it on POST); the schema generator finds the
+# DRF view through these attributes, as on any APIView.as_view().
+rig_projector.csrf_exempt = True  # type: ignore[attr-defined]
+rig_projector.cls = RigProjectorApi  # type: ignore[attr-defined]
+rig_projector.initkwargs = {}  # type: ignore[attr-defined]

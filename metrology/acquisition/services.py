@@ -11,7 +11,6 @@ running acquisition failed with the reason; nothing of it is stored.
 
 from __future__ import annotations
 
-import time
 import uuid
 from datetime import timedelta
 from typing import Any
@@ -21,6 +20,7 @@ from django.core.files.storage import default_storage
 from django.db import transaction
 from django.utils import timezone
 
+from metrology.acquisition import longpoll
 from metrology.acquisition.agent.patterns import ProjectedCodec, resolve_codec
 from metrology.acquisition.models import Acquisition, Agent, ProjectorState
 from metrology.captures import services as capture_services
@@ -373,6 +373,7 @@ def show_on_projector(rig: Rig, *, kind: str, frame: int = -1, acquisition: Acqu
         state.frame = frame if kind == "frame" else -1
         state.acquisition = acquisition
         state.save(update_fields=["seq", "kind", "frame", "acquisition"])
+        longpoll.notify_changed(rig.pk)
         return state.seq
 
 
@@ -382,21 +383,8 @@ def confirm_shown(rig: Rig, *, seq: int, kind: str, frame: int, screen: dict) ->
     ProjectorState.objects.filter(rig=rig, seq__gte=seq).update(
         shown_seq=seq, shown_kind=kind[:16], shown_frame=frame, shown_at=now, screen=screen, page_seen_at=now
     )
+    longpoll.notify_changed(rig.pk)
     return projector_state(rig)
-
-
-def wait_for_state(rig: Rig, *, seq_above: int | None, shown_at_least: int | None, timeout_s: float) -> ProjectorState:
-    """Long-poll: the projector state once ``seq > seq_above`` or ``shown_seq >= shown_at_least``, or at the timeout."""
-    deadline = time.monotonic() + max(0.0, min(timeout_s, 25.0))
-    while True:
-        state = projector_state(rig)
-        if seq_above is not None and state.seq > seq_above:
-            return state
-        if shown_at_least is not None and state.shown_seq >= shown_at_least:
-            return state
-        if time.monotonic() >= deadline:
-            return state
-        time.sleep(0.02)
 
 
 def mark_page_seen(rig: Rig) -> None:

@@ -11,7 +11,7 @@ api_patterns = [
     path("rigs/<int:rig_id>/agent/heartbeat/", api.RigAgentHeartbeatApi.as_view(), name="api-rig-agent-heartbeat"),
     path("rigs/<int:rig_id>/agent/disconnect/", api.RigAgentDisconnectApi.as_view(), name="api-rig-agent-disconnect"),
     path("rigs/<int:rig_id>/agent/take/", api.RigAgentTakeApi.as_view(), name="api-rig-agent-take"),
-    path("rigs/<int:rig_id>/projector/", api.RigProjectorApi.as_view(), name="api-rig-projector"),
+    path("rigs/<int:rig_id>/projector/", api.rig_projector, name="api-rig-projector"),
     path("rigs/<int:rig_id>/projector/shown/", api.RigProjectorShownApi.as_view(), name="api-rig-projector-shown"),
     path("acquisitions/<int:acquisition_id>/", api.AcquisitionDetailApi.as_view(), name="api-acquisition"),
     path(

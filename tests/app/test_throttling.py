@@ -82,13 +82,26 @@ def test_hundred_guessed_tokens_are_throttled(settings, user_and_token):
         guesser.credentials(HTTP_AUTHORIZATION=f"Token {guess:040x}")
         codes.append(guesser.get("/api/rigs/").status_code)
     assert codes.count(401) == 20 and codes.count(429) == 80, codes
-    # while blocked, even the right token from that address waits ...
-    guesser.credentials(HTTP_AUTHORIZATION=f"Token {user_and_token[1]}")
-    assert_throttled(guesser.get("/api/rigs/"))
-    # ... and the owner elsewhere is not affected
+    # a valid token from that address (someone else behind the same proxy) is not locked out ...
+    colleague = APIClient(REMOTE_ADDR="10.0.0.9")
+    colleague.credentials(HTTP_AUTHORIZATION=f"Token {user_and_token[1]}")
+    assert colleague.get("/api/rigs/").status_code == 200
+    # ... nor the owner elsewhere
     owner = APIClient(REMOTE_ADDR="10.0.0.10")
     owner.credentials(HTTP_AUTHORIZATION=f"Token {user_and_token[1]}")
     assert owner.get("/api/rigs/").status_code == 200
+
+
+def test_one_unknown_token_repeated_is_refused_and_valid_tokens_from_that_address_still_work(settings, user_and_token):
+    rates(settings, bad_token="5/minute")
+    stale = APIClient(REMOTE_ADDR="10.0.0.15")
+    stale.credentials(HTTP_AUTHORIZATION="Token " + "ab" * 20)
+    codes = [stale.get("/api/rigs/").status_code for _ in range(8)]
+    assert codes == [401] * 5 + [429] * 3, codes
+    assert_throttled(stale.get("/api/rigs/"))
+    valid = APIClient(REMOTE_ADDR="10.0.0.15")
+    valid.credentials(HTTP_AUTHORIZATION=f"Token {user_and_token[1]}")
+    assert [valid.get("/api/rigs/").status_code for _ in range(10)] == [200] * 10
 
 
 def test_forged_forwarded_for_does_not_escape_the_limit(settings, db):

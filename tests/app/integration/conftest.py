@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import requests
 
-from tests.app.integration.harness import Stack, check_services, fresh_database
+from tests.app.integration.harness import Stack, migrated_stack
 
 
 @pytest.fixture(autouse=True)
@@ -22,17 +22,9 @@ def media_root(tmp_path) -> Path:
 
 @pytest.fixture
 def stack(tmp_path, media_root) -> Iterator[Stack]:
-    check_services()
-    logs = tmp_path / "logs"
-    logs.mkdir()
-    with fresh_database() as database_url:
-        stack = Stack(database_url, media_root, logs)
-        try:
-            stack.manage("migrate", "--noinput")
-            stack.start_web()
-            yield stack
-        finally:
-            stack.stop()
+    with migrated_stack(tmp_path, media_root) as stack:
+        stack.start_web()
+        yield stack
 
 
 @pytest.fixture

@@ -126,15 +126,27 @@ class Stack:
         port = free_port()
         extra = [] if threaded else ["--nothreading"]
         self._spawn("web", [sys.executable, "manage.py", "runserver", f"127.0.0.1:{port}", "--noreload", *extra])
+        return self._wait_until_serving(port, "web")
+
+    def start_asgi(self, *, workers: int = 1) -> str:
+        """The documented production web server: gunicorn with uvicorn workers on ``metrology.asgi``."""
+        port = free_port()
+        gunicorn = [sys.executable, "-m", "gunicorn", "metrology.asgi:application"]
+        gunicorn += ["-k", "uvicorn_worker.UvicornWorker"]
+        options = ["-w", str(workers), "-b", f"127.0.0.1:{port}", "--graceful-timeout", "5", "--no-control-socket"]
+        self._spawn("web-asgi", [*gunicorn, *options])
+        return self._wait_until_serving(port, "web-asgi")
+
+    def _wait_until_serving(self, port: int, name: str) -> str:
         self.base_url = f"http://127.0.0.1:{port}"
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
             try:
-                requests.get(f"{self.base_url}/api/schema/", timeout=2)
+                requests.get(f"{self.base_url}/login/", timeout=10)
                 return self.base_url
-            except requests.ConnectionError:
+            except requests.RequestException:
                 time.sleep(0.2)
-        raise AssertionError(f"web server did not start; see {self.logs / 'web.log'}")
+        raise AssertionError(f"web server did not start; see {self.logs / (name + '.log')}")
 
     def start_worker(
         self, name: str, extra_env: dict[str, str] | None = None, pool: tuple[str, ...] = ("-P", "solo")
@@ -177,6 +189,21 @@ class Stack:
         client = redis.Redis.from_url(self.env["REDIS_URL"], socket_connect_timeout=3)
         with contextlib.suppress(redis.RedisError):  # a fault test may have stopped its own Redis
             client.delete(self.queue, f"_kombu.binding.{self.queue}", f"_kombu.binding_permanent.{self.queue}")
+
+
+@contextmanager
+def migrated_stack(tmp_path: Path, media_root: Path) -> Iterator[Stack]:
+    """A :class:`Stack` on a fresh, migrated database (no process started yet); stopped afterwards."""
+    check_services()
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    with fresh_database() as database_url:
+        stack = Stack(database_url, media_root, logs)
+        try:
+            stack.manage("migrate", "--noinput")
+            yield stack
+        finally:
+            stack.stop()
 
 
 class RedisServer:
