@@ -72,7 +72,14 @@ def free_port() -> int:
 class Stack:
     """The application's processes, sharing one environment (database, queue, media folder)."""
 
-    def __init__(self, database_url: str, media_root: Path, logs: Path, redis_url: str = REDIS_URL) -> None:
+    def __init__(
+        self,
+        database_url: str,
+        media_root: Path,
+        logs: Path,
+        redis_url: str = REDIS_URL,
+        extra_env: dict[str, str] | None = None,
+    ) -> None:
         self.queue = f"gcps-test-{secrets.token_hex(4)}"
         self.logs = logs
         self.env = {
@@ -96,6 +103,7 @@ class Stack:
             "GCPS_BROKER_VISIBILITY_TIMEOUT": "6",
             "GCPS_BROKER_RESTORE_INTERVAL": "1",
             "PYTHONUNBUFFERED": "1",
+            **(extra_env or {}),  # e.g. the GCPS_S3_* settings of tests/s3.py
         }
         self.processes: list[subprocess.Popen] = []
         self.base_url = ""

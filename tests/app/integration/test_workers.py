@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 
-from tests.app.integration.helpers import RIG, finished, simulated_zip, upload, url, wait_for
+from tests.app.integration.helpers import RIG, download, finished, simulated_zip, upload, url, wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
@@ -52,9 +52,9 @@ def test_measurement_through_api_redis_and_a_worker_process(stack, http):
     assert np.median(error) < 0.005, np.median(error)
     assert np.percentile(error, 95) < 0.05, np.percentile(error, 95)
 
-    mesh = http.get(url(http, f"/api/measurements/{measurement_id}/mesh.ply"))
+    mesh = download(http, f"/api/measurements/{measurement_id}/mesh.ply")
     assert mesh.status_code == 200 and ply_vertex_count(mesh.content) > 0.5 * both.sum()
-    stl = http.get(url(http, f"/api/measurements/{measurement_id}/mesh.stl"))
+    stl = download(http, f"/api/measurements/{measurement_id}/mesh.stl")
     assert stl.status_code == 200
     (triangles,) = struct.unpack("<I", stl.content[80:84])
     assert len(stl.content) == 84 + 50 * triangles and triangles > 0
