@@ -11,6 +11,7 @@ started by root, so the folders it serves must be readable by everyone (:func:`w
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import shutil
 import subprocess
@@ -18,6 +19,7 @@ import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import requests
 
@@ -118,3 +120,26 @@ def nginx(upstream: str, static_root: Path, media_root: Path) -> Iterator[Nginx]
         yield server
     finally:
         server.stop()
+
+
+def paced_download(url: str, headers: dict[str, str], rate: float, out: dict[str, Any]) -> None:
+    """GET ``url`` reading at most ``rate`` bytes per second, as a slow client; fills ``out`` with
+    ``status``, ``headers``, ``bytes``, ``sha256`` (hex) and ``seconds`` (and ``error`` if it broke)."""
+    digest = hashlib.sha256()
+    received = 0
+    start = time.monotonic()
+    try:
+        with requests.get(url, headers=headers, stream=True, timeout=600) as response:
+            out["status"] = response.status_code
+            out["headers"] = dict(response.headers)
+            for chunk in response.iter_content(64 * 1024):
+                digest.update(chunk)
+                received += len(chunk)
+                ahead = received / rate - (time.monotonic() - start)
+                if ahead > 0:
+                    time.sleep(ahead)
+    except requests.RequestException as exc:
+        out["error"] = f"{type(exc).__name__}: {exc}"[:200]
+    out["bytes"] = received
+    out["sha256"] = digest.hexdigest()
+    out["seconds"] = round(time.monotonic() - start, 1)

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 from django.core.files.storage import default_storage
-from django.http import Http404, StreamingHttpResponse
+from django.http import Http404, HttpResponse, StreamingHttpResponse
 from django.http.response import HttpResponseBase
 from django.urls import reverse
+from django.utils.html import format_html
 from drf_spectacular.types import OpenApiTypes
 from drf_spectacular.utils import OpenApiParameter, OpenApiResponse, extend_schema
 from rest_framework import serializers, status
@@ -108,13 +109,29 @@ class MeasurementListCreateApi(APIView):
         return Response(MeasurementSerializer(measurement).data, status=status.HTTP_202_ACCEPTED)
 
 
-def pending_response(job, filename: str) -> Response:
-    """202: the derived file ``filename`` is being built by ``job`` (failed jobs answer 409 with the reason)."""
+def pending_response(request: Request, job, filename: str) -> HttpResponseBase:
+    """202: the derived file ``filename`` is being built by ``job`` (failed jobs answer 409 with the reason).
+
+    A browser following a download link (``Accept: text/html``) gets a small page that asks again
+    every 2 s (``Refresh``), so the link ends in the download; API clients get JSON and poll the job.
+    """
     job_url = reverse("job", args=[job.pk])
     if job.status == job.Status.FAILED:
         return Response({"error": f"{filename} could not be built: {job.error}", "job": job.pk}, status=409)
+    headers = {"Location": job_url, "Retry-After": "2"}
+    if "text/html" in request.headers.get("Accept", ""):
+        page = format_html(
+            "<!doctype html><title>Building {0}</title><p>{0} is being built (job {1}, {2}); "
+            "this page asks again every 2 seconds and the download starts when it is ready.</p>",
+            filename,
+            job.pk,
+            job.status,
+        )
+        html = HttpResponse(page, status=202, content_type="text/html; charset=utf-8", headers=headers)
+        html["Refresh"] = "2"
+        return html
     body = {"job": job.pk, "status": job.status, "job_url": job_url, "detail": f"{filename} is being built"}
-    return Response(body, status=202, headers={"Location": job_url, "Retry-After": "2"})
+    return Response(body, status=202, headers=headers)
 
 
 def get_rig_for_body(user, rig_id: int):
@@ -219,7 +236,7 @@ def file_view(filename: str) -> type[APIView]:
             if not result.ready:
                 job = services.request_derived_file(measurement, filename)
                 if job.status != job.Status.DONE or not default_storage.exists(result.name):
-                    return pending_response(job, filename)
+                    return pending_response(request, job, filename)
             return storage_file_response(
                 request, default_storage, result.name, filename=attachment, content_type=content_type
             )

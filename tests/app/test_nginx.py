@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import hashlib
 import shutil
-import time
 
 import pytest
 import requests
@@ -22,7 +21,7 @@ from metrology.measurements.derived import derived_name
 from metrology.measurements.models import Measurement
 from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
 from tests.app.uploads import upload
-from tests.nginx import nginx, nginx_binary, world_readable_dir
+from tests.nginx import nginx, nginx_binary, paced_download, world_readable_dir
 
 pytestmark = [
     pytest.mark.django_db(transaction=True),
@@ -93,23 +92,11 @@ def test_a_slow_client_gets_the_whole_file(served):
     name = derived_name(measurement, "mesh.obj")
     payload = hashlib.sha256(b"seed").digest() * (8 * 1024 * 1024 // 32)  # stands in for a built OBJ
     assert default_storage.save(name, ContentFile(payload)) == name
-    rate = 2 * 1024 * 1024
-    got = hashlib.sha256()
-    received = 0
-    start = time.monotonic()
-    with requests.get(
-        f"{proxy.base_url}/api/measurements/{measurement_id}/mesh.obj",
-        headers={"Authorization": f"Token {token}"},
-        stream=True,
-        timeout=60,
-    ) as response:
-        assert response.status_code == 200
-        for chunk in response.iter_content(64 * 1024):
-            got.update(chunk)
-            received += len(chunk)
-            ahead = received / rate - (time.monotonic() - start)
-            if ahead > 0:
-                time.sleep(ahead)
-    elapsed = time.monotonic() - start
-    assert received == len(payload) and got.hexdigest() == hashlib.sha256(payload).hexdigest()
+    read: dict = {}
+    url = f"{proxy.base_url}/api/measurements/{measurement_id}/mesh.obj"
+    paced_download(url, {"Authorization": f"Token {token}"}, 2 * 1024 * 1024, read)
+    assert read["status"] == 200 and "error" not in read, read
+    assert read["bytes"] == len(payload) and read["sha256"] == hashlib.sha256(payload).hexdigest()
+    assert "X-Accel-Redirect" not in read["headers"]
+    elapsed = read["seconds"]
     assert elapsed > 3.0, elapsed  # it really was read slowly
