@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import secrets
 from collections.abc import Iterator
 from pathlib import Path
@@ -21,12 +22,22 @@ def media_root(tmp_path) -> Path:
 
 
 @pytest.fixture
-def stack(tmp_path, media_root) -> Iterator[Stack]:
+def stack_storage_env(request) -> dict[str, str]:
+    """With ``GCPS_TEST_S3=1`` every stack stores in a fresh bucket of the session's S3 server
+    (tests/s3.py), so the integration tests run against S3; else the local media folder."""
+    if os.environ.get("GCPS_TEST_S3") != "1":
+        return {}
+    s3 = request.getfixturevalue("s3")
+    return s3.env(s3.bucket())
+
+
+@pytest.fixture
+def stack(tmp_path, media_root, stack_storage_env) -> Iterator[Stack]:
     check_services()
     logs = tmp_path / "logs"
     logs.mkdir()
     with fresh_database() as database_url:
-        stack = Stack(database_url, media_root, logs)
+        stack = Stack(database_url, media_root, logs, extra_env=stack_storage_env)
         try:
             stack.manage("migrate", "--noinput")
             stack.start_web()

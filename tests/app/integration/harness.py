@@ -108,6 +108,28 @@ class Stack:
         self.processes: list[subprocess.Popen] = []
         self.base_url = ""
 
+    def stored_files(self, prefix: str) -> dict[str, int]:
+        """``{storage name: size}`` of the stored files under ``prefix`` (a folder of the storage),
+        in the media folder or, with the ``GCPS_S3_*`` settings, in the bucket."""
+        bucket = self.env.get("GCPS_S3_BUCKET")
+        if not bucket:
+            root = Path(self.env["MEDIA_ROOT"])
+            return {str(p.relative_to(root)): p.stat().st_size for p in (root / prefix).rglob("*") if p.is_file()}
+        import boto3
+
+        client = boto3.client(
+            "s3",
+            endpoint_url=self.env["GCPS_S3_ENDPOINT_URL"],
+            aws_access_key_id=self.env["GCPS_S3_ACCESS_KEY_ID"],
+            aws_secret_access_key=self.env["GCPS_S3_SECRET_ACCESS_KEY"],
+            region_name=self.env["GCPS_S3_REGION"],
+        )
+        found = {}
+        for page in client.get_paginator("list_objects_v2").paginate(Bucket=bucket, Prefix=prefix.rstrip("/") + "/"):
+            for item in page.get("Contents", []):
+                found[item["Key"]] = item["Size"]
+        return found
+
     def manage(self, *args: str) -> str:
         result = subprocess.run(
             [sys.executable, "manage.py", *args], cwd=ROOT, env=self.env, capture_output=True, text=True, timeout=300

@@ -12,7 +12,7 @@ from tests.app.integration.helpers import RIG, download, finished, simulated_zip
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 
-def test_worker_keeps_the_reference_and_meshes_are_built_on_request(stack, http, media_root):
+def test_worker_keeps_the_reference_and_meshes_are_built_on_request(stack, http):
     stack.start_worker("worker-1")
     rig_id = http.post(url(http, "/api/rigs/"), json=RIG).json()["id"]
     reference = upload(http, rig_id, simulated_zip("reference")[0], "reference")
@@ -34,8 +34,7 @@ def test_worker_keeps_the_reference_and_meshes_are_built_on_request(stack, http,
 
     # storage: the two float32 height maps, under 3x one of them
     measurement_id = bodies[0]["id"]
-    folder = media_root / "measurements" / str(measurement_id)
-    stored = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
+    stored = sum(stack.stored_files(f"measurements/{measurement_id}").values())
     assert stored < 3 * RIG["width_px"] * RIG["height_px"] * 4, stored
 
     # meshes: the first request queues a derived-file job (202, Location: the job); once it is
@@ -47,8 +46,7 @@ def test_worker_keeps_the_reference_and_meshes_are_built_on_request(stack, http,
     assert first_stl.status_code == 200 and int(first_stl.headers["Content-Length"]) == len(first_stl.content)
     (triangles,) = struct.unpack("<I", first_stl.content[80:84])
     assert len(first_stl.content) == 84 + 50 * triangles and triangles > 1000
-    cached = list((media_root / "derived").iterdir())
-    assert [p.suffix for p in cached] == [".stl"]
+    assert [name.rsplit(".", 1)[1] for name in stack.stored_files("derived")] == ["stl"]
     again = http.get(url(http, path), headers={"Range": "bytes=80-83"})
     assert again.status_code == 206 and again.content == first_stl.content[80:84]
     normals = np.frombuffer(first_stl.content[84:], dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", 9), ("a", "<u2")]))
