@@ -217,6 +217,9 @@ def test_a_derived_file_not_built_yet_answers_202_with_its_job(api, measurement_
     again = api.get(url)  # asked again while queued: the same job, not a second one
     assert again.status_code == 202 and again.json()["job"] == body["job"] and sent == [body["job"]]
     assert api.get(body["job_url"]).json()["status"] == "queued"
+    from metrology.dashboard.selectors import job_result_url
+
+    assert job_result_url(Job.objects.get(pk=body["job"])) == url  # the jobs page links to the file
     page = api.get(url, HTTP_ACCEPT="text/html,application/xhtml+xml")  # a browser following the link
     assert page.status_code == 202 and page["Refresh"] == "2" and b"mesh.obj is being built" in page.content
     assert job_services.execute_job(body["job"]) == "done"  # what a worker does
