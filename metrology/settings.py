@@ -185,10 +185,38 @@ STATIC_ROOT = Path(env_str("STATIC_ROOT") or VAR_DIR / "static")
 STATIC_URL = "/static/"
 # Static files (admin, the offline Swagger UI) are served by WhiteNoise from STATIC_ROOT after
 # ``manage.py collectstatic``, and straight from the apps when DEBUG is on.
+# Results, captures, derived files and reports go through Django's storage API only (never a
+# local path): the local MEDIA_ROOT by default, or an S3-compatible bucket when GCPS_S3_BUCKET is
+# set (docs/storage.md). Files stay private; downloads are served by the app, by the reverse proxy
+# (GCPS_ACCEL_REDIRECT, local storage) or from short-lived presigned URLs (S3).
+GCPS_S3_BUCKET = env_str("GCPS_S3_BUCKET")
+_default_storage: dict[str, Any] = {"BACKEND": "django.core.files.storage.FileSystemStorage"}
+if GCPS_S3_BUCKET:
+    _default_storage = {
+        "BACKEND": "storages.backends.s3.S3Storage",
+        "OPTIONS": {
+            "bucket_name": GCPS_S3_BUCKET,
+            "endpoint_url": env_str("GCPS_S3_ENDPOINT_URL") or None,
+            "access_key": env_str("GCPS_S3_ACCESS_KEY_ID") or None,
+            "secret_key": env_str("GCPS_S3_SECRET_ACCESS_KEY") or None,
+            "region_name": env_str("GCPS_S3_REGION", "us-east-1"),
+            "default_acl": None,  # private: the bucket's policy, never a public ACL
+            "querystring_auth": True,
+            "querystring_expire": env_int("GCPS_S3_URL_SECONDS", 300, minimum=1),  # see below
+            "file_overwrite": True,
+            "signature_version": "s3v4",
+            "addressing_style": "path",
+        },
+    }
 STORAGES = {
-    "default": {"BACKEND": "django.core.files.storage.FileSystemStorage"},
+    "default": _default_storage,
     "staticfiles": {"BACKEND": "whitenoise.storage.CompressedStaticFilesStorage"},
 }
+# With local storage behind the documented nginx (deploy/nginx/gcps.conf): answer downloads with
+# X-Accel-Redirect: /protected/<storage name> and let nginx send the file (ranges, slow clients).
+GCPS_ACCEL_REDIRECT = env_bool("GCPS_ACCEL_REDIRECT", False)
+# How long a presigned S3 download URL stays valid, seconds.
+GCPS_S3_URL_SECONDS = env_int("GCPS_S3_URL_SECONDS", 300, minimum=1)
 WHITENOISE_USE_FINDERS = DEBUG
 with contextlib.suppress(OSError):  # WhiteNoise warns on every request while the folder is missing
     STATIC_ROOT.mkdir(parents=True, exist_ok=True)
@@ -258,8 +286,9 @@ GCPS_MAX_IMAGE_SIDE_PX = env_int("GCPS_MAX_IMAGE_SIDE_PX", 4096, minimum=1)
 GCPS_MAX_SIMULATION_BYTES = env_int("GCPS_MAX_SIMULATION_BYTES", 4 * 1024**3, minimum=1)
 
 # ----------------------------------------------------------------------------- derived result files
-# Meshes (PLY, STL, OBJ) and TIFF height maps are built from the stored height map on request and
-# kept in MEDIA_ROOT/derived/, at most this many bytes (least recently used removed first).
+# Meshes (PLY, STL, OBJ) and TIFF height maps are built from the stored height map by a job when
+# first asked for and kept in the storage's derived/ folder, at most this many bytes (oldest
+# removed first).
 GCPS_MESH_CACHE_BYTES = env_int("GCPS_MESH_CACHE_BYTES", 2 * 1024**3, minimum=0)
 # Each worker process keeps decoded reference planes for the next jobs, at most this many bytes
 # (about 34 MB per 1280x1024 reference), least recently used evicted first.

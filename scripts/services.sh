@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Make sure PostgreSQL (127.0.0.1:5432, trust auth, database "test") and Redis (127.0.0.1:6379)
 # are running, starting them, or installing them from Debian's packages, when they are not.
-# Also installs Debian's chromium + chromium-driver for the browser tests when missing.
+# Also installs Debian's chromium + chromium-driver for the browser tests, and nginx for the
+# reverse-proxy tests, when missing. The S3-protocol server of the storage tests (moto_server, from
+# the dev extras) is started by the tests themselves (tests/s3.py), on a free port.
 set -euo pipefail
 as_root() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
 apt_updated=0
@@ -39,6 +41,10 @@ fi
 
 if [ ! -x /usr/bin/chromium ] || [ ! -x /usr/bin/chromedriver ]; then
   apt_install chromium chromium-driver || echo "warning: could not install chromium; browser tests will fail" >&2
+fi
+# nginx for the reverse-proxy tests (tests/nginx.py runs its own unprivileged instance on a free port)
+if ! command -v nginx >/dev/null && [ ! -x /usr/sbin/nginx ]; then
+  apt_install nginx || echo "warning: could not install nginx; the reverse-proxy tests will be skipped" >&2
 fi
 port_open 6379 || { echo "Redis is not reachable on 127.0.0.1:6379" >&2; exit 1; }
 port_open 5432 || { echo "PostgreSQL is not reachable on 127.0.0.1:5432" >&2; exit 1; }

@@ -35,6 +35,15 @@ def local_cache_dir(tmp_path_factory):
         yield root
 
 
+@pytest.fixture(scope="session")
+def s3(tmp_path_factory):
+    """A real S3-protocol server (moto_server, its own process) for the session: tests/s3.py."""
+    from tests.s3 import s3_server
+
+    with s3_server(tmp_path_factory.mktemp("s3") / "moto.log") as server:
+        yield server
+
+
 @pytest.fixture(autouse=True)
 def raised_throttle_rates(settings) -> None:
     settings.GCPS_THROTTLE_RATES = dict.fromkeys(settings.GCPS_THROTTLE_RATES, RAISED_RATE)

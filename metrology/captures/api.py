@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from django.conf import settings
-from django.http import FileResponse
+from django.http.response import HttpResponseBase
 from drf_spectacular.types import OpenApiTypes
-from drf_spectacular.utils import extend_schema, extend_schema_field
+from drf_spectacular.utils import OpenApiResponse, extend_schema, extend_schema_field
 from rest_framework import serializers, status
 from rest_framework.parsers import FormParser, MultiPartParser
 from rest_framework.request import Request
@@ -18,6 +18,7 @@ from metrology.captures.models import Capture, CaptureSession
 from metrology.captures.simulation import DEFAULT_PRESET, PRESETS, preset_options
 from metrology.core.scenes import SCENES
 from metrology.errors import BadInput
+from metrology.file_serving import storage_file_response
 from metrology.rigs.selectors import get_rig
 
 
@@ -215,15 +216,26 @@ class CaptureDetailApi(APIView):
 
 
 class CaptureFileApi(APIView):
-    @extend_schema(responses={(200, "application/zip"): OpenApiTypes.BINARY}, operation_id="captures_stack_zip")
-    def get(self, request: Request, capture_id: int) -> FileResponse:
+    @extend_schema(
+        responses={
+            (200, "application/zip"): OpenApiResponse(
+                OpenApiTypes.BINARY, description="The stack (Accept-Ranges: bytes; 206 for a Range request)"
+            ),
+            (206, "application/zip"): OpenApiResponse(OpenApiTypes.BINARY, description="The requested byte range"),
+            302: OpenApiResponse(description="With S3 storage: a short-lived presigned URL of the file"),
+            416: OpenApiResponse(description="The range starts past the end of the file"),
+        },
+        operation_id="captures_stack_zip",
+    )
+    def get(self, request: Request, capture_id: int) -> HttpResponseBase:
         capture = selectors.get_capture(request.user, capture_id)
         if not capture.ready:
             assert capture.job is not None, "a capture not stored yet comes from a job (uploads are stored at once)"
             raise BadInput(f"capture {capture.pk} is not stored yet; its job is {capture.job.status}")
-        return FileResponse(
-            capture.file.open("rb"),
-            as_attachment=True,
+        return storage_file_response(
+            request,
+            capture.file.storage,
+            capture.file.name,
             filename=f"capture-{capture.pk}.zip",
             content_type="application/zip",
         )

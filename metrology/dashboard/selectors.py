@@ -234,6 +234,9 @@ def job_result_url(job: Job) -> str:
             return reverse("dashboard:rig-captures", args=[capture.rig_id])
     if job.kind == "report":
         return "/reports/"
+    if job.kind == Job.Kind.DERIVED_FILE and {"measurement", "filename"} <= params.keys():
+        # the file itself: downloaded from the storage once the job is done
+        return reverse(f"measurement-{params['filename']}", kwargs={"measurement_id": params["measurement"]})
     return reverse("dashboard:home")
 
 

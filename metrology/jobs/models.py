@@ -21,6 +21,7 @@ class Job(models.Model):
         REPORT = "report", "Characterization report"
         ACQUIRE_CAPTURE = "acquire_capture", "Acquire capture"
         PROCAM_CALIBRATION = "procam_calibration", "Projector-camera calibration"
+        DERIVED_FILE = "derived_file", "Derived result file"
 
     owner = models.ForeignKey(settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="jobs")
     kind = models.CharField(max_length=32, choices=Kind.choices)

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
-from django.http import FileResponse, Http404, StreamingHttpResponse
+from django.core.files.storage import default_storage
+from django.http import Http404, HttpResponse, StreamingHttpResponse
+from django.http.response import HttpResponseBase
 from django.urls import reverse
+from django.utils.html import format_html
 from drf_spectacular.types import OpenApiTypes
 from drf_spectacular.utils import OpenApiParameter, OpenApiResponse, extend_schema
 from rest_framework import serializers, status
@@ -14,6 +17,7 @@ from rest_framework.views import APIView
 
 from metrology.api_input import BoundedJSONParser
 from metrology.errors import BadInput
+from metrology.file_serving import storage_file_response
 from metrology.jobs.serializers import JobStateMixin
 from metrology.measurements import acceptance, derived, selectors, services
 from metrology.measurements.models import RESULT_FILES, Measurement
@@ -105,6 +109,31 @@ class MeasurementListCreateApi(APIView):
         return Response(MeasurementSerializer(measurement).data, status=status.HTTP_202_ACCEPTED)
 
 
+def pending_response(request: Request, job, filename: str) -> HttpResponseBase:
+    """202: the derived file ``filename`` is being built by ``job`` (failed jobs answer 409 with the reason).
+
+    A browser following a download link (``Accept: text/html``) gets a small page that asks again
+    every 2 s (``Refresh``), so the link ends in the download; API clients get JSON and poll the job.
+    """
+    job_url = reverse("job", args=[job.pk])
+    if job.status == job.Status.FAILED:
+        return Response({"error": f"{filename} could not be built: {job.error}", "job": job.pk}, status=409)
+    headers = {"Location": job_url, "Retry-After": "2"}
+    if "text/html" in request.headers.get("Accept", ""):
+        page = format_html(
+            "<!doctype html><title>Building {0}</title><p>{0} is being built (job {1}, {2}); "
+            "this page asks again every 2 seconds and the download starts when it is ready.</p>",
+            filename,
+            job.pk,
+            job.status,
+        )
+        html = HttpResponse(page, status=202, content_type="text/html; charset=utf-8", headers=headers)
+        html["Refresh"] = "2"
+        return html
+    body = {"job": job.pk, "status": job.status, "job_url": job_url, "detail": f"{filename} is being built"}
+    return Response(body, status=202, headers=headers)
+
+
 def get_rig_for_body(user, rig_id: int):
     """A rig named in a request body: 400 (not 404) when it is not the user's."""
     from django.http import Http404
@@ -155,19 +184,44 @@ class MeasurementAcceptanceApi(APIView):
         return Response(acceptance.measurement_acceptance(measurement, request.query_params))
 
 
+class DerivedFilePendingSerializer(serializers.Serializer):
+    """202 answer of a result file that a job is building: poll ``job_url``, then ask again."""
+
+    job = serializers.IntegerField(help_text="The derived-file job building it")
+    status = serializers.CharField(help_text="The job's status: queued, running, done or failed")
+    job_url = serializers.CharField(help_text="GET it until status is done, then download the file again")
+    detail = serializers.CharField()
+
+
 def file_view(filename: str) -> type[APIView]:
     """A view class serving one result file of a measurement (404 until the job is done).
 
-    Stored and cached files are sent as files; a mesh not yet cached is streamed while it is built
-    (:func:`metrology.measurements.derived.open_result_file`).
+    Stored files and built derived files are sent from the storage
+    (:func:`metrology.file_serving.storage_file_response`: ranges, X-Accel-Redirect, presigned S3
+    URLs); a derived file not built yet queues its job and answers 202 with the job to poll
+    (``Location``, ``Retry-After``); compactly stored points are streamed as the dense ``.npy``.
     """
     field = RESULT_FILES[filename]
     content_type = CONTENT_TYPES[filename]
     operation_id = "measurements_" + filename.replace(".", "_")
 
     class MeasurementFileApi(APIView):
-        @extend_schema(responses={(200, content_type): OpenApiTypes.BINARY}, operation_id=operation_id)
-        def get(self, request: Request, measurement_id: int) -> FileResponse | StreamingHttpResponse:
+        @extend_schema(
+            responses={
+                (200, content_type): OpenApiResponse(
+                    OpenApiTypes.BINARY, description="The file (Accept-Ranges: bytes; 206 for a Range request)"
+                ),
+                (206, content_type): OpenApiResponse(OpenApiTypes.BINARY, description="The requested byte range"),
+                202: OpenApiResponse(
+                    DerivedFilePendingSerializer,
+                    description="A job is building the file: poll the job (Location header), then ask again",
+                ),
+                302: OpenApiResponse(description="With S3 storage: a short-lived presigned URL of the file"),
+                416: OpenApiResponse(description="The range starts past the end of the file"),
+            },
+            operation_id=operation_id,
+        )
+        def get(self, request: Request, measurement_id: int) -> HttpResponseBase:
             measurement = selectors.get_measurement(request.user, measurement_id)
             result = derived.open_result_file(measurement, filename)
             attachment = f"measurement-{measurement.pk}-{filename}"
@@ -178,7 +232,14 @@ def file_view(filename: str) -> type[APIView]:
                 response = StreamingHttpResponse(result.chunks, content_type=content_type)
                 response["Content-Disposition"] = f'attachment; filename="{attachment}"'
                 return response
-            return FileResponse(result.open(), as_attachment=True, filename=attachment, content_type=content_type)
+            assert result.name is not None
+            if not result.ready:
+                job = services.request_derived_file(measurement, filename)
+                if job.status != job.Status.DONE or not default_storage.exists(result.name):
+                    return pending_response(request, job, filename)
+            return storage_file_response(
+                request, default_storage, result.name, filename=attachment, content_type=content_type
+            )
 
     MeasurementFileApi.__name__ = f"Measurement{field.title().replace('_', '')}Api"
     return MeasurementFileApi

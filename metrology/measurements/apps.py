@@ -10,3 +10,4 @@ class MeasurementsConfig(AppConfig):
         from metrology.jobs.models import Job
 
         register_handler(Job.Kind.MEASUREMENT, "metrology.measurements.services.run_measurement")
+        register_handler(Job.Kind.DERIVED_FILE, "metrology.measurements.services.run_derived_file")

@@ -1,18 +1,20 @@
-"""Result files of a measurement: stored once (height maps, points), the rest derived on request.
+"""Result files of a measurement: stored once (height maps, points), the rest derived by a job.
 
 A measurement job stores ``height.npy``, its points (``points.npz``, the measured pixels' points
 and a bit mask: :mod:`metrology.core.io.points`; dense ``(H, W, 3)`` ``.npy`` files stored before
 are read too), ``gray_only_height.npy`` and ``sigma.npy`` (float32, the only copies of the data)
 and its statistics. Every reader of the points (the ``points.npy`` download, meshes, figures,
 acceptance) reads them through :func:`measurement_points`, which returns the dense ``(H, W, 3)``
-float32 map bit for bit as measured. The TIFF height map and
-the PLY, STL and OBJ meshes are functions of those and the rig's model, built when first asked
-for: meshes are streamed while they are generated (the PLY header leaves before the vertex
-normals are computed) and written to a bounded cache in the media storage
-(:class:`~metrology.measurements.derived_cache.DerivedFileCache`, ``GCPS_MESH_CACHE_BYTES``) that
-later requests read. Measurements stored before points were stored take their points from the
-heights and the model (:func:`measurement_points`); those stored before this scheme keep their
-stored mesh and TIFF files, which are served as they are.
+float32 map bit for bit as measured. The TIFF height map, the PLY, STL and OBJ meshes (and
+``points.npy`` where the heights give the points) are functions of those and the rig's model:
+the first request for one queues a *derived file* job (``Job.Kind.DERIVED_FILE``,
+:func:`build_derived_file`) that writes it to a temporary folder and uploads it to the storage's
+``derived/`` folder under a name keyed by the stored height map and the rig values
+(:func:`derived_name`); later requests are served from the storage
+(:mod:`metrology.file_serving`: ranges, X-Accel-Redirect, presigned URLs). The folder is bounded
+(:class:`~metrology.measurements.derived_cache.DerivedFiles`, ``GCPS_MESH_CACHE_BYTES``).
+Measurements stored before this scheme keep their stored mesh and TIFF files, served as they are.
+Nothing here uses a local path of the storage: it may be an S3 bucket.
 """
 
 from __future__ import annotations
@@ -20,21 +22,22 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
 
 import numpy as np
 from django.conf import settings
+from django.core.files import File
 from django.core.files.storage import default_storage
 from django.db.models.fields.files import FieldFile
 
-from metrology.measurements.derived_cache import DerivedFileCache
+from metrology.measurements.derived_cache import DerivedFiles
 from metrology.measurements.models import RESULT_FILES, Measurement
 
 DERIVED_FILES: tuple[str, ...] = ("height.tiff", "mesh.ply", "mesh.stl", "mesh.obj")
-"""Result files built from the stored height map on request (and ``points.npy`` where the heights
+"""Result files built from the stored height map by a job when first asked for (and ``points.npy`` where the heights
 give the points: :func:`points_follow_from_heights`)."""
 
 STORED_FILES: tuple[str, ...] = ("height.npy", "gray_only_height.npy", "sigma.npy", "points.npy")
@@ -49,29 +52,21 @@ DERIVED_VERSION = 1
 
 @dataclass(frozen=True)
 class ResultFile:
-    """One result file to send: a file to open (``path`` or ``stored``) or ``chunks`` to stream."""
+    """One result file to send: a file of the default storage (``name``), or ``chunks`` to stream.
+
+    ``ready`` is False for a derived file that is not built yet: ``name`` is where its job will
+    store it (:func:`build_derived_file`).
+    """
 
     filename: str
-    path: Path | None = None
-    stored: FieldFile | None = None
+    name: str | None = None
     chunks: Iterator[bytes] | None = None
-
-    def open(self) -> IO[bytes] | FieldFile:
-        """The file opened for reading in binary mode (``path`` first, else ``stored``); not for ``chunks``."""
-        if self.path is not None:
-            return self.path.open("rb")
-        if self.stored is None:
-            raise ValueError(f"{self.filename} is streamed from chunks, it has no file to open")
-        return self.stored.open("rb")
+    ready: bool = True
 
 
-def derived_cache() -> DerivedFileCache | None:
-    """The cache of derived files in the default storage; None if the storage has no local folder."""
-    try:
-        root = Path(default_storage.path(CACHE_PREFIX))
-    except NotImplementedError:
-        return None
-    return DerivedFileCache(root, settings.GCPS_MESH_CACHE_BYTES)
+def derived_files() -> DerivedFiles:
+    """The bounded folder of derived files in the default storage."""
+    return DerivedFiles(default_storage, CACHE_PREFIX, settings.GCPS_MESH_CACHE_BYTES)
 
 
 def available_files(measurement: Measurement) -> list[str]:
@@ -105,6 +100,11 @@ def cache_name(measurement: Measurement, filename: str) -> str:
     digest = hashlib.sha256(key.encode()).hexdigest()[:16]
     stem, ext = filename.rsplit(".", 1)
     return f"measurement-{measurement.pk}-{stem}-{digest}.{ext}"
+
+
+def derived_name(measurement: Measurement, filename: str) -> str:
+    """The storage name of the derived file ``filename`` of ``measurement`` (``derived/<cache name>``)."""
+    return f"{CACHE_PREFIX}/{cache_name(measurement, filename)}"
 
 
 def _load(field: FieldFile) -> np.ndarray:
@@ -141,32 +141,30 @@ def measurement_points(measurement: Measurement, z_mm: np.ndarray | None = None)
     return prepared.points_from_heights(z).astype(np.float32)
 
 
-def open_result_file(measurement: Measurement, filename: str) -> ResultFile | None:
-    """The result file ``filename`` of ``measurement``: stored, cached, or built now; None if not available.
+def is_derived(measurement: Measurement, filename: str) -> bool:
+    """True when ``filename`` of ``measurement`` is built by a derived-file job (not stored by its measurement)."""
+    if getattr(measurement, RESULT_FILES[filename]) or not measurement.height_npy:
+        return False
+    return filename in DERIVED_FILES or (filename == "points.npy" and points_follow_from_heights(measurement))
 
-    A mesh that is not cached is returned as ``chunks`` that generate it (and fill the cache as
-    they are consumed); a missing TIFF is written to the cache first (about 50 ms at 1280x1024).
+
+def open_result_file(measurement: Measurement, filename: str) -> ResultFile | None:
+    """The result file ``filename`` of ``measurement``: stored, derived (built or not yet), or None if not available.
+
+    Stored files and built derived files are named in the default storage; a derived file not
+    built yet comes back with ``ready=False`` (queue :func:`metrology.measurements.services.request_derived_file`);
+    compactly stored points are streamed as the dense ``.npy`` (``chunks``).
     """
     field = RESULT_FILES[filename]
     stored = getattr(measurement, field)
     if stored and filename == "points.npy":  # stored compactly: sent as the dense map
         return ResultFile(filename, chunks=npy_chunks(measurement_points(measurement)))
     if stored:
-        return ResultFile(filename, stored=stored)
-    derived_points = filename == "points.npy" and points_follow_from_heights(measurement)
-    if not derived_points and (filename not in DERIVED_FILES or not measurement.height_npy):
+        return ResultFile(filename, name=stored.name)
+    if not is_derived(measurement, filename):
         return None
-    cache = derived_cache()
-    name = cache_name(measurement, filename)
-    if cache is not None:
-        hit = cache.get(name)
-        if hit is not None:
-            return ResultFile(filename, path=hit)
-    if filename == "height.tiff":
-        return _tiff(measurement, cache, name)
-    if derived_points:
-        return _points(measurement, cache, name)
-    return ResultFile(filename, chunks=_mesh_chunks(measurement, filename, cache, name))
+    name = derived_name(measurement, filename)
+    return ResultFile(filename, name=name, ready=default_storage.exists(name))
 
 
 NPY_CHUNK_BYTES = 1 << 20
@@ -184,57 +182,53 @@ def npy_chunks(array: np.ndarray) -> Iterator[bytes]:
         yield data[start : start + NPY_CHUNK_BYTES].tobytes()
 
 
-def _tiff(measurement: Measurement, cache: DerivedFileCache | None, name: str) -> ResultFile:
-    import tempfile
-
-    from metrology.core.io import write_height_tiff
-
-    z = _heights(measurement)
-    if cache is None:
-        with tempfile.TemporaryDirectory(prefix="gcps-tiff-") as tmp:
-            path = Path(tmp) / "height.tiff"
-            write_height_tiff(z, path)
-            data = path.read_bytes()
-        return ResultFile("height.tiff", chunks=iter([data]))
-    with cache.store(name, suffix=".tiff") as tmp_path:
-        write_height_tiff(z, tmp_path)
-    cached = cache.get(name)
-    if cached is None:  # evicted at once (a cache smaller than the file): serve a fresh copy
-        return _tiff(measurement, None, name)
-    return ResultFile("height.tiff", path=cached)
-
-
-def _points(measurement: Measurement, cache: DerivedFileCache | None, name: str) -> ResultFile:
-    """``points.npy`` of a measurement whose points follow from its heights: ``(H, W, 3)`` float32 mm,
-    the same array a job stores for other models (:func:`measurement_points`)."""
-
-    points = measurement_points(measurement)
-    if cache is None:
-        buffer = io.BytesIO()
-        np.save(buffer, points)
-        return ResultFile("points.npy", chunks=iter([buffer.getvalue()]))
-    with cache.store(name, suffix=".npy") as tmp_path, open(tmp_path, "wb") as out:
-        np.save(out, points)
-    cached = cache.get(name)
-    if cached is None:  # evicted at once (a cache smaller than the file): serve a fresh copy
-        return _points(measurement, None, name)
-    return ResultFile("points.npy", path=cached)
-
-
-def _mesh_chunks(measurement: Measurement, filename: str, cache: DerivedFileCache | None, name: str) -> Iterator[bytes]:
+def write_derived_file(measurement: Measurement, filename: str, path: Path) -> None:
+    """Write the derived file ``filename`` of ``measurement`` (one of :data:`DERIVED_FILES`, or the
+    derived ``points.npy``) to the local file ``path``: the TIFF height map (float32, NaN kept), a mesh
+    (:func:`metrology.core.mesh.mesh_file_chunks`), or the ``(H, W, 3)`` float32 points, mm."""
     from metrology.core.geometry import model_from_dict
+    from metrology.core.io import write_height_tiff
     from metrology.core.mesh import GridMesh, mesh_file_chunks, surface_mesh
+
+    if filename == "height.tiff":
+        write_height_tiff(_heights(measurement), path)
+        return
+    if filename == "points.npy":
+        with open(path, "wb") as out:
+            np.save(out, measurement_points(measurement))
+        return
 
     def build() -> GridMesh:
         z = _heights(measurement)
         return surface_mesh(model_from_dict(measurement.rig_values), z, points_mm=measurement_points(measurement, z))
 
-    chunks = mesh_file_chunks(build, filename.rsplit(".", 1)[1])
-    return chunks if cache is None else cache.fill(name, chunks)
+    with open(path, "wb") as out:
+        for chunk in mesh_file_chunks(build, filename.rsplit(".", 1)[1]):
+            out.write(chunk)
+
+
+def build_derived_file(measurement: Measurement, filename: str, save=None) -> str:
+    """Build the derived file ``filename`` of ``measurement`` in a temporary folder and upload it to
+    the default storage as :func:`derived_name`; returns that name (nothing is built when it is
+    already stored). ``save(storage, name, File)`` stores it (a job's ``JobRun.save_file``, so a
+    failed attempt removes it); default ``storage.save``. Then the folder is trimmed to
+    ``GCPS_MESH_CACHE_BYTES``, keeping this file.
+    """
+    name = derived_name(measurement, filename)
+    if default_storage.exists(name):
+        return name
+    with tempfile.TemporaryDirectory(prefix="gcps-derived-") as tmp:
+        path = Path(tmp) / filename
+        write_derived_file(measurement, filename, path)
+        with open(path, "rb") as handle:
+            content = File(handle, name=filename)
+            stored = save(default_storage, name, content) if save else default_storage.save(name, content)
+    if stored != name:  # another job stored it first (local storage never overwrites): keep theirs
+        default_storage.delete(stored)
+    derived_files().trim(keep=name)
+    return name
 
 
 def clear_cache() -> None:
-    """Remove every cached derived file (they are rebuilt on request)."""
-    cache = derived_cache()
-    if cache is not None:
-        cache.clear()
+    """Remove every derived file (they are built again when asked for)."""
+    derived_files().clear()

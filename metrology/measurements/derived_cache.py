@@ -1,141 +1,80 @@
-"""A bounded cache of derived files (meshes, TIFF height maps) in a folder of the media storage.
+"""A bounded folder of derived files (meshes, TIFF height maps) in a Django storage.
 
 A derived file is a pure function of stored results, so it can be deleted at any time and is
-rebuilt on the next request. The cache holds at most ``max_bytes`` (``GCPS_MESH_CACHE_BYTES``):
-after each insertion the least recently used files (modification time, refreshed on every hit)
-are removed until the total fits. Files are written under a hidden temporary name in the cache
-folder and renamed into place (``os.replace``), so two requests building the same missing file
-never see or corrupt each other's partial output: the last rename wins and both are complete.
+built again by a job the next time it is asked for. The folder holds at most ``max_bytes``
+(``GCPS_MESH_CACHE_BYTES``): after each file is stored the oldest files (by the storage's
+modification time, which every backend has, a local folder as an S3 bucket) are removed until
+the total fits, except the file just stored. Only the storage API is used (``listdir``,
+``size``, ``get_modified_time``, ``delete``): no local path.
 """
 
 from __future__ import annotations
 
 import contextlib
-import os
-import secrets
-import time
-from collections.abc import Iterable, Iterator
-from pathlib import Path
+from datetime import datetime
 
-STALE_TEMP_SECONDS = 3600.0
-"""A temporary file older than this (a writer that died) is removed by :meth:`DerivedFileCache.evict`."""
+from django.core.files.storage import Storage
 
 
-class DerivedFileCache:
-    """Files named ``name`` under ``root``, at most ``max_bytes`` in total, evicted least recently used first.
+class DerivedFiles:
+    """The files of ``storage`` under ``prefix``, at most ``max_bytes`` in total, oldest removed first.
 
     Parameters
     ----------
-    root : Path
-        The cache folder (created on first write).
+    storage : Storage
+        Where the files live (the default storage).
+    prefix : str
+        Their folder in it, without a trailing slash (``"derived"``).
     max_bytes : int
-        Largest total size of the cached files, bytes, >= 0 (0 keeps nothing once served).
+        Largest total size of the files, bytes, >= 0 (0 keeps only the file just stored).
     """
 
-    def __init__(self, root: Path, max_bytes: int) -> None:
+    def __init__(self, storage: Storage, prefix: str, max_bytes: int) -> None:
         if isinstance(max_bytes, bool) or not isinstance(max_bytes, int) or max_bytes < 0:
             raise ValueError(f"max_bytes must be a non-negative integer, got {max_bytes!r}")
-        self.root = Path(root)
+        self.storage = storage
+        self.prefix = prefix.rstrip("/")
         self.max_bytes = max_bytes
 
-    def _path(self, name: str) -> Path:
-        if not name or "/" in name or "\\" in name or name.startswith("."):
-            raise ValueError(f"cache name must be a plain file name, got {name!r}")
-        return self.root / name
-
-    def get(self, name: str) -> Path | None:
-        """The cached file ``name`` (its use time refreshed), or None when it is not cached."""
-        path = self._path(name)
+    def entries(self) -> list[tuple[datetime, int, str]]:
+        """(modification time, size in bytes, storage name) of every file, oldest first."""
         try:
-            os.utime(path)
-        except FileNotFoundError:
-            return None
-        return path
-
-    def fill(self, name: str, chunks: Iterable[bytes]) -> Iterator[bytes]:
-        """Pass ``chunks`` through while writing them to the cache as ``name``.
-
-        The file appears under ``name`` only once the last chunk has been written (atomic rename);
-        if the consumer stops early or a chunk raises, the temporary file is removed and nothing
-        is cached. Then the cache is trimmed to ``max_bytes``.
-        """
-        final = self._path(name)
-        self.root.mkdir(parents=True, exist_ok=True)
-        tmp = self.root / f".{name}.{secrets.token_hex(6)}.tmp"
-        try:
-            with open(tmp, "wb") as out:
-                for chunk in chunks:
-                    out.write(chunk)
-                    yield chunk
-            os.replace(tmp, final)
-        finally:
-            with contextlib.suppress(FileNotFoundError):
-                tmp.unlink()
-        self.evict()
-
-    @contextlib.contextmanager
-    def store(self, name: str, suffix: str = "") -> Iterator[Path]:
-        """Yield a temporary path (ending in ``suffix``) to write; on success it becomes ``name``.
-
-        Then the cache is trimmed to ``max_bytes``.
-        """
-        final = self._path(name)
-        self.root.mkdir(parents=True, exist_ok=True)
-        tmp = self.root / f".{name}.{secrets.token_hex(6)}.tmp{suffix}"
-        try:
-            yield tmp
-            os.replace(tmp, final)
-        finally:
-            with contextlib.suppress(FileNotFoundError):
-                tmp.unlink()
-        self.evict()
-
-    def entries(self) -> list[tuple[float, int, Path]]:
-        """(last use time, size in bytes, path) of every cached file, oldest use first."""
-        found = []
-        try:
-            scan = list(os.scandir(self.root))
+            _folders, files = self.storage.listdir(self.prefix)
         except FileNotFoundError:
             return []
-        for entry in scan:
-            if entry.name.startswith(".") or not entry.is_file():
-                continue
-            with contextlib.suppress(FileNotFoundError):
-                stat = entry.stat()
-                found.append((stat.st_mtime, stat.st_size, Path(entry.path)))
+        found = []
+        for file in files:
+            name = f"{self.prefix}/{file}"
+            with contextlib.suppress(FileNotFoundError, OSError):
+                found.append((self.storage.get_modified_time(name), self.storage.size(name), name))
         found.sort()
         return found
 
     def total_bytes(self) -> int:
-        """Total size of the cached files, bytes."""
-        return sum(size for _used, size, _path in self.entries())
+        """Total size of the files, bytes."""
+        return sum(size for _when, size, _name in self.entries())
 
-    def evict(self) -> int:
-        """Remove least recently used files until the total is at most ``max_bytes``; returns the bytes removed.
+    def trim(self, keep: str | None = None) -> int:
+        """Remove the oldest files until the total is at most ``max_bytes``, never ``keep``.
 
-        Also removes temporary files older than :data:`STALE_TEMP_SECONDS` (left by a killed writer).
+        Returns the bytes removed.
         """
-        removed = 0
         entries = self.entries()
-        total = sum(size for _used, size, _path in entries)
-        for _used, size, path in entries:
+        total = sum(size for _when, size, _name in entries)
+        removed = 0
+        for _when, size, name in entries:
             if total <= self.max_bytes:
                 break
-            with contextlib.suppress(FileNotFoundError):
-                path.unlink()
+            if name == keep:
+                continue
+            with contextlib.suppress(FileNotFoundError, OSError):
+                self.storage.delete(name)
                 removed += size
             total -= size
-        now = time.time()
-        with contextlib.suppress(FileNotFoundError):
-            for entry in os.scandir(self.root):
-                if entry.name.startswith(".") and ".tmp" in entry.name:
-                    with contextlib.suppress(FileNotFoundError):
-                        if now - entry.stat().st_mtime > STALE_TEMP_SECONDS:
-                            os.unlink(entry.path)
         return removed
 
     def clear(self) -> None:
-        """Remove every cached file (they are rebuilt on request)."""
-        for _used, _size, path in self.entries():
-            with contextlib.suppress(FileNotFoundError):
-                path.unlink()
+        """Remove every file (they are built again when asked for)."""
+        for _when, _size, name in self.entries():
+            with contextlib.suppress(FileNotFoundError, OSError):
+                self.storage.delete(name)

@@ -152,3 +152,49 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
 
     run.commit(publish)
     remove_other_attempts(prefix)
+
+
+def request_derived_file(measurement: Measurement, filename: str) -> Job:
+    """The job that builds the derived file ``filename`` of ``measurement``: the one queued or running
+    for it already, else a new one, queued (``Job.Kind.DERIVED_FILE``, owned by the measurement's owner).
+
+    Raises :class:`BadInput` when ``filename`` is not derived for this measurement.
+    """
+    from metrology.measurements import derived
+
+    if not derived.is_derived(measurement, filename):
+        raise BadInput(f"{filename} of measurement {measurement.pk} is not built from its results")
+    parameters = {
+        "measurement": measurement.pk,
+        "filename": filename,
+        "name": derived.derived_name(measurement, filename),
+    }
+    with transaction.atomic():
+        # one job per file at a time: concurrent requests for the same file wait on this row lock
+        Measurement.objects.select_for_update().filter(pk=measurement.pk).first()
+        pending = (
+            Job.objects.filter(
+                kind=Job.Kind.DERIVED_FILE,
+                status__in=(Job.Status.QUEUED, Job.Status.RUNNING),
+                parameters__measurement=measurement.pk,
+                parameters__name=parameters["name"],
+            )
+            .order_by("pk")
+            .first()
+        )
+        if pending is not None:
+            return pending
+        job = job_services.create_job(owner=measurement.owner, kind=Job.Kind.DERIVED_FILE, parameters=parameters)
+        job_services.enqueue_job(job)
+    job.refresh_from_db()
+    return job
+
+
+def run_derived_file(job: Job, run: job_services.JobRun) -> None:
+    """Job handler: build one derived file of a measurement and store it (:func:`derived.build_derived_file`)."""
+    from metrology.measurements import derived
+
+    measurement = Measurement.objects.get(pk=job.parameters["measurement"])
+    with run.phase("build", 10):
+        derived.build_derived_file(measurement, job.parameters["filename"], save=run.save_file)
+    run.commit(lambda _job: None)

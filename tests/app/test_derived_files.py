@@ -1,4 +1,6 @@
-"""Result files derived on request: meshes streamed while built, a bounded LRU cache, legacy stored files."""
+"""Derived result files: built by a job when first asked for, served from the storage with ranges.
+
+A bounded folder of them, and the legacy stored files still served."""
 
 from __future__ import annotations
 
@@ -9,13 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from django.core.files.base import ContentFile
-from django.core.files.storage import default_storage
-from django.http import FileResponse, StreamingHttpResponse
+from django.core.files.storage import FileSystemStorage, default_storage
+from django.http import FileResponse
 
 from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.mesh import mesh_from_heights, open3d_mesh, surface_mesh
+from metrology.jobs.models import Job
 from metrology.measurements import derived
-from metrology.measurements.derived_cache import DerivedFileCache
+from metrology.measurements.derived_cache import DerivedFiles
 from metrology.measurements.models import Measurement
 from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
 from tests.app.uploads import upload
@@ -62,18 +65,23 @@ def test_measurement_stores_heights_only_under_3x_the_height_map(api, measuremen
 
 
 @pytest.mark.parametrize("fmt", ["ply", "stl", "obj"])
-def test_mesh_is_streamed_then_served_from_the_cache(api, measurement_id, media_root, tmp_path, fmt):
+def test_mesh_is_built_by_a_job_then_served_from_the_storage(api, measurement_id, media_root, tmp_path, fmt):
+    # the tests run jobs inline (GCPS_EMBEDDED_JOBS=inline): the job is done when the request answers
     first = api.get(f"/api/measurements/{measurement_id}/mesh.{fmt}")
-    assert first.status_code == 200 and isinstance(first, StreamingHttpResponse)
-    assert not isinstance(first, FileResponse)  # built while sent, not read from a file
+    assert first.status_code == 200 and isinstance(first, FileResponse), first
     assert first["Content-Disposition"] == f'attachment; filename="measurement-{measurement_id}-mesh.{fmt}"'
+    assert first["Accept-Ranges"] == "bytes"
     data = b"".join(first.streaming_content)
+    assert int(first["Content-Length"]) == len(data)
     (cached,) = cache_files(media_root)
     assert cached.read_bytes() == data and cached.suffix == f".{fmt}"
+    (job,) = Job.objects.filter(kind=Job.Kind.DERIVED_FILE)
+    assert job.status == Job.Status.DONE and job.parameters["filename"] == f"mesh.{fmt}"
 
     second = api.get(f"/api/measurements/{measurement_id}/mesh.{fmt}")
     assert isinstance(second, FileResponse)
     assert b"".join(second.streaming_content) == data
+    assert Job.objects.filter(kind=Job.Kind.DERIVED_FILE).count() == 1  # served, not built again
 
     # the geometry of today's mesh of the stored height map and points (open3d parses the file)
     z = heights(api, measurement_id)
@@ -109,8 +117,10 @@ def test_points_of_the_papers_rig_are_derived_from_the_heights_and_cached(api, m
     np.testing.assert_array_equal(points, expected)
     assert [p.suffix for p in cache_files(media_root)] == [".npy"]
     again = api.get(f"/api/measurements/{measurement_id}/points.npy")
-    assert isinstance(again, FileResponse) and np.array_equal(
-        np.load(io.BytesIO(b"".join(again.streaming_content))), points, equal_nan=True
+    assert (
+        isinstance(again, FileResponse)
+        and Job.objects.filter(kind=Job.Kind.DERIVED_FILE).count() == 1
+        and np.array_equal(np.load(io.BytesIO(b"".join(again.streaming_content))), points, equal_nan=True)
     )
 
 
@@ -131,12 +141,12 @@ def test_deleted_cache_is_rebuilt_identically(api, measurement_id, media_root):
     derived.clear_cache()
     assert cache_files(media_root) == []
     again = api.get(url)
-    assert not isinstance(again, FileResponse)
     assert b"".join(again.streaming_content) == data
     assert len(cache_files(media_root)) == 1
+    assert Job.objects.filter(kind=Job.Kind.DERIVED_FILE, status=Job.Status.DONE).count() == 2
 
 
-def test_cache_is_bounded_and_evicts_the_least_recently_used(api, measurement_id, media_root, settings):
+def test_the_folder_is_bounded_and_removes_the_oldest(api, measurement_id, media_root, settings):
     base = f"/api/measurements/{measurement_id}"
     sizes = {}
     for fmt in ("ply", "stl", "obj"):
@@ -146,22 +156,21 @@ def test_cache_is_bounded_and_evicts_the_least_recently_used(api, measurement_id
     b"".join(api.get(f"{base}/mesh.ply").streaming_content)
     b"".join(api.get(f"{base}/mesh.stl").streaming_content)
     ply, stl = (p for p in cache_files(media_root) if p.suffix in (".ply", ".stl"))
-    os.utime(ply, (1_000_000, 1_000_000))
-    os.utime(stl, (2_000_000, 2_000_000))
-    assert isinstance(api.get(f"{base}/mesh.ply"), FileResponse)  # a hit makes the PLY the most recent
+    os.utime(ply, (2_000_000, 2_000_000))
+    os.utime(stl, (1_000_000, 1_000_000))  # the STL is the oldest
     b"".join(api.get(f"{base}/mesh.obj").streaming_content)
     kept = {p.suffix for p in cache_files(media_root)}
-    assert kept == {".ply", ".obj"}, kept  # the STL, least recently used, was evicted
+    assert kept == {".ply", ".obj"}, kept  # the STL, oldest, was removed
     assert sum(p.stat().st_size for p in cache_files(media_root)) <= settings.GCPS_MESH_CACHE_BYTES
 
 
 def test_a_cache_smaller_than_the_file_still_serves_it(api, measurement_id, media_root, settings):
     settings.GCPS_MESH_CACHE_BYTES = 0
     first = b"".join(api.get(f"/api/measurements/{measurement_id}/mesh.stl").streaming_content)
-    assert cache_files(media_root) == []
+    assert [p.suffix for p in cache_files(media_root)] == [".stl"]  # the file just built is kept
     tiff = api.get(f"/api/measurements/{measurement_id}/height.tiff")
     assert tiff.status_code == 200 and b"".join(tiff.streaming_content).startswith(b"II")
-    assert cache_files(media_root) == []
+    assert [p.suffix for p in cache_files(media_root)] == [".tiff"]  # and the one before removed
     assert first[80:84] != b""
 
 
@@ -194,55 +203,79 @@ def test_derived_files_of_an_unfinished_measurement_are_404(api, rig, monkeypatc
     assert missing.status_code == 404 and "its job is queued" in missing.json()["error"]
 
 
-# ----------------------------------------------------------------------------- the cache itself
+def test_a_derived_file_not_built_yet_answers_202_with_its_job(api, measurement_id, monkeypatch):
+    import metrology.jobs.services as job_services
+
+    sent = []
+    monkeypatch.setattr(job_services, "_send", sent.append)  # no worker takes it yet
+    url = f"/api/measurements/{measurement_id}/mesh.obj"
+    first = api.get(url)
+    assert first.status_code == 202, first
+    body = first.json()
+    assert first["Location"] == body["job_url"] == f"/api/jobs/{body['job']}/" and first["Retry-After"] == "2"
+    assert body["status"] == "queued" and sent == [body["job"]]
+    again = api.get(url)  # asked again while queued: the same job, not a second one
+    assert again.status_code == 202 and again.json()["job"] == body["job"] and sent == [body["job"]]
+    assert api.get(body["job_url"]).json()["status"] == "queued"
+    from metrology.dashboard.selectors import job_result_url
+
+    assert job_result_url(Job.objects.get(pk=body["job"])) == url  # the jobs page links to the file
+    page = api.get(url, HTTP_ACCEPT="text/html,application/xhtml+xml")  # a browser following the link
+    assert page.status_code == 202 and page["Refresh"] == "2" and b"mesh.obj is being built" in page.content
+    assert job_services.execute_job(body["job"]) == "done"  # what a worker does
+    assert api.get(body["job_url"]).json()["status"] == "done"
+    done = api.get(url)
+    assert done.status_code == 200 and b"".join(done.streaming_content).startswith(b"# ")
 
 
-def test_concurrent_fills_of_one_name_do_not_corrupt_each_other(tmp_path):
-    cache = DerivedFileCache(tmp_path / "cache", max_bytes=10_000)
-    content = [bytes([n]) * 100 for n in range(10)]
-    first = cache.fill("a.ply", iter(content))
-    second = cache.fill("a.ply", iter(content))
-    got_first, got_second = [], []
-    for _ in range(5):  # interleaved: both write their own temporary file
-        got_first.append(next(first))
-        got_second.append(next(second))
-    assert cache.get("a.ply") is None  # nothing visible under the name before a writer finishes
-    got_first.extend(first)
-    assert cache.get("a.ply").read_bytes() == b"".join(content)
-    got_second.extend(second)
-    assert b"".join(got_first) == b"".join(got_second) == b"".join(content)
-    assert cache.get("a.ply").read_bytes() == b"".join(content)
-    assert [p.name for p in (tmp_path / "cache").iterdir()] == ["a.ply"]  # no temporary file left
+def test_ranges_of_a_stored_file(api, measurement_id):
+    url = f"/api/measurements/{measurement_id}/mesh.ply"
+    data = b"".join(api.get(url).streaming_content)
+    size = len(data)
+    part = api.get(url, HTTP_RANGE="bytes=10-99")
+    assert part.status_code == 206 and part["Content-Range"] == f"bytes 10-99/{size}"
+    assert part["Content-Length"] == "90" and b"".join(part.streaming_content) == data[10:100]
+    tail = api.get(url, HTTP_RANGE="bytes=-7")
+    assert tail.status_code == 206 and b"".join(tail.streaming_content) == data[-7:]
+    rest = api.get(url, HTTP_RANGE=f"bytes={size - 3}-")
+    assert (
+        rest["Content-Range"] == f"bytes {size - 3}-{size - 1}/{size}" and b"".join(rest.streaming_content) == data[-3:]
+    )
+    past = api.get(url, HTTP_RANGE=f"bytes={size}-")
+    assert past.status_code == 416 and past["Content-Range"] == f"bytes */{size}"
+    several = api.get(url, HTTP_RANGE="bytes=0-1,5-6")  # several ranges: the whole file
+    assert several.status_code == 200 and b"".join(several.streaming_content) == data
+    stored = api.get(f"/api/measurements/{measurement_id}/height.npy", HTTP_RANGE="bytes=0-5")
+    assert stored.status_code == 206 and b"".join(stored.streaming_content) == b"\x93NUMPY"
 
 
-def test_an_abandoned_fill_leaves_nothing(tmp_path):
-    cache = DerivedFileCache(tmp_path / "cache", max_bytes=10_000)
-
-    def failing():
-        yield b"x" * 10
-        raise OSError("disk gone")
-
-    stream = cache.fill("a.stl", iter([b"1" * 10, b"2" * 10]))
-    next(stream)
-    stream.close()  # the client went away
-    with pytest.raises(OSError, match="disk gone"):
-        list(cache.fill("b.stl", failing()))
-    assert list((tmp_path / "cache").iterdir()) == []
+def test_accel_redirect_hands_the_file_to_the_proxy(api, measurement_id, media_root, settings):
+    settings.GCPS_ACCEL_REDIRECT = True
+    response = api.get(f"/api/measurements/{measurement_id}/mesh.stl")
+    assert response.status_code == 200 and response.content == b""
+    (cached,) = cache_files(media_root)
+    assert response["X-Accel-Redirect"] == f"/protected/derived/{cached.name}"
+    assert response["Content-Disposition"] == f'attachment; filename="measurement-{measurement_id}-mesh.stl"'
+    stored = api.get(f"/api/measurements/{measurement_id}/height.npy")
+    name = Measurement.objects.get(pk=measurement_id).height_npy.name
+    assert stored["X-Accel-Redirect"] == f"/protected/{name}" and (media_root / name).is_file()
 
 
-def test_eviction_order_and_bad_input(tmp_path):
-    tmp_path = tmp_path / "cache"
-    cache = DerivedFileCache(tmp_path, max_bytes=250)
+# ----------------------------------------------------------------------------- the folder itself
+
+
+def test_trim_removes_the_oldest_but_never_the_file_kept(tmp_path):
+    storage = FileSystemStorage(location=tmp_path)
+    files = DerivedFiles(storage, "derived", max_bytes=250)
     for n, name in enumerate(("a", "b", "c")):
-        list(cache.fill(name, [b"x" * 100]))
-        os.utime(tmp_path / name, (1000 + n, 1000 + n))
-    # filling c evicted a (the oldest); b is refreshed by a hit, so d evicts c
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["b", "c"]
-    cache.get("b")
-    list(cache.fill("d", [b"x" * 100]))
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["b", "d"]
-    assert cache.total_bytes() == 200
+        storage.save(f"derived/{name}", ContentFile(b"x" * 100))
+        os.utime(tmp_path / "derived" / name, (1000 + n, 1000 + n))
+    assert [name for _when, _size, name in files.entries()] == ["derived/a", "derived/b", "derived/c"]
+    assert files.trim(keep="derived/c") == 100
+    assert sorted(p.name for p in (tmp_path / "derived").iterdir()) == ["b", "c"]
+    assert DerivedFiles(storage, "derived", 0).trim(keep="derived/b") == 100
+    assert files.total_bytes() == 100 and files.entries()[0][2] == "derived/b"
+    files.clear()
+    assert files.entries() == [] and DerivedFiles(storage, "nothing", 0).entries() == []
     with pytest.raises(ValueError, match="max_bytes must be a non-negative integer, got -1"):
-        DerivedFileCache(tmp_path, -1)
-    with pytest.raises(ValueError, match="plain file name"):
-        cache.get("../etc/passwd")
+        DerivedFiles(storage, "derived", -1)

@@ -214,7 +214,10 @@ def test_measurement_form_runs_a_measurement_and_shows_its_figures(client_alice,
     assert "Profile along row 60" in page
     for name in ("height.npy", "height.tiff", "mesh.ply", "mesh.stl", "mesh.obj"):
         assert f"/api/measurements/{measurement.pk}/{name}" in page
-    download = client_alice.get(f"/api/measurements/{measurement.pk}/mesh.ply")  # session auth
+    with run_jobs():  # the mesh is built by a job: 202 naming it, then the file
+        pending = client_alice.get(f"/api/measurements/{measurement.pk}/mesh.ply")  # session auth
+    assert pending.status_code == 202 and pending["Location"] == f"/api/jobs/{pending.json()['job']}/"
+    download = client_alice.get(f"/api/measurements/{measurement.pk}/mesh.ply")
     assert download.status_code == 200
     assert b"".join(download.streaming_content).startswith(b"ply")
 

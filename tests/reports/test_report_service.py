@@ -288,7 +288,8 @@ def test_command_prints_the_stored_report_and_its_summary(rig, media_root):
     text = out.getvalue()
     report = Report.objects.get()
     assert f"report {report.pk} of rig {rig.pk} (virtual stage)" in text
-    assert f"html: {media_root / report.html.name}" in text
+    assert f"html: {report.html.name} in the media storage (page: /reports/{report.pk}/report.html)" in text
+    assert (media_root / report.html.name).is_file()
     assert f"page: /reports/{report.pk}/" in text
     assert "mean error" in text and "baseline" in text
 

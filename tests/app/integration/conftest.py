@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import secrets
 from collections.abc import Iterator
 from pathlib import Path
@@ -21,8 +22,18 @@ def media_root(tmp_path) -> Path:
 
 
 @pytest.fixture
-def stack(tmp_path, media_root) -> Iterator[Stack]:
-    with migrated_stack(tmp_path, media_root) as stack:
+def stack_storage_env(request) -> dict[str, str]:
+    """With ``GCPS_TEST_S3=1`` every stack stores in a fresh bucket of the session's S3 server
+    (tests/s3.py), so the integration tests run against S3; else the local media folder."""
+    if os.environ.get("GCPS_TEST_S3") != "1":
+        return {}
+    s3 = request.getfixturevalue("s3")
+    return s3.env(s3.bucket())
+
+
+@pytest.fixture
+def stack(tmp_path, media_root, stack_storage_env) -> Iterator[Stack]:
+    with migrated_stack(tmp_path, media_root, stack_storage_env) as stack:
         stack.start_web()
         yield stack
 

@@ -72,7 +72,14 @@ def free_port() -> int:
 class Stack:
     """The application's processes, sharing one environment (database, queue, media folder)."""
 
-    def __init__(self, database_url: str, media_root: Path, logs: Path, redis_url: str = REDIS_URL) -> None:
+    def __init__(
+        self,
+        database_url: str,
+        media_root: Path,
+        logs: Path,
+        redis_url: str = REDIS_URL,
+        extra_env: dict[str, str] | None = None,
+    ) -> None:
         self.queue = f"gcps-test-{secrets.token_hex(4)}"
         self.logs = logs
         self.env = {
@@ -96,9 +103,32 @@ class Stack:
             "GCPS_BROKER_VISIBILITY_TIMEOUT": "6",
             "GCPS_BROKER_RESTORE_INTERVAL": "1",
             "PYTHONUNBUFFERED": "1",
+            **(extra_env or {}),  # e.g. the GCPS_S3_* settings of tests/s3.py
         }
         self.processes: list[subprocess.Popen] = []
         self.base_url = ""
+
+    def stored_files(self, prefix: str) -> dict[str, int]:
+        """``{storage name: size}`` of the stored files under ``prefix`` (a folder of the storage),
+        in the media folder or, with the ``GCPS_S3_*`` settings, in the bucket."""
+        bucket = self.env.get("GCPS_S3_BUCKET")
+        if not bucket:
+            root = Path(self.env["MEDIA_ROOT"])
+            return {str(p.relative_to(root)): p.stat().st_size for p in (root / prefix).rglob("*") if p.is_file()}
+        import boto3
+
+        client = boto3.client(
+            "s3",
+            endpoint_url=self.env["GCPS_S3_ENDPOINT_URL"],
+            aws_access_key_id=self.env["GCPS_S3_ACCESS_KEY_ID"],
+            aws_secret_access_key=self.env["GCPS_S3_SECRET_ACCESS_KEY"],
+            region_name=self.env["GCPS_S3_REGION"],
+        )
+        found = {}
+        for page in client.get_paginator("list_objects_v2").paginate(Bucket=bucket, Prefix=prefix.rstrip("/") + "/"):
+            for item in page.get("Contents", []):
+                found[item["Key"]] = item["Size"]
+        return found
 
     def manage(self, *args: str) -> str:
         result = subprocess.run(
@@ -192,13 +222,14 @@ class Stack:
 
 
 @contextmanager
-def migrated_stack(tmp_path: Path, media_root: Path) -> Iterator[Stack]:
-    """A :class:`Stack` on a fresh, migrated database (no process started yet); stopped afterwards."""
+def migrated_stack(tmp_path: Path, media_root: Path, extra_env: dict[str, str] | None = None) -> Iterator[Stack]:
+    """A :class:`Stack` on a fresh, migrated database (no process started yet); stopped afterwards.
+    ``extra_env``: more environment for its processes (e.g. the GCPS_S3_* settings of tests/s3.py)."""
     check_services()
     logs = tmp_path / "logs"
     logs.mkdir()
     with fresh_database() as database_url:
-        stack = Stack(database_url, media_root, logs)
+        stack = Stack(database_url, media_root, logs, extra_env=extra_env)
         try:
             stack.manage("migrate", "--noinput")
             yield stack

@@ -54,3 +54,16 @@ def wait_for(http, path: str, done, timeout: float = 120.0, interval: float = 0.
 
 def finished(body: dict) -> bool:
     return body["status"] in ("done", "failed")
+
+
+def download(http, path: str, timeout: float = 120.0, **kwargs):
+    """GET a result file, as a client does: while it answers 202 (a derived file being built), poll
+    the job it names until done, then ask again; redirects (S3 presigned URLs) are followed."""
+    deadline = time.monotonic() + timeout
+    while True:
+        response = http.get(url(http, path), **kwargs)
+        if response.status_code != 202:
+            return response
+        assert response.headers["Location"] == response.json()["job_url"]
+        job = wait_for(http, response.headers["Location"], finished, timeout=max(1.0, deadline - time.monotonic()))
+        assert job["status"] == "done", job

@@ -1,4 +1,4 @@
-"""At scale on the real stack: a worker keeps the decoded reference; the web server streams and caches meshes."""
+"""At scale on the real stack: a worker keeps the decoded reference; meshes are built by a job, then served."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ import struct
 import numpy as np
 import pytest
 
-from tests.app.integration.helpers import RIG, finished, simulated_zip, upload, url, wait_for
+from tests.app.integration.helpers import RIG, download, finished, simulated_zip, upload, url, wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 
-def test_worker_keeps_the_reference_and_meshes_are_built_on_request(stack, http, media_root):
+def test_worker_keeps_the_reference_and_meshes_are_built_on_request(stack, http):
     stack.start_worker("worker-1")
     rig_id = http.post(url(http, "/api/rigs/"), json=RIG).json()["id"]
     reference = upload(http, rig_id, simulated_zip("reference")[0], "reference")
@@ -34,18 +34,20 @@ def test_worker_keeps_the_reference_and_meshes_are_built_on_request(stack, http,
 
     # storage: the two float32 height maps, under 3x one of them
     measurement_id = bodies[0]["id"]
-    folder = media_root / "measurements" / str(measurement_id)
-    stored = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
+    stored = sum(stack.stored_files(f"measurements/{measurement_id}").values())
     assert stored < 3 * RIG["width_px"] * RIG["height_px"] * 4, stored
 
-    # meshes: built and streamed by the web server on the first request, then read from the cache
-    first_stl = http.get(url(http, f"/api/measurements/{measurement_id}/mesh.stl"))
-    assert first_stl.status_code == 200 and "Content-Length" not in first_stl.headers  # streamed
+    # meshes: the first request queues a derived-file job (202, Location: the job); once it is
+    # done the file is served from the storage, with its length and ranges
+    path = f"/api/measurements/{measurement_id}/mesh.stl"
+    pending = http.get(url(http, path))
+    assert pending.status_code == 202 and pending.headers["Location"] == pending.json()["job_url"]
+    first_stl = download(http, path)
+    assert first_stl.status_code == 200 and int(first_stl.headers["Content-Length"]) == len(first_stl.content)
     (triangles,) = struct.unpack("<I", first_stl.content[80:84])
     assert len(first_stl.content) == 84 + 50 * triangles and triangles > 1000
-    cached = list((media_root / "derived").iterdir())
-    assert [p.suffix for p in cached] == [".stl"]
-    again = http.get(url(http, f"/api/measurements/{measurement_id}/mesh.stl"))
-    assert again.content == first_stl.content and int(again.headers["Content-Length"]) == len(again.content)
+    assert [name.rsplit(".", 1)[1] for name in stack.stored_files("derived")] == ["stl"]
+    again = http.get(url(http, path), headers={"Range": "bytes=80-83"})
+    assert again.status_code == 206 and again.content == first_stl.content[80:84]
     normals = np.frombuffer(first_stl.content[84:], dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", 9), ("a", "<u2")]))
     assert np.median(normals["n"][:, 2]) > 0.9  # a sphere on a plane: normals mostly towards the rig

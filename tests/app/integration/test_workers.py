@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 
-from tests.app.integration.helpers import RIG, finished, simulated_zip, upload, url, wait_for
+from tests.app.integration.helpers import RIG, download, finished, simulated_zip, upload, url, wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
@@ -52,9 +52,9 @@ def test_measurement_through_api_redis_and_a_worker_process(stack, http):
     assert np.median(error) < 0.005, np.median(error)
     assert np.percentile(error, 95) < 0.05, np.percentile(error, 95)
 
-    mesh = http.get(url(http, f"/api/measurements/{measurement_id}/mesh.ply"))
+    mesh = download(http, f"/api/measurements/{measurement_id}/mesh.ply")
     assert mesh.status_code == 200 and ply_vertex_count(mesh.content) > 0.5 * both.sum()
-    stl = http.get(url(http, f"/api/measurements/{measurement_id}/mesh.stl"))
+    stl = download(http, f"/api/measurements/{measurement_id}/mesh.stl")
     assert stl.status_code == 200
     (triangles,) = struct.unpack("<I", stl.content[80:84])
     assert len(stl.content) == 84 + 50 * triangles and triangles > 0
@@ -96,7 +96,7 @@ def test_simulated_capture_is_rendered_by_the_worker(stack, http):
     assert len(body["checksum_sha256"]) == 64
 
 
-def test_killed_worker_mid_job_then_a_new_worker_finishes_it(stack, http, media_root):
+def test_killed_worker_mid_job_then_a_new_worker_finishes_it(stack, http):
     # The first worker pauses 1.5 s between phases so that it is surely killed mid-job.
     first = stack.start_worker("worker-1", {"GCPS_JOB_PHASE_PAUSE_MS": "1500"})
     rig_id = http.post(url(http, "/api/rigs/"), json=RIG).json()["id"]
@@ -130,7 +130,8 @@ def test_killed_worker_mid_job_then_a_new_worker_finishes_it(stack, http, media_
     both = np.isfinite(z) & np.isfinite(truth)
     assert np.median(np.abs(z[both] - truth[both])) < 0.005
     # only the finishing attempt's files remain under the measurement's folder
-    attempts = {path.parent.name for path in (media_root / "measurements" / str(measurement_id)).rglob("*.npy")}
+    stored = stack.stored_files(f"measurements/{measurement_id}")
+    attempts = {name.rsplit("/", 2)[1] for name in stored if name.endswith(".npy")}
     assert len(attempts) == 1, attempts
     time.sleep(3)  # the original message comes back after the visibility timeout: it must not rerun the job
     again = http.get(url(http, f"/api/jobs/{body['job']}/")).json()

@@ -8,7 +8,6 @@ is stored instead (``--unschedule`` removes it).
 
 from __future__ import annotations
 
-from django.core.files.storage import default_storage
 from django.core.management.base import BaseCommand, CommandError
 from django.urls import reverse
 
@@ -101,10 +100,7 @@ class Command(BaseCommand):
         self.say_summary(report)
 
     def say_summary(self, report) -> None:
-        try:
-            where = default_storage.path(report.html.name)
-        except NotImplementedError:
-            where = default_storage.url(report.html.name)
+        where = f"{report.html.name} in the media storage (page: /reports/{report.pk}/report.html)"
         overall = report.summary.get("overall", {})
 
         def um(key: str) -> str:
