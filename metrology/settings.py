@@ -338,6 +338,9 @@ if CELERY_TASK_ALWAYS_EAGER:
 CELERY_TASK_EAGER_PROPAGATES = False
 CELERY_TASK_IGNORE_RESULT = True
 CELERY_TASK_DEFAULT_QUEUE = env_str("GCPS_CELERY_QUEUE", "gcps")
+# On Redis, priority 0 is consumed first: new jobs are sent at 6, recovered ones (a dead worker's job
+# taken over, a lost message sent again) at 0, ahead of any backlog (metrology/jobs/services.py).
+CELERY_TASK_DEFAULT_PRIORITY = 6
 CELERY_TASK_ACKS_LATE = True
 CELERY_TASK_REJECT_ON_WORKER_LOST = True
 CELERY_WORKER_PREFETCH_MULTIPLIER = 1

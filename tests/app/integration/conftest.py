@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import secrets
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -10,6 +9,7 @@ import pytest
 import requests
 
 from tests.app.integration.harness import Stack, check_services, fresh_database
+from tests.app.integration.helpers import authenticated
 
 
 @pytest.fixture(autouse=True)
@@ -38,8 +38,4 @@ def stack(tmp_path, media_root) -> Iterator[Stack]:
 @pytest.fixture
 def http(stack) -> requests.Session:
     """An HTTP session authenticated with the token of a user made by ``manage.py createuser``."""
-    key = stack.manage("createuser", f"it-{secrets.token_hex(3)}").strip()
-    session = requests.Session()
-    session.headers["Authorization"] = f"Token {key}"
-    session.base = stack.base_url  # type: ignore[attr-defined]
-    return session
+    return authenticated(stack)

@@ -7,7 +7,6 @@ from __future__ import annotations
 import contextlib
 import os
 import re
-import secrets
 import signal
 import subprocess
 import sys
@@ -19,7 +18,7 @@ import pytest
 import requests
 
 from tests.app.integration.harness import ROOT, RedisServer, Stack, check_services, free_port, fresh_database
-from tests.app.integration.helpers import RIG, finished, simulated_zip, upload, url, wait_for
+from tests.app.integration.helpers import authenticated, finished, measurement_inputs, url, wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
@@ -128,13 +127,8 @@ def test_a_sigkilled_worker_is_restarted_by_the_supervisor_and_its_job_ends_done
     wait_until(lambda: "ready." in supervisor.log("worker-0"), 90, "the supervised worker")
     assert supervisor.status() == {"gcps:beat": "RUNNING", "gcps:web": "RUNNING", worker: "RUNNING"}
 
-    key = stack.manage("createuser", f"it-{secrets.token_hex(3)}").strip()
-    http = requests.Session()
-    http.headers["Authorization"] = f"Token {key}"
-    http.base = stack.base_url  # type: ignore[attr-defined]
-    rig_id = http.post(url(http, "/api/rigs/"), json=RIG).json()["id"]
-    reference = upload(http, rig_id, simulated_zip("reference")[0], "reference")
-    obj = upload(http, rig_id, simulated_zip("plane", z_mm=20.0)[0], "object")
+    http = authenticated(stack)
+    rig_id, reference, obj = measurement_inputs(http, "plane", z_mm=20.0)
     started = http.post(url(http, "/api/measurements/"), json={"rig": rig_id, "reference": reference, "object": obj})
     assert started.status_code == 202, started.text
     job_path = f"/api/jobs/{started.json()['job']}/"
