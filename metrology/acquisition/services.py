@@ -25,9 +25,11 @@ from metrology.acquisition.agent.patterns import ProjectedCodec, resolve_codec
 from metrology.acquisition.models import Acquisition, Agent, ProjectorState
 from metrology.captures import services as capture_services
 from metrology.captures.models import Capture
+from metrology.core.codecs.decode import fringe_refusal
 from metrology.errors import BadInput, Conflict
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
+from metrology.rigs import codecs as rig_codecs
 from metrology.rigs.models import Rig
 
 ACQUIRE_KIND = "acquire_capture"
@@ -278,9 +280,12 @@ def store_acquired_capture(
 ) -> Capture:
     """Validate the uploaded stack and store it as the acquisition's capture; the job is then done.
 
-    The stack is read and checked in full by the capture reader (names, shapes, the rig's size)
-    before anything is written; the file is saved, then the rows are written in one transaction
-    that re-checks that this agent still runs the acquisition (else the file is deleted again).
+    The stack is read and checked in full by the capture reader (names, shapes, the rig's size) and
+    must show the codec's fringes (:func:`~metrology.core.codecs.decode.fringe_refusal`: modulation
+    present, coordinates following the code; else the acquisition fails with the reason and
+    :class:`BadInput` names it) before anything is written; the file is saved, then the rows are
+    written in one transaction that re-checks that this agent still runs the acquisition (else the
+    file is deleted again).
     """
     job = _running_for(agent, acquisition)
     rig = acquisition.rig
@@ -288,6 +293,12 @@ def store_acquired_capture(
     from metrology.captures.stacks import read_upload_stack
 
     codec, stack = read_upload_stack(upload, rig, codec=stored_codec_value(acquisition))
+    refusal = fringe_refusal(stack.images, rig_codecs.codec_of(codec))
+    if refusal is not None:
+        # nothing is stored; the job fails with the reason (the page shows it), the agent gets it as a 400
+        reason = f"the uploaded stack was refused: {refusal}"
+        _fail_job(job.pk, reason[:2000])
+        raise BadInput(reason)
     checksum, size = capture_services._sha256(upload)
     stored = default_storage.save(capture_services._new_stack_name(rig), upload)
     try:
