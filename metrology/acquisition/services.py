@@ -42,7 +42,14 @@ def _timeout() -> timedelta:
 
 # ----------------------------------------------------------------------------- agents
 def expire_agents(rig: Rig | None = None) -> int:
-    """Disconnect agents not heard from within the timeout (and fail their acquisitions). Returns how many."""
+    """Disconnect agents not heard from within the timeout (and fail their acquisitions), and fail the
+    acquisitions no agent took in time (:func:`expire_acquisitions`). Returns how many agents."""
+    count = _disconnect_silent_agents(rig)
+    expire_acquisitions(rig)
+    return count
+
+
+def _disconnect_silent_agents(rig: Rig | None) -> int:
     now = timezone.now()
     stale = Agent.objects.filter(disconnected_at__isnull=True, last_seen_at__lt=now - _timeout())
     if rig is not None:
@@ -55,6 +62,38 @@ def expire_agents(rig: Rig | None = None) -> int:
         )
         count += 1
     return count
+
+
+def expire_acquisitions(rig: Rig | None = None) -> int:
+    """Fail, with the reason, the acquisitions queued for longer than ``GCPS_ACQUISITION_TIMEOUT_SECONDS``
+    that no agent took, on rigs without a connected agent (a connected agent works through its
+    rig's queue, however long). Called on every read of an acquisition, an agent or the projector
+    (:func:`expire_agents`) and by the periodic job sweep (:func:`sweep_acquisitions`). An agent that
+    takes one at the same moment wins (the job is failed only while still queued). Returns how many."""
+    limit = settings.GCPS_ACQUISITION_TIMEOUT_SECONDS
+    cutoff = timezone.now() - timedelta(seconds=limit)
+    # never enqueued: an acquisition requeued by the job sweep (its agent went silent) is a worker's
+    waiting = Acquisition.objects.filter(
+        job__status=Job.Status.QUEUED, job__enqueued_at__isnull=True, job__created_at__lt=cutoff
+    ).exclude(rig_id__in=Agent.objects.filter(disconnected_at__isnull=True).values("rig_id"))
+    if rig is not None:
+        waiting = waiting.filter(rig=rig)
+    expired = 0
+    for job_id, rig_name in waiting.values_list("job_id", "rig__name"):
+        reason = (
+            f"no capture agent took this acquisition within {limit:g} s (GCPS_ACQUISITION_TIMEOUT_SECONDS): "
+            f"start the agent of rig {rig_name!r} (gcps agent, or the webcam page) and request the capture again"
+        )
+        expired += Job.objects.filter(pk=job_id, status=Job.Status.QUEUED).update(
+            status=Job.Status.FAILED, error=reason, phase="expired", finished_at=timezone.now()
+        )
+    return expired
+
+
+def sweep_acquisitions() -> dict[str, int]:
+    """The acquisitions' part of the periodic job sweep (registered in ``AcquisitionConfig.ready``)."""
+    agents = _disconnect_silent_agents(None)  # first: their rigs' queued acquisitions may then expire
+    return {"agents_expired": agents, "acquisitions_expired": expire_acquisitions()}
 
 
 def connected_agent(rig: Rig) -> Agent | None:

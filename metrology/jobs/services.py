@@ -37,7 +37,7 @@ from django.db.models.functions import Greatest
 from django.utils import timezone
 
 from metrology.jobs import delivery
-from metrology.jobs.handlers import JobHandler, handler_for
+from metrology.jobs.handlers import JobHandler, handler_for, registered_sweeps
 from metrology.jobs.models import Job
 from metrology.unavailable import ServiceUnavailableError
 from metrology.version import software_version
@@ -534,8 +534,11 @@ def sweep_jobs() -> dict[str, int]:
     """The periodic job sweep: take over jobs of dead workers and resend lost messages.
 
     Run by every worker on a timer (:class:`metrology.jobs.sweeper.PeriodicSweep`), by beat when it
-    runs, and once when a worker starts. Returns ``{"requeued", "failed", "resent", "waiting"}`` counts.
+    runs, and once when a worker starts. Returns ``{"requeued", "failed", "resent", "waiting"}`` counts
+    and those of the sweeps the apps registered (:func:`metrology.jobs.handlers.register_sweep`).
     """
     counts = sweep_stale_jobs()
     counts.update(resend_unclaimed_jobs())
+    for sweep in registered_sweeps():  # the apps' own (acquisitions no agent took: expired)
+        counts.update(sweep())
     return counts

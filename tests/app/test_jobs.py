@@ -211,5 +211,12 @@ def test_the_sweep_resends_jobs_queued_too_long_and_a_job_sent_twice_runs_once(
     assert len(calls) == 2
     # the original message of the lost job turns up after all: the job is not run again
     assert services.execute_job(lost.pk) == "skipped"
-    assert services.sweep_jobs() == {"requeued": 0, "failed": 0, "resent": 0, "waiting": 0}
+    assert services.sweep_jobs() == {
+        "requeued": 0,
+        "failed": 0,
+        "resent": 0,
+        "waiting": 0,
+        "agents_expired": 0,
+        "acquisitions_expired": 0,
+    }
     assert len(calls) == 2 and Job.objects.get(pk=lost.pk).attempts == 1
