@@ -21,7 +21,7 @@ COPY templates ./templates
 COPY manage.py ./
 RUN pip install . \
     && useradd --system --uid 1000 --home /app gcps \
-    && mkdir -p /data/media /app/var \
+    && mkdir -p /data/media /app/var/static /app/var/cache \
     && SECRET_KEY=build-only-not-secret-build-only-not-secret-build-only DEBUG=1 \
        python manage.py collectstatic --noinput \
     && chown -R gcps /data /app/var
@@ -29,4 +29,5 @@ RUN pip install . \
 USER gcps
 VOLUME ["/data/media"]
 EXPOSE 8000
-CMD ["gunicorn", "metrology.wsgi", "--bind", "0.0.0.0:8000", "--workers", "3", "--timeout", "120"]
+# ASGI (uvicorn workers): long-polls wait without holding a worker. docker-compose.yml runs it behind nginx.
+CMD ["gunicorn", "metrology.asgi:application", "-k", "uvicorn_worker.UvicornWorker", "--bind", "0.0.0.0:8000", "--workers", "3", "--timeout", "120"]

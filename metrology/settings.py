@@ -373,6 +373,9 @@ if CELERY_TASK_ALWAYS_EAGER:
 CELERY_TASK_EAGER_PROPAGATES = False
 CELERY_TASK_IGNORE_RESULT = True
 CELERY_TASK_DEFAULT_QUEUE = env_str("GCPS_CELERY_QUEUE", "gcps")
+# On Redis, priority 0 is consumed first: new jobs are sent at 6, recovered ones (a dead worker's job
+# taken over, a lost message sent again) at 0, ahead of any backlog (metrology/jobs/services.py).
+CELERY_TASK_DEFAULT_PRIORITY = 6
 CELERY_TASK_ACKS_LATE = True
 CELERY_TASK_REJECT_ON_WORKER_LOST = True
 CELERY_WORKER_PREFETCH_MULTIPLIER = 1
@@ -414,6 +417,8 @@ GCPS_JOB_PHASE_PAUSE_SECONDS = float(env_int("GCPS_JOB_PHASE_PAUSE_MS", 0, minim
 # Capture agents (issue 14): an agent not heard from for this long is disconnected and its
 # running acquisition failed; agents beat every third of it.
 GCPS_AGENT_TIMEOUT_SECONDS = env_float("GCPS_AGENT_TIMEOUT_SECONDS", 15.0, minimum=0.5)
+# An acquisition no agent took within this many seconds fails with the reason (on the next read or sweep).
+GCPS_ACQUISITION_TIMEOUT_SECONDS = env_float("GCPS_ACQUISITION_TIMEOUT_SECONDS", 600.0, minimum=1.0)
 
 # Characterization reports: a figure "drifted" when it moved by more than its tolerance since the
 # previous report of the same rig. Errors in mm, percentages of full scale, in-out slopes (unitless).

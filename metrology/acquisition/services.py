@@ -25,9 +25,11 @@ from metrology.acquisition.agent.patterns import ProjectedCodec, resolve_codec
 from metrology.acquisition.models import Acquisition, Agent, ProjectorState
 from metrology.captures import services as capture_services
 from metrology.captures.models import Capture
+from metrology.core.codecs.decode import fringe_refusal
 from metrology.errors import BadInput, Conflict
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
+from metrology.rigs import codecs as rig_codecs
 from metrology.rigs.models import Rig
 
 ACQUIRE_KIND = "acquire_capture"
@@ -40,7 +42,14 @@ def _timeout() -> timedelta:
 
 # ----------------------------------------------------------------------------- agents
 def expire_agents(rig: Rig | None = None) -> int:
-    """Disconnect agents not heard from within the timeout (and fail their acquisitions). Returns how many."""
+    """Disconnect agents not heard from within the timeout (and fail their acquisitions), and fail the
+    acquisitions no agent took in time (:func:`expire_acquisitions`). Returns how many agents."""
+    count = _disconnect_silent_agents(rig)
+    expire_acquisitions(rig)
+    return count
+
+
+def _disconnect_silent_agents(rig: Rig | None) -> int:
     now = timezone.now()
     stale = Agent.objects.filter(disconnected_at__isnull=True, last_seen_at__lt=now - _timeout())
     if rig is not None:
@@ -53,6 +62,38 @@ def expire_agents(rig: Rig | None = None) -> int:
         )
         count += 1
     return count
+
+
+def expire_acquisitions(rig: Rig | None = None) -> int:
+    """Fail, with the reason, the acquisitions queued for longer than ``GCPS_ACQUISITION_TIMEOUT_SECONDS``
+    that no agent took, on rigs without a connected agent (a connected agent works through its
+    rig's queue, however long). Called on every read of an acquisition, an agent or the projector
+    (:func:`expire_agents`) and by the periodic job sweep (:func:`sweep_acquisitions`). An agent that
+    takes one at the same moment wins (the job is failed only while still queued). Returns how many."""
+    limit = settings.GCPS_ACQUISITION_TIMEOUT_SECONDS
+    cutoff = timezone.now() - timedelta(seconds=limit)
+    # never enqueued: an acquisition requeued by the job sweep (its agent went silent) is a worker's
+    waiting = Acquisition.objects.filter(
+        job__status=Job.Status.QUEUED, job__enqueued_at__isnull=True, job__created_at__lt=cutoff
+    ).exclude(rig_id__in=Agent.objects.filter(disconnected_at__isnull=True).values("rig_id"))
+    if rig is not None:
+        waiting = waiting.filter(rig=rig)
+    expired = 0
+    for job_id, rig_name in waiting.values_list("job_id", "rig__name"):
+        reason = (
+            f"no capture agent took this acquisition within {limit:g} s (GCPS_ACQUISITION_TIMEOUT_SECONDS): "
+            f"start the agent of rig {rig_name!r} (gcps agent, or the webcam page) and request the capture again"
+        )
+        expired += Job.objects.filter(pk=job_id, status=Job.Status.QUEUED).update(
+            status=Job.Status.FAILED, error=reason, phase="expired", finished_at=timezone.now()
+        )
+    return expired
+
+
+def sweep_acquisitions() -> dict[str, int]:
+    """The acquisitions' part of the periodic job sweep (registered in ``AcquisitionConfig.ready``)."""
+    agents = _disconnect_silent_agents(None)  # first: their rigs' queued acquisitions may then expire
+    return {"agents_expired": agents, "acquisitions_expired": expire_acquisitions()}
 
 
 def connected_agent(rig: Rig) -> Agent | None:
@@ -278,9 +319,12 @@ def store_acquired_capture(
 ) -> Capture:
     """Validate the uploaded stack and store it as the acquisition's capture; the job is then done.
 
-    The stack is read and checked in full by the capture reader (names, shapes, the rig's size)
-    before anything is written; the file is saved, then the rows are written in one transaction
-    that re-checks that this agent still runs the acquisition (else the file is deleted again).
+    The stack is read and checked in full by the capture reader (names, shapes, the rig's size) and
+    must show the codec's fringes (:func:`~metrology.core.codecs.decode.fringe_refusal`: modulation
+    present, coordinates following the code; else the acquisition fails with the reason and
+    :class:`BadInput` names it) before anything is written; the file is saved, then the rows are
+    written in one transaction that re-checks that this agent still runs the acquisition (else the
+    file is deleted again).
     """
     job = _running_for(agent, acquisition)
     rig = acquisition.rig
@@ -288,6 +332,12 @@ def store_acquired_capture(
     from metrology.captures.stacks import read_upload_stack
 
     codec, stack = read_upload_stack(upload, rig, codec=stored_codec_value(acquisition))
+    refusal = fringe_refusal(stack.images, rig_codecs.codec_of(codec))
+    if refusal is not None:
+        # nothing is stored; the job fails with the reason (the page shows it), the agent gets it as a 400
+        reason = f"the uploaded stack was refused: {refusal}"
+        _fail_job(job.pk, reason[:2000])
+        raise BadInput(reason)
     checksum, size = capture_services._sha256(upload)
     stored = default_storage.save(capture_services._new_stack_name(rig), upload)
     try:

@@ -62,6 +62,23 @@ def handler_for(kind: str) -> JobHandler:
     return cast("JobHandler", import_string(handler)) if isinstance(handler, str) else handler
 
 
+_SWEEPS: dict[str, None] = {}
+
+
+def register_sweep(path: str) -> None:
+    """Add the function at dotted ``path`` to the periodic job sweep
+    (:func:`metrology.jobs.services.sweep_jobs`): called with no argument, it returns counts
+    (``dict[str, int]``) merged into the sweep's. An app that owns jobs no worker runs (the
+    acquisitions, run by a rig's agent) registers here what must happen to them over time.
+    Registering a path twice is harmless."""
+    _SWEEPS[path] = None
+
+
+def registered_sweeps() -> list[Callable[[], dict[str, int]]]:
+    """The functions registered with :func:`register_sweep`, in registration order."""
+    return [cast("Callable[[], dict[str, int]]", import_string(path)) for path in _SWEEPS]
+
+
 def registered_kinds() -> set[Job.Kind]:
     """The kinds that have a handler."""
     return set(_HANDLERS)

@@ -36,7 +36,8 @@ from django.db.models import F, Q
 from django.db.models.functions import Greatest
 from django.utils import timezone
 
-from metrology.jobs.handlers import JobHandler, handler_for
+from metrology.jobs import delivery
+from metrology.jobs.handlers import JobHandler, handler_for, registered_sweeps
 from metrology.jobs.models import Job
 from metrology.unavailable import ServiceUnavailableError
 from metrology.version import software_version
@@ -63,8 +64,17 @@ class BrokerUnavailableError(ServiceUnavailableError):
     """The broker cannot be reached, so a job cannot be sent to the workers now."""
 
 
-def enqueue_job(job: Job) -> None:
+RECOVERED_PRIORITY = 0
+"""Priority of the messages of recovered jobs (a dead worker's job taken over, a lost message sent
+again): on Redis, 0 is consumed first, before every job sent at ``CELERY_TASK_DEFAULT_PRIORITY``
+(settings.py), so a recovered job is not put at the back of a backlog."""
+
+
+def enqueue_job(job: Job, *, recovered: bool = False) -> None:
     """Send the job to the workers once the surrounding transaction commits.
+
+    ``recovered`` (the sweep's resends and takeovers) sends it at :data:`RECOVERED_PRIORITY`: to
+    the head of the queue.
 
     With a broker (not the embedded default), the broker is checked first, inside the transaction:
     when it is unreachable this raises :class:`BrokerUnavailableError`, the transaction that created
@@ -78,7 +88,7 @@ def enqueue_job(job: Job) -> None:
     # marks the job as one the workers run (an acquisition, run by a rig's agent, never is)
     job.enqueued_at = timezone.now()
     Job.objects.filter(pk=job_id).update(enqueued_at=job.enqueued_at)
-    transaction.on_commit(lambda: _send(job_id))
+    transaction.on_commit(lambda: _send(job_id, recovered=recovered))
 
 
 def check_broker() -> None:
@@ -97,7 +107,7 @@ def check_broker() -> None:
         ) from None
 
 
-def _send(job_id: int) -> None:
+def _send(job_id: int, *, recovered: bool = False) -> None:
     """Publish the job's message; on a broker failure, log it and leave the job queued for the sweep.
 
     On the embedded default (no broker) the job runs in this process: in the background thread of
@@ -112,11 +122,14 @@ def _send(job_id: int) -> None:
     if settings.CELERY_TASK_ALWAYS_EAGER and settings.GCPS_EMBEDDED_JOBS == "background":
         EmbeddedWorker.get().submit(job_id)
         return
+    options = {"priority": RECOVERED_PRIORITY} if recovered else {}
+    delivery.mark_sent(job_id)  # before the send: the worker that receives it removes the marker
     try:
-        result = run_job.apply_async(args=[job_id])
+        result = run_job.apply_async(args=[job_id], **options)
     except (BrokerOperationalError, ConnectionError, OSError):
         if settings.CELERY_TASK_ALWAYS_EAGER:
             raise
+        delivery.mark_unsent(job_id)  # no message waits: the sweep sends it again
         logger.warning("job %s could not be sent; it stays queued and the sweep sends it again", job_id, exc_info=True)
         return
     if not settings.CELERY_TASK_ALWAYS_EAGER:
@@ -466,43 +479,66 @@ def sweep_stale_jobs() -> dict[str, int]:
                 job.run_token = None
                 job.phase = "requeued: its worker stopped responding"
                 job.save()
-                enqueue_job(job)
+                enqueue_job(job, recovered=True)
                 counts["requeued"] += 1
     if any(counts.values()):
         logger.warning("stale job sweep: %s", counts)
     return counts
 
 
+RESEND_SCAN_LIMIT = 10000
+"""Most waiting jobs whose delivery markers one sweep reads (oldest first)."""
+
+
 def resend_unclaimed_jobs() -> dict[str, int]:
-    """Send again the jobs queued for longer than ``GCPS_JOB_RESEND_SECONDS`` without being claimed.
+    """Send again the jobs whose message was lost: queued for longer than ``GCPS_JOB_RESEND_SECONDS``
+    without being claimed, and without a message waiting in the broker.
 
     The job row is the source of truth: a message lost by the broker (Redis restarted without
-    persistence, a send that failed after commit) leaves its job queued, and this sends it again.
-    Idempotent: should the first message still exist, the job is claimed once (:func:`claim_job`)
-    and the other message finds it running or done and is dropped. Returns ``{"resent": n}``.
+    persistence, a send that failed after commit) leaves its job queued, and this sends it again,
+    to the head of the queue. A job that merely waits behind a backlog still has its delivery
+    marker (:mod:`metrology.jobs.delivery`) and is left alone, so a backlog is not sent again every
+    ``GCPS_JOB_RESEND_SECONDS``. Without markers (no Redis broker, Redis unreachable) every such job
+    is sent again. Idempotent: should the first message still exist, the job is claimed once
+    (:func:`claim_job`) and the other message finds it running or done and is dropped. Returns
+    ``{"resent": n, "waiting": m}`` (``m``: jobs left alone, their message still in the broker).
     """
     cutoff = timezone.now() - timedelta(seconds=settings.GCPS_JOB_RESEND_SECONDS)
     waiting = Q(enqueued_at__lt=cutoff)  # jobs never enqueued (acquisitions, run by an agent) stay out
+    candidates = list(
+        Job.objects.filter(waiting, status=Job.Status.QUEUED)
+        .order_by("enqueued_at", "pk")
+        .values_list("pk", flat=True)[:RESEND_SCAN_LIMIT]
+    )
+    in_broker = delivery.waiting_in_broker(candidates) if candidates else set()
+    lost = [job_id for job_id in candidates if in_broker is None or job_id not in in_broker]
     resent = 0
     with transaction.atomic():
         # skip_locked: another worker's sweep may be resending the same rows right now
-        jobs = list(Job.objects.select_for_update(skip_locked=True).filter(waiting, status=Job.Status.QUEUED)[:500])
-        for job in jobs:
-            enqueue_job(job)
+        jobs = Job.objects.select_for_update(skip_locked=True).filter(
+            waiting, status=Job.Status.QUEUED, pk__in=lost[:500]
+        )
+        for job in jobs.order_by("enqueued_at", "pk"):
+            enqueue_job(job, recovered=True)
             resent += 1
     if resent:
         logger.warning(
-            "job sweep: sent %d queued job(s) again (unclaimed for %d s)", resent, settings.GCPS_JOB_RESEND_SECONDS
+            "job sweep: sent %d queued job(s) again (unclaimed for %d s, no message in the broker)",
+            resent,
+            settings.GCPS_JOB_RESEND_SECONDS,
         )
-    return {"resent": resent}
+    return {"resent": resent, "waiting": len(candidates) - len(lost)}
 
 
 def sweep_jobs() -> dict[str, int]:
     """The periodic job sweep: take over jobs of dead workers and resend lost messages.
 
     Run by every worker on a timer (:class:`metrology.jobs.sweeper.PeriodicSweep`), by beat when it
-    runs, and once when a worker starts. Returns ``{"requeued", "failed", "resent"}`` counts.
+    runs, and once when a worker starts. Returns ``{"requeued", "failed", "resent", "waiting"}`` counts
+    and those of the sweeps the apps registered (:func:`metrology.jobs.handlers.register_sweep`).
     """
     counts = sweep_stale_jobs()
     counts.update(resend_unclaimed_jobs())
+    for sweep in registered_sweeps():  # the apps' own (acquisitions no agent took: expired)
+        counts.update(sweep())
     return counts

@@ -28,11 +28,15 @@ class PeriodicSweep(threading.Thread):
         self.runs = 0
 
     def run(self) -> None:
+        from metrology.jobs.delivery import keep_alive
         from metrology.jobs.services import sweep_jobs
+
+        keep_alive()
 
         try:
             while not self.stop_event.wait(self.interval_s * (1.0 + 0.2 * random.random())):
                 try:
+                    keep_alive()  # the messages this worker holds unstarted count as waiting (jobs/delivery.py)
                     close_old_connections()  # drop one past its age or broken, as a request would
                     sweep_jobs()
                     self.runs += 1

@@ -8,11 +8,12 @@ keep resolving.
 from __future__ import annotations
 
 from celery import shared_task
-from celery.signals import worker_ready, worker_shutdown
+from celery.signals import task_received, worker_ready, worker_shutdown
 from django.conf import settings
 from django.db import InterfaceError, OperationalError
 from kombu.exceptions import OperationalError as BrokerOperationalError
 
+from metrology.jobs import delivery
 from metrology.jobs.services import BUSY, execute_job
 from metrology.jobs.services import sweep_jobs as _sweep_jobs
 from metrology.jobs.sweeper import PeriodicSweep
@@ -54,6 +55,18 @@ def run_job(self, job_id: int) -> str:
 def sweep_stale_jobs() -> dict[str, int]:
     """Requeue or fail jobs whose worker stopped sending heartbeats, and resend queued jobs nobody claimed."""
     return _sweep_jobs()
+
+
+@task_received.connect
+def _message_received(sender: object = None, request: object = None, **_: object) -> None:
+    """This worker holds the job's message: its delivery marker names this worker
+    (:mod:`metrology.jobs.delivery`), so that should the worker die before running it, the sweep
+    sends the job again instead of taking it to be still waiting in the queue."""
+    if getattr(request, "name", "") != run_job.name:
+        return
+    args = getattr(request, "args", None) or ()
+    if args and isinstance(args[0], int):
+        delivery.mark_received(args[0])
 
 
 _periodic_sweep: PeriodicSweep | None = None

@@ -217,7 +217,7 @@ def test_stale_acquisition_requeued_by_the_sweep_fails_with_a_reason(api, rig, m
     queued = post(api, f"/api/rigs/{rig.pk}/captures/acquire/", {"role": "object"}).json()
     post(api, f"/api/rigs/{rig.pk}/agent/take/", {"session": session})
     Job.objects.filter(pk=queued["job"]).update(heartbeat_at=timezone.now() - timedelta(hours=1))
-    monkeypatch.setattr(job_services, "_send", lambda job_id: None)  # the test runs the requeued job itself
+    monkeypatch.setattr(job_services, "_send", lambda job_id, **_: None)  # the test runs the requeued job itself
     assert job_services.sweep_stale_jobs()["requeued"] == 1
     assert job_services.execute_job(queued["job"]) == "failed"
     job = Job.objects.get(pk=queued["job"])

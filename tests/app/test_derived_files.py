@@ -192,7 +192,7 @@ def test_measurements_with_stored_meshes_keep_serving_them(api, measurement_id, 
 def test_derived_files_of_an_unfinished_measurement_are_404(api, rig, monkeypatch):
     import metrology.jobs.services as job_services
 
-    monkeypatch.setattr(job_services, "_send", lambda job_id: None)
+    monkeypatch.setattr(job_services, "_send", lambda job_id, **_: None)
     core = Rig.from_dict(SMALL_RIG)
     reference = upload(api, rig["id"], stack_zip(render_images(core, 0.0, bit_depth=16)), "reference")
     obj = upload(api, rig["id"], stack_zip(render_images(core, 5.0, bit_depth=16)), "object")

@@ -89,7 +89,7 @@ def test_a_job_past_its_attempts_is_failed_with_the_reason(job, settings):
 
 def test_the_sweep_requeues_stale_jobs_and_fails_exhausted_ones(user_and_token, settings, monkeypatch):
     sent = []
-    monkeypatch.setattr(services, "enqueue_job", lambda job: sent.append(job.pk))
+    monkeypatch.setattr(services, "enqueue_job", lambda job, **_: sent.append(job.pk))
     owner = user_and_token[0]
     old = timezone.now() - timedelta(seconds=settings.GCPS_JOB_STALE_SECONDS + 5)
     stale = services.create_job(owner=owner, kind="measurement", parameters={})
@@ -202,7 +202,7 @@ def test_the_sweep_resends_jobs_queued_too_long_and_a_job_sent_twice_runs_once(
     Job.objects.filter(pk=running.pk).update(status="running", enqueued_at=long_ago, heartbeat_at=timezone.now())
     # embedded mode: "sending" runs the job in-process, so a resent job is done afterwards
     with django_capture_on_commit_callbacks(execute=True):
-        assert services.resend_unclaimed_jobs() == {"resent": 2}
+        assert services.resend_unclaimed_jobs() == {"resent": 2, "waiting": 0}
     assert Job.objects.get(pk=lost.pk).status == Job.Status.DONE
     assert Job.objects.get(pk=also_lost.pk).status == Job.Status.DONE
     assert Job.objects.get(pk=for_an_agent.pk).status == Job.Status.QUEUED
@@ -211,5 +211,12 @@ def test_the_sweep_resends_jobs_queued_too_long_and_a_job_sent_twice_runs_once(
     assert len(calls) == 2
     # the original message of the lost job turns up after all: the job is not run again
     assert services.execute_job(lost.pk) == "skipped"
-    assert services.sweep_jobs() == {"requeued": 0, "failed": 0, "resent": 0}
+    assert services.sweep_jobs() == {
+        "requeued": 0,
+        "failed": 0,
+        "resent": 0,
+        "waiting": 0,
+        "agents_expired": 0,
+        "acquisitions_expired": 0,
+    }
     assert len(calls) == 2 and Job.objects.get(pk=lost.pk).attempts == 1

@@ -170,7 +170,7 @@ def test_bad_parameters_answer_400_naming_them(api, crossed, query, words):
 def test_not_done_is_409_and_others_measurements_404(api, other_api, rig, monkeypatch):
     import metrology.jobs.services as job_services
 
-    monkeypatch.setattr(job_services, "_send", lambda job_id: None)  # the job stays queued
+    monkeypatch.setattr(job_services, "_send", lambda job_id, **_: None)  # the job stays queued
     core = CoreRig.from_dict(SMALL_RIG)
     reference = upload(api, rig["id"], stack_zip(render_images(core, 0.0, bit_depth=16)), "reference")
     obj = upload(api, rig["id"], stack_zip(render_images(core, 5.0, bit_depth=16)), "object")

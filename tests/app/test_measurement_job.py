@@ -23,7 +23,7 @@ def no_workers(monkeypatch):
     """Jobs stay queued: nothing picks them up."""
     import metrology.jobs.services as job_services
 
-    monkeypatch.setattr(job_services, "_send", lambda job_id: None)
+    monkeypatch.setattr(job_services, "_send", lambda job_id, **_: None)
 
 
 def test_measurement_runs_and_serves_heights_and_meshes(api, rig, captures, media_root):

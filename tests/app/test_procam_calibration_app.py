@@ -152,7 +152,7 @@ def test_apply_before_done_is_refused_and_apply_on_request_applies(api, rig320, 
     import metrology.jobs.services as job_services
 
     queued: list[int] = []
-    monkeypatch.setattr(job_services, "_send", queued.append)
+    monkeypatch.setattr(job_services, "_send", lambda job_id, **_: queued.append(job_id))
     response = request(api, rig320["id"], poses[:3], apply=True)
     assert response.status_code == 202 and response.json()["status"] == "queued"
     calibration_id = response.json()["id"]

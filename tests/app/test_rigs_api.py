@@ -47,7 +47,7 @@ def test_missing_key_is_named(api):
 
 
 def test_degenerate_geometry_is_refused_with_the_core_message(api):
-    response = api.post("/api/rigs/", {**SMALL_RIG, "L_mm": 1.0, "d_mm": 1.0, "fw_mm": 1e6}, format="json")
+    response = api.post("/api/rigs/", {**SMALL_RIG, "L_mm": 1.0, "d_mm": 1.0, "fw_mm": 1000.0}, format="json")
     assert response.status_code == 400
     assert response.json()["error"] == "rig field extends implausibly far behind the projector"
 

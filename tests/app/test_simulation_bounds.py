@@ -72,7 +72,7 @@ def test_simulation_of_an_existing_oversized_rig_is_refused_by_its_memory(api, r
     from metrology.rigs.models import Rig as RigRow
 
     row = RigRow.objects.get(pk=rig["id"])
-    RigRow.objects.filter(pk=row.pk).update(parameters={**row.parameters, "width_px": 100_000, "height_px": 100_000})
+    RigRow.objects.filter(pk=row.pk).update(parameters={**row.parameters, "width_px": 60_000, "height_px": 60_000})
     response = simulate(api, rig["id"], scene={"name": "plane"})
     assert response.status_code == 400, response.content
     message = response.json()["error"]

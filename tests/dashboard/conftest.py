@@ -52,7 +52,7 @@ def worker(transactional_db, settings, monkeypatch):
 
     thread = threading.Thread(target=loop, daemon=True)
     thread.start()
-    monkeypatch.setattr(job_services, "_send", jobs.put)
+    monkeypatch.setattr(job_services, "_send", lambda job_id, **_: jobs.put(job_id))
     yield seen
     jobs.put(None)
     thread.join(timeout=60)

@@ -56,7 +56,7 @@ def test_a_job_left_running_by_a_stopped_process_is_run_again(
 
     reference, obj = captures
     with monkeypatch.context() as patched:
-        patched.setattr(job_services, "_send", lambda job_id: None)  # the process stops before it runs
+        patched.setattr(job_services, "_send", lambda job_id, **_: None)  # the process stops before it runs
         measurement = request_measurement(owner=alice, rig=rig, reference_id=reference.pk, object_id=obj.pk)
     stale = timezone.now() - timedelta(seconds=settings.GCPS_JOB_STALE_SECONDS + 5)
     Job.objects.filter(pk=measurement.job_id).update(

@@ -245,7 +245,7 @@ def test_a_failed_job_shows_its_reason(client_alice, rig, captures, run_jobs, al
 def test_running_job_shows_a_progress_bar_polling_the_job(client_alice, rig, captures, alice, monkeypatch):
     import metrology.jobs.services as job_services
 
-    monkeypatch.setattr(job_services, "_send", lambda job_id: None)
+    monkeypatch.setattr(job_services, "_send", lambda job_id, **_: None)
     reference, obj = captures
     measurement = request_measurement(owner=alice, rig=rig, reference_id=reference.pk, object_id=obj.pk)
     page = client_alice.get(f"/measurements/{measurement.pk}/").content.decode()

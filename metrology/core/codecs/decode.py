@@ -278,6 +278,59 @@ class CodecDecoding:
         }
 
 
+MIN_FRINGE_SHARE = 0.01
+"""Least share of a stack's sampled pixels that must decode on some axis for :func:`fringe_refusal`."""
+
+
+def fringe_refusal(images: npt.ArrayLike, codec: Codec, *, min_share: float = MIN_FRINGE_SHARE) -> str | None:
+    """Why a camera stack does not show ``codec``'s fringes, in a sentence; None when it does.
+
+    Decodes about 32 pairs of rows (:func:`~metrology.core.codecs.check.sampled_rows`), as the codec
+    self-check does, and refuses the stack when
+
+    - no axis decodes at least ``min_share`` of the sampled pixels: the frames hold no modulation
+      (dark, flat, overexposed, the projector off or not seen); the sentence gives the share and
+      the commonest reason;
+    - an axis's self-check is ``inconsistent``: the coordinates do not follow the code (frames of
+      random noise have a "modulation" of their own, but no gray word agrees with its phase).
+
+    Parameters
+    ----------
+    images : (frames, H, W) array of uint8, uint16 or float
+        The stack in ``codec``'s frame order, grey levels.
+    codec : Codec
+    min_share : float
+        In (0, 1].
+    """
+    from metrology.core.codecs.check import sampled_rows
+
+    stack = np.asarray(images)
+    sample = np.ascontiguousarray(stack[:, sampled_rows(stack.shape[1])])
+    decoding = decode_codec(sample, codec, with_noise=False, threads=1, paired_rows=True)
+    shares = {name: float(axis.valid.mean()) for name, axis in decoding.axes.items()}
+    if shares and max(shares.values()) < min_share:
+        name = max(shares, key=lambda n: shares[n])
+        counts = decoding.axes[name].reason_counts()
+        reason, count = max(((r, c) for r, c in counts.items() if r != REASONS[REASON_VALID]), key=lambda rc: rc[1])
+        total = max(1, sum(counts.values()))
+        return (
+            f"the frames show no fringes of the codec: {100 * shares[name]:.1f} % of the sampled pixels decode "
+            f"(at least {100 * min_share:g} % needed; {100 * count / total:.0f} % {reason}); "
+            "check that the projector is on and seen by the camera, and the exposure"
+        )
+    inconsistent = [
+        f"axis {name}: {check.findings or check.message}"
+        for name, check in decoding.codec_check.items()
+        if check.status == INCONSISTENT
+    ]
+    if inconsistent:
+        return (
+            "the frames do not show the codec's fringes (their coordinates do not follow the code, as with "
+            f"frames of random noise or another pattern): {'; '.join(inconsistent)}"
+        )
+    return None
+
+
 # ----------------------------------------------------------------------------- plan
 @dataclass(frozen=True)
 class _SequencePlan:

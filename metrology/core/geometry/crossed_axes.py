@@ -45,6 +45,7 @@ from metrology.core.geometry.base import (
     check_frame,
     subpixel_grid,
 )
+from metrology.core.geometry.rig_file import MAX_IMAGE_SIDE_PX, MAX_TRANSLATION_MM
 from metrology.core.tiling import run_tiled, thread_scratch
 
 FloatArray = npt.NDArray[np.floating]
@@ -159,6 +160,13 @@ class Rig(GeometryModel):
             object.__setattr__(self, name, float(getattr(self, name)))
         if self.nlp > 128:
             raise RigError(f"rig nlp must be at most 128 (7-bit gray code), got {self.nlp}")
+        # the pinhole model's bounds (rig_file.py): lengths as its translations, sides as its camera's
+        for name in ("L_mm", "d_mm", "fw_mm"):
+            if getattr(self, name) > MAX_TRANSLATION_MM:
+                raise RigError(f"rig {name} must be at most {MAX_TRANSLATION_MM:g} mm, got {getattr(self, name)!r}")
+        for name in ("width_px", "height_px"):
+            if getattr(self, name) > MAX_IMAGE_SIDE_PX:
+                raise RigError(f"rig {name} must be at most {MAX_IMAGE_SIDE_PX} pixels, got {getattr(self, name)!r}")
         if self.fw_mm / 2 - self.d_mm >= self.L_mm * 50:
             raise RigError("rig field extends implausibly far behind the projector")
         if not (0.0 < self.theta_tot_rad < math.pi):

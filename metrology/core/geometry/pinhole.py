@@ -83,11 +83,11 @@ from metrology.core.geometry.rig_file import (
     check_rotation,
     checked_keys,
     distortion_coefficients,
+    image_side,
     intrinsics,
     matrix3,
     number,
     positive,
-    positive_int,
     translation,
 )
 from metrology.core.tiling import run_tiled
@@ -207,8 +207,8 @@ class PinholeRig(GeometryModel):
         cam = checked_keys(data["camera"], CAMERA_KEYS, CAMERA_KEYS[:3], "camera")
         proj = checked_keys(data["projector"], PROJECTOR_KEYS, PROJECTOR_KEYS[:3], "projector")
         camera = PinholeCamera(
-            width_px=positive_int(cam["width_px"], "camera width_px"),
-            height_px=positive_int(cam["height_px"], "camera height_px"),
+            width_px=image_side(cam["width_px"], "camera width_px"),
+            height_px=image_side(cam["height_px"], "camera height_px"),
             K=intrinsics(cam["K"], "camera K"),
             dist=distortion_coefficients(cam.get("dist"), "camera dist"),
         )

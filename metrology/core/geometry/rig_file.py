@@ -9,6 +9,7 @@ each error names the key (``camera K``, ``T[2]``...) and the value it got.
 - ``dist`` holds 4, 5, 8, 12 or 14 OpenCV coefficients (:mod:`metrology.core.distortion`), or
   none, each within +-:data:`MAX_DISTORTION_COEFFICIENT`;
 - a translation ``T`` holds three numbers within +-:data:`MAX_TRANSLATION_MM` mm;
+- a camera image side is at most :data:`MAX_IMAGE_SIDE_PX` pixels;
 - a rotation ``R`` satisfies ``|R^T R - I| < 1e-6`` and ``det R = +1``;
 - a JSON object has only the allowed keys and every required one.
 """
@@ -37,7 +38,11 @@ MAX_DISTORTION_COEFFICIENT = 1e4
 overflow the undistortion's polynomial)."""
 
 MAX_TRANSLATION_MM = 1e5
-"""Largest magnitude of a translation component, mm (100 m)."""
+"""Largest magnitude of a translation component, mm (100 m); also the largest length of a rig
+(the crossed-axes model's ``L_mm``, ``d_mm``, ``fw_mm``)."""
+
+MAX_IMAGE_SIDE_PX = 65536
+"""Largest camera image side, pixels (a frame of 65536 x 65536 16-bit pixels is 8 GiB)."""
 
 
 class RigFileError(GeometryError):
@@ -133,6 +138,14 @@ def positive_int(value: Any, name: str) -> int:
     if not f.is_integer() or f <= 0:
         raise RigFileError(f"{name} must be a positive integer, got {value!r}")
     return int(f)
+
+
+def image_side(value: Any, name: str) -> int:
+    """A camera image side: a positive integer of at most :data:`MAX_IMAGE_SIDE_PX` pixels."""
+    side = positive_int(value, name)
+    if side > MAX_IMAGE_SIDE_PX:
+        raise RigFileError(f"{name} must be at most {MAX_IMAGE_SIDE_PX} pixels, got {value!r}")
+    return side
 
 
 def positive(value: Any, name: str) -> float:

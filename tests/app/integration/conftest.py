@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import secrets
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -11,6 +10,7 @@ import pytest
 import requests
 
 from tests.app.integration.harness import Stack, migrated_stack
+from tests.app.integration.helpers import authenticated
 
 
 @pytest.fixture(autouse=True)
@@ -41,8 +41,4 @@ def stack(tmp_path, media_root, stack_storage_env) -> Iterator[Stack]:
 @pytest.fixture
 def http(stack) -> requests.Session:
     """An HTTP session authenticated with the token of a user made by ``manage.py createuser``."""
-    key = stack.manage("createuser", f"it-{secrets.token_hex(3)}").strip()
-    session = requests.Session()
-    session.headers["Authorization"] = f"Token {key}"
-    session.base = stack.base_url  # type: ignore[attr-defined]
-    return session
+    return authenticated(stack)

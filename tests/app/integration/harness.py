@@ -218,7 +218,13 @@ class Stack:
 
         client = redis.Redis.from_url(self.env["REDIS_URL"], socket_connect_timeout=3)
         with contextlib.suppress(redis.RedisError):  # a fault test may have stopped its own Redis
-            client.delete(self.queue, f"_kombu.binding.{self.queue}", f"_kombu.binding_permanent.{self.queue}")
+            priorities = [f"{self.queue}\x06\x16{step}" for step in (3, 6, 9)]  # kombu's lists per priority
+            client.delete(
+                self.queue, *priorities, f"_kombu.binding.{self.queue}", f"_kombu.binding_permanent.{self.queue}"
+            )
+            # the jobs' delivery markers and the workers' liveness keys (metrology/jobs/delivery.py)
+            for key in client.scan_iter(f"gcps:{self.queue}:*", count=1000):
+                client.delete(key)
 
 
 @contextmanager

@@ -3,11 +3,13 @@ the running stack (uploads, polling a resource until it is done)."""
 
 from __future__ import annotations
 
+import secrets
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+import requests
 
 from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.io import write_stack
@@ -27,6 +29,23 @@ def simulated_zip(scene: str, **params) -> tuple[bytes, np.ndarray]:
         path = Path(tmp) / "stack.zip"
         write_stack(rendered.images, path)
         return path.read_bytes(), np.asarray(rendered.truth_mm)
+
+
+def authenticated(stack) -> requests.Session:
+    """An HTTP session on ``stack`` with the token of a new user (``manage.py createuser``)."""
+    key = stack.manage("createuser", f"it-{secrets.token_hex(3)}").strip()
+    session = requests.Session()
+    session.headers["Authorization"] = f"Token {key}"
+    session.base = stack.base_url  # type: ignore[attr-defined]
+    return session
+
+
+def measurement_inputs(http, scene: str = "plane", **params) -> tuple[int, int, int]:
+    """A rig and its reference and object captures, uploaded through the API: (rig, reference, object)."""
+    rig_id = http.post(url(http, "/api/rigs/"), json=RIG).json()["id"]
+    reference = upload(http, rig_id, simulated_zip("reference")[0], "reference")
+    obj = upload(http, rig_id, simulated_zip(scene, **params)[0], "object")
+    return rig_id, reference, obj
 
 
 def url(http, path: str) -> str:
