@@ -7,8 +7,13 @@ storage and the settings:
 - ``GCPS_ACCEL_REDIRECT`` on, local storage (behind ``deploy/nginx/gcps.conf``): an empty answer
   with ``X-Accel-Redirect: /protected/<storage name>``; nginx sends the file from its ``internal``
   location (ranges, any client speed, no web worker held).
-- S3 storage: ``302`` to a presigned URL of the object, valid ``GCPS_S3_URL_SECONDS`` (300 s by
-  default), carrying the attachment name and content type; the S3 server answers ranges itself.
+- ``GCPS_ACCEL_REDIRECT`` on, S3 storage (the documented topology: the bucket is not reachable from
+  outside): an empty answer with ``X-Accel-Redirect: /protected-s3/<bucket>/<key>?<presigned query>``;
+  nginx's ``internal`` location ``/protected-s3/`` forwards it to the S3 endpoint with the ``Host``
+  the URL was signed for, and streams the object (and its ranges) to the client.
+- S3 storage otherwise: ``302`` to a presigned URL of the object, valid ``GCPS_S3_URL_SECONDS``
+  (300 s by default), carrying the attachment name and content type; the S3 server answers ranges
+  itself (the client must reach ``GCPS_S3_ENDPOINT_URL``).
 - otherwise: the file streamed by the app from ``storage.open``, ``Accept-Ranges: bytes``; a single
   ``Range: bytes=a-b`` (or ``a-``, ``-n``) answers ``206`` with ``Content-Range``, a range past the
   end ``416`` with ``Content-Range: bytes */size``; several ranges, or an ``If-Range``, answer the
@@ -20,7 +25,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterator
 from typing import IO
-from urllib.parse import quote
+from urllib.parse import quote, urlsplit
 
 from django.conf import settings
 from django.core.files.storage import FileSystemStorage, Storage
@@ -30,6 +35,9 @@ from django.utils.http import content_disposition_header
 
 ACCEL_PREFIX = "/protected/"
 """The nginx ``internal`` location that maps to MEDIA_ROOT (``deploy/nginx/gcps.conf``)."""
+
+ACCEL_S3_PREFIX = "/protected-s3"
+"""The nginx ``internal`` location that forwards a presigned path-style request to the S3 endpoint."""
 
 CHUNK_BYTES = 1 << 20
 """Bytes per chunk of a streamed range."""
@@ -100,6 +108,11 @@ def storage_file_response(
         response["Content-Disposition"] = disposition
         return response
     url = None if local else _presigned_url(storage, name, disposition, content_type)
+    if url is not None and settings.GCPS_ACCEL_REDIRECT:
+        signed = urlsplit(url)  # path-style: /<bucket>/<key>, signed for the endpoint's host
+        response = HttpResponse(content_type=content_type)
+        response["X-Accel-Redirect"] = f"{ACCEL_S3_PREFIX}{signed.path}?{signed.query}"
+        return response
     if url is not None:
         return HttpResponseRedirect(url)
     size = storage.size(name)

@@ -1,8 +1,9 @@
 """A real nginx running ``deploy/nginx/gcps.conf`` for the tests and benchmarks, unprivileged, on a free port.
 
-The documented server block is used as written, with four values put in: the listening address
-(``listen 80;``), the web server (``server 127.0.0.1:8000;``) and the two folders
-(``/var/lib/gcps/static/``, ``/var/lib/gcps/media/``); each must appear exactly once, so a change of
+The documented server block is used as written, with five values put in: the listening address
+(``listen 80;``), the web server (``server 127.0.0.1:8000;``), the S3 endpoint
+(``http://127.0.0.1:9000/``) and the two folders (``/var/lib/gcps/static/``,
+``/var/lib/gcps/media/``); each must appear exactly once, so a change of
 the file that this does not follow fails loudly. nginx runs from the Debian package (``nginx``,
 installed by ``scripts/services.sh``) under its own prefix and error log, as the user ``nobody`` when
 started by root, so the folders it serves must be readable by everyone (:func:`world_readable_dir`).
@@ -40,12 +41,16 @@ def world_readable_dir(prefix: str) -> Path:
     return path
 
 
-def render_config(port: int, upstream: str, static_root: Path, media_root: Path) -> str:
-    """``deploy/nginx/gcps.conf`` listening on 127.0.0.1:``port``, proxying to ``upstream`` (host:port)."""
+def render_config(
+    port: int, upstream: str, static_root: Path, media_root: Path, s3_endpoint: str = "http://127.0.0.1:9000"
+) -> str:
+    """``deploy/nginx/gcps.conf`` listening on 127.0.0.1:``port``, proxying to ``upstream`` (host:port)
+    and to the S3 endpoint ``s3_endpoint`` (``http://host:port``)."""
     text = CONFIG.read_text()
     for old, new in (
         ("listen 80;", f"listen 127.0.0.1:{port};"),
         ("server 127.0.0.1:8000;", f"server {upstream};"),
+        ("http://127.0.0.1:9000/;", f"{s3_endpoint.rstrip('/')}/;"),
         ("/var/lib/gcps/static/", f"{static_root}/"),
         ("/var/lib/gcps/media/", f"{media_root}/"),
     ):
@@ -57,7 +62,9 @@ def render_config(port: int, upstream: str, static_root: Path, media_root: Path)
 class Nginx:
     """nginx serving ``deploy/nginx/gcps.conf`` on ``base_url``; its access log in ``access_log``."""
 
-    def __init__(self, upstream: str, static_root: Path, media_root: Path) -> None:
+    def __init__(
+        self, upstream: str, static_root: Path, media_root: Path, s3_endpoint: str = "http://127.0.0.1:9000"
+    ) -> None:
         binary = nginx_binary()
         if binary is None:
             raise RuntimeError("nginx is not installed (scripts/services.sh installs Debian's nginx)")
@@ -67,7 +74,7 @@ class Nginx:
         self.access_log = self.prefix / "access.log"
         self.error_log = self.prefix / "error.log"
         site = self.prefix / "gcps.conf"
-        site.write_text(render_config(self.port, upstream, static_root, media_root))
+        site.write_text(render_config(self.port, upstream, static_root, media_root, s3_endpoint))
         mime = "/etc/nginx/mime.types"
         temp = "".join(
             f"    {kind}_temp_path {self.prefix}/{kind};\n"
@@ -114,8 +121,10 @@ class Nginx:
 
 
 @contextlib.contextmanager
-def nginx(upstream: str, static_root: Path, media_root: Path) -> Iterator[Nginx]:
-    server = Nginx(upstream, static_root, media_root)
+def nginx(
+    upstream: str, static_root: Path, media_root: Path, s3_endpoint: str = "http://127.0.0.1:9000"
+) -> Iterator[Nginx]:
+    server = Nginx(upstream, static_root, media_root, s3_endpoint)
     try:
         yield server
     finally:

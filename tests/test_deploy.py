@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import configparser
 import os
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -45,7 +46,8 @@ def test_compose_runs_the_documented_processes():
     assert "celery -A workers worker" in _command(services["worker"])
     assert "DatabaseScheduler" in _command(services["beat"])
     assert "--appendonly yes" in _command(services["redis"])
-    assert "./deploy/nginx/gcps.conf:/etc/nginx/conf.d/default.conf:ro" in services["nginx"]["volumes"]
+    assert "./deploy/nginx/gcps.conf:/etc/gcps/nginx.conf:ro" in services["nginx"]["volumes"]
+    assert "static:/var/lib/gcps/static:ro" in services["nginx"]["volumes"]
     assert "ports" not in services["web"], "only the proxy is published"
     env = services["worker"]["environment"]
     for key in ("GCPS_S3_BUCKET", "GCPS_S3_ENDPOINT_URL", "GCPS_S3_ACCESS_KEY_ID", "GCPS_S3_SECRET_ACCESS_KEY"):
@@ -116,3 +118,25 @@ def test_supervisord_restarts_every_program():
         assert program.get("killasgroup") == "true", name
     assert ASGI_SERVER in " ".join(programs["web"]["command"].split())
     assert programs["worker"]["numprocs"] == "%(ENV_GCPS_WORKERS)s"
+
+
+def test_compose_nginx_puts_the_containers_addresses_into_the_documented_config():
+    """The nginx container runs its command's sed over deploy/nginx/gcps.conf: the result proxies to
+    web:8000 and minio:9000 and is otherwise the file as written."""
+    command = _command(compose()["services"]["nginx"])
+    expressions = re.findall(r"-e '([^']+)'", command)
+    assert len(expressions) == 2, command
+    original = (ROOT / "deploy" / "nginx" / "gcps.conf").read_text()
+    rendered = subprocess.run(
+        ["sed", *(arg for e in expressions for arg in ("-e", e))],
+        input=original,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    assert rendered.count("server web:8000;") == 1 and "server 127.0.0.1:8000;" not in rendered
+    assert rendered.count("proxy_pass http://minio:9000/;") == 1 and "http://127.0.0.1:9000/;" not in rendered
+    assert len(rendered.splitlines()) == len(original.splitlines())
+    env = compose()["services"]["web"]["environment"]
+    assert env["GCPS_ACCEL_REDIRECT"] == "1", "downloads go through nginx: MinIO is not published"
+    assert "ports" not in compose()["services"]["minio"]

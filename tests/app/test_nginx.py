@@ -27,6 +27,15 @@ from tests.nginx import nginx, nginx_binary, paced_download, world_readable_dir
 pytestmark = pytest.mark.django_db(transaction=True)
 
 
+def _measure(api, rig) -> int:
+    """The id of a measurement of a rendered block on ``rig`` (its jobs run inline)."""
+    core = Rig.from_dict(SMALL_RIG)
+    reference = upload(api, rig["id"], stack_zip(render_images(core, 0.0, bit_depth=16)), "reference")
+    obj = upload(api, rig["id"], stack_zip(render_images(core, block_heights(), bit_depth=16)), "object")
+    started = api.post("/api/measurements/", {"rig": rig["id"], "reference": reference, "object": obj}, format="json")
+    return int(started.json()["id"])
+
+
 @pytest.fixture
 def served(api, rig, settings, live_server, user_and_token):
     """(nginx, measurement id, token) with the media folder readable by nginx's unprivileged user."""
@@ -41,14 +50,11 @@ def served(api, rig, settings, live_server, user_and_token):
     (static / "hello.txt").chmod(0o644)
     settings.MEDIA_ROOT = media
     settings.GCPS_ACCEL_REDIRECT = True
-    core = Rig.from_dict(SMALL_RIG)
-    reference = upload(api, rig["id"], stack_zip(render_images(core, 0.0, bit_depth=16)), "reference")
-    obj = upload(api, rig["id"], stack_zip(render_images(core, block_heights(), bit_depth=16)), "object")
-    started = api.post("/api/measurements/", {"rig": rig["id"], "reference": reference, "object": obj}, format="json")
+    measurement_id = _measure(api, rig)
     upstream = live_server.url.removeprefix("http://")
     try:
         with nginx(upstream, static, media) as proxy:
-            yield proxy, started.json()["id"], user_and_token[1]
+            yield proxy, measurement_id, user_and_token[1]
     finally:
         shutil.rmtree(media, ignore_errors=True)
         shutil.rmtree(static, ignore_errors=True)
@@ -103,3 +109,56 @@ def test_a_slow_client_gets_the_whole_file(served):
     assert "X-Accel-Redirect" not in read["headers"]
     elapsed = read["seconds"]
     assert elapsed > 3.0, elapsed  # it really was read slowly
+
+
+@pytest.fixture
+def served_from_s3(api, rig, settings, live_server, user_and_token, s3):
+    """(nginx, measurement id, token) with the storage in a bucket of the session's S3 server and
+    nginx forwarding ``/protected-s3/`` to it, as docker-compose.yml runs nginx in front of MinIO."""
+    if nginx_binary() is None:
+        message = "nginx is not installed (scripts/services.sh installs Debian's nginx)"
+        if os.environ.get("CI"):
+            pytest.fail(message)
+        pytest.skip(message)
+    bucket = s3.bucket()
+    settings.STORAGES = s3.storages(bucket)
+    settings.GCPS_S3_BUCKET = bucket
+    settings.GCPS_ACCEL_REDIRECT = True
+    static = world_readable_dir("gcps-static-")
+    media = world_readable_dir("gcps-media-")
+    measurement_id = _measure(api, rig)
+    upstream = live_server.url.removeprefix("http://")
+    try:
+        with nginx(upstream, static, media, s3.endpoint_url) as proxy:
+            yield proxy, measurement_id, user_and_token[1], bucket
+    finally:
+        shutil.rmtree(media, ignore_errors=True)
+        shutil.rmtree(static, ignore_errors=True)
+
+
+def test_a_download_from_s3_is_streamed_by_nginx_with_ranges(served_from_s3, live_server, s3):
+    """With S3 storage and GCPS_ACCEL_REDIRECT the bucket need not be reachable by the client: the app
+    names a presigned path-style request, nginx fetches it from the S3 endpoint and streams it."""
+    proxy, measurement_id, token, bucket = served_from_s3
+    headers = {"Authorization": f"Token {token}"}
+    path = f"/api/measurements/{measurement_id}/mesh.ply"
+    direct = requests.get(live_server.url + path, headers=headers, timeout=30, allow_redirects=False)
+    name = derived_name(Measurement.objects.get(pk=measurement_id), "mesh.ply")
+    accel = direct.headers["X-Accel-Redirect"]
+    assert direct.status_code == 200 and direct.content == b""
+    assert accel.startswith(f"/protected-s3/{bucket}/{name}?") and "X-Amz-Signature=" in accel
+    with default_storage.open(name, "rb") as handle:
+        data = handle.read()
+    assert len(data) > 1000 and name in s3.objects(bucket)
+
+    through = requests.get(proxy.base_url + path, headers=headers, timeout=30, allow_redirects=False)
+    assert through.status_code == 200 and through.content == data
+    assert through.headers["Content-Disposition"] == f'attachment; filename="measurement-{measurement_id}-mesh.ply"'
+    assert "X-Accel-Redirect" not in through.headers and "x-amz-request-id" not in through.headers
+    part = requests.get(proxy.base_url + path, headers={**headers, "Range": "bytes=100-199"}, timeout=30)
+    assert part.status_code == 206 and part.content == data[100:200]
+    assert part.headers["Content-Range"] == f"bytes 100-199/{len(data)}"
+    # the internal location is not reachable from outside, and without a token nothing is sent
+    assert requests.get(proxy.base_url + accel, timeout=10).status_code == 404
+    refused = requests.get(proxy.base_url + path, timeout=30)
+    assert refused.status_code in (401, 403) and data[:20] not in refused.content
