@@ -13,8 +13,8 @@ exactly (Newton to 1e-9 projector units) at ``u_k = lo + k h_w`` and ``c0_j = c_
 and interpolates it as a cubic Hermite polynomial in ``u`` (values and exact slopes at the
 nodes: error ~ h_w^4 |Q''''| / 384) and linearly in ``c0`` (error ~ h_c^2 |Q_cc| / 8). Since
 ``c0`` of a camera pixel is fixed, its row of cells and its weight between the two rows are
-computed once per pixel; a frame costs, per pixel, the cell's index, one gather of seven float32
-coefficients from seven contiguous planes and a cubic in the position ``tau`` inside the cell::
+computed once per pixel; a frame costs, per pixel, the cell's index, one gather of seven (or six)
+float32 coefficients from as many contiguous planes and a cubic in the position ``tau`` inside the cell::
 
     Q = sum_m tau^m (A_m + a_c B_m),   A: the cubic of row j, B: row j+1 minus row j
 
@@ -57,8 +57,9 @@ class EpipolarTable:
 
     Attributes
     ----------
-    planes : (7, n_rows * n_cols) float32
-        Per cell (the flat index of the second axis) ``A_0..A_3, B_0..B_2``, one contiguous plane
+    planes : (7 or 6, n_rows * n_cols) float32
+        Per cell (the flat index of the second axis) ``A_0..A_3, B_0..B_2`` (``B_2`` left out
+        where the error allows it, see :meth:`_from_nodes`), one contiguous plane
         per coefficient (a gather from a plane writes a contiguous array); column 0 and the
         last column of each row are NaN guards (coded coordinates outside ``[lo, hi]`` give
         NaN), so flat index 0 is a guard.
@@ -148,15 +149,19 @@ class EpipolarTable:
         scale_w: float,
     ) -> EpipolarTable:
         """The table of node values ``q`` and slopes ``dq`` (``(n_lines, n_w)``, normalized
-        units); ``error`` (projector units) grows by the ``B_3`` left out."""
+        units); ``error`` (projector units) grows by the ``B_3`` left out, and by ``B_2`` when
+        that too fits within :data:`LINE_TOL` (mildly distorted projectors: six planes)."""
         n_lines, n_w = q.shape
         herm = _hermite(q, dq * step_w)  # (n_lines, n_w - 1, 4)
         a, b = herm[:-1], herm[1:] - herm[:-1]
         error += _nanmax(np.abs(b[..., 3])) * scale_w
-        planes = np.full((7, n_lines - 1, n_w + 1), np.nan, np.float32)
+        b2 = _nanmax(np.abs(b[..., 2])) * scale_w
+        n_b = 2 if error + b2 <= LINE_TOL else 3  # B_2 too is left out where the budget allows
+        error += b2 if n_b == 2 else 0.0
+        planes = np.full((4 + n_b, n_lines - 1, n_w + 1), np.nan, np.float32)
         planes[:4, :, 1:-1] = np.moveaxis(a, -1, 0)
-        planes[4:, :, 1:-1] = np.moveaxis(b[..., :3], -1, 0)
-        return cls(planes.reshape(7, -1), lo, step_w, n_w + 1, c_lo, step_c, n_lines, error)
+        planes[4:, :, 1:-1] = np.moveaxis(b[..., :n_b], -1, 0)
+        return cls(planes.reshape(4 + n_b, -1), lo, step_w, n_w + 1, c_lo, step_c, n_lines, error)
 
     def pixel_rows(self, c0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per camera pixel of line intercept ``c0`` (any shape): the flat index of its row's
@@ -187,10 +192,13 @@ class EpipolarTable:
             idx = cell.astype(np.int32)  # NaN: an arbitrary index, clipped to the guard below
         tau = np.subtract(g, cell, out=g)
         idx += base
-        # seven gathers from contiguous planes: A_0..A_3, B_0..B_2 of each pixel's cell
+        # one gather per plane: A_0..A_3, B_0..B_2 (or B_0, B_1) of each pixel's cell
         z = self.planes.take(idx, axis=1, mode="clip")
-        c2 = np.multiply(z[6], frac, out=z[6])
-        c2 += z[2]
+        if len(z) == 7:
+            c2 = np.multiply(z[6], frac, out=z[6])
+            c2 += z[2]
+        else:  # B_2 left out
+            c2 = z[2]
         c1 = np.multiply(z[5], frac, out=z[5])
         c1 += z[1]
         deriv = None
