@@ -15,7 +15,8 @@ rig: only its time and memory count).
 
 Each repeat runs ``gcps measure --rig R --object CAPTURE --out depth.npy`` once per rig, in a
 random order, every process with its own new, empty ``GCPS_LOCAL_CACHE_DIR``; the wall time
-is the child's from start to exit and the peak RSS its ``ru_maxrss`` (``os.wait4``). A last run
+is the child's from start to exit, its CPU time ``ru_utime + ru_stime`` (all its threads;
+less sensitive to a loaded machine than the wall time) and its peak RSS ``ru_maxrss`` (``os.wait4``). A last run
 of the distorted rig with the local cache its first run left (a second process) is timed too.
 Prints the medians, the ratios distorted / distortion-free and a JSON line.
 
@@ -56,8 +57,9 @@ CODEC = {
 """Issue 22's u-only codec."""
 
 
-def gcps(tree: Path, *args: str, env: dict[str, str] | None = None) -> tuple[float, int]:
-    """Run ``gcps ARGS`` of the source tree ``tree`` in a fresh process: (wall seconds, peak RSS bytes)."""
+def gcps(tree: Path, *args: str, env: dict[str, str] | None = None) -> tuple[float, int, float]:
+    """Run ``gcps ARGS`` of the source tree ``tree`` in a fresh process: (wall seconds, peak RSS
+    bytes, CPU seconds: user + system, all threads)."""
     code = "import sys; from metrology.cli import main; sys.argv[0] = 'gcps'; sys.exit(main())"
     full_env = {**os.environ, "PYTHONPATH": str(tree), **(env or {})}
     t0 = time.perf_counter()
@@ -72,7 +74,7 @@ def gcps(tree: Path, *args: str, env: dict[str, str] | None = None) -> tuple[flo
     proc.returncode = os.waitstatus_to_exitcode(status)
     if proc.returncode != 0:
         raise SystemExit(f"gcps {' '.join(args)} failed ({proc.returncode}):\n{err[-2000:]}")
-    return seconds, usage.ru_maxrss * 1024
+    return seconds, usage.ru_maxrss * 1024, usage.ru_utime + usage.ru_stime
 
 
 def set_up(folder: Path) -> tuple[Path, Path, Path]:
@@ -107,6 +109,7 @@ def main() -> None:
         capture = folder / "sphere"
         times: dict[str, list[float]] = {name: [] for name in rigs}
         rss: dict[str, list[int]] = {name: [] for name in rigs}
+        cpu: dict[str, list[float]] = {name: [] for name in rigs}
         last_cache = None
         for i in range(args.repeats):
             order = list(rigs)
@@ -114,23 +117,28 @@ def main() -> None:
             for name in order:
                 cache = folder / f"cache-{name}-{i}"
                 out = folder / f"{name}-{i}.npy"
-                seconds, peak = gcps(
+                seconds, peak, cpu_s = gcps(
                     ROOT,
                     *("measure", "--rig", str(rigs[name]), "--object", str(capture), "--out", str(out)),
                     env={"GCPS_LOCAL_CACHE_DIR": str(cache)},
                 )
                 times[name].append(seconds)
                 rss[name].append(peak)
+                cpu[name].append(cpu_s)
                 if name == "distorted":
                     last_cache = cache
-                print(f"round {i + 1}: {name:9s} {seconds:6.2f} s, peak RSS {peak / 2**20:6.0f} MiB", flush=True)
-        warm, _ = gcps(
+                print(
+                    f"round {i + 1}: {name:9s} {seconds:6.2f} s (CPU {cpu_s:5.2f} s), peak RSS {peak / 2**20:6.0f} MiB",
+                    flush=True,
+                )
+        warm, _, _ = gcps(
             ROOT,
             *("measure", "--rig", str(rigs["distorted"]), "--object", str(capture), "--out", str(folder / "warm.npy")),
             env={"GCPS_LOCAL_CACHE_DIR": str(last_cache)},
         )
         med = {name: statistics.median(ts) for name, ts in times.items()}
         med_rss = {name: statistics.median(r) for name, r in rss.items()}
+        med_cpu = {name: statistics.median(c) for name, c in cpu.items()}
         result: dict[str, float] = {
             "distorted_s": med["distorted"],
             "plain_s": med["plain"],
@@ -139,12 +147,16 @@ def main() -> None:
             "plain_rss_mib": med_rss["plain"] / 2**20,
             "rss_ratio": med_rss["distorted"] / med_rss["plain"],
             "second_process_s": warm,
+            "distorted_cpu_s": med_cpu["distorted"],
+            "plain_cpu_s": med_cpu["plain"],
+            "cpu_ratio": med_cpu["distorted"] / med_cpu["plain"],
         }
         print(
             f"first gcps measure, medians of {args.repeats}: distorted rig {med['distorted']:.2f} s "
             f"({result['distorted_rss_mib']:.0f} MiB), distortion zero {med['plain']:.2f} s "
             f"({result['plain_rss_mib']:.0f} MiB): time ratio {result['time_ratio']:.2f}, "
-            f"RSS ratio {result['rss_ratio']:.2f}; a second process (cache warm) {warm:.2f} s"
+            f"RSS ratio {result['rss_ratio']:.2f}; CPU time {med_cpu['distorted']:.2f} s and {med_cpu['plain']:.2f} s "
+            f"(ratio {result['cpu_ratio']:.2f}); a second process (cache warm) {warm:.2f} s"
         )
         if args.old_tree is not None:
             old_out = folder / "old.npy"
