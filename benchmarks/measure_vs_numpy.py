@@ -24,8 +24,10 @@ Timed, interleaved in a random order per repeat:
   reference's codes (Eqs. 14, 16, 17): ``D = L (p - t q) / (1 + q r) (l - r) / (1 + q l)``,
   ``z = L D / (d + D)``, float32.
 
-Prints the medians, their ratio and a JSON line, and the heights' agreement on the pixels both
-measured (a check that the baseline computes the same thing).
+Prints the medians of the wall time and of the CPU time (user + system, all threads: the
+command's threads add up, the numpy decode has one), their ratios and a JSON line, and the
+heights' agreement on the pixels both measured (a check that the baseline computes the same
+thing).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import argparse
 import json
 import os
 import random
+import resource
 import statistics
 import subprocess
 import sys
@@ -50,9 +53,20 @@ from metrology.core.patterns import PATTERN_NAMES
 ROOT = Path(__file__).resolve().parents[1]
 
 
+CPU: dict[str, list[float]] = {}
+"""CPU seconds (user + system, all threads) of each timed case, beside its wall time."""
+
+
+def _children_cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def gcps(*args: str, env: dict[str, str]) -> float:
-    """Wall seconds of ``gcps ARGS`` in a fresh process (stdout discarded)."""
+    """Wall seconds of ``gcps ARGS`` in a fresh process (stdout discarded); its CPU seconds are
+    appended to ``CPU["gcps measure"]``."""
     code = "import sys; from metrology.cli import main; sys.argv[0] = 'gcps'; sys.exit(main())"
+    c0 = _children_cpu()
     t0 = time.perf_counter()
     done = subprocess.run(
         [sys.executable, "-c", code, *args],
@@ -63,6 +77,7 @@ def gcps(*args: str, env: dict[str, str]) -> float:
         text=True,
     )
     seconds = time.perf_counter() - t0
+    CPU.setdefault("gcps measure", []).append(_children_cpu() - c0)
     if done.returncode != 0:
         raise SystemExit(f"gcps {' '.join(args)} failed:\n{done.stderr[-2000:]}")
     return seconds
@@ -145,12 +160,14 @@ def main() -> None:
         for fn in cases.values():  # warm-up: the page cache, the first process
             fn()
         times: dict[str, list[float]] = {name: [] for name in cases}
+        CPU.clear()  # the set-up's and the warm-up's
         for _ in range(args.repeats):
             order = list(cases)
             rng.shuffle(order)
             for name in order:
                 times[name].append(cases[name]())
         med = {name: statistics.median(ts) for name, ts in times.items()}
+        cpu = {name: statistics.median(CPU[name][: args.repeats]) for name in cases}
         ours, plain = np.load(out), numpy_heights(rig, ref, obj)
         both = np.isfinite(ours) & np.isfinite(plain)
         diff = np.abs(ours[both] - plain[both])
@@ -159,13 +176,17 @@ def main() -> None:
             "gcps_measure_s": med["gcps measure"],
             "numpy_decode_s": med["numpy decode"],
             "ratio": med["gcps measure"] / med["numpy decode"],
+            "gcps_measure_cpu_s": cpu["gcps measure"],
+            "numpy_decode_cpu_s": cpu["numpy decode"],
+            "cpu_ratio": cpu["gcps measure"] / cpu["numpy decode"],
             "gcps_valid_fraction": float(np.isfinite(ours).mean()),
             "numpy_valid_fraction": float(np.isfinite(plain).mean()),
             "height_median_abs_diff_um": float(np.median(diff) * 1e3),
         }
         print(
             f"{result['size']}, medians of {args.repeats}: gcps measure {med['gcps measure']:.3f} s (a fresh process), "
-            f"numpy decode of the pair in memory {med['numpy decode']:.3f} s: ratio {result['ratio']:.2f}; "
+            f"numpy decode of the pair in memory {med['numpy decode']:.3f} s: ratio {result['ratio']:.2f}; CPU time "
+            f"{cpu['gcps measure']:.3f} s and {cpu['numpy decode']:.3f} s: ratio {result['cpu_ratio']:.2f}; "
             f"valid {result['gcps_valid_fraction']:.3f} (gcps, filtered) and {result['numpy_valid_fraction']:.3f} "
             f"(numpy), heights' median difference {result['height_median_abs_diff_um']:.2f} um"
         )
@@ -173,10 +194,13 @@ def main() -> None:
 
 
 def _timed(fn: object) -> float:
+    """Wall seconds of ``fn()``; its CPU seconds are appended to ``CPU["numpy decode"]``."""
     assert callable(fn)
-    t0 = time.perf_counter()
+    c0, t0 = time.process_time(), time.perf_counter()
     fn()
-    return time.perf_counter() - t0
+    seconds = time.perf_counter() - t0
+    CPU.setdefault("numpy decode", []).append(time.process_time() - c0)
+    return seconds
 
 
 if __name__ == "__main__":
