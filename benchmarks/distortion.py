@@ -51,16 +51,25 @@ CAMERA, PROJECTOR = RIG.camera, RIG.projector
 CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
 
 
+CPU_MEDIANS: dict[str, float] = {}
+"""The median CPU seconds (this process, all threads) of the cases of the last :func:`interleaved`."""
+
+
 def interleaved(cases: dict[str, Callable[[], object]], repeats: int) -> dict[str, float]:
-    """Median seconds of each case, the cases called in turn ``repeats`` times after a warm-up."""
+    """Median seconds of each case, the cases called in turn ``repeats`` times after a warm-up;
+    their median CPU seconds go to :data:`CPU_MEDIANS` (less sensitive to a loaded machine)."""
     for fn in cases.values():
         fn()
     times: dict[str, list[float]] = {name: [] for name in cases}
+    cpu: dict[str, list[float]] = {name: [] for name in cases}
     for _ in range(repeats):
         for name, fn in cases.items():
-            t0 = time.perf_counter()
+            c0, t0 = time.process_time(), time.perf_counter()
             fn()
             times[name].append(time.perf_counter() - t0)
+            cpu[name].append(time.process_time() - c0)
+    CPU_MEDIANS.clear()
+    CPU_MEDIANS.update({name: statistics.median(ts) for name, ts in cpu.items()})
     return {name: statistics.median(ts) for name, ts in times.items()}
 
 
@@ -140,14 +149,17 @@ def triangulation_rows(repeats: int, threads: int | None) -> dict[str, float]:
     n = CAMERA.width_px * CAMERA.height_px
     for axes in ("u", "uv"):
         a, b = med[f"{axes} distorted"], med[f"{axes} plain"]
+        ca, cb = CPU_MEDIANS[f"{axes} distorted"], CPU_MEDIANS[f"{axes} plain"]
         print(
             f"triangulate {axes:2s}: distorted projector {a * 1e3:6.1f} ms ({n / a / 1e6:5.1f} Mpx/s), "
-            f"without projector distortion {b * 1e3:6.1f} ms ({n / b / 1e6:5.1f} Mpx/s): ratio {a / b:.2f}",
+            f"without projector distortion {b * 1e3:6.1f} ms ({n / b / 1e6:5.1f} Mpx/s): ratio {a / b:.2f}; "
+            f"CPU time {ca * 1e3:.1f} ms and {cb * 1e3:.1f} ms: ratio {ca / cb:.2f}",
             flush=True,
         )
         out[f"triangulate_{axes}_distorted_s"] = a
         out[f"triangulate_{axes}_plain_s"] = b
         out[f"triangulate_{axes}_ratio"] = a / b
+        out[f"triangulate_{axes}_cpu_ratio"] = ca / cb
     return out
 
 

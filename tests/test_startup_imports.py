@@ -15,6 +15,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
+from tests.commands.rigs import RIG as CROSSED_RIG
 from tests.import_graph import imported_modules, module_name
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -225,3 +228,103 @@ def test_a_worker_loads_the_job_code_as_it_starts():
     assert {"metrology.measurements.services", "metrology.calibrations.procam_services"} <= after
     pipelines = {module_name(path) for path in (ROOT / "metrology" / "pipeline").glob("[!_]*.py")}
     assert pipelines <= after, pipelines - after
+
+
+# ----------------------------------------------------------------------------- a measurement process
+MEASURING_NEEDS_NONE_OF = (
+    "scipy.optimize",
+    "scipy.ndimage",
+    "metrology.core.codecs.render",
+    "metrology.core.simulate",
+    "open3d",
+    "plotly",
+    "django",
+)
+"""Modules a ``gcps measure`` or ``gcps decode`` process must not import (issue 22 item 3): the
+renderer and the optimisers, the mesh and figure libraries, Django; each is loaded where it is
+used (``--mesh`` loads Open3D, calibration SciPy's optimisers, ``gcps simulate`` the renderer)."""
+
+
+def gcps_imports(tmp: Path, *args: str) -> dict[str, str]:
+    """``gcps ARGS`` run for real in a fresh interpreter with ``-X importtime``: the import chain of
+    each module of :data:`MEASURING_NEEDS_NONE_OF` it imported (empty when it imported none)."""
+    code = "import sys; from metrology.cli import main; sys.exit(main(sys.argv[1:]))"
+    env = {"PATH": os.environ.get("PATH", ""), "PYTHONPATH": str(ROOT), "GCPS_LOCAL_CACHE_DIR": str(tmp / "cache")}
+    done = subprocess.run(
+        [sys.executable, "-X", "importtime", "-c", code, "--quiet", *args],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    rows = importtime_tree(done.stderr)
+    assert any(name == "numpy" for _, name in rows), "no -X importtime output"
+    return {
+        name: " <- ".join(reversed(import_chain(rows, index)))
+        for index, (_, name) in enumerate(rows)
+        if name in MEASURING_NEEDS_NONE_OF
+    }
+
+
+def test_a_planted_import_is_found_in_a_gcps_process(tmp_path: Path) -> None:
+    """The check sees a module a command does import: ``gcps simulate`` renders."""
+    (tmp_path / "rig.json").write_text(CROSSED_RIG.to_json())
+    found = gcps_imports(
+        tmp_path,
+        *("simulate", "--rig", str(tmp_path / "rig.json"), "--scene", "reference", "--out", str(tmp_path / "ref")),
+        *("--preset", "noise-free", "--supersample", "1"),
+    )
+    assert "metrology.core.codecs.render" in found or "metrology.core.simulate" in found, found
+
+
+def test_measuring_processes_import_only_what_measuring_needs(tmp_path: Path) -> None:
+    """Real ``gcps measure`` runs (gcps-v1 with a reference on the crossed-axes rig; a distorted
+    pinhole rig with a u-only codec, its epipolar table built) and a ``gcps decode``, each in a
+    fresh interpreter, import none of :data:`MEASURING_NEEDS_NONE_OF`."""
+    import cv2
+
+    from metrology.core.codecs import codec_from_dict, render_codec
+    from tests.pinhole_stacks import CODEC, RIG, cast_scene
+
+    rig = tmp_path / "crossed.json"
+    rig.write_text(CROSSED_RIG.to_json())
+    for scene in ("reference", "sphere"):  # rendered in this process: the renderer is not under test
+        from metrology.cli import main
+
+        assert (
+            main(
+                [
+                    *("--quiet", "simulate", "--rig", str(rig), "--scene", scene, "--out", str(tmp_path / scene)),
+                    *("--preset", "noise-free", "--supersample", "1"),
+                ]
+            )
+            == 0
+        )
+    pinhole_rig = tmp_path / "pinhole.json"
+    pinhole_rig.write_text(RIG.to_json())
+    capture = tmp_path / "pinhole-sphere"
+    capture.mkdir()
+    truth = cast_scene("sphere", 600.0)
+    for i, image in enumerate(render_codec(codec_from_dict(CODEC), truth.u, None)):
+        assert cv2.imwrite(str(capture / f"frame_{i:02d}.png"), image)
+    (capture / "codec.json").write_text(json.dumps(CODEC))
+    runs = {
+        "gcps measure gcps-v1": (
+            *("measure", "--rig", str(rig), "--reference", str(tmp_path / "reference")),
+            *("--object", str(tmp_path / "sphere"), "--out", str(tmp_path / "h.npy")),
+            *("--json", str(tmp_path / "s.json")),
+        ),
+        "gcps measure pinhole": (
+            *("measure", "--rig", str(pinhole_rig), "--object", str(capture), "--out", str(tmp_path / "z.npy")),
+            *("--xyz", str(tmp_path / "xyz.npy"), "--sigma", str(tmp_path / "sigma.npy")),
+        ),
+        "gcps decode": ("decode", "--stack", str(capture), "--out", str(tmp_path / "uv.npy")),
+    }
+    found = {name: gcps_imports(tmp_path, *args) for name, args in runs.items()}
+    assert np.isfinite(np.load(tmp_path / "z.npy")).mean() > 0.3  # the commands measured
+    assert np.isfinite(np.load(tmp_path / "h.npy")).mean() > 0.3
+    assert not any(found.values()), "a measurement process imported:\n" + "\n".join(
+        f"{run}: {name}: {chain}" for run, chains in found.items() for name, chain in chains.items()
+    )

@@ -17,8 +17,10 @@ measurement job does) and writes its outputs, each atomically, only once all are
 from __future__ import annotations
 
 import argparse
+import contextlib
+import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from metrology.commands.common import (
     BadInputError,
@@ -30,6 +32,9 @@ from metrology.commands.common import (
     read_capture,
     write_json,
 )
+
+if TYPE_CHECKING:
+    from metrology.core.geometry.base import GeometryModel, GeometryOptions
 
 MESH_SUFFIXES = (".ply", ".stl", ".obj")
 
@@ -62,12 +67,32 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=cmd_measure)
 
 
+def prepare_while_reading(
+    model: GeometryModel, projector_size: tuple[float, float] | None, geometry: GeometryOptions
+) -> threading.Thread:
+    """Prepare ``model`` (its per-pixel tables: a distorted rig's undistortion, its epipolar table)
+    on a thread, while the caller reads the captures: both wait mostly outside the GIL (OpenCV's
+    image decoding, numpy), so on two cores the first measurement of a rig costs about the longer
+    of the two instead of their sum. The caller joins the thread before measuring, so the
+    pipeline's own ``prepare`` finds the prepared model in the model's cache. A failure here is
+    left for the pipeline to raise, with its message, in the caller's thread."""
+
+    def run() -> None:
+        with contextlib.suppress(Exception):
+            model.prepare(model.shape, projector_size, geometry)
+
+    thread = threading.Thread(target=run, name="gcps-prepare", daemon=True)
+    thread.start()
+    return thread
+
+
 def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     """Read the rig and the captures, measure (the pipeline), write the outputs; the summary."""
     import numpy as np
 
     from metrology.core.codecs.check import summary_of
     from metrology.core.io import atomic_path, write_height_npy
+    from metrology.core.measure import uses_fused_gcps_v1
     from metrology.core.mesh import surface_mesh, write_mesh_file
     from metrology.pipeline.measure import measure
 
@@ -87,9 +112,6 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
             f"--reference is required: a {model.short_label} rig measures against a capture of the reference plane"
         )
     codec = captures_codec(args.codec, [("reference", args.reference), ("object", args.object)])
-    reference = None if args.reference is None else read_capture(args.reference, codec, model, "reference")
-    obj = read_capture(args.object, codec, model, "object")
-    read_s = time.perf_counter() - started
     options = measure_options(
         args,
         gray_only=bool(args.json),
@@ -97,6 +119,16 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
         max_sigma_mm=args.max_sigma,
         allow_inconsistent_codec=args.allow_inconsistent_codec,
     )
+    preparing = None
+    if uses_fused_gcps_v1(model, codec):  # the fused kernel takes light codes: no projector size
+        preparing = prepare_while_reading(model, None, options.geometry)
+    elif codec is not None:
+        preparing = prepare_while_reading(model, (codec.projector_width, codec.projector_height), options.geometry)
+    reference = None if args.reference is None else read_capture(args.reference, codec, model, "reference")
+    obj = read_capture(args.object, codec, model, "object")
+    if preparing is not None:
+        preparing.join()  # the prepared model is in the model's cache: measure() finds it there
+    read_s = time.perf_counter() - started
     result = None
     if ply_mesh and not asked_sigma:  # a PLY mesh carries sigma_mm per vertex when the codec gives it
         try:

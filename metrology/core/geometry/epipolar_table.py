@@ -13,13 +13,14 @@ exactly (Newton to 1e-9 projector units) at ``u_k = lo + k h_w`` and ``c0_j = c_
 and interpolates it as a cubic Hermite polynomial in ``u`` (values and exact slopes at the
 nodes: error ~ h_w^4 |Q''''| / 384) and linearly in ``c0`` (error ~ h_c^2 |Q_cc| / 8). Since
 ``c0`` of a camera pixel is fixed, its row of cells and its weight between the two rows are
-computed once per pixel; a frame costs one gather of four complex64 coefficients per pixel and a
-cubic in the position ``tau`` inside the cell::
+computed once per pixel; a frame costs, per pixel, the cell's index, one gather of seven (or six)
+float32 coefficients from as many contiguous planes and a cubic in the position ``tau`` inside the cell::
 
     Q = sum_m tau^m (A_m + a_c B_m),   A: the cubic of row j, B: row j+1 minus row j
 
-evaluated as ``Z = sum_m tau^m z_m`` with ``z_m = A_m + i B_m`` (complex Horner), ``Q = Re Z +
-a_c Im Z``.
+evaluated by Horner's rule on the blended coefficients, all on contiguous float32 arrays. ``B_3``
+(the change of the cubic term from one line to the next, ~1e-6 projector units on strongly
+distorted projectors) is left out and its largest value added to the table's error.
 
 For the coded axis ``v`` exchange the roles of ``x`` and ``y``.
 """
@@ -56,10 +57,12 @@ class EpipolarTable:
 
     Attributes
     ----------
-    cells : (n_rows * n_cols, 4) complex64
-        Per cell ``z_m = A_m + i B_m``, ``m = 0..3`` (one gather of 32 bytes per pixel, one complex
-        Horner); column 0 and the last column of each row are NaN guards (coded coordinates
-        outside ``[lo, hi]`` give NaN), so flat index 0 is a guard.
+    planes : (7 or 6, n_rows * n_cols) float32
+        Per cell (the flat index of the second axis) ``A_0..A_3, B_0..B_2`` (``B_2`` left out
+        where the error allows it, see :meth:`_from_nodes`), one contiguous plane
+        per coefficient (a gather from a plane writes a contiguous array); column 0 and the
+        last column of each row are NaN guards (coded coordinates outside ``[lo, hi]`` give
+        NaN), so flat index 0 is a guard.
     lo, step_w : float
         The first node and the spacing along the coded axis, projector units.
     n_cols : int
@@ -72,7 +75,7 @@ class EpipolarTable:
         The estimated interpolation error, projector units.
     """
 
-    cells: np.ndarray
+    planes: np.ndarray
     lo: float
     step_w: float
     n_cols: int
@@ -84,12 +87,12 @@ class EpipolarTable:
     def to_arrays(self) -> dict[str, np.ndarray]:
         """The table as arrays (for the local cache); :meth:`from_arrays` inverts it."""
         meta = [self.lo, self.step_w, self.n_cols, self.c_lo, self.step_c, self.n_lines, self.error]
-        return {"line_cells": self.cells, "line_meta": np.asarray(meta, np.float64)}
+        return {"line_planes": self.planes, "line_meta": np.asarray(meta, np.float64)}
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray]) -> EpipolarTable:
         lo, step_w, n_cols, c_lo, step_c, n_lines, error = (float(x) for x in arrays["line_meta"])
-        return cls(arrays["line_cells"], lo, step_w, int(n_cols), c_lo, step_c, int(n_lines), error)
+        return cls(arrays["line_planes"], lo, step_w, int(n_cols), c_lo, step_c, int(n_lines), error)
 
     @classmethod
     def build(
@@ -130,18 +133,35 @@ class EpipolarTable:
                 err_c = _nanmax(np.abs(q[2:] - 2 * q[1:-1] + q[:-2])) / 8 * scale_w if n_lines > 2 else 0.0
                 if err_w + err_c > LINE_TOL:
                     break  # a finer step across the lines
-                return cls._from_nodes(q, dq, lo, step_w, c_range[0], step_c, err_w + err_c)
+                return cls._from_nodes(q, dq, lo, step_w, c_range[0], step_c, err_w + err_c, scale_w)
         return None
 
     @classmethod
     def _from_nodes(
-        cls, q: np.ndarray, dq: np.ndarray, lo: float, step_w: float, c_lo: float, step_c: float, error: float
+        cls,
+        q: np.ndarray,
+        dq: np.ndarray,
+        lo: float,
+        step_w: float,
+        c_lo: float,
+        step_c: float,
+        error: float,
+        scale_w: float,
     ) -> EpipolarTable:
+        """The table of node values ``q`` and slopes ``dq`` (``(n_lines, n_w)``, normalized
+        units); ``error`` (projector units) grows by the ``B_3`` left out, and by ``B_2`` when
+        that too fits within :data:`LINE_TOL` (mildly distorted projectors: six planes)."""
         n_lines, n_w = q.shape
         herm = _hermite(q, dq * step_w)  # (n_lines, n_w - 1, 4)
-        cells = np.full((n_lines - 1, n_w + 1, 4), np.nan, np.complex64)
-        cells[:, 1:-1] = herm[:-1] + 1j * (herm[1:] - herm[:-1])
-        return cls(cells.reshape(-1, 4), lo, step_w, n_w + 1, c_lo, step_c, n_lines, error)
+        a, b = herm[:-1], herm[1:] - herm[:-1]
+        error += _nanmax(np.abs(b[..., 3])) * scale_w
+        b2 = _nanmax(np.abs(b[..., 2])) * scale_w
+        n_b = 2 if error + b2 <= LINE_TOL else 3  # B_2 too is left out where the budget allows
+        error += b2 if n_b == 2 else 0.0
+        planes = np.full((4 + n_b, n_lines - 1, n_w + 1), np.nan, np.float32)
+        planes[:4, :, 1:-1] = np.moveaxis(a, -1, 0)
+        planes[4:, :, 1:-1] = np.moveaxis(b[..., :n_b], -1, 0)
+        return cls(planes.reshape(4 + n_b, -1), lo, step_w, n_w + 1, c_lo, step_c, n_lines, error)
 
     def pixel_rows(self, c0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per camera pixel of line intercept ``c0`` (any shape): the flat index of its row's
@@ -167,33 +187,38 @@ class EpipolarTable:
         g = np.subtract(coded, np.float32(self.lo - self.step_w), dtype=np.float32)
         g *= inv
         np.clip(g, np.float32(0.0), np.float32(self.n_cols - 1e-3), out=g)
+        cell = np.floor(g)
         with np.errstate(invalid="ignore"):
-            idx = g.astype(np.int32)  # NaN: an arbitrary index, clipped to the guard below
-        g -= idx  # tau
-        np.add(idx, base, out=idx)
-        # one gather of the row's cubic and its difference to the next row as complex numbers
-        # z_m = A_m + i B_m, one complex Horner in tau (real): Z = P_A(tau) + i P_B(tau)
-        z = self.cells.take(idx, axis=0, mode="clip")
-        tau = g.astype(np.complex64)
-        acc = z[..., 3] * tau
+            idx = cell.astype(np.int32)  # NaN: an arbitrary index, clipped to the guard below
+        tau = np.subtract(g, cell, out=g)
+        idx += base
+        # one gather per plane: A_0..A_3, B_0..B_2 (or B_0, B_1) of each pixel's cell
+        z = self.planes.take(idx, axis=1, mode="clip")
+        if len(z) == 7:
+            c2 = np.multiply(z[6], frac, out=z[6])
+            c2 += z[2]
+        else:  # B_2 left out
+            c2 = z[2]
+        c1 = np.multiply(z[5], frac, out=z[5])
+        c1 += z[1]
         deriv = None
-        if derivative:  # dZ/dtau = z_1 + 2 z_2 tau + 3 z_3 tau^2
-            d = acc * np.complex64(3.0)
-            d += np.complex64(2.0) * z[..., 2]
+        if derivative:  # dq/dtau = c1 + 2 c2 tau + 3 A3 tau^2, per projector unit: times 1/h
+            d = z[3] * np.float32(3.0)
             d *= tau
-            d += z[..., 1]
-            dq = d.imag * frac
-            dq += d.real
-            dq *= inv
-            deriv = dq
-        acc += z[..., 2]
+            d += np.float32(2.0) * c2
+            d *= tau
+            d += c1
+            d *= inv
+            deriv = d
+        acc = np.multiply(z[3], tau, out=z[3])
+        acc += c2
         acc *= tau
-        acc += z[..., 1]
+        acc += c1
         acc *= tau
-        acc += z[..., 0]
-        q = acc.imag * frac
-        q += acc.real
-        return q, deriv
+        acc += z[0]
+        c0 = np.multiply(z[4], frac, out=z[4])
+        acc += c0
+        return acc, deriv
 
 
 def _hermite(q: np.ndarray, d: np.ndarray) -> np.ndarray:

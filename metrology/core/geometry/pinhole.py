@@ -104,7 +104,7 @@ PROJECTOR_TOL = 1e-6
 """Convergence tolerance of the projector coordinate's undistortion, projector units."""
 PROJECTOR_MAX_ITER = 30
 
-TABLES_FORMAT = 2
+TABLES_FORMAT = 3
 """Version of the prepared tables' layout in the local cache (:mod:`metrology.core.local_cache`)."""
 CACHE_KIND = "pinhole"
 """The local cache's folder for prepared pinhole tables."""
@@ -558,7 +558,7 @@ class PreparedPinhole(PreparedGeometry):
         if stored is not None and stored["xn"].shape == self.shape:
             xn, yn = stored["xn"], stored["yn"]
             kept: dict[str, np.ndarray] = {k: stored[k] for k in ("line_base", "line_frac") if k in stored}
-            if "line_cells" in stored:
+            if "line_planes" in stored:
                 self._line = EpipolarTable.from_arrays(stored)
         else:
             stored = None

@@ -121,11 +121,12 @@ class UndistortionGrid:
             gv *= inv
         np.clip(gu, np.float32(0.0), np.float32(n_cols - 1e-3), out=gu)  # NaN stays NaN
         np.clip(gv, np.float32(0.0), np.float32(n_rows - 1e-3), out=gv)
+        cu, cv = np.floor(gu), np.floor(gv)  # the cell's column and row (gu, gv >= 0)
         with np.errstate(invalid="ignore"):  # NaN: an arbitrary index, clipped by take(); NaN propagates
-            iu = gu.astype(np.int32)
-            iv = gv.astype(np.int32)
-        gu -= iu  # a_u
-        gv -= iv  # a_v
+            iu = cu.astype(np.int32)
+            iv = cv.astype(np.int32)
+        gu -= cu  # a_u (float32 minus float32: no float64 temporary)
+        gv -= cv  # a_v
         iv *= np.int32(n_cols)
         iv += iu
         c = coef.take(iv, axis=0, mode="clip")
