@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import argparse
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from metrology.commands.common import (
     BadInputError,
@@ -30,6 +30,9 @@ from metrology.commands.common import (
     read_capture,
     write_json,
 )
+
+if TYPE_CHECKING:  # pragma: no cover
+    from metrology.core.measure import MeasureOptions, Reference
 
 MESH_SUFFIXES = (".ply", ".stl", ".obj")
 
@@ -69,6 +72,7 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     from metrology.core.codecs.check import summary_of
     from metrology.core.io import atomic_path, write_height_npy
     from metrology.core.mesh import surface_mesh, write_mesh_file
+    from metrology.core.reference_cache import cached_reference
     from metrology.pipeline.measure import measure
 
     check_output(args.out, (".npy",), "--out")
@@ -87,7 +91,7 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
             f"--reference is required: a {model.short_label} rig measures against a capture of the reference plane"
         )
     codec = captures_codec(args.codec, [("reference", args.reference), ("object", args.object)])
-    reference = None if args.reference is None else read_capture(args.reference, codec, model, "reference")
+    reference_images = None if args.reference is None else read_capture(args.reference, codec, model, "reference")
     obj = read_capture(args.object, codec, model, "object")
     read_s = time.perf_counter() - started
     options = measure_options(
@@ -97,15 +101,26 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
         max_sigma_mm=args.max_sigma,
         allow_inconsistent_codec=args.allow_inconsistent_codec,
     )
+    reference_cache: dict[str, Any] | None = None
+
+    def reference_for(opts: MeasureOptions) -> Reference | None:
+        """The decoded reference, from the local cache when a process decoded it before
+        (docs/command-line.md, "Kept references")."""
+        nonlocal reference_cache
+        if reference_images is None:
+            return None
+        kept, reference_cache = cached_reference(model, reference_images, codec, opts)
+        return kept
+
     result = None
     if ply_mesh and not asked_sigma:  # a PLY mesh carries sigma_mm per vertex when the codec gives it
         try:
-            result = measure(model, reference, obj, options.with_sigma(), codec=codec)
+            result = measure(model, reference_for(options.with_sigma()), obj, options.with_sigma(), codec=codec)
         except ValueError as exc:
             if "uncertainty" not in str(exc):
                 raise
     if result is None:
-        result = measure(model, reference, obj, options, codec=codec)
+        result = measure(model, reference_for(options), obj, options, codec=codec)
     measurement = result.measurement
     z = result.z_mm
     points = measurement.points_mm() if (args.xyz or args.mesh) else None
@@ -151,7 +166,8 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
             "gray_only_valid_pixels": gray.get("valid_pixels"),
             "gray_only": gray or None,
             "reference_plane": data["reference_plane"],
-            "timings_s": {"read_s": read_s, **result.timings_s},
+            "timings_s": {"read_s": read_s, **result.timings_s, **_reference_timings(reference_cache)},
+            "reference_cache": reference_cache,
             "options": options.to_dict(),  # as asked (a PLY mesh's sigma is computed beside them)
             "software_version": result.software_version,
             "rig": model.to_dict(),
@@ -162,3 +178,13 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
             report["decoding"] = data["decoding"]
         write_json(report, args.json)
     return summary
+
+
+def _reference_timings(report: dict[str, Any] | None) -> dict[str, float]:
+    """The reference's share of the timings: its decode (``measure.reference_decode_s``, as when the
+    measurement decodes it) on a miss of the local cache, the read of the kept one on a hit."""
+    if report is None:
+        return {}
+    if report["hit"]:
+        return {"reference_cache_s": report["hash_s"] + report["load_s"]}
+    return {"measure.reference_decode_s": report["decode_s"], "reference_cache_s": report["hash_s"]}
