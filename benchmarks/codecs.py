@@ -1,9 +1,9 @@
 """Codec decoding throughput (issue 11, item 7), against baselines timed in the same run.
 
-    .venv/bin/python benchmarks/codecs.py                 # the three rows + OpenCV-contrib GrayCodePattern
+    .venv/bin/python benchmarks/codecs.py                 # the four rows + OpenCV-contrib GrayCodePattern
     .venv/bin/python benchmarks/codecs.py --no-opencv --repeats 5
 
-Three 2048x1536 8-bit stacks (camera = 2048x1536, seeing a 1920x1080 projector through a
+Four 2048x1536 8-bit stacks (camera = 2048x1536, seeing a 1920x1080 projector through a
 mild affine map, 1.5 grey levels of noise, rendered by :func:`render_codec`'s pattern model):
 
 * ``24-frame axis``: u only, an 18-step square-wave phase of period 32 px + 6 gray bits of
@@ -13,6 +13,11 @@ mild affine map, 1.5 grey levels of noise, rendered by :func:`render_codec`'s pa
   (5 bits u, 4 bits v), white, black;
 * ``42-frame two-axis gray``: OpenCV-style single-pixel gray code with inverses, 11 bits u
   (2048 words) and 10 bits v, white, black.
+* ``48-frame axis``: the 24-frame axis with 42 phase steps, for the cost per frame.
+
+``targets`` prints issue 22's ratios from these medians: the 24-frame decode over the copy of
+its frames (target <= 4) and the 48-frame row's milliseconds per frame over the 24-frame row's
+(target <= 1.5).
 
 Each row is timed as :func:`decode_codec` (all outputs: coordinates, modulation, mean,
 noise, reasons: what ``gcps decode --quality`` computes), as ``coordinates only`` (no noise
@@ -53,20 +58,27 @@ WIDTH, HEIGHT = 2048, 1536
 PROJECTOR = {"width": 1920, "height": 1080}
 
 
-def codec_24() -> Codec:
+def codec_24(frames: int = 24) -> Codec:
+    """u only: ``frames - 6`` square-wave phase steps of period 32 px, then 6 gray bits of 32-px words."""
+    steps = frames - 6
     return codec_from_dict(
         {
             "codec": "gcps-codec/1",
-            "frames": 24,
+            "frames": frames,
             "projector": PROJECTOR,
             "axes": {
                 "u": {
-                    "phase": [{"frames": list(range(18)), "period": 32.0, "waveform": "square", "origin": -0.5}],
-                    "gray": {"frames": list(range(18, 24)), "word": 32.0, "origin": -0.5, "order": "msb_first"},
+                    "phase": [{"frames": list(range(steps)), "period": 32.0, "waveform": "square", "origin": -0.5}],
+                    "gray": {"frames": list(range(steps, frames)), "word": 32.0, "origin": -0.5, "order": "msb_first"},
                 }
             },
         }
     )
+
+
+def codec_48() -> Codec:
+    """The 24-frame axis with 42 phase steps: twice the frames, for the per-frame cost."""
+    return codec_24(48)
 
 
 def codec_32() -> Codec:
@@ -193,13 +205,14 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--no-opencv", action="store_true")
     parser.add_argument("--threads", type=int, default=None)
-    parser.add_argument("--rows", default="24,32,42", help="which stacks, e.g. 24 or 24,42")
+    parser.add_argument("--rows", default="24,32,42,48", help="which stacks, e.g. 24 or 24,42")
     args = parser.parse_args()
     retain_freed_memory()
     makers = {
         "24": ("24-frame axis", codec_24),
         "32": ("32-frame two-axis", codec_32),
         "42": ("42-frame two-axis gray", codec_42),
+        "48": ("48-frame axis", codec_48),
     }
     result: dict[str, Any] = {
         "size": f"{WIDTH}x{HEIGHT}",
@@ -235,7 +248,19 @@ def main() -> None:
             "memory_bound_ms": round(medians["memory bound"] * 1e3, 2),
             "memory_bound_mpx_s": round(px / medians["memory bound"] / 1e6, 1),
             "ratio_to_memory_bound": round(medians["decode"] / medians["memory bound"], 2),
+            "coordinates_only_ratio_to_memory_bound": round(medians["coordinates only"] / medians["memory bound"], 2),
+            "decode_ms_per_frame": round(medians["decode"] * 1e3 / codec.n_frames, 3),
             "decoded_fraction": {name: round(float(a.valid.mean()), 4) for name, a in decoded.axes.items()},
+        }
+    one, two = result["rows"].get("24-frame axis"), result["rows"].get("48-frame axis")
+    if one is not None and two is not None:
+        # issue 22's targets: a 24-frame codec at most 4x the copy of its frames, 48 frames at most
+        # 1.5x the per-frame cost of 24 (both rows' medians from this process)
+        result["targets"] = {
+            "24-frame decode / copy of its frames (<= 4)": one["ratio_to_memory_bound"],
+            "48-frame per-frame cost / 24-frame per-frame cost (<= 1.5)": round(
+                two["decode_ms_per_frame"] / one["decode_ms_per_frame"], 3
+            ),
         }
     if not args.no_opencv:
         baseline = opencv_baselines(max(1, args.repeats // 3))

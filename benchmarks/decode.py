@@ -166,6 +166,10 @@ def run_size(width: int, height: int, repeats: int, with_opencv: bool) -> dict:
     for name, s in seconds.items():
         print(f"  {name:40s} {s * 1e3:8.2f} {mpx / s:8.1f} {s / floor:8.1f}")
     print(f"  peak extra memory, object vs kept reference: {result['peak_extra_bytes_per_px']:.1f} bytes/px")
+    # issue 22's target: decode + triangulate against a kept reference at most 3x the memory bound
+    ratio = seconds["decode + triangulate vs kept reference"] / floor
+    result["target_ratio_to_memory_bound"] = ratio
+    print(f"  target: decode + triangulate vs kept reference / memory bound = {ratio:.2f} (<= 3)")
     if with_opencv:
         cv = opencv_baseline(width, height)
         if cv:

@@ -35,6 +35,7 @@ from metrology.commands.common import (
 
 if TYPE_CHECKING:
     from metrology.core.geometry.base import GeometryModel, GeometryOptions
+    from metrology.core.measure import MeasureOptions, Reference
 
 MESH_SUFFIXES = (".ply", ".stl", ".obj")
 
@@ -94,6 +95,7 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     from metrology.core.io import atomic_path, write_height_npy
     from metrology.core.measure import uses_fused_gcps_v1
     from metrology.core.mesh import surface_mesh, write_mesh_file
+    from metrology.core.reference_cache import cached_reference
     from metrology.pipeline.measure import measure
 
     check_output(args.out, (".npy",), "--out")
@@ -124,20 +126,31 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
         preparing = prepare_while_reading(model, None, options.geometry)
     elif codec is not None:
         preparing = prepare_while_reading(model, (codec.projector_width, codec.projector_height), options.geometry)
-    reference = None if args.reference is None else read_capture(args.reference, codec, model, "reference")
+    reference_images = None if args.reference is None else read_capture(args.reference, codec, model, "reference")
     obj = read_capture(args.object, codec, model, "object")
     if preparing is not None:
         preparing.join()  # the prepared model is in the model's cache: measure() finds it there
     read_s = time.perf_counter() - started
+    reference_cache: dict[str, Any] | None = None
+
+    def reference_for(opts: MeasureOptions) -> Reference | None:
+        """The decoded reference, from the local cache when a process decoded it before
+        (docs/command-line.md, "Kept references")."""
+        nonlocal reference_cache
+        if reference_images is None:
+            return None
+        kept, reference_cache = cached_reference(model, reference_images, codec, opts)
+        return kept
+
     result = None
     if ply_mesh and not asked_sigma:  # a PLY mesh carries sigma_mm per vertex when the codec gives it
         try:
-            result = measure(model, reference, obj, options.with_sigma(), codec=codec)
+            result = measure(model, reference_for(options.with_sigma()), obj, options.with_sigma(), codec=codec)
         except ValueError as exc:
             if "uncertainty" not in str(exc):
                 raise
     if result is None:
-        result = measure(model, reference, obj, options, codec=codec)
+        result = measure(model, reference_for(options), obj, options, codec=codec)
     measurement = result.measurement
     z = result.z_mm
     points = measurement.points_mm() if (args.xyz or args.mesh) else None
@@ -183,7 +196,8 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
             "gray_only_valid_pixels": gray.get("valid_pixels"),
             "gray_only": gray or None,
             "reference_plane": data["reference_plane"],
-            "timings_s": {"read_s": read_s, **result.timings_s},
+            "timings_s": {"read_s": read_s, **result.timings_s, **_reference_timings(reference_cache)},
+            "reference_cache": reference_cache,
             "options": options.to_dict(),  # as asked (a PLY mesh's sigma is computed beside them)
             "software_version": result.software_version,
             "rig": model.to_dict(),
@@ -194,3 +208,13 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
             report["decoding"] = data["decoding"]
         write_json(report, args.json)
     return summary
+
+
+def _reference_timings(report: dict[str, Any] | None) -> dict[str, float]:
+    """The reference's share of the timings: its decode (``measure.reference_decode_s``, as when the
+    measurement decodes it) on a miss of the local cache, the read of the kept one on a hit."""
+    if report is None:
+        return {}
+    if report["hit"]:
+        return {"reference_cache_s": report["hash_s"] + report["load_s"]}
+    return {"measure.reference_decode_s": report["decode_s"], "reference_cache_s": report["hash_s"]}

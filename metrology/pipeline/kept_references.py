@@ -4,7 +4,9 @@ Many measurements share one reference capture. Decoding it (and reading its stac
 worker process instead of once per measurement saves a stack read and a decode per job. Entries
 are keyed by whatever identifies a decoded reference exactly (the application uses the capture's
 id and sha256, the rig values and the decoding options) and evicted least recently used first
-when their arrays exceed ``max_bytes``.
+when their arrays exceed ``max_bytes``; the newest reference is kept even when it alone exceeds
+the bound (a 12 MP gcps-v1 reference holds about 195 MiB, more than a small bound), so that a
+series measured against one large reference decodes it once: the bound then holds that one only.
 """
 
 from __future__ import annotations
@@ -64,7 +66,8 @@ class KeptReferences:
     """Decoded references by key, at most ``max_bytes`` of arrays, least recently used evicted first.
 
     Thread-safe; two threads missing the same key at once may both prepare it (the second result
-    is kept). A reference larger than ``max_bytes`` is returned but not kept.
+    is kept). A reference larger than ``max_bytes`` is kept alone (every other evicted); with
+    ``max_bytes`` 0 none is kept.
 
     Parameters
     ----------
@@ -104,11 +107,11 @@ class KeptReferences:
         reference = prepare()
         size = reference_nbytes(reference)
         with self._lock:
-            if size <= self.max_bytes:
+            if self.max_bytes > 0:
                 self._entries[key] = (reference, size)
                 self._entries.move_to_end(key)
                 total = sum(s for _ref, s in self._entries.values())
-                while total > self.max_bytes:
+                while total > self.max_bytes and len(self._entries) > 1:
                     _old_key, (_old, old_size) = self._entries.popitem(last=False)
                     total -= old_size
                     self.stats.evictions += 1

@@ -56,10 +56,16 @@ def test_hits_misses_and_eviction_by_bytes(reference_images) -> None:
     assert (kept.stats.hits, kept.stats.misses) == (2, 4)
 
 
-def test_a_reference_larger_than_the_bound_is_used_but_not_kept(reference_images) -> None:
+def test_a_reference_larger_than_the_bound_is_kept_alone(reference_images) -> None:
     kept = KeptReferences(max_bytes=1000)
     reference, hit = kept.get("a", lambda: prepare_reference(RIG, reference_images))
-    assert not hit and len(kept) == 0 and reference.codes.shape == RIG.shape
+    assert not hit and len(kept) == 1 and reference.codes.shape == RIG.shape
+    assert kept.get("a", lambda: None)[1]  # type: ignore[arg-type,return-value]
+    kept.get("b", lambda: prepare_reference(RIG, reference_images))
+    assert "b" in kept and "a" not in kept and kept.stats.evictions == 1
+    none = KeptReferences(max_bytes=0)
+    none.get("a", lambda: prepare_reference(RIG, reference_images))
+    assert len(none) == 0
     with pytest.raises(ValueError, match="max_bytes must be a non-negative integer, got -5"):
         KeptReferences(-5)
 
@@ -78,3 +84,26 @@ def test_kept_reference_gives_the_heights_of_a_fresh_decode(reference_images) ->
     inside = np.isfinite(fresh) & np.isfinite(exact_codes(RIG, z_true))
     assert inside.mean() > 0.5
     assert np.median(np.abs(fresh[inside] - z_true[inside])) < 0.001
+
+
+def test_a_12_mp_reference_is_kept_by_the_workers_default_bound(settings) -> None:
+    """4000 x 3000 px (about 195 MiB decoded, gcps-v1): kept under GCPS_REFERENCE_CACHE_BYTES's default."""
+    from metrology.captures.references import kept_references
+    from metrology.core.geometry.crossed_axes import camera_ray_point, codes_of_points
+    from metrology.core.patterns import PATTERN_NAMES, pattern_intensity
+
+    rig = Rig(L_mm=1022.0, d_mm=352.0, alpha_rad=0.332, fw_mm=500.0, nlp=128, width_px=4000, height_px=3000)
+    x_h, _ = camera_ray_point(rig, rig.column_x_mm(), 0.0, 0.0)
+    codes = codes_of_points(rig, x_h, 0.0)
+    rows = np.stack([np.round(12 + 200 * pattern_intensity(codes, n)) for n in PATTERN_NAMES]).astype(np.uint8)
+    images = np.ascontiguousarray(np.broadcast_to(rows[:, None, :], (11, 3000, 4000)))
+    kept = kept_references()
+    assert kept.max_bytes == settings.GCPS_REFERENCE_CACHE_BYTES
+    kept.clear()
+    try:
+        reference, hit = kept.get("12mp", lambda: prepare_reference(rig, images))
+        assert not hit and reference.shape == (3000, 4000) and reference_nbytes(reference) > 150 * 2**20
+        again, hit = kept.get("12mp", lambda: prepare_reference(rig, images))
+        assert hit and again is reference
+    finally:
+        kept.clear()

@@ -146,7 +146,7 @@ MIN_PIXELS_PER_WORD = 4.0
 or two is sampled at the same few places in every row (a plane seen by a small camera), so its
 halves are unevenly filled whatever the description; the other statistics still judge it."""
 
-SAMPLE_PIXELS = 300_000
+SAMPLE_PIXELS = 100_000
 """About how many pixels the statistics read: every ``s``-th row of a larger image (and the row
 after each, for the vertical neighbour pairs)."""
 
@@ -155,35 +155,56 @@ DISTRIBUTION_PIXELS = 10_000
 """At most about this many of the sampled pixels (every k-th) give the quantiles of ``d``."""
 
 
-def _row_step(shape: tuple[int, ...]) -> int:
+def check_row_step(shape: tuple[int, ...]) -> int:
+    """Every how many rows the statistics of an ``(H, W)`` image read (:data:`SAMPLE_PIXELS`)."""
     return max(1, math.ceil(shape[0] * shape[1] / SAMPLE_PIXELS))
 
 
-def _jumps(
-    x: np.ndarray, centre: np.ndarray, judged: np.ndarray, jump: float, step: int, vertical: bool | str
-) -> tuple[int, int, float | None]:
+def check_rows(height: int, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rows of an ``(height, width)`` image the self-check reads: ``(rows, top, under)``.
+
+    ``rows``: sorted unique row indices (intp) to keep; ``top``: positions in ``rows`` of every
+    :func:`check_row_step`-th row (whose statistics and horizontal pairs count); ``under``:
+    positions in ``rows`` of the row after each of the first ``under.size`` top rows (their
+    vertical pairs). A decoder keeps these rows only (:func:`check_axis_rows`)."""
+    step = check_row_step((height, width))
+    tops = np.arange(0, height, step, dtype=np.intp)
+    unders = tops[tops + 1 < height] + 1
+    rows = np.union1d(tops, unders)
+    return rows, np.searchsorted(rows, tops), np.searchsorted(rows, unders)
+
+
+MEDIAN_PAIRS = 40_000
+"""At most about this many neighbour pairs inside one word (every k-th) give the median step per pixel."""
+
+
+_Rows = tuple[np.ndarray, np.ndarray, np.ndarray]
+"""(x, centre, judged) of some rows: (h, W) float32, float32, bool."""
+
+
+def _jumps(top: _Rows, vertical: tuple[_Rows, _Rows] | None, jump: float) -> tuple[int, int, float | None]:
     """(coordinate jumps, word changes, coordinate step per pixel) over 4-neighbour pairs of judged
-    pixels: the horizontal pairs of every ``step``-th row, the vertical pairs of those rows and the
-    rows after them (``vertical`` False: none; ``"paired"``: rows 2k and 2k + 1 only, ``step`` 1).
+    pixels: the horizontal pairs of the ``top`` rows, and the vertical pairs of ``vertical``
+    (rows ``upper`` and the rows ``lower`` directly below them, same count).
 
     The step per pixel is ``hypot(median |dx_h|, median |dx_v|)`` over the pairs inside one word
-    (codec units per camera pixel; None without such pairs): how finely the camera samples the
-    coded direction."""
-    every = 2 if vertical == "paired" else step
-    pairs = [((slice(None, None, step), slice(1, None)), (slice(None, None, step), slice(None, -1)))]
-    below = x[1::every].shape[0]
-    if below and vertical:
-        pairs.append(((slice(1, None, every), slice(None)), (slice(0, below * every, every), slice(None))))
+    (codec units per camera pixel; None without such pairs; each median over at most about
+    :data:`MEDIAN_PAIRS` evenly taken pairs): how finely the camera samples the coded direction."""
+    x, centre, judged = top
+    pairs = [((x[:, 1:], centre[:, 1:], judged[:, 1:]), (x[:, :-1], centre[:, :-1], judged[:, :-1]))]
+    if vertical is not None and vertical[0][0].shape[0]:
+        pairs.append((vertical[1], vertical[0]))
     jumps = changes = 0
     medians: list[float] = []
-    for a, b in pairs:
-        both = judged[a] & judged[b]
+    for (xa, ca, ja), (xb, cb, jb) in pairs:
+        both = ja & jb
         with np.errstate(invalid="ignore"):
-            difference = np.abs(x[a] - x[b])
+            difference = np.abs(xa - xb)
             jumps += int(np.count_nonzero(both & (difference > jump)))
-        other_word = centre[a] != centre[b]
+        other_word = ca != cb
         changes += int(np.count_nonzero(both & other_word))
         within = difference[both & ~other_word]
+        within = within[:: max(1, math.ceil(within.size / MEDIAN_PAIRS))]
         medians.append(float(np.median(within)) if within.size else 0.0)
     per_pixel = math.hypot(*medians)
     return jumps, changes, (per_pixel if per_pixel > 0 else None)
@@ -226,21 +247,18 @@ def _binomial_imbalance_table(size: int = 1025) -> np.ndarray:
 
 
 def _statistics(
-    x: np.ndarray,
-    centre: np.ndarray,
-    judged: np.ndarray,
+    top: _Rows,
+    vertical: tuple[_Rows, _Rows] | None,
     axis: Axis,
     extent: int,
     jump: float,
-    vertical: bool | str = True,
 ) -> _Stats:
     g = axis.gray
     assert g is not None
     word = g.word
-    step = 1 if vertical == "paired" else _row_step(x.shape)
-    sample = judged[::step]
-    xs = x[::step][sample]
-    cs = centre[::step][sample]
+    x, centre, judged = top
+    xs = x[judged]
+    cs = centre[judged]
     d = xs - cs
     n = np.rint((cs - g.origin) / word - 0.5).astype(np.int64)
     # the quantiles (partitions: the costly part) from an even subsample of at most ~10,000 pixels
@@ -256,7 +274,7 @@ def _statistics(
     # per-word halves: pixels inside their cell, above and below its centre
     inside_n = n[inside_cell]
     above = d[inside_cell] > 0
-    jumps, changes, per_pixel = _jumps(x, centre, judged, jump, step, vertical)
+    jumps, changes, per_pixel = _jumps(top, vertical, jump)
     pixels_per_word = word / per_pixel if per_pixel else None
     imbalance: float | None = 1.0
     if pixels_per_word is not None and pixels_per_word < MIN_PIXELS_PER_WORD:
@@ -264,7 +282,7 @@ def _statistics(
     elif inside_n.size:
         index = inside_n - inside_n.min()
         count = np.bincount(index)
-        up = np.bincount(index, weights=above.astype(np.float64), minlength=count.size)
+        up = np.bincount(index[above], minlength=count.size)
         expected = expected_binomial_imbalance(count)
         informative = float(np.sum(count) - np.sum(expected))
         excess = float(np.sum(np.abs(2 * up - count)) - np.sum(expected))
@@ -369,10 +387,47 @@ def check_axis(
         The rows are samples of a larger image in neighbouring pairs (rows 2k and 2k + 1 are
         neighbours, 2k + 1 and 2k + 2 are not): :func:`sampled_rows`.
     """
+    pixels = int(np.count_nonzero(judged))  # the decoder's coordinates and centres are finite there
+    rows = (coordinate, centre, judged)
+    if paired_rows:  # every row counts; vertical pairs (2k, 2k + 1)
+        lower = tuple(a[1::2] for a in rows)
+        upper = tuple(a[0 : 2 * lower[0].shape[0] : 2] for a in rows)
+        return check_axis_rows(rows, (upper, lower), pixels, axis, extent)  # type: ignore[arg-type]
+    _, top, under = check_rows(*coordinate.shape)
+    return check_axis_rows(
+        tuple(a[top] for a in rows),
+        (tuple(a[top[: under.size]] for a in rows), tuple(a[under] for a in rows)),
+        pixels,
+        axis,
+        extent,
+    )
+
+
+def check_axis_rows(
+    top: tuple[np.ndarray, np.ndarray, np.ndarray],
+    vertical: tuple[tuple[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]] | None,
+    pixels: int,
+    axis: Axis,
+    extent: int,
+) -> AxisCheck:
+    """The self-check of one axis from the rows it reads (what :func:`check_axis` does on full images).
+
+    Parameters
+    ----------
+    top : ((h, W) float32, (h, W) float32, (h, W) bool)
+        Coordinate (before the gray/phase tolerance), gray word centre and judged mask of the rows
+        whose statistics and horizontal neighbour pairs count (:func:`check_rows`: every s-th row).
+    vertical : (upper, lower), optional
+        The same three arrays of rows and of the rows directly below them (same count, each row of
+        ``lower`` under the same row of ``upper``): the vertical neighbour pairs.
+    pixels : int
+        Judged pixels of the whole image (at least :data:`MIN_PIXELS` for a status).
+    axis, extent
+        As :func:`check_axis`.
+    """
     g = axis.gray
     assert g is not None
     word = float(g.word)
-    pixels = int(np.count_nonzero(judged))  # the decoder's coordinates and centres are finite there
     if pixels < MIN_PIXELS:
         return AxisCheck(
             status=UNDETERMINED,
@@ -383,7 +438,7 @@ def check_axis(
             word_px=word,
         )
     jump = 0.5 * min(stage.period for stage in axis.chain() if stage.kind != "gray")
-    s = _statistics(coordinate, centre, judged, axis, extent, jump, "paired" if paired_rows else True)
+    s = _statistics(top, vertical, axis, extent, jump)
     status, wrong, undecided = _verdict(s, word)
     findings = "; ".join(wrong)
     if status == CONSISTENT:

@@ -57,7 +57,15 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from metrology.core.codecs.check import INCONSISTENT, AxisCheck, check_axis, checkable, summary_of, with_suggestion
+from metrology.core.codecs.check import (
+    INCONSISTENT,
+    AxisCheck,
+    check_axis_rows,
+    check_rows,
+    checkable,
+    summary_of,
+    with_suggestion,
+)
 from metrology.core.codecs.gray import LevelModel, centre_lut, classify_tile, digit_positions, sample_levels
 from metrology.core.codecs.model import Axis, Codec, Stage
 from metrology.core.patterns import binary_from_gray
@@ -500,10 +508,24 @@ def decode_codec(
             "noise": np.empty((height, width), np.float32),
             "reason": np.empty((height, width), np.uint8),
         }
-        if (opts.repair_slips and plan.slip_period > 0) or checkable(plan.axis):  # slip repair, self-check
+        if opts.repair_slips and plan.slip_period > 0:  # the decoded gray words bound the slip repair
             outputs[plan.name]["centre"] = np.empty((height, width), np.float32)
-        if checkable(plan.axis):  # the coordinate before the filters, for the self-check (check.py)
-            outputs[plan.name]["unfiltered"] = np.empty((height, width), np.float32)
+    # the self-check (check.py) reads some rows only: their coordinates before the tolerances
+    # refuse anything and their gray words' centres are kept as the tiles pass them
+    if paired_rows:
+        sample_rows, top, under = np.arange(height, dtype=np.intp), np.arange(height, dtype=np.intp), np.empty(0)
+    else:
+        sample_rows, top, under = check_rows(height, width)
+    samples = {
+        plan.name: _RowSample(
+            sample_rows,
+            np.empty((sample_rows.size, width), np.float32),
+            np.empty((sample_rows.size, width), np.float32),
+        )
+        for plan in plans
+        if checkable(plan.axis)
+    }
+    judged_counts: dict[str, int] = dict.fromkeys(samples, 0)
     used_frames = sorted(
         {f for plan in plans for s in plan.used for f in plan.sequences[s].frames}
         | {f for plan in plans if plan.axis.gray is not None for f in plan.axis.gray.frames}
@@ -522,7 +544,7 @@ def decode_codec(
     lock = threading.Lock()
 
     def run(rows: slice) -> None:
-        n_sat = _decode_tile(stack, rows, codec, plans, opts, outputs, used_frames)
+        n_sat, judged = _decode_tile(stack, rows, codec, plans, opts, outputs, used_frames, samples)
         found = {}
         for plan in plans:
             if opts.repair_slips and plan.slip_period > 0:
@@ -533,16 +555,29 @@ def decode_codec(
             tile_starts.append(rows.start or 0)
             for name, flat in found.items():
                 candidates[name].append(flat)
+            for name, count in judged.items():
+                judged_counts[name] += count
 
     run_tiled(run, height, width, threads)
     axes: dict[str, AxisDecoding] = {}
     checks: dict[str, AxisCheck] = {}
     for plan in plans:
         out = outputs[plan.name]
-        if "unfiltered" in out:  # judged by the gray/phase tolerance: reasons 0, 3, 4 (and 6, none yet)
-            judged = cv2.LUT(out["reason"], _JUDGED_LUT).view(bool)
-            checks[plan.name] = check_axis(
-                out["unfiltered"], out["centre"], judged, plan.axis, plan.extent, paired_rows=paired_rows
+        sample = samples.get(plan.name)
+        if sample is not None:  # judged by the gray/phase tolerance: reasons 0, 3, 4 (and 6, none yet)
+            judged = cv2.LUT(out["reason"][sample.rows], _JUDGED_LUT).view(bool)
+            rows_of = (sample.coordinate, sample.centre, judged)
+            if paired_rows:  # every row counts; vertical pairs (2k, 2k + 1)
+                lower = tuple(a[1::2] for a in rows_of)
+                upper = tuple(a[0 : 2 * lower[0].shape[0] : 2] for a in rows_of)
+            else:
+                upper, lower = (tuple(a[top[: under.size]] for a in rows_of), tuple(a[under] for a in rows_of))
+            checks[plan.name] = check_axis_rows(
+                rows_of if paired_rows else tuple(a[top] for a in rows_of),  # type: ignore[arg-type]
+                (upper, lower),  # type: ignore[arg-type]
+                judged_counts[plan.name],
+                plan.axis,
+                plan.extent,
             )
             if checks[plan.name].status == INCONSISTENT and not paired_rows:  # name the likely correction
                 checks[plan.name] = with_suggestion(checks[plan.name], stack, codec, plan.name, decode_codec, options)
@@ -590,6 +625,16 @@ def _with_levels(plan: _AxisPlan, stack: np.ndarray, codec: Codec, opts: CodecDe
     return replace(plan, levels=model)
 
 
+@dataclass(frozen=True, eq=False)
+class _RowSample:
+    """Rows of an axis kept for the self-check: ``rows`` (n,) intp sorted image rows; ``coordinate``
+    (n, W) float32 before the tolerances refuse anything; ``centre`` (n, W) float32 gray word centres."""
+
+    rows: np.ndarray
+    coordinate: np.ndarray
+    centre: np.ndarray
+
+
 def _decode_tile(
     stack: np.ndarray,
     rows: slice,
@@ -598,7 +643,10 @@ def _decode_tile(
     opts: CodecDecodeOptions,
     outputs: dict[str, dict[str, np.ndarray]],
     used_frames: list[int],
-) -> int:
+    samples: Mapping[str, _RowSample],
+) -> tuple[int, dict[str, int]]:
+    """Decode the rows ``rows`` of every axis into ``outputs``; returns (saturated pixels, judged
+    pixels per self-checked axis)."""
     scratch = thread_scratch()
     tile = stack[:, rows]
     h, w = tile.shape[1:]
@@ -639,12 +687,33 @@ def _decode_tile(
         white_black_half *= np.float32(0.5)
         white_black = np.floor(white_black_mid).astype(stack.dtype) if integer else white_black_mid
 
+    judged: dict[str, int] = {}
     for plan in plans:
         out = {key: value[rows] for key, value in outputs[plan.name].items()}
-        _decode_axis_tile(
-            tile, plan, opts, out, integer, phase_saturated, white_black, white_black_half, white_black_mid, scratch
+        sample = samples.get(plan.name)
+        local: np.ndarray | None = None
+        if sample is not None:
+            start = rows.start or 0
+            lo, hi = np.searchsorted(sample.rows, (start, start + h))
+            local = sample.rows[lo:hi] - start
+            out["sample_coordinate"] = sample.coordinate[lo:hi]
+            out["sample_centre"] = sample.centre[lo:hi]
+        count = _decode_axis_tile(
+            tile,
+            plan,
+            opts,
+            out,
+            integer,
+            phase_saturated,
+            white_black,
+            white_black_half,
+            white_black_mid,
+            scratch,
+            local,
         )
-    return n_saturated
+        if sample is not None:
+            judged[plan.name] = count
+    return n_saturated, judged
 
 
 def _max_into(peak: np.ndarray, tile: np.ndarray, frames: list[int]) -> None:
@@ -779,7 +848,11 @@ def _decode_axis_tile(
     white_black_half: np.ndarray | None,
     white_black_mid: np.ndarray | None,
     scratch: Any,
-) -> None:
+    sample_rows: np.ndarray | None = None,
+) -> int:
+    """Decode one axis on a tile into ``out`` (views of the outputs' rows); ``sample_rows``: the
+    tile's rows kept for the self-check (into ``out["sample_coordinate"]``, ``out["sample_centre"]``).
+    Returns the pixels the self-check judges (reasons 0, 3, 4), 0 without ``sample_rows``."""
     h, w = tile.shape[1:]
     shape = (h, w)
     assert opts.min_modulation is not None and opts.min_inverse_contrast is not None
@@ -822,6 +895,8 @@ def _decode_axis_tile(
     ambiguous: np.ndarray | None = None
     min_contrast: np.ndarray | None = None
     g = plan.axis.gray
+    # the gray words' centres go straight to the output when it is kept (slip repair)
+    centre_dst = out["centre"] if "centre" in out else scratch.get(f"centre{plan.name}", shape, np.float32)
     if g is not None and g.levels != 2:
         assert plan.gray_lut is not None and plan.levels is not None
         # references: black and white frames, else the first phase sequence's A -+ B
@@ -841,7 +916,7 @@ def _decode_axis_tile(
         index, ambiguous = classify_tile(
             tile, g, plan.levels, lo, span, scratch, plan.name, resolve_adjacent=adjacent_ok
         )
-        centre = np.take(plan.gray_lut, index, out=scratch.get(f"centre{plan.name}", shape, np.float32))
+        centre = np.take(plan.gray_lut, index, out=centre_dst)
     elif g is not None:
         assert plan.gray_lut is not None
         word_dtype = np.uint8 if g.bits <= 8 else np.uint16
@@ -896,13 +971,13 @@ def _decode_axis_tile(
         if word_dtype == np.uint8:
             lut = np.full(256, np.nan, np.float32)
             lut[: plan.gray_lut.size] = plan.gray_lut
-            centre = cv2.LUT(word, lut, dst=scratch.get(f"centre{plan.name}", shape, np.float32))
+            centre = cv2.LUT(word, lut, dst=centre_dst)
         else:
-            centre = np.take(plan.gray_lut, word, out=scratch.get(f"centre{plan.name}", shape, np.float32))
+            centre = np.take(plan.gray_lut, word, out=centre_dst)
     if g is not None:
         assert centre is not None
-        if "centre" in out:
-            np.copyto(out["centre"], centre)
+        if sample_rows is not None:
+            np.take(centre, sample_rows, axis=0, out=out["sample_centre"])
         if not plan.used:
             # gray-only chain: modulation from white/black, else half the smallest inverse contrast,
             # else the B of the phase sequence that gives the threshold
@@ -991,9 +1066,12 @@ def _decode_axis_tile(
             np.multiply(mask.view(np.uint8), np.uint8(weight), out=flag)
             np.bitwise_or(flags, flag, out=flags)
     reason = cv2.LUT(flags, _REASON_LUT, dst=out["reason"])
-    if "unfiltered" in out:
-        np.copyto(out["unfiltered"], x)
+    judged = 0
+    if sample_rows is not None:
+        np.take(x, sample_rows, axis=0, out=out["sample_coordinate"])
+        judged = cv2.countNonZero(cv2.LUT(reason, _JUDGED_LUT, dst=flag))
     x += cv2.LUT(reason, _NAN_UNLESS_VALID_LUT, dst=scratch.get("nan_or_zero", shape, np.float32))
+    return judged
 
 
 def _stage_frac(stage: Stage, results: Mapping[int, _PhaseResult], scratch: Any, shape: tuple[int, int]) -> np.ndarray:

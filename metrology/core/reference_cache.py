@@ -1,0 +1,199 @@
+"""Decoded references kept on local disk, so that a second process measuring against the same
+reference capture does not decode it again (``gcps measure``).
+
+A :class:`~metrology.core.measure.Reference` is stored in the per-host local cache
+(:mod:`metrology.core.local_cache`, kind ``reference``) under the SHA-256 of the stack's bytes
+(with its shape and dtype), the rig's model, the codec, the measurement options and the
+software version (:func:`reference_key`): a different capture, rig, codec, option or version
+decodes again. What is stored (:func:`reference_arrays`): the reference's codes (float32), its
+unreliable-pixel mask packed to bits (``np.packbits``), the blur variance, and the model's
+reference surface (and the gray-code surface of the fused gcps-v1 path) field by field, each
+array once even where two fields share it. The model, codec and geometry options come from
+the caller (they are in the key), so a read reference passes the measurement's checks.
+
+A failed read or write only costs the decode (the local cache warns, never raises).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import importlib
+import json
+import time
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from metrology.core import local_cache
+from metrology.core.codecs.model import Codec
+from metrology.core.geometry.base import GeometryModel, ReferenceSurface
+from metrology.core.measure import MeasureOptions, Reference, prepare_reference
+
+KIND = "reference"
+"""The local cache's sub-folder of decoded references."""
+
+_META = "meta"
+_SURFACE_MODULES = "metrology.core.geometry."
+
+
+def stack_digest(images: npt.ArrayLike) -> str:
+    """SHA-256 (hex) of a stack's shape, dtype and bytes."""
+    stack = np.ascontiguousarray(images)
+    digest = hashlib.sha256(f"{stack.shape}|{stack.dtype.str}|".encode())
+    digest.update(stack.reshape(-1).view(np.uint8).data)
+    return digest.hexdigest()
+
+
+def reference_key(model: GeometryModel, digest: str, codec: Codec | None, options: MeasureOptions) -> str:
+    """The local cache key of the reference of the stack whose :func:`stack_digest` is ``digest``."""
+    return local_cache.entry_key(
+        KIND,
+        {
+            "stack_sha256": digest,
+            "model": model.to_dict(),
+            "codec": None if codec is None else codec.to_dict(),
+            "options": options.to_dict(),
+        },
+    )
+
+
+def reference_arrays(reference: Reference) -> dict[str, np.ndarray]:
+    """The arrays that store ``reference`` (its model, codec and geometry options excepted): the
+    codes, the packed unreliable mask, the surfaces' fields, and ``meta`` (a JSON header as uint8)."""
+    arrays: dict[str, np.ndarray] = {}
+    names: dict[int, str] = {}
+
+    def array(name: str, value: np.ndarray) -> str:
+        known = names.get(id(value))
+        if known is not None:
+            return known
+        names[id(value)] = name
+        arrays[name] = value
+        return name
+
+    meta: dict[str, Any] = {
+        "codes": array("codes", reference.codes),
+        "blur_variance_px2": reference.blur_variance_px2,
+        "surface": _surface_meta(reference.surface, "surface", array),
+        "gray_surface": None
+        if reference.gray_surface is None
+        else _surface_meta(reference.gray_surface, "gray_surface", array),
+        "unreliable": None,
+    }
+    if reference.unreliable is not None:
+        mask = np.asarray(reference.unreliable, dtype=bool)
+        arrays["unreliable_bits"] = np.packbits(mask.reshape(-1))
+        meta["unreliable"] = list(mask.shape)
+    arrays[_META] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    return arrays
+
+
+def _surface_meta(surface: ReferenceSurface, prefix: str, array: Any) -> dict[str, Any]:
+    cls = type(surface)
+    if not dataclasses.is_dataclass(surface) or not cls.__module__.startswith(_SURFACE_MODULES):
+        raise TypeError(f"cannot store a reference surface of type {cls.__module__}.{cls.__qualname__}")
+    fields: dict[str, Any] = {}
+    for f in dataclasses.fields(surface):
+        value = getattr(surface, f.name)
+        if isinstance(value, np.ndarray):
+            fields[f.name] = {"array": array(f"{prefix}.{f.name}", value)}
+        elif isinstance(value, tuple):
+            fields[f.name] = {"tuple": list(value)}
+        else:
+            fields[f.name] = {"value": value}
+    return {"class": f"{cls.__module__}:{cls.__qualname__}", "fields": fields}
+
+
+def reference_from_arrays(
+    arrays: dict[str, np.ndarray], model: GeometryModel, codec: Codec | None, options: MeasureOptions
+) -> Reference:
+    """Inverse of :func:`reference_arrays`, for ``model``, ``codec`` and ``options`` (those of the key).
+
+    Raises
+    ------
+    ValueError
+        If the arrays do not hold a stored reference.
+    """
+    try:
+        meta = json.loads(bytes(arrays[_META]))
+        unreliable = None
+        if meta["unreliable"] is not None:
+            shape = tuple(int(n) for n in meta["unreliable"])
+            bits = np.unpackbits(arrays["unreliable_bits"], count=int(np.prod(shape)))
+            unreliable = bits.view(bool).reshape(shape)
+        return Reference(
+            model=model,
+            codec=codec,
+            geometry=options.geometry,
+            surface=_surface_of(meta["surface"], arrays),
+            codes=arrays[meta["codes"]],
+            unreliable=unreliable,
+            blur_variance_px2=float(meta["blur_variance_px2"]),
+            gray_surface=None if meta["gray_surface"] is None else _surface_of(meta["gray_surface"], arrays),
+        )
+    except (KeyError, TypeError, ValueError, AttributeError, ImportError, json.JSONDecodeError) as exc:
+        raise ValueError(f"not a stored reference: {exc}") from exc
+
+
+def _surface_of(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> ReferenceSurface:
+    module_name, _, qualname = meta["class"].partition(":")
+    if not module_name.startswith(_SURFACE_MODULES):
+        raise ValueError(f"unexpected surface class {meta['class']}")
+    cls = getattr(importlib.import_module(module_name), qualname)
+    if not (isinstance(cls, type) and issubclass(cls, ReferenceSurface)):
+        raise ValueError(f"{meta['class']} is not a reference surface")
+    values: dict[str, Any] = {}
+    for name, spec in meta["fields"].items():
+        if "array" in spec:
+            values[name] = arrays[spec["array"]]
+        elif "tuple" in spec:
+            values[name] = tuple(spec["tuple"])
+        else:
+            values[name] = spec["value"]
+    surface: ReferenceSurface = cls(**values)
+    return surface
+
+
+def cached_reference(
+    model: GeometryModel,
+    images: npt.ArrayLike,
+    codec: Codec | None = None,
+    options: MeasureOptions | None = None,
+    *,
+    threads: int | None = None,
+) -> tuple[Reference, dict[str, Any]]:
+    """:func:`~metrology.core.measure.prepare_reference`, through the local cache.
+
+    Returns the reference and what happened: ``{"hit": bool, "hash_s", "load_s" or "decode_s"}``
+    (seconds). A miss decodes, returns, and writes the entry on a background thread
+    (:func:`metrology.core.local_cache.store_later`; the interpreter waits for it at exit).
+    """
+    options = options or MeasureOptions()
+    stack = np.asarray(images)
+    start = time.perf_counter()
+    key = reference_key(model, stack_digest(stack), codec, options)
+    report: dict[str, Any] = {"hash_s": time.perf_counter() - start}
+    start = time.perf_counter()
+    arrays = local_cache.load(KIND, key)
+    if arrays is not None:
+        try:
+            reference = reference_from_arrays(arrays, model, codec, options)
+        except ValueError:
+            reference = None
+        if reference is not None and reference.shape == tuple(stack.shape[1:]):
+            report.update(hit=True, load_s=time.perf_counter() - start)
+            return reference, report
+    start = time.perf_counter()
+    reference = prepare_reference(model, stack, codec, options, threads=threads)
+    report.update(hit=False, decode_s=time.perf_counter() - start)
+    try:
+        stored = reference_arrays(reference)
+    except TypeError:  # a surface this module cannot store: measured, not kept
+        return reference, report
+    local_cache.store_later(KIND, key, stored)
+    return reference, report
+
+
+__all__ = ["KIND", "cached_reference", "reference_arrays", "reference_from_arrays", "reference_key", "stack_digest"]
