@@ -54,9 +54,11 @@ def shared_setup_group(item: pytest.Item) -> str | None:
     info = getattr(item, "_fixtureinfo", None)
     if info is None:  # doctests
         return None
+    module = item.nodeid.split("::")[0]
     for definitions in info.name2fixturedefs.values():
-        if definitions and definitions[-1].scope in ("module", "class"):
-            return f"module-fixtures:{item.nodeid.split('::')[0]}"
+        # the module's own fixtures (plugins' autouse class fixtures have another baseid)
+        if definitions and definitions[-1].scope in ("module", "class") and definitions[-1].baseid == module:
+            return f"module-fixtures:{module}"
     return None
 
 
@@ -78,7 +80,31 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if item.get_closest_marker("xdist_group") is None and (group := shared_setup_group(item)):
             item.add_marker(pytest.mark.xdist_group(group))
+        if config.getoption("dist", default="no") == "loadgroup" or getattr(config.option, "loadgroup", False):
+            name_group_in_nodeid(item)
     items.sort(key=lambda item: not any(item.get_closest_marker(name) for name in LONG_MARKERS))
+
+
+def name_group_in_nodeid(item: pytest.Item) -> None:
+    """``nodeid@group`` for an item with ``xdist_group`` marks, which is how ``--dist loadgroup``
+    finds the groups. pytest-xdist 3.8 writes it to ``item._nodeid``, which pytest 9 no longer reads
+    (the node id is ``item._id``, a ``NodeId``): without this every group was split over the workers
+    (a module fixture of 90 s made on four of them)."""
+    names = sorted(
+        {
+            str(mark.args[0] if mark.args else mark.kwargs.get("name", "default"))
+            for mark in item.iter_markers("xdist_group")
+        }
+    )
+    nodeid = item.nodeid
+    if not names or nodeid.rfind("@") > nodeid.rfind("]"):
+        return
+    suffixed = f"{nodeid}@{'_'.join(names)}"
+    node_id = getattr(item, "_id", None)
+    if node_id is not None and type(node_id).__name__ == "NodeId":
+        item._id = type(node_id).parse(suffixed)  # type: ignore[attr-defined]
+    else:
+        item._nodeid = suffixed  # type: ignore[attr-defined]
 
 
 @pytest.fixture(autouse=True, scope="session")
