@@ -1,6 +1,9 @@
 #!/usr/bin/env bash
 # Set up and run the whole test suite (core, application, integration with real PostgreSQL,
 # Redis and Celery worker processes, and headless-browser tests). Extra arguments go to pytest.
+# The tests run on GCPS_TEST_WORKERS pytest-xdist workers (default 4 on 2 cores: many tests wait on
+# servers, workers and browsers; docs/testing.md has the measurements); GCPS_TEST_WORKERS=0 runs
+# them in this one process. Tests marked xdist_group(name) run one after another on one worker.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh --dev
@@ -9,4 +12,8 @@ export PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1
 .venv/bin/ruff check metrology workers tests benchmarks
 .venv/bin/ruff format --check metrology workers tests benchmarks
 .venv/bin/mypy
-exec .venv/bin/python -m pytest "$@"
+workers=${GCPS_TEST_WORKERS:-4}
+if [ "$workers" = 0 ]; then
+  exec .venv/bin/python -m pytest "$@"
+fi
+exec .venv/bin/python -m pytest -n "$workers" --dist loadgroup --no-loadscope-reorder "$@"

@@ -9,6 +9,7 @@ integration tests (tests/app/integration/conftest.py) keep the media root out of
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -23,6 +24,87 @@ from tests.browser import CHROMIUM, CHROMIUM_ARGS, TIMEOUT_MS
 RAISED_RATE = "1000000/hour"
 #: The password of the users made here (the log-in tests type it).
 PASSWORD = "a-long-test-password-42"
+
+#: Thread pools of the native libraries, one thread each when the suite runs on several pytest-xdist
+#: workers: each worker is a process of its own, and OpenBLAS's threads spin while they wait, so
+#: that four workers with two BLAS threads each on two cores spent most of their time spinning
+#: (a procam calibration: 1.0 s with one thread, 1.4-2.1 s with the default, on the shared machine).
+SINGLE_THREAD_ENV = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENCV_FOR_THREADS_NUM")
+#: Markers of the long tests, which the scheduling below starts first.
+LONG_MARKERS = ("slow", "integration", "browser")
+
+
+def runs_on_xdist_workers(config: pytest.Config) -> bool:
+    """True in the controller of a ``-n N`` run (N > 0) and in its workers."""
+    return hasattr(config, "workerinput") or bool(config.getoption("numprocesses", default=None))
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Under pytest-xdist, the native thread pools of the workers (and of every process a test
+    starts) are set to one thread before the workers start: the environment is inherited, and read
+    when numpy and OpenCV are first imported. A value already in the environment is kept."""
+    if runs_on_xdist_workers(config):
+        for name in SINGLE_THREAD_ENV:
+            os.environ.setdefault(name, "1")
+
+
+def shared_setup_group(item: pytest.Item) -> str | None:
+    """The module of ``item`` when it uses a fixture of module or class scope (a render, a decoded
+    stack, a calibration made once for the module's tests), else None."""
+    info = getattr(item, "_fixtureinfo", None)
+    if info is None:  # doctests
+        return None
+    module = item.nodeid.split("::")[0]
+    for definitions in info.name2fixturedefs.values():
+        # the module's own fixtures (plugins' autouse class fixtures have another baseid)
+        if definitions and definitions[-1].scope in ("module", "class") and definitions[-1].baseid == module:
+            return f"module-fixtures:{module}"
+    return None
+
+
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist's own hook reads the xdist_group marks
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Under pytest-xdist (``--dist loadgroup``):
+
+    - the tests of a module that use one of its module- or class-scoped fixtures share an
+      ``xdist_group``, so that they run on one worker and the fixture is made once, not once per
+      worker (tests grouped by hand keep their group);
+    - the long tests (marked ``slow``, ``integration`` or ``browser``) come first, the others after,
+      each part in the order of collection: xdist hands the work out in this order (with
+      ``--no-loadscope-reorder``), so the long ones start at once instead of being the last ones
+      running while the other workers idle.
+
+    Every worker sorts the same collection the same way, as xdist requires."""
+    if not runs_on_xdist_workers(config):
+        return
+    for item in items:
+        if item.get_closest_marker("xdist_group") is None and (group := shared_setup_group(item)):
+            item.add_marker(pytest.mark.xdist_group(group))
+        if config.getoption("dist", default="no") == "loadgroup" or getattr(config.option, "loadgroup", False):
+            name_group_in_nodeid(item)
+    items.sort(key=lambda item: not any(item.get_closest_marker(name) for name in LONG_MARKERS))
+
+
+def name_group_in_nodeid(item: pytest.Item) -> None:
+    """``nodeid@group`` for an item with ``xdist_group`` marks, which is how ``--dist loadgroup``
+    finds the groups. pytest-xdist 3.8 writes it to ``item._nodeid``, which pytest 9 no longer reads
+    (the node id is ``item._id``, a ``NodeId``): without this every group was split over the workers
+    (a module fixture of 90 s made on four of them)."""
+    names = sorted(
+        {
+            str(mark.args[0] if mark.args else mark.kwargs.get("name", "default"))
+            for mark in item.iter_markers("xdist_group")
+        }
+    )
+    nodeid = item.nodeid
+    if not names or nodeid.rfind("@") > nodeid.rfind("]"):
+        return
+    suffixed = f"{nodeid}@{'_'.join(names)}"
+    node_id = getattr(item, "_id", None)
+    if node_id is not None and type(node_id).__name__ == "NodeId":
+        item._id = type(node_id).parse(suffixed)  # type: ignore[attr-defined]
+    else:
+        item._nodeid = suffixed  # type: ignore[attr-defined]
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -140,7 +140,11 @@ def schema_operations(schema: dict) -> set[str]:
 @pytest.mark.django_db(transaction=True)
 def test_schemathesis_over_the_whole_api_authenticated_finds_no_server_error(live_server, tmp_path, settings, schema):
     """Every operation, authenticated, with stored objects to find (ids 1, 2, ...): examples, coverage
-    and fuzzing phases; rates raised (tests/conftest.py) and simulations kept small."""
+    and fuzzing phases; rates raised (tests/conftest.py) and simulations kept small.
+
+    Ten examples per operation in the fuzzing phase (25 before: 202 s of the serial suite's 19.5 min):
+    2680 cases over the 55 operations on the shared machine (load average 12) in 351 s, against 559 s
+    for 25 examples alone under a similar load. The assertions are unchanged."""
     import xml.etree.ElementTree as ET
 
     from tests.app.stacks import SMALL_RIG, plane_zip
@@ -176,7 +180,7 @@ def test_schemathesis_over_the_whole_api_authenticated_finds_no_server_error(liv
             "--phases",
             "examples,coverage,fuzzing",
             "--max-examples",
-            "25",
+            "10",
             "--seed",
             "9",
             "--request-timeout",

@@ -9,7 +9,10 @@ import numpy as np
 import pytest
 
 from metrology.pipeline.calibrate_procam import ProcamOptions, ProcamPose, calibrate_procam_stacks
-from tests.core.procam.virtual_rig import CODEC, OPTIONS, PROJECTOR, RIG, make_codec, pose
+from tests.core.procam.virtual_rig import CODEC, PROJECTOR, RIG, make_codec, rendered_pose
+
+# the board renders are shared with tests/core/procam/test_virtual_calibration.py (rendered once per process)
+RENDERS = pytest.mark.xdist_group("procam-board-renders")
 
 
 @pytest.mark.parametrize(
@@ -47,11 +50,9 @@ def test_stacks_mismatch_is_named() -> None:
 
 
 @pytest.mark.slow
+@RENDERS
 def test_virtual_stacks_calibrate_with_progress() -> None:
-    from metrology.core.procam.virtual import render_board
-    from tests.core.procam.virtual_rig import BOARD
-
-    poses = [ProcamPose(f"p{i}", render_board(RIG, BOARD, pose(i), CODEC, OPTIONS, seed=i), CODEC) for i in range(6)]
+    poses = [ProcamPose(f"p{i}", rendered_pose(i), CODEC) for i in range(6)]
     seen: list[tuple[int, str]] = []
     options = ProcamOptions(board="chessboard:9x6:20")
     result = calibrate_procam_stacks(poses, options, lambda percent, phase: seen.append((percent, phase)))
@@ -68,6 +69,7 @@ def test_virtual_stacks_calibrate_with_progress() -> None:
 
 
 @pytest.mark.slow
+@RENDERS
 def test_stacks_given_as_functions_are_read_one_at_a_time() -> None:
     """Poses whose images are functions are read in turn, and each stack is released before the
     next is read (weak references to the earlier stacks are dead when a loader runs); the result
@@ -75,11 +77,9 @@ def test_stacks_given_as_functions_are_read_one_at_a_time() -> None:
     import gc
     import weakref
 
-    from metrology.core.procam.virtual import render_board
-    from tests.core.procam.virtual_rig import BOARD
-
     def render(i: int) -> np.ndarray:
-        return render_board(RIG, BOARD, pose(i), CODEC, OPTIONS, seed=i)
+        """A stack of its own (the weak references below follow it), equal to a fresh render."""
+        return rendered_pose(i).copy()
 
     alive: list[weakref.ref[np.ndarray]] = []
     still_held: list[int] = []

@@ -137,6 +137,10 @@ def test_a_worker_survives_a_redis_restart_while_it_holds_a_delayed_retry(privat
     (task_id,) = sql(stack, "SELECT celery_task_id FROM jobs_job WHERE id = %s", (job_id,))[0]
     # As if a worker had claimed the job and died a moment ago: its message (same task id) comes back
     # while the heartbeat is fresh, so the worker that gets it holds a countdown retry (the BUSY path).
+    # "Fresh" must outlast the worker's start: with the stack's 3 s the faked heartbeat had gone stale
+    # before a worker started on a loaded machine (5+ s: 2 of 2 runs failed, the job simply ran), so
+    # this worker is started with staleness at 10 s (its countdown, and the wait below, follow).
+    stack.env["GCPS_JOB_STALE_SECONDS"] = "10"
     sql(
         stack,
         "UPDATE jobs_job SET status = 'running', attempts = 1, run_token = gen_random_uuid(), "

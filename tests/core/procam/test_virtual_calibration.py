@@ -47,9 +47,11 @@ from .virtual_rig import (
     make_codec,
     plane_flatness_mm,
     pose,
+    rendered_pose,
 )
 
-pytestmark = pytest.mark.slow
+# the renders of the poses are shared with tests/pipeline/test_pipeline_procam.py (virtual_rig.rendered_pose)
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("procam-board-renders")]
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +59,7 @@ def rendered() -> tuple[list[PoseObservation], np.ndarray]:
     observations = []
     first_images = None
     for i in range(len(POSES)):
-        images = render_board(RIG, BOARD, pose(i), CODEC, OPTIONS, seed=i)
+        images = rendered_pose(i)
         if i == 0:
             first_images = images
         observations.append(observe_pose(f"pose{i}", images, CODEC, BOARD))

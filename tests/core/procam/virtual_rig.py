@@ -5,6 +5,8 @@ the rendering options, and the flatness of a plane measured with a rig."""
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from metrology.core.codecs import codec_from_dict
@@ -85,6 +87,20 @@ CODEC = make_codec()
 
 def pose(i: int) -> BoardPose:
     return POSES[i]
+
+
+@functools.cache
+def rendered_pose(i: int) -> np.ndarray:
+    """``render_board(RIG, BOARD, pose(i), CODEC, OPTIONS, seed=i)``: the (28, 600, 800) uint8 stack
+    of pose ``i``, rendered once per test process (4 to 30 s each, most of the procam tests' time)
+    and shared by the tests that calibrate from these poses (tests/core/procam/test_virtual_calibration.py,
+    tests/pipeline/test_pipeline_procam.py, which share an ``xdist_group`` so that they run in one
+    worker). Read-only: a caller that wrote into it would change the others' input."""
+    from metrology.core.procam.virtual import render_board
+
+    images = render_board(RIG, BOARD, pose(i), CODEC, OPTIONS, seed=i)
+    images.setflags(write=False)
+    return images
 
 
 def plane_flatness_mm(rig: PinholeRig, u: np.ndarray, v: np.ndarray) -> float:
