@@ -207,7 +207,7 @@ def test_a_derived_file_not_built_yet_answers_202_with_its_job(api, measurement_
     import metrology.jobs.services as job_services
 
     sent = []
-    monkeypatch.setattr(job_services, "_send", sent.append)  # no worker takes it yet
+    monkeypatch.setattr(job_services, "_send", lambda job_id, **_: sent.append(job_id))  # no worker takes it yet
     url = f"/api/measurements/{measurement_id}/mesh.obj"
     first = api.get(url)
     assert first.status_code == 202, first
