@@ -172,3 +172,9 @@ def test_no_manifest_is_not_a_multi_exposure_capture(tmp_path: Path) -> None:
     assert not is_exposure_capture(folder)
     with pytest.raises(StackError, match=r"has no exposures\.json"):
         read_exposure_stack(folder)
+
+
+def test_example_manifest_parses() -> None:
+    example = Path(__file__).resolve().parents[2] / "examples" / "exposures.json"
+    exposures = parse_exposures(example.read_bytes(), "'examples'")
+    assert [e.name for e in exposures] == ["exp0", "exp1", "exp2"]

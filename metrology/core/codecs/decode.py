@@ -272,12 +272,7 @@ class CodecDecoding:
     def summary(self) -> dict[str, Any]:
         """JSON-ready counts per axis and reason, slips, saturated pixels, the options; for a
         multi-exposure capture the exposures' names and, per axis, the pixels each measured."""
-        exposures = {}
-        if self.exposure_names:
-            exposures["exposures"] = {
-                "names": list(self.exposure_names),
-                "pixels": {name: _exposure_pixels(index, self.exposure_names) for name, index in self.exposure.items()},
-            }
+        exposures = self.exposure_summary()
         return {
             "shape": list(self.shape),
             "axes": {
@@ -292,7 +287,17 @@ class CodecDecoding:
             "options": self.options.to_dict(),
             **({"gray_levels": self.stats["gray_levels"]} if "gray_levels" in self.stats else {}),
             "codec_check": summary_of(self.codec_check),
-            **exposures,
+            **({"exposures": exposures} if exposures is not None else {}),
+        }
+
+    def exposure_summary(self) -> dict[str, Any] | None:
+        """A multi-exposure capture's exposures: ``{"names": [...], "pixels": {axis: {name: count,
+        "none": count}}}`` (the pixels each exposure measured); None for a single stack."""
+        if not self.exposure_names:
+            return None
+        return {
+            "names": list(self.exposure_names),
+            "pixels": {name: _exposure_pixels(index, self.exposure_names) for name, index in self.exposure.items()},
         }
 
 
