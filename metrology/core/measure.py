@@ -27,6 +27,11 @@ Every measurement takes the same three steps::
 one pass without full-size temporaries, and also gives the gray-code-only comparison heights.
 :func:`uses_fused_gcps_v1` is the one place that chooses it; the filters and the geometry are the
 same.
+
+**Multi-exposure captures.** An :class:`~metrology.core.codecs.stack.ExposureStack` (object,
+reference or both; the other may be a single stack) is decoded exposure by exposure and fused per
+pixel (:func:`~metrology.core.codecs.exposures.decode_exposures`, docs/exposures.md) in step 1;
+both captures then take the codec path (gcps-v1 as its codec), steps 2 and 3 unchanged.
 """
 
 from __future__ import annotations

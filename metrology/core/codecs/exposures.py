@@ -11,7 +11,8 @@ and coded axis, the exposure used is
 
 and the pixel's coordinate, modulation ``B``, mean ``A``, noise and reason are exposure e*'s.
 Where no exposure qualifies the pixel keeps the reason (and maps) of the most exposed exposure
-in which it does not saturate, or ``saturated`` (2) when it saturates in every exposure.
+in which it does not saturate, or ``saturated`` (2) when it saturates in every exposure. The codec
+self-check reported per axis is that of the exposure that measured most pixels.
 
 Why the best one, not a noise-weighted combination: a gray word cannot be averaged, so only the
 final phase could be combined, with weights from per-pixel noise estimates that are themselves
