@@ -93,7 +93,9 @@ def captures_codec(option: str | None, captures: Sequence[tuple[str, str | None]
 
 def read_capture(path: str, codec: Codec | None, model: GeometryModel, what: str) -> Any:
     """The ``(frames, H, W)`` images of a capture: the eleven named gcps-v1 patterns when ``codec``
-    is gcps-v1 (or None), else the codec's frames in its order; checked against the rig's camera.
+    is gcps-v1 (or None), else the codec's frames in its order; an
+    :class:`~metrology.core.codecs.stack.ExposureStack` for a multi-exposure capture
+    (docs/exposures.md); checked against the rig's camera.
 
     Raises
     ------
@@ -101,16 +103,23 @@ def read_capture(path: str, codec: Codec | None, model: GeometryModel, what: str
         Naming ``what`` (reference, object...) and the problem.
     """
     from metrology.core.codecs.model import is_gcps_v1
+    from metrology.core.codecs.stack import is_exposure_capture, read_codec_stack, read_exposure_stack
 
     if not Path(path).exists():
         raise BadInputError(f"{what} stack {path}: not found")
     try:
+        if is_exposure_capture(path):  # a multi-exposure capture (docs/exposures.md)
+            stack = read_exposure_stack(path, codec).stack
+            shape = stack.frame_shape
+            if shape != tuple(model.shape):
+                h, w = shape
+                mh, mw = model.shape
+                raise BadInputError(f"{what} stack: the frames are {w}x{h} px but the rig's camera is {mw}x{mh} px")
+            return stack
         if is_gcps_v1(codec):
             from metrology.core.io import read_stack
 
             return read_stack(path, rig=model).images
-        from metrology.core.codecs.stack import read_codec_stack
-
         images = read_codec_stack(path, codec).images
     except ValueError as exc:
         raise BadInputError(f"{what} stack: {exc}") from exc

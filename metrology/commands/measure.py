@@ -180,6 +180,9 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     if asked_sigma or result.sigma_mm is not None:
         summary["sigma_mm_median"] = stats.get("sigma_mm_median")
     summary["codec_check"] = summary_of(measurement.codec_check)
+    exposures = None if measurement.decoding is None else measurement.decoding.exposure_summary()
+    if exposures is not None:  # a multi-exposure object: the pixels each exposure measured
+        summary["exposures"] = exposures
     if args.json:
         data = result.to_dict()
         gray = stats.get("gray_only") or {}

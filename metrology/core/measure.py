@@ -27,6 +27,11 @@ Every measurement takes the same three steps::
 one pass without full-size temporaries, and also gives the gray-code-only comparison heights.
 :func:`uses_fused_gcps_v1` is the one place that chooses it; the filters and the geometry are the
 same.
+
+**Multi-exposure captures.** An :class:`~metrology.core.codecs.stack.ExposureStack` (object,
+reference or both; the other may be a single stack) is decoded exposure by exposure and fused per
+pixel (:func:`~metrology.core.codecs.exposures.decode_exposures`, docs/exposures.md) in step 1;
+both captures then take the codec path (gcps-v1 as its codec), steps 2 and 3 unchanged.
 """
 
 from __future__ import annotations
@@ -49,7 +54,9 @@ from metrology.core.codecs.check import (
     with_suggestion,
 )
 from metrology.core.codecs.decode import CodecDecodeOptions, CodecDecoding, decode_codec, validate_codec_stack
+from metrology.core.codecs.exposures import decode_exposures
 from metrology.core.codecs.model import Codec, gcps_v1_codec, is_gcps_v1
+from metrology.core.codecs.stack import ExposureStack
 from metrology.core.decode import (
     GcpsV1Options,
     decode_rows,
@@ -367,17 +374,18 @@ def height_statistics(z_mm: np.ndarray) -> dict[str, float | int | None]:
 
 
 # --------------------------------------------------------------------------- the one choice
-def uses_fused_gcps_v1(model: GeometryModel, codec: Codec | None) -> bool:
+def uses_fused_gcps_v1(model: GeometryModel, codec: Codec | None, *, exposures: bool = False) -> bool:
     """True when a stack of ``codec`` on ``model`` takes the fused gcps-v1 kernel: gcps-v1 stacks
-    on a model that triangulates the paper's light codes (module docstring). The only place that
-    chooses between the two decoders."""
-    return is_gcps_v1(codec) and model.light_codes is not None
+    on a model that triangulates the paper's light codes (module docstring), single-exposure
+    captures only (``exposures``: a multi-exposure capture is involved, fused per pixel by the
+    codec path, docs/exposures.md). The only place that chooses between the two decoders."""
+    return is_gcps_v1(codec) and model.light_codes is not None and not exposures
 
 
 # --------------------------------------------------------------------------- public entries
 def prepare_reference(
     model: GeometryModel,
-    images: npt.ArrayLike,
+    images: npt.ArrayLike | ExposureStack,
     codec: Codec | None = None,
     options: MeasureOptions | None = None,
     *,
@@ -388,7 +396,7 @@ def prepare_reference(
     Parameters
     ----------
     model : GeometryModel
-    images : (frames, H, W) image stack of ``codec`` (``(11, H, W)`` for gcps-v1)
+    images : (frames, H, W) image stack of ``codec`` (``(11, H, W)`` for gcps-v1), or ExposureStack
     codec : Codec, optional
         The capture's codec; None is the paper's gcps-v1.
     options : MeasureOptions, optional
@@ -401,9 +409,11 @@ def prepare_reference(
         codec lacking an axis the model needs, or a bad option.
     """
     options = options or MeasureOptions()
-    if uses_fused_gcps_v1(model, codec):
+    multi = isinstance(images, ExposureStack)
+    if uses_fused_gcps_v1(model, codec, exposures=multi):
+        assert not isinstance(images, ExposureStack)
         return _fused_reference(model, images, options, threads)
-    assert codec is not None
+    codec = codec if codec is not None else gcps_v1_codec()
     prepared = _prepared(model, codec, options.geometry)
     coded = _decode_and_filter(prepared, images, codec, options, None, "reference", with_noise=False, threads=threads)
     blur = options.filters.blur_variance_px2
@@ -425,10 +435,10 @@ def prepare_reference(
 
 def measure(
     model: GeometryModel,
-    obj: npt.ArrayLike,
+    obj: npt.ArrayLike | ExposureStack,
     codec: Codec | None = None,
     *,
-    reference: Reference | npt.ArrayLike | None = None,
+    reference: Reference | ExposureStack | npt.ArrayLike | None = None,
     options: MeasureOptions | None = None,
     threads: int | None = None,
 ) -> Measurement:
@@ -437,7 +447,9 @@ def measure(
     Parameters
     ----------
     model : GeometryModel
-    obj : (frames, H, W) image stack of ``codec``, uint8, uint16 or float
+    obj : (frames, H, W) image stack of ``codec``, uint8, uint16 or float, or ExposureStack
+        A multi-exposure capture (docs/exposures.md) is fused per pixel
+        (:func:`~metrology.core.codecs.exposures.decode_exposures`); either capture may be one.
     codec : Codec, optional
         The stacks' codec; None is the paper's gcps-v1 (eleven named patterns).
     reference : Reference or (frames, H, W) image stack, optional
@@ -463,21 +475,31 @@ def measure(
         raise ValueError(
             f"a {model.short_label} rig measures against a capture of the reference plane: give a reference"
         )
+    multi = isinstance(obj, ExposureStack) or isinstance(reference, ExposureStack)
+    if multi:  # both captures through the codec path, fused per pixel (docs/exposures.md)
+        codec = codec if codec is not None else gcps_v1_codec()
+        if not isinstance(obj, ExposureStack):
+            obj = ExposureStack.single(obj)
+        if reference is not None and not isinstance(reference, (Reference, ExposureStack)):
+            reference = ExposureStack.single(reference)
     if reference is not None and not isinstance(reference, Reference):
         start = time.perf_counter()
         reference = prepare_reference(model, reference, codec, options, threads=threads)
         timings["reference_decode_s"] = time.perf_counter() - start
     if reference is not None:
-        _check_reference(reference, model, codec, options)
-    if uses_fused_gcps_v1(model, codec):
+        _check_reference(reference, model, codec, options, exposures=multi)
+    if uses_fused_gcps_v1(model, codec, exposures=multi):
+        assert not isinstance(obj, ExposureStack)
         return _fused_measure(model, reference, obj, codec, options, timings, threads)
     assert codec is not None
     return _codec_measure(model, reference, obj, codec, options, timings, threads)
 
 
 # --------------------------------------------------------------------------- shared steps
-def _check_reference(reference: Reference, model: GeometryModel, codec: Codec | None, options: MeasureOptions) -> None:
-    expected = None if uses_fused_gcps_v1(model, codec) else codec
+def _check_reference(
+    reference: Reference, model: GeometryModel, codec: Codec | None, options: MeasureOptions, *, exposures: bool = False
+) -> None:
+    expected = None if uses_fused_gcps_v1(model, codec, exposures=exposures) else codec
     if reference.codec != expected:
         raise ValueError("the kept reference was captured with another codec than the object")
     if reference.model != model:
@@ -578,7 +600,7 @@ def _codec_decode_options(codec: Codec, options: MeasureOptions) -> CodecDecodeO
 
 def _decode_and_filter(
     prepared: PreparedGeometry,
-    images: npt.ArrayLike,
+    images: npt.ArrayLike | ExposureStack,
     codec: Codec,
     options: MeasureOptions,
     reference: Reference | None,
@@ -601,9 +623,14 @@ def _decode_and_filter(
             f"{prepared.model.short_label} rig triangulates; the codec codes "
             f"{', '.join(sorted(codec.axes)) or 'no axis'}"
         )
-    stack = validate_codec_stack(np.asarray(images), codec)
-    _frames_shape(prepared.model, stack.shape[1:], what)
-    decoding = decode_codec(stack, codec, _codec_decode_options(codec, options), with_noise=with_noise, threads=threads)
+    decode_options = _codec_decode_options(codec, options)
+    if isinstance(images, ExposureStack):
+        _frames_shape(prepared.model, images.frame_shape, what)
+        decoding = decode_exposures(images, codec, decode_options, with_noise=with_noise, threads=threads)
+    else:
+        stack = validate_codec_stack(np.asarray(images), codec)
+        _frames_shape(prepared.model, stack.shape[1:], what)
+        decoding = decode_codec(stack, codec, decode_options, with_noise=with_noise, threads=threads)
     filters = options.filters
     axes = prepared.used_axes(tuple(codec.axes))
     codes: dict[str, np.ndarray] = {}
@@ -665,7 +692,7 @@ def _decode_and_filter(
 def _codec_measure(
     model: GeometryModel,
     reference: Reference | None,
-    obj: npt.ArrayLike,
+    obj: npt.ArrayLike | ExposureStack,
     codec: Codec,
     options: MeasureOptions,
     timings: dict[str, float],

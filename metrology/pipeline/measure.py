@@ -19,6 +19,7 @@ from metrology.core import measure as core
 from metrology.core.codecs.check import summary_of
 from metrology.core.codecs.decode import CodecDecoding
 from metrology.core.codecs.model import CODEC_FORMAT, GCPS_V1, Codec, is_gcps_v1
+from metrology.core.codecs.stack import ExposureStack
 from metrology.core.geometry.base import GeometryModel
 from metrology.core.measure import Measurement, MeasureOptions, Reference, height_statistics
 from metrology.pipeline.common import PhaseTimer
@@ -127,7 +128,7 @@ class MeasureResult:
 
 def prepare_reference(
     model: GeometryModel,
-    reference: npt.ArrayLike,
+    reference: npt.ArrayLike | ExposureStack,
     options: MeasureOptions | None = None,
     *,
     codec: Codec | None = None,
@@ -140,8 +141,8 @@ def prepare_reference(
 
 def measure(
     model: GeometryModel,
-    reference: npt.ArrayLike | Reference | None,
-    obj: npt.ArrayLike,
+    reference: npt.ArrayLike | ExposureStack | Reference | None,
+    obj: npt.ArrayLike | ExposureStack,
     options: MeasureOptions | None = None,
     *,
     codec: Codec | None = None,
@@ -156,7 +157,8 @@ def measure(
     reference : image stack, Reference or None
         The reference plane (a kept :class:`~metrology.core.measure.Reference` is reused as is);
         None where the model measures without one (depths).
-    obj : (frames, H, W) image stack of ``codec``
+    obj : (frames, H, W) image stack of ``codec``, or ExposureStack
+        Either capture may be a multi-exposure capture (docs/exposures.md), fused per pixel.
     options : MeasureOptions, optional
     codec : Codec, optional
         The stacks' codec; None (or the built-in gcps-v1) the paper's eleven patterns.

@@ -4,7 +4,9 @@
 - :mod:`~metrology.core.codecs.decode`: decoding a stack of any codec to absolute projector coordinates;
 - :mod:`~metrology.core.codecs.render`: projector patterns and virtual-rig camera images of any codec
   (loaded when first used);
-- :mod:`~metrology.core.codecs.stack`: reading the frames of a capture folder or zip in codec order.
+- :mod:`~metrology.core.codecs.stack`: reading the frames of a capture folder or zip in codec order,
+  and multi-exposure captures (one stack per exposure, docs/exposures.md);
+- :mod:`~metrology.core.codecs.exposures`: multi-exposure captures decoded and fused per pixel.
 
 docs/codecs.md describes the file format, the reason codes and the quality file.
 """

@@ -241,6 +241,11 @@ class CodecDecoding:
         Pixels at or above the saturation level in at least one frame of the codec (flagged;
         refused only where a phase frame is saturated).
     shape : (H, W)
+    exposure : mapping of str to (H, W) uint8
+        A multi-exposure capture's fused decoding only (:mod:`metrology.core.codecs.exposures`):
+        per axis the index of the exposure each pixel used, 255 where none; empty otherwise.
+    exposure_names : tuple of str
+        The exposures' names in index order (empty for a single stack).
     """
 
     axes: Mapping[str, AxisDecoding]
@@ -249,6 +254,8 @@ class CodecDecoding:
     shape: tuple[int, int]
     stats: dict[str, Any] = field(default_factory=dict)
     codec_check: Mapping[str, AxisCheck] = field(default_factory=dict)
+    exposure: Mapping[str, np.ndarray] = field(default_factory=dict)
+    exposure_names: tuple[str, ...] = ()
 
     def uv(self) -> np.ndarray:
         """``(H, W, 2)`` float32: u and v, NaN for an axis that is not coded or a pixel not decoded."""
@@ -259,16 +266,21 @@ class CodecDecoding:
         return out
 
     def quality_arrays(self) -> dict[str, np.ndarray]:
-        """The quality file's arrays: ``modulation_a``, ``noise_a`` (float32) and ``reason_a`` (uint8)."""
+        """The quality file's arrays: ``modulation_a``, ``noise_a`` (float32) and ``reason_a`` (uint8);
+        for a multi-exposure capture also ``exposure_a`` (uint8, 255 where no exposure measured)."""
         arrays: dict[str, np.ndarray] = {}
         for name, axis in self.axes.items():
             arrays[f"modulation_{name}"] = axis.modulation.astype(np.float32, copy=False)
             arrays[f"noise_{name}"] = axis.noise.astype(np.float32, copy=False)
             arrays[f"reason_{name}"] = axis.reason.astype(np.uint8, copy=False)
+            if name in self.exposure:
+                arrays[f"exposure_{name}"] = self.exposure[name].astype(np.uint8, copy=False)
         return arrays
 
     def summary(self) -> dict[str, Any]:
-        """JSON-ready counts per axis and reason, slips, saturated pixels, the options."""
+        """JSON-ready counts per axis and reason, slips, saturated pixels, the options; for a
+        multi-exposure capture the exposures' names and, per axis, the pixels each measured."""
+        exposures = self.exposure_summary()
         return {
             "shape": list(self.shape),
             "axes": {
@@ -283,7 +295,26 @@ class CodecDecoding:
             "options": self.options.to_dict(),
             **({"gray_levels": self.stats["gray_levels"]} if "gray_levels" in self.stats else {}),
             "codec_check": summary_of(self.codec_check),
+            **({"exposures": exposures} if exposures is not None else {}),
         }
+
+    def exposure_summary(self) -> dict[str, Any] | None:
+        """A multi-exposure capture's exposures: ``{"names": [...], "pixels": {axis: {name: count,
+        "none": count}}}`` (the pixels each exposure measured); None for a single stack."""
+        if not self.exposure_names:
+            return None
+        return {
+            "names": list(self.exposure_names),
+            "pixels": {name: _exposure_pixels(index, self.exposure_names) for name, index in self.exposure.items()},
+        }
+
+
+def _exposure_pixels(index: np.ndarray, names: tuple[str, ...]) -> dict[str, int]:
+    """Pixels per exposure name of an ``exposure_a`` map, and ``"none"`` (255)."""
+    counts = np.bincount(index.ravel(), minlength=256)
+    row = {name: int(counts[i]) for i, name in enumerate(names)}
+    row["none"] = int(counts[255])
+    return row
 
 
 MIN_FRINGE_SHARE = 0.01

@@ -19,14 +19,15 @@ and shape before anything is decoded.
 
 from __future__ import annotations
 
+import contextlib
 import fnmatch
 import io
 import os
 import zipfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
-from typing import IO
+from typing import IO, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -43,6 +44,7 @@ from metrology.core.io import (
 )
 from metrology.core.io.archives import checked_zip_members, is_junk, read_zip_member, strip_single_folder
 from metrology.core.io.atomic import write_files_new_folder_atomic, write_files_zip_atomic
+from metrology.core.io.exposures import EXPOSURES_FILE_NAME, Exposure, exposures_json, parse_exposures
 from metrology.core.patterns import PATTERN_NAMES
 
 CODEC_FILE_NAME = "codec.json"
@@ -75,6 +77,57 @@ class CodecStack:
         return 8 if self.images.dtype == np.uint8 else 16
 
 
+@dataclass(frozen=True, eq=False)
+class ExposureStack:
+    """The images of a multi-exposure capture (docs/exposures.md), the input of
+    :func:`metrology.core.codecs.exposures.decode_exposures` and of every measurement.
+
+    Attributes
+    ----------
+    images : tuple of (frames, H, W) uint8 or uint16 arrays
+        One stack per exposure in the codec's frame order, all of one shape and dtype, in the
+        order of ``exposures``.
+    exposures : tuple of Exposure
+        From the least to the most exposed (:func:`~metrology.core.io.exposures.parse_exposures`);
+        index ``i`` is exposure ``i`` of the maps ``exposure_u`` / ``exposure_v``.
+
+    Raises
+    ------
+    ValueError
+        On no exposure, a count mismatch, or stacks of different shapes or dtypes.
+    """
+
+    images: tuple[np.ndarray, ...]
+    exposures: tuple[Exposure, ...]
+
+    def __post_init__(self) -> None:
+        if not self.images or len(self.images) != len(self.exposures):
+            raise ValueError(f"{len(self.exposures)} exposures but {len(self.images)} stacks")
+        first = self.images[0]
+        for exposure, images in zip(self.exposures, self.images, strict=True):
+            if not isinstance(images, np.ndarray) or images.ndim != 3:
+                raise ValueError(f"exposure {exposure.name!r}: images must be a (frames, H, W) array")
+            if images.shape != first.shape or images.dtype != first.dtype:
+                raise ValueError(
+                    f"exposure {exposure.name!r} has images {images.shape} {images.dtype}, unlike "
+                    f"{self.exposures[0].name!r}'s {first.shape} {first.dtype}"
+                )
+
+    @property
+    def dtype(self) -> np.dtype[Any]:
+        return self.images[0].dtype
+
+    @property
+    def frame_shape(self) -> tuple[int, int]:
+        """``(H, W)`` of every frame."""
+        return (int(self.images[0].shape[1]), int(self.images[0].shape[2]))
+
+    @classmethod
+    def single(cls, images: npt.ArrayLike) -> ExposureStack:
+        """One stack as a one-exposure capture (exposure time 1 us, a label only)."""
+        return cls((np.asarray(images),), (Exposure(name="exp0", exposure_us=1.0),))
+
+
 class _Source:
     """Files of a folder or zip: top-level names, a reader of their bytes, and the paths of the
     ``codec.json`` files lying in sub-folders (refused: a capture's codec lies at its root)."""
@@ -86,12 +139,14 @@ class _Source:
         read: Callable[[str], bytes],
         size: Callable[[str], int],
         nested_codecs: list[str] | None = None,
+        sub: Callable[[str], _Source | None] | None = None,
     ):
         self.label = label
         self.names = names
         self.read = read
         self.size = size
         self.nested_codecs = nested_codecs or []
+        self.sub = sub  # the source of a sub-folder (None when absent): multi-exposure captures
 
 
 def _nested_codec_files(entries: list[str]) -> list[str]:
@@ -131,7 +186,18 @@ def _folder_source(label: str, folder: Path) -> _Source:
         except OSError as exc:
             raise StackError(f"capture {label}: cannot read {name} ({exc.strerror or exc})") from None
 
-    return _Source(label, files, read, lambda name: (root / name).stat().st_size, nested)
+    def sub(name: str) -> _Source | None:
+        folder = root / name
+        if not folder.is_dir():
+            return None
+        names = sorted(child.name for child in folder.iterdir() if child.is_file() and not is_junk(child.name))
+
+        def read_sub(member: str) -> bytes:
+            return read(f"{name}/{member}")
+
+        return _Source(f"{label}/{name}", names, read_sub, lambda member: (folder / member).stat().st_size)
+
+    return _Source(label, files, read, lambda name: (root / name).stat().st_size, nested, sub)
 
 
 def _zip_source(label: str, archive: zipfile.ZipFile, max_bytes: int, max_ratio: float) -> _Source:
@@ -145,7 +211,21 @@ def _zip_source(label: str, archive: zipfile.ZipFile, max_bytes: int, max_ratio:
     def size(name: str) -> int:
         return archive.getinfo(prefix + name).file_size
 
-    return _Source(label, sorted(top), read, size, _nested_codec_files(entries))
+    def sub(name: str) -> _Source | None:
+        head = name + "/"
+        inner = sorted(e[len(head) :] for e in entries if e.startswith(head) and "/" not in e[len(head) :])
+        if not inner:
+            return None
+
+        def read_sub(member: str) -> bytes:
+            return read(head + member)
+
+        def size_sub(member: str) -> int:
+            return size(head + member)
+
+        return _Source(f"{label}/{name}", inner, read_sub, size_sub)
+
+    return _Source(label, sorted(top), read, size, _nested_codec_files(entries), sub)
 
 
 def select_frames(codec: Codec, names: list[str], label: str = "capture") -> list[str]:
@@ -190,6 +270,42 @@ def select_frames(codec: Codec, names: list[str], label: str = "capture") -> lis
     return selected
 
 
+@contextlib.contextmanager
+def _open_source(
+    source: str | os.PathLike[str] | IO[bytes], max_bytes: int, max_ratio: float, *, rewind: bool = False
+) -> Iterator[_Source]:
+    """The files of a capture folder, zip or zip file object (rewound after reading when ``rewind``)."""
+    if isinstance(source, (str, os.PathLike)):
+        path = Path(source)
+        label = repr(path.name or str(path))
+        if path.is_dir():
+            yield _folder_source(label, path)
+            return
+        if not path.is_file():
+            raise StackError(f"capture {label} does not exist")
+        if path.stat().st_size > max_bytes:
+            raise StackError(f"capture {label} is larger than the limit of {max_bytes} bytes")
+        if not zipfile.is_zipfile(path):
+            raise StackError(f"capture {label} is not a zip file (nor a folder)")
+        with zipfile.ZipFile(path) as archive:
+            yield _zip_source(label, archive, max_bytes, max_ratio)
+        return
+    name = getattr(source, "name", None)
+    label = repr(Path(name).name) if isinstance(name, str) and name else "upload"
+    start = source.tell() if rewind else 0
+    data = source.read(max_bytes + 1)
+    if rewind:
+        source.seek(start)
+    if len(data) > max_bytes:
+        raise StackError(f"capture {label} is larger than the limit of {max_bytes} bytes")
+    try:
+        archive = zipfile.ZipFile(io.BytesIO(data))
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError) as exc:
+        raise StackError(f"capture {label} is not a zip file ({exc})") from None
+    with archive:
+        yield _zip_source(label, archive, max_bytes, max_ratio)
+
+
 def read_codec_stack(
     source: str | os.PathLike[str] | IO[bytes],
     codec: Codec | None = None,
@@ -216,34 +332,18 @@ def read_codec_stack(
     ------
     StackError
         Naming the problem: no codec, frames missing or miscounted, unreadable or oversized
-        images, mixed shapes or bit depths, unsafe or oversized zips.
+        images, mixed shapes or bit depths, unsafe or oversized zips, a multi-exposure capture
+        (read by :func:`read_exposure_stack`).
     CodecError
         If the capture's ``codec.json`` is invalid.
     """
-    if isinstance(source, (str, os.PathLike)):
-        path = Path(source)
-        label = repr(path.name or str(path))
-        if path.is_dir():
-            return _read(_folder_source(label, path), codec, max_pixels)
-        if not path.is_file():
-            raise StackError(f"capture {label} does not exist")
-        if path.stat().st_size > max_bytes:
-            raise StackError(f"capture {label} is larger than the limit of {max_bytes} bytes")
-        if not zipfile.is_zipfile(path):
-            raise StackError(f"capture {label} is not a zip file (nor a folder)")
-        with zipfile.ZipFile(path) as archive:
-            return _read(_zip_source(label, archive, max_bytes, max_ratio), codec, max_pixels)
-    name = getattr(source, "name", None)
-    label = repr(Path(name).name) if isinstance(name, str) and name else "upload"
-    data = source.read(max_bytes + 1)
-    if len(data) > max_bytes:
-        raise StackError(f"capture {label} is larger than the limit of {max_bytes} bytes")
-    try:
-        archive = zipfile.ZipFile(io.BytesIO(data))
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError) as exc:
-        raise StackError(f"capture {label} is not a zip file ({exc})") from None
-    with archive:
-        return _read(_zip_source(label, archive, max_bytes, max_ratio), codec, max_pixels)
+    with _open_source(source, max_bytes, max_ratio) as src:
+        if EXPOSURES_FILE_NAME in src.names:
+            raise StackError(
+                f"capture {src.label} is a multi-exposure capture ({EXPOSURES_FILE_NAME}); read it as one "
+                "(docs/exposures.md)"
+            )
+        return _read(src, codec, max_pixels)
 
 
 def read_capture_codec(
@@ -262,30 +362,108 @@ def read_capture_codec(
     CodecError
         If its ``codec.json`` is invalid.
     """
-    if isinstance(source, (str, os.PathLike)):
-        path = Path(source)
-        label = repr(path.name or str(path))
-        if path.is_dir():
-            return _own_codec(_folder_source(label, path))
-        if not path.is_file():
-            raise StackError(f"capture {label} does not exist")
-        if not zipfile.is_zipfile(path):
-            raise StackError(f"capture {label} is not a zip file (nor a folder)")
-        with zipfile.ZipFile(path) as archive:
-            return _own_codec(_zip_source(label, archive, max_bytes, max_ratio))
-    name = getattr(source, "name", None)
-    label = repr(Path(name).name) if isinstance(name, str) and name else "upload"
-    start = source.tell()
-    data = source.read(max_bytes + 1)
-    source.seek(start)
-    if len(data) > max_bytes:
-        raise StackError(f"capture {label} is larger than the limit of {max_bytes} bytes")
-    try:
-        archive = zipfile.ZipFile(io.BytesIO(data))
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError) as exc:
-        raise StackError(f"capture {label} is not a zip file ({exc})") from None
-    with archive:
-        return _own_codec(_zip_source(label, archive, max_bytes, max_ratio))
+    with _open_source(source, max_bytes, max_ratio, rewind=True) as src:
+        return _own_codec(src)
+
+
+def is_exposure_capture(
+    source: str | os.PathLike[str] | IO[bytes],
+    *,
+    max_bytes: int = DEFAULT_MAX_BYTES,
+    max_ratio: float = DEFAULT_MAX_RATIO,
+) -> bool:
+    """True when the capture holds ``exposures.json`` at its top (a multi-exposure capture,
+    docs/exposures.md). A file object is rewound. StackError as :func:`read_codec_stack`."""
+    with _open_source(source, max_bytes, max_ratio, rewind=True) as src:
+        return EXPOSURES_FILE_NAME in src.names
+
+
+@dataclass(frozen=True, eq=False)
+class ExposureCodecStack:
+    """A multi-exposure capture read in codec order.
+
+    Attributes
+    ----------
+    stack : ExposureStack
+        One ``(frames, H, W)`` stack per exposure, least exposed first.
+    codec : Codec
+    codec_source : str
+        As :attr:`CodecStack.codec_source`.
+    """
+
+    stack: ExposureStack
+    codec: Codec
+    codec_source: str
+
+    @property
+    def bit_depth(self) -> int:
+        return 8 if self.stack.dtype == np.uint8 else 16
+
+
+def read_exposure_stack(
+    source: str | os.PathLike[str] | IO[bytes],
+    codec: Codec | None = None,
+    *,
+    max_pixels: int = DEFAULT_MAX_PIXELS,
+    max_bytes: int = DEFAULT_MAX_BYTES,
+    max_ratio: float = DEFAULT_MAX_RATIO,
+) -> ExposureCodecStack:
+    """Read a multi-exposure capture (docs/exposures.md): ``exposures.json`` and one complete
+    stack per exposure in its sub-folder, ``codec.json`` optionally at the top.
+
+    Parameters
+    ----------
+    source : path or binary file object
+        A folder, a ``.zip``, or a readable binary file object holding a zip.
+    codec : Codec, optional
+        Default the capture's top ``codec.json``, else gcps-v1 when the exposures hold the
+        eleven named patterns.
+
+    Raises
+    ------
+    StackError
+        Naming the exposure and the file: no or a bad ``exposures.json``, an exposure's folder
+        missing, a frame missing or unreadable, a ``codec.json`` inside an exposure's folder,
+        exposures of different shapes or bit depths.
+    CodecError
+        If the top ``codec.json`` is invalid.
+    """
+    with _open_source(source, max_bytes, max_ratio) as src:
+        label = src.label
+        if EXPOSURES_FILE_NAME not in src.names:
+            raise StackError(f"capture {label} has no {EXPOSURES_FILE_NAME}: it is not a multi-exposure capture")
+        exposures = parse_exposures(src.read(EXPOSURES_FILE_NAME), label)
+        _check_no_nested_codec(src)
+        origin = "given"
+        if codec is None:
+            codec = _own_codec(src)
+            origin = CODEC_FILE_NAME
+        assert src.sub is not None
+        stacks: list[np.ndarray] = []
+        first: tuple[str, np.ndarray] | None = None
+        for exposure in exposures:
+            sub = src.sub(exposure.name)
+            if sub is None:
+                raise StackError(
+                    f"capture {label} has no folder {exposure.name}/ for exposure {exposure.name!r} of "
+                    f"{EXPOSURES_FILE_NAME}"
+                )
+            if codec is None:  # no codec.json: gcps-v1 by the names, else refused
+                read = _read(sub, None, max_pixels)
+                codec, origin = read.codec, read.codec_source
+            else:
+                read = _read(sub, codec, max_pixels)
+            images = read.images
+            if first is not None and (images.shape != first[1].shape or images.dtype != first[1].dtype):
+                raise StackError(
+                    f"capture {label}: exposure {exposure.name!r} has frames of shape {images.shape[1:]} "
+                    f"{images.dtype} but exposure {first[0]!r} has {first[1].shape[1:]} {first[1].dtype}"
+                )
+            if first is None:
+                first = (exposure.name, images)
+            stacks.append(images)
+    assert codec is not None
+    return ExposureCodecStack(ExposureStack(tuple(stacks), exposures), codec, origin)
 
 
 def _own_codec(src: _Source) -> Codec | None:
@@ -340,7 +518,19 @@ def _read(src: _Source, codec: Codec | None, max_pixels: int) -> CodecStack:
     return CodecStack(images=images, codec=codec, names=tuple(names), codec_source=origin)
 
 
-__all__ = ["CODEC_FILE_NAME", "CodecError", "CodecStack", "read_capture_codec", "read_codec_stack", "select_frames"]
+__all__ = [
+    "CODEC_FILE_NAME",
+    "CodecError",
+    "CodecStack",
+    "ExposureCodecStack",
+    "ExposureStack",
+    "is_exposure_capture",
+    "read_capture_codec",
+    "read_codec_stack",
+    "read_exposure_stack",
+    "select_frames",
+    "write_exposure_stack",
+]
 
 
 def frame_file_names(codec: Codec) -> list[str]:
@@ -359,6 +549,60 @@ def frame_file_names(codec: Codec) -> list[str]:
     return [f"{prefix}{i:0{digits}d}{suffix}" for i in range(n)]
 
 
+def _write_new(files: dict[str, bytes], dest: str | os.PathLike[str]) -> Path:
+    """Write ``files`` as a new folder or a .zip (atomic); ValueError when the folder exists."""
+    target = Path(dest)
+    if target.suffix.lower() == ".zip":
+        return write_files_zip_atomic(files, target)
+    if target.exists():
+        raise ValueError(f"{dest}: already exists; give a new folder or a .zip")
+    return write_files_new_folder_atomic(files, target)
+
+
+def _frame_files(codec: Codec, images: np.ndarray) -> dict[str, bytes]:
+    """File name -> encoded bytes of each frame of ``codec``."""
+    import cv2
+
+    files: dict[str, bytes] = {}
+    for name, image in zip(frame_file_names(codec), images, strict=True):
+        ext = PurePosixPath(name).suffix.lower()
+        ok, buf = cv2.imencode(ext, np.ascontiguousarray(image))
+        if not ok:
+            raise OSError(f"OpenCV could not encode {name}")
+        files[name] = buf.tobytes()
+    return files
+
+
+def write_exposure_stack(stack: ExposureStack, dest: str | os.PathLike[str], codec: Codec | None = None) -> Path:
+    """Write a multi-exposure capture as a new folder or a .zip (atomic): ``exposures.json``, one
+    sub-folder per exposure (the eleven named images of gcps-v1 when ``codec`` is None or gcps-v1,
+    else the codec's frames) and, for another codec, its ``codec.json`` at the top. Reads back with
+    :func:`read_exposure_stack`.
+
+    Raises
+    ------
+    ValueError
+        When a stack does not have one image per frame, or the folder exists.
+    """
+    from metrology.core.codecs.model import is_gcps_v1
+    from metrology.core.io import encode_stack
+
+    files: dict[str, bytes] = {EXPOSURES_FILE_NAME: exposures_json(stack.exposures).encode()}
+    for exposure, images in zip(stack.exposures, stack.images, strict=True):
+        if is_gcps_v1(codec):
+            frames = encode_stack(images)
+        else:
+            assert codec is not None
+            if len(images) != codec.n_frames:
+                raise ValueError(f"the codec has {codec.n_frames} frames, got images of shape {images.shape}")
+            frames = _frame_files(codec, images)
+        files.update({f"{exposure.name}/{name}": data for name, data in frames.items()})
+    if not is_gcps_v1(codec):
+        assert codec is not None
+        files[CODEC_FILE_NAME] = codec.to_json().encode()
+    return _write_new(files, dest)
+
+
 def write_codec_stack(codec: Codec, images: npt.ArrayLike, dest: str | os.PathLike[str]) -> Path:
     """Write ``(frames, H, W)`` images of ``codec`` (8- or 16-bit) named by :func:`frame_file_names`,
     with the codec as ``codec.json``, as a new folder or a .zip (atomic); the folder or zip reads
@@ -369,25 +613,12 @@ def write_codec_stack(codec: Codec, images: npt.ArrayLike, dest: str | os.PathLi
     ValueError
         When there is not one image per frame, or the folder exists.
     """
-    import cv2
-
     images = np.asarray(images)
     if images.ndim != 3 or len(images) != codec.n_frames:
         raise ValueError(f"the codec has {codec.n_frames} frames, got images of shape {images.shape}")
-    files: dict[str, bytes] = {}
-    for name, image in zip(frame_file_names(codec), images, strict=True):
-        ext = PurePosixPath(name).suffix.lower()
-        ok, buf = cv2.imencode(ext, np.ascontiguousarray(image))
-        if not ok:
-            raise OSError(f"OpenCV could not encode {name}")
-        files[name] = buf.tobytes()
+    files = _frame_files(codec, images)
     files["codec.json"] = codec.to_json().encode()
-    target = Path(dest)
-    if target.suffix.lower() == ".zip":
-        return write_files_zip_atomic(files, target)
-    if target.exists():
-        raise ValueError(f"{dest}: already exists; give a new folder or a .zip")
-    return write_files_new_folder_atomic(files, target)
+    return _write_new(files, dest)
 
 
 def write_capture(images: npt.ArrayLike, dest: str | os.PathLike[str], codec: Codec | None = None) -> Path:

@@ -36,6 +36,8 @@ into place (``os.replace``), so no partial output is ever visible under the fina
 
 Modules: :mod:`.atomic` (atomic writes), :mod:`.images` (image headers and decoding),
 :mod:`.archives` (folder and zip reading, zip-bomb checks), :mod:`.stacks` (capture stacks),
+:mod:`.exposures` (the ``exposures.json`` manifest of multi-exposure captures, read with their
+stacks by :func:`metrology.core.codecs.stack.read_exposure_stack`),
 :mod:`.rigs`, :mod:`.heights`, :mod:`.points` and :mod:`.series`; every public name is importable from
 ``metrology.core.io`` as before.
 """

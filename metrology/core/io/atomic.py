@@ -79,7 +79,10 @@ def write_files_new_folder_atomic(files: dict[str, bytes], path: str | os.PathLi
     tmp_dir.mkdir()
     try:
         for name, data in files.items():
-            (tmp_dir / name).write_bytes(data)
+            path_in = tmp_dir / name
+            if "/" in name:  # a file in a sub-folder (multi-exposure captures)
+                path_in.parent.mkdir(parents=True, exist_ok=True)
+            path_in.write_bytes(data)
         os.rename(tmp_dir, target)
     finally:
         if tmp_dir.exists():

@@ -8,7 +8,9 @@ Files:
   (:func:`render_stack`, :func:`render_flat_frames`), the oracle of the paper's rig;
 - :mod:`.cast`: ground truth of any model by ray casting a placed scene through its seam;
 - :mod:`.options`: :class:`SimulationOptions` and the two presets;
-- :mod:`.series`: noise seeds and stage positions shared by every renderer and caller.
+- :mod:`.series`: noise seeds and stage positions shared by every renderer and caller;
+- :mod:`.exposures`: high-dynamic-range scenes (a reflectance map of 1000:1) rendered at several
+  exposures, as multi-exposure captures (:func:`~.exposures.render_exposures`).
 
 No file I/O: writing a capture stack is :mod:`metrology.core.io`'s job.
 """
