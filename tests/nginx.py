@@ -42,11 +42,17 @@ def world_readable_dir(prefix: str) -> Path:
 
 
 def render_config(
-    port: int, upstream: str, static_root: Path, media_root: Path, s3_endpoint: str = "http://127.0.0.1:9000"
+    port: int,
+    upstream: str,
+    static_root: Path,
+    media_root: Path,
+    s3_endpoint: str = "http://127.0.0.1:9000",
+    config: Path = CONFIG,
 ) -> str:
     """``deploy/nginx/gcps.conf`` listening on 127.0.0.1:``port``, proxying to ``upstream`` (host:port)
-    and to the S3 endpoint ``s3_endpoint`` (``http://host:port``)."""
-    text = CONFIG.read_text()
+    and to the S3 endpoint ``s3_endpoint`` (``http://host:port``). ``config``: another checkout's
+    ``deploy/nginx/gcps.conf`` (benchmarks that compare checkouts); default this one's."""
+    text = config.read_text()
     for old, new in (
         ("listen 80;", f"listen 127.0.0.1:{port};"),
         ("server 127.0.0.1:8000;", f"server {upstream};"),
@@ -54,7 +60,7 @@ def render_config(
         ("/var/lib/gcps/static/", f"{static_root}/"),
         ("/var/lib/gcps/media/", f"{media_root}/"),
     ):
-        assert text.count(old) == 1, f"{CONFIG} should hold {old!r} once"
+        assert text.count(old) == 1, f"{config} should hold {old!r} once"
         text = text.replace(old, new)
     return text
 
@@ -63,7 +69,12 @@ class Nginx:
     """nginx serving ``deploy/nginx/gcps.conf`` on ``base_url``; its access log in ``access_log``."""
 
     def __init__(
-        self, upstream: str, static_root: Path, media_root: Path, s3_endpoint: str = "http://127.0.0.1:9000"
+        self,
+        upstream: str,
+        static_root: Path,
+        media_root: Path,
+        s3_endpoint: str = "http://127.0.0.1:9000",
+        config: Path = CONFIG,
     ) -> None:
         binary = nginx_binary()
         if binary is None:
@@ -74,7 +85,7 @@ class Nginx:
         self.access_log = self.prefix / "access.log"
         self.error_log = self.prefix / "error.log"
         site = self.prefix / "gcps.conf"
-        site.write_text(render_config(self.port, upstream, static_root, media_root, s3_endpoint))
+        site.write_text(render_config(self.port, upstream, static_root, media_root, s3_endpoint, config))
         mime = "/etc/nginx/mime.types"
         temp = "".join(
             f"    {kind}_temp_path {self.prefix}/{kind};\n"
