@@ -57,6 +57,9 @@ from typing import Any
 import requests
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from tests.processes import free_port, stop_group  # noqa: E402  (the checkout's own helpers)
+
 PG_ADMIN_URL = os.environ.get("GCPS_TEST_PG_URL", "postgresql://postgres@127.0.0.1:5432/postgres")
 CACHE = Path(os.environ.get("GCPS_LOAD_CACHE", Path.home() / ".cache" / "gcps-load"))
 OBJECT_SCENES = ("sphere", "block", "staircase")
@@ -89,12 +92,6 @@ def stacks(width: int, height: int) -> tuple[bytes, list[bytes], dict[str, Any]]
 
 
 # ----------------------------------------------------------------------------- processes
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -167,14 +164,7 @@ class Stack:
 
     def stop(self) -> None:
         for process in list(self.processes.values()) + ([self.redis] if self.redis else []):
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(process.pid, signal.SIGTERM)
-            try:
-                process.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(process.pid, signal.SIGKILL)
-                process.wait(timeout=10)
+            stop_group(process)
         import psycopg
 
         with psycopg.connect(PG_ADMIN_URL, autocommit=True) as conn:
