@@ -93,7 +93,7 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
 
     from metrology.core.codecs.check import summary_of
     from metrology.core.io import atomic_path, write_height_npy
-    from metrology.core.measure import uses_fused_gcps_v1
+    from metrology.core.measure import exposure_inputs, uses_fused_gcps_v1
     from metrology.core.mesh import surface_mesh, write_mesh_file
     from metrology.core.reference_cache import cached_reference
     from metrology.pipeline.measure import measure
@@ -130,6 +130,8 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     obj = read_capture(args.object, codec, model, "object")
     if preparing is not None:
         preparing.join()  # the prepared model is in the model's cache: measure() finds it there
+    # a multi-exposure capture takes both through the codec path: the kept reference too
+    obj, reference_images, codec = exposure_inputs(obj, reference_images, codec)
     read_s = time.perf_counter() - started
     reference_cache: dict[str, Any] | None = None
 

@@ -39,7 +39,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -475,13 +475,8 @@ def measure(
         raise ValueError(
             f"a {model.short_label} rig measures against a capture of the reference plane: give a reference"
         )
-    multi = isinstance(obj, ExposureStack) or isinstance(reference, ExposureStack)
-    if multi:  # both captures through the codec path, fused per pixel (docs/exposures.md)
-        codec = codec if codec is not None else gcps_v1_codec()
-        if not isinstance(obj, ExposureStack):
-            obj = ExposureStack.single(obj)
-        if reference is not None and not isinstance(reference, (Reference, ExposureStack)):
-            reference = ExposureStack.single(reference)
+    obj, reference, codec = exposure_inputs(obj, reference, codec)
+    multi = isinstance(obj, ExposureStack)
     if reference is not None and not isinstance(reference, Reference):
         start = time.perf_counter()
         reference = prepare_reference(model, reference, codec, options, threads=threads)
@@ -493,6 +488,29 @@ def measure(
         return _fused_measure(model, reference, obj, codec, options, timings, threads)
     assert codec is not None
     return _codec_measure(model, reference, obj, codec, options, timings, threads)
+
+
+_Obj = TypeVar("_Obj")
+_Ref = TypeVar("_Ref")
+
+
+def exposure_inputs(
+    obj: _Obj, reference: _Ref, codec: Codec | None
+) -> tuple[_Obj | ExposureStack, _Ref | ExposureStack, Codec | None]:
+    """``(obj, reference, codec)`` as :func:`measure` takes them on: when either capture is a
+    multi-exposure one, both go through the codec path, fused per pixel (docs/exposures.md): the
+    codec None becomes gcps-v1's codec and a single stack (object or reference) an
+    :class:`ExposureStack` of one exposure. Otherwise they are returned as given. A caller that
+    prepares the reference itself (the command line's kept references) calls this first, so that
+    the reference is prepared as :func:`measure` would prepare it."""
+    if not (isinstance(obj, ExposureStack) or isinstance(reference, ExposureStack)):
+        return obj, reference, codec
+    codec = codec if codec is not None else gcps_v1_codec()
+    fused_obj = obj if isinstance(obj, ExposureStack) else ExposureStack.single(np.asarray(obj))
+    fused_reference: _Ref | ExposureStack = reference
+    if reference is not None and not isinstance(reference, (Reference, ExposureStack)):
+        fused_reference = ExposureStack.single(np.asarray(reference))
+    return fused_obj, fused_reference, codec
 
 
 # --------------------------------------------------------------------------- shared steps

@@ -28,6 +28,7 @@ import numpy.typing as npt
 
 from metrology.core import local_cache
 from metrology.core.codecs.model import Codec
+from metrology.core.codecs.stack import ExposureStack
 from metrology.core.geometry.base import GeometryModel, ReferenceSurface
 from metrology.core.measure import MeasureOptions, Reference, prepare_reference
 
@@ -38,8 +39,15 @@ _META = "meta"
 _SURFACE_MODULES = "metrology.core.geometry."
 
 
-def stack_digest(images: npt.ArrayLike) -> str:
-    """SHA-256 (hex) of a stack's shape, dtype and bytes."""
+def stack_digest(images: npt.ArrayLike | ExposureStack) -> str:
+    """SHA-256 (hex) of a stack's shape, dtype and bytes; of a multi-exposure capture, of each
+    exposure's description (name, time, gain, brightness) and its stack's digest, in order."""
+    if isinstance(images, ExposureStack):
+        digest = hashlib.sha256(b"gcps-exposures|")
+        for exposure, frames in zip(images.exposures, images.images, strict=True):
+            digest.update(json.dumps(exposure.to_dict(), sort_keys=True).encode())
+            digest.update(stack_digest(frames).encode())
+        return digest.hexdigest()
     stack = np.ascontiguousarray(images)
     digest = hashlib.sha256(f"{stack.shape}|{stack.dtype.str}|".encode())
     digest.update(stack.reshape(-1).view(np.uint8).data)
@@ -158,7 +166,7 @@ def _surface_of(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> Referenc
 
 def cached_reference(
     model: GeometryModel,
-    images: npt.ArrayLike,
+    images: npt.ArrayLike | ExposureStack,
     codec: Codec | None = None,
     options: MeasureOptions | None = None,
     *,
@@ -171,7 +179,8 @@ def cached_reference(
     (:func:`metrology.core.local_cache.store_later`; the interpreter waits for it at exit).
     """
     options = options or MeasureOptions()
-    stack = np.asarray(images)
+    stack = images if isinstance(images, ExposureStack) else np.asarray(images)
+    frame_shape = stack.frame_shape if isinstance(stack, ExposureStack) else tuple(stack.shape[1:])
     start = time.perf_counter()
     key = reference_key(model, stack_digest(stack), codec, options)
     report: dict[str, Any] = {"hash_s": time.perf_counter() - start}
@@ -182,7 +191,7 @@ def cached_reference(
             reference = reference_from_arrays(arrays, model, codec, options)
         except ValueError:
             reference = None
-        if reference is not None and reference.shape == tuple(stack.shape[1:]):
+        if reference is not None and reference.shape == frame_shape:
             report.update(hit=True, load_s=time.perf_counter() - start)
             return reference, report
     start = time.perf_counter()
