@@ -21,7 +21,7 @@ on, and the restore is skipped with a warning. Nothing is lost: the message stay
 unacked set, which any worker restores after the visibility timeout (or which a Redis restart
 without persistence has emptied anyway), and the job rows are recovered by the job sweep
 (``metrology/jobs/services.py``); a message delivered again for a job already done is dropped.
-``tests/app/integration/test_broker_outages.py`` kills Redis at each point.
+``tests/app/integration/test_faults.py`` kills a private Redis at each point (ack, restore, countdown).
 
 Selected by ``CELERY_BROKER_TRANSPORT`` in settings for ``redis://`` and ``rediss://`` brokers.
 """
