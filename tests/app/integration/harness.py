@@ -11,7 +11,6 @@ import contextlib
 import os
 import secrets
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -21,6 +20,8 @@ from pathlib import Path
 
 import pytest
 import requests
+
+from tests.processes import free_port
 
 ROOT = Path(__file__).resolve().parents[3]
 PG_ADMIN_URL = os.environ.get("GCPS_TEST_PG_URL", "postgresql://postgres@127.0.0.1:5432/postgres")
@@ -61,12 +62,6 @@ def fresh_database() -> Iterator[str]:
     finally:
         with psycopg.connect(PG_ADMIN_URL, autocommit=True) as conn:
             conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 class Stack:
@@ -205,6 +200,11 @@ class Stack:
             os.killpg(process.pid, signal.SIGKILL)
         process.wait(timeout=10)
 
+    def queue_keys(self) -> list[str]:
+        """The Redis lists that hold this stack's queued messages: the queue's own and kombu's one list
+        per priority step (``<queue>\\x06\\x16<step>``, steps 3, 6 and 9 of the Redis transport)."""
+        return [self.queue, *(f"{self.queue}\x06\x16{step}" for step in (3, 6, 9))]
+
     def stop(self) -> None:
         for process in self.processes:
             if process.poll() is None:
@@ -218,10 +218,7 @@ class Stack:
 
         client = redis.Redis.from_url(self.env["REDIS_URL"], socket_connect_timeout=3)
         with contextlib.suppress(redis.RedisError):  # a fault test may have stopped its own Redis
-            priorities = [f"{self.queue}\x06\x16{step}" for step in (3, 6, 9)]  # kombu's lists per priority
-            client.delete(
-                self.queue, *priorities, f"_kombu.binding.{self.queue}", f"_kombu.binding_permanent.{self.queue}"
-            )
+            client.delete(*self.queue_keys(), f"_kombu.binding.{self.queue}", f"_kombu.binding_permanent.{self.queue}")
             # the jobs' delivery markers and the workers' liveness keys (metrology/jobs/delivery.py)
             for key in client.scan_iter(f"gcps:{self.queue}:*", count=1000):
                 client.delete(key)

@@ -18,8 +18,6 @@ from tests.app.integration.helpers import authenticated, finished, measurement_i
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
-PRIORITY_SEPARATOR = "\x06\x16"  # kombu's Redis transport: one list per priority step
-
 
 @pytest.fixture
 def backlog_stack(tmp_path, media_root) -> Iterator[tuple[Stack, RedisServer]]:
@@ -46,8 +44,7 @@ def backlog_stack(tmp_path, media_root) -> Iterator[tuple[Stack, RedisServer]]:
 
 def queued_messages(stack: Stack, server: RedisServer) -> int:
     client = redis.Redis.from_url(server.url)
-    keys = [stack.queue, *(f"{stack.queue}{PRIORITY_SEPARATOR}{step}" for step in (3, 6, 9))]
-    return sum(int(client.llen(key)) for key in keys)
+    return sum(int(client.llen(key)) for key in stack.queue_keys())
 
 
 def rows(stack: Stack, ids: list[int]) -> dict[int, tuple]:

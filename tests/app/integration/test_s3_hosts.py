@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import requests
 
-from tests.app.integration.harness import Stack, check_services, fresh_database
+from tests.app.integration.harness import Stack, migrated_stack
 from tests.app.integration.helpers import RIG, download, finished, simulated_zip, upload, url, wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
@@ -35,19 +35,11 @@ def local_files(root: Path, name: str) -> list[Path]:
 
 @pytest.fixture
 def s3_stack(tmp_path, s3) -> Iterator[tuple[Stack, str]]:
-    check_services()
-    logs = tmp_path / "logs"
-    logs.mkdir()
     bucket = s3.bucket()
     web = host_env(tmp_path, "web")
-    with fresh_database() as database_url:
-        stack = Stack(database_url, Path(web["MEDIA_ROOT"]), logs, extra_env={**s3.env(bucket), **web})
-        try:
-            stack.manage("migrate", "--noinput")
-            stack.start_web()
-            yield stack, bucket
-        finally:
-            stack.stop()
+    with migrated_stack(tmp_path, Path(web["MEDIA_ROOT"]), {**s3.env(bucket), **web}) as stack:
+        stack.start_web()
+        yield stack, bucket
 
 
 @pytest.fixture
