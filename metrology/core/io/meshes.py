@@ -139,8 +139,8 @@ def read_ply_vertices(data: bytes) -> dict[str, np.ndarray]:
     record = np.dtype([(name, order + kind) for name, kind, _ in properties])
     if len(data) < offset + count * record.itemsize:
         raise ValueError(f"PLY: file too short for {count} vertices")
-    rows: Any = np.frombuffer(data, record, count, offset)  # a structured array: indexed by field name
-    columns = {name: np.asarray(rows[name]) for name, _, _ in properties}
+    records: Any = np.frombuffer(data, record, count, offset)  # a structured array: indexed by field name
+    columns = {name: np.asarray(records[name]) for name, _, _ in properties}
     return {name: values.astype(values.dtype.newbyteorder("=")) for name, values in columns.items()}
 
 
