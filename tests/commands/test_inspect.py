@@ -107,8 +107,9 @@ def test_point_map_with_ray_sigma_decisions_worked_by_hand(tmp_path: Path) -> No
     np.save(tmp_path / "sigma.npy", np.full(x.shape, 0.01, np.float32))
     out, dev = tmp_path / "r.json", tmp_path / "d.npy"
     code = run(
-        "--nominal", str(tmp_path / "block.stl"), "--scan", str(tmp_path / "xyz.npy"), "--sigma", str(tmp_path / "sigma.npy"),
-        "--init", "identity", "--tolerance", "0.05", "--systematic-mm", "0.002", "--out", str(out), "--deviations", str(dev),
+        "--nominal", str(tmp_path / "block.stl"), "--scan", str(tmp_path / "xyz.npy"),
+        "--sigma", str(tmp_path / "sigma.npy"), "--init", "identity", "--tolerance", "0.05",
+        "--systematic-mm", "0.002", "--out", str(out), "--deviations", str(dev),
     )  # fmt: skip
     assert code == 0
     report = json.loads(out.read_text())
