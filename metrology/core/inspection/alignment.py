@@ -13,10 +13,12 @@ and unit gradient ``n_i`` on the nominal (:mod:`.distance`: exact closest points
 solve the weighted least squares ``min sum_i w_i (r_i + g_i . delta)^2`` with
 ``w_i = 1 / sigma_i^2``, ``g_i = [(x_i - c) x n_i, n_i]`` and ``delta = (omega, t)`` a small
 rotation vector (rad) about the kept points' weighted centroid ``c`` and a translation (mm); apply
-``x -> R(omega) (x - c) + c + t``. It stops when ``|omega| < 1e-10`` rad and ``|t| < 1e-8`` mm
-(converged) or after ``max_iterations``. Above ``2 * COARSE_POINTS`` points the iterations
-first run on every k-th point (about ``COARSE_POINTS``) until the step is below 1000 times those
-tolerances, then on all.
+``x -> R(omega) (x - c) + c + t``. It has converged when ``|omega| < 1e-10`` rad and
+``|t| < 1e-8`` mm (noise-free points), or when the step is below 1 % of its own standard deviation,
+``sqrt(delta^T H delta / s^2) < 0.01`` (noisy points, whose trimmed set keeps changing a little);
+else it stops after ``max_iterations``. Above ``2 * COARSE_POINTS`` points the iterations first
+run on every k-th point (about ``COARSE_POINTS``) until the step is below 1000 times those
+tolerances or 10 % of its standard deviation, then on all.
 
 Uncertainty: the covariance of ``delta`` is ``C = s^2 H^+`` with ``H = sum_i w_i g_i g_i^T``
 (the weighted normal matrix) and ``s^2 = sum_i w_i r_i^2 / (n - 6)`` (the residual variance
@@ -61,6 +63,8 @@ ROTATION_TOL_RAD = 1e-10
 TRANSLATION_TOL_MM = 1e-8
 RANSAC_ITERATIONS = 20000
 MIN_TRIM_MM = 1e-6
+STEP_STD_FRACTION = 0.01
+"""The fit has also converged when a step is below this many of its standard deviations (noisy data)."""
 COARSE_POINTS = 20000
 """Above twice this many points, the fit first iterates on every k-th point (about this many)."""
 COARSE_TOLERANCE = 1e3
@@ -106,7 +110,7 @@ class FitResult:
         """``(N,)``: the alignment's standard uncertainty along ``direction`` (unit ``(N, 3)``, the
         surface normal) at the aligned points ``(N, 3)`` mm: ``sqrt(g C g^T)``."""
         g = np.concatenate([np.cross(aligned_mm - self.centre_mm, direction), direction], axis=1)
-        return np.sqrt(np.maximum(np.einsum("ni,ij,nj->n", g, self.covariance, g), 0.0))
+        return np.sqrt(np.maximum(np.einsum("ni,ni->n", g @ self.covariance, g), 0.0))
 
 
 def apply(transform: np.ndarray, points_mm: np.ndarray) -> np.ndarray:
@@ -170,10 +174,10 @@ def best_fit(
     if points.shape[0] > 2 * COARSE_POINTS:  # first on every k-th point, to near convergence
         stride = slice(None, None, points.shape[0] // COARSE_POINTS)
         transform, coarse_iterations, _, _, _ = _iterate(
-            surface, points[stride], weights[stride], transform, trim_k, max_iterations, COARSE_TOLERANCE
+            surface, points[stride], weights[stride], transform, trim_k, max_iterations, COARSE_TOLERANCE, 0.1
         )
     transform, iterations, converged, system, keep = _iterate(
-        surface, points, weights, transform, trim_k, max_iterations, 1.0
+        surface, points, weights, transform, trim_k, max_iterations, 1.0, STEP_STD_FRACTION
     )
     iterations += coarse_iterations
     free = system.free_directions(free_dof_ratio)
@@ -201,10 +205,11 @@ def _iterate(
     trim_k: float,
     max_iterations: int,
     tolerance_scale: float,
+    std_fraction: float,
 ) -> tuple[np.ndarray, int, bool, _NormalSystem, np.ndarray]:
     """Best-fit iterations from ``transform`` until the step is below the tolerances (times
-    ``tolerance_scale``); the transform, iterations, converged, the last normal system and the
-    kept points (at the returned transform)."""
+    ``tolerance_scale``) or below ``std_fraction`` of its own standard deviation; the transform,
+    iterations, converged, the last normal system and the kept points (at the returned transform)."""
     converged = False
     iterations = 0
     while True:
@@ -217,10 +222,11 @@ def _iterate(
         step = system.step()
         transform = _compose(step, system.centre) @ transform
         iterations += 1
-        converged = bool(
+        small = (
             np.linalg.norm(step[:3]) < ROTATION_TOL_RAD * tolerance_scale
             and np.linalg.norm(step[3:]) < TRANSLATION_TOL_MM * tolerance_scale
         )
+        converged = bool(small or system.step_in_std(step) < std_fraction)
 
 
 def _kept(residual: np.ndarray, trim_k: float) -> np.ndarray:
@@ -261,6 +267,15 @@ class _NormalSystem:
         keep = values > values.max() * 1e-12
         solution = vectors[:, keep] @ ((vectors[:, keep].T @ rhs) / values[keep])
         return np.asarray(scale * solution)
+
+    def step_in_std(self, step: np.ndarray) -> float:
+        """The step's size in standard deviations of the parameters, ``sqrt(step^T H step / s^2)``
+        (``s^2`` the weighted residual variance); inf without residuals."""
+        dof = max(self.residual.size - 6, 1)
+        variance = float(np.sum(self.weights * self.residual**2) / dof)
+        if variance <= 0.0:
+            return float("inf")
+        return float(np.sqrt(max(step @ self.normal_matrix @ step, 0.0) / variance))
 
     def free_directions(self, ratio: float) -> list[np.ndarray]:
         """Unit eigenvectors (scaled parameters) of the eigenvalues below ``ratio`` times the largest."""
