@@ -57,3 +57,24 @@ def test_every_point_keeps_its_place_and_unusable_sigma_is_undecided() -> None:
 def test_a_scan_without_points_is_refused() -> None:
     with pytest.raises(ValueError, match="no points"):
         inspect(asymmetric_part(), Scan(np.full((3, 3), np.nan), (3,)))
+
+
+def test_auto_on_a_cylinder_reports_the_free_rotation_instead_of_an_answer() -> None:
+    """A cylinder in a random pose, aligned from an automatic start: the five fixed degrees of
+    freedom put every point back on the surface (within the facets' sagitta), the rotation about
+    the axis is reported free."""
+    from tests.core.inspection.parts import cylinder_part
+
+    nominal = cylinder_part()
+    rng = np.random.default_rng(3)
+    points, _ = alignment.sample_surface(SurfaceDistance(nominal), 20_000, rng)
+    scan = alignment.apply(np.linalg.inv(random_pose(rng)), points)
+    report = inspect(nominal, Scan(scan, (20_000,)), InspectOptions()).report({})
+    free = report["alignment"]["symmetric_dof"]
+    assert [d["kind"] for d in free] == ["rotation"]
+    np.testing.assert_allclose(free[0]["axis"], [0, 0, 1], atol=1e-3)
+    assert report["alignment"]["std"]["rotation_deg"][2] is None
+    # left where the start put it, the 256-facet mesh turned about its axis is off by up to its sagitta
+    sagitta = 20.0 * (1 - np.cos(np.pi / 256))
+    assert report["alignment"]["rms_mm"] < 1e-6
+    assert max(abs(report["deviation"]["min_mm"]), abs(report["deviation"]["max_mm"])) < sagitta
