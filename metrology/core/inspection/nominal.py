@@ -147,6 +147,8 @@ def nominal_from_arrays(
         raise ValueError(f"{label}: the mesh has no triangles")
     if not np.isfinite(points).all():
         raise ValueError(f"{label}: a vertex coordinate is not finite")
+    if triangles.min() < 0 or triangles.max() >= points.shape[0]:
+        raise ValueError(f"{label}: a face refers to a vertex that does not exist")
     if sha256 is None:
         sha256 = hashlib.sha256(points.tobytes() + triangles.tobytes()).hexdigest()
     used = np.unique(triangles)

@@ -89,3 +89,11 @@ def test_unusable_files_are_refused(tmp_path: Path, name: str, content: bytes, m
     path.write_bytes(content)
     with pytest.raises(ValueError, match=message):
         read_nominal(path)
+
+
+def test_faces_must_refer_to_existing_vertices() -> None:
+    box = cube()
+    with pytest.raises(ValueError, match="does not exist"):
+        nominal_from_arrays(box.vertices, box.faces + 1)
+    with pytest.raises(ValueError, match="not finite"):
+        nominal_from_arrays(np.where(box.vertices == 1.0, np.nan, box.vertices), box.faces)
