@@ -27,5 +27,6 @@ SUBCOMMANDS: tuple[str, ...] = (
     "calibrate_procam",
     "gamma_correct",
     "cache",
+    "inspect",
 )
 """The subcommand modules of this package, in the order ``gcps --help`` lists them."""

@@ -1,0 +1,479 @@
+"""Aligning a scan to its nominal model: a start (global registration, identity, point pairs or
+a 3-2-1 datum alignment), then a weighted, trimmed point-to-plane best fit on the nominal surface.
+
+A transform is a ``(4, 4)`` float64 matrix ``T`` with ``x_nominal = T[:3, :3] x_scan + T[:3, 3]``
+(mm) and last row ``[0, 0, 0, 1]``.
+
+Best fit (:func:`best_fit`)
+---------------------------
+Iterate: map the scan points ``p_i`` to ``x_i = T p_i``; find each one's signed distance ``r_i``
+and unit gradient ``n_i`` on the nominal (:mod:`.distance`: exact closest points, so the
+"plane" of point-to-plane is the surface's own tangent plane); keep the points with
+``|r_i - median(r)| <= trim_k * 1.4826 * MAD(r)`` (robust trimming: only the fit drops them);
+solve the weighted least squares ``min sum_i w_i (r_i + g_i . delta)^2`` with
+``w_i = 1 / sigma_i^2``, ``g_i = [(x_i - c) x n_i, n_i]`` and ``delta = (omega, t)`` a small
+rotation vector (rad) about the kept points' weighted centroid ``c`` and a translation (mm); apply
+``x -> R(omega) (x - c) + c + t``. It stops when ``|omega| < 1e-10`` rad and ``|t| < 1e-8`` mm
+(converged) or after ``max_iterations``.
+
+Uncertainty: the covariance of ``delta`` is ``C = s^2 H^+`` with ``H = sum_i w_i g_i g_i^T``
+(the weighted normal matrix) and ``s^2 = sum_i w_i r_i^2 / (n - 6)`` (the residual variance
+factor, so that the standard deviations reflect the residuals actually seen). The reported
+standard deviations are those of ``T``'s parameters: the rotation about the nominal's x, y, z
+axes (degrees) and ``T[:3, 3]`` (mm, at the nominal's origin: ``delta t_0 = t - (t_0 - c) x omega``).
+A point's alignment uncertainty along the normal is ``sqrt(g C g^T)``.
+
+Free degrees of freedom: with rotations scaled by the kept points' RMS distance ``L`` from ``c``
+(so that all six parameters are displacements in mm), an eigenvalue of ``H`` below
+``free_dof_ratio`` times the largest marks a direction the surface does not constrain (a
+rotationally symmetric part turns freely about its axis, an extrusion slides along it). Such
+directions are listed in ``symmetric_dof`` (``{"kind": "rotation", "axis", "point_mm"}`` or
+``{"kind": "translation", "direction"}``, nominal frame); the least squares takes the
+minimum-norm step there (the part is not moved along it), and the standard deviations they
+affect are None.
+
+Global registration (:func:`global_registration`)
+-------------------------------------------------
+The nominal is sampled (area-weighted, ``numpy`` generator seeded with ``seed``) with its face
+normals; the scan is voxel-downsampled (voxel ``= diagonal / voxel_divisions``), its normals
+estimated and turned away from its centroid. FPFH features (radius 5 voxels) are matched by
+Open3D's RANSAC (``open3d.utility.random.seed(seed + k)`` for restart ``k``); each restart's
+answer is refined by :func:`best_fit` on a few thousand points, and the one with most points
+within one voxel of the surface (then the lowest RMS) wins. Same inputs and seed, same answer.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from metrology.core.inspection.distance import SurfaceDistance
+
+TRIM_K = 3.0
+FREE_DOF_RATIO = 1e-3
+MAX_ITERATIONS = 60
+ROTATION_TOL_RAD = 1e-10
+TRANSLATION_TOL_MM = 1e-8
+RANSAC_ITERATIONS = 20000
+MIN_TRIM_MM = 1e-6
+"""Residuals within this of the median are never trimmed (noise-free data has a MAD of ~0)."""
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """The best fit of a scan to the nominal (module docstring).
+
+    Attributes
+    ----------
+    transform : (4, 4) float64
+        ``x_nominal = T[:3, :3] x_scan + T[:3, 3]``, mm.
+    rms_mm : float
+        Weighted RMS of the kept points' signed distances at the final transform, mm.
+    points_used : int
+        Points kept by the trimming at the final transform.
+    iterations : int
+    converged : bool
+    symmetric_dof : list of dict
+        Directions the surface leaves free (module docstring); empty when all six are fixed.
+    covariance : (6, 6) float64
+        Of ``(omega, t)`` about :attr:`centre_mm` (rad, mm).
+    centre_mm : (3,) float64
+        The centre ``c`` of the rotation parameters, nominal frame.
+    rotation_std_deg, translation_std_mm : list of 3 (float or None)
+    """
+
+    transform: np.ndarray
+    rms_mm: float
+    points_used: int
+    iterations: int
+    converged: bool
+    symmetric_dof: list[dict[str, Any]]
+    covariance: np.ndarray
+    centre_mm: np.ndarray
+    rotation_std_deg: list[float | None] = field(default_factory=list)
+    translation_std_mm: list[float | None] = field(default_factory=list)
+
+    def normal_uncertainty_mm(self, aligned_mm: np.ndarray, direction: np.ndarray) -> np.ndarray:
+        """``(N,)``: the alignment's standard uncertainty along ``direction`` (unit ``(N, 3)``, the
+        surface normal) at the aligned points ``(N, 3)`` mm: ``sqrt(g C g^T)``."""
+        g = np.concatenate([np.cross(aligned_mm - self.centre_mm, direction), direction], axis=1)
+        return np.sqrt(np.maximum(np.einsum("ni,ij,nj->n", g, self.covariance, g), 0.0))
+
+
+def apply(transform: np.ndarray, points_mm: np.ndarray) -> np.ndarray:
+    """``(N, 3)`` float64: ``T[:3, :3] p + T[:3, 3]`` for each row ``p``."""
+    return np.asarray(points_mm, dtype=np.float64) @ transform[:3, :3].T + transform[:3, 3]
+
+
+def rotation_matrix(rotation_vector: np.ndarray) -> np.ndarray:
+    """``(3, 3)``: the rotation by ``|w|`` rad about ``w / |w|`` (Rodrigues)."""
+    w = np.asarray(rotation_vector, dtype=np.float64)
+    angle = float(np.linalg.norm(w))
+    if angle == 0.0:
+        return np.eye(3)
+    k = _skew(w / angle)
+    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
+
+
+def rigid_transform(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    """``(4, 4)`` from a ``(3, 3)`` rotation and a ``(3,)`` translation."""
+    transform = np.eye(4)
+    transform[:3, :3] = rotation
+    transform[:3, 3] = translation
+    return transform
+
+
+def kabsch(scan_mm: np.ndarray, nominal_mm: np.ndarray) -> np.ndarray:
+    """The rigid transform (no scale) taking ``(N, 3)`` scan points onto their ``(N, 3)`` nominal
+    partners in least squares (Kabsch/Umeyama: ``R = V diag(1, 1, det(V U^T)) U^T`` from the SVD
+    ``U S V^T`` of the centred cross-covariance); ValueError below 3 pairs or when collinear."""
+    p = np.asarray(scan_mm, dtype=np.float64).reshape(-1, 3)
+    q = np.asarray(nominal_mm, dtype=np.float64).reshape(-1, 3)
+    if p.shape[0] < 3 or p.shape != q.shape:
+        raise ValueError(f"point pairs: at least 3 are needed, got {min(p.shape[0], q.shape[0])}")
+    pc, qc = p.mean(axis=0), q.mean(axis=0)
+    u, s, vt = np.linalg.svd((p - pc).T @ (q - qc))
+    if s[1] <= 1e-9 * max(s[0], 1e-300):
+        raise ValueError("point pairs: the scan points are collinear (the rotation is not determined)")
+    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
+    rotation = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    return rigid_transform(rotation, qc - rotation @ pc)
+
+
+def best_fit(
+    surface: SurfaceDistance,
+    scan_mm: np.ndarray,
+    initial: np.ndarray,
+    *,
+    sigma_mm: np.ndarray | None = None,
+    trim_k: float = TRIM_K,
+    max_iterations: int = MAX_ITERATIONS,
+    free_dof_ratio: float = FREE_DOF_RATIO,
+) -> FitResult:
+    """Weighted, trimmed point-to-plane fit of ``(N, 3)`` scan points (mm, finite) to ``surface``
+    from ``initial`` (module docstring); ``sigma_mm`` ``(N,)`` gives the weights ``1/sigma^2``."""
+    points = np.asarray(scan_mm, dtype=np.float64).reshape(-1, 3)
+    if points.shape[0] < 6:
+        raise ValueError(f"best fit: at least 6 points are needed, got {points.shape[0]}")
+    weights = np.ones(points.shape[0]) if sigma_mm is None else 1.0 / np.square(np.asarray(sigma_mm, np.float64))
+    transform = np.array(initial, dtype=np.float64)
+    converged = False
+    iterations = 0
+    while True:
+        aligned = apply(transform, points)
+        dev = surface.deviations(aligned)
+        keep = _kept(dev.distance_mm, trim_k)
+        system = _normal_system(aligned[keep], dev.direction[keep], dev.distance_mm[keep], weights[keep])
+        if converged or iterations >= max_iterations:
+            break
+        step = system.step()
+        transform = _compose(step, system.centre) @ transform
+        iterations += 1
+        converged = bool(np.linalg.norm(step[:3]) < ROTATION_TOL_RAD and np.linalg.norm(step[3:]) < TRANSLATION_TOL_MM)
+    free = system.free_directions(free_dof_ratio)
+    covariance = system.covariance(free)
+    rotation_std, translation_std = _parameter_std(covariance, system.centre, transform[:3, 3], free)
+    return FitResult(
+        transform=transform,
+        rms_mm=system.rms,
+        points_used=int(keep.sum()),
+        iterations=iterations,
+        converged=bool(converged),
+        symmetric_dof=[_describe(v, system) for v in free],
+        covariance=covariance,
+        centre_mm=system.centre,
+        rotation_std_deg=rotation_std,
+        translation_std_mm=translation_std,
+    )
+
+
+def _kept(residual: np.ndarray, trim_k: float) -> np.ndarray:
+    median = float(np.median(residual))
+    spread = np.abs(residual - median)
+    limit = max(trim_k * 1.4826 * float(np.median(spread)), MIN_TRIM_MM)
+    return spread <= limit
+
+
+@dataclass(frozen=True)
+class _NormalSystem:
+    """The weighted normal equations of one iteration, rotations about ``centre``."""
+
+    jacobian: np.ndarray  # (M, 6) g_i
+    residual: np.ndarray  # (M,)
+    weights: np.ndarray  # (M,)
+    centre: np.ndarray  # (3,)
+    length: float  # RMS distance from the centre, mm
+
+    @property
+    def normal_matrix(self) -> np.ndarray:
+        return (self.jacobian * self.weights[:, None]).T @ self.jacobian
+
+    @property
+    def rms(self) -> float:
+        return float(np.sqrt(np.sum(self.weights * self.residual**2) / np.sum(self.weights)))
+
+    def _scaled(self) -> tuple[np.ndarray, np.ndarray]:
+        scale = np.array([1.0 / self.length] * 3 + [1.0] * 3)  # parameters omega * L (mm) and t
+        return scale[:, None] * self.normal_matrix * scale[None, :], scale
+
+    def step(self) -> np.ndarray:
+        """The minimum-norm least-squares ``(omega, t)`` (in scaled units, so that a free
+        direction is not moved along)."""
+        scaled, scale = self._scaled()
+        rhs = -scale * ((self.jacobian * self.weights[:, None]).T @ self.residual)
+        values, vectors = np.linalg.eigh(scaled)
+        keep = values > values.max() * 1e-12
+        solution = vectors[:, keep] @ ((vectors[:, keep].T @ rhs) / values[keep])
+        return np.asarray(scale * solution)
+
+    def free_directions(self, ratio: float) -> list[np.ndarray]:
+        """Unit eigenvectors (scaled parameters) of the eigenvalues below ``ratio`` times the largest."""
+        scaled, _ = self._scaled()
+        values, vectors = np.linalg.eigh(scaled)
+        return [vectors[:, k] for k in range(6) if values[k] < ratio * values.max()]
+
+    def covariance(self, free: list[np.ndarray]) -> np.ndarray:
+        """``s^2 H^+`` of ``(omega, t)``, the free directions left out (module docstring)."""
+        scaled, scale = self._scaled()
+        values, vectors = np.linalg.eigh(scaled)
+        keep = values >= FREE_DOF_RATIO * values.max() if free else values > 0
+        inverse = (vectors[:, keep] / values[keep]) @ vectors[:, keep].T
+        dof = max(self.residual.size - 6, 1)
+        variance = float(np.sum(self.weights * self.residual**2) / dof)
+        return np.asarray(variance * scale[:, None] * inverse * scale[None, :])
+
+
+def _normal_system(
+    aligned: np.ndarray, direction: np.ndarray, residual: np.ndarray, weights: np.ndarray
+) -> _NormalSystem:
+    if aligned.shape[0] < 6:
+        raise ValueError("best fit: fewer than 6 points survive the trimming")
+    centre = np.average(aligned, axis=0, weights=weights)
+    arm = aligned - centre
+    length = float(np.sqrt(np.average(np.einsum("ij,ij->i", arm, arm), weights=weights))) or 1.0
+    jacobian = np.concatenate([np.cross(arm, direction), direction], axis=1)
+    return _NormalSystem(jacobian, residual, weights, centre, length)
+
+
+def _compose(step: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """``x -> R(omega) (x - c) + c + t`` as a ``(4, 4)`` matrix."""
+    rotation = rotation_matrix(step[:3])
+    return rigid_transform(rotation, centre - rotation @ centre + step[3:])
+
+
+def _parameter_std(
+    covariance: np.ndarray, centre: np.ndarray, translation: np.ndarray, free: list[np.ndarray]
+) -> tuple[list[float | None], list[float | None]]:
+    """Standard deviations of the rotation (deg, about x, y, z) and of ``T[:3, 3]`` (mm); None
+    where a free direction moves that parameter."""
+    mapping = np.zeros((6, 6))  # (omega, t at centre) -> (omega, t at the origin)
+    mapping[:3, :3] = np.eye(3)
+    mapping[3:, :3] = -_skew(translation - centre)
+    mapping[3:, 3:] = np.eye(3)
+    variance = np.diag(mapping @ covariance @ mapping.T)
+    std = np.sqrt(np.maximum(variance, 0.0))
+    affected = np.zeros(6, bool)
+    for v in free:
+        moved = mapping @ v
+        affected |= np.abs(moved) > 1e-3 * np.abs(moved).max()
+    values: list[float | None] = [None if affected[k] else float(std[k]) for k in range(6)]
+    rotation = [None if v is None else float(np.degrees(v)) for v in values[:3]]
+    return rotation, values[3:]
+
+
+def _describe(vector: np.ndarray, system: _NormalSystem) -> dict[str, Any]:
+    """A free direction of the scaled parameters as a rotation axis (through a point) or a translation."""
+    omega = vector[:3] / system.length
+    t = vector[3:]
+    if np.linalg.norm(vector[:3]) >= np.linalg.norm(t):
+        axis = omega / np.linalg.norm(omega)
+        # x -> omega x (x - c) + t equals omega x (x - q) for q - c = omega x t / |omega|^2
+        point = system.centre + np.cross(omega, t) / float(omega @ omega)
+        if axis[np.argmax(np.abs(axis))] < 0:
+            axis = -axis
+        return {"kind": "rotation", "axis": axis.tolist(), "point_mm": point.tolist()}
+    direction = t / np.linalg.norm(t)
+    if direction[np.argmax(np.abs(direction))] < 0:
+        direction = -direction
+    return {"kind": "translation", "direction": direction.tolist()}
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+# --------------------------------------------------------------------------- global registration
+@dataclass(frozen=True)
+class GlobalRegistration:
+    """What :func:`global_registration` found: the start transform, the seed, the restarts' scores."""
+
+    transform: np.ndarray
+    seed: int
+    restarts: int
+    voxel_mm: float
+    inlier_fractions: list[float]
+
+
+def sample_surface(surface: SurfaceDistance, count: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` points (mm) area-weighted on the surface and their face normals, ``(count, 3)`` each."""
+    vertices, faces = surface.vertices, surface.faces
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    area = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    face = rng.choice(faces.shape[0], size=count, p=area / area.sum())
+    u, v = rng.random(count), rng.random(count)
+    flip = u + v > 1
+    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+    points = a[face] + u[:, None] * (b - a)[face] + v[:, None] * (c - a)[face]
+    return points, surface.face_normals[face]
+
+
+def global_registration(
+    surface: SurfaceDistance,
+    scan_mm: np.ndarray,
+    *,
+    seed: int = 0,
+    restarts: int = 3,
+    voxel_divisions: float = 40.0,
+    refine_points: int = 4000,
+) -> GlobalRegistration:
+    """A start transform of ``(N, 3)`` scan points onto ``surface`` without user input (module docstring)."""
+    import open3d
+
+    reg = open3d.pipelines.registration
+    rng = np.random.default_rng(seed)
+    scan = np.asarray(scan_mm, dtype=np.float64).reshape(-1, 3)
+    low, high = surface.vertices.min(axis=0), surface.vertices.max(axis=0)
+    voxel = float(np.linalg.norm(high - low)) / voxel_divisions
+    nominal_points, nominal_normals = sample_surface(surface, 40000, rng)
+    target = _cloud(nominal_points, voxel, nominal_normals)
+    subset = scan if scan.shape[0] <= 200000 else scan[rng.choice(scan.shape[0], 200000, replace=False)]
+    source = _cloud(subset, voxel, None)
+    feature = open3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100)
+    target_fpfh = reg.compute_fpfh_feature(target, feature)  # type: ignore[call-arg]
+    source_fpfh = reg.compute_fpfh_feature(source, feature)  # type: ignore[call-arg]
+    refine = scan[rng.choice(scan.shape[0], min(refine_points, scan.shape[0]), replace=False)]
+    best: tuple[float, float, np.ndarray] | None = None
+    fractions: list[float] = []
+    for k in range(restarts):
+        open3d.utility.random.seed(seed + k)
+        found = reg.registration_ransac_based_on_feature_matching(
+            source,
+            target,
+            source_fpfh,
+            target_fpfh,
+            False,  # no mutual filter: it leaves too few matches on a small part
+            1.5 * voxel,
+            reg.TransformationEstimationPointToPoint(False),
+            3,
+            [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
+            reg.RANSACConvergenceCriteria(RANSAC_ITERATIONS, 0.999),
+        )
+        fit = best_fit(surface, refine, np.asarray(found.transformation), max_iterations=30)
+        residual = surface.deviations(apply(fit.transform, refine)).distance_mm
+        fraction = float(np.mean(np.abs(residual) <= voxel))
+        fractions.append(fraction)
+        score = (fraction, -fit.rms_mm)
+        if best is None or score > best[:2]:
+            best = (fraction, -fit.rms_mm, fit.transform)
+    assert best is not None
+    return GlobalRegistration(best[2], seed, restarts, voxel, fractions)
+
+
+def _cloud(points: np.ndarray, voxel: float, normals: np.ndarray | None) -> Any:
+    """A voxel-downsampled Open3D cloud with normals (given, or estimated and turned outward)."""
+    import open3d
+
+    cloud = open3d.geometry.PointCloud(open3d.utility.Vector3dVector(points))
+    if normals is not None:
+        cloud.normals = open3d.utility.Vector3dVector(normals)
+        return cloud.voxel_down_sample(voxel)
+    cloud = cloud.voxel_down_sample(voxel)
+    cloud.estimate_normals(open3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * voxel, max_nn=30))
+    kept = np.asarray(cloud.points)
+    estimated = np.asarray(cloud.normals)
+    outward = np.where(np.einsum("ij,ij->i", estimated, kept - kept.mean(axis=0)) < 0, -1.0, 1.0)
+    cloud.normals = open3d.utility.Vector3dVector(estimated * outward[:, None])
+    return cloud
+
+
+# --------------------------------------------------------------------------- 3-2-1 datums
+def datum_alignment(
+    surface: SurfaceDistance,
+    scan_mm: np.ndarray,
+    initial: np.ndarray,
+    primary: np.ndarray,
+    secondary: np.ndarray,
+    tertiary: np.ndarray,
+    *,
+    max_distance_mm: float = 1.0,
+) -> np.ndarray:
+    """A 3-2-1 datum alignment: the scan's primary plane onto the nominal's (3 DOF), its secondary
+    line onto the nominal's within that plane (2 DOF), its tertiary point onto the nominal's
+    along that line (1 DOF).
+
+    ``primary``, ``secondary``, ``tertiary`` are boolean ``(F,)`` masks (or index arrays) of the
+    nominal's faces forming each datum region. The scan points of a region are those whose closest
+    face after ``initial`` is in it, within ``max_distance_mm``. The nominal's datums are fitted to
+    its region's vertices: plane (least squares, normal the region's outward side), line (the
+    region's points projected onto the primary plane, principal direction), point (the tertiary
+    region's centroid). The scan's datums are fitted the same way to its region points.
+    Returns the ``(4, 4)`` transform (applied after nothing else: it replaces ``initial``).
+    """
+    scan = apply(initial, scan_mm)
+    dev = surface.deviations(scan)
+    near = np.abs(dev.distance_mm) <= max_distance_mm
+    regions = []
+    for mask in (primary, secondary, tertiary):
+        faces = np.zeros(surface.faces.shape[0], bool)
+        faces[np.asarray(mask)] = True
+        scan_points = scan[faces[dev.face] & near]
+        if scan_points.shape[0] < 3:
+            raise ValueError("datum alignment: fewer than 3 scan points on a datum region")
+        regions.append((np.unique(surface.faces[faces].reshape(-1)), scan_points, faces))
+    normal_nominal = surface.face_normals[regions[0][2]].sum(axis=0)
+    n_nom, o_nom = _plane(surface.vertices[regions[0][0]], normal_nominal)
+    n_scan, o_scan = _plane(regions[0][1], n_nom)
+    rotation = _rotation_between(n_scan, n_nom)
+    step = rigid_transform(rotation, o_nom - rotation @ o_scan)  # planes coincide
+    scan2 = apply(step, regions[1][1])
+    d_nom, l_nom = _line(surface.vertices[regions[1][0]], n_nom, o_nom)
+    d_scan, l_scan = _line(scan2, n_nom, o_nom)
+    if d_scan @ d_nom < 0:
+        d_scan = -d_scan
+    spin = _rotation_between(d_scan, d_nom)  # about n_nom, as both lie in the plane
+    shift = l_nom - spin @ (l_scan - o_nom) - o_nom
+    shift -= (shift @ d_nom) * d_nom  # lines coincide; slide along them comes from the tertiary
+    second = rigid_transform(spin, o_nom - spin @ o_nom + shift)
+    tertiary_scan = apply(second @ step, regions[2][1]).mean(axis=0)
+    tertiary_nominal = surface.vertices[regions[2][0]].mean(axis=0)
+    slide = ((tertiary_nominal - tertiary_scan) @ d_nom) * d_nom
+    third = rigid_transform(np.eye(3), slide)
+    return np.asarray(third @ second @ step @ initial)
+
+
+def _plane(points: np.ndarray, towards: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    centre = points.mean(axis=0)
+    normal = np.linalg.svd(points - centre, full_matrices=False)[2][2]
+    return (normal if normal @ towards >= 0 else -normal), centre
+
+
+def _line(points: np.ndarray, normal: np.ndarray, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    flat = points - np.outer((points - origin) @ normal, normal)
+    centre = flat.mean(axis=0)
+    direction = np.linalg.svd(flat - centre, full_matrices=False)[2][0]
+    return direction, centre
+
+
+def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking unit ``a`` onto unit ``b``."""
+    axis = np.cross(a, b)
+    sine, cosine = float(np.linalg.norm(axis)), float(a @ b)
+    if sine < 1e-15:
+        if cosine > 0:
+            return np.eye(3)
+        other = np.eye(3)[np.argmin(np.abs(a))]
+        axis = np.cross(a, other)
+        return rotation_matrix(np.pi * axis / np.linalg.norm(axis))
+    return rotation_matrix(axis / sine * np.arctan2(sine, cosine))
