@@ -98,9 +98,9 @@ def _inspection_context(inspection) -> dict[str, Any]:
         ("Points used", alignment.get("points_used")),
         ("Iterations", alignment.get("iterations")),
         ("Converged", "yes" if alignment.get("converged") else "no"),
-        ("Free degrees of freedom (symmetry)", alignment.get("symmetric_dof") or "none"),
+        ("Free degrees of freedom (symmetry)", _free_dof(alignment.get("symmetric_dof"))),
         ("Rotation std (deg)", _list(std.get("rotation_deg"), "{:.2e}")),
-        ("Translation std (um)", _list([v * 1000 for v in std.get("translation_mm") or []], "{:.3f}")),
+        ("Translation std (µm)", _list([_scaled(v, 1000) for v in std.get("translation_mm") or []], "{:.3f}")),
     ]
     deviation = report.get("deviation") or {}
     context["deviation_rows"] = [
@@ -120,11 +120,38 @@ def _inspection_context(inspection) -> dict[str, Any]:
 
 
 def _um(value: Any) -> str:
-    return "-" if value is None else f"{float(value) * 1000:.2f} um"
+    return "-" if value is None else f"{float(value) * 1000:.2f} µm"
+
+
+def _vector(values: Any) -> str:
+    return "(" + ", ".join(f"{float(v):.3g}" for v in values) + ")"
+
+
+def _free_dof(free: Any) -> str:
+    """The report's ``symmetric_dof`` in words: "none", or each free motion ("rotation about (0, 0, 1)
+    through (352, 0, 0) mm", "translation along (1, 0, 0)")."""
+    if not free:
+        return "none"
+    if not isinstance(free, list):
+        return str(free)
+    words = []
+    for motion in free:
+        if motion.get("kind") == "rotation":
+            words.append(f"rotation about {_vector(motion['axis'])} through {_vector(motion['point_mm'])} mm")
+        elif motion.get("kind") == "translation":
+            words.append(f"translation along {_vector(motion['direction'])}")
+        else:
+            words.append(str(motion))
+    return "; ".join(words)
+
+
+def _scaled(value: Any, factor: float) -> float | None:
+    return None if value is None else float(value) * factor
 
 
 def _list(values: Any, fmt: str) -> str:
-    return ", ".join(fmt.format(float(v)) for v in values) if values else "-"
+    """Numbers of a report's list; "free" for a value the alignment cannot determine (None)."""
+    return ", ".join("free" if v is None else fmt.format(float(v)) for v in values) if values else "-"
 
 
 @login_required

@@ -79,11 +79,14 @@ def deviation_map(points_mm: np.ndarray, deviations_mm: np.ndarray, tolerance_mm
         )
     )
     layout = base_layout(title, "", "", height=560)
+    # a grey backdrop: the scale's white (no deviation) must stand out
+    axis = {"showbackground": True, "backgroundcolor": "#c9ced6", "gridcolor": "#f4f5f7"}
     layout["scene"] = {
-        "xaxis": {"title": {"text": "X (mm)"}},
-        "yaxis": {"title": {"text": "Y (mm)"}},
-        "zaxis": {"title": {"text": "Z (mm)"}},
+        "xaxis": {**axis, "title": {"text": "X (mm)"}},
+        "yaxis": {**axis, "title": {"text": "Y (mm)"}},
+        "zaxis": {**axis, "title": {"text": "Z (mm)"}},
         "aspectmode": "data",
+        "camera": {"eye": {"x": 0.0, "y": -0.9, "z": 1.6}},
     }
     fig.update_layout(**layout)
     return fig

@@ -232,7 +232,7 @@ def _inspect(nominal: Any, points: np.ndarray, sigma: np.ndarray | None, inspect
         shape=(height, width),
         sigma_mm=None if sigma is None else np.asarray(sigma, dtype=np.float64).reshape(-1),
         sigma_along_ray=sigma is not None,
-        ray_origin_mm=np.asarray(model.camera_centre_mm(), dtype=np.float64),
+        ray_origin_mm=np.asarray(model.camera_centre_mm, dtype=np.float64),
         source={"measurement": measurement.pk, "rig": measurement.rig_id, "rig_values": measurement.rig_values},
     )
     try:

@@ -114,7 +114,7 @@ def test_nominal_upload_is_validated_and_described(api, nominal):
 
     for name, content, expected in (
         ("part.step", b"ISO-10303-21;", "must be .stl, .ply or .obj"),
-        ("empty.stl", b"", "empty.stl"),
+        ("empty.stl", b"", "empty"),
         ("garbage.ply", b"not a ply file at all", "garbage.ply"),
     ):
         data = io.BytesIO(content)
@@ -157,7 +157,7 @@ def test_inspection_finds_the_pit_and_decides_conformance(api, pitted_measuremen
     assert np.nanpercentile(np.abs(dev[top]), 99) < 0.005  # 16-bit quantisation of the render
     counts = report["conformance"]
     assert sum(counts.values()) == report["deviation"]["points"] == int(np.isfinite(dev).sum())
-    assert counts["nonconforming"] >= pit.size  # every pit point is out of tolerance
+    assert counts["nonconforming"] >= pit.size, report  # every pit point is out of tolerance
     assert counts["conforming"] > 0.9 * counts["nonconforming"] + top.sum() * 0.9
 
     # the pages: the inspection with its figures, the printable report, the lists
