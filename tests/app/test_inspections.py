@@ -169,7 +169,7 @@ def test_inspection_finds_the_pit_and_decides_conformance(api, pitted_measuremen
     assert page.status_code == 200
     html = page.content.decode()
     assert 'id="fig-deviation_map"' in html and 'id="fig-deviation_histogram"' in html
-    assert f'data-nonconforming>{counts["nonconforming"]}<' in html
+    assert f"data-nonconforming>{counts['nonconforming']}<" in html
     assert client.get(f"/inspections/{body['id']}/report/").status_code == 200
     assert client.get("/inspections/").status_code == 200 and client.get("/nominals/").status_code == 200
     assert b"Inspect against a nominal model" in client.get(f"/measurements/{pitted_measurement}/").content
@@ -185,7 +185,8 @@ def test_plan_inspects_each_new_measurement(api, rig, nominal):
     core = Rig.from_dict(SMALL_RIG)
     reference = upload(api, rig["id"], stack_zip(render_images(core, 0.0, bit_depth=16)), "reference")
     obj = upload(api, rig["id"], stack_zip(render_images(core, pitted_block_heights(), bit_depth=16)), "object")
-    measurement = api.post("/api/measurements/", {"rig": rig["id"], "reference": reference, "object": obj}, format="json")
+    request = {"rig": rig["id"], "reference": reference, "object": obj}
+    measurement = api.post("/api/measurements/", request, format="json")
     inspections = [i for i in api.get("/api/inspections/").json() if i["measurement"] == measurement.json()["id"]]
     assert len(inspections) == 1 and inspections[0]["plan"] == plan.json()["id"], inspections
     assert inspections[0]["status"] == "done", inspections[0]
