@@ -47,7 +47,7 @@ def test_example_rig_simulates_and_measures(tmp_path):
     assert np.nanmedian(z) == pytest.approx(20.0, abs=1e-3)
 
 
-@pytest.mark.parametrize("page", ["README.md", "conventions.md", "file-formats.md", "command-line.md"])
+@pytest.mark.parametrize("page", ["README.md", "conventions.md", "file-formats.md", "command-line.md", "inspection.md"])
 def test_docs_links_resolve(page):
     text = (DOCS / page).read_text()
     for target in re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", text):
@@ -79,3 +79,42 @@ def test_help_points_at_docs():
     with contextlib.redirect_stdout(out), pytest.raises(SystemExit):
         main(["simulate", "--help"])
     assert "docs/file-formats.md" in out.getvalue()
+
+
+def test_example_inspection_runs_as_documented(tmp_path):
+    """docs/inspection.md's example: a scan of the example block taken 100 mm away in x, its top
+    raised 0.1 mm, placed by the example point pairs; the report finds the shift and the bump."""
+    from metrology.core.inspection.alignment import sample_surface
+    from metrology.core.inspection.distance import SurfaceDistance
+    from metrology.core.inspection.nominal import read_nominal
+    from metrology.core.io.meshes import ply_points_bytes
+
+    nominal = read_nominal(EXAMPLES / "inspection-step-block.stl")
+    assert nominal.oriented and nominal.triangle_count == 20 and nominal.signed_volume_mm3 == pytest.approx(45750.0)
+    surface = SurfaceDistance(nominal)
+    points, normals = sample_surface(surface, 5000, np.random.default_rng(0))
+    raised = points[:, 2] >= 40.0 - 1e-9  # the top of the step, z = 40
+    points = points + np.where(raised, 0.1, 0.0)[:, None] * normals
+    scan = points - [100.0, -20.0, 5.0]
+    (tmp_path / "scan.ply").write_bytes(ply_points_bytes({k: scan[:, i] for i, k in enumerate("xyz")}))
+    args = ["--nominal", str(EXAMPLES / "inspection-step-block.stl"), "--scan", str(tmp_path / "scan.ply")]
+    args += ["--init", str(EXAMPLES / "inspection-pairs.json"), "--tolerance", "0.05"]
+    assert (
+        main(
+            [
+                "--quiet",
+                "inspect",
+                *args,
+                "--out",
+                str(tmp_path / "report.json"),
+                "--deviations",
+                str(tmp_path / "dev.npy"),
+            ]
+        )
+        == 0
+    )
+    report = json.loads((tmp_path / "report.json").read_text())
+    np.testing.assert_allclose(np.array(report["transform"])[:3, 3], [100.0, -20.0, 5.0], atol=1e-4)
+    deviation = np.load(tmp_path / "dev.npy")
+    np.testing.assert_allclose(deviation[raised], 0.1, atol=1e-4)
+    assert report["conformance"]["nonconforming"] == int(raised.sum())

@@ -52,9 +52,13 @@ def random_pose(rng: np.random.Generator, angle_rad: float = np.pi, shift_mm: fl
 def pose_error(found: np.ndarray, truth: np.ndarray, points: np.ndarray) -> tuple[float, float]:
     """``(rotation error deg, largest displacement mm over points)`` of ``found`` against ``truth``."""
     error = found @ np.linalg.inv(truth)
-    cosine = np.clip((np.trace(error[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+    rotation = error[:3, :3]
+    sine = 0.5 * np.linalg.norm(
+        [rotation[2, 1] - rotation[1, 2], rotation[0, 2] - rotation[2, 0], rotation[1, 0] - rotation[0, 1]]
+    )
+    angle = np.arctan2(sine, (np.trace(rotation) - 1.0) / 2.0)  # precise near 0, unlike arccos
     moved = np.abs(alignment.apply(error, points) - points).max()
-    return float(np.degrees(np.arccos(cosine))), float(moved)
+    return float(np.degrees(angle)), float(moved)
 
 
 def write_binary_stl(path: Path, vertices: np.ndarray, faces: np.ndarray) -> Path:
@@ -71,7 +75,7 @@ def write_ascii_stl(path: Path, vertices: np.ndarray, faces: np.ndarray) -> Path
     lines = ["solid part"]
     for tri in vertices[faces]:
         lines += ["  facet normal 0 0 0", "    outer loop"]
-        lines += [f"      vertex {x!r} {y!r} {z!r}" for x, y, z in tri]
+        lines += [f"      vertex {float(x)!r} {float(y)!r} {float(z)!r}" for x, y, z in tri]
         lines += ["    endloop", "  endfacet"]
     lines.append("endsolid part")
     path.write_text("\n".join(lines) + "\n")
