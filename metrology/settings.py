@@ -135,6 +135,7 @@ INSTALLED_APPS = [
     "metrology.measurements",
     "metrology.calibrations",
     "metrology.characterizations",
+    "metrology.inspections",
     "metrology.reports",
     "metrology.acquisition",
     "metrology.dashboard",

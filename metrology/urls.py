@@ -9,6 +9,7 @@ from metrology.calibrations import api as calibrations
 from metrology.calibrations import procam_api as procam
 from metrology.captures import api as captures
 from metrology.characterizations import api as characterizations
+from metrology.inspections import api as inspections
 from metrology.jobs import api as jobs
 from metrology.measurements import api as measurements
 from metrology.measurements.models import RESULT_FILES
@@ -85,6 +86,17 @@ api_patterns = [
         )
         for table in ("positions", "test_points")
     ],
+    path("nominals/", inspections.NominalListCreateApi.as_view(), name="nominals"),
+    path("nominals/<int:nominal_id>/", inspections.NominalDetailApi.as_view(), name="nominal"),
+    path("nominals/<int:nominal_id>/file/", inspections.NominalFileApi.as_view(), name="nominal-file"),
+    path("inspections/", inspections.InspectionListCreateApi.as_view(), name="inspections"),
+    path("inspections/<int:inspection_id>/", inspections.InspectionDetailApi.as_view(), name="inspection"),
+    path(
+        "inspections/<int:inspection_id>/deviations.npy",
+        inspections.InspectionDeviationsApi.as_view(),
+        name="inspection-deviations",
+    ),
+    path("rigs/<int:rig_id>/inspection-plan/", inspections.RigInspectionPlanApi.as_view(), name="rig-inspection-plan"),
     *acquisition_urls.api_patterns,
     path("schema/", SpectacularAPIView.as_view(), name="schema"),
     path("docs/", SpectacularSwaggerSplitView.as_view(url_name="schema"), name="docs"),  # no inline script

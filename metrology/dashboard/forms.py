@@ -455,3 +455,56 @@ class ProcamCalibrationForm(forms.Form):
             if data.get(name) is not None:
                 options[name] = data[name]
         return options
+
+
+class NominalUploadForm(forms.Form):
+    file = forms.FileField(
+        label="Nominal model",
+        help_text="A triangle mesh in millimetres: binary or ASCII STL, PLY or OBJ, faces oriented outwards",
+        widget=forms.ClearableFileInput(attrs={"accept": ".stl,.ply,.obj"}),
+    )
+    name = forms.CharField(label="Name", required=False, max_length=200, help_text="Default: the file's name")
+
+
+INIT_CHOICES = [
+    ("auto", "automatic (global registration, several starts)"),
+    ("identity", "identity (the measurement is already roughly aligned)"),
+]
+
+
+class InspectionForm(forms.Form):
+    """The options of an inspection (or of a rig's inspection plan) as a person types them."""
+
+    nominal = forms.TypedChoiceField(coerce=int, label="Nominal model")
+    init = forms.ChoiceField(label="Alignment start", choices=INIT_CHOICES, initial="auto")
+    tolerance_mm = forms.FloatField(
+        label="Tolerance (mm)",
+        required=False,
+        min_value=0.0,
+        help_text="Allowed |deviation|; empty: no conformance decision",
+    )
+    k = forms.FloatField(label="Coverage factor k", initial=2.0, min_value=0.0, max_value=10.0)
+    systematic_mm = forms.FloatField(
+        label="Systematic term (mm)",
+        required=False,
+        min_value=0.0,
+        help_text="Empty: the rig's latest characterization (its mean error), or 0 without one",
+    )
+
+    def __init__(self, *args, nominals=(), **kwargs):
+        super().__init__(*args, **kwargs)
+        set_choices(
+            self,
+            "nominal",
+            [("", "choose a nominal model")]
+            + [(str(n.pk), f"#{n.pk} {n.name} ({n.triangle_count} triangles)") for n in nominals],
+        )
+
+    def options(self) -> dict[str, Any]:
+        """The inspection options the form gives (those left empty are not set)."""
+        data = self.cleaned_data
+        options: dict[str, Any] = {"init": data["init"], "k": data["k"]}
+        for name in ("tolerance_mm", "systematic_mm"):
+            if data.get(name) is not None:
+                options[name] = data[name]
+        return options

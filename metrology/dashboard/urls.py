@@ -3,7 +3,7 @@
 from django.contrib.auth import views as auth_views
 from django.urls import path
 
-from metrology.dashboard import views
+from metrology.dashboard import inspection_views, views
 
 app_name = "dashboard"
 
@@ -44,6 +44,12 @@ urlpatterns = [
         views.procam_coverage_svg,
         name="procam-calibration-coverage",
     ),
+    path("nominals/", inspection_views.nominal_list, name="nominals"),
+    path("inspections/", inspection_views.inspection_list, name="inspections"),
+    path("measurements/<int:measurement_id>/inspect/", inspection_views.inspection_new, name="inspection-new"),
+    path("inspections/<int:inspection_id>/", inspection_views.inspection_detail, name="inspection"),
+    path("inspections/<int:inspection_id>/report/", inspection_views.inspection_report, name="inspection-report"),
+    path("rigs/<int:rig_id>/inspection-plan/", inspection_views.rig_inspection_plan, name="rig-inspection-plan"),
     path("characterizations/", views.characterization_list, name="characterizations"),
     path("characterizations/new/", views.characterization_new, name="characterization-new"),
     path("characterizations/<int:characterization_id>/", views.characterization_detail, name="characterization"),

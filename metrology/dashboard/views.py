@@ -27,6 +27,7 @@ from metrology.characterizations import selectors as characterization_selectors
 from metrology.characterizations import services as characterization_services
 from metrology.dashboard import forms
 from metrology.dashboard import selectors as pages
+from metrology.inspections.selectors import inspections_of_measurement
 from metrology.jobs import selectors as job_selectors
 from metrology.measurements import selectors as measurement_selectors
 from metrology.measurements import services as measurement_services
@@ -473,6 +474,7 @@ def measurement_detail(request: HttpRequest, measurement_id: int) -> HttpRespons
             "quantity": (quantity := pages.measurement_quantity(measurement)),
             "quantity_map_title": f"{quantity.capitalize()} map",
             "model_label": pages.measurement_model(measurement).label,
+            "inspections": inspections_of_measurement(measurement),
         },
     )
 

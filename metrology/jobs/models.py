@@ -22,6 +22,7 @@ class Job(models.Model):
         ACQUIRE_CAPTURE = "acquire_capture", "Acquire capture"
         PROCAM_CALIBRATION = "procam_calibration", "Projector-camera calibration"
         DERIVED_FILE = "derived_file", "Derived result file"
+        INSPECTION = "inspection", "Inspection against a nominal model"
 
     owner = models.ForeignKey(settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="jobs")
     kind = models.CharField(max_length=32, choices=Kind.choices)

@@ -27,6 +27,7 @@ from metrology.errors import BadInput
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
+from metrology.measurements.signals import measurement_done
 from metrology.measurements.stored_arrays import (
     remove_other_attempts,
     save_arrays,
@@ -152,6 +153,7 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
 
     run.commit(publish)
     remove_other_attempts(prefix)
+    measurement_done.send(sender=Measurement, measurement=Measurement.objects.get(pk=measurement.pk))
 
 
 def request_derived_file(measurement: Measurement, filename: str) -> Job:

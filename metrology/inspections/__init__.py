@@ -1,0 +1,1 @@
+"""Inspection of measurements against nominal models: stored nominal meshes, inspection jobs, plans."""

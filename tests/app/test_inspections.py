@@ -1,0 +1,215 @@
+"""Inspections through the application (tasks in-process): nominal models uploaded and validated, an
+inspection job on a measurement of the virtual rig with a planted pit, the report and the deviation
+map through the API, the pages, and a rig's inspection plan applied to its next measurement.
+
+The scene is SMALL_RIG's block (25 mm high on the reference plane, rows 30-89, columns 40-119) with
+a square pit 0.1 mm deep in its top (rows 55-64, columns 75-84); the nominal model is the block
+without the pit: the top face at Z = 25 mm over the block's pixels, the ground plane at Z = 0 and
+four walls (an open mesh: the ground is one face under the block). Measured and nominal agree to
+the 16-bit rendering's quantisation away from the block's edges, so the pit's deviation is -0.1 mm
+(inside the material) within 10 um and the rest of the top within a few micrometres.
+"""
+
+from __future__ import annotations
+
+import io
+import struct
+
+import numpy as np
+import pytest
+
+from metrology.core.geometry.crossed_axes import Rig
+from metrology.inspections.models import Inspection
+from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
+from tests.app.uploads import upload
+
+pytestmark = pytest.mark.django_db(transaction=True)
+
+PIT = (slice(55, 65), slice(75, 85))
+PIT_DEPTH_MM = 0.1
+
+
+def stl_bytes(vertices: np.ndarray, faces: np.ndarray) -> bytes:
+    """A binary STL of the triangles ``vertices[faces]`` (normals written as zero: readers recompute)."""
+    out = io.BytesIO()
+    out.write(b"GCPS test nominal".ljust(80, b" "))
+    out.write(struct.pack("<I", len(faces)))
+    for face in faces:
+        out.write(struct.pack("<3f", 0.0, 0.0, 0.0))
+        for index in face:
+            out.write(struct.pack("<3f", *vertices[index]))
+        out.write(b"\0\0")
+    return out.getvalue()
+
+
+def _corners(points: np.ndarray, rows: tuple[int, int], cols: tuple[int, int]) -> np.ndarray:
+    """The outer corners (X, Y, Z) of the pixel block ``rows x cols`` (inclusive centres), half a pixel
+    beyond the outermost centres, counter-clockwise seen from above (+Z): (r0, c0), (r0, c1), (r1, c1), (r1, c0)."""
+    (r0, r1), (c0, c1) = rows, cols
+    out = []
+    for r, c, dr, dc in ((r0, c0, -1, -1), (r0, c1, -1, 1), (r1, c1, 1, 1), (r1, c0, 1, -1)):
+        centre = points[r, c]
+        step_r = points[r, c] - points[r - dr, c]  # away from the block
+        step_c = points[r, c] - points[r, c - dc]
+        out.append(centre + 0.5 * step_r + 0.5 * step_c)
+    corners = np.array(out)
+    # counter-clockwise seen from +Z (X right, Y up): order by angle about the centre
+    centre = corners.mean(axis=0)
+    angles = np.arctan2(corners[:, 1] - centre[1], corners[:, 0] - centre[0])
+    return corners[np.argsort(angles)]
+
+
+def block_nominal() -> tuple[np.ndarray, np.ndarray]:
+    """The block without its pit as a triangle mesh in the paper's frame (module docstring)."""
+    prepared = Rig.from_dict(SMALL_RIG).prepare()
+    shape = (SMALL_RIG["height_px"], SMALL_RIG["width_px"])
+    top = _corners(prepared.points_from_heights(np.full(shape, 25.0)), (30, 89), (40, 119))
+    foot = _corners(prepared.points_from_heights(np.zeros(shape)), (30, 89), (40, 119))
+    ground = np.array([[0.0, -400.0, 0.0], [800.0, -400.0, 0.0], [800.0, 400.0, 0.0], [0.0, 400.0, 0.0]])
+    vertices = np.vstack([ground, top, foot])
+    faces = [(0, 1, 2), (0, 2, 3), (4, 5, 6), (4, 6, 7)]  # ground and top, normals +Z
+    for i in range(4):  # walls: top edge i -> i+1 and the footprint below it, normal outward
+        a, b = 4 + i, 4 + (i + 1) % 4
+        fa, fb = a + 4, b + 4
+        faces += [(a, fa, fb), (a, fb, b)]
+    return vertices, np.array(faces)
+
+
+def pitted_block_heights() -> np.ndarray:
+    z = block_heights()
+    z[PIT] -= PIT_DEPTH_MM
+    return z
+
+
+@pytest.fixture
+def pitted_measurement(api, rig) -> int:
+    core = Rig.from_dict(SMALL_RIG)
+    reference = upload(api, rig["id"], stack_zip(render_images(core, 0.0, bit_depth=16)), "reference")
+    obj = upload(api, rig["id"], stack_zip(render_images(core, pitted_block_heights(), bit_depth=16)), "object")
+    response = api.post("/api/measurements/", {"rig": rig["id"], "reference": reference, "object": obj}, format="json")
+    assert response.status_code == 202, response.content
+    body = api.get(f"/api/measurements/{response.json()['id']}/").json()
+    assert body["status"] == "done", body
+    return body["id"]
+
+
+@pytest.fixture
+def nominal(api) -> dict:
+    vertices, faces = block_nominal()
+    data = io.BytesIO(stl_bytes(vertices, faces))
+    data.name = "block.stl"
+    response = api.post("/api/nominals/", {"file": data, "name": "block"}, format="multipart")
+    assert response.status_code == 201, response.content
+    return response.json()
+
+
+def test_nominal_upload_is_validated_and_described(api, nominal):
+    assert nominal["triangle_count"] == 12 and nominal["units"] == "mm" and nominal["file_format"] == "stl"
+    assert len(nominal["sha256"]) == 64 and nominal["size_bytes"] == 84 + 50 * 12
+    assert any("open" in warning for warning in nominal["summary"]["warnings"])  # the ground is one face
+    listed = api.get("/api/nominals/").json()
+    assert [n["id"] for n in listed] == [nominal["id"]]
+    download = api.get(f"/api/nominals/{nominal['id']}/file/")
+    assert download.status_code == 200
+
+    for name, content, expected in (
+        ("part.step", b"ISO-10303-21;", "must be .stl, .ply or .obj"),
+        ("empty.stl", b"", "empty"),
+        ("garbage.ply", b"not a ply file at all", "garbage.ply"),
+    ):
+        data = io.BytesIO(content)
+        data.name = name
+        response = api.post("/api/nominals/", {"file": data}, format="multipart")
+        assert response.status_code == 400, (name, response.content)
+        assert expected in response.json()["error"], response.json()
+    assert len(api.get("/api/nominals/").json()) == 1  # nothing stored from the refused uploads
+
+
+def test_inspection_finds_the_pit_and_decides_conformance(api, pitted_measurement, nominal):
+    options = {"init": "identity", "tolerance_mm": 0.05, "k": 2, "systematic_mm": 0.0}
+    response = api.post(
+        "/api/inspections/",
+        {"measurement": pitted_measurement, "nominal": nominal["id"], "options": options},
+        format="json",
+    )
+    assert response.status_code == 202, response.content
+    body = api.get(f"/api/inspections/{response.json()['id']}/").json()
+    assert body["status"] == "done", body
+    report = body["report"]
+    assert report["format"] == "gcps-inspection/1"
+    transform = np.array(report["transform"])
+    assert transform.shape == (4, 4) and np.allclose(transform[3], [0, 0, 0, 1])
+    # already aligned: the best fit moves the block by well under a micrometre
+    assert np.abs(transform[:3, 3]).max() < 1e-3 and np.abs(transform[:3, :3] - np.eye(3)).max() < 1e-5
+    assert report["provenance"]["nominal"]["sha256"] == nominal["sha256"]
+    assert report["tolerance_mm"] == 0.05 and report["k"] == 2
+
+    download = api.get(body["files"]["deviations.npy"])
+    assert download.status_code == 200
+    dev = np.load(io.BytesIO(b"".join(download.streaming_content)))
+    assert dev.shape == (SMALL_RIG["height_px"], SMALL_RIG["width_px"]) and dev.dtype == np.float32
+    pit = dev[57:63, 77:83]  # the pit's interior
+    assert abs(float(np.median(pit)) + PIT_DEPTH_MM) < 0.010, np.median(pit)
+    top = np.zeros(dev.shape, bool)
+    top[35:85, 45:115] = True
+    top[52:68, 72:88] = False  # the pit and its edges
+    assert np.isfinite(dev[top]).mean() > 0.95
+    assert np.nanpercentile(np.abs(dev[top]), 99) < 0.005  # 16-bit quantisation of the render
+    counts = report["conformance"]
+    assert sum(counts.values()) == report["deviation"]["points"] == int(np.isfinite(dev).sum())
+    assert counts["nonconforming"] >= pit.size, report  # every pit point is out of tolerance
+    assert counts["conforming"] > 0.9 * counts["nonconforming"] + top.sum() * 0.9
+
+    # the pages: the inspection with its figures, the printable report, the lists
+    from django.test import Client
+
+    client = Client()
+    client.force_login(Inspection.objects.get(pk=body["id"]).owner)
+    page = client.get(f"/inspections/{body['id']}/")
+    assert page.status_code == 200
+    html = page.content.decode()
+    assert 'id="fig-deviation_map"' in html and 'id="fig-deviation_histogram"' in html
+    assert f"data-nonconforming>{counts['nonconforming']}<" in html
+    assert client.get(f"/inspections/{body['id']}/report/").status_code == 200
+    assert client.get("/inspections/").status_code == 200 and client.get("/nominals/").status_code == 200
+    assert b"Inspect against a nominal model" in client.get(f"/measurements/{pitted_measurement}/").content
+
+
+def test_plan_inspects_each_new_measurement(api, rig, nominal):
+    plan = api.put(
+        f"/api/rigs/{rig['id']}/inspection-plan/",
+        {"nominal": nominal["id"], "options": {"init": "identity", "tolerance_mm": 0.05}},
+        format="json",
+    )
+    assert plan.status_code == 200, plan.content
+    core = Rig.from_dict(SMALL_RIG)
+    reference = upload(api, rig["id"], stack_zip(render_images(core, 0.0, bit_depth=16)), "reference")
+    obj = upload(api, rig["id"], stack_zip(render_images(core, pitted_block_heights(), bit_depth=16)), "object")
+    request = {"rig": rig["id"], "reference": reference, "object": obj}
+    measurement = api.post("/api/measurements/", request, format="json")
+    inspections = [i for i in api.get("/api/inspections/").json() if i["measurement"] == measurement.json()["id"]]
+    assert len(inspections) == 1 and inspections[0]["plan"] == plan.json()["id"], inspections
+    assert inspections[0]["status"] == "done", inspections[0]
+    # without systematic_mm in the plan, the rig's (none: no characterization) is recorded
+    assert inspections[0]["report"]["provenance"]["systematic"] == {"mm": 0.0, "from": "none"}
+
+    from django.test import Client
+
+    client = Client()
+    client.force_login(Inspection.objects.get(pk=inspections[0]["id"]).owner)
+    page = client.get(f"/rigs/{rig['id']}/inspection-plan/")
+    assert page.status_code == 200 and b'id="fig-plan_trend"' in page.content
+
+
+def test_inspection_requests_are_checked(api, other_api, pitted_measurement, nominal):
+    bad = api.post(
+        "/api/inspections/",
+        {"measurement": pitted_measurement, "nominal": nominal["id"], "options": {"init": "sideways"}},
+        format="json",
+    )
+    assert bad.status_code == 400 and "init" in bad.json()["error"]
+    foreign = other_api.post(
+        "/api/inspections/", {"measurement": pitted_measurement, "nominal": nominal["id"]}, format="json"
+    )
+    assert foreign.status_code == 400 and "does not exist among yours" in foreign.json()["error"]
+    assert api.delete(f"/api/nominals/{nominal['id']}/").status_code == 204  # unused: deleted
