@@ -313,16 +313,19 @@ class VirtualCamera:
             return opts
         return opts.with_changes(seed=(opts.seed * 1_000_003 + round(self.exposure_ms * 1000)) % 2**31)
 
-    def _hdr_reflectance(self, rig, scene, codec):
+    def _projector_size(self, codec) -> tuple[int, int]:
         from metrology.core.codecs.model import gcps_v1_codec
+
+        size = codec or gcps_v1_codec()
+        return size.projector_width, size.projector_height
+
+    def _hdr_reflectance(self, rig, scene, codec):
         from metrology.core.simulate.exposures import scene_reflectance
 
         if self._reflectance is None:
-            size = codec or gcps_v1_codec()
             changes = self.hdr or {}
-            self._reflectance = scene_reflectance(
-                rig, scene, (size.projector_width, size.projector_height), placement=self.placement, **changes
-            )
+            size = self._projector_size(codec)
+            self._reflectance = scene_reflectance(rig, scene, size, placement=self.placement, **changes)
         return self._reflectance
 
     def _frames(self, rig, scene, codec, opts) -> np.ndarray:
@@ -352,8 +355,13 @@ class VirtualCamera:
         rig, scene, opts, codec = self._rig(), self._scene(), self._hdr_options(), self._codec()
         try:
             if part == "flats":
-                rho = None if self.hdr is None else self._hdr_reflectance(rig, scene, codec)
-                white, black = render_flats(rig, scene, opts, placement=self.placement, reflectance=rho)
+                if self.hdr is None:
+                    white, black = render_flats(rig, scene, opts, placement=self.placement)
+                else:  # on the path of render_exposures, bounded by the codec's projector
+                    rho, size = self._hdr_reflectance(rig, scene, codec), self._projector_size(codec)
+                    white, black = render_flats(
+                        rig, scene, opts, placement=self.placement, reflectance=rho, projector_size=size
+                    )
             else:
                 self._cache["stack"] = self._frames(rig, scene, codec, opts)
                 self._cache["clean"] = self._frames(rig, scene, codec, opts.with_changes(noise_grey=0.0))

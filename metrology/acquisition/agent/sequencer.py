@@ -138,13 +138,13 @@ def run_sequence(
 
     images: list[np.ndarray] = []
     previous_image, previous_pattern = white, np.full_like(projected[0], 255)
-    previous_expected: np.ndarray | None = None
+    previous_expected: np.ndarray = white  # the first frame follows the white one
     for frame, name in enumerate(codec.frame_names):
         expected_change = projector_change(previous_pattern, projected[frame], checker.options.change_level)
         for attempt in range(1, opts.max_grabs + 1):
             shown, image = grab("frame", frame)
             expected_image = camera.expected(shown)
-            if expected_image is not None and previous_expected is not None:  # the lit pixels' own change
+            if expected_image is not None:  # the lit pixels' own change
                 expected_change = checker.expected_change(previous_expected, expected_image)
             check = checker.check_frame(
                 image,
@@ -164,7 +164,8 @@ def run_sequence(
                 f"frame {name} refused after {opts.max_grabs} grabs: {'; '.join(checks[-1].reasons)}"
             )
         images.append(image)
-        previous_image, previous_pattern, previous_expected = image, projected[frame], expected_image
+        previous_image, previous_pattern = image, projected[frame]
+        previous_expected = expected_image if expected_image is not None else image
         report(frame + 3, f"grabbed {name}")
     projector.show("black")
     return AcquiredFrames(
