@@ -74,6 +74,8 @@ def test_too_few_exposures_allowed_are_reported_and_no_light_is_refused():
     rho = _part()
     bracket = bracket_exposures(_linear_camera(rho), 10.0, BracketOptions(max_exposures=2))
     assert len(bracket.exposures_ms) == 2 and not bracket.complete and bracket.needed == 3
+    single = bracket_exposures(_linear_camera(rho), 10.0, BracketOptions(max_exposures=1))
+    assert single.exposures_ms == (pytest.approx(bracket.e_short_ms),) and not single.complete
     with pytest.raises(ValueError, match="no pixel is lit"):
         bracket_exposures(_linear_camera(np.zeros((50, 50))), 10.0, BracketOptions(max_probes=3))
 

@@ -165,8 +165,6 @@ def bracket_exposures(grab_flats: GrabFlats, start_ms: float, options: BracketOp
     lit_before = 0
     while True:
         lit = _lit(probes, opts.lit_level)
-        if not lit.any() and e >= high:
-            raise ValueError("no pixel is lit by the projector at any probe exposure: is the projector seen?")
         grown = int(lit.sum()) - lit_before
         if lit.any():
             _white, contrast_rate = _rates(probes, lit)
@@ -191,7 +189,7 @@ def bracket_exposures(grab_flats: GrabFlats, start_ms: float, options: BracketOp
         needed = 1
     else:
         needed = 1 + math.ceil(math.log(e_long / e_short) / math.log(ratio)) if ratio > 1 else opts.max_exposures + 1
-        n = max(2, min(needed, opts.max_exposures))
+        n = min(max(needed, 2), opts.max_exposures)
         exposures = tuple(float(x) for x in np.geomspace(e_short, e_long, n)) if n > 1 else (float(e_short),)
     complete = needed <= opts.max_exposures and needed_long <= high
     return Bracket(
