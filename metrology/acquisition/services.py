@@ -329,10 +329,13 @@ def store_acquired_capture(
     job = _running_for(agent, acquisition)
     rig = acquisition.rig
     upload.seek(0)
-    from metrology.captures.stacks import read_upload_stack
+    from metrology.captures.stacks import frame_shape, read_upload_stack, stored_exposures
 
     codec, stack = read_upload_stack(upload, rig, codec=stored_codec_value(acquisition))
-    refusal = fringe_refusal(stack.images, rig_codecs.codec_of(codec))
+    exposures = stored_exposures(stack)
+    # a bracketed acquisition (docs/exposures.md) must show the fringes in its most exposed stack
+    shown = stack.stack.images[-1] if exposures is not None else stack.images
+    refusal = fringe_refusal(shown, rig_codecs.codec_of(codec))
     if refusal is not None:
         # nothing is stored; the job fails with the reason (the page shows it), the agent gets it as a 400
         reason = f"the uploaded stack was refused: {refusal}"
@@ -346,7 +349,7 @@ def store_acquired_capture(
             current = Acquisition.objects.select_for_update().get(pk=acquisition.pk)
             if job.status != Job.Status.RUNNING or current.agent_id != agent.pk:
                 raise Conflict(f"acquisition {acquisition.pk} is {job.status}: {job.error or job.phase}")
-            height_px, width_px = stack.images.shape[1:]
+            height_px, width_px = frame_shape(stack)
             capture = Capture.objects.create(
                 owner=acquisition.owner,
                 rig=rig,
@@ -356,6 +359,7 @@ def store_acquired_capture(
                 repeat=acquisition.repeat,
                 source=Capture.Source.RIG,
                 codec=codec,
+                exposures=exposures,
                 file=stored,
                 original_name=f"acquisition-{acquisition.pk}.zip",
                 checksum_sha256=checksum,

@@ -44,6 +44,7 @@ class CaptureSerializer(serializers.ModelSerializer):
             "width_px",
             "parameters",
             "codec",
+            "exposures",
             "job",
             "created_at",
         )

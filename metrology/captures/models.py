@@ -56,6 +56,11 @@ class Capture(models.Model):
         blank=True,
         help_text="The stack's codec: built-in name or gcps-codec/1 object (null: the rig's)",
     )
+    exposures = models.JSONField(
+        null=True,
+        blank=True,
+        help_text="A multi-exposure capture's exposures.json entries, least exposed first (null: one exposure)",
+    )
     job = models.OneToOneField("jobs.Job", null=True, blank=True, on_delete=models.SET_NULL, related_name="capture")
     created_at = models.DateTimeField(auto_now_add=True)
 

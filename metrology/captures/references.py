@@ -32,10 +32,11 @@ def kept_references() -> KeptReferences:
 
 
 def reference_key(
-    capture: Capture, rig_values: dict[str, Any], codec: Codec | None, options: MeasureOptions
+    capture: Capture, rig_values: dict[str, Any], codec: Codec | None, options: MeasureOptions, exposures: bool = False
 ) -> tuple[Any, ...]:
     """What identifies a decoded reference: capture id and sha256, rig values, codec, the
-    decoding, filter and triangulation options."""
+    decoding, filter and triangulation options, and whether it was decoded as (or as one exposure
+    of) a multi-exposure capture."""
     settings_of = {key: value for key, value in options.to_dict().items() if key in ("decode", "triangulate", "method")}
     return (
         capture.pk,
@@ -44,19 +45,31 @@ def reference_key(
         json.dumps(rig_values, sort_keys=True),
         None if codec is None else json.dumps(codec.to_dict(), sort_keys=True),
         json.dumps(settings_of, sort_keys=True),
+        exposures,
     )
 
 
 def kept_reference(
-    capture: Capture, rig_values: dict[str, Any], codec: Codec | None, options: MeasureOptions
+    capture: Capture,
+    rig_values: dict[str, Any],
+    codec: Codec | None,
+    options: MeasureOptions,
+    *,
+    exposures: bool = False,
 ) -> tuple[Reference, bool]:
     """The reference plane of ``capture`` prepared for the rig ``rig_values`` (any model) and its
-    ``codec``; and whether it was kept (no decode)."""
+    ``codec``; and whether it was kept (no decode). ``exposures``: the measurement involves a
+    multi-exposure capture, so the reference is decoded as one too (a single stack as its only
+    exposure: :func:`metrology.core.measure.exposure_inputs`, docs/exposures.md)."""
     from metrology.captures.stacks import load_capture_images
+    from metrology.core.codecs.stack import ExposureStack
     from metrology.core.geometry import model_from_dict
     from metrology.pipeline.measure import prepare_reference
 
     def prepare() -> Reference:
-        return prepare_reference(model_from_dict(rig_values), load_capture_images(capture), options, codec=codec)
+        images = load_capture_images(capture)
+        if exposures and not isinstance(images, ExposureStack):
+            images = ExposureStack.single(images)
+        return prepare_reference(model_from_dict(rig_values), images, options, codec=codec)
 
-    return kept_references().get(reference_key(capture, rig_values, codec, options), prepare)
+    return kept_references().get(reference_key(capture, rig_values, codec, options, exposures), prepare)

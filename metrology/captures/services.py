@@ -22,7 +22,7 @@ from django.db import transaction
 
 from metrology.captures.models import Capture, CaptureSession
 from metrology.captures.sources import CaptureRequest, get_source
-from metrology.captures.stacks import MIB, read_upload_stack
+from metrology.captures.stacks import MIB, frame_shape, read_upload_stack, stored_exposures
 from metrology.errors import BadInput
 from metrology.jobs import services as job_services
 from metrology.jobs.models import Job
@@ -99,7 +99,7 @@ def upload_capture(
     try:
         with transaction.atomic():
             session = _session_for(owner=owner, rig=rig, session_id=session_id, name="upload")
-            height_px, width_px = stack.images.shape[1:]
+            height_px, width_px = frame_shape(stack)
             return Capture.objects.create(
                 owner=owner,
                 rig=rig,
@@ -116,6 +116,7 @@ def upload_capture(
                 height_px=height_px,
                 width_px=width_px,
                 codec=codec,
+                exposures=stored_exposures(stack),
             )
     except BaseException:
         default_storage.delete(stored)

@@ -68,6 +68,31 @@ def load_capture_stack(capture: Capture):
         return read_stack(handle, rig=capture.rig.to_core(), **stack_limits(capture.rig))
 
 
+def upload_limits(rig: Rig) -> dict[str, int]:
+    """Bounds of a multi-exposure capture's reader: pixels per image, and expanded bytes of the
+    whole zip (all exposures: the largest expansion :func:`stack_limits` allows any stack)."""
+    return {
+        "max_pixels": min(rig.width_px * rig.height_px, settings.GCPS_MAX_STACK_PIXELS),
+        "max_bytes": max(settings.GCPS_MAX_UPLOAD_BYTES, 64 * MIB) * 4,
+    }
+
+
+def frame_shape(stack: Any) -> tuple[int, int]:
+    """``(H, W)`` of a read stack: a single stack's ``images`` or a multi-exposure one's ``stack``."""
+    exposures = getattr(stack, "stack", None)
+    if exposures is not None:
+        height, width = exposures.frame_shape
+        return int(height), int(width)
+    height, width = stack.images.shape[1:]
+    return int(height), int(width)
+
+
+def stored_exposures(stack: Any) -> list[dict[str, Any]] | None:
+    """The ``exposures.json`` entries of a read multi-exposure stack (least exposed first), None for a single one."""
+    exposures = getattr(stack, "stack", None)
+    return None if exposures is None else [e.to_dict() for e in exposures.exposures]
+
+
 def read_upload_stack(
     upload: Any, rig: Any, *, expected_bit_depth: int | None = None, codec: Any = None
 ) -> tuple[Any, Any]:
@@ -85,7 +110,12 @@ def read_upload_stack(
     BadInput
         Naming the problem (bad codec.json, a stack that does not match its codec, ...).
     """
-    from metrology.core.codecs.stack import read_capture_codec, read_codec_stack
+    from metrology.core.codecs.stack import (
+        is_exposure_capture,
+        read_capture_codec,
+        read_codec_stack,
+        read_exposure_stack,
+    )
     from metrology.core.io import StackError
 
     try:
@@ -102,15 +132,24 @@ def read_upload_stack(
         value = validate_codec(own.to_dict()) if own is not None else capture_default(rig)
     codec = codec_of(value)
     check_codec_for_rig(codec, rig)
-    if is_gcps_v1(codec):
+    upload.seek(0)
+    try:
+        multi = is_exposure_capture(upload, max_bytes=upload_limits(rig)["max_bytes"])
+    except StackError as exc:
+        raise BadInput(f"capture stack refused: {exc}") from None
+    if is_gcps_v1(codec) and not multi:
         return value, read_capture_stack(upload, rig, expected_bit_depth=expected_bit_depth)
     upload.seek(0)
-    limits = stack_limits(rig, codec.n_frames)
+    limits = upload_limits(rig) if multi else stack_limits(rig, codec.n_frames)
+    stack: Any
     try:
-        stack = read_codec_stack(upload, codec, max_pixels=limits["max_pixels"], max_bytes=limits["max_bytes"])
+        if multi:  # exposures.json and one stack per exposure (docs/exposures.md)
+            stack = read_exposure_stack(upload, codec, max_pixels=limits["max_pixels"], max_bytes=limits["max_bytes"])
+        else:
+            stack = read_codec_stack(upload, codec, max_pixels=limits["max_pixels"], max_bytes=limits["max_bytes"])
     except (StackError, CodecError) as exc:
         raise BadInput(f"capture stack refused: {exc}") from None
-    height, width = stack.images.shape[1:]
+    height, width = frame_shape(stack)
     if (height, width) != (rig.height_px, rig.width_px):
         raise BadInput(
             f"capture stack refused: the frames are {width}x{height} px "
@@ -126,7 +165,10 @@ def read_upload_stack(
 
 def load_capture_images(capture: Any) -> Any:
     """The ``(frames, H, W)`` images of a stored capture in its codec's order: the eleven named
-    patterns of gcps-v1, or a codec's frames (in a worker). Raises ``ValueError`` when not stored."""
+    patterns of gcps-v1, or a codec's frames; for a multi-exposure capture an
+    :class:`~metrology.core.codecs.stack.ExposureStack` (in a worker). Raises ``ValueError`` when not stored."""
+    if capture.exposures:
+        return load_exposure_stack(capture)
     if is_gcps_v1(capture_codec(capture)):
         return load_capture_stack(capture).images
     return load_codec_stack(capture).images
@@ -145,3 +187,17 @@ def load_codec_stack(capture: Any) -> Any:
     limits = stack_limits(capture.rig, codec.n_frames)
     with capture.file.open("rb") as handle:
         return read_codec_stack(handle, codec, max_pixels=limits["max_pixels"], max_bytes=limits["max_bytes"])
+
+
+def load_exposure_stack(capture: Any) -> Any:
+    """The stored multi-exposure capture's :class:`~metrology.core.codecs.stack.ExposureStack`
+    (docs/exposures.md), in a worker. Raises ``ValueError`` if it is not stored or does not match its codec."""
+    from metrology.core.codecs.stack import read_exposure_stack
+
+    if not capture.file:
+        raise ValueError(f"capture {capture.pk} has no stored stack yet")
+    limits = upload_limits(capture.rig)
+    with capture.file.open("rb") as handle:
+        return read_exposure_stack(
+            handle, capture_codec(capture), max_pixels=limits["max_pixels"], max_bytes=limits["max_bytes"]
+        ).stack

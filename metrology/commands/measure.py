@@ -163,6 +163,10 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
         if ply_mesh and result.sigma_mm is not None:
             assert points is not None
             mesh = mesh.with_sigma(result.sigma_mm, np.isfinite(z) & np.isfinite(points).all(axis=-1))
+        exposure = measurement.exposure_map()
+        if ply_mesh and exposure is not None:  # a multi-exposure object: the exposure of each vertex
+            assert points is not None
+            mesh = mesh.with_exposure(exposure, np.isfinite(z) & np.isfinite(points).all(axis=-1))
 
     write_height_npy(z, args.out)
     if args.xyz:

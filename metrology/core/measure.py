@@ -54,7 +54,7 @@ from metrology.core.codecs.check import (
     with_suggestion,
 )
 from metrology.core.codecs.decode import CodecDecodeOptions, CodecDecoding, decode_codec, validate_codec_stack
-from metrology.core.codecs.exposures import decode_exposures
+from metrology.core.codecs.exposures import NO_EXPOSURE, decode_exposures
 from metrology.core.codecs.model import Codec, gcps_v1_codec, is_gcps_v1
 from metrology.core.codecs.stack import ExposureStack
 from metrology.core.decode import (
@@ -342,6 +342,36 @@ class Measurement:
         a plane of its own (:meth:`PreparedGeometry.points_from_heights` without a reference gives
         them exactly), so that storing the heights stores the points too."""
         return self.off_ray_points_mm is None and self.prepared.has_model_plane and self.z_kind == "height"
+
+    def exposure_map(self) -> np.ndarray | None:
+        """Which exposure of a multi-exposure object capture measured each point (docs/exposures.md).
+
+        Returns
+        -------
+        (H, W) uint8 array or None
+            Per pixel, the index of the exposure (0 the least exposed, as in
+            ``decoding.exposure_names``) whose decoding gave the triangulated axis's coordinate;
+            where the model reads two axes (:meth:`PreparedGeometry.used_axes`), the more exposed of
+            their two exposures. :data:`~metrology.core.codecs.exposures.NO_EXPOSURE` (255) where
+            ``z_mm`` is not finite. None when the object was not decoded as a multi-exposure capture.
+        """
+        decoding = self.decoding
+        if decoding is None or not decoding.exposure_names:
+            return None
+        axes = [axis for axis in self.prepared.used_axes(tuple(decoding.exposure)) if axis in decoding.exposure]
+        if not axes:
+            axes = [self.prepared.axis]
+        used = np.maximum.reduce([np.asarray(decoding.exposure[axis], np.uint8) for axis in axes])
+        return np.where(np.isfinite(self.z_mm), used, np.uint8(NO_EXPOSURE)).astype(np.uint8)
+
+    def points_per_exposure(self) -> dict[str, int] | None:
+        """The measured points per exposure name of :meth:`exposure_map` (None for a single capture)."""
+        used = self.exposure_map()
+        if used is None:
+            return None
+        assert self.decoding is not None
+        counts = np.bincount(used.ravel(), minlength=NO_EXPOSURE + 1)
+        return {name: int(counts[index]) for index, name in enumerate(self.decoding.exposure_names)}
 
     def points_mm(self, dtype: npt.DTypeLike = np.float32) -> np.ndarray:
         """``(H, W, 3)`` points of ``dtype``, mm, in the model frame (:attr:`GeometryModel.frame`);

@@ -13,6 +13,7 @@ need it, never at module import.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -443,19 +444,31 @@ class GridMesh:
     sigma_mm : (V,) float32 array or None
         Each vertex's standard uncertainty, mm (NaN where unknown): PLY files carry it as the
         vertex property ``sigma_mm``.
+    exposure : (V,) uint8 array or None
+        The exposure of a multi-exposure capture that measured each vertex (0 the least exposed,
+        docs/exposures.md): PLY files carry it as the vertex property ``exposure`` (uchar).
     """
 
     vertices: np.ndarray
     triangles: np.ndarray
     sigma_mm: np.ndarray | None = None
+    exposure: np.ndarray | None = None
 
     def with_sigma(self, sigma_mm: npt.ArrayLike, valid: npt.ArrayLike) -> GridMesh:
         """The mesh with the per-vertex sigma of a ``(H, W)`` sigma map at the ``valid`` pixels
         (the vertices' pixels, row-major)."""
-        sigma = np.asarray(sigma_mm, dtype=np.float32)[np.asarray(valid, dtype=bool)]
-        if sigma.shape != (len(self.vertices),):
-            raise ValueError(f"sigma_mm gives {sigma.size} values for {len(self.vertices)} vertices")
-        return GridMesh(vertices=self.vertices, triangles=self.triangles, sigma_mm=sigma)
+        return dataclasses.replace(self, sigma_mm=self._per_vertex(sigma_mm, valid, np.float32, "sigma_mm"))
+
+    def with_exposure(self, exposure: npt.ArrayLike, valid: npt.ArrayLike) -> GridMesh:
+        """The mesh with the per-vertex exposure of a ``(H, W)`` uint8 exposure map at the
+        ``valid`` pixels (the vertices' pixels, row-major)."""
+        return dataclasses.replace(self, exposure=self._per_vertex(exposure, valid, np.uint8, "exposure"))
+
+    def _per_vertex(self, values: npt.ArrayLike, valid: npt.ArrayLike, dtype: type, what: str) -> np.ndarray:
+        picked = np.asarray(values, dtype=dtype)[np.asarray(valid, dtype=bool)]
+        if picked.shape != (len(self.vertices),):
+            raise ValueError(f"{what} gives {picked.size} values for {len(self.vertices)} vertices")
+        return picked
 
     def _cross(self, triangles: np.ndarray | None = None) -> np.ndarray:
         """(T, 3) float64 ``(b - a) x (c - a)`` of the triangles ``(a, b, c)``: twice the area times the unit normal."""
@@ -519,32 +532,40 @@ def _row_blocks(n: int, rows: int) -> Iterator[slice]:
         yield slice(start, min(start + rows, n))
 
 
-_PLY_VERTEX = np.dtype([("p", "<f8", (3,)), ("n", "<f8", (3,))])
-_PLY_VERTEX_SIGMA = np.dtype([("p", "<f8", (3,)), ("n", "<f8", (3,)), ("sigma_mm", "<f4")])
+def _ply_vertex_layout(mesh: GridMesh) -> np.dtype:
+    """The PLY vertex record of ``mesh``: float64 point and normal, then its optional properties."""
+    fields: list[tuple[str, str] | tuple[str, str, tuple[int]]] = [("p", "<f8", (3,)), ("n", "<f8", (3,))]
+    if mesh.sigma_mm is not None:
+        fields.append(("sigma_mm", "<f4"))
+    if mesh.exposure is not None:
+        fields.append(("exposure", "u1"))
+    return np.dtype(fields)
 
 
 def ply_chunks(mesh: GridMesh, *, chunk_rows: int = STREAM_CHUNK_ROWS) -> Iterator[bytes]:
     """Binary little-endian PLY of ``mesh``, as open3d writes it: float64 ``x y z nx ny nz`` per
-    vertex (plus a float32 ``sigma_mm`` when the mesh has one), ``uchar`` count + ``uint`` indices
-    per face. The header comes first, before the vertex normals are computed."""
+    vertex (plus a float32 ``sigma_mm`` and a uchar ``exposure`` when the mesh has them), ``uchar``
+    count + ``uint`` indices per face. The header comes first, before the vertex normals are computed."""
     n_vertices, n_triangles = len(mesh.vertices), len(mesh.triangles)
-    sigma = mesh.sigma_mm
     yield (
         "ply\nformat binary_little_endian 1.0\ncomment Created by GCPS Lab (mm)\n"
         f"element vertex {n_vertices}\n"
         "property double x\nproperty double y\nproperty double z\n"
         "property double nx\nproperty double ny\nproperty double nz\n"
-        + ("property float sigma_mm\n" if sigma is not None else "")
+        + ("property float sigma_mm\n" if mesh.sigma_mm is not None else "")
+        + ("property uchar exposure\n" if mesh.exposure is not None else "")
         + f"element face {n_triangles}\nproperty list uchar uint vertex_indices\nend_header\n"
     ).encode("ascii")
     normals = mesh.vertex_normals()
-    layout = _PLY_VERTEX if sigma is None else _PLY_VERTEX_SIGMA
+    layout = _ply_vertex_layout(mesh)
     for rows in _row_blocks(n_vertices, chunk_rows):
         block = np.empty(rows.stop - rows.start, dtype=layout)
         block["p"] = mesh.vertices[rows]
         block["n"] = normals[rows]
-        if sigma is not None:
-            block["sigma_mm"] = sigma[rows]
+        if mesh.sigma_mm is not None:
+            block["sigma_mm"] = mesh.sigma_mm[rows]
+        if mesh.exposure is not None:
+            block["exposure"] = mesh.exposure[rows]
         yield block.tobytes()
     for rows in _row_blocks(n_triangles, chunk_rows):
         faces = np.empty(rows.stop - rows.start, dtype=_PLY_FACE)

@@ -300,17 +300,41 @@ def plotly_js() -> bytes:
 def capture_decoding(capture) -> tuple[dict[str, Any], dict[str, Any]]:
     """Figures of a stored capture's decoding with its codec (u/v maps, modulation, reasons) and the
     decoding summary; ``({}, {"error": ...})`` when the stack cannot be read or decoded."""
-    from metrology.captures.stacks import load_codec_stack
+    from metrology.captures.codecs import capture_codec
+    from metrology.captures.stacks import load_codec_stack, load_exposure_stack
     from metrology.core.codecs.decode import decode_codec
+    from metrology.core.codecs.exposures import decode_exposures
     from metrology.figures.capture import decoding_figures
 
     try:
-        stack = load_codec_stack(capture)
-        decoding = decode_codec(stack.images, stack.codec, with_noise=False)
+        if capture.exposures:  # fused per pixel (docs/exposures.md)
+            decoding = decode_exposures(load_exposure_stack(capture), capture_codec(capture), with_noise=False)
+        else:
+            stack = load_codec_stack(capture)
+            decoding = decode_codec(stack.images, stack.codec, with_noise=False)
     except (ValueError, OSError) as exc:
         return {}, {"error": str(exc)}
     arrays = {
-        name: {"coordinate": axis.coordinate, "modulation": axis.modulation, "reason": axis.reason}
+        name: {
+            "coordinate": axis.coordinate,
+            "modulation": axis.modulation,
+            "reason": axis.reason,
+            **({"exposure": decoding.exposure[name]} if name in decoding.exposure else {}),
+        }
         for name, axis in decoding.axes.items()
     }
-    return decoding_figures(arrays), decoding.summary()
+    summary = decoding.summary()
+    exposures = summary.get("exposures")
+    if exposures is not None:  # per exposure: its time and the pixels it measured on each axis
+        times = {entry["name"]: entry for entry in capture.exposures}
+        summary["exposure_rows"] = [
+            {
+                "name": name,
+                "exposure_us": times.get(name, {}).get("exposure_us"),
+                "gain": times.get(name, {}).get("gain", 1.0),
+                "pixels": {axis: counts[name] for axis, counts in exposures["pixels"].items()},
+            }
+            for name in exposures["names"]
+        ]
+        summary["exposure_none"] = {axis: counts["none"] for axis, counts in exposures["pixels"].items()}
+    return decoding_figures(arrays, decoding.exposure_names), summary

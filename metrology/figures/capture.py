@@ -1,5 +1,6 @@
 """Figures of a capture's decoding (docs/codecs.md): projector coordinate maps u and v, the
-modulation map, and the refusal reasons per pixel.
+modulation map, the refusal reasons per pixel and, for a multi-exposure capture
+(docs/exposures.md), which exposure each pixel used.
 
 Inputs are the decoder's arrays per coded axis (``(H, W)`` float32 coordinates in projector
 units, NaN where not decoded; float32 modulation in grey levels; uint8 reason codes). Continuous
@@ -10,7 +11,7 @@ Axes are camera pixels, rows running down.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -73,22 +74,46 @@ def map_figure(values: npt.ArrayLike, title: str, unit: str, colorscale: str = "
 
 def reason_figure(reason: npt.ArrayLike, title: str) -> go.Figure:
     """Categorical heatmap of the reason codes (one colour per code present), and their counts in the legend."""
-    r = np.asarray(reason, dtype=np.uint8)
+    return category_figure(reason, REASON_COLOURS, title, "reason")
+
+
+EXPOSURE_COLOURS = ("#440154", "#3b528b", "#21918c", "#5ec962", "#fde725", "#f89540", "#cc4778", "#7e03a8")
+"""Colours of exposures 0, 1, ... (least exposed first; repeated beyond eight)."""
+
+
+def exposure_figure(exposure: npt.ArrayLike, names: Sequence[str], title: str) -> go.Figure:
+    """Categorical heatmap of which exposure of a multi-exposure capture each pixel used
+    (docs/exposures.md): ``exposure`` (H, W) uint8 index into ``names`` (least exposed first), 255
+    where none measured; the pixels of each exposure in the legend."""
+    categories = {i: (name, EXPOSURE_COLOURS[i % len(EXPOSURE_COLOURS)]) for i, name in enumerate(names)}
+    categories[255] = ("none", "#d0d0d0")
+    return category_figure(exposure, categories, title, "exposure")
+
+
+def category_figure(
+    codes: npt.ArrayLike, categories: Mapping[int, tuple[str, str]], title: str, legend: str
+) -> go.Figure:
+    """Categorical heatmap of (H, W) uint8 ``codes`` (every k-th pixel: a mean of codes means
+    nothing): one colour band per code present (``categories``: code -> (name, colour)), their
+    pixel counts in the colour bar."""
+    r = np.asarray(codes, dtype=np.uint8)
     factors = block_factors(r.shape, MAX_ROWS, MAX_COLS)
     sampled = r[:: factors[0], :: factors[1]]
     x = np.arange(r.shape[1], dtype=np.float64)[:: factors[1]]
     y = np.arange(r.shape[0], dtype=np.float64)[:: factors[0]]
-    counts = np.bincount(r.ravel(), minlength=len(REASON_COLOURS))
-    present = [code for code in REASON_COLOURS if counts[code] > 0]
+    counts = np.bincount(r.ravel(), minlength=256)
+    present = [code for code in categories if counts[code] > 0]
     colours: list[list[Any]] = []
     n = len(present)
     for index, code in enumerate(present):  # a stepped colour scale: one band per present code
-        colour = REASON_COLOURS[code][1]
+        colour = categories[code][1]
         colours += [[index / n, colour], [(index + 1) / n, colour]]
     rank = np.zeros(256, np.float32)
+    names = np.full(256, "?", dtype=object)
     for index, code in enumerate(present):
         rank[code] = index
-    ticks = [f"{REASON_COLOURS[code][0]} ({int(counts[code])} px)" for code in present]
+        names[code] = categories[code][0]
+    ticks = [f"{categories[code][0]} ({int(counts[code])} px)" for code in present]
     fig = go.Figure(
         data=[
             go.Heatmap(
@@ -98,8 +123,8 @@ def reason_figure(reason: npt.ArrayLike, title: str) -> go.Figure:
                 zmin=-0.5,
                 zmax=n - 0.5,
                 colorscale=colours,
-                customdata=np.vectorize(lambda c: REASON_COLOURS.get(int(c), ("?", ""))[0])(sampled),
-                colorbar={"tickvals": list(range(n)), "ticktext": ticks, "title": {"text": "reason"}},
+                customdata=names[sampled],
+                colorbar={"tickvals": list(range(n)), "ticktext": ticks, "title": {"text": legend}},
                 hovertemplate="column %{x:.0f}<br>row %{y:.0f}<br>%{customdata}<extra></extra>",
             )
         ],
@@ -108,13 +133,19 @@ def reason_figure(reason: npt.ArrayLike, title: str) -> go.Figure:
     return _image_axes(fig, x, y)
 
 
-def decoding_figures(axes: Mapping[str, Mapping[str, np.ndarray]]) -> dict[str, go.Figure]:
+def decoding_figures(
+    axes: Mapping[str, Mapping[str, np.ndarray]], exposure_names: Sequence[str] = ()
+) -> dict[str, go.Figure]:
     """Figures of a decoding: for each coded axis a in {u, v}, ``coordinate_a`` (projector units),
-    ``modulation_a`` (grey levels) and ``reason_a``.
+    ``modulation_a`` (grey levels) and ``reason_a``; for a multi-exposure capture also
+    ``exposure_a`` (which exposure each pixel used, :func:`exposure_figure`).
 
     Parameters
     ----------
-    axes : mapping of axis name to a mapping with ``coordinate``, ``modulation`` and ``reason`` arrays
+    axes : mapping of axis name to a mapping with ``coordinate``, ``modulation`` and ``reason``
+        arrays, and ``exposure`` (uint8) for a multi-exposure capture
+    exposure_names : sequence of str
+        The exposures' names, least exposed first (empty for a single stack).
     """
     figures: dict[str, go.Figure] = {}
     for name in ("u", "v"):
@@ -129,4 +160,8 @@ def decoding_figures(axes: Mapping[str, Mapping[str, np.ndarray]]) -> dict[str, 
             arrays["modulation"], f"Modulation B of the {name} fringes", "grey levels", colorscale="Gray"
         )
         figures[f"reason_{name}"] = reason_figure(arrays["reason"], f"Why {name} pixels were refused")
+        if "exposure" in arrays:
+            figures[f"exposure_{name}"] = exposure_figure(
+                arrays["exposure"], exposure_names, f"Which exposure measured each {name} pixel"
+            )
     return figures

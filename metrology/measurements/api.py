@@ -32,6 +32,7 @@ CONTENT_TYPES = {
     "mesh.obj": "model/obj",
     "sigma.npy": "application/octet-stream",
     "points.npy": "application/octet-stream",
+    "exposure.npy": "application/octet-stream",
 }
 
 

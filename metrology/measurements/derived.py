@@ -2,8 +2,9 @@
 
 A measurement job stores ``height.npy``, its points (``points.npz``, the measured pixels' points
 and a bit mask: :mod:`metrology.core.io.points`; dense ``(H, W, 3)`` ``.npy`` files stored before
-are read too), ``gray_only_height.npy`` and ``sigma.npy`` (float32, the only copies of the data)
-and its statistics. Every reader of the points (the ``points.npy`` download, meshes, figures,
+are read too), ``gray_only_height.npy`` and ``sigma.npy`` (float32, the only copies of the data),
+``exposure.npy`` for a multi-exposure object (uint8, carried by the PLY as the vertex property
+``exposure``) and its statistics. Every reader of the points (the ``points.npy`` download, meshes, figures,
 acceptance) reads them through :func:`measurement_points`, which returns the dense ``(H, W, 3)``
 float32 map bit for bit as measured. The TIFF height map, the PLY, STL and OBJ meshes (and
 ``points.npy`` where the heights give the points) are functions of those and the rig's model:
@@ -40,7 +41,7 @@ DERIVED_FILES: tuple[str, ...] = ("height.tiff", "mesh.ply", "mesh.stl", "mesh.o
 """Result files built from the stored height map by a job when first asked for (and ``points.npy`` where the heights
 give the points: :func:`points_follow_from_heights`)."""
 
-STORED_FILES: tuple[str, ...] = ("height.npy", "gray_only_height.npy", "sigma.npy", "points.npy")
+STORED_FILES: tuple[str, ...] = ("height.npy", "gray_only_height.npy", "sigma.npy", "points.npy", "exposure.npy")
 """Result files a measurement job stores."""
 
 CACHE_PREFIX = "derived"
@@ -200,7 +201,13 @@ def write_derived_file(measurement: Measurement, filename: str, path: Path) -> N
 
     def build() -> GridMesh:
         z = _heights(measurement)
-        return surface_mesh(model_from_dict(measurement.rig_values), z, points_mm=measurement_points(measurement, z))
+        points = measurement_points(measurement, z)
+        mesh = surface_mesh(model_from_dict(measurement.rig_values), z, points_mm=points)
+        if filename == "mesh.ply" and measurement.exposure_npy:  # the exposure of each vertex
+            mesh = mesh.with_exposure(
+                _load(measurement.exposure_npy), np.isfinite(z) & np.isfinite(points).all(axis=-1)
+            )
+        return mesh
 
     with open(path, "wb") as out:
         for chunk in mesh_file_chunks(build, filename.rsplit(".", 1)[1]):

@@ -14,6 +14,7 @@ RESULT_FILES: dict[str, str] = {
     "mesh.obj": "mesh_obj",
     "sigma.npy": "sigma_npy",
     "points.npy": "points_npy",
+    "exposure.npy": "exposure_npy",
 }
 
 
@@ -33,6 +34,11 @@ class Measurement(models.Model):
     points_npy = models.FileField(max_length=300, blank=True, help_text="Points (H, W, 3), mm (pinhole rigs)")
     sigma_npy = models.FileField(
         max_length=300, blank=True, help_text="Per-point height uncertainty, mm (options.sigma)"
+    )
+    exposure_npy = models.FileField(
+        max_length=300,
+        blank=True,
+        help_text="Which exposure measured each point, uint8 (H, W), 255 none (multi-exposure objects)",
     )
     statistics = models.JSONField(default=dict, blank=True)
     options = models.JSONField(

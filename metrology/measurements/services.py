@@ -7,7 +7,9 @@ pipeline's :func:`~metrology.pipeline.measure.measure` (as ``gcps measure`` does
 float32 mm, the model frame, stored as the measured pixels' points and a bit mask, ``points.npz``:
 :func:`~metrology.measurements.stored_arrays.save_point_map`) unless the heights alone give them (the paper's rig:
 :attr:`~metrology.core.measure.Measurement.points_follow_from_heights`), and when computed
-``gray_only_height.npy`` and ``sigma.npy``; the TIFF, the meshes and points the heights give are
+``gray_only_height.npy`` and ``sigma.npy``, and for a multi-exposure object ``exposure.npy`` (uint8
+``(H, W)``: the exposure that measured each point, 255 none; the statistics count the points per
+exposure, ``points_per_exposure``); the TIFF, the meshes and points the heights give are
 derived on request (:mod:`metrology.measurements.derived`).
 """
 
@@ -96,6 +98,7 @@ def request_measurement(
 def run_measurement(job: Job, run: job_services.JobRun) -> None:
     """Job handler: the kept reference, the object's stack, the pipeline's measure; store, publish."""
     from metrology.captures.references import kept_reference
+    from metrology.core.codecs.stack import ExposureStack
     from metrology.core.geometry import model_from_dict
     from metrology.core.measure import MeasureOptions
     from metrology.pipeline.measure import measure
@@ -105,12 +108,22 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
     options = MeasureOptions.from_dict(measurement.options or {})
     codec_value = job.parameters.get("codec")
     codec = None if codec_value is None else codec_of(codec_value)
+    captures = [c for c in (measurement.reference, measurement.object) if c is not None]
+    exposures = any(c.exposures for c in captures)
+    if exposures and codec is None:  # a multi-exposure capture takes both through the codec path
+        from metrology.core.codecs.model import gcps_v1_codec
+
+        codec = gcps_v1_codec()
     reference = None
     if measurement.reference is not None:
         with run.phase("reference", 5):
-            reference, _kept = kept_reference(measurement.reference, measurement.rig_values, codec, options)
+            reference, _kept = kept_reference(
+                measurement.reference, measurement.rig_values, codec, options, exposures=exposures
+            )
     with run.phase("read", 10):
         obj = load_capture_images(measurement.object)
+    if exposures and not isinstance(obj, ExposureStack):  # against a multi-exposure reference: one exposure
+        obj = ExposureStack.single(obj)
     with run.phase("measure", 20):
         result = measure(model, reference, obj, options, codec=codec)
     for name, seconds in result.timings_s.items():
@@ -124,6 +137,9 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
         arrays["gray_only_height.npy"] = np.asarray(result.gray_z_mm, dtype=np.float32)
     if result.sigma_mm is not None:  # options.sigma
         arrays["sigma.npy"] = np.asarray(result.sigma_mm, dtype=np.float32)
+    exposure = result.measurement.exposure_map()
+    if exposure is not None:  # a multi-exposure object: which exposure measured each point
+        arrays["exposure.npy"] = exposure
     with run.phase("store", 80):
         names = save_arrays(run, prefix, arrays)
         if points is not None:
@@ -145,6 +161,7 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
             points_npy=names.get("points.npy", ""),
             gray_only_npy=names.get("gray_only_height.npy", ""),
             sigma_npy=names.get("sigma.npy", ""),
+            exposure_npy=names.get("exposure.npy", ""),
             statistics=statistics,
             options=result.options.to_dict(),
         )

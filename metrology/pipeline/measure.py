@@ -90,7 +90,8 @@ class MeasureResult:
     def statistics(self) -> dict[str, Any]:
         """Valid pixels and min/max/mean/std of ``z``, what ``z`` is, the rig's model, the axis and
         method triangulated, the points dropped by ``max_sigma_mm`` and the median sigma (and the
-        gray-code-only heights' figures where computed)."""
+        gray-code-only heights' figures where computed; for a multi-exposure object,
+        ``points_per_exposure``: the measured points of each exposure by name)."""
         m = self.measurement
         stats: dict[str, Any] = dict(height_statistics(m.z_mm))
         if m.gray_z_mm is not None:
@@ -105,6 +106,9 @@ class MeasureResult:
         if m.sigma_mm is not None:
             finite = m.sigma_mm[np.isfinite(m.sigma_mm)]
             stats["sigma_mm_median"] = float(np.median(finite)) if finite.size else None
+        per_exposure = m.points_per_exposure()
+        if per_exposure is not None:  # a multi-exposure object: the points each exposure measured
+            stats["points_per_exposure"] = per_exposure
         return stats
 
     def to_dict(self) -> dict[str, Any]:

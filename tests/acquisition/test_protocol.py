@@ -223,3 +223,39 @@ def test_stale_acquisition_requeued_by_the_sweep_fails_with_a_reason(api, rig, m
     job = Job.objects.get(pk=queued["job"])
     assert job.status == "failed" and "capture agent running this acquisition stopped responding" in job.error
     assert Capture.objects.count() == 0
+
+
+@pytest.mark.slow  # three exposures rendered on the virtual camera: about 6 s
+def test_a_bracketed_acquisition_uploads_a_multi_exposure_capture(api, rig):
+    """The agent's automatic bracket on the virtual camera (a 1000:1 part on the paper's rig,
+    gcps-v1), written as the agent uploads it, is stored with its exposures."""
+    from metrology.acquisition.agent.cameras import AcquisitionTarget, VirtualCamera
+    from metrology.acquisition.agent.client import exposures_zip
+    from metrology.acquisition.agent.patterns import resolve_codec
+    from metrology.acquisition.agent.sequencer import InstantProjector, SequenceOptions, run_bracketed_sequence
+    from metrology.captures.stacks import load_capture_images
+    from metrology.core.codecs.stack import ExposureStack
+
+    session = register(api, rig)
+    queued = post(api, f"/api/rigs/{rig.pk}/captures/acquire/", {"role": "object"}).json()
+    taken = post(api, f"/api/rigs/{rig.pk}/agent/take/", {"session": session}).json()
+    camera = VirtualCamera({"name": "plane", "hdr": True}, {"bit_depth": 8, "noise_grey": 1.0})
+    codec = resolve_codec(taken["codec"])
+    camera.prepare(AcquisitionTarget(role="object", codec=codec, rig_geometry=taken["rig_geometry"]))
+    acquired = run_bracketed_sequence(
+        InstantProjector(), camera, codec, exposures_ms=None, options=SequenceOptions(settle_s=0.0)
+    )
+    exposures = list(acquired.exposures_ms)
+    assert len(exposures) >= 2 and exposures == sorted(exposures)
+    data = exposures_zip([s.images for s in acquired.stacks], exposures, codec)
+    upload = api.post(
+        f"/api/acquisitions/{queued['id']}/upload/",
+        {"session": session, "file": SimpleUploadedFile("s.zip", data, "application/zip"), "exposure_ms": "1"},
+    )
+    assert upload.status_code == 201, upload.content
+    capture = Capture.objects.get()
+    assert [e["exposure_us"] for e in capture.exposures] == pytest.approx([e * 1000 for e in exposures])
+    stored = load_capture_images(capture)
+    assert isinstance(stored, ExposureStack)
+    for images, frames in zip(stored.images, acquired.stacks, strict=True):
+        assert np.array_equal(images, frames.images)  # bit for bit as grabbed

@@ -24,15 +24,43 @@ SMALL_RIG = {
 }
 
 
+def intensities(rig: Rig, z_mm: float | np.ndarray) -> np.ndarray:
+    """Noise-free (11, H, W) float64 intensities, 0..0.9, of a surface at ``z_mm`` (mm) for ``rig``."""
+    codes = exact_codes(rig, np.broadcast_to(np.asarray(z_mm, dtype=float), rig.shape))
+    return np.stack(
+        [
+            np.where(np.isnan(codes), 0.0, 0.1 + 0.8 * pattern_intensity(np.nan_to_num(codes), name))
+            for name in PATTERN_NAMES
+        ]
+    )
+
+
 def render_images(rig: Rig, z_mm: float | np.ndarray, *, bit_depth: int = 8) -> np.ndarray:
     """Noise-free (11, H, W) camera images of a surface at ``z_mm`` (mm) for ``rig``."""
-    codes = exact_codes(rig, np.broadcast_to(np.asarray(z_mm, dtype=float), rig.shape))
     full = 255 if bit_depth == 8 else 65535
-    images = []
-    for name in PATTERN_NAMES:
-        intensity = np.where(np.isnan(codes), 0.0, 0.1 + 0.8 * pattern_intensity(np.nan_to_num(codes), name))
-        images.append(np.round(intensity * full))
-    return np.stack(images).astype(np.uint8 if bit_depth == 8 else np.uint16)
+    return np.round(intensities(rig, z_mm) * full).astype(np.uint8 if bit_depth == 8 else np.uint16)
+
+
+HDR_EXPOSURES_US = {"short": 1000.0, "long": 10000.0}
+"""The two exposures of :func:`hdr_members`: the long one saturates the bright half."""
+
+
+def hdr_members(rig: Rig, z_mm: float | np.ndarray) -> dict[str, bytes]:
+    """The files of a 16-bit noise-free multi-exposure capture (docs/exposures.md) of heights ``z_mm``
+    on a part whose left half reflects 1 and right half 0.05, exposed 1 and 10 ms: the long
+    exposure saturates the left half (its white frame reaches 9 x 65535), the short one sees the
+    right half at a twentieth of the left's modulation. Keys: ``exposures.json``, ``short/GC_0.png``..."""
+    from metrology.core.io.exposures import Exposure, exposures_json
+
+    base = intensities(rig, z_mm)
+    reflectance = np.where(np.arange(rig.shape[1]) < rig.shape[1] // 2, 1.0, 0.05)
+    members = {"exposures.json": exposures_json([Exposure(name, us) for name, us in HDR_EXPOSURES_US.items()]).encode()}
+    for name, us in HDR_EXPOSURES_US.items():
+        images = np.clip(np.round(base * reflectance * (us / 1000.0) * 65535), 0, 65535).astype(np.uint16)
+        members.update(
+            {f"{name}/{pattern}.png": png(image) for pattern, image in zip(PATTERN_NAMES, images, strict=True)}
+        )
+    return members
 
 
 def png(image: np.ndarray) -> bytes:

@@ -72,7 +72,8 @@ def test_measure_multi_exposure_object_with_a_pinhole_rig(hdr_capture: tuple[Pat
     (tmp_path / "rig.json").write_text(RIG.to_json())
     xyz, stats = tmp_path / "xyz.npy", tmp_path / "stats.json"
     argv = ["measure", "--rig", str(tmp_path / "rig.json"), "--object", str(archive), "--out", str(tmp_path / "z.npy")]
-    assert run(*argv, "--xyz", str(xyz), "--json", str(stats)) == 0
+    mesh = tmp_path / "mesh.ply"
+    assert run(*argv, "--xyz", str(xyz), "--json", str(stats), "--mesh", str(mesh)) == 0
     points = np.load(xyz).astype(np.float64)
     ok = np.isfinite(points[..., 2]) & rendered.truth.lit
     assert ok.mean() > 0.9
@@ -80,6 +81,12 @@ def test_measure_multi_exposure_object_with_a_pinhole_rig(hdr_capture: tuple[Pat
     report = json.loads(stats.read_text())
     assert report["exposures"]["names"] == ["exp0", "exp1", "exp2"]
     assert report["decoding"]["exposures"]["pixels"]["u"]["exp2"] > 0
+    # the measured points per exposure: every measured point counted once, each exposure measures some
+    per_exposure = report["points_per_exposure"]
+    assert sum(per_exposure.values()) == report["valid_pixels"] == int(np.isfinite(points[..., 2]).sum())
+    assert min(per_exposure.values()) > 0
+    header = mesh.read_bytes().partition(b"end_header")[0]
+    assert b"property uchar exposure" in header  # the PLY carries each vertex's exposure
 
 
 @pytest.mark.parametrize("multi", ["object", "reference"])

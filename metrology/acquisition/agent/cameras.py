@@ -204,7 +204,17 @@ class VirtualCamera:
     frames are those of a direct simulation of the codec with ``options`` (same noise seed: the same
     images as ``gcps simulate`` at the nominal exposure); white and black frames come from
     :func:`metrology.core.simulate.render_flats` plus the same camera noise. Exposure scales all
-    light linearly: ``ambient`` and ``projector_gain`` times ``exposure / nominal_exposure_ms``.
+    light linearly: ``ambient`` and ``projector_gain`` times ``exposure / nominal_exposure_ms``,
+    then the frames are rounded and clipped to the bit depth (an 8-bit camera saturates at 255).
+
+    ``object_scene`` may hold ``"hdr"``: ``true`` or an object of
+    :class:`~metrology.core.simulate.exposures.HdrReflectance` fields, which replaces every
+    scene's reflectance with a high-dynamic-range map (by default a specular patch of 1 on a dark
+    matte part from 0.001 to 0.03, 1000:1, spanning the lit field) rendered through
+    :func:`~metrology.core.simulate.exposures.render_exposures` (docs/exposures.md). Each exposure
+    time then has its own camera noise (the seed follows the exposure). ``"distance_mm"`` places
+    the scene facing the camera at that distance (default the model's own placement,
+    :func:`~metrology.core.simulate.render.default_placement`).
     """
 
     def __init__(
@@ -216,12 +226,23 @@ class VirtualCamera:
         from metrology.core.simulate import SimulationOptions
 
         self.object_scene = dict(object_scene or {"name": "sphere"})
+        hdr = self.object_scene.pop("hdr", None)
+        if hdr is not None and not isinstance(hdr, (bool, dict)):
+            raise ValueError(f'scene "hdr" must be true or an object of reflectance fields, got {hdr!r}')
+        self.hdr: dict[str, float] | None = None if not hdr else ({} if hdr is True else dict(hdr))
+        distance = self.object_scene.pop("distance_mm", None)
+        self.placement: Any = None
+        if distance is not None:
+            from metrology.core.simulate import ScenePlacement
+
+            self.placement = ScenePlacement.facing_camera(float(distance))
         self.base_options = SimulationOptions(**(options or {}))
         self.nominal_exposure_ms = nominal_exposure_ms
         self.exposure_ms = nominal_exposure_ms
         self.name = "virtual"
         self.target: AcquisitionTarget | None = None
         self._cache: dict[str, Any] = {}
+        self._reflectance: Any = None
 
     def open(self) -> None:
         return None
@@ -235,6 +256,7 @@ class VirtualCamera:
         except ValueError as exc:
             raise CameraError(f"the virtual camera cannot render this rig: {exc}") from None
         self._cache = {}
+        self._reflectance = None
 
     def set_exposure(self, exposure_ms: float) -> None:
         if not exposure_ms > 0:
@@ -284,18 +306,66 @@ class VirtualCamera:
             return opts
         return opts.with_changes(ambient=opts.ambient * scale, projector_gain=opts.projector_gain * scale)
 
-    def _render(self) -> dict[str, Any]:
-        if self._cache:
-            return self._cache
+    def _hdr_options(self):
+        """This exposure's options; with an HDR map, its own noise seed (one per exposure time)."""
+        opts = self._options()
+        if self.hdr is None:
+            return opts
+        return opts.with_changes(seed=(opts.seed * 1_000_003 + round(self.exposure_ms * 1000)) % 2**31)
+
+    def _projector_size(self, codec) -> tuple[int, int]:
+        from metrology.core.codecs.model import gcps_v1_codec
+
+        size = codec or gcps_v1_codec()
+        return size.projector_width, size.projector_height
+
+    def _hdr_reflectance(self, rig, scene, codec):
+        from metrology.core.simulate.exposures import scene_reflectance
+
+        if self._reflectance is None:
+            changes = self.hdr or {}
+            size = self._projector_size(codec)
+            self._reflectance = scene_reflectance(rig, scene, size, placement=self.placement, **changes)
+        return self._reflectance
+
+    def _frames(self, rig, scene, codec, opts) -> np.ndarray:
+        """The codec's frames at this exposure (the HDR map's single-exposure render, else the plain one)."""
+        from metrology.core.simulate import render_capture
+
+        if self.hdr is None:
+            return render_capture(rig, scene, codec, opts, placement=self.placement).images
+        from metrology.core.io.exposures import Exposure
+        from metrology.core.simulate.exposures import render_exposures
+
+        rho = self._hdr_reflectance(rig, scene, codec)
+        rendered = render_exposures(
+            rig, scene, [Exposure("grab", 1000.0)], codec, opts, reflectance=rho, placement=self.placement
+        )
+        return rendered.stack.images[0]
+
+    def _render(self, part: str) -> Any:
+        """``"flats"`` (white and black frames) or ``"stack"`` (the codec's frames and their
+        noise-free ``"clean"`` twins), rendered once per exposure."""
+        if part in self._cache:
+            return self._cache[part]
         if self.target is None:
             raise CameraError("the virtual camera was not prepared for an acquisition")
-        from metrology.core.simulate import render_capture, render_flats
+        from metrology.core.simulate import render_flats
 
-        rig, scene, opts, codec = self._rig(), self._scene(), self._options(), self._codec()
+        rig, scene, opts, codec = self._rig(), self._scene(), self._hdr_options(), self._codec()
         try:
-            images = render_capture(rig, scene, codec, opts).images
-            clean = render_capture(rig, scene, codec, opts.with_changes(noise_grey=0.0)).images
-            white, black = render_flats(rig, scene, opts)
+            if part == "flats":
+                if self.hdr is None:
+                    white, black = render_flats(rig, scene, opts, placement=self.placement)
+                else:  # on the path of render_exposures, bounded by the codec's projector
+                    rho, size = self._hdr_reflectance(rig, scene, codec), self._projector_size(codec)
+                    white, black = render_flats(
+                        rig, scene, opts, placement=self.placement, reflectance=rho, projector_size=size
+                    )
+            else:
+                self._cache["stack"] = self._frames(rig, scene, codec, opts)
+                self._cache["clean"] = self._frames(rig, scene, codec, opts.with_changes(noise_grey=0.0))
+                return self._cache[part]
         except ValueError as exc:
             raise CameraError(f"the virtual camera cannot render this acquisition: {exc}") from None
         rng = np.random.default_rng([opts.seed, 4242])
@@ -303,20 +373,20 @@ class VirtualCamera:
         for key, grey in (("white", white), ("black", black)):
             noisy = grey + opts.noise_grey * rng.standard_normal(grey.shape) if opts.noise_grey > 0 else grey
             flats[key] = np.clip(np.rint(noisy), 0, opts.full_scale).astype(opts.dtype)
-        self._cache = {"stack": images, "clean": clean, "flats": flats, "full": opts.full_scale}
-        return self._cache
+        self._cache["flats"] = flats
+        return flats
 
     def grab(self, shown: Shown) -> np.ndarray:
-        rendered = self._render()
         if shown.kind == "frame":
-            return rendered["stack"][shown.frame].copy()
-        if shown.kind == "white":
-            return rendered["flats"]["white"].copy()
-        return rendered["flats"]["black"].copy()
+            return self._render("stack")[shown.frame].copy()
+        flats = self._render("flats")
+        return (flats["white"] if shown.kind == "white" else flats["black"]).copy()
 
     def expected(self, shown: Shown) -> np.ndarray | None:
-        rendered = self._render()
-        return rendered["clean"][shown.frame] if shown.kind == "frame" else None
+        if shown.kind != "frame":
+            return None
+        self._render("stack")
+        return self._cache["clean"][shown.frame]
 
     def close(self) -> None:
         self._cache = {}

@@ -18,10 +18,13 @@ pattern ``P_k`` (uint8 projector image) after ``I_{k-1}`` under ``P_{k-1}``:
   camera returned the previous pattern's frame: latency);
 - **correlation** (when the camera knows the expected image, e.g. the virtual rig): Pearson's
   correlation of ``I_k`` with the expected image over lit pixels, refused below
-  ``min_correlation``.
+  ``min_correlation``; tested only where the expected image's spread over the lit pixels reaches
+  ``min_contrast`` of their median contrast ``C`` (else there is no pattern to recognise).
 
 The white frame itself is refused when fewer than ``min_lit_fraction`` of the pixels are lit
-(the camera saw no projector light: it returned the black frame, or the projector is off).
+(the camera saw no projector light: it returned the black frame, or the projector is off), or
+when more than ``max_white_saturated`` of them are at full scale (over-exposed; a bracket's longer
+exposures saturate the bright part on purpose and allow it: docs/exposures.md).
 """
 
 from __future__ import annotations
@@ -41,6 +44,7 @@ class CheckOptions:
     min_lit_fraction: float = 0.02
     dark_level: float = 0.02
     max_extra_saturated: float = 0.01
+    max_white_saturated: float = 0.01
     max_out_of_range: float = 0.05
     change_level: float = 0.25
     min_change_ratio: float = 0.4
@@ -147,7 +151,7 @@ class FrameChecker:
                 f"white frame shows no projector light: {100 * check.lit_fraction:.1f} % of the pixels brighter "
                 f"than the black frame by {100 * self.options.min_contrast:.0f} % of full scale"
             )
-        elif check.saturated_fraction > self.options.max_extra_saturated:
+        elif check.saturated_fraction > self.options.max_white_saturated:
             check.refuse(
                 f"white frame saturated: {100 * check.saturated_fraction:.2f} % of the pixels at full scale "
                 "(lower the exposure)"
@@ -167,6 +171,16 @@ class FrameChecker:
             self.white, self.black, self.lit, self.contrast = white, black, lit, np.maximum(contrast, 1.0)
             self.white_saturated = check.saturated_fraction
         return check
+
+    def expected_change(self, previous: np.ndarray, current: np.ndarray) -> float:
+        """Fraction of the lit pixels whose expected images (noise-free, e.g. the virtual rig's)
+        differ by more than ``change_level`` times their contrast: the change to expect where the
+        camera knows what it should see (where only part of the field is lit, as in the short
+        exposure of a bracket, the projector's change overall says little about the lit part)."""
+        if self.lit is None or self.contrast is None:
+            raise ValueError("check the white and black frames first")
+        diff = np.abs(current.astype(np.float32)[self.lit] - previous.astype(np.float32)[self.lit])
+        return float(np.mean(diff > self.options.change_level * self.contrast[self.lit]))
 
     def check_frame(
         self,
@@ -214,7 +228,11 @@ class FrameChecker:
         if expected_image is not None:
             expected = expected_image.astype(np.float64)[lit]
             got = values.astype(np.float64)
-            if expected.std() > 0 and got.std() > 0:
+            # only a pattern that varies across the lit pixels (more than the contrast test's
+            # level of their median contrast) can be recognised: a frame whose lit pixels all lie in
+            # one gray cell (a small bright patch at a short exposure) correlates with noise only
+            varies = expected.std() >= opts.min_contrast * float(np.median(contrast))
+            if varies and got.std() > 0:
                 check.correlation = float(np.corrcoef(expected, got)[0, 1])
                 if check.correlation < opts.min_correlation:
                     check.refuse(

@@ -11,16 +11,22 @@ import socket
 import threading
 import time
 import zipfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import cv2
 import numpy as np
 import requests
 
+from metrology.acquisition.agent.bracketing import BracketOptions
 from metrology.acquisition.agent.cameras import AcquisitionTarget, Camera, CameraError, Shown
 from metrology.acquisition.agent.patterns import ProjectedCodec, resolve_codec
-from metrology.acquisition.agent.sequencer import AcquisitionError, SequenceOptions, run_sequence
+from metrology.acquisition.agent.sequencer import (
+    AcquisitionError,
+    SequenceOptions,
+    run_bracketed_sequence,
+    run_sequence,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -138,13 +144,27 @@ class ServerProjector:
 
 def stack_zip(images: np.ndarray, codec: ProjectedCodec) -> bytes:
     """The frames as a zip of PNGs named as the codec says (gcps-v1: GC_0.png ... PS_3.png)."""
+    return exposures_zip([images], None, codec)
+
+
+def exposures_zip(stacks: list[np.ndarray], exposures_ms: list[float] | None, codec: ProjectedCodec) -> bytes:
+    """One stack's frames as a zip of PNGs named as the codec says (``exposures_ms`` None), or a
+    multi-exposure capture (docs/exposures.md): ``exposures.json`` and the frames of exposure ``i``
+    in ``exp<i>/``; ``codec.json`` at the top for a codec other than gcps-v1."""
+    from metrology.core.io.exposures import Exposure, exposures_json
+
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
-        for name, image in zip(codec.frame_names, images, strict=True):
-            ok, data = cv2.imencode(".png", image)
-            if not ok:
-                raise AcquisitionError(f"cannot encode frame {name} as PNG")
-            archive.writestr(f"{name}.png" if "." not in name else name, data.tobytes())
+        if exposures_ms is not None:
+            entries = [Exposure(f"exp{i}", float(e) * 1000.0) for i, e in enumerate(exposures_ms)]
+            archive.writestr("exposures.json", exposures_json(entries))
+        for index, images in enumerate(stacks):
+            folder = "" if exposures_ms is None else f"exp{index}/"
+            for name, image in zip(codec.frame_names, images, strict=True):
+                ok, data = cv2.imencode(".png", image)
+                if not ok:
+                    raise AcquisitionError(f"cannot encode frame {name} as PNG")
+                archive.writestr(folder + (f"{name}.png" if "." not in name else name), data.tobytes())
         if not codec.is_gcps_v1:
             archive.writestr("codec.json", codec.spec)
     return buffer.getvalue()
@@ -156,6 +176,10 @@ class AgentOptions:
     poll_s: float = 1.0
     max_acquisitions: int = 0  # 0: run until stopped
     confirm_timeout_s: float = 30.0
+    exposures: str | tuple[float, ...] | None = None
+    """None: one stack per acquisition; ``"auto"``: an automatic bracket; a tuple: those exposures, ms
+    (multi-exposure captures, docs/exposures.md)."""
+    bracket: BracketOptions = field(default_factory=BracketOptions)
 
 
 class _Heartbeat(threading.Thread):
@@ -238,19 +262,33 @@ def _run_one(client: AgentClient, camera: Camera, acquisition: dict[str, Any], o
             )
         )
         projector = ServerProjector(client, acq_id, options.confirm_timeout_s)
-        result = run_sequence(
-            projector,
-            camera,
-            codec,
-            exposure_ms=acquisition.get("exposure_ms"),
-            options=options.sequence,
-            progress=progress,
-        )
-        reports = result.frame_reports()
+        if options.exposures is not None:  # a multi-exposure capture
+            bracketed = run_bracketed_sequence(
+                projector,
+                camera,
+                codec,
+                exposures_ms=None if isinstance(options.exposures, str) else options.exposures,
+                bracket_options=options.bracket,
+                options=options.sequence,
+                progress=progress,
+            )
+            reports = [report for stack in bracketed.stacks for report in stack.frame_reports()]
+            exposures = list(bracketed.exposures_ms)
+            data = exposures_zip([stack.images for stack in bracketed.stacks], exposures, codec)
+            exposure_ms: float | None = exposures[0]
+        else:
+            result = run_sequence(
+                projector,
+                camera,
+                codec,
+                exposure_ms=acquisition.get("exposure_ms"),
+                options=options.sequence,
+                progress=progress,
+            )
+            reports = result.frame_reports()
+            data, exposure_ms = stack_zip(result.images, codec), result.exposure_ms
         client.progress(acq_id, 97, "uploading", reports)
-        body = client.upload(
-            acq_id, stack_zip(result.images, codec), camera=camera.name, exposure_ms=result.exposure_ms, frames=reports
-        )
+        body = client.upload(acq_id, data, camera=camera.name, exposure_ms=exposure_ms, frames=reports)
         return {"acquisition": acq_id, "status": "done", "capture": body.get("capture")}
     except (AcquisitionError, CameraError, ValueError) as exc:
         reason = str(exc)

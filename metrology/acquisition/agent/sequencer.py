@@ -10,14 +10,21 @@ fails its checks (:mod:`.checks`) is grabbed again after another settle time, up
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
 
+from metrology.acquisition.agent.bracketing import Bracket, BracketOptions, bracket_exposures
 from metrology.acquisition.agent.cameras import Camera, Shown
-from metrology.acquisition.agent.checks import FrameCheck, FrameChecker, auto_exposure, projector_change
+from metrology.acquisition.agent.checks import (
+    CheckOptions,
+    FrameCheck,
+    FrameChecker,
+    auto_exposure,
+    projector_change,
+)
 from metrology.acquisition.agent.patterns import ProjectedCodec
 
 
@@ -97,11 +104,7 @@ def run_sequence(
             progress(int(5 + 90 * done / total), phase[:64], [c.to_dict() for c in checks])
 
     def grab(kind: str, frame: int = -1) -> tuple[Shown, np.ndarray]:
-        shown = projector.show(kind, frame)
-        if shown.kind != kind or (kind == "frame" and shown.frame != frame):
-            raise AcquisitionError(f"the projector reports showing {shown.kind} {shown.frame}, not {kind} {frame}")
-        time.sleep(opts.settle_s)
-        return shown, camera.grab(shown)
+        return _grab(projector, camera, opts, kind, frame)
 
     steps: list[dict[str, float]] = []
     if exposure_ms is None:
@@ -135,17 +138,21 @@ def run_sequence(
 
     images: list[np.ndarray] = []
     previous_image, previous_pattern = white, np.full_like(projected[0], 255)
+    previous_expected: np.ndarray = white  # the first frame follows the white one
     for frame, name in enumerate(codec.frame_names):
         expected_change = projector_change(previous_pattern, projected[frame], checker.options.change_level)
         for attempt in range(1, opts.max_grabs + 1):
             shown, image = grab("frame", frame)
+            expected_image = camera.expected(shown)
+            if expected_image is not None:  # the lit pixels' own change
+                expected_change = checker.expected_change(previous_expected, expected_image)
             check = checker.check_frame(
                 image,
                 name=name,
                 frame=frame,
                 previous_image=previous_image,
                 expected_change=expected_change,
-                expected_image=camera.expected(shown),
+                expected_image=expected_image,
                 grab=attempt,
             )
             checks.append(check)
@@ -158,11 +165,88 @@ def run_sequence(
             )
         images.append(image)
         previous_image, previous_pattern = image, projected[frame]
+        previous_expected = expected_image if expected_image is not None else image
         report(frame + 3, f"grabbed {name}")
     projector.show("black")
     return AcquiredFrames(
         images=np.stack(images), white=white, black=black, exposure_ms=exposure_ms, checks=checks, exposure_steps=steps
     )
+
+
+def _grab(
+    projector: Projector, camera: Camera, opts: SequenceOptions, kind: str, frame: int = -1
+) -> tuple[Shown, np.ndarray]:
+    """Show a pattern, check that the projector reports it, wait the settle time, grab."""
+    shown = projector.show(kind, frame)
+    if shown.kind != kind or (kind == "frame" and shown.frame != frame):
+        raise AcquisitionError(f"the projector reports showing {shown.kind} {shown.frame}, not {kind} {frame}")
+    time.sleep(opts.settle_s)
+    return shown, camera.grab(shown)
+
+
+@dataclass
+class BracketedFrames:
+    """A multi-exposure acquisition (docs/exposures.md): one :class:`AcquiredFrames` per exposure,
+    shortest first, and the automatic bracket they were chosen by (None for a given list)."""
+
+    stacks: list[AcquiredFrames]
+    bracket: Bracket | None = None
+
+    @property
+    def exposures_ms(self) -> tuple[float, ...]:
+        return tuple(float(s.exposure_ms or 0.0) for s in self.stacks)
+
+
+def run_bracketed_sequence(
+    projector: Projector,
+    camera: Camera,
+    codec: ProjectedCodec,
+    *,
+    exposures_ms: Sequence[float] | None,
+    bracket_options: BracketOptions | None = None,
+    options: SequenceOptions | None = None,
+    progress: Progress | None = None,
+    start_exposure_ms: float = 10.0,
+) -> BracketedFrames:
+    """Acquire one stack of ``codec`` per exposure (:func:`run_sequence` each), shortest first.
+
+    ``exposures_ms`` None: the automatic bracket (:func:`~.bracketing.bracket_exposures`) from
+    white and black frames grabbed at probe exposures from ``start_exposure_ms``. The longer
+    exposures saturate the bright part on purpose: their white frame may saturate
+    (``max_white_saturated`` 1), the shortest's may not.
+    """
+    opts = options or SequenceOptions()
+    bracket = None
+    if exposures_ms is None:
+
+        def grab_flats(e: float) -> tuple[np.ndarray, np.ndarray]:
+            camera.set_exposure(e)
+            return _grab(projector, camera, opts, "white")[1], _grab(projector, camera, opts, "black")[1]
+
+        try:
+            bracket = bracket_exposures(grab_flats, start_exposure_ms, bracket_options)
+        except ValueError as exc:
+            raise AcquisitionError(str(exc)) from None
+        exposures_ms = bracket.exposures_ms
+    ordered = sorted(float(e) for e in exposures_ms)
+    if not ordered or any(not (0 < e < float("inf")) for e in ordered):
+        raise AcquisitionError(f"exposures must be positive numbers of ms, got {list(exposures_ms)}")
+    stacks: list[AcquiredFrames] = []
+    for index, exposure in enumerate(ordered):
+
+        def step(percent: int, phase: str, checks: list[dict[str, Any]], index: int = index) -> None:
+            if progress is not None:
+                progress(
+                    int((index * 100 + percent) / len(ordered)),
+                    f"exposure {index + 1}/{len(ordered)}: {phase}"[:64],
+                    checks,
+                )
+
+        checker = FrameChecker(CheckOptions(max_white_saturated=1.0)) if index else FrameChecker()
+        stacks.append(
+            run_sequence(projector, camera, codec, exposure_ms=exposure, options=opts, checker=checker, progress=step)
+        )
+    return BracketedFrames(stacks, bracket)
 
 
 class InstantProjector:

@@ -87,6 +87,25 @@ class HdrReflectance:
         return cls(**params)
 
 
+def scene_reflectance(
+    model: GeometryModel,
+    scene: Scene,
+    projector_size: tuple[int, int],
+    *,
+    placement: ScenePlacement | None = None,
+    **changes: float,
+) -> HdrReflectance:
+    """The default map of :func:`render_exposures` (:meth:`HdrReflectance.spanning` the lit field
+    of pixel centres, with ``changes``) for ``scene`` seen through ``model`` by a projector of
+    ``projector_size`` (width, height): a fixed map, so that the frames of every exposure of a
+    camera (the agent's virtual camera) see one part."""
+    where = placement if placement is not None else default_placement(model)
+    truth = cast_truth(model.prepare(model.shape, projector_size), scene, where)
+    X, Y, _ = where.scene_coordinates(truth.points_mm)
+    hit = np.isfinite(X) & np.isfinite(Y)
+    return HdrReflectance.spanning(X[hit], Y[hit], **changes)
+
+
 @dataclass(frozen=True, eq=False)
 class RenderedExposures:
     """A rendered multi-exposure capture and its truth.

@@ -151,10 +151,17 @@ def render_flats(
     options: SimulationOptions | None = None,
     *,
     placement: ScenePlacement | None = None,
+    reflectance: Callable[[FloatArray, FloatArray], FloatArray] | None = None,
+    projector_size: tuple[int, int] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """The noise-free camera images of ``scene`` under a white and under a black projector frame,
     through any model (the paper's light path where :func:`uses_paper_renderer` takes a gcps-v1
-    stack: :func:`~metrology.core.simulate.paper_rig.render_flat_frames`).
+    stack: :func:`~metrology.core.simulate.paper_rig.render_flat_frames`, unless ``reflectance``
+    or ``projector_size`` is given). ``reflectance``: a map ``rho(X, Y)`` over the scene
+    coordinates replacing the scene's own albedo, e.g.
+    :class:`~metrology.core.simulate.exposures.HdrReflectance`; ``projector_size``: the projector's
+    (width, height) in its units, which bounds the lit field as the codec's frames do
+    (:func:`~metrology.core.simulate.exposures.render_exposures` renders them on this path).
 
     Elsewhere the scene is cast as :func:`render_capture` casts it (``options.supersample`` rays
     per pixel and axis): ``I = full_scale * albedo * (ambient + gain * lit * e)`` with ``e = 1``
@@ -168,14 +175,15 @@ def render_flats(
     """
 
     opts = options if options is not None else SimulationOptions()
-    if uses_paper_renderer(model, None, opts, placement):
+    if reflectance is None and projector_size is None and uses_paper_renderer(model, None, opts, placement):
         return render_flat_frames(model, scene, opts)  # type: ignore[arg-type]
     where = placement if placement is not None else default_placement(model)
     s = opts.supersample
-    rays = cast_truth(model.prepare(model.shape), scene, where, supersample=s)
+    rays = cast_truth(model.prepare(model.shape, projector_size), scene, where, supersample=s)
     X, Y, _ = where.scene_coordinates(rays.points_mm)
     hit = np.isfinite(X) & np.isfinite(Y)
-    albedo = np.where(hit, scene.albedo(np.where(hit, X, 0.0), np.where(hit, Y, 0.0)), 1.0)
+    rho = reflectance if reflectance is not None else scene.albedo
+    albedo = np.where(hit, rho(np.where(hit, X, 0.0), np.where(hit, Y, 0.0)), 1.0)
     lit = np.isfinite(rays.u) | np.isfinite(rays.v)  # a model without a projector size gives no v
     height, width = model.shape
     frames = []
