@@ -1,0 +1,1 @@
+"""Inspection of measured points against a nominal model."""
