@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -443,19 +443,30 @@ class GridMesh:
     sigma_mm : (V,) float32 array or None
         Each vertex's standard uncertainty, mm (NaN where unknown): PLY files carry it as the
         vertex property ``sigma_mm``.
+    deviation_mm : (V,) float32 array or None
+        Each vertex's signed deviation from a nominal model, mm (positive outside the material,
+        NaN where unknown): PLY files carry it as the vertex property ``deviation_mm``.
     """
 
     vertices: np.ndarray
     triangles: np.ndarray
     sigma_mm: np.ndarray | None = None
+    deviation_mm: np.ndarray | None = None
+
+    def _vertex_values(self, name: str, values: npt.ArrayLike, valid: npt.ArrayLike) -> np.ndarray:
+        picked = np.asarray(values, dtype=np.float32)[np.asarray(valid, dtype=bool)]
+        if picked.shape != (len(self.vertices),):
+            raise ValueError(f"{name} gives {picked.size} values for {len(self.vertices)} vertices")
+        return picked
 
     def with_sigma(self, sigma_mm: npt.ArrayLike, valid: npt.ArrayLike) -> GridMesh:
         """The mesh with the per-vertex sigma of a ``(H, W)`` sigma map at the ``valid`` pixels
         (the vertices' pixels, row-major)."""
-        sigma = np.asarray(sigma_mm, dtype=np.float32)[np.asarray(valid, dtype=bool)]
-        if sigma.shape != (len(self.vertices),):
-            raise ValueError(f"sigma_mm gives {sigma.size} values for {len(self.vertices)} vertices")
-        return GridMesh(vertices=self.vertices, triangles=self.triangles, sigma_mm=sigma)
+        return replace(self, sigma_mm=self._vertex_values("sigma_mm", sigma_mm, valid))
+
+    def with_deviation(self, deviation_mm: npt.ArrayLike, valid: npt.ArrayLike) -> GridMesh:
+        """The mesh with the per-vertex deviation of a ``(H, W)`` deviation map at the ``valid`` pixels."""
+        return replace(self, deviation_mm=self._vertex_values("deviation_mm", deviation_mm, valid))
 
     def _cross(self, triangles: np.ndarray | None = None) -> np.ndarray:
         """(T, 3) float64 ``(b - a) x (c - a)`` of the triangles ``(a, b, c)``: twice the area times the unit normal."""
@@ -519,32 +530,33 @@ def _row_blocks(n: int, rows: int) -> Iterator[slice]:
         yield slice(start, min(start + rows, n))
 
 
-_PLY_VERTEX = np.dtype([("p", "<f8", (3,)), ("n", "<f8", (3,))])
-_PLY_VERTEX_SIGMA = np.dtype([("p", "<f8", (3,)), ("n", "<f8", (3,)), ("sigma_mm", "<f4")])
-
-
 def ply_chunks(mesh: GridMesh, *, chunk_rows: int = STREAM_CHUNK_ROWS) -> Iterator[bytes]:
     """Binary little-endian PLY of ``mesh``, as open3d writes it: float64 ``x y z nx ny nz`` per
-    vertex (plus a float32 ``sigma_mm`` when the mesh has one), ``uchar`` count + ``uint`` indices
-    per face. The header comes first, before the vertex normals are computed."""
+    vertex (plus a float32 ``sigma_mm`` and a float32 ``deviation_mm`` when the mesh has them, in
+    that order), ``uchar`` count + ``uint`` indices per face. The header comes first, before the
+    vertex normals are computed."""
     n_vertices, n_triangles = len(mesh.vertices), len(mesh.triangles)
-    sigma = mesh.sigma_mm
+    extra = {
+        name: values
+        for name, values in (("sigma_mm", mesh.sigma_mm), ("deviation_mm", mesh.deviation_mm))
+        if values is not None
+    }
     yield (
         "ply\nformat binary_little_endian 1.0\ncomment Created by GCPS Lab (mm)\n"
         f"element vertex {n_vertices}\n"
         "property double x\nproperty double y\nproperty double z\n"
         "property double nx\nproperty double ny\nproperty double nz\n"
-        + ("property float sigma_mm\n" if sigma is not None else "")
+        + "".join(f"property float {name}\n" for name in extra)
         + f"element face {n_triangles}\nproperty list uchar uint vertex_indices\nend_header\n"
     ).encode("ascii")
     normals = mesh.vertex_normals()
-    layout = _PLY_VERTEX if sigma is None else _PLY_VERTEX_SIGMA
+    layout = np.dtype([("p", "<f8", (3,)), ("n", "<f8", (3,)), *((name, "<f4") for name in extra)])
     for rows in _row_blocks(n_vertices, chunk_rows):
         block = np.empty(rows.stop - rows.start, dtype=layout)
         block["p"] = mesh.vertices[rows]
         block["n"] = normals[rows]
-        if sigma is not None:
-            block["sigma_mm"] = sigma[rows]
+        for name, values in extra.items():
+            block[name] = values[rows]
         yield block.tobytes()
     for rows in _row_blocks(n_triangles, chunk_rows):
         faces = np.empty(rows.stop - rows.start, dtype=_PLY_FACE)
