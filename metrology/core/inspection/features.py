@@ -24,8 +24,9 @@ square root of its diagonal.
 or radius included): the narrowest pair of parallel planes, concentric spheres, coaxial
 cylinders or concentric circles holding every point. Solved by sequential linear programming
 from the least-squares shape: each step minimises ``t`` subject to
-``-t <= r_i + J_i delta <= t`` within a trust region (scipy ``linprog``, HiGHS), keeping only
-the points that can touch the zone in the region; the step is accepted when ``max |r|`` falls.
+``-t <= r_i + J_i delta <= t`` within a trust region (scipy ``linprog``, HiGHS), solved by exchange
+(the programme of the points of largest ``|r|``, then with the points it violates added, until
+none is); the step is accepted when ``max |r|`` falls.
 The reported width (flatness, sphericity, cylindricity, roundness) is ``max r - min r`` of the
 final shape: a zone that holds every point, never narrower than the true minimum. Its standard
 uncertainty is first order: ``sqrt(sigma_a^2 + sigma_b^2)`` at the two points that touch the
@@ -414,10 +415,8 @@ def _covariance(
 def _minimum_zone(shape: _Shape, points: FloatArray) -> tuple[_Shape, FloatArray, int, bool]:
     """Minimise ``max |r_i|`` by sequential linear programming (module docstring).
 
-    Returns the zone's shape, its residuals, the number of linear programmes and whether it converged.
+    Returns the zone's shape, its residuals, the number of steps and whether it converged.
     """
-    from scipy.optimize import linprog
-
     p = len(shape.names)
     extent = float(np.max(np.linalg.norm(points - points.mean(axis=0), axis=1))) or 1.0
     scales = shape.scales(extent)
@@ -425,23 +424,17 @@ def _minimum_zone(shape: _Shape, points: FloatArray) -> tuple[_Shape, FloatArray
     worst = float(np.max(np.abs(r)))
     radius = max(float(np.ptp(r)), 1e-9 * extent)  # trust region, mm of point motion
     floor = 1e-13 * extent
-    cost = np.zeros(p + 1)
-    cost[p] = 1.0
     for iteration in range(1, MAX_ZONE_ITERATIONS + 1):
         bound = radius * scales
         reach = np.abs(jac) @ bound  # the most a point's residual can change in the region
         keep = np.abs(r) + reach >= np.max(np.abs(r) - reach)
-        rk, jk = r[keep], jac[keep]
-        a_ub = np.block([[jk, -np.ones((len(rk), 1))], [-jk, -np.ones((len(rk), 1))]])
-        b_ub = np.concatenate([-rk, rk])
-        bounds = [(-b, b) for b in bound] + [(0.0, None)]
-        lp = linprog(cost, A_ub=a_ub, b_ub=b_ub, bounds=bounds, method="highs")
-        if lp.status != 0:
+        lp = _chebyshev_step(r[keep], jac[keep], bound)
+        if lp is None:
             radius *= 0.5
             if radius < floor:
                 return shape, r, iteration, False
             continue
-        step, predicted = lp.x[:p], float(lp.x[p])
+        step, predicted = lp
         gain = worst - predicted
         if gain <= 1e-12 * max(worst, floor) + floor:
             return shape, r, iteration, True
@@ -458,6 +451,46 @@ def _minimum_zone(shape: _Shape, points: FloatArray) -> tuple[_Shape, FloatArray
             if radius < floor:
                 return shape, r, iteration, True
     return shape, r, MAX_ZONE_ITERATIONS, False
+
+
+EXCHANGE_POINTS = 64
+"""Points per parameter of each linear programme of the exchange (:func:`_chebyshev_step`)."""
+EXCHANGE_TOLERANCE = 1e-10
+"""A point outside the subset violates a step's zone when it exceeds ``t`` by this fraction of the
+largest residual (HiGHS keeps its own constraints to about 1e-9 relative)."""
+
+
+def _chebyshev_step(r: FloatArray, jac: FloatArray, bound: FloatArray) -> tuple[FloatArray, float] | None:
+    """``(delta, t)`` minimising ``t`` subject to ``|r_i + J_i delta| <= t`` for every ``i`` and
+    ``|delta_j| <= bound_j`` (None when the solver fails).
+
+    Solved by exchange: the linear programme of the points of largest ``|r|`` first, then again
+    with the points it violates added, until none is violated (the optimum of a subset that every
+    point satisfies is the optimum of all).
+    """
+    from scipy.optimize import linprog
+
+    p = jac.shape[1]
+    cost = np.zeros(p + 1)
+    cost[p] = 1.0
+    bounds = [(-b, b) for b in bound] + [(0.0, None)]
+    batch = EXCHANGE_POINTS * p
+    subset = np.argsort(-np.abs(r))[:batch]
+    while True:
+        rk, jk = r[subset], jac[subset]
+        ones = np.ones((len(subset), 1))
+        a_ub = np.block([[jk, -ones], [-jk, -ones]])
+        lp = linprog(cost, A_ub=a_ub, b_ub=np.concatenate([-rk, rk]), bounds=bounds, method="highs")
+        if lp.status != 0:
+            return None
+        step, t = lp.x[:p], float(lp.x[p])
+        excess = np.abs(r + jac @ step) - t
+        excess[subset] = 0.0  # the solver's own tolerance decides those
+        violated = np.flatnonzero(excess > EXCHANGE_TOLERANCE * max(t, float(np.abs(r).max()), 1e-300))
+        if not violated.size:
+            return step, t
+        worst = violated[np.argsort(-excess[violated])[:batch]]
+        subset = np.union1d(subset, worst)
 
 
 def _zone_uncertainty(r: FloatArray, sigma: FloatArray, sigma_given: bool, rms: float) -> float:
@@ -489,6 +522,10 @@ def _principal_axes(points: FloatArray, weights: FloatArray) -> FloatArray:
     centroid = np.average(points, axis=0, weights=weights)
     _, _, vt = np.linalg.svd((points - centroid) * weights[:, None], full_matrices=False)
     return vt
+
+
+START_POINTS = 2000
+"""A cylinder's candidate starts are compared on an even subsample of at most about this many points."""
 
 
 def _cylinder_starts(points: FloatArray, weights: FloatArray, axis_hint: FloatArray | None) -> list[_Cylinder]:
@@ -625,12 +662,18 @@ def fit_cylinder(
     hint = None if axis_hint is None else np.asarray(axis_hint, dtype=np.float64).reshape(3)
     best: _Cylinder | None = None
     best_cost = math.inf
+    # each start fitted on an even subsample of at most START_POINTS points; the best one on all
+    sample = np.arange(0, len(points), max(1, len(points) // START_POINTS))
     for start in _cylinder_starts(points, weights, hint):
-        fitted = _least_squares(start, points, sigma)
+        fitted = _least_squares(start, points[sample], sigma[sample])
         assert isinstance(fitted, _Cylinder)
-        cost = float(np.sum((fitted.residuals(np.zeros(5), points)[0] * weights) ** 2))
+        cost = float(np.sum((fitted.residuals(np.zeros(5), points[sample])[0] * weights[sample]) ** 2))
         if math.isfinite(cost) and cost < best_cost:
             best, best_cost = fitted, cost
+    if best is not None and len(sample) < len(points):
+        polished = _least_squares(best, points, sigma)
+        assert isinstance(polished, _Cylinder)
+        best = polished
     if best is None:
         raise ValueError("no cylinder fits these points")
     return _result("cylinder", best.centred(points, weights**2), points, sigma, sigma_mm is not None, minimum_zone)
