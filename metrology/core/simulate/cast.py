@@ -19,6 +19,10 @@ serves every model:
 3. **Projector coordinates** ``(u, v)`` of each lit hit; NaN where the point is shadowed, behind
    the projector or outside its image ``[-0.5, size - 0.5]``.
 
+A triangle mesh (:class:`~metrology.core.scenes.MeshScene`, a nominal part at a pose) is not a
+height field: :func:`cast_truth` hands it to :func:`cast_mesh_truth`, which finds the hits and the
+shadows with Open3D's ray caster and recomputes each hit in float64 on its triangle.
+
 The result, :class:`CastTruth`, feeds a codec renderer (:func:`~metrology.core.codecs.render.render_codec`).
 """
 
