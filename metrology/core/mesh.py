@@ -18,7 +18,7 @@ import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -447,12 +447,16 @@ class GridMesh:
     exposure : (V,) uint8 array or None
         The exposure of a multi-exposure capture that measured each vertex (0 the least exposed,
         docs/exposures.md): PLY files carry it as the vertex property ``exposure`` (uchar).
+    deviation_mm : (V,) float32 array or None
+        Each vertex's signed deviation from a nominal model, mm (positive outside the material,
+        NaN where unknown): PLY files carry it as the vertex property ``deviation_mm``.
     """
 
     vertices: np.ndarray
     triangles: np.ndarray
     sigma_mm: np.ndarray | None = None
     exposure: np.ndarray | None = None
+    deviation_mm: np.ndarray | None = None
 
     def with_sigma(self, sigma_mm: npt.ArrayLike, valid: npt.ArrayLike) -> GridMesh:
         """The mesh with the per-vertex sigma of a ``(H, W)`` sigma map at the ``valid`` pixels
@@ -463,6 +467,10 @@ class GridMesh:
         """The mesh with the per-vertex exposure of a ``(H, W)`` uint8 exposure map at the
         ``valid`` pixels (the vertices' pixels, row-major)."""
         return dataclasses.replace(self, exposure=self._per_vertex(exposure, valid, np.uint8, "exposure"))
+
+    def with_deviation(self, deviation_mm: npt.ArrayLike, valid: npt.ArrayLike) -> GridMesh:
+        """The mesh with the per-vertex deviation of a ``(H, W)`` deviation map at the ``valid`` pixels."""
+        return dataclasses.replace(self, deviation_mm=self._per_vertex(deviation_mm, valid, np.float32, "deviation_mm"))
 
     def _per_vertex(self, values: npt.ArrayLike, valid: npt.ArrayLike, dtype: type, what: str) -> np.ndarray:
         picked = np.asarray(values, dtype=dtype)[np.asarray(valid, dtype=bool)]
@@ -532,40 +540,50 @@ def _row_blocks(n: int, rows: int) -> Iterator[slice]:
         yield slice(start, min(start + rows, n))
 
 
-def _ply_vertex_layout(mesh: GridMesh) -> np.dtype:
-    """The PLY vertex record of ``mesh``: float64 point and normal, then its optional properties."""
-    fields: list[tuple[str, str] | tuple[str, str, tuple[int]]] = [("p", "<f8", (3,)), ("n", "<f8", (3,))]
-    if mesh.sigma_mm is not None:
-        fields.append(("sigma_mm", "<f4"))
-    if mesh.exposure is not None:
-        fields.append(("exposure", "u1"))
-    return np.dtype(fields)
+_PLY_VERTEX_PROPERTIES: tuple[tuple[str, str, str], ...] = (
+    ("sigma_mm", "float", "<f4"),
+    ("deviation_mm", "float", "<f4"),
+    ("exposure", "uchar", "u1"),
+)
+"""The optional per-vertex properties of a :class:`GridMesh`, in file order: attribute (and PLY
+property) name, PLY type, numpy dtype."""
+
+
+def _ply_extra(mesh: GridMesh) -> list[tuple[str, str, str, np.ndarray]]:
+    """The optional properties ``mesh`` has: (name, PLY type, numpy dtype, values)."""
+    found = []
+    for name, ply_type, dtype in _PLY_VERTEX_PROPERTIES:
+        values = getattr(mesh, name)
+        if values is not None:
+            found.append((name, ply_type, dtype, values))
+    return found
 
 
 def ply_chunks(mesh: GridMesh, *, chunk_rows: int = STREAM_CHUNK_ROWS) -> Iterator[bytes]:
     """Binary little-endian PLY of ``mesh``, as open3d writes it: float64 ``x y z nx ny nz`` per
-    vertex (plus a float32 ``sigma_mm`` and a uchar ``exposure`` when the mesh has them), ``uchar``
-    count + ``uint`` indices per face. The header comes first, before the vertex normals are computed."""
+    vertex (plus, when the mesh has them, a float32 ``sigma_mm``, a float32 ``deviation_mm`` and a
+    uchar ``exposure``, in that order), ``uchar`` count + ``uint`` indices per face. The header
+    comes first, before the vertex normals are computed."""
     n_vertices, n_triangles = len(mesh.vertices), len(mesh.triangles)
+    extra = _ply_extra(mesh)
     yield (
         "ply\nformat binary_little_endian 1.0\ncomment Created by GCPS Lab (mm)\n"
         f"element vertex {n_vertices}\n"
         "property double x\nproperty double y\nproperty double z\n"
         "property double nx\nproperty double ny\nproperty double nz\n"
-        + ("property float sigma_mm\n" if mesh.sigma_mm is not None else "")
-        + ("property uchar exposure\n" if mesh.exposure is not None else "")
+        + "".join(f"property {ply_type} {name}\n" for name, ply_type, _dtype, _values in extra)
         + f"element face {n_triangles}\nproperty list uchar uint vertex_indices\nend_header\n"
     ).encode("ascii")
     normals = mesh.vertex_normals()
-    layout = _ply_vertex_layout(mesh)
+    layout = np.dtype(
+        [("p", "<f8", (3,)), ("n", "<f8", (3,)), *((name, dtype) for name, _ply_type, dtype, _values in extra)]
+    )
     for rows in _row_blocks(n_vertices, chunk_rows):
         block = np.empty(rows.stop - rows.start, dtype=layout)
         block["p"] = mesh.vertices[rows]
         block["n"] = normals[rows]
-        if mesh.sigma_mm is not None:
-            block["sigma_mm"] = mesh.sigma_mm[rows]
-        if mesh.exposure is not None:
-            block["exposure"] = mesh.exposure[rows]
+        for name, _ply_type, _dtype, values in extra:
+            block[name] = values[rows]
         yield block.tobytes()
     for rows in _row_blocks(n_triangles, chunk_rows):
         faces = np.empty(rows.stop - rows.start, dtype=_PLY_FACE)
@@ -643,3 +661,48 @@ def write_mesh_file(mesh: GridMesh, path: str | os.PathLike[str]) -> Path:
         for chunk in mesh_file_chunks(mesh, ext[1:]):
             out.write(chunk)
     return path
+
+
+# ----------------------------------------------------------------------------- ray casting
+class MeshRaycaster:
+    """Rays against a triangle mesh: Open3D's ``RaycastingScene`` (Embree, float32), in a frame
+    centred on the mesh's vertices (float32 keeps about 0.01 um within 100 mm of that centre).
+
+    Parameters
+    ----------
+    vertices_mm : (V, 3) array_like of float
+    faces : (F, 3) array_like of int
+    """
+
+    def __init__(self, vertices_mm: npt.ArrayLike, faces: npt.ArrayLike) -> None:
+        import open3d as o3d
+
+        vertices = np.asarray(vertices_mm, dtype=np.float64)
+        self.centre_mm = vertices.mean(axis=0)
+        self._o3d = o3d
+        self._scene = o3d.t.geometry.RaycastingScene()
+        self._scene.add_triangles(
+            o3d.core.Tensor.from_numpy(np.ascontiguousarray(vertices - self.centre_mm, dtype=np.float32)),
+            o3d.core.Tensor.from_numpy(np.ascontiguousarray(faces, dtype=np.uint32)),
+        )
+
+    def _rays(self, origins_mm: np.ndarray, directions: np.ndarray) -> Any:
+        rays = np.concatenate([np.asarray(origins_mm) - self.centre_mm, np.asarray(directions)], axis=1)
+        return self._o3d.core.Tensor.from_numpy(np.ascontiguousarray(rays, dtype=np.float32))
+
+    def first_hits(self, origins_mm: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """``(N,)`` int64: the triangle each ray ``(N, 3)`` origin + t direction (t > 0) meets first, -1 for none."""
+        ids = self._scene.cast_rays(self._rays(origins_mm, directions))["primitive_ids"].numpy().astype(np.int64)
+        ids[ids == self._o3d.t.geometry.RaycastingScene.INVALID_ID] = -1
+        return np.asarray(ids, dtype=np.int64)
+
+    def blocked(self, starts_mm: np.ndarray, segments_mm: np.ndarray) -> np.ndarray:
+        """``(N,)`` bool: whether the segment from each start ``(N, 3)`` along ``segments_mm`` ``(N, 3)``
+        (its whole length) meets a triangle."""
+        return np.asarray(self._scene.test_occlusions(self._rays(starts_mm, segments_mm), tfar=1.0).numpy(), dtype=bool)
+
+    def nearest_triangles(self, points_mm: np.ndarray) -> np.ndarray:
+        """``(N,)`` int64: the triangle nearest each point ``(N, 3)``."""
+        query = np.ascontiguousarray(np.asarray(points_mm) - self.centre_mm, dtype=np.float32)
+        found = self._scene.compute_closest_points(self._o3d.core.Tensor.from_numpy(query))
+        return np.asarray(found["primitive_ids"].numpy(), dtype=np.int64)

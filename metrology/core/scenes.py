@@ -117,6 +117,8 @@ class Scene:
     name: ClassVar[str] = ""
     smooth: ClassVar[bool] = False
     """True when the height field is continuous with bounded slope (see ``max_slope``)."""
+    height_field: ClassVar[bool] = True
+    """True for a height field over R; False for a :class:`MeshScene` (ray cast as a triangle mesh)."""
 
     reflectance: float = 1.0
 
@@ -733,6 +735,124 @@ class FlowerpotScene(_SmoothScene):
     def footprint_mm(self) -> tuple[float, float, float, float] | None:
         hx, hy = self.size_x_mm / 2, self.size_y_mm / 2
         return (self.center_x_mm - hx, self.center_x_mm + hx, self.center_y_mm - hy, self.center_y_mm + hy)
+
+
+# --------------------------------------------------------------------------- meshes
+def _rotation(value: Any) -> FloatArray:
+    rotation = np.asarray(value, dtype=np.float64)
+    if rotation.shape != (3, 3) or not np.isfinite(rotation).all():
+        raise ValueError(f"scene parameter rotation must be a finite 3 x 3 matrix, got shape {rotation.shape}")
+    if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-9) or np.linalg.det(rotation) < 0:
+        raise ValueError("scene parameter rotation must be a proper rotation (orthonormal, determinant +1)")
+    return rotation
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class MeshScene(Scene):
+    """A triangle mesh (a nominal part) placed at a pose in the model frame, ray cast as it is.
+
+    Not a height field: the virtual rig casts the camera rays and the projector's shadow rays
+    against the triangles (:func:`metrology.core.simulate.cast.cast_truth`, Open3D's
+    ``RaycastingScene``, each hit then recomputed in float64 on its triangle), on every model.
+    A point of the mesh ``x`` sits at ``rotation @ x + translation_mm`` in the model frame (the
+    paper's frame on R, a pinhole rig's camera frame). Nothing else is in the scene: add the
+    support (a plane, a table) to the mesh when it should be seen. Not in :data:`SCENES` (it
+    takes arrays): build it directly, or with :meth:`on_plane`.
+
+    Parameters
+    ----------
+    vertices_mm : (V, 3) array_like of float
+        The mesh's vertices in its own frame, mm.
+    faces : (F, 3) array_like of int
+        Vertex indices of each triangle (outward normals counter-clockwise, as STL).
+    rotation : (3, 3) array_like of float
+        Rotation of the mesh frame into the model frame. Default identity.
+    translation_mm : (3,) array_like of float
+        Model-frame position of the mesh frame's origin, mm. Default 0.
+    """
+
+    name: ClassVar[str] = "mesh"
+    height_field: ClassVar[bool] = False
+    vertices_mm: np.ndarray
+    faces: np.ndarray
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    translation_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        vertices = np.array(self.vertices_mm, dtype=np.float64)
+        faces = np.array(self.faces)
+        if vertices.ndim != 2 or vertices.shape[1] != 3 or not len(vertices) or not np.isfinite(vertices).all():
+            raise ValueError(f"scene parameter vertices_mm must be a finite (V, 3) array, got shape {vertices.shape}")
+        if faces.ndim != 2 or faces.shape[1] != 3 or not len(faces) or faces.dtype.kind not in "iu":
+            raise ValueError(f"scene parameter faces must be an (F, 3) integer array, got {faces.shape} {faces.dtype}")
+        if faces.min() < 0 or faces.max() >= len(vertices):
+            raise ValueError(f"scene parameter faces indexes vertices outside 0..{len(vertices) - 1}")
+        translation = np.array(self.translation_mm, dtype=np.float64)
+        if translation.shape != (3,) or not np.isfinite(translation).all():
+            raise ValueError(f"scene parameter translation_mm must be 3 finite numbers, got {self.translation_mm!r}")
+        for name, value in (
+            ("vertices_mm", vertices),
+            ("faces", faces.astype(np.int64)),
+            ("rotation", _rotation(self.rotation)),
+            ("translation_mm", translation),
+        ):
+            value.flags.writeable = False
+            _set(self, name, value)
+
+    @classmethod
+    def on_plane(
+        cls,
+        vertices_mm: npt.ArrayLike,
+        faces: npt.ArrayLike,
+        placement: Any,
+        *,
+        rotation: npt.ArrayLike | None = None,
+        translation_mm: npt.ArrayLike | None = None,
+        reflectance: float = 1.0,
+    ) -> MeshScene:
+        """A mesh given in the scene coordinates ``(X, Y, height)`` of a
+        :class:`~metrology.core.simulate.cast.ScenePlacement` (after the optional pose ``rotation``,
+        ``translation_mm`` there): a mesh built like the height-field scenes, on their reference plane.
+
+        The scene is stored with its vertices in the model frame (identity pose). A placement whose
+        frame is mirrored (:meth:`~metrology.core.simulate.cast.ScenePlacement.facing_camera`: ``X, Y``
+        and the height towards the camera are left-handed in a camera frame) reverses the faces'
+        order of corners, so that the normals stay outward.
+        """
+        frame = np.column_stack([placement.e_x, placement.e_y, placement.e_n])
+        inner = np.eye(3) if rotation is None else _rotation(rotation)
+        shift = np.zeros(3) if translation_mm is None else np.asarray(translation_mm, dtype=np.float64)
+        local = np.asarray(vertices_mm, dtype=np.float64) @ inner.T + shift
+        corners = np.asarray(faces)
+        return cls(
+            vertices_mm=local @ frame.T + np.asarray(placement.origin_mm, dtype=np.float64),
+            faces=corners[:, ::-1] if np.linalg.det(frame) < 0 else corners,
+            reflectance=reflectance,
+        )
+
+    @property
+    def model_vertices_mm(self) -> FloatArray:
+        """``(V, 3)`` float64: the vertices in the model frame, mm."""
+        return np.asarray(self.vertices_mm @ self.rotation.T + self.translation_mm, dtype=np.float64)
+
+    def height_mm(self, X: npt.ArrayLike, Y: npt.ArrayLike) -> FloatArray:
+        raise TypeError("a mesh scene is not a height field: it is ray cast (metrology.core.simulate.cast_truth)")
+
+    def params(self) -> dict[str, Any]:
+        """The name, counts, a SHA-256 of the vertices and faces, the pose and the reflectance."""
+        import hashlib
+
+        digest = hashlib.sha256(self.vertices_mm.tobytes() + self.faces.tobytes()).hexdigest()
+        return {
+            "scene": self.name,
+            "reflectance": self.reflectance,
+            "vertices": len(self.vertices_mm),
+            "faces": len(self.faces),
+            "sha256": digest,
+            "rotation": self.rotation.tolist(),
+            "translation_mm": self.translation_mm.tolist(),
+        }
 
 
 # --------------------------------------------------------------------------- registry

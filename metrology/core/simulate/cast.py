@@ -19,6 +19,10 @@ serves every model:
 3. **Projector coordinates** ``(u, v)`` of each lit hit; NaN where the point is shadowed, behind
    the projector or outside its image ``[-0.5, size - 0.5]``.
 
+A triangle mesh (:class:`~metrology.core.scenes.MeshScene`, a nominal part at a pose) is not a
+height field: :func:`cast_truth` hands it to :func:`cast_mesh_truth`, which finds the hits and the
+shadows with Open3D's ray caster and recomputes each hit in float64 on its triangle.
+
 The result, :class:`CastTruth`, feeds a codec renderer (:func:`~metrology.core.codecs.render.render_codec`).
 """
 
@@ -31,7 +35,7 @@ import numpy as np
 import numpy.typing as npt
 
 from metrology.core.geometry.base import PreparedGeometry
-from metrology.core.scenes import FIELD_CENTER_X_MM, Scene
+from metrology.core.scenes import FIELD_CENTER_X_MM, MeshScene, Scene
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -133,7 +137,12 @@ def cast_truth(
     ------
     ValueError
         When the camera's pupil is not above the scene's top (the scene would hide the camera).
+
+    A :class:`~metrology.core.scenes.MeshScene` is cast against its triangles instead
+    (:func:`cast_mesh_truth`); ``placement`` then only gives the heights.
     """
+    if isinstance(scene, MeshScene):
+        return cast_mesh_truth(prepared, scene, placement, supersample=supersample)
     rays = prepared.camera_rays(supersample)
     origin, d = rays.origin_mm, rays.direction
     s_origin = float((origin - placement.origin_mm) @ placement.e_n)
@@ -181,16 +190,70 @@ def cast_truth(
     b = b.reshape(d.shape[:-1])
     t_hit = np.where(found, b, np.nan)
     points = origin + t_hit[..., None] * d
-    _, _, height = placement.scene_coordinates(points)
+    return _truth(
+        prepared, placement, points, _shadowed(prepared.projector_centre_mm, scene, placement, points, march_step_mm)
+    )
 
+
+def _truth(
+    prepared: PreparedGeometry, placement: ScenePlacement, points: FloatArray, shadowed: npt.NDArray[np.bool_]
+) -> CastTruth:
+    """The truth of the hit ``points`` ``(H, W, 3)``: heights above the placement's plane, and the
+    projector coordinates where lit (inside the projector's image and not ``shadowed``)."""
+    _, _, height = placement.scene_coordinates(points)
     u, v = prepared.projector_coordinates(points)
     size = prepared.projector_size
     lit = np.isfinite(u) & np.isfinite(v)
     if size is not None:
         with np.errstate(invalid="ignore"):
             lit &= (u >= -0.5) & (u <= size[0] - 0.5) & (v >= -0.5) & (v <= size[1] - 0.5)
-    lit &= ~_shadowed(prepared.projector_centre_mm, scene, placement, points, march_step_mm)
+    lit &= ~shadowed
     return CastTruth(points_mm=points, height_mm=height, u=np.where(lit, u, np.nan), v=np.where(lit, v, np.nan))
+
+
+SHADOW_START_MM = 1e-3
+"""A mesh point's shadow ray starts this far towards the projector (clear of its own triangle), mm."""
+
+
+def cast_mesh_truth(
+    prepared: PreparedGeometry, scene: MeshScene, placement: ScenePlacement, *, supersample: int = 1
+) -> CastTruth:
+    """Ray-cast a triangle mesh placed in the model frame through the prepared model.
+
+    1. **First hit**: Open3D's ``RaycastingScene`` (float32, Embree) finds the triangle each camera
+       ray ``O + t d`` meets first; the hit is then recomputed in float64 on that triangle's plane,
+       ``t = n . (a - O) / (n . d)`` (``a`` a corner, ``n`` its normal), so the truth is exact to
+       float64 rounding, not to float32. The mesh is cast in a frame centred on its vertices (float32
+       keeps about 0.01 um there).
+    2. **Shadow**: a hit is unlit when the segment from :data:`SHADOW_START_MM` above it to the
+       projector's centre meets a triangle.
+    3. **Projector coordinates** and heights above ``placement``'s plane, as :func:`cast_truth`.
+
+    Returns a :class:`CastTruth` of ``(H s, W s)`` pixels (``s = supersample``), NaN where a ray misses.
+    """
+    from metrology.core.mesh import MeshRaycaster
+
+    rays = prepared.camera_rays(supersample)
+    d = rays.direction.reshape(-1, 3)
+    shape = rays.direction.shape[:-1]
+    vertices, faces = scene.model_vertices_mm, scene.faces
+    caster = MeshRaycaster(vertices, faces)
+    origin = np.broadcast_to(np.asarray(rays.origin_mm, dtype=np.float64), d.shape)
+    triangle = caster.first_hits(origin, d)
+    hit = triangle >= 0
+    corners = vertices[faces[triangle[hit]]]  # (n, 3, 3)
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    t = np.einsum("ij,ij->i", normal, corners[:, 0] - origin[hit]) / np.einsum("ij,ij->i", normal, d[hit])
+    points = np.full(d.shape, np.nan)
+    points[hit] = origin[hit] + t[:, None] * d[hit]
+    # shadow: the segment from just above each hit to the projector's centre
+    shadowed = np.zeros(len(d), dtype=bool)
+    if hit.any():
+        towards = np.asarray(prepared.projector_centre_mm, dtype=np.float64) - points[hit]
+        unit = towards / np.linalg.norm(towards, axis=1, keepdims=True)
+        shadowed[hit] = caster.blocked(points[hit] + SHADOW_START_MM * unit, towards - SHADOW_START_MM * unit)
+    points = points.reshape(*shape, 3)
+    return _truth(prepared, placement, points, shadowed.reshape(shape))
 
 
 def _height_step(rate: FloatArray, sideways_mm: float) -> float:

@@ -85,13 +85,23 @@ class RenderedCapture:
 
 
 def uses_paper_renderer(
-    model: GeometryModel, codec: Codec | None, options: SimulationOptions, placement: ScenePlacement | None
+    model: GeometryModel,
+    codec: Codec | None,
+    options: SimulationOptions,
+    placement: ScenePlacement | None,
+    scene: Scene | None = None,
 ) -> bool:
     """True when the paper's exact forward model renders the capture (module docstring): the one
-    place that chooses it. It serves a model with light codes and the scene on its plane, for
-    gcps-v1 stacks, and for other codecs with one ray per pixel (it gives the true light codes of
-    the pixel centres only; sub-pixel rays of another codec are cast)."""
-    return model.light_codes is not None and placement is None and (is_gcps_v1(codec) or options.supersample == 1)
+    place that chooses it. It serves a model with light codes and a height-field scene on its
+    plane, for gcps-v1 stacks, and for other codecs with one ray per pixel (it gives the true light
+    codes of the pixel centres only; sub-pixel rays of another codec are cast). A triangle mesh
+    (:class:`~metrology.core.scenes.MeshScene`) is always cast."""
+    return (
+        model.light_codes is not None
+        and placement is None
+        and (scene is None or scene.height_field)
+        and (is_gcps_v1(codec) or options.supersample == 1)
+    )
 
 
 def default_placement(model: GeometryModel, field_width_mm: float = FIELD_WIDTH_MM) -> ScenePlacement:
@@ -133,7 +143,7 @@ def render_capture(
     """
     opts = options if options is not None else SimulationOptions()
     noise_seed = stack_seed(opts, scene)
-    if uses_paper_renderer(model, codec, opts, placement):
+    if uses_paper_renderer(model, codec, opts, placement, scene):
         rendered = render_stack(model, scene, opts)  # type: ignore[arg-type]
         return _from_paper(model, rendered, codec, opts, noise_seed)
     if codec is None:  # the eleven patterns as a codec, at the built-in projector size
@@ -175,7 +185,7 @@ def render_flats(
     """
 
     opts = options if options is not None else SimulationOptions()
-    if reflectance is None and projector_size is None and uses_paper_renderer(model, None, opts, placement):
+    if reflectance is None and projector_size is None and uses_paper_renderer(model, None, opts, placement, scene):
         return render_flat_frames(model, scene, opts)  # type: ignore[arg-type]
     where = placement if placement is not None else default_placement(model)
     s = opts.supersample
