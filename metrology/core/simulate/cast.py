@@ -137,7 +137,9 @@ def cast_truth(
     rays = prepared.camera_rays(supersample)
     origin, d = rays.origin_mm, rays.direction
     s_origin = float((origin - placement.origin_mm) @ placement.e_n)
-    top, bottom = float(scene.z_max_mm), float(scene.z_min_mm)
+    # the march ends just below the scene's bottom: on a plane placed askew in the model frame,
+    # rounding may leave the ray's height a hair above h(X, Y) at the plane itself
+    top, bottom = float(scene.z_max_mm), float(scene.z_min_mm) - INSIDE_EPS_MM
     if not s_origin > top:
         raise ValueError(f"the scene's top ({top:g} mm above its plane) reaches the camera ({s_origin:g} mm)")
     rate = d @ placement.e_n  # ds/dt, < 0 on rays going down to the plane
