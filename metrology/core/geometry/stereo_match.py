@@ -84,7 +84,7 @@ class Bilinear:
 
     Attributes
     ----------
-    index : int32 array
+    index : intp array
         Flat index of each position's top-left neighbour (0 outside the map).
     wx, wy : float32 arrays
         Weights of the right and lower neighbours, in [0, 1]; NaN outside the map (so is the sample).
@@ -103,11 +103,11 @@ class Bilinear:
         ``(h, w)`` map (``h, w >= 2``); positions outside ``[0, w - 1] x [0, h - 1]`` give NaN."""
         h, w = shape
         inside = (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
-        ix = np.clip(np.floor(np.where(inside, x, 0.0)), 0, w - 2).astype(np.int32)
-        iy = np.clip(np.floor(np.where(inside, y, 0.0)), 0, h - 2).astype(np.int32)
+        ix = np.clip(np.floor(np.where(inside, x, 0.0)), 0, w - 2).astype(np.intp)
+        iy = np.clip(np.floor(np.where(inside, y, 0.0)), 0, h - 2).astype(np.intp)
         wx = np.where(inside, x - ix, np.nan).astype(np.float32)
         wy = np.where(inside, y - iy, np.nan).astype(np.float32)
-        return cls(index=iy * np.int32(w) + ix, wx=wx, wy=wy, width=w)
+        return cls(index=iy * w + ix, wx=wx, wy=wy, width=w)
 
     def sample(self, image: np.ndarray, rows: slice | None = None, out: np.ndarray | None = None) -> np.ndarray:
         """``image`` (float32, the map) at the positions (of ``rows`` of them), float32; NaN where a
@@ -115,12 +115,12 @@ class Bilinear:
         rows = rows if rows is not None else slice(0, self.index.shape[0])
         flat = image.ravel()
         i, wx, wy = self.index[rows], self.wx[rows], self.wy[rows]
-        a, b = flat[i], flat[i + 1]
+        a, b = flat.take(i), flat.take(i + 1)
         top = b - a
         top *= wx
         top += a
-        i2 = i + np.int32(self.width)
-        c, d = flat[i2], flat[i2 + 1]
+        i2 = i + self.width
+        c, d = flat.take(i2), flat.take(i2 + 1)
         d -= c
         d *= wx
         d += c
@@ -253,7 +253,7 @@ class Matched:
     slope: np.ndarray
 
 
-def match_rows(u0: np.ndarray, u1: np.ndarray) -> Matched:
+def match_rows(u0: np.ndarray, u1: np.ndarray, lo: float, hi: float) -> Matched:
     """Match rows of rectified maps whose coordinate grows along the rows (module docstring, step 2).
 
     Parameters
@@ -262,6 +262,8 @@ def match_rows(u0: np.ndarray, u1: np.ndarray) -> Matched:
         Camera 0's rectified decoded coordinate, NaN where not decoded.
     u1 : (n, W1) float32
         Camera 1's, same rows.
+    lo, hi : float
+        Bounds of every decoded value (projector units; values outside are not matched).
 
     Returns
     -------
@@ -269,41 +271,44 @@ def match_rows(u0: np.ndarray, u1: np.ndarray) -> Matched:
         ``x1`` (n, W0) float32 camera-1 columns, ``slope`` (n, W0) float32.
     """
     n, w1 = u1.shape
-    finite1 = np.isfinite(u1)
-    finite0 = np.isfinite(u0)
-    lo = min(float(np.min(u1, where=finite1, initial=np.inf)), float(np.min(u0, where=finite0, initial=np.inf)))
-    hi = max(float(np.max(u1, where=finite1, initial=-np.inf)), float(np.max(u0, where=finite0, initial=-np.inf)))
-    x1 = np.full(u0.shape, np.nan, np.float32)
-    slope = np.full(u0.shape, np.nan, np.float32)
-    if not (math.isfinite(lo) and math.isfinite(hi)):
-        return Matched(x1=x1, slope=slope)
-    span = (hi - lo) + 2.0
-    offsets = (np.arange(n, dtype=np.float64) * span - lo)[:, None]
+    with np.errstate(invalid="ignore"):
+        finite1 = (u1 >= lo) & (u1 <= hi)
+        finite0 = (u0 >= lo) & (u0 <= hi)
+    offsets = np.arange(n, dtype=np.float64)[:, None] * ((hi - lo) + 2.0) - lo
     # camera 1: running maximum from the left (the search keys), running minimum from the right
-    running_max = np.maximum.accumulate(np.where(finite1, u1, -np.inf), axis=1)
-    keys = (np.maximum(running_max, lo) + offsets).ravel()
-    from_right = np.minimum.accumulate(np.where(finite1, u1, np.inf)[:, ::-1], axis=1)[:, ::-1]
+    # two columns on (a value there at most q would hold q in a second segment)
+    keys = np.where(finite1, u1, np.float32(lo))
+    np.maximum.accumulate(keys, axis=1, out=keys)
+    keys64 = (keys + offsets).ravel()
+    right1 = np.where(finite1, u1, np.float32(np.inf))[:, ::-1]
+    right1 = np.minimum.accumulate(right1, axis=1)[:, ::-1]
+    after = np.full((n, w1), np.inf, np.float32)
+    after[:, :-2] = right1[:, 2:]
     # camera 0: a value above everything decoded on its left and below everything on its right
-    left0 = np.maximum.accumulate(np.where(finite0, u0, -np.inf), axis=1)
-    right0 = np.minimum.accumulate(np.where(finite0, u0, np.inf)[:, ::-1], axis=1)[:, ::-1]
-    record = finite0.copy()
+    left0 = np.where(finite0, u0, np.float32(-np.inf))
+    np.maximum.accumulate(left0, axis=1, out=left0)
+    right0 = np.where(finite0, u0, np.float32(np.inf))[:, ::-1]
+    right0 = np.minimum.accumulate(right0, axis=1)[:, ::-1]
+    record = finite0
     record[:, 1:] &= u0[:, 1:] > left0[:, :-1]
     record[:, :-1] &= u0[:, :-1] < right0[:, 1:]
-    rr, cc = np.nonzero(record)
-    q = u0[rr, cc]
-    found = np.searchsorted(keys, q.astype(np.float64) + offsets[rr, 0], side="right") - 1
-    col = found - rr * w1
-    ok = (col >= 0) & (col <= w1 - 2)
-    found = np.where(ok, found, 0)
+    found = np.searchsorted(keys64, (u0 + offsets).ravel(), side="right").reshape(u0.shape)
+    found -= 1
+    col = found - (np.arange(n, dtype=np.intp) * w1)[:, None]
+    ok = record & (col >= 0) & (col <= w1 - 2)
+    np.clip(found, 0, u1.size - 2, out=found)
     flat1 = u1.ravel()
-    a, b = flat1[found], flat1[found + 1]
-    after = np.where(col <= w1 - 3, from_right.ravel()[np.minimum(found + 2, flat1.size - 1)], np.inf)
-    with np.errstate(invalid="ignore"):
-        ok &= (a <= q) & (q < b) & (after > q)
-    step = b[ok] - a[ok]
-    x1[rr[ok], cc[ok]] = col[ok] + (q[ok] - a[ok]) / step
-    slope[rr[ok], cc[ok]] = step
-    return Matched(x1=x1, slope=slope)
+    a = flat1.take(found)
+    b = flat1.take(found + 1)
+    beyond = after.ravel().take(found)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ok &= (a <= u0) & (u0 < b) & (beyond > u0)
+        step = b - a
+        x1 = u0 - a
+        x1 /= step
+    x1 += col
+    x1[~ok] = np.nan
+    return Matched(x1=x1, slope=step)
 
 
 class PreparedStereo(PreparedGeometry):
@@ -394,9 +399,12 @@ class PreparedStereo(PreparedGeometry):
                 )
             maps.append(self.rectify(camera, m, threads))
         u0r, u1r = maps
+        size = self.projector_size[0] if self.axis == "u" else self.projector_size[1]
+        lo, hi = -2.0, size + 1.0  # every decoded coordinate (the codec's field and its margin)
         if _decreasing(u1r):
             np.negative(u0r, out=u0r)
             np.negative(u1r, out=u1r)
+            lo, hi = -hi, -lo
         rect = self.rect
         rows, cols0 = rect.shapes[0]
         disparity = np.empty((rows, cols0), np.float32)
@@ -406,7 +414,7 @@ class PreparedStereo(PreparedGeometry):
         offset = np.float32(rect.cx[1] / rect.f)
 
         def run(tile: slice) -> None:
-            m = match_rows(u0r[tile], u1r[tile])
+            m = match_rows(u0r[tile], u1r[tile], lo, hi)
             x1[tile], step[tile] = m.x1, m.slope
             d = m.x1 * inv_f
             d -= offset

@@ -150,12 +150,7 @@ def render_stereo_capture(
     for index, (camera, (R_c, T_c)) in enumerate(zip((rig.camera0, rig.camera1), poses, strict=True)):
         pinhole = projector.pinhole_rig(camera, R_c, T_c)
         prepared = pinhole.prepare(pinhole.shape, (codec.projector_width, codec.projector_height))
-        where = ScenePlacement(
-            origin_mm=R_c @ placement.origin_mm + T_c,
-            e_x=R_c @ placement.e_x,
-            e_y=R_c @ placement.e_y,
-            e_n=R_c @ placement.e_n,
-        )
+        where = placement.in_frame(R_c, T_c)
         truth = cast_truth(prepared, scene, where)
         sub_rays = truth if opts.supersample == 1 else cast_truth(prepared, scene, where, supersample=opts.supersample)
         camera_seed = np.random.SeedSequence([*seed.entropy, index]) if index else seed  # type: ignore[misc]
