@@ -399,7 +399,8 @@ class PreparedStereo(PreparedGeometry):
                 )
             maps.append(self.rectify(camera, m, threads))
         u0r, u1r = maps
-        size = self.projector_size[0] if self.axis == "u" else self.projector_size[1]
+        proj = self.rig.projector
+        size = proj.width if self.axis == "u" else proj.height
         lo, hi = -2.0, size + 1.0  # every decoded coordinate (the codec's field and its margin)
         if _decreasing(u1r):
             np.negative(u0r, out=u0r)
