@@ -109,9 +109,17 @@ class Bilinear:
         wy = np.where(inside, y - iy, np.nan).astype(np.float32)
         return cls(index=iy * w + ix, wx=wx, wy=wy, width=w)
 
-    def sample(self, image: np.ndarray, rows: slice | None = None, out: np.ndarray | None = None) -> np.ndarray:
+    def sample(
+        self,
+        image: np.ndarray,
+        rows: slice | None = None,
+        out: np.ndarray | None = None,
+        curvature: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> np.ndarray:
         """``image`` (float32, the map) at the positions (of ``rows`` of them), float32; NaN where a
-        neighbour is NaN or the position is outside."""
+        neighbour is NaN or the position is outside. With ``curvature`` (:func:`curvature_maps` of
+        ``image``) the parabolic terms are added, ``-(wx (1 - wx) c_xx + wy (1 - wy) c_yy) / 2``
+        (exact for a quadratic map; bilinear where a curvature is unknown, at the edges)."""
         rows = rows if rows is not None else slice(0, self.index.shape[0])
         flat = image.ravel()
         i, wx, wy = self.index[rows], self.wx[rows], self.wy[rows]
@@ -127,8 +135,35 @@ class Bilinear:
         d -= top
         d *= wy
         if out is None:
-            return np.add(top, d)
-        return np.add(top, d, out=out)
+            out = np.add(top, d)
+        else:
+            np.add(top, d, out=out)
+        if curvature is not None:  # the parabolic terms bilinear interpolation leaves out
+            cxx, cyy = (c.ravel().take(i) for c in curvature)
+            cxx *= wx * (1 - wx)
+            cyy *= wy * (1 - wy)
+            cxx += cyy
+            cxx *= np.float32(0.5)
+            np.subtract(out, cxx, out=out, where=np.isfinite(cxx))
+        return out
+
+
+def curvature_maps(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The second differences of an ``(h, w)`` float32 map along its rows and columns, averaged
+    over each cell's two sides: ``cxx[k, j]`` of ``u[k, j-1..j+2]``, ``cyy[k, j]`` of ``u[k-1..k+2, j]``
+    (NaN where a neighbour is missing), for :meth:`Bilinear.sample`'s ``curvature``."""
+    h, w = image.shape
+    dxx = np.full((h, w), np.nan, np.float32)
+    dxx[:, 1:-1] = image[:, :-2] - 2 * image[:, 1:-1] + image[:, 2:]
+    cxx = np.full((h, w), np.nan, np.float32)
+    cxx[:, :-1] = dxx[:, :-1] + dxx[:, 1:]
+    cxx *= np.float32(0.5)
+    dyy = np.full((h, w), np.nan, np.float32)
+    dyy[1:-1] = image[:-2] - 2 * image[1:-1] + image[2:]
+    cyy = np.full((h, w), np.nan, np.float32)
+    cyy[:-1] = dyy[:-1] + dyy[1:]
+    cyy *= np.float32(0.5)
+    return cxx, cyy
 
 
 @dataclass(frozen=True)
@@ -355,11 +390,12 @@ class PreparedStereo(PreparedGeometry):
 
     def rectify(self, camera: int, image: np.ndarray, threads: int | None = None) -> np.ndarray:
         """Camera ``camera``'s ``(H_c, W_c)`` float32 map sampled on its rectified grid (NaN where
-        a neighbour is NaN or outside the image)."""
+        a neighbour is NaN or outside the image), its parabolic terms included (:class:`Bilinear`)."""
         sampler = self.forward[camera]
         image = np.ascontiguousarray(image, dtype=np.float32)
+        curvature = curvature_maps(image)
         out = np.empty(self.rect.shapes[camera], np.float32)
-        run_tiled(lambda rows: sampler.sample(image, rows, out[rows]), *out.shape, threads)
+        run_tiled(lambda rows: sampler.sample(image, rows, out[rows], curvature), *out.shape, threads)
         return out
 
     def combine(
@@ -424,7 +460,8 @@ class PreparedStereo(PreparedGeometry):
 
         run_tiled(run, rows, max(cols0, rect.shapes[1][1]), threads)
         out = np.empty(self.shape, np.float32)
-        run_tiled(lambda r: self.back.sample(disparity, r, out[r]), *self.shape, threads)
+        bend = curvature_maps(disparity)
+        run_tiled(lambda r: self.back.sample(disparity, r, out[r], bend), *self.shape, threads)
         sigma_out = None
         if sigma is not None and sigma[0] is not None and sigma[1] is not None:
             s0 = self.rectify(0, sigma[0], threads)
