@@ -74,6 +74,10 @@ from metrology.core.tiling import run_tiled
 if TYPE_CHECKING:
     from metrology.core.geometry.stereo import StereoRig
 
+NOISE_GAIN_FIELDS = 4
+"""White-noise fields that estimate :meth:`PreparedStereo.noise_gain`."""
+NOISE_GAIN_WINDOW_PX = 15
+"""Side of the box that averages :meth:`PreparedStereo.noise_gain`'s squared samples, px."""
 MIN_HORIZONTAL = 0.9
 """Smallest ``|(R_1 T)_x| / |T|`` accepted: the cameras must sit side by side (rows are epipolar lines)."""
 
@@ -378,6 +382,8 @@ class PreparedStereo(PreparedGeometry):
         cols = np.arange(rect.shapes[0][1], dtype=np.float32)
         self._x0n = (cols - np.float32(rect.cx[0])) / np.float32(rect.f)  # rectified camera-0 columns, normalized
         self._projector = _projector_geometry(rig)
+        self._gain: np.ndarray | None = None
+        self._gain_lock = threading.Lock()
 
     # ------------------------------------------------------------------ interface
     @property
@@ -464,17 +470,53 @@ class PreparedStereo(PreparedGeometry):
         run_tiled(lambda r: self.back.sample(disparity, r, out[r], bend), *self.shape, threads)
         sigma_out = None
         if sigma is not None and sigma[0] is not None and sigma[1] is not None:
-            s0 = self.rectify(0, sigma[0], threads)
-            s1 = self.rectify(1, sigma[1], threads)
-            sigma_d = np.full((rows, cols0), np.nan, np.float32)
-            hit = np.isfinite(x1)
-            at = np.where(hit, np.clip(np.rint(x1), 0, rect.shapes[1][1] - 1), 0).astype(np.intp)
-            r_idx = np.broadcast_to(np.arange(rows)[:, None], x1.shape)
-            s1_at = s1[r_idx[hit], at[hit]]
-            sigma_d[hit] = np.sqrt(s0[hit] ** 2 + s1_at**2) / (np.abs(step[hit]) * np.float32(rect.f))
-            sigma_out = np.empty(self.shape, np.float32)
-            run_tiled(lambda r: self.back.sample(sigma_d, r, sigma_out[r]), *self.shape, threads)
+            sigma_out = self._disparity_sigma(sigma[0], sigma[1], x1, step, threads)
         return CombinedMaps(u=out, v=None, sigma=sigma_out)
+
+    def noise_gain(self) -> np.ndarray:
+        """``(H, W)`` float32: the standard deviation, at each camera-0 pixel, of white noise of unit
+        standard deviation on camera 0's pixels after the resampling chain (onto the rectified grid and
+        back): below 1, as interpolation averages neighbours. A property of the rig alone, estimated
+        once (:data:`NOISE_GAIN_FIELDS` noise fields, each squared result averaged over
+        :data:`NOISE_GAIN_WINDOW_PX` pixels: the sampling fractions change slowly across the frame)."""
+        with self._gain_lock:
+            if self._gain is None:
+                import cv2
+
+                rng = np.random.default_rng(0)
+                total = np.zeros(self.shape, np.float64)
+                for _ in range(NOISE_GAIN_FIELDS):
+                    field = rng.standard_normal(self.shape).astype(np.float32)
+                    rectified = np.empty(self.rect.shapes[0], np.float32)
+                    self.forward[0].sample(field, None, rectified)
+                    back = self.back.sample(rectified)
+                    total += np.nan_to_num(back.astype(np.float64) ** 2)
+                size = (NOISE_GAIN_WINDOW_PX, NOISE_GAIN_WINDOW_PX)
+                mean = cv2.blur(total / NOISE_GAIN_FIELDS, size, borderType=cv2.BORDER_REFLECT)
+                self._gain = np.sqrt(mean).astype(np.float32)
+            return self._gain
+
+    def _disparity_sigma(
+        self, sigma0: np.ndarray, sigma1: np.ndarray, x1: np.ndarray, slope: np.ndarray, threads: int | None
+    ) -> np.ndarray:
+        """The disparity's standard deviation on camera 0's grid (normalized; module docstring):
+        ``sqrt(sigma_0^2 + sigma_1^2) / |u_1'| / f`` at the matched pixels, sampled back on camera
+        0's grid, times the resampling chain's noise gain (:meth:`noise_gain`, the same for both
+        cameras' share: both go onto a rectified grid and back)."""
+        rect = self.rect
+        s0 = self.rectify(0, sigma0, threads)
+        s1 = self.rectify(1, sigma1, threads)
+        rows, cols1 = rect.shapes[1]
+        hit = np.isfinite(x1)
+        at = np.where(hit, np.clip(np.rint(x1), 0, cols1 - 1), 0).astype(np.intp)
+        at += (np.arange(rows, dtype=np.intp) * cols1)[:, None]
+        sigma_x1 = np.hypot(s0, s1.ravel().take(at))
+        sigma_d = sigma_x1 / np.abs(slope * np.float32(rect.f))
+        sigma_d[~hit] = np.nan
+        back = np.empty(self.shape, np.float32)
+        run_tiled(lambda r: self.back.sample(sigma_d, r, back[r]), *self.shape, threads)
+        back *= self.noise_gain()
+        return back
 
     def plane_coordinates(self, reference: ReferenceSurface | None = None) -> PlaneCoordinates:
         """Camera-0 ``(X, Y)`` (mm) of the point of the reference plane each pixel's ray meets."""

@@ -24,7 +24,7 @@ from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, Pin
 from metrology.core.geometry.rig_file import Matrix3
 from metrology.core.geometry.stereo import StereoRig
 from metrology.core.scenes import Scene
-from metrology.core.simulate.cast import ScenePlacement, cast_truth
+from metrology.core.simulate.cast import CastTruth, ScenePlacement, cast_truth
 from metrology.core.simulate.options import SimulationOptions
 from metrology.core.simulate.render import RenderedCapture, _from_cast
 from metrology.core.simulate.series import stack_seed
@@ -108,6 +108,68 @@ class StereoCapture:
         return self.cameras[0].points_mm
 
 
+@dataclass(frozen=True, eq=False)
+class StereoCast:
+    """Both cameras' ray-cast ground truth of a placed scene (:func:`cast_stereo`): what
+    :func:`render_stereo_capture` renders frames from (kept to render many noisy captures of one scene).
+
+    Attributes
+    ----------
+    placements : (ScenePlacement, ScenePlacement)
+        The scene's placement in each camera's frame.
+    truths : (CastTruth, CastTruth)
+        Each camera's pixel centres' truth.
+    sub_rays : (CastTruth, CastTruth)
+        Each camera's sub-pixel rays' truth (``supersample`` per pixel and axis; the truths when 1).
+    projector : ProjectorPlacement
+    supersample : int
+    """
+
+    placements: tuple[ScenePlacement, ScenePlacement]
+    truths: tuple[CastTruth, CastTruth]
+    sub_rays: tuple[CastTruth, CastTruth]
+    projector: ProjectorPlacement
+    supersample: int
+
+
+def cast_stereo(
+    rig: StereoRig,
+    scene: Scene,
+    codec: Codec,
+    placement: ScenePlacement,
+    *,
+    projector: ProjectorPlacement | None = None,
+    supersample: int = 1,
+    field_width_mm: float | None = None,
+) -> StereoCast:
+    """Ray-cast ``scene`` (placed by ``placement`` in camera 0's frame) through each camera of ``rig``
+    with ``projector``'s light (default :func:`default_projector`; ``field_width_mm`` default:
+    camera 0's field at the placement's distance). ``codec`` gives the projector's size, which must
+    be the rig's."""
+    rig.check_projector((codec.projector_width, codec.projector_height))
+    if projector is None:
+        distance = float(np.linalg.norm(placement.origin_mm))
+        width = field_width_mm or rig.camera0.width_px * distance / rig.camera0.K[0][0]
+        projector = default_projector(rig, placement, width)
+    poses = ((np.eye(3), np.zeros(3)), (np.asarray(rig.R, np.float64), np.asarray(rig.T, np.float64)))
+    placements, truths, sub_rays = [], [], []
+    for camera, (R_c, T_c) in zip((rig.camera0, rig.camera1), poses, strict=True):
+        pinhole = projector.pinhole_rig(camera, R_c, T_c)
+        prepared = pinhole.prepare(pinhole.shape, (codec.projector_width, codec.projector_height))
+        where = placement.in_frame(R_c, T_c)
+        truth = cast_truth(prepared, scene, where)
+        placements.append(where)
+        truths.append(truth)
+        sub_rays.append(truth if supersample == 1 else cast_truth(prepared, scene, where, supersample=supersample))
+    return StereoCast(
+        placements=(placements[0], placements[1]),
+        truths=(truths[0], truths[1]),
+        sub_rays=(sub_rays[0], sub_rays[1]),
+        projector=projector,
+        supersample=supersample,
+    )
+
+
 def render_stereo_capture(
     rig: StereoRig,
     scene: Scene,
@@ -117,6 +179,7 @@ def render_stereo_capture(
     placement: ScenePlacement,
     projector: ProjectorPlacement | None = None,
     field_width_mm: float | None = None,
+    cast: StereoCast | None = None,
 ) -> StereoCapture:
     """Render ``scene`` placed by ``placement`` (camera 0's frame) as seen by both cameras of ``rig``
     under ``codec``'s patterns (module docstring).
@@ -135,24 +198,30 @@ def render_stereo_capture(
     projector : ProjectorPlacement, optional
         Default :func:`default_projector` (``field_width_mm`` default: camera 0's field at the
         placement's distance).
+    cast : StereoCast, optional
+        The scene already cast (:func:`cast_stereo` with ``options.supersample``): only the frames
+        are rendered.
     """
     opts = options if options is not None else SimulationOptions()
-    rig.check_projector((codec.projector_width, codec.projector_height))
-    if projector is None:
-        distance = float(np.linalg.norm(placement.origin_mm))
-        width = field_width_mm or rig.camera0.width_px * distance / rig.camera0.K[0][0]
-        projector = default_projector(rig, placement, width)
-    R = np.asarray(rig.R, np.float64)
-    T = np.asarray(rig.T, np.float64)
-    poses = ((np.eye(3), np.zeros(3)), (R, T))
+    if cast is None:
+        cast = cast_stereo(
+            rig,
+            scene,
+            codec,
+            placement,
+            projector=projector,
+            supersample=opts.supersample,
+            field_width_mm=field_width_mm,
+        )
+    elif cast.supersample != opts.supersample:
+        raise ValueError(f"the cast has {cast.supersample} rays per pixel side, the options {opts.supersample}")
     seed = stack_seed(opts, scene)
     rendered = []
-    for index, (camera, (R_c, T_c)) in enumerate(zip((rig.camera0, rig.camera1), poses, strict=True)):
-        pinhole = projector.pinhole_rig(camera, R_c, T_c)
-        prepared = pinhole.prepare(pinhole.shape, (codec.projector_width, codec.projector_height))
-        where = placement.in_frame(R_c, T_c)
-        truth = cast_truth(prepared, scene, where)
-        sub_rays = truth if opts.supersample == 1 else cast_truth(prepared, scene, where, supersample=opts.supersample)
+    for index in range(2):
         camera_seed = np.random.SeedSequence([*seed.entropy, index]) if index else seed  # type: ignore[misc]
-        rendered.append(_from_cast(scene, where, truth, sub_rays, codec, opts, camera_seed))
-    return StereoCapture(cameras=(rendered[0], rendered[1]), projector=projector)
+        rendered.append(
+            _from_cast(
+                scene, cast.placements[index], cast.truths[index], cast.sub_rays[index], codec, opts, camera_seed
+            )
+        )
+    return StereoCapture(cameras=(rendered[0], rendered[1]), projector=cast.projector)
