@@ -63,7 +63,9 @@ from metrology.core.geometry.base import (
 )
 from metrology.core.geometry.pinhole import (
     PinholeCamera,
+    PinholeProjector,
     PinholeReference,
+    PinholeRig,
     camera_rays_of,
     fit_reference_plane,
     plane_coordinates_of,
@@ -536,7 +538,7 @@ class PreparedStereo(PreparedGeometry):
         """The calibrated projector's coordinates of camera-0 points (as a pinhole rig's)."""
         return self._projector_rig().prepare().projector_coordinates(points_mm)
 
-    def _projector_rig(self):  # type: ignore[no-untyped-def]
+    def _projector_rig(self) -> PinholeRig:
         if self._projector is None:
             raise GeometryError(
                 "the stereo rig's projector is not calibrated (the rig file gives its size alone); "
@@ -603,12 +605,11 @@ def _decreasing(u1r: np.ndarray) -> bool:
     return bool(steps.size) and int(np.count_nonzero(steps < 0)) > steps.size // 2
 
 
-def _projector_geometry(rig: StereoRig):  # type: ignore[no-untyped-def]
+def _projector_geometry(rig: StereoRig) -> PinholeRig | None:
     """The calibrated projector with camera 0 as a pinhole rig, or None."""
     proj = rig.projector
     if not proj.calibrated:
         return None
-    from metrology.core.geometry.pinhole import PinholeProjector, PinholeRig
 
     assert proj.K is not None and proj.R is not None and proj.T is not None
     projector = PinholeProjector(width=proj.width, height=proj.height, K=proj.K, dist=proj.dist)
