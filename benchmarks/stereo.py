@@ -21,14 +21,17 @@ projector coordinate ``u`` per pixel (set up outside the timers). Rows:
   rectified positions as rectified pixel coordinates, with the rectified projection matrices)
   triangulated by one call, plus the division by w.
 
-Medians of ``--repeats`` calls after one warm-up; Mpx/s = W H / median seconds counting every
-camera-0 pixel. Prints one line per row and a JSON line.
+Medians of ``--repeats`` calls after one warm-up (``cv2.triangulatePoints``: one call, it takes
+seconds); Mpx/s = W H / median seconds counting every camera-0 pixel. Beside the wall clock, the
+median process CPU time per call (all threads): on a shared, loaded machine the better measure of
+the work. Prints one line per row, the load average and a JSON line.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import time
 from collections.abc import Callable
@@ -45,15 +48,28 @@ from metrology.core.simulate import ScenePlacement, cast_truth
 from metrology.core.simulate.stereo import default_projector
 
 ROOT = Path(__file__).resolve().parents[1]
+PREPARE = "prepare tables"
+STEREO = "stereo: rectify + match + triangulate"
+REMAP = "cv2.remap of the two maps"
+TRIANGULATE = "cv2.triangulatePoints"
 
 
-def _time(fn: Callable[[], object], repeats: int) -> float:
-    fn()
-    times = []
+CPU_S: dict[str, float] = {}
+"""Median process CPU seconds per call of each row (all threads), beside the wall-clock median."""
+
+
+def _time(fn: Callable[[], object], repeats: int, name: str, warm: bool = True) -> float:
+    """Median wall-clock seconds of ``repeats`` calls (after a warm-up call when ``warm``); the median
+    CPU seconds go to :data:`CPU_S` under ``name`` (on a loaded machine the better measure of the work)."""
+    if warm:
+        fn()
+    times, cpu = [], []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         fn()
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    CPU_S[name] = statistics.median(cpu)
     return statistics.median(times)
 
 
@@ -97,7 +113,7 @@ def main() -> None:
         combined = prepared.combine([{"u": u0}, {"u": u1}], None, args.threads)
         prepared.triangulate_rows(slice(0, h), combined.u, None, points_out=points)
 
-    stereo_s = _time(stereo, args.repeats)
+    stereo_s = _time(stereo, args.repeats, STEREO)
     valid = np.isfinite(points[..., 2])
 
     # cv2.remap of the two maps onto the same rectified grids
@@ -113,7 +129,7 @@ def main() -> None:
         for (x, y), image in zip(remap_maps, (u0, u1), strict=True):
             cv2.remap(image, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan"))
 
-    remap_s = _time(remap, args.repeats)
+    remap_s = _time(remap, args.repeats, REMAP)
 
     # cv2.triangulatePoints of the same matches (rectified pixel coordinates, rectified P0, P1)
     combined = prepared.combine([{"u": u0}, {"u": u1}])
@@ -134,22 +150,22 @@ def main() -> None:
         X = cv2.triangulatePoints(P0, P1, pts0, pts1)
         _ = X[:3] / X[3]
 
-    tri_s = _time(triangulate, args.repeats)
+    tri_s = _time(triangulate, 1, TRIANGULATE, warm=False)  # seconds per call: once is enough
     X = cv2.triangulatePoints(P0, P1, pts0, pts1)
     Xr = (X[:3] / X[3]).T
     ours = points.reshape(-1, 3)[ok].astype(np.float64)
     agree = float(np.abs(Xr @ rect.R0 - ours).max())  # R0^T X_r, row vectors
     mpx = h * w / 1e6
-    rows = {
-        "prepare tables": prepare_s,
-        "stereo: rectify + match + triangulate": stereo_s,
-        "cv2.remap of the two maps": remap_s,
-        "cv2.triangulatePoints": tri_s,
-    }
+    rows = {PREPARE: prepare_s, STEREO: stereo_s, REMAP: remap_s, TRIANGULATE: tri_s}
     for name, seconds in rows.items():
-        print(f"{name:40s} {seconds * 1e3:8.1f} ms  {mpx / seconds:7.1f} Mpx/s")
+        cpu = CPU_S.get(name)
+        cpu_text = f"  cpu {cpu * 1e3:8.1f} ms" if cpu is not None else ""
+        print(f"{name:40s} {seconds * 1e3:8.1f} ms  {mpx / seconds:7.1f} Mpx/s{cpu_text}")
     print(f"matched {valid.mean():.1%} of camera 0's pixels; cv2.triangulatePoints agrees within {agree * 1e3:.4f} um")
-    print(json.dumps({"size": [w, h], "seconds": rows, "valid_fraction": float(valid.mean()), "agree_mm": agree}))
+    load = os.getloadavg()[0]
+    print(f"load average {load:.1f} on {os.cpu_count()} cores")
+    report = {"size": [w, h], "seconds": rows, "cpu_seconds": CPU_S, "valid_fraction": float(valid.mean())}
+    print(json.dumps({**report, "agree_mm": agree, "load_average": load}))
 
 
 if __name__ == "__main__":
