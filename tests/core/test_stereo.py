@@ -100,14 +100,14 @@ def test_noise_free_renders_measure_within_1um(scene: str, axes: str) -> None:
 
 @pytest.mark.slow
 def test_predicted_sigma_matches_the_scatter_of_realistic_renders() -> None:
-    """15 realistic 8-bit renders of a plane (one cast, noise drawn anew): the predicted per-point
+    """10 realistic 8-bit renders of a plane (one cast, noise drawn anew): the predicted per-point
     sigma (both cameras' decoder noise -> the disparity's sigma -> along camera 0's ray) is the
     observed per-pixel scatter of the depth along the ray within 20 % (median over pixels)."""
     options = SimulationOptions.realistic_8bit()
     scene = make_scene("plane", z_mm=0.0)
     the_codec = codec("u")
     cast = cast_stereo(RIG, scene, the_codec, PLACEMENT, projector=PROJECTOR, supersample=options.supersample)
-    n = 15
+    n = 10
     ranges = np.empty((n, *RIG.shape), np.float32)
     predicted = np.empty((n, *RIG.shape), np.float32)
     for i in range(n):
