@@ -15,6 +15,7 @@ import pytest
 from metrology.cli import build_parser
 from metrology.commands.common import BadInputError
 from metrology.commands.measure import cmd_measure
+from metrology.core import local_cache
 from metrology.core.codecs.stack import read_camera_stacks, write_camera_stacks
 from metrology.core.io.errors import StackError
 from metrology.core.measure import measure
@@ -102,3 +103,23 @@ def test_bad_stereo_captures_name_the_camera(tmp_path: Path, capture) -> None:
         measure(RIG, (capture.images[0], capture.images[1][:, :200, :300]), CODEC)
     with pytest.raises(ValueError, match=r"one stack per camera \(2, camera 0 first\)"):
         measure(RIG, capture.images[0], CODEC)
+
+
+def test_a_reference_plane_turns_depths_into_heights(tmp_path: Path, capture) -> None:
+    """``--reference``: the plane fitted to a stereo capture of the reference plane, as for pinhole
+    rigs (kept in the local cache: the second run reads it back); a plane 10 mm above it measures
+    10 mm."""
+    (tmp_path / "rig.json").write_text(RIG.to_json())
+    write_camera_stacks(capture.images, tmp_path / "ref.zip", CODEC)
+    raised = render_stereo_capture(RIG, make_scene("plane", z_mm=10.0), CODEC, placement=PLACEMENT, projector=PROJECTOR)
+    write_camera_stacks(raised.images, tmp_path / "obj.zip", CODEC)
+    for run in ("decoded", "kept"):
+        out, stats = tmp_path / f"z_{run}.npy", tmp_path / f"{run}.json"
+        args = _args(tmp_path, object=tmp_path / "obj.zip", reference=tmp_path / "ref.zip", out=out, json=stats)
+        summary = cmd_measure(args)
+        assert summary["z"] == "height above the reference plane"
+        assert json.loads(stats.read_text())["reference_cache"]["hit"] is (run == "kept")
+        local_cache.wait()  # the kept reference is written on a background thread
+        z = np.load(out)
+        assert np.isfinite(z).mean() > 0.9
+        assert np.nanmax(np.abs(z - 10.0)) < 1e-3, run
