@@ -39,9 +39,15 @@ _META = "meta"
 _SURFACE_MODULES = "metrology.core.geometry."
 
 
-def stack_digest(images: npt.ArrayLike | ExposureStack) -> str:
+def stack_digest(images: npt.ArrayLike | ExposureStack | tuple[np.ndarray, ...]) -> str:
     """SHA-256 (hex) of a stack's shape, dtype and bytes; of a multi-exposure capture, of each
-    exposure's description (name, time, gain, brightness) and its stack's digest, in order."""
+    exposure's description (name, time, gain, brightness) and its stack's digest, in order; of a
+    capture of several cameras (a tuple of stacks), of each camera's stack's digest, in order."""
+    if isinstance(images, tuple):
+        digest = hashlib.sha256(b"gcps-cameras|")
+        for frames in images:
+            digest.update(stack_digest(frames).encode())
+        return digest.hexdigest()
     if isinstance(images, ExposureStack):
         digest = hashlib.sha256(b"gcps-exposures|")
         for exposure, frames in zip(images.exposures, images.images, strict=True):
@@ -166,7 +172,7 @@ def _surface_of(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> Referenc
 
 def cached_reference(
     model: GeometryModel,
-    images: npt.ArrayLike | ExposureStack,
+    images: npt.ArrayLike | ExposureStack | tuple[np.ndarray, ...],
     codec: Codec | None = None,
     options: MeasureOptions | None = None,
     *,
@@ -179,8 +185,16 @@ def cached_reference(
     (:func:`metrology.core.local_cache.store_later`; the interpreter waits for it at exit).
     """
     options = options or MeasureOptions()
-    stack = images if isinstance(images, ExposureStack) else np.asarray(images)
-    frame_shape = stack.frame_shape if isinstance(stack, ExposureStack) else tuple(stack.shape[1:])
+    stack: ExposureStack | np.ndarray | tuple[np.ndarray, ...]
+    if isinstance(images, (tuple, list)):  # one stack per camera: results on camera 0's grid
+        stack = tuple(np.asarray(frames) for frames in images)
+        frame_shape = tuple(stack[0].shape[1:])
+    elif isinstance(images, ExposureStack):
+        stack = images
+        frame_shape = images.frame_shape
+    else:
+        stack = np.asarray(images)
+        frame_shape = tuple(stack.shape[1:])
     start = time.perf_counter()
     key = reference_key(model, stack_digest(stack), codec, options)
     report: dict[str, Any] = {"hash_s": time.perf_counter() - start}
