@@ -9,6 +9,9 @@ Files:
   default of a rig file without a ``model`` key);
 - :mod:`.pinhole`: a calibrated pinhole camera and projector with lens distortion
   (``"model": "pinhole"``, docs/pinhole.md);
+- :mod:`.stereo`: two calibrated cameras and a projector that only labels the surface
+  (``"model": "stereo"``, docs/stereo.md); :mod:`.stereo_match` prepares it (rectification,
+  matching along epipolar lines, triangulation of the two rays);
 - :mod:`.rig_file`: parsing and validating calibrated rig files' values (K, dist, R, T);
 - :mod:`.projector_grid`: a distorted projector's undistortion sampled on a grid.
 
@@ -38,8 +41,9 @@ from metrology.core.geometry.base import (
 )
 from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.geometry.pinhole import PinholeRig
+from metrology.core.geometry.stereo import StereoRig
 
-MODELS: dict[str, type[GeometryModel]] = {Rig.model: Rig, PinholeRig.model: PinholeRig}
+MODELS: dict[str, type[GeometryModel]] = {Rig.model: Rig, PinholeRig.model: PinholeRig, StereoRig.model: StereoRig}
 """Every geometric model, keyed by the rig file's ``model`` value."""
 
 
@@ -87,6 +91,7 @@ __all__ = [
     "PreparedGeometry",
     "ReferenceSurface",
     "Rig",
+    "StereoRig",
     "Triangulation",
     "model_class",
     "model_from_dict",

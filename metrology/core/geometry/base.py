@@ -421,6 +421,15 @@ class GeometryModel(ABC):
     scalar_parameters: ClassVar[tuple[ParameterField, ...]] = ()
     """The model's rig-file values that are single numbers, in the order a form lists them;
     empty for a model whose file holds matrices (edited by importing a calibration file)."""
+    cameras: ClassVar[int] = 1
+    """How many cameras a capture of the rig holds (one stack each, camera 0 first); results lie on
+    camera 0's pixel grid. A model of more than one camera prepares a :class:`PreparedGeometry`
+    whose :meth:`~PreparedGeometry.combine` turns every camera's decoded maps into camera 0's."""
+
+    @property
+    def camera_shapes(self) -> tuple[tuple[int, int], ...]:
+        """Every camera's frame ``(height_px, width_px)``, camera 0 first (default: :attr:`shape`)."""
+        return (self.shape,)
 
     def image_axes(self) -> ImageAxes:
         """The axes of a map of the result (default: camera columns and rows, row 0 at the top)."""

@@ -80,6 +80,8 @@ from metrology.core.geometry.projector_grid import UndistortionGrid
 from metrology.core.geometry.rig_file import (
     Matrix3,
     RigFileError,
+    check_coded_axis,
+    check_projector_size,
     check_rotation,
     checked_keys,
     distortion_coefficients,
@@ -276,12 +278,7 @@ class PinholeRig(GeometryModel):
         return np.zeros(3)
 
     def _check_projector(self, projector_size: tuple[float, float]) -> None:
-        w, h = projector_size
-        if abs(w - self.projector.width) > 1e-9 or abs(h - self.projector.height) > 1e-9:
-            raise GeometryError(
-                f"the codec's projector is {w:g}x{h:g} but the rig's projector is "
-                f"{self.projector.width:g}x{self.projector.height:g}"
-            )
+        check_projector_size(projector_size, self.projector.width, self.projector.height)
 
     def check_codec(
         self, projector_size: tuple[float, float], coded_axes: Collection[str], options: GeometryOptions | None = None
@@ -290,11 +287,7 @@ class PinholeRig(GeometryModel):
         self._check_projector(projector_size)
         options = options or GeometryOptions()
         axis = self.auto_axis() if options.triangulate == "auto" else options.triangulate
-        if axis not in coded_axes:
-            raise GeometryError(
-                f"the codec does not code the projector's {axis} axis, which the rig triangulates "
-                f"(triangulate {options.triangulate}); it codes {', '.join(sorted(coded_axes)) or 'no axis'}"
-            )
+        check_coded_axis(axis, options.triangulate, coded_axes, "rig triangulates")
 
     def value_rows(self) -> list[tuple[str, str]]:
         """Camera (size, K, distortion), projector (size, K, distortion), R, T and the baseline |T|."""

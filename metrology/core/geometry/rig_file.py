@@ -17,7 +17,7 @@ each error names the key (``camera K``, ``T[2]``...) and the value it got.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from typing import Any
 
 import numpy as np
@@ -165,3 +165,21 @@ def check_rotation(R: npt.ArrayLike, name: str = "R") -> None:
     det = float(np.linalg.det(r))
     if det < 0:
         raise RigFileError(f"{name} is not a rotation: det R = {det:.6g} (a reflection; must be +1)")
+
+
+def check_projector_size(projector_size: tuple[float, float], width: float, height: float) -> None:
+    """:class:`GeometryError` naming both sizes unless the codec's projector ``projector_size``
+    (width, height) is the rig's ``width x height`` (within 1e-9 projector units)."""
+    w, h = projector_size
+    if abs(w - width) > 1e-9 or abs(h - height) > 1e-9:
+        raise GeometryError(f"the codec's projector is {w:g}x{h:g} but the rig's projector is {width:g}x{height:g}")
+
+
+def check_coded_axis(axis: str, triangulate: str, coded_axes: Collection[str], use: str) -> None:
+    """:class:`GeometryError` unless ``axis`` (the one the rig ``use``\\ s, chosen by the option
+    ``triangulate``) is among the codec's ``coded_axes``."""
+    if axis not in coded_axes:
+        raise GeometryError(
+            f"the codec does not code the projector's {axis} axis, which the {use} "
+            f"(triangulate {triangulate}); it codes {', '.join(sorted(coded_axes)) or 'no axis'}"
+        )
