@@ -40,8 +40,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from metrology.core.geometry.base import GeometryModel
+from metrology.core.geometry.base import GeometryError, GeometryModel
 from metrology.core.geometry.pinhole import PinholeRig
+from metrology.core.geometry.stereo import StereoRig
 
 KEYS: tuple[str, ...] = ("camera_K", "camera_dist", "projector_K", "projector_dist", "R", "rvec", "T")
 """The values ``--set KEY=SRC`` accepts."""
@@ -86,7 +87,7 @@ COUNTS.update(
 )
 
 PINHOLE = PinholeRig.model
-STEREO = "stereo"
+STEREO = StereoRig.model
 MODEL_CHOICES: tuple[str, ...] = (PINHOLE, STEREO)
 """The rig models an import writes (``--model``)."""
 
@@ -486,11 +487,9 @@ def stereo_from_values(
     values: Mapping[str, np.ndarray], camera_size: tuple[int, int], projector_size: tuple[float, float]
 ) -> GeometryModel:
     """The stereo rig of :func:`stereo_rig_dict`, validated by its model
-    (:func:`~metrology.core.geometry.model_from_dict`; its errors become :class:`RigImportError`)."""
-    from metrology.core.geometry import GeometryError, model_from_dict
-
+    (:meth:`StereoRig.from_dict`; its errors become :class:`RigImportError`)."""
     try:
-        return model_from_dict(stereo_rig_dict(values, camera_size, projector_size))
+        return StereoRig.from_dict(stereo_rig_dict(values, camera_size, projector_size))
     except GeometryError as exc:
         raise RigImportError(str(exc)) from exc
 

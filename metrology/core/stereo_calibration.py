@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from metrology.core.geometry.stereo import StereoRig
 from metrology.core.procam.advice import (
     INCONSISTENT_POSE_PX,
     INCONSISTENT_POSE_RATIO,
@@ -106,13 +107,10 @@ def observe_stereo_pose(name: str, image0: npt.ArrayLike, image1: npt.ArrayLike,
 
 @dataclass(frozen=True)
 class StereoCalibration:
-    """The calibration: the stereo rig file's object (``"model": "stereo"``), the report and the fit.
+    """The calibration: the stereo rig (cameras 0 and 1 with camera 1's ``R``, ``T``, the projector's
+    size; docs/stereo-calibration.md), the report (JSON-ready but for non-finite floats) and the fit."""
 
-    ``rig``: ``{"model": "stereo", "cameras": [camera 0, camera 1 with R, T], "projector": {width,
-    height}}`` (docs/stereo-calibration.md), JSON-ready.
-    """
-
-    rig: dict[str, Any]
+    rig: StereoRig
     report: dict[str, Any] = field(default_factory=dict)
     stereo: StereoFit | None = None
 
@@ -206,7 +204,9 @@ def coverage_warnings(coverage: Coverage) -> list[CalibrationWarning]:
         if cov < MIN_COVERAGE:
             reasons.append(f"cover only {cov:.0%} of it (cells of an {COVERAGE_CELLS}x{COVERAGE_CELLS} grid)")
         if gaps:
-            reasons.append("come no nearer than " + ", ".join(f"{g:.0%} to its {edge} edge" for edge, g in gaps.items()))
+            reasons.append(
+                "come no nearer than " + ", ".join(f"{g:.0%} to its {edge} edge" for edge, g in gaps.items())
+            )
         entries.append(
             CalibrationWarning(
                 "coverage",
@@ -218,7 +218,9 @@ def coverage_warnings(coverage: Coverage) -> list[CalibrationWarning]:
     return entries
 
 
-def stereo_rig_dict(stereo: StereoFit, camera0_size: tuple[int, int], camera1_size: tuple[int, int], projector_size: tuple[float, float]) -> dict[str, Any]:
+def stereo_rig_dict(
+    stereo: StereoFit, camera0_size: tuple[int, int], camera1_size: tuple[int, int], projector_size: tuple[float, float]
+) -> dict[str, Any]:
     """The stereo rig file's object of a fit (sizes ``(width, height)``; the projector's in its units)."""
 
     def camera(K: FloatArray, dist: FloatArray, size: tuple[int, int]) -> dict[str, Any]:
@@ -233,7 +235,7 @@ def stereo_rig_dict(stereo: StereoFit, camera0_size: tuple[int, int], camera1_si
     second["R"] = [[float(x) for x in row] for row in stereo.R]
     second["T"] = [float(x) for x in stereo.T]
     return {
-        "model": "stereo",
+        "model": StereoRig.model,
         "cameras": [camera(stereo.camera.K, stereo.camera.dist, camera0_size), second],
         "projector": {"width": projector_size[0], "height": projector_size[1]},
     }
@@ -278,7 +280,8 @@ def calibrate_stereo(
         for camera, pts in zip(CAMERAS, (pose.camera0_px, pose.camera1_px), strict=True):
             if np.asarray(pts).shape != (board.count, 2):
                 raise StereoCalibrationError(
-                    f"pose {pose.name}: {camera} has points of shape {np.asarray(pts).shape}, expected ({board.count}, 2)"
+                    f"pose {pose.name}: {camera} has points of shape {np.asarray(pts).shape}, "
+                    f"expected ({board.count}, 2)"
                 )
         observations.append(
             PoseObservation(
@@ -337,5 +340,5 @@ def calibrate_stereo(
     report["uncertainty"] = _renamed(uncertainty_entry, values_too=True)
     report["warnings"] = [w.to_dict() for w in [*found, *high]]
     report["poses"] = _renamed(poses_entry)
-    rig = stereo_rig_dict(stereo, size0, size1, projector_size)
+    rig = StereoRig.from_dict(stereo_rig_dict(stereo, size0, size1, projector_size))
     return StereoCalibration(rig=rig, report=report, stereo=stereo)
