@@ -154,3 +154,14 @@ def test_model_stereo_names_the_missing_camera(tmp_path: Path, capsys: pytest.Ca
     code = main(["rig", "import", "--out", str(out), *PROJECTOR, "--opencv", str(path), "--model", "stereo"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "camera1_K is missing" in err and "--set camera1_K=SRC" in err
+
+
+def test_the_example_stereo_calibration_imports_to_the_example_stereo_rig(tmp_path: Path) -> None:
+    """examples/stereo-calibration.yml (OpenCV's stereo layout with its rectification nodes) is
+    examples/stereo-rig.json: the command of docs/stereo-calibration.md."""
+    root = Path(__file__).resolve().parents[2]
+    out = tmp_path / "rig.json"
+    example = root / "examples" / "stereo-calibration.yml"
+    assert _import(out, "--opencv", str(example)) == 0
+    expected = model_from_dict(json.loads((root / "examples" / "stereo-rig.json").read_text()))
+    assert model_from_dict(json.loads(out.read_text())) == expected
