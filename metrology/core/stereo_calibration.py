@@ -196,7 +196,7 @@ def coverage_warnings(coverage: Coverage) -> list[CalibrationWarning]:
     """Per camera, corners covering less than ``MIN_COVERAGE`` of its image or stopping more than
     ``MAX_EDGE_GAP`` short of one of its edges (cause ``coverage``; camera 0's entry first)."""
     entries = []
-    for cov, key, what in ((coverage.camera, "camera", "cam0"), (coverage.projector, "projector", "cam1")):
+    for cov, key, what in ((coverage.camera, "camera", "camera 0"), (coverage.projector, "projector", "camera 1")):
         gaps = {edge: g for edge, g in coverage.edge_gaps[key].items() if g > MAX_EDGE_GAP}
         if cov >= MIN_COVERAGE and not gaps:
             continue
