@@ -120,6 +120,7 @@ def test_codec_stacks_give_the_same_rig_and_the_codecs_projector_size(
         pose = tmp_path / source.name
         for camera in ("cam0", "cam1"):
             image = cv2.imread(str(source / camera / "board.png"), cv2.IMREAD_UNCHANGED)
+            assert image is not None
             write_codec_stack(codec, np.repeat(image[None], codec.n_frames, axis=0), pose / camera)
         stacked.append(pose)
     out, report = tmp_path / "rig.json", tmp_path / "report.json"

@@ -23,7 +23,7 @@ def _exact_poses() -> list[StereoBoardPose]:
         X1 = X0 @ sb.R1.T + sb.T1
         a = cv2.projectPoints(X0, np.zeros(3), np.zeros(3), sb.K0, sb.D0)[0].reshape(-1, 2)
         b = cv2.projectPoints(X1, np.zeros(3), np.zeros(3), sb.K1, sb.D1)[0].reshape(-1, 2)
-        poses.append(StereoBoardPose(f"p{i}", a, b))
+        poses.append(StereoBoardPose(f"p{i}", np.asarray(a, np.float64), np.asarray(b, np.float64)))
     return poses
 
 
