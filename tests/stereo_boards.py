@@ -14,9 +14,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, PinholeRig
+from metrology.core.codecs import codec_from_dict
+from metrology.core.codecs.model import Codec
+from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, PinholeRig, look_at_rig
 from metrology.core.procam.board import BoardSpec
-from metrology.core.procam.virtual import BoardPose, board_truth
+from metrology.core.procam.virtual import BoardPose, board_truth, render_board
+from metrology.core.simulate import realistic_8bit
 
 WIDTH, HEIGHT = 320, 256
 BOARD = BoardSpec("chessboard", 9, 7, 22.0)
@@ -91,3 +94,62 @@ def write_captures(root: Path, count: int = len(POSE_ANGLES)) -> StereoBoardCapt
             cv2.imwrite(str(folder / camera / "board.png"), image)
         folders.append(folder)
     return StereoBoardCaptures(folders=tuple(folders))
+
+
+# --------------------------------------------------------------------------- a projector between them
+PROJECTOR = PinholeProjector(
+    640, 400, ((520.0, 0.0, 322.0), (0.0, 521.0, 205.0), (0.0, 0.0, 1.0)), (0.03, -0.02, 0.0, 0.0, 0.0)
+)
+"""A distorted 640x400 projector for the codec-stack poses (``--projector``)."""
+PROJECTOR_CENTRE = (55.0, -45.0, -10.0)
+"""The projector's centre in camera 0's frame, mm (between the cameras, above them); it looks at
+the boards' middle, ``(45, 0, 520)``."""
+
+
+def projector_pose() -> tuple[np.ndarray, np.ndarray]:
+    """The projector's pose ``X_p = R_p X_c0 + T_p``: ``(R_p (3, 3), T_p (3,))``."""
+    rig = look_at_rig(_camera_rig(K0, D0).camera, PROJECTOR, PROJECTOR_CENTRE, (45.0, 0.0, 520.0))
+    return np.asarray(rig.R, np.float64), np.asarray(rig.T, np.float64)
+
+
+def make_stack_codec() -> Codec:
+    """Both axes coded: 8-step phase of period 32 and 5 gray bits each, a white and a black frame."""
+
+    def axis(first: int) -> dict[str, object]:
+        return {
+            "phase": [{"frames": list(range(first, first + 8)), "period": 32.0}],
+            "gray": {"frames": list(range(first + 8, first + 13)), "word": 32.0, "origin": -0.5},
+        }
+
+    return codec_from_dict(
+        {
+            "codec": "gcps-codec/1",
+            "frames": 28,
+            "projector": {"width": PROJECTOR.width, "height": PROJECTOR.height},
+            "white": [26],
+            "black": [27],
+            "axes": {"u": axis(0), "v": axis(13)},
+        }
+    )
+
+
+def render_stack_pair(pose: BoardPose, codec: Codec, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Both cameras' codec stacks ``(frames, HEIGHT, WIDTH)`` uint8 of the board at ``pose`` (camera
+    0's frame), lit by :data:`PROJECTOR` (realistic 8-bit renders, one ray per pixel)."""
+    R_p, T_p = projector_pose()
+    options = realistic_8bit(supersample=1)
+    stacks = []
+    for k, (K, dist, R_c, T_c) in enumerate(((K0, D0, np.eye(3), np.zeros(3)), (K1, D1, R1, T1))):
+        # the projector's pose from camera k: X_p = R_p R_c^T (X_ck - T_c) + T_p
+        R = R_p @ R_c.T
+        T = T_p - R @ T_c
+        base = _camera_rig(K, dist)
+        rig = PinholeRig(
+            camera=base.camera,
+            projector=PROJECTOR,
+            R=tuple(tuple(float(x) for x in row) for row in R),  # type: ignore[arg-type]
+            T=(float(T[0]), float(T[1]), float(T[2])),
+        )
+        in_camera = BoardPose(R=R_c @ pose.R, t=R_c @ pose.t + T_c)
+        stacks.append(render_board(rig, BOARD, in_camera, codec, options, seed=seed * 2 + k))
+    return stacks[0], stacks[1]

@@ -8,6 +8,8 @@ Each pose is a capture folder holding ``cam0/`` and ``cam1/``: in each either a 
 ``codec.json``) whose white frames (and long sine phase sequences) are averaged into the board image.
 ``RIG.json`` is a stereo rig file (``X_c1 = R X_c0 + T``), ``REPORT.json`` the explaining report
 (``gcps-stereo-calibration-report/1``). ``--projector-size`` defaults to the codec's projector size.
+With codec stacks coding both axes, ``--projector`` also calibrates the projector against camera 0
+from the decoded coordinates (``X_p = R X_c0 + T`` in the rig's ``projector``).
 Exit 2 with one line naming the problem (a missing camera folder, fewer than two poses, a board not
 found in a named pose's camera); nothing is written then.
 """
@@ -52,6 +54,11 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="keep each camera's own intrinsics in the stereo fit (default: refine both jointly with the pose)",
     )
+    p.add_argument(
+        "--projector",
+        action="store_true",
+        help="also calibrate the projector against camera 0 (needs codec stacks coding both axes)",
+    )
     p.set_defaults(func=cmd_calibrate_stereo)
 
 
@@ -64,16 +71,15 @@ def _image_files(folder: Path) -> list[Path]:
     )
 
 
-def _board_image(folder: Path, codec: Any) -> Any:
-    """A camera folder's board image ``(H, W)``: its single image, or its codec stack's board image."""
+def _camera_images(folder: Path, codec: Any) -> Any:
+    """A camera folder's single image ``(H, W)``, or its codec stack ``(frames, H, W)`` in codec order."""
     from metrology.core.codecs.stack import read_codec_stack
     from metrology.core.io.images import decode_grey_image
-    from metrology.core.procam.observe import board_image
 
     files = _image_files(folder)
     if len(files) == 1:
         return decode_grey_image(files[0].read_bytes(), str(files[0]))
-    return board_image(read_codec_stack(folder, codec).images, codec)
+    return read_codec_stack(folder, codec).images
 
 
 def _camera_folders(source: str, codec: Any) -> tuple[Path, Path, Any]:
@@ -139,8 +145,9 @@ def cmd_calibrate_stereo(args: argparse.Namespace) -> dict[str, Any]:
         poses.append(
             StereoBoardImages(
                 name=name,
-                camera0=functools.partial(_board_image, folder0, pose_codec),
-                camera1=functools.partial(_board_image, folder1, pose_codec),
+                camera0=functools.partial(_camera_images, folder0, pose_codec),
+                camera1=functools.partial(_camera_images, folder1, pose_codec),
+                codec=pose_codec,
             )
         )
     if projector_size is None:
@@ -150,6 +157,7 @@ def cmd_calibrate_stereo(args: argparse.Namespace) -> dict[str, Any]:
         projector_size=(float(projector_size[0]), float(projector_size[1])),
         fix_k3=args.fix_k3,
         joint=not args.fixed_intrinsics,
+        projector=args.projector,
     )
     outcome = calibrate_stereo_images(poses, options)
     report = dict(outcome.report)
@@ -165,5 +173,6 @@ def cmd_calibrate_stereo(args: argparse.Namespace) -> dict[str, Any]:
         "camera1_rms_px": report["camera1_rms_px"],
         "stereo_rms_px": report["stereo_rms_px"],
         "baseline_mm": report["baseline_mm"],
+        "projector_calibrated": "projector_calibration" in report,
         "warnings": [w["cause"] for w in report["warnings"]],
     }

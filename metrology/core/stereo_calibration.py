@@ -50,7 +50,7 @@ from metrology.core.procam.advice import (
     similar_poses_warnings,
 )
 from metrology.core.procam.board import BoardSpec, detect_board
-from metrology.core.procam.calibrate import chosen_poses
+from metrology.core.procam.calibrate import calibrate_procam, chosen_poses
 from metrology.core.procam.diagnostics import COVERAGE_CELLS, Coverage, image_coverage, pose_diversity
 from metrology.core.procam.fit import StereoFit, leave_one_out_fits, stereo_fit
 from metrology.core.procam.poses import PoseObservation, ProcamCalibrationError, fit_points, select_usable_poses
@@ -250,8 +250,10 @@ def calibrate_stereo(
     *,
     fix_k3: bool = False,
     joint: bool = True,
+    projector_poses: Sequence[PoseObservation] | None = None,
 ) -> StereoCalibration:
-    """Calibrate two cameras and camera 1's pose from board poses; explain the result.
+    """Calibrate two cameras and camera 1's pose from board poses; explain the result. With
+    ``projector_poses``, calibrate the projector too.
 
     Parameters
     ----------
@@ -265,6 +267,14 @@ def calibrate_stereo(
     joint : bool
         Refine both cameras' intrinsics together with the pose (default); False holds each
         camera's own calibration in the stereo fit.
+    projector_poses : sequence of PoseObservation, optional
+        Camera 0's board corners mapped into the projector (:func:`~metrology.core.procam.observe.observe_pose`
+        of camera 0's codec stacks): the projector is then calibrated against camera 0 by
+        :func:`~metrology.core.procam.calibrate.calibrate_procam` (its own fit of camera 0), and
+        the rig's ``projector`` gets its ``K``, ``dist``, ``R``, ``T`` (``X_p = R X_c0 + T``); that
+        calibration's report is the report's ``projector_calibration``
+        (``gcps-procam-report/1``), its warnings are also the report's, prefixed
+        ``projector calibration:``.
 
     Raises
     ------
@@ -340,5 +350,28 @@ def calibrate_stereo(
     report["uncertainty"] = _renamed(uncertainty_entry, values_too=True)
     report["warnings"] = [w.to_dict() for w in [*found, *high]]
     report["poses"] = _renamed(poses_entry)
-    rig = StereoRig.from_dict(stereo_rig_dict(stereo, size0, size1, projector_size))
+    rig_dict = stereo_rig_dict(stereo, size0, size1, projector_size)
+    if projector_poses is not None:
+        projector_fit = calibrate_procam(
+            projector_poses,
+            board,
+            size0,
+            (round(projector_size[0]), round(projector_size[1])),
+            fix_k3=fix_k3,
+            joint=joint,
+        )
+        projector = projector_fit.rig.projector
+        rig_dict["projector"].update(
+            {
+                "K": [list(row) for row in projector.K],
+                "dist": list(projector.dist),
+                "R": [list(row) for row in projector_fit.rig.R],
+                "T": list(projector_fit.rig.T),
+            }
+        )
+        report["projector_calibration"] = projector_fit.report
+        report["warnings"] += [
+            {**w, "message": f"projector calibration: {w['message']}"} for w in projector_fit.report["warnings"]
+        ]
+    rig = StereoRig.from_dict(rig_dict)
     return StereoCalibration(rig=rig, report=report, stereo=stereo)

@@ -17,15 +17,18 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from metrology.core.codecs.model import Codec
 from metrology.core.geometry.stereo import StereoRig
 from metrology.core.option_checks import check_bool, check_keys
 from metrology.core.procam import parse_board
 from metrology.core.procam.board import BoardSpec
+from metrology.core.procam.observe import board_image, observe_pose
+from metrology.core.procam.poses import PoseObservation
 from metrology.core.stereo_calibration import CAMERAS, StereoBoardPose, calibrate_stereo, observe_stereo_pose
 from metrology.pipeline.common import PhaseTimer
 from metrology.version import software_version
 
-OPTION_KEYS = ("board", "projector_size", "fix_k3", "joint")
+OPTION_KEYS = ("board", "projector_size", "fix_k3", "joint", "projector")
 """The keys of :meth:`StereoCalibrationOptions.from_dict` (those of :meth:`StereoCalibrationOptions.to_dict`)."""
 
 
@@ -45,12 +48,16 @@ class StereoCalibrationOptions:
     joint : bool
         Refine both cameras' intrinsics together with camera 1's pose (default True); False keeps
         each camera's own calibration in the stereo fit.
+    projector : bool
+        Calibrate the projector too, from camera 0's codec stacks (both axes coded): every pose
+        then needs stacks and a codec of the projector's size.
     """
 
     board: str
     projector_size: tuple[float, float]
     fix_k3: bool = False
     joint: bool = True
+    projector: bool = False
 
     def __post_init__(self) -> None:
         self.board_spec()  # ValueError naming the board spec
@@ -65,6 +72,7 @@ class StereoCalibrationOptions:
         object.__setattr__(self, "projector_size", (float(size[0]), float(size[1])))
         check_bool("fix_k3", self.fix_k3)
         check_bool("joint", self.joint)
+        check_bool("projector", self.projector)
 
     def board_spec(self) -> BoardSpec:
         return parse_board(self.board)
@@ -75,6 +83,7 @@ class StereoCalibrationOptions:
             "projector_size": list(self.projector_size),
             "fix_k3": self.fix_k3,
             "joint": self.joint,
+            "projector": self.projector,
         }
 
     @classmethod
@@ -95,7 +104,9 @@ Image = npt.ArrayLike | Callable[[], npt.ArrayLike]
 
 @dataclass(frozen=True)
 class StereoBoardImages:
-    """One board pose: a name and each camera's board image ``(H, W)`` (any numeric dtype).
+    """One board pose: a name and each camera's board image ``(H, W)`` or codec stack
+    ``(frames, H, W)`` (any numeric dtype; a stack's board image is
+    :func:`~metrology.core.procam.observe.board_image`'s), with the stacks' codec.
 
     An image may be a function of no arguments returning it, called when the pose's turn comes
     (one pose's images in memory at a time).
@@ -104,10 +115,42 @@ class StereoBoardImages:
     name: str
     camera0: Image
     camera1: Image
+    codec: Codec | None = None
 
     def images(self) -> tuple[np.ndarray, np.ndarray]:
         """Both images, ``(H, W)`` each (calling the functions)."""
         return tuple(np.asarray(im() if callable(im) else im) for im in (self.camera0, self.camera1))  # type: ignore[return-value]
+
+
+def _board_image(pose: StereoBoardImages, camera: str, image: np.ndarray) -> np.ndarray:
+    """The image the board is found in: ``image`` (H, W), or a stack's (:func:`board_image`)."""
+    if image.ndim == 2:
+        return image
+    if image.ndim == 3:
+        if pose.codec is None:
+            raise ValueError(f"pose {pose.name}: {camera} holds a stack of {image.shape[0]} frames but no codec")
+        if image.shape[0] != pose.codec.n_frames:
+            raise ValueError(
+                f"pose {pose.name}: {camera} holds {image.shape[0]} frames, its codec has {pose.codec.n_frames}"
+            )
+        return board_image(image, pose.codec)
+    raise ValueError(f"pose {pose.name}: {camera}'s board image must be (H, W) or a stack, got shape {image.shape}")
+
+
+def _projector_observation(
+    pose: StereoBoardImages, stack: np.ndarray, board: BoardSpec, options: StereoCalibrationOptions
+) -> PoseObservation:
+    """Camera 0's board corners mapped into the projector (:func:`observe_pose` of its stack)."""
+    codec = pose.codec
+    if stack.ndim != 3 or codec is None:
+        raise ValueError(f"pose {pose.name}: --projector needs a codec stack in cam0/, not a single image")
+    size = (float(codec.projector_width), float(codec.projector_height))
+    if size != options.projector_size:
+        raise ValueError(
+            f"pose {pose.name}: the codec's projector is {size[0]:g}x{size[1]:g}, the projector size given "
+            f"{options.projector_size[0]:g}x{options.projector_size[1]:g}"
+        )
+    return observe_pose(pose.name, stack, codec, board)
 
 
 @dataclass
@@ -147,17 +190,15 @@ def calibrate_stereo_images(
     timer = PhaseTimer()
     sizes: list[tuple[int, int] | None] = [None, None]
     observed: list[StereoBoardPose] = []
+    projector_poses: list[PoseObservation] = []
     for index, pose in enumerate(poses):
         if progress is not None:
             progress(round(90 * index / len(poses)), f"observe {pose.name}")
         with timer.phase("read"):
             images = pose.images()
         with timer.phase("observe"):
-            for k, (camera, image) in enumerate(zip(CAMERAS, images, strict=True)):
-                if image.ndim != 2:
-                    raise ValueError(
-                        f"pose {pose.name}: {camera}'s board image must be (H, W), got shape {image.shape}"
-                    )
+            boards = [_board_image(pose, camera, image) for camera, image in zip(CAMERAS, images, strict=True)]
+            for k, (camera, image) in enumerate(zip(CAMERAS, boards, strict=True)):
                 size = (int(image.shape[1]), int(image.shape[0]))
                 first = sizes[k]
                 if first is not None and size != first:
@@ -166,15 +207,24 @@ def calibrate_stereo_images(
                         f"its first pose's {first[0]}x{first[1]}"
                     )
                 sizes[k] = size
-            observed.append(observe_stereo_pose(pose.name, images[0], images[1], board))
-        del images
+            observed.append(observe_stereo_pose(pose.name, boards[0], boards[1], board))
+            if options.projector:
+                projector_poses.append(_projector_observation(pose, images[0], board, options))
+        del images, boards
     size0, size1 = sizes
     assert size0 is not None and size1 is not None
     if progress is not None:
         progress(90, "calibrate")
     with timer.phase("calibrate"):
         result = calibrate_stereo(
-            observed, board, size0, size1, options.projector_size, fix_k3=options.fix_k3, joint=options.joint
+            observed,
+            board,
+            size0,
+            size1,
+            options.projector_size,
+            fix_k3=options.fix_k3,
+            joint=options.joint,
+            projector_poses=projector_poses if options.projector else None,
         )
     version = software_version()
     report = dict(result.report)

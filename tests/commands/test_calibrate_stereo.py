@@ -104,7 +104,8 @@ def test_the_report_explains_the_fit(calibrated: tuple[bytes, dict]) -> None:
     assert report["uncertainty"]["camera0"] and report["uncertainty"]["camera1"]
     for warning in report["warnings"]:
         assert warning["message"] and warning["action"] and "projector" not in warning["message"]
-    assert report["options"] == {"board": BOARD, "projector_size": [1280.0, 800.0], "fix_k3": True, "joint": True}
+    expected = {"board": BOARD, "projector_size": [1280.0, 800.0], "fix_k3": True, "joint": True, "projector": False}
+    assert report["options"] == expected
 
 
 @pytest.mark.slow
