@@ -95,7 +95,8 @@ def read_capture(path: str, codec: Codec | None, model: GeometryModel, what: str
     """The ``(frames, H, W)`` images of a capture: the eleven named gcps-v1 patterns when ``codec``
     is gcps-v1 (or None), else the codec's frames in its order; an
     :class:`~metrology.core.codecs.stack.ExposureStack` for a multi-exposure capture
-    (docs/exposures.md); checked against the rig's camera.
+    (docs/exposures.md); one stack per camera for a rig of several cameras (``cam0/``, ``cam1/``...,
+    docs/stereo.md); checked against the rig's cameras.
 
     Raises
     ------
@@ -107,6 +108,8 @@ def read_capture(path: str, codec: Codec | None, model: GeometryModel, what: str
 
     if not Path(path).exists():
         raise BadInputError(f"{what} stack {path}: not found")
+    if model.cameras > 1:
+        return _read_cameras(path, codec, model, what)
     try:
         if is_exposure_capture(path):  # a multi-exposure capture (docs/exposures.md)
             stack = read_exposure_stack(path, codec).stack
@@ -128,6 +131,25 @@ def read_capture(path: str, codec: Codec | None, model: GeometryModel, what: str
         mh, mw = model.shape
         raise BadInputError(f"{what} stack: the frames are {w}x{h} px but the rig's camera is {mw}x{mh} px")
     return images
+
+
+def _read_cameras(path: str, codec: Codec | None, model: GeometryModel, what: str) -> tuple[Any, ...]:
+    """One stack per camera of a capture of several cameras (``cam0/``, ``cam1/``...), each checked
+    against its camera's size."""
+    from metrology.core.codecs.stack import read_camera_stacks
+
+    try:
+        stacks = read_camera_stacks(path, codec, model.cameras).stacks
+    except ValueError as exc:
+        raise BadInputError(f"{what} stack: {exc}") from exc
+    for index, (images, expected) in enumerate(zip(stacks, model.camera_shapes, strict=True)):
+        if tuple(images.shape[1:]) != tuple(expected):
+            h, w = images.shape[1:]
+            mh, mw = expected
+            raise BadInputError(
+                f"{what} stack: camera {index}'s frames are {w}x{h} px but the rig's camera {index} is {mw}x{mh} px"
+            )
+    return stacks
 
 
 # --------------------------------------------------------------------------- measurement options

@@ -3,12 +3,14 @@ of any model and captures of any codec (docs/command-line.md, docs/pinhole.md).
 
 ::
 
-    gcps measure --rig RIG.json --object OBJ [--reference REF] [--codec C] --out Z.npy
+    gcps measure --rig RIG.json --object OBJ [--reference REF] [--codec C] [--out Z.npy]
                  [--xyz XYZ.npy] [--sigma SIGMA.npy] [--mesh MESH.ply|.stl|.obj] [--json STATS.json]
                  [--max-sigma MM] [--triangulate auto|u|v] [--method plane|midpoint] [decoding options]
 
 ``--reference`` is required by a model that measures against the reference plane (the
-crossed-axes rig); without one a pinhole rig gives depths (camera Z). The captures' codec is
+crossed-axes rig); without one a pinhole or stereo rig gives depths (camera Z). A stereo rig's
+captures hold one stack per camera (``cam0/``, ``cam1/``; docs/stereo.md). At least one of
+``--out`` and ``--xyz`` is given. The captures' codec is
 ``--codec``, else their ``codec.json``, else gcps-v1 (the eleven named patterns). The command
 reads its inputs, calls the pipeline's :func:`~metrology.pipeline.measure.measure` (as the
 measurement job does) and writes its outputs, each atomically, only once all are computed.
@@ -49,8 +51,11 @@ def register(subparsers: Any) -> None:
         help="capture of the reference plane (folder or .zip); required where the rig's model needs one",
     )
     p.add_argument("--object", required=True, help="capture of the object (folder or .zip)")
-    p.add_argument("--out", required=True, help="heights (or depths), float32 mm, NaN where not measured (.npy)")
-    p.add_argument("--xyz", help="points (H, W, 3) float32 mm in the model frame, NaN where not measured (.npy)")
+    p.add_argument("--out", help="heights (or depths), float32 mm, NaN where not measured (.npy)")
+    p.add_argument(
+        "--xyz",
+        help="points (H, W, 3) float32 mm in the model frame (a stereo rig: camera 0's), NaN where not measured (.npy)",
+    )
     p.add_argument("--sigma", help="per-point standard uncertainty (H, W) float32 mm (.npy)")
     p.add_argument("--max-sigma", type=float, metavar="MM", help="drop points whose sigma exceeds this, mm")
     p.add_argument("--mesh", help="mesh output (.ply, .stl or .obj); a PLY carries sigma_mm per vertex when known")
@@ -98,6 +103,8 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     from metrology.core.reference_cache import cached_reference
     from metrology.pipeline.measure import measure
 
+    if not (args.out or args.xyz):
+        raise BadInputError("give --out (heights or depths) or --xyz (points), or both")
     check_output(args.out, (".npy",), "--out")
     check_output(args.xyz, (".npy",), "--xyz")
     check_output(args.sigma, (".npy",), "--sigma")
@@ -164,9 +171,11 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
             assert points is not None
             mesh = mesh.with_sigma(result.sigma_mm, np.isfinite(z) & np.isfinite(points).all(axis=-1))
 
-    write_height_npy(z, args.out)
+    if args.out:
+        write_height_npy(z, args.out)
     if args.xyz:
         assert points is not None
+        points[~np.isfinite(z)] = np.nan  # NaN exactly where z is
         with atomic_path(args.xyz) as tmp:
             np.save(tmp, points)
     if args.sigma and result.sigma_mm is not None:
@@ -177,6 +186,7 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     stats = result.statistics()
     summary: dict[str, Any] = {
         "out": args.out,
+        "xyz": args.xyz,
         **{key: value for key, value in stats.items() if key != "gray_only" and not key.endswith("_mm")},
     }
     if asked_sigma or result.sigma_mm is not None:

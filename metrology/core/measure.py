@@ -397,6 +397,8 @@ def prepare_reference(
     ----------
     model : GeometryModel
     images : (frames, H, W) image stack of ``codec`` (``(11, H, W)`` for gcps-v1), or ExposureStack
+        (a sequence of one stack per camera, camera 0 first, for a model of several cameras:
+        :func:`camera_stacks`)
     codec : Codec, optional
         The capture's codec; None is the paper's gcps-v1.
     options : MeasureOptions, optional
@@ -415,12 +417,20 @@ def prepare_reference(
         return _fused_reference(model, images, options, threads)
     codec = codec if codec is not None else gcps_v1_codec()
     prepared = _prepared(model, codec, options.geometry)
-    coded = _decode_and_filter(prepared, images, codec, options, None, "reference", with_noise=False, threads=threads)
+    cameras = [
+        _decode_and_filter(
+            prepared, stack, codec, options, None, "reference", with_noise=False, threads=threads, camera=index
+        )
+        for index, stack in enumerate(camera_stacks(model, images))
+    ]
+    coded = cameras[0]
     blur = options.filters.blur_variance_px2
     if blur is None:  # from the codes before the mixed-pixel filter drops any
         blur = _estimated_blur(coded.codes[prepared.axis], coded.visibility[prepared.axis], coded.periods_codes)
-    coded.drop(threads)
-    surface = prepared.reference(coded.axis_map("u"), coded.axis_map("v"), threads)
+    for camera in cameras:
+        camera.drop(threads)
+    combined = prepared.combine([_coordinates(camera) for camera in cameras], None, threads)
+    surface = prepared.reference(combined.u, combined.v, threads)
     unreliable = coded.dropped if surface.per_pixel else None
     return Reference(
         model=model,
@@ -450,6 +460,10 @@ def measure(
     obj : (frames, H, W) image stack of ``codec``, uint8, uint16 or float, or ExposureStack
         A multi-exposure capture (docs/exposures.md) is fused per pixel
         (:func:`~metrology.core.codecs.exposures.decode_exposures`); either capture may be one.
+        For a model of several cameras (:attr:`~GeometryModel.cameras`), a sequence of one stack
+        per camera, camera 0 first (:func:`camera_stacks`): each is decoded and filtered alike, and
+        the prepared model combines their maps (:meth:`PreparedGeometry.combine`); the results lie
+        on camera 0's pixel grid.
     codec : Codec, optional
         The stacks' codec; None is the paper's gcps-v1 (eleven named patterns).
     reference : Reference or (frames, H, W) image stack, optional
@@ -526,11 +540,39 @@ def _check_reference(
         raise ValueError("the kept reference was prepared with other triangulation options than the measurement's")
 
 
-def _frames_shape(model: GeometryModel, shape: tuple[int, ...], what: str) -> None:
-    if tuple(shape) != tuple(model.shape):
+def _frames_shape(model: GeometryModel, shape: tuple[int, ...], what: str, camera: int = 0) -> None:
+    expected = model.camera_shapes[camera]
+    if tuple(shape) != tuple(expected):
         h, w = shape
-        mh, mw = model.shape
+        mh, mw = expected
+        if model.cameras > 1:
+            raise ValueError(
+                f"camera {camera}'s {what} frames are {w}x{h} px but the rig's camera {camera} is {mw}x{mh} px"
+            )
         raise ValueError(f"the {what} frames are {w}x{h} px but the rig's camera is {mw}x{mh} px")
+
+
+def camera_stacks(model: GeometryModel, images: Any) -> tuple[Any, ...]:
+    """One capture per camera of ``model``, camera 0 first: ``(images,)`` for a model of one camera;
+    for a model of several (:attr:`GeometryModel.cameras`), ``images`` must be a sequence of that
+    many stacks (ValueError saying so otherwise; multi-exposure captures are one camera's only)."""
+    count = model.cameras
+    if count == 1:
+        return (images,)
+    if isinstance(images, ExposureStack) or not isinstance(images, (tuple, list)) or len(images) != count:
+        got = f"a sequence of {len(images)}" if isinstance(images, (tuple, list)) else f"a {type(images).__name__}"
+        raise ValueError(
+            f"a {model.short_label} rig's capture is one stack per camera ({count}, camera 0 first), got {got}"
+        )
+    for index, stack in enumerate(images):
+        if isinstance(stack, ExposureStack):
+            raise ValueError(f"camera {index}: multi-exposure captures are measured on one-camera rigs only")
+    return tuple(images)
+
+
+def _coordinates(coded: _Coded) -> dict[str, np.ndarray | None]:
+    """A decoded camera's projector coordinates per used axis (projector units)."""
+    return {axis: coded.axis_map(axis) for axis in coded.codes}
 
 
 def _prepared(model: GeometryModel, codec: Codec, geometry: GeometryOptions) -> PreparedGeometry:
@@ -626,9 +668,10 @@ def _decode_and_filter(
     *,
     with_noise: bool,
     threads: int | None,
+    camera: int = 0,
 ) -> _Coded:
     """Decode a stack of ``codec`` and apply the code-space filters on the axes the model reads
-    (module docstring, step 2).
+    (module docstring, step 2); ``camera``: which of the model's cameras took it.
 
     ``what`` is ``"reference"`` or ``"object"``. A reference capture gets the field margin and
     the mixed-pixel band (steps, invalid neighbours) marked in ``dropped``, not yet applied (its
@@ -643,18 +686,18 @@ def _decode_and_filter(
         )
     decode_options = _codec_decode_options(codec, options)
     if isinstance(images, ExposureStack):
-        _frames_shape(prepared.model, images.frame_shape, what)
+        _frames_shape(prepared.model, images.frame_shape, what, camera)
         decoding = decode_exposures(images, codec, decode_options, with_noise=with_noise, threads=threads)
     else:
         stack = validate_codec_stack(np.asarray(images), codec)
-        _frames_shape(prepared.model, stack.shape[1:], what)
+        _frames_shape(prepared.model, stack.shape[1:], what, camera)
         decoding = decode_codec(stack, codec, decode_options, with_noise=with_noise, threads=threads)
     filters = options.filters
     axes = prepared.used_axes(tuple(codec.axes))
     codes: dict[str, np.ndarray] = {}
     scales: dict[str, float] = {}
     visibility: dict[str, np.ndarray] = {}
-    dropped = np.zeros(prepared.shape, bool)
+    dropped = np.zeros(prepared.model.camera_shapes[camera], bool)
     for axis in axes:
         decoded = decoding.axes[axis]
         period = finest_period(codec, axis)
@@ -688,7 +731,7 @@ def _decode_and_filter(
     if len(axes) > 1:  # a pixel the model cannot triangulate is dropped on every axis it reads
         decoded_everywhere = np.logical_and.reduce([np.isfinite(codes[a]) for a in axes])
         dropped |= ~decoded_everywhere & np.logical_or.reduce([np.isfinite(codes[a]) for a in axes])
-    if reference is not None and reference.unreliable is not None:
+    if reference is not None and reference.unreliable is not None and camera == 0:
         dropped |= reference.unreliable
     period = finest_period(codec, prepared.axis)
     coded = _Coded(
@@ -718,13 +761,32 @@ def _codec_measure(
 ) -> Measurement:
     start = time.perf_counter()
     prepared = _prepared(model, codec, options.geometry)
-    coded = _decode_and_filter(
-        prepared, obj, codec, options, reference, "object", with_noise=options.wants_sigma, threads=threads
-    )
+    cameras = [
+        _decode_and_filter(
+            prepared,
+            stack,
+            codec,
+            options,
+            reference if index == 0 else None,
+            "object",
+            with_noise=options.wants_sigma,
+            threads=threads,
+            camera=index,
+        )
+        for index, stack in enumerate(camera_stacks(model, obj))
+    ]
+    coded = cameras[0]
     timings["object_decode_s"] = time.perf_counter() - start
-    refuse_inconsistent(coded.decoding.codec_check, options)
+    for camera in cameras:
+        refuse_inconsistent(camera.decoding.codec_check, options)
     start = time.perf_counter()
-    sigma_in = _sigma_of(codec, prepared.axis, coded.decoding) if options.wants_sigma else None
+    sigmas = [_sigma_of(codec, prepared.axis, c.decoding) for c in cameras] if options.wants_sigma else None
+    sigma_in = None if sigmas is None else sigmas[0]
+    combined = None
+    if len(cameras) > 1:  # the model makes camera 0's inputs of every camera's maps
+        combined = prepared.combine([_coordinates(c) for c in cameras], sigmas, threads)
+        sigma_in = combined.sigma
+        timings["object_combine_s"] = time.perf_counter() - start
     surface = None if reference is None else reference.surface
     h, w = prepared.shape
     z = np.empty((h, w), np.float32)
@@ -736,11 +798,14 @@ def _codec_measure(
     def run(rows: slice) -> None:
         scratch = thread_scratch()
         coords: dict[str, np.ndarray | None] = {"u": None, "v": None}
-        for axis, c in coded.codes.items():
-            tile = c[rows]
-            coords[axis] = _from_codes(
-                tile, coded.scales[axis], out=scratch.get(f"coord_{axis}", tile.shape, np.float32)
-            )
+        if combined is not None:
+            coords = {"u": _rows_of(combined.u, rows), "v": _rows_of(combined.v, rows)}
+        else:
+            for axis, c in coded.codes.items():
+                tile = c[rows]
+                coords[axis] = _from_codes(
+                    tile, coded.scales[axis], out=scratch.get(f"coord_{axis}", tile.shape, np.float32)
+                )
         tile_points = points[rows] if points is not None else None
         if tile_points is None and not heights:  # depths: the points' Z
             tile_points = scratch.get("points", (*z[rows].shape, 3), np.float32)
@@ -760,6 +825,8 @@ def _codec_measure(
 
     run_tiled(run, h, w, threads)
     codes = coded.codes[prepared.axis]
+    if combined is not None:  # camera 0's codes where the model measured
+        codes[~np.isfinite(z)] = np.nan
     if sigma_mm is not None:
         sigma_mm[~np.isfinite(z)] = np.nan
     dropped = _drop_sigma_above(options.max_sigma_mm, sigma_mm, [codes] + ([] if points is None else [points]), z)
@@ -777,6 +844,10 @@ def _codec_measure(
         timings_s=timings,
         codec_check=coded.decoding.codec_check,
     )
+
+
+def _rows_of(array: np.ndarray | None, rows: slice) -> np.ndarray | None:
+    return None if array is None else array[rows]
 
 
 def refuse_inconsistent(checks: Mapping[str, AxisCheck], options: MeasureOptions) -> None:
@@ -1051,6 +1122,7 @@ __all__ = [
     "MeasureOptions",
     "Measurement",
     "Reference",
+    "camera_stacks",
     "check_gcps_v1_sample",
     "decode_block",
     "finest_period",

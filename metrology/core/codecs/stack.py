@@ -24,7 +24,7 @@ import fnmatch
 import io
 import os
 import zipfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import IO, Any
@@ -44,6 +44,7 @@ from metrology.core.io import (
 )
 from metrology.core.io.archives import checked_zip_members, is_junk, read_zip_member, strip_single_folder
 from metrology.core.io.atomic import write_files_new_folder_atomic, write_files_zip_atomic
+from metrology.core.io.cameras import camera_folder, camera_folders
 from metrology.core.io.exposures import EXPOSURES_FILE_NAME, Exposure, exposures_json, parse_exposures
 from metrology.core.patterns import PATTERN_NAMES
 
@@ -466,6 +467,112 @@ def read_exposure_stack(
     return ExposureCodecStack(ExposureStack(tuple(stacks), exposures), codec, origin)
 
 
+def is_camera_capture(
+    source: str | os.PathLike[str] | IO[bytes],
+    *,
+    max_bytes: int = DEFAULT_MAX_BYTES,
+    max_ratio: float = DEFAULT_MAX_RATIO,
+) -> bool:
+    """True when the capture holds a ``cam0/`` sub-folder (a capture of several cameras,
+    :mod:`metrology.core.io.cameras`). A file object is rewound. StackError as :func:`read_codec_stack`."""
+    with _open_source(source, max_bytes, max_ratio, rewind=True) as src:
+        assert src.sub is not None
+        return src.sub(camera_folder(0)) is not None
+
+
+@dataclass(frozen=True, eq=False)
+class CameraCodecStacks:
+    """A capture of several cameras read in codec order.
+
+    Attributes
+    ----------
+    stacks : tuple of (frames, H_c, W_c) arrays
+        One stack per camera, camera 0 first.
+    codec : Codec
+    codec_source : str
+        As :attr:`CodecStack.codec_source`.
+    """
+
+    stacks: tuple[np.ndarray, ...]
+    codec: Codec
+    codec_source: str
+
+
+def read_camera_stacks(
+    source: str | os.PathLike[str] | IO[bytes],
+    codec: Codec | None = None,
+    cameras: int = 2,
+    *,
+    max_pixels: int = DEFAULT_MAX_PIXELS,
+    max_bytes: int = DEFAULT_MAX_BYTES,
+    max_ratio: float = DEFAULT_MAX_RATIO,
+) -> CameraCodecStacks:
+    """Read a capture of ``cameras`` cameras (:mod:`metrology.core.io.cameras`): ``cam0/``,
+    ``cam1/`` ... each a complete stack of the codec's frames, ``codec.json`` optionally at the top.
+
+    Parameters
+    ----------
+    source : path or binary file object
+        A folder, a ``.zip``, or a readable binary file object holding a zip.
+    codec : Codec, optional
+        Default the capture's top ``codec.json``, else gcps-v1 when the cameras hold the eleven
+        named patterns.
+    cameras : int
+        How many cameras the rig has.
+
+    Raises
+    ------
+    StackError
+        Naming the camera and the file: a camera's folder missing, a frame missing or unreadable
+        (the codec's frame count), a ``codec.json`` inside a camera's folder, the cameras' bit
+        depths differing.
+    CodecError
+        If the top ``codec.json`` is invalid.
+    """
+    with _open_source(source, max_bytes, max_ratio) as src:
+        label = src.label
+        _check_no_nested_codec(src)
+        origin = "given"
+        if codec is None:
+            codec = _own_codec(src)
+            origin = CODEC_FILE_NAME
+        assert src.sub is not None
+        stacks: list[np.ndarray] = []
+        for index, folder in enumerate(camera_folders(cameras)):
+            sub = src.sub(folder)
+            if sub is None:
+                raise StackError(
+                    f"capture {label} has no folder {folder}/ for camera {index} (a rig of {cameras} cameras: "
+                    f"{', '.join(f + '/' for f in camera_folders(cameras))})"
+                )
+            try:
+                read = _read(sub, codec, max_pixels)
+            except StackError as exc:
+                raise StackError(f"camera {index}: {exc}") from None
+            if codec is None:
+                codec, origin = read.codec, read.codec_source
+            if stacks and read.images.dtype != stacks[0].dtype:
+                raise StackError(
+                    f"capture {label}: camera {index}'s frames are {8 * read.images.dtype.itemsize}-bit but camera "
+                    f"0's are {8 * stacks[0].dtype.itemsize}-bit"
+                )
+            stacks.append(read.images)
+    assert codec is not None
+    return CameraCodecStacks(tuple(stacks), codec, origin)
+
+
+def write_camera_stacks(
+    stacks: Sequence[npt.ArrayLike], dest: str | os.PathLike[str], codec: Codec | None = None
+) -> Path:
+    """Write one stack per camera as ``cam0/``, ``cam1/`` ... of a new folder or ``.zip`` (atomic; the
+    eleven named images of gcps-v1 when ``codec`` is None or gcps-v1, else the codec's frames and its
+    ``codec.json`` at the top). Reads back with :func:`read_camera_stacks`."""
+    files: dict[str, bytes] = {}
+    for folder, images in zip(camera_folders(len(stacks)), stacks, strict=True):
+        files.update({f"{folder}/{name}": data for name, data in _stack_files(codec, np.asarray(images)).items()})
+    return _write_new(_with_codec_file(files, codec), dest)
+
+
 def _own_codec(src: _Source) -> Codec | None:
     _check_no_nested_codec(src)
     if CODEC_FILE_NAME not in src.names:
@@ -520,15 +627,19 @@ def _read(src: _Source, codec: Codec | None, max_pixels: int) -> CodecStack:
 
 __all__ = [
     "CODEC_FILE_NAME",
+    "CameraCodecStacks",
     "CodecError",
     "CodecStack",
     "ExposureCodecStack",
     "ExposureStack",
+    "is_camera_capture",
     "is_exposure_capture",
+    "read_camera_stacks",
     "read_capture_codec",
     "read_codec_stack",
     "read_exposure_stack",
     "select_frames",
+    "write_camera_stacks",
     "write_exposure_stack",
 ]
 
@@ -584,23 +695,34 @@ def write_exposure_stack(stack: ExposureStack, dest: str | os.PathLike[str], cod
     ValueError
         When a stack does not have one image per frame, or the folder exists.
     """
+    files: dict[str, bytes] = {EXPOSURES_FILE_NAME: exposures_json(stack.exposures).encode()}
+    for exposure, images in zip(stack.exposures, stack.images, strict=True):
+        files.update({f"{exposure.name}/{name}": data for name, data in _stack_files(codec, images).items()})
+    return _write_new(_with_codec_file(files, codec), dest)
+
+
+def _stack_files(codec: Codec | None, images: np.ndarray) -> dict[str, bytes]:
+    """One stack's files: the eleven named images of gcps-v1 (``codec`` None or gcps-v1), else the
+    codec's frames (ValueError unless there is one image per frame)."""
     from metrology.core.codecs.model import is_gcps_v1
     from metrology.core.io import encode_stack
 
-    files: dict[str, bytes] = {EXPOSURES_FILE_NAME: exposures_json(stack.exposures).encode()}
-    for exposure, images in zip(stack.exposures, stack.images, strict=True):
-        if is_gcps_v1(codec):
-            frames = encode_stack(images)
-        else:
-            assert codec is not None
-            if len(images) != codec.n_frames:
-                raise ValueError(f"the codec has {codec.n_frames} frames, got images of shape {images.shape}")
-            frames = _frame_files(codec, images)
-        files.update({f"{exposure.name}/{name}": data for name, data in frames.items()})
+    if is_gcps_v1(codec):
+        return encode_stack(images)
+    assert codec is not None
+    if len(images) != codec.n_frames:
+        raise ValueError(f"the codec has {codec.n_frames} frames, got images of shape {images.shape}")
+    return _frame_files(codec, images)
+
+
+def _with_codec_file(files: dict[str, bytes], codec: Codec | None) -> dict[str, bytes]:
+    """``files`` and, for a codec other than gcps-v1, its ``codec.json`` at the top."""
+    from metrology.core.codecs.model import is_gcps_v1
+
     if not is_gcps_v1(codec):
         assert codec is not None
         files[CODEC_FILE_NAME] = codec.to_json().encode()
-    return _write_new(files, dest)
+    return files
 
 
 def write_codec_stack(codec: Codec, images: npt.ArrayLike, dest: str | os.PathLike[str]) -> Path:

@@ -27,6 +27,7 @@ from typing import Any
 from metrology.core.geometry.base import (
     AXES,
     CameraRays,
+    CombinedMaps,
     GeometryError,
     GeometryModel,
     GeometryOptions,
@@ -81,6 +82,7 @@ __all__ = [
     "AXES",
     "MODELS",
     "CameraRays",
+    "CombinedMaps",
     "GeometryError",
     "GeometryModel",
     "GeometryOptions",

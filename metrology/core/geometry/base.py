@@ -50,7 +50,7 @@ from __future__ import annotations
 import json
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -205,6 +205,26 @@ class CameraRays:
     direction: np.ndarray
 
 
+@dataclass(frozen=True)
+class CombinedMaps:
+    """What :meth:`PreparedGeometry.combine` makes of every camera's decoded maps: the inputs of
+    :meth:`PreparedGeometry.triangulate_rows` on camera 0's pixel grid.
+
+    Attributes
+    ----------
+    u, v : (H, W) float32 arrays or None
+        Read by ``triangulate_rows`` as its ``u``, ``v``: a single camera's decoded projector
+        coordinates as they are; for a model of several cameras what its ``combine`` documents (a
+        stereo rig: the disparity of the matched cameras as ``u``). NaN where not measured.
+    sigma : (H, W) float32 array or None
+        Its ``sigma_in``: the standard deviation of what ``u`` (the triangulated axis) holds.
+    """
+
+    u: np.ndarray | None
+    v: np.ndarray | None
+    sigma: np.ndarray | None = None
+
+
 class ReferenceSurface(ABC):
     """A reference surface prepared from a capture of the reference plane, kept for many
     measurements. Model-specific and opaque to callers: build it with
@@ -266,6 +286,30 @@ class PreparedGeometry(ABC):
         light codes (``nlp / width``); None (the default) leaves the unit to the caller (a quarter
         of the codec's finest phase period: gcps-v1's ratio of codes to periods)."""
         return None
+
+    def combine(
+        self,
+        coordinates: Sequence[Mapping[str, np.ndarray | None]],
+        sigma: Sequence[np.ndarray | None] | None = None,
+        threads: int | None = None,
+    ) -> CombinedMaps:
+        """The inputs of :meth:`triangulate_rows` from every camera's decoded maps, camera 0 first
+        (:attr:`GeometryModel.cameras` of them), once per frame.
+
+        Parameters
+        ----------
+        coordinates : sequence of mappings ``{axis: (H_c, W_c) float32 array or None}``
+            Each camera's decoded, filtered projector coordinates (projector units), NaN where not
+            decoded; None (or absent) for an axis not read.
+        sigma : sequence of (H_c, W_c) float32 arrays or None, optional
+            Each camera's standard deviation of the :attr:`axis` coordinate.
+
+        The default (one camera) hands camera 0's maps through unchanged.
+        """
+        if len(coordinates) != 1:
+            raise GeometryError(f"the {self.model.model} model reads one camera's maps, got {len(coordinates)}")
+        first = coordinates[0]
+        return CombinedMaps(u=first.get("u"), v=first.get("v"), sigma=None if sigma is None else sigma[0])
 
     @property
     def points_on_rays(self) -> bool:

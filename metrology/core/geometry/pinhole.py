@@ -486,20 +486,10 @@ class PreparedPinhole(PreparedGeometry):
         return self.method == "plane"
 
     def plane_coordinates(self, reference: ReferenceSurface | None = None) -> PlaneCoordinates:
-        """Camera-frame ``(X, Y)`` (mm) of the point of the reference plane each pixel's ray meets.
-
-        Ray of pixel ``(r, c)``: ``t (x_n, y_n, 1)`` (undistorted normalized coordinates); on the
-        plane ``n . (p - c0) = 0`` at ``t = n . c0 / n . (x_n, y_n, 1)``. The field centre is the
-        principal point's ray, ``t (0, 0, 1)``.
-        """
-        if not isinstance(reference, PinholeReference):
-            raise GeometryError("a pinhole rig's plane coordinates need its reference plane (a reference capture)")
+        """Camera-frame ``(X, Y)`` (mm) of the point of the reference plane each pixel's ray meets
+        (:func:`plane_coordinates_of`)."""
         tab = self.tables()
-        xn, yn = tab["xn"], tab["yn"]
-        n, c0 = np.asarray(reference.normal, np.float64), np.asarray(reference.centroid, np.float64)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = float(n @ c0) / (n[0] * xn + n[1] * yn + n[2])
-        return PlaneCoordinates(x_mm=t * xn, y_mm=t * yn, centre_x_mm=0.0)
+        return plane_coordinates_of(tab["xn"], tab["yn"], reference, "a pinhole rig")
 
     def tables(self) -> dict[str, np.ndarray]:
         """The per-pixel tables (computed on first use, then kept)."""
@@ -691,18 +681,11 @@ class PreparedPinhole(PreparedGeometry):
 
     def camera_rays(self, supersample: int = 1) -> CameraRays:
         """Rays ``(x_n, y_n, 1) / |.|`` from the camera centre (the origin), undistorted (Newton to
-        1e-6 px) at the pixel (or sub-pixel) centres."""
-        if supersample == 1:
-            t = self.tables()
-            xn, yn = t["xn"], t["yn"]
-        else:
-            cam = self.rig.camera
-            jj, kk = np.meshgrid(subpixel_grid(cam.width_px, supersample), subpixel_grid(cam.height_px, supersample))
-            und = undistort_pixels(np.asarray(cam.K), cam.distortion, jj, kk)
-            xn, yn = und.x, und.y
-        d = np.stack([xn, yn, np.ones_like(xn)], axis=-1)
-        d /= np.linalg.norm(d, axis=-1, keepdims=True)
-        return CameraRays(origin_mm=np.zeros(3), direction=d)
+        1e-6 px) at the pixel (or sub-pixel) centres (:func:`camera_rays_of`)."""
+        if supersample != 1:
+            return camera_rays_of(self.rig.camera, None, None, supersample)
+        t = self.tables()
+        return camera_rays_of(self.rig.camera, t["xn"], t["yn"])
 
     @property
     def projector_centre_mm(self) -> np.ndarray:
@@ -719,20 +702,11 @@ class PreparedPinhole(PreparedGeometry):
         return np.where(in_front, u, np.nan), np.where(in_front, v, np.nan)
 
     def reference(self, u: np.ndarray | None, v: np.ndarray | None, threads: int | None = None) -> PinholeReference:
-        from metrology.core.acceptance import fit_plane
         from metrology.core.geometry.base import triangulate_frame
 
         result = triangulate_frame(self, u, v, points=True, heights=False, threads=threads)
         assert result.points_mm is not None
-        pts = result.points_mm.reshape(-1, 3).astype(np.float64)
-        pts = pts[np.isfinite(pts).all(axis=1)]
-        if len(pts) < 3:
-            raise GeometryError(f"the reference capture has {len(pts)} triangulated point(s); a plane needs 3")
-        fit = fit_plane(pts)
-        normal = fit.normal
-        if float(normal @ fit.centroid) > 0:  # orient towards the camera (the origin)
-            normal = -normal
-        return PinholeReference(frame_shape=self.shape, centroid=fit.centroid, normal=normal, n_points=len(pts))
+        return fit_reference_plane(result.points_mm, self.shape)
 
     def triangulate_rows(
         self,
@@ -1003,16 +977,7 @@ class PreparedPinhole(PreparedGeometry):
         distance ``z`` from the reference plane with one. ``(H, W, 3)`` float64, mm."""
         check_frame(self, "z_mm", z_mm)
         tab = self.tables()
-        z = np.asarray(z_mm, dtype=np.float64)
-        if reference is None:
-            t = z
-        else:
-            if not isinstance(reference, PinholeReference):
-                raise GeometryError(f"reference must come from this model, got {type(reference).__name__}")
-            n, c = reference.normal, reference.centroid
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t = (z + n @ c) / (n[0] * tab["xn"] + n[1] * tab["yn"] + n[2])
-        return np.stack([t * tab["xn"], t * tab["yn"], t], axis=-1)
+        return ray_points(tab["xn"], tab["yn"], z_mm, reference)
 
 
 def look_at_rig(
@@ -1046,3 +1011,66 @@ def look_at_rig(
 def _triple(values: np.ndarray) -> tuple[float, float, float]:
     """The three entries of a length-3 vector as Python floats."""
     return (float(values[0]), float(values[1]), float(values[2]))
+
+
+# --------------------------------------------------------------------------- camera-frame helpers
+def plane_coordinates_of(
+    xn: np.ndarray, yn: np.ndarray, reference: ReferenceSurface | None, rig: str
+) -> PlaneCoordinates:
+    """Camera-frame ``(X, Y)`` (mm) of the point of the reference plane each ray ``t (x_n, y_n, 1)``
+    meets: on the plane ``n . (p - c0) = 0`` at ``t = n . c0 / n . (x_n, y_n, 1)``. The field centre
+    is the principal point's ray, ``t (0, 0, 1)``. ``rig`` names the rig in the error raised
+    without a :class:`PinholeReference`."""
+    if not isinstance(reference, PinholeReference):
+        raise GeometryError(f"{rig}'s plane coordinates need its reference plane (a reference capture)")
+    n, c0 = np.asarray(reference.normal, np.float64), np.asarray(reference.centroid, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = float(n @ c0) / (n[0] * xn + n[1] * yn + n[2])
+    return PlaneCoordinates(x_mm=t * xn, y_mm=t * yn, centre_x_mm=0.0)
+
+
+def camera_rays_of(
+    camera: PinholeCamera, xn: np.ndarray | None, yn: np.ndarray | None, supersample: int = 1
+) -> CameraRays:
+    """Unit rays from the origin through ``camera``'s pixel centres (its undistorted ``xn, yn`` when
+    given and ``supersample == 1``) or an ``s x s`` grid of sub-pixel centres (undistorted now)."""
+    if supersample != 1 or xn is None or yn is None:
+        jj, kk = np.meshgrid(subpixel_grid(camera.width_px, supersample), subpixel_grid(camera.height_px, supersample))
+        und = undistort_pixels(np.asarray(camera.K), camera.distortion, jj, kk)
+        xn, yn = und.x, und.y
+    d = np.stack([xn, yn, np.ones_like(xn)], axis=-1)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    return CameraRays(origin_mm=np.zeros(3), direction=d)
+
+
+def fit_reference_plane(points_mm: np.ndarray, shape: tuple[int, int]) -> PinholeReference:
+    """The total-least-squares plane through the finite ``(H, W, 3)`` points of a reference capture
+    (camera frame, mm), its normal towards the camera (the origin)."""
+    from metrology.core.acceptance import fit_plane
+
+    pts = points_mm.reshape(-1, 3).astype(np.float64)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if len(pts) < 3:
+        raise GeometryError(f"the reference capture has {len(pts)} triangulated point(s); a plane needs 3")
+    fit = fit_plane(pts)
+    normal = fit.normal
+    if float(normal @ fit.centroid) > 0:  # orient towards the camera (the origin)
+        normal = -normal
+    return PinholeReference(frame_shape=shape, centroid=fit.centroid, normal=normal, n_points=len(pts))
+
+
+def ray_points(
+    xn: np.ndarray, yn: np.ndarray, z_mm: np.ndarray, reference: ReferenceSurface | None = None
+) -> np.ndarray:
+    """Points on the rays ``t (x_n, y_n, 1)``: at depth ``z`` (camera Z) without a reference, at signed
+    distance ``z`` from the reference plane with one. ``(H, W, 3)`` float64, mm."""
+    z = np.asarray(z_mm, dtype=np.float64)
+    if reference is None:
+        t = z
+    else:
+        if not isinstance(reference, PinholeReference):
+            raise GeometryError(f"reference must come from this model, got {type(reference).__name__}")
+        n, c = reference.normal, reference.centroid
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (z + n @ c) / (n[0] * xn + n[1] * yn + n[2])
+    return np.stack([t * xn, t * yn, t], axis=-1)

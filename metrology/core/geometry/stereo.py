@@ -30,7 +30,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from metrology.core.geometry.base import GeometryError, GeometryModel, GeometryOptions, short_number
+from metrology.core.geometry.base import (
+    GeometryError,
+    GeometryModel,
+    GeometryOptions,
+    PreparedGeometry,
+    short_number,
+)
 from metrology.core.geometry.pinhole import PinholeCamera
 from metrology.core.geometry.rig_file import (
     Matrix3,
@@ -283,8 +289,9 @@ class StereoRig(GeometryModel):
         shape: tuple[int, int] | None = None,
         projector_size: tuple[float, float] | None = None,
         options: GeometryOptions | None = None,
-    ) -> Any:
-        """The model prepared for camera 0's frame (see :mod:`.stereo_match`)."""
+    ) -> PreparedGeometry:
+        """The model prepared for camera 0's frame (see :mod:`.stereo_match`): cached per rig and
+        matched axis (tables built once)."""
         from metrology.core.geometry.stereo_match import prepare_stereo
 
         options = options or GeometryOptions()

@@ -1,14 +1,630 @@
-"""The stereo model prepared: rectification, matching along epipolar lines, triangulation."""
+"""The stereo model prepared: rectification, matching along epipolar lines, triangulation.
+
+A :class:`~metrology.core.geometry.stereo.StereoRig` prepared for camera 0's frame
+(:class:`PreparedStereo`) turns both cameras' decoded maps of one projector axis into points on
+camera 0's pixel grid in three steps (:meth:`PreparedStereo.combine`, then
+:meth:`PreparedStereo.triangulate_rows`):
+
+1. **Rectify.** ``R_0, R_1`` of ``cv2.stereoRectify`` turn both cameras so that their image rows
+   are epipolar lines (the cameras side by side: camera 1's rectified centre on the rectified x
+   axis, at ``b = (R_1 T)_x`` mm). One rectified focal length ``f`` (the mean of the four ``fx, fy``)
+   and one row origin serve both; each camera keeps its own column origin, so the rectified grids
+   cover exactly what each camera sees. The tables (computed once per rig and kept): for every
+   rectified pixel, where it lies in its camera (the ray ``R_c^T (x_r, y_r, 1)``, distorted by the
+   camera's lens, through ``K_c``); for every camera-0 pixel, where it lies in camera 0's rectified
+   grid (its undistorted ray, Newton to 1e-6 px, turned by ``R_0``). Each decoded map is sampled
+   on the rectified grid bilinearly with exact weights (:class:`Bilinear`; ``cv2.remap`` quantises
+   its weights to 1/32 pixel, far too coarse here); a NaN neighbour makes the sample NaN, so
+   undecoded pixels never blend in.
+2. **Match.** For every valid rectified camera-0 pixel of value ``q``, the camera-1 position on
+   the same rectified row where the decoded coordinate is ``q``: the segment ``[x, x + 1]`` of
+   camera 1's row with ``u(x) <= q < u(x + 1)`` (both decoded), ``x_1 = x + (q - u(x)) / (u(x + 1) -
+   u(x))``: linear inside a monotone run, the position from the decoded values (no pixel locking).
+   Found for a whole tile of rows by one ``searchsorted`` of row-offset keys on the row's running
+   maximum. *Unique matches only*: no decoded value right of ``x + 1`` is at most ``q`` (a
+   running minimum from the right), so no other segment of the row holds ``q``. *Left-right
+   consistency*: matching ``q`` back from camera 1 into camera 0's row must land on the same
+   pixel; with the same rule this holds exactly when ``q`` is above every decoded value left of
+   its pixel and below every one right of it, which is what is tested. (When the coordinate falls
+   along the rows both maps are negated first.)
+3. **Triangulate.** The disparity ``d = x_1n - x_0n`` (rectified normalized coordinates) is
+   sampled back at each camera-0 pixel's rectified position (bilinear; exact for a plane, whose
+   disparity is affine in rectified coordinates). The rays of the two cameras meet at rectified
+   depth ``Z_r = b / d``; on camera 0's pixel ray ``t (x_n, y_n, 1)`` that is camera-0 depth
+   ``t = Z_r / w``, ``w = (R_0 (x_n, y_n, 1))_z``, so ``t = k / d`` with the per-pixel table
+   ``k = b / w``, and the point is ``t (x_n, y_n, 1)`` (camera 0's frame, mm).
+
+Uncertainty (first order): ``u_1(x_1) = q`` moves by ``dx_1 = (dq - du_1) / u_1'`` so
+``sigma_x1 = sqrt(sigma_0^2 + sigma_1^2) / |u_1'|`` (rectified px, ``u_1'`` the segment's slope),
+``sigma_d = sigma_x1 / f``, and ``sigma_point = |dt/dd| |(x_n, y_n, 1)| sigma_d = t |d|^-1 |(x_n, y_n, 1)| sigma_d``
+along camera 0's ray.
+"""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+import functools
+import math
+import threading
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-from metrology.core.geometry.base import GeometryError
+import numpy as np
+
+from metrology.core.distortion import project_normalized, undistort_pixels
+from metrology.core.geometry.base import (
+    CameraRays,
+    CombinedMaps,
+    GeometryError,
+    PlaneCoordinates,
+    PreparedGeometry,
+    ReferenceSurface,
+    check_frame,
+)
+from metrology.core.geometry.pinhole import (
+    PinholeCamera,
+    PinholeProjector,
+    PinholeReference,
+    PinholeRig,
+    camera_rays_of,
+    fit_reference_plane,
+    plane_coordinates_of,
+    ray_points,
+)
+from metrology.core.tiling import run_tiled
 
 if TYPE_CHECKING:
     from metrology.core.geometry.stereo import StereoRig
 
+NOISE_GAIN_FIELDS = 4
+"""White-noise fields that estimate :meth:`PreparedStereo.noise_gain`."""
+NOISE_GAIN_WINDOW_PX = 15
+"""Side of the box that averages :meth:`PreparedStereo.noise_gain`'s squared samples, px."""
+MIN_HORIZONTAL = 0.9
+"""Smallest ``|(R_1 T)_x| / |T|`` accepted: the cameras must sit side by side (rows are epipolar lines)."""
 
-def prepare_stereo(rig: StereoRig, axis: str) -> Any:
-    raise GeometryError("the stereo model does not measure yet (its rig file is read and checked)")
+
+@dataclass(frozen=True)
+class Bilinear:
+    """Bilinear sampling of an ``(h, w)`` map at fixed positions, with exact weights.
+
+    Attributes
+    ----------
+    index : intp array
+        Flat index of each position's top-left neighbour (0 outside the map).
+    wx, wy : float32 arrays
+        Weights of the right and lower neighbours, in [0, 1]; NaN outside the map (so is the sample).
+    width : int
+        ``w``: the map's row stride.
+    """
+
+    index: np.ndarray
+    wx: np.ndarray
+    wy: np.ndarray
+    width: int
+
+    @classmethod
+    def at(cls, x: np.ndarray, y: np.ndarray, shape: tuple[int, int]) -> Bilinear:
+        """Sampling at pixel positions ``(x, y)`` (column, row; pixel centres at integers) of an
+        ``(h, w)`` map (``h, w >= 2``); positions outside ``[0, w - 1] x [0, h - 1]`` give NaN."""
+        h, w = shape
+        inside = (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
+        ix = np.clip(np.floor(np.where(inside, x, 0.0)), 0, w - 2).astype(np.intp)
+        iy = np.clip(np.floor(np.where(inside, y, 0.0)), 0, h - 2).astype(np.intp)
+        wx = np.where(inside, x - ix, np.nan).astype(np.float32)
+        wy = np.where(inside, y - iy, np.nan).astype(np.float32)
+        return cls(index=iy * w + ix, wx=wx, wy=wy, width=w)
+
+    def sample(
+        self,
+        image: np.ndarray,
+        rows: slice | None = None,
+        out: np.ndarray | None = None,
+        curvature: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> np.ndarray:
+        """``image`` (float32, the map) at the positions (of ``rows`` of them), float32; NaN where a
+        neighbour is NaN or the position is outside. With ``curvature`` (:func:`curvature_maps` of
+        ``image``) the parabolic terms are added, ``-(wx (1 - wx) c_xx + wy (1 - wy) c_yy) / 2``
+        (exact for a quadratic map; bilinear where a curvature is unknown, at the edges)."""
+        rows = rows if rows is not None else slice(0, self.index.shape[0])
+        flat = image.ravel()
+        i, wx, wy = self.index[rows], self.wx[rows], self.wy[rows]
+        a, b = flat.take(i), flat.take(i + 1)
+        top = b - a
+        top *= wx
+        top += a
+        i2 = i + self.width
+        c, d = flat.take(i2), flat.take(i2 + 1)
+        d -= c
+        d *= wx
+        d += c
+        d -= top
+        d *= wy
+        if out is None:
+            out = np.add(top, d)
+        else:
+            np.add(top, d, out=out)
+        if curvature is not None:  # the parabolic terms bilinear interpolation leaves out
+            cxx, cyy = (c.ravel().take(i) for c in curvature)
+            cxx *= wx * (1 - wx)
+            cyy *= wy * (1 - wy)
+            cxx += cyy
+            cxx *= np.float32(0.5)
+            np.subtract(out, cxx, out=out, where=np.isfinite(cxx))
+        return out
+
+
+def curvature_maps(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The second differences of an ``(h, w)`` float32 map along its rows and columns, averaged
+    over each cell's two sides: ``cxx[k, j]`` of ``u[k, j-1..j+2]``, ``cyy[k, j]`` of ``u[k-1..k+2, j]``
+    (NaN where a neighbour is missing), for :meth:`Bilinear.sample`'s ``curvature``."""
+    h, w = image.shape
+    dxx = np.full((h, w), np.nan, np.float32)
+    dxx[:, 1:-1] = image[:, :-2] - 2 * image[:, 1:-1] + image[:, 2:]
+    cxx = np.full((h, w), np.nan, np.float32)
+    cxx[:, :-1] = dxx[:, :-1] + dxx[:, 1:]
+    cxx *= np.float32(0.5)
+    dyy = np.full((h, w), np.nan, np.float32)
+    dyy[1:-1] = image[:-2] - 2 * image[1:-1] + image[2:]
+    cyy = np.full((h, w), np.nan, np.float32)
+    cyy[:-1] = dyy[:-1] + dyy[1:]
+    cyy *= np.float32(0.5)
+    return cxx, cyy
+
+
+@dataclass(frozen=True)
+class Rectification:
+    """The rectified grids of both cameras (module docstring, step 1).
+
+    Attributes
+    ----------
+    R0, R1 : (3, 3) float64
+        Rotations of camera 0's and camera 1's frames into their rectified frames.
+    baseline_mm : float
+        ``b = (R_1 T)_x``: camera 1's rectified centre on the rectified x axis (signed), mm.
+    f : float
+        Rectified focal length, px.
+    cy : float
+        Rectified row of the normalized ``y = 0``; both grids share their rows.
+    cx : (float, float)
+        Rectified column of the normalized ``x = 0`` in camera 0's and camera 1's grid.
+    shapes : ((int, int), (int, int))
+        ``(rows, columns)`` of each camera's rectified grid.
+    """
+
+    R0: np.ndarray
+    R1: np.ndarray
+    baseline_mm: float
+    f: float
+    cy: float
+    cx: tuple[float, float]
+    shapes: tuple[tuple[int, int], tuple[int, int]]
+
+
+def _cv_camera(camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
+    dist = np.asarray(camera.dist if camera.dist else (0.0, 0.0, 0.0, 0.0, 0.0), dtype=np.float64)
+    return np.asarray(camera.K, dtype=np.float64), dist
+
+
+def _border(camera: PinholeCamera, step: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Undistorted normalized coordinates of the camera's border pixels (every ``step``-th and the corners)."""
+    w, h = camera.width_px, camera.height_px
+    xs = np.unique(np.r_[np.arange(0, w, step), w - 1]).astype(np.float64)
+    ys = np.unique(np.r_[np.arange(0, h, step), h - 1]).astype(np.float64)
+    px = np.r_[xs, xs, np.zeros_like(ys), np.full_like(ys, w - 1)]
+    py = np.r_[np.zeros_like(xs), np.full_like(xs, h - 1), ys, ys]
+    und = undistort_pixels(np.asarray(camera.K), camera.distortion, px, py)
+    ok = np.isfinite(und.x) & np.isfinite(und.y)
+    return und.x[ok], und.y[ok]
+
+
+def _rectified_normalized(R: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``R (x, y, 1)`` as rectified normalized ``(x_r, y_r)`` and its ``z`` (float64)."""
+    rx = R[0, 0] * x + R[0, 1] * y + R[0, 2]
+    ry = R[1, 0] * x + R[1, 1] * y + R[1, 2]
+    rz = R[2, 0] * x + R[2, 1] * y + R[2, 2]
+    return rx / rz, ry / rz, rz
+
+
+def rectification(rig: StereoRig) -> Rectification:
+    """The rectified grids of ``rig`` (module docstring, step 1). :class:`GeometryError` when the
+    cameras do not sit side by side."""
+    import cv2
+
+    K0, D0 = _cv_camera(rig.camera0)
+    K1, D1 = _cv_camera(rig.camera1)
+    R = np.asarray(rig.R, dtype=np.float64)
+    T = np.asarray(rig.T, dtype=np.float64).reshape(3, 1)
+    size = (rig.camera0.width_px, rig.camera0.height_px)
+    R0, R1, *_ = cv2.stereoRectify(K0, D0, K1, D1, size, R, T, flags=cv2.CALIB_ZERO_DISPARITY, alpha=-1)
+    t = R1 @ T.ravel()
+    if abs(t[0]) < MIN_HORIZONTAL * float(np.linalg.norm(t)):
+        raise GeometryError(
+            "the stereo rig's cameras are one above the other (camera 1's T is mostly along y); this version "
+            "matches along rows: place the cameras side by side"
+        )
+    f = float(np.mean([K0[0, 0], K0[1, 1], K1[0, 0], K1[1, 1]]))
+    bounds = []
+    for camera, Rc in ((rig.camera0, R0), (rig.camera1, R1)):
+        x, y, z = _rectified_normalized(Rc, *_border(camera))
+        if not (z > 0).all():
+            raise GeometryError("a camera of the stereo rig sees more than a half-space of the rectified frame")
+        bounds.append((x.min(), x.max(), y.min(), y.max()))
+    y_lo = max(b[2] for b in bounds)
+    y_hi = min(b[3] for b in bounds)
+    if not y_hi > y_lo:
+        raise GeometryError("the stereo rig's cameras share no epipolar line (their views do not overlap)")
+    cy = -y_lo * f
+    rows = math.floor((y_hi - y_lo) * f) + 1
+    cx = tuple(-b[0] * f for b in bounds)
+    shapes = tuple((rows, math.floor((b[1] - b[0]) * f) + 1) for b in bounds)
+    return Rectification(
+        R0=R0,
+        R1=R1,
+        baseline_mm=float(t[0]),
+        f=f,
+        cy=cy,
+        cx=(float(cx[0]), float(cx[1])),
+        shapes=(shapes[0], shapes[1]),
+    )
+
+
+def _forward(camera: PinholeCamera, Rc: np.ndarray, rect: Rectification, index: int) -> Bilinear:
+    """Where each pixel of camera ``index``'s rectified grid lies in the camera's image."""
+    rows, cols = rect.shapes[index]
+    xr = (np.arange(cols, dtype=np.float64) - rect.cx[index]) / rect.f
+    yr = (np.arange(rows, dtype=np.float64) - rect.cy) / rect.f
+    xr, yr = np.meshgrid(xr, yr)
+    # the ray R_c^T (x_r, y_r, 1) in the camera's frame
+    X = Rc[0, 0] * xr + Rc[1, 0] * yr + Rc[2, 0]
+    Y = Rc[0, 1] * xr + Rc[1, 1] * yr + Rc[2, 1]
+    Z = Rc[0, 2] * xr + Rc[1, 2] * yr + Rc[2, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        px, py = project_normalized(np.asarray(camera.K), camera.distortion, X / Z, Y / Z)
+    px = np.where(Z > 0, px, np.nan)
+    return Bilinear.at(px, py, (camera.height_px, camera.width_px))
+
+
+@dataclass(frozen=True)
+class Matched:
+    """Matches of a rectified camera-0 grid: camera 1's sub-pixel column (NaN: no unique,
+    consistent match) and the slope of camera 1's row there (projector units per px)."""
+
+    x1: np.ndarray
+    slope: np.ndarray
+
+
+def match_rows(u0: np.ndarray, u1: np.ndarray, lo: float, hi: float) -> Matched:
+    """Match rows of rectified maps whose coordinate grows along the rows (module docstring, step 2).
+
+    Parameters
+    ----------
+    u0 : (n, W0) float32
+        Camera 0's rectified decoded coordinate, NaN where not decoded.
+    u1 : (n, W1) float32
+        Camera 1's, same rows.
+    lo, hi : float
+        Bounds of every decoded value (projector units; values outside are not matched).
+
+    Returns
+    -------
+    Matched
+        ``x1`` (n, W0) float32 camera-1 columns, ``slope`` (n, W0) float32.
+    """
+    n, w1 = u1.shape
+    with np.errstate(invalid="ignore"):
+        finite1 = (u1 >= lo) & (u1 <= hi)
+        finite0 = (u0 >= lo) & (u0 <= hi)
+    offsets = np.arange(n, dtype=np.float64)[:, None] * ((hi - lo) + 2.0) - lo
+    # camera 1: running maximum from the left (the search keys), running minimum from the right
+    # two columns on (a value there at most q would hold q in a second segment)
+    keys = np.where(finite1, u1, np.float32(lo))
+    np.maximum.accumulate(keys, axis=1, out=keys)
+    keys64 = (keys + offsets).ravel()
+    right1 = np.where(finite1, u1, np.float32(np.inf))[:, ::-1]
+    right1 = np.minimum.accumulate(right1, axis=1)[:, ::-1]
+    after = np.full((n, w1), np.inf, np.float32)
+    after[:, :-2] = right1[:, 2:]
+    # camera 0: a value above everything decoded on its left and below everything on its right
+    left0 = np.where(finite0, u0, np.float32(-np.inf))
+    np.maximum.accumulate(left0, axis=1, out=left0)
+    right0 = np.where(finite0, u0, np.float32(np.inf))[:, ::-1]
+    right0 = np.minimum.accumulate(right0, axis=1)[:, ::-1]
+    record = finite0
+    record[:, 1:] &= u0[:, 1:] > left0[:, :-1]
+    record[:, :-1] &= u0[:, :-1] < right0[:, 1:]
+    found = np.searchsorted(keys64, (u0 + offsets).ravel(), side="right").reshape(u0.shape)
+    found -= 1
+    col = found - (np.arange(n, dtype=np.intp) * w1)[:, None]
+    ok = record & (col >= 0) & (col <= w1 - 2)
+    np.clip(found, 0, u1.size - 2, out=found)
+    flat1 = u1.ravel()
+    a = flat1.take(found)
+    b = flat1.take(found + 1)
+    beyond = after.ravel().take(found)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ok &= (a <= u0) & (u0 < b) & (beyond > u0)
+        step = b - a
+        x1 = u0 - a
+        x1 /= step
+    x1 += col
+    x1[~ok] = np.nan
+    return Matched(x1=x1, slope=step)
+
+
+class PreparedStereo(PreparedGeometry):
+    """A :class:`~metrology.core.geometry.stereo.StereoRig` prepared for camera 0's frame: the
+    rectification and its sampling tables, camera 0's rays and the depth table ``k`` (module
+    docstring). Read-only once built; safe to share between threads.
+
+    Its :meth:`combine` turns both cameras' decoded maps of :attr:`axis` into the normalized
+    disparity ``d`` on camera 0's grid (and its sigma); :meth:`triangulate_rows` reads ``d`` as
+    its ``u`` (and the disparity's sigma as ``sigma_in``).
+    """
+
+    def __init__(self, rig: StereoRig, axis: str) -> None:
+        self.model = rig
+        self.rig = rig
+        self.shape = rig.shape
+        self.projector_size = (rig.projector.width, rig.projector.height)
+        self.axis = axis
+        self.method = "plane"
+        from metrology.core.geometry.pinhole import _camera_tables
+
+        rect = rectification(rig)
+        self.rect = rect
+        self.forward = (_forward(rig.camera0, rect.R0, rect, 0), _forward(rig.camera1, rect.R1, rect, 1))
+        xn, yn = _camera_tables(rig.camera0)
+        x0r, y0r, w = _rectified_normalized(rect.R0, xn, yn)
+        self.back = Bilinear.at(x0r * rect.f + rect.cx[0], y0r * rect.f + rect.cy, rect.shapes[0])
+        self.xn, self.yn = xn, yn
+        self.xn32, self.yn32 = xn.astype(np.float32), yn.astype(np.float32)
+        self.norm_d = np.sqrt(xn * xn + yn * yn + 1.0).astype(np.float32)
+        self.k = (rect.baseline_mm / w).astype(np.float32)
+        cols = np.arange(rect.shapes[0][1], dtype=np.float32)
+        self._x0n = (cols - np.float32(rect.cx[0])) / np.float32(rect.f)  # rectified camera-0 columns, normalized
+        self._projector = _projector_geometry(rig)
+        self._gain: np.ndarray | None = None
+        self._gain_lock = threading.Lock()
+
+    # ------------------------------------------------------------------ interface
+    @property
+    def required_axes(self) -> tuple[str, ...]:
+        return (self.axis,)
+
+    @property
+    def has_model_plane(self) -> bool:
+        return False
+
+    def rectify(self, camera: int, image: np.ndarray, threads: int | None = None) -> np.ndarray:
+        """Camera ``camera``'s ``(H_c, W_c)`` float32 map sampled on its rectified grid (NaN where
+        a neighbour is NaN or outside the image), its parabolic terms included (:class:`Bilinear`)."""
+        sampler = self.forward[camera]
+        image = np.ascontiguousarray(image, dtype=np.float32)
+        curvature = curvature_maps(image)
+        out = np.empty(self.rect.shapes[camera], np.float32)
+        run_tiled(lambda rows: sampler.sample(image, rows, out[rows], curvature), *out.shape, threads)
+        return out
+
+    def combine(
+        self,
+        coordinates: Sequence[Mapping[str, np.ndarray | None]],
+        sigma: Sequence[np.ndarray | None] | None = None,
+        threads: int | None = None,
+    ) -> CombinedMaps:
+        """Rectify both cameras' maps of :attr:`axis`, match them and sample the disparity back on
+        camera 0's grid (module docstring, steps 1-3).
+
+        Parameters
+        ----------
+        coordinates : two mappings ``{axis: (H_c, W_c) float32}``
+            Each camera's decoded (and filtered) projector coordinates, NaN where not decoded.
+        sigma : two (H_c, W_c) float32 arrays, optional
+            Each camera's standard deviation of the coordinate (projector units).
+
+        Returns
+        -------
+        CombinedMaps
+            ``u``: the normalized disparity ``d`` (H, W) float32 on camera 0's grid, NaN where
+            not matched; ``sigma``: its standard deviation (normalized), when ``sigma`` was given.
+        """
+        if len(coordinates) != 2:
+            raise GeometryError(f"a stereo rig combines the maps of 2 cameras, got {len(coordinates)}")
+        maps = []
+        for camera, coords in enumerate(coordinates):
+            m = coords.get(self.axis)
+            if m is None:
+                raise GeometryError(f"camera {camera}'s capture lacks the projector's {self.axis} axis")
+            expected = self.rig.camera_shapes[camera]
+            if tuple(m.shape) != expected:
+                raise GeometryError(
+                    f"camera {camera}'s map is {m.shape[1]}x{m.shape[0]} px but the rig's camera {camera} is "
+                    f"{expected[1]}x{expected[0]} px"
+                )
+            maps.append(self.rectify(camera, m, threads))
+        u0r, u1r = maps
+        proj = self.rig.projector
+        size = proj.width if self.axis == "u" else proj.height
+        lo, hi = -2.0, size + 1.0  # every decoded coordinate (the codec's field and its margin)
+        if _decreasing(u1r):
+            np.negative(u0r, out=u0r)
+            np.negative(u1r, out=u1r)
+            lo, hi = -hi, -lo
+        rect = self.rect
+        rows, cols0 = rect.shapes[0]
+        disparity = np.empty((rows, cols0), np.float32)
+        x1 = np.empty((rows, cols0), np.float32)
+        step = np.empty((rows, cols0), np.float32)
+        inv_f = np.float32(1.0 / rect.f)
+        offset = np.float32(rect.cx[1] / rect.f)
+
+        def run(tile: slice) -> None:
+            m = match_rows(u0r[tile], u1r[tile], lo, hi)
+            x1[tile], step[tile] = m.x1, m.slope
+            d = m.x1 * inv_f
+            d -= offset
+            d -= self._x0n
+            disparity[tile] = d
+
+        run_tiled(run, rows, max(cols0, rect.shapes[1][1]), threads)
+        out = np.empty(self.shape, np.float32)
+        bend = curvature_maps(disparity)
+        run_tiled(lambda r: self.back.sample(disparity, r, out[r], bend), *self.shape, threads)
+        sigma_out = None
+        if sigma is not None and sigma[0] is not None and sigma[1] is not None:
+            sigma_out = self._disparity_sigma(sigma[0], sigma[1], x1, step, threads)
+        return CombinedMaps(u=out, v=None, sigma=sigma_out)
+
+    def noise_gain(self) -> np.ndarray:
+        """``(H, W)`` float32: the standard deviation, at each camera-0 pixel, of white noise of unit
+        standard deviation on camera 0's pixels after the resampling chain (onto the rectified grid and
+        back): below 1, as interpolation averages neighbours. A property of the rig alone, estimated
+        once (:data:`NOISE_GAIN_FIELDS` noise fields, each squared result averaged over
+        :data:`NOISE_GAIN_WINDOW_PX` pixels: the sampling fractions change slowly across the frame)."""
+        with self._gain_lock:
+            if self._gain is None:
+                import cv2
+
+                rng = np.random.default_rng(0)
+                total = np.zeros(self.shape, np.float64)
+                for _ in range(NOISE_GAIN_FIELDS):
+                    field = rng.standard_normal(self.shape).astype(np.float32)
+                    rectified = np.empty(self.rect.shapes[0], np.float32)
+                    self.forward[0].sample(field, None, rectified)
+                    back = self.back.sample(rectified)
+                    total += np.nan_to_num(back.astype(np.float64) ** 2)
+                size = (NOISE_GAIN_WINDOW_PX, NOISE_GAIN_WINDOW_PX)
+                mean = cv2.blur(total / NOISE_GAIN_FIELDS, size, borderType=cv2.BORDER_REFLECT)
+                self._gain = np.sqrt(mean).astype(np.float32)
+            return self._gain
+
+    def _disparity_sigma(
+        self, sigma0: np.ndarray, sigma1: np.ndarray, x1: np.ndarray, slope: np.ndarray, threads: int | None
+    ) -> np.ndarray:
+        """The disparity's standard deviation on camera 0's grid (normalized; module docstring):
+        ``sqrt(sigma_0^2 + sigma_1^2) / |u_1'| / f`` at the matched pixels, sampled back on camera
+        0's grid, times the resampling chain's noise gain (:meth:`noise_gain`, the same for both
+        cameras' share: both go onto a rectified grid and back)."""
+        rect = self.rect
+        s0 = self.rectify(0, sigma0, threads)
+        s1 = self.rectify(1, sigma1, threads)
+        rows, cols1 = rect.shapes[1]
+        hit = np.isfinite(x1)
+        at = np.where(hit, np.clip(np.rint(x1), 0, cols1 - 1), 0).astype(np.intp)
+        at += (np.arange(rows, dtype=np.intp) * cols1)[:, None]
+        sigma_x1 = np.hypot(s0, s1.ravel().take(at))
+        sigma_d = sigma_x1 / np.abs(slope * np.float32(rect.f))
+        sigma_d[~hit] = np.nan
+        back = np.empty(self.shape, np.float32)
+        run_tiled(lambda r: self.back.sample(sigma_d, r, back[r]), *self.shape, threads)
+        back *= self.noise_gain()
+        return back
+
+    def plane_coordinates(self, reference: ReferenceSurface | None = None) -> PlaneCoordinates:
+        """Camera-0 ``(X, Y)`` (mm) of the point of the reference plane each pixel's ray meets."""
+        return plane_coordinates_of(self.xn, self.yn, reference, "a stereo rig")
+
+    def camera_rays(self, supersample: int = 1) -> CameraRays:
+        """Camera 0's rays (see :meth:`PreparedGeometry.camera_rays`)."""
+        return camera_rays_of(self.rig.camera0, self.xn, self.yn, supersample)
+
+    @property
+    def projector_centre_mm(self) -> np.ndarray:
+        """The calibrated projector's centre in camera 0's frame; :class:`GeometryError` when the rig's
+        projector is not calibrated."""
+        return self._projector_rig().prepare().projector_centre_mm
+
+    def projector_coordinates(self, points_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The calibrated projector's coordinates of camera-0 points (as a pinhole rig's)."""
+        return self._projector_rig().prepare().projector_coordinates(points_mm)
+
+    def _projector_rig(self) -> PinholeRig:
+        if self._projector is None:
+            raise GeometryError(
+                "the stereo rig's projector is not calibrated (the rig file gives its size alone); "
+                "the virtual rig takes a projector of its own (render_stereo_capture's projector)"
+            )
+        return self._projector
+
+    def reference(self, u: np.ndarray | None, v: np.ndarray | None, threads: int | None = None) -> PinholeReference:
+        """The plane through the points of a reference capture (``u``: its disparity from :meth:`combine`)."""
+        from metrology.core.geometry.base import triangulate_frame
+
+        result = triangulate_frame(self, u, v, points=True, heights=False, threads=threads)
+        assert result.points_mm is not None
+        return fit_reference_plane(result.points_mm, self.shape)
+
+    def triangulate_rows(
+        self,
+        rows: slice,
+        u: np.ndarray | None,
+        v: np.ndarray | None,
+        *,
+        reference: ReferenceSurface | None = None,
+        points_out: np.ndarray | None = None,
+        height_out: np.ndarray | None = None,
+        sigma_in: np.ndarray | None = None,
+        sigma_out: np.ndarray | None = None,
+    ) -> None:
+        """Points of camera 0's ``rows`` from the disparity ``u`` (:meth:`combine`): ``t = k / d``,
+        ``t (x_n, y_n, 1)``; heights above a reference plane; sigma from ``sigma_in`` (the
+        disparity's, normalized) along the ray."""
+        if u is None:
+            raise GeometryError("a stereo rig triangulates the disparity that combine() gives (u); got none")
+        if height_out is not None and reference is None:
+            raise GeometryError("a stereo rig's heights need its reference plane (a reference capture)")
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = self.k[rows] / u
+        t[~(t > 0)] = np.nan
+        xn, yn = self.xn32[rows], self.yn32[rows]
+        if points_out is not None:
+            np.multiply(t, xn, out=points_out[..., 0])
+            np.multiply(t, yn, out=points_out[..., 1])
+            points_out[..., 2] = t
+        if height_out is not None:
+            if not isinstance(reference, PinholeReference):
+                raise GeometryError(f"reference must come from this model, got {type(reference).__name__}")
+            n = reference.normal.astype(np.float32)
+            c = np.float32(reference.normal @ reference.centroid)
+            height_out[...] = t * (n[0] * xn + n[1] * yn + n[2]) - c
+        if sigma_in is not None and sigma_out is not None:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                sigma_out[...] = t / np.abs(u) * self.norm_d[rows] * sigma_in
+
+    def points_from_heights(self, z_mm: np.ndarray, reference: ReferenceSurface | None = None) -> np.ndarray:
+        """Points on camera 0's rays (as a pinhole rig's): depth ``z`` without a reference, signed
+        distance from the reference plane with one."""
+        check_frame(self, "z_mm", z_mm)
+        return ray_points(self.xn, self.yn, z_mm, reference)
+
+
+def _decreasing(u1r: np.ndarray) -> bool:
+    """True when the coordinate mostly falls along the rows (every 8th row's steps)."""
+    steps = np.diff(u1r[::8], axis=1)
+    steps = steps[np.isfinite(steps)]
+    return bool(steps.size) and int(np.count_nonzero(steps < 0)) > steps.size // 2
+
+
+def _projector_geometry(rig: StereoRig) -> PinholeRig | None:
+    """The calibrated projector with camera 0 as a pinhole rig, or None."""
+    proj = rig.projector
+    if not proj.calibrated:
+        return None
+
+    assert proj.K is not None and proj.R is not None and proj.T is not None
+    projector = PinholeProjector(width=proj.width, height=proj.height, K=proj.K, dist=proj.dist)
+    return PinholeRig(camera=rig.camera0, projector=projector, R=proj.R, T=proj.T)
+
+
+_lock = threading.Lock()
+
+
+@functools.lru_cache(maxsize=2)
+def _prepare_cached(rig: StereoRig, axis: str) -> PreparedStereo:
+    return PreparedStereo(rig, axis)
+
+
+def prepare_stereo(rig: StereoRig, axis: str) -> PreparedStereo:
+    """The rig prepared for matching ``axis`` (cached per rig and axis: tables built once)."""
+    with _lock:
+        return _prepare_cached(rig, axis)

@@ -78,6 +78,16 @@ class ScenePlacement:
         eye = np.eye(3)
         return cls(origin_mm=np.array([-x0_mm, -y0_mm, distance_mm]), e_x=eye[0], e_y=eye[1], e_n=-eye[2])
 
+    def in_frame(self, R: np.ndarray, T: np.ndarray) -> ScenePlacement:
+        """The same placement in another frame, ``X' = R X + T`` (mm): a second camera's."""
+        R = np.asarray(R, dtype=np.float64)
+        return ScenePlacement(
+            origin_mm=R @ self.origin_mm + np.asarray(T, dtype=np.float64),
+            e_x=R @ self.e_x,
+            e_y=R @ self.e_y,
+            e_n=R @ self.e_n,
+        )
+
     def scene_coordinates(self, points_mm: np.ndarray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """``(X, Y, s)`` of model-frame points ``(..., 3)``: scene coordinates and height above the plane."""
         rel = np.asarray(points_mm, dtype=np.float64) - self.origin_mm
@@ -137,7 +147,9 @@ def cast_truth(
     rays = prepared.camera_rays(supersample)
     origin, d = rays.origin_mm, rays.direction
     s_origin = float((origin - placement.origin_mm) @ placement.e_n)
-    top, bottom = float(scene.z_max_mm), float(scene.z_min_mm)
+    # the march ends just below the scene's bottom: on a plane placed askew in the model frame,
+    # rounding may leave the ray's height a hair above h(X, Y) at the plane itself
+    top, bottom = float(scene.z_max_mm), float(scene.z_min_mm) - INSIDE_EPS_MM
     if not s_origin > top:
         raise ValueError(f"the scene's top ({top:g} mm above its plane) reaches the camera ({s_origin:g} mm)")
     rate = d @ placement.e_n  # ds/dt, < 0 on rays going down to the plane

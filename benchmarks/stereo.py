@@ -1,0 +1,156 @@
+"""Stereo speed at 1280x1024: rectify, match and triangulate a pair of decoded maps, beside
+``cv2.remap`` of the two maps and ``cv2.triangulatePoints`` of the same matches, in the same run.
+
+Usage (from the repository root, PYTHONPATH set to it)::
+
+    python benchmarks/stereo.py [--repeats 15 --threads N]
+
+The example stereo rig (``examples/stereo-rig.json``: two 1280x1024 cameras, both distorted,
+150 mm apart) looks at a tilted plane lit by a projector between the cameras;
+:func:`metrology.core.simulate.stereo.render_stereo_capture`'s caster gives each camera's exact
+projector coordinate ``u`` per pixel (set up outside the timers). Rows:
+
+- ``stereo: rectify + match + triangulate``: :meth:`PreparedStereo.combine` (both maps sampled on
+  their rectified grids, matched along the rows, the disparity sampled back on camera 0's grid)
+  then :meth:`PreparedStereo.triangulate_rows` of the whole frame to points (H, W, 3) float32;
+  tables prepared beforehand (``prepare tables`` times that one-off cost);
+- ``cv2.remap of the two maps``: ``cv2.remap`` (bilinear, float32 maps) of both decoded maps onto
+  the same rectified grids: the part of the work OpenCV does (quantised to 1/32 px, which is why
+  the model samples with exact weights instead);
+- ``cv2.triangulatePoints``: the matched pixels of the stereo row (camera-0 and camera-1
+  rectified positions as rectified pixel coordinates, with the rectified projection matrices)
+  triangulated by one call, plus the division by w.
+
+Medians of ``--repeats`` calls after one warm-up; Mpx/s = W H / median seconds counting every
+camera-0 pixel. Prints one line per row and a JSON line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from metrology.core.geometry import model_from_dict
+from metrology.core.geometry.stereo import StereoRig
+from metrology.core.geometry.stereo_match import PreparedStereo, _prepare_cached
+from metrology.core.scenes import make_scene
+from metrology.core.simulate import ScenePlacement, cast_truth
+from metrology.core.simulate.stereo import default_projector
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _time(fn: Callable[[], object], repeats: int) -> float:
+    fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def _maps(rig: StereoRig) -> tuple[np.ndarray, np.ndarray]:
+    """Each camera's exact u of a plane 400 mm away, tilted by 10 degrees about y."""
+    angle = np.radians(10.0)
+    placement = ScenePlacement(
+        origin_mm=np.array([0.0, 0.0, 400.0]),
+        e_x=np.array([np.cos(angle), 0.0, np.sin(angle)]),
+        e_y=np.array([0.0, 1.0, 0.0]),
+        e_n=np.array([np.sin(angle), 0.0, -np.cos(angle)]),
+    )
+    projector = default_projector(rig, placement, 300.0)
+    scene = make_scene("plane", z_mm=0.0)
+    maps = []
+    R, T = np.asarray(rig.R), np.asarray(rig.T)
+    for camera, (Rc, Tc) in zip((rig.camera0, rig.camera1), ((np.eye(3), np.zeros(3)), (R, T)), strict=True):
+        pinhole = projector.pinhole_rig(camera, Rc, Tc)
+        prepared = pinhole.prepare(pinhole.shape, (rig.projector.width, rig.projector.height))
+        where = placement.in_frame(Rc, Tc)
+        maps.append(cast_truth(prepared, scene, where).u.astype(np.float32))
+    return maps[0], maps[1]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=15)
+    parser.add_argument("--threads", type=int, default=None)
+    args = parser.parse_args()
+    rig = model_from_dict(json.loads((ROOT / "examples" / "stereo-rig.json").read_text()))
+    assert isinstance(rig, StereoRig)
+    u0, u1 = _maps(rig)
+    h, w = rig.shape
+    t0 = time.perf_counter()
+    prepared = _prepare_cached(rig, "u")
+    prepare_s = time.perf_counter() - t0
+    assert isinstance(prepared, PreparedStereo)
+    points = np.empty((h, w, 3), np.float32)
+
+    def stereo() -> None:
+        combined = prepared.combine([{"u": u0}, {"u": u1}], None, args.threads)
+        prepared.triangulate_rows(slice(0, h), combined.u, None, points_out=points)
+
+    stereo_s = _time(stereo, args.repeats)
+    valid = np.isfinite(points[..., 2])
+
+    # cv2.remap of the two maps onto the same rectified grids
+    rect = prepared.rect
+    remap_maps = []
+    for sampler in prepared.forward:
+        cols = sampler.width
+        x = (sampler.index % cols + sampler.wx).astype(np.float32)
+        y = (sampler.index // cols + sampler.wy).astype(np.float32)
+        remap_maps.append((x, y))
+
+    def remap() -> None:
+        for (x, y), image in zip(remap_maps, (u0, u1), strict=True):
+            cv2.remap(image, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan"))
+
+    remap_s = _time(remap, args.repeats)
+
+    # cv2.triangulatePoints of the same matches (rectified pixel coordinates, rectified P0, P1)
+    combined = prepared.combine([{"u": u0}, {"u": u1}])
+    d = combined.u
+    assert d is not None
+    xn, yn = prepared.xn, prepared.yn
+    r = rect.R0 @ np.stack([xn.ravel(), yn.ravel(), np.ones(xn.size)])
+    x0 = r[0] / r[2] * rect.f
+    y0 = r[1] / r[2] * rect.f
+    ok = np.isfinite(d.ravel())
+    pts0 = np.stack([x0[ok], y0[ok]])
+    pts1 = np.stack([x0[ok] + d.ravel()[ok] * rect.f, y0[ok]])
+    P0 = np.array([[rect.f, 0, 0, 0], [0, rect.f, 0, 0], [0, 0, 1, 0]], np.float64)
+    P1 = P0.copy()
+    P1[0, 3] = rect.f * rect.baseline_mm
+
+    def triangulate() -> None:
+        X = cv2.triangulatePoints(P0, P1, pts0, pts1)
+        _ = X[:3] / X[3]
+
+    tri_s = _time(triangulate, args.repeats)
+    X = cv2.triangulatePoints(P0, P1, pts0, pts1)
+    Xr = (X[:3] / X[3]).T
+    ours = points.reshape(-1, 3)[ok].astype(np.float64)
+    agree = float(np.abs(Xr @ rect.R0 - ours).max())  # R0^T X_r, row vectors
+    mpx = h * w / 1e6
+    rows = {
+        "prepare tables": prepare_s,
+        "stereo: rectify + match + triangulate": stereo_s,
+        "cv2.remap of the two maps": remap_s,
+        "cv2.triangulatePoints": tri_s,
+    }
+    for name, seconds in rows.items():
+        print(f"{name:40s} {seconds * 1e3:8.1f} ms  {mpx / seconds:7.1f} Mpx/s")
+    print(f"matched {valid.mean():.1%} of camera 0's pixels; cv2.triangulatePoints agrees within {agree * 1e3:.4f} um")
+    print(json.dumps({"size": [w, h], "seconds": rows, "valid_fraction": float(valid.mean()), "agree_mm": agree}))
+
+
+if __name__ == "__main__":
+    main()
