@@ -6,6 +6,7 @@
 Each pose is a capture folder holding ``cam0/`` and ``cam1/``: in each either a single board image
 (PNG, TIFF or BMP), or a codec stack (the codec's frames; ``--codec`` or the capture's top-level
 ``codec.json``) whose white frames (and long sine phase sequences) are averaged into the board image.
+A pose of codec stacks may also be a zip (a capture of several cameras, docs/stereo.md).
 ``RIG.json`` is a stereo rig file (``X_c1 = R X_c0 + T``), ``REPORT.json`` the explaining report
 (``gcps-stereo-calibration-report/1``). ``--projector-size`` defaults to the codec's projector size.
 With codec stacks coding both axes, ``--projector`` also calibrates the projector against camera 0
@@ -36,7 +37,7 @@ def register(subparsers: Any) -> None:
         nargs="+",
         required=True,
         metavar="CAPTURE",
-        help="capture folders (cam0/, cam1/), one per pose",
+        help="capture folders (cam0/, cam1/) or zips of stacks, one per pose",
     )
     p.add_argument("--out", required=True, help="stereo rig file to write (.json)")
     p.add_argument("--report", required=True, help="calibration report to write (.json)")
@@ -82,33 +83,45 @@ def _camera_images(folder: Path, codec: Any) -> Any:
     return read_codec_stack(folder, codec).images
 
 
-def _camera_folders(source: str, codec: Any) -> tuple[Path, Path, Any]:
-    """The pose's ``cam0/`` and ``cam1/`` folders and the codec of their stacks (None for single images)."""
+def _zip_camera_stack(source: str, codec: Any, index: int) -> Any:
+    """Camera ``index``'s stack of a zipped pose (the zip is read once per camera)."""
+    from metrology.core.codecs.stack import read_camera_stacks
+
+    return read_camera_stacks(source, codec).stacks[index]
+
+
+def _pose_loaders(source: str, codec: Any) -> tuple[Any, Any, Any]:
+    """Loaders of the pose's two cameras' images (a single image each, or codec stacks) and the
+    codec of its stacks (None for single images). A folder holds ``cam0/`` and ``cam1/`` with a
+    single image or a stack each; a zip holds stacks."""
     from metrology.core.codecs.stack import read_capture_codec
     from metrology.core.stereo_calibration import CAMERAS
 
     root = Path(source)
-    if not root.is_dir():
-        raise ValueError(f"--poses {source}: not a folder (a pose is a folder holding cam0/ and cam1/)")
-    folders = []
-    stacked = False
-    for camera in CAMERAS:
-        folder = root / camera
-        if not folder.is_dir():
-            raise ValueError(f"--poses {source}: no {camera}/ folder (a pose holds cam0/ and cam1/)")
-        count = len(_image_files(folder))
-        if count == 0:
-            raise ValueError(f"--poses {source}: {camera}/ holds no image (PNG, TIFF or BMP)")
-        stacked = stacked or count > 1
-        folders.append(folder)
-    pose_codec = None
-    if stacked:
-        pose_codec = codec if codec is not None else read_capture_codec(root)
-        if pose_codec is None:
-            raise ValueError(
-                f"--poses {source}: its cameras hold stacks but the capture has no codec.json; give --codec"
-            )
-    return folders[0], folders[1], pose_codec
+    if not root.exists():
+        raise ValueError(f"--poses {source}: no such folder or file")
+    if root.is_dir():
+        folders = []
+        counts = []
+        for camera in CAMERAS:
+            folder = root / camera
+            if not folder.is_dir():
+                raise ValueError(f"--poses {source}: no {camera}/ folder (a pose holds cam0/ and cam1/)")
+            counts.append(len(_image_files(folder)))
+            if counts[-1] == 0:
+                raise ValueError(f"--poses {source}: {camera}/ holds no image (PNG, TIFF or BMP)")
+            folders.append(folder)
+        if counts == [1, 1]:
+            single = [functools.partial(_camera_images, folder, None) for folder in folders]
+            return single[0], single[1], None
+    pose_codec = codec if codec is not None else read_capture_codec(root)
+    if pose_codec is None:
+        raise ValueError(f"--poses {source}: its cameras hold stacks but it has no codec.json; give --codec")
+    if root.is_dir():
+        loaders = tuple(functools.partial(_camera_images, root / camera, pose_codec) for camera in CAMERAS)
+    else:
+        loaders = tuple(functools.partial(_zip_camera_stack, source, pose_codec, k) for k in range(len(CAMERAS)))
+    return loaders[0], loaders[1], pose_codec
 
 
 def cmd_calibrate_stereo(args: argparse.Namespace) -> dict[str, Any]:
@@ -139,14 +152,14 @@ def cmd_calibrate_stereo(args: argparse.Namespace) -> dict[str, Any]:
     poses: list[StereoBoardImages] = []
     projector_size = tuple(args.projector_size) if args.projector_size else None
     for name, source in zip(names, args.poses, strict=True):
-        folder0, folder1, pose_codec = _camera_folders(source, codec)
+        camera0, camera1, pose_codec = _pose_loaders(source, codec)
         if projector_size is None and pose_codec is not None:
             projector_size = (float(pose_codec.projector_width), float(pose_codec.projector_height))
         poses.append(
             StereoBoardImages(
                 name=name,
-                camera0=functools.partial(_camera_images, folder0, pose_codec),
-                camera1=functools.partial(_camera_images, folder1, pose_codec),
+                camera0=camera0,
+                camera1=camera1,
                 codec=pose_codec,
             )
         )

@@ -36,6 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from metrology.core.geometry.stereo import StereoRig
+from metrology.core.io.cameras import camera_folders
 from metrology.core.procam.advice import (
     INCONSISTENT_POSE_PX,
     INCONSISTENT_POSE_RATIO,
@@ -60,8 +61,8 @@ from metrology.core.procam.uncertainty import intrinsics_uncertainty
 FloatArray = npt.NDArray[np.float64]
 
 REPORT_FORMAT = "gcps-stereo-calibration-report/1"
-CAMERAS = ("cam0", "cam1")
-"""The cameras' names in captures (their subfolders) and messages."""
+CAMERAS = camera_folders(2)
+"""The cameras' names in captures (their sub-folders, :mod:`metrology.core.io.cameras`) and messages."""
 
 
 class StereoCalibrationError(ValueError):

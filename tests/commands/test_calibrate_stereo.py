@@ -112,9 +112,9 @@ def test_the_report_explains_the_fit(calibrated: tuple[bytes, dict]) -> None:
 def test_codec_stacks_give_the_same_rig_and_the_codecs_projector_size(
     captures: list[Path], calibrated: tuple[bytes, dict], tmp_path: Path
 ) -> None:
-    """Each camera a codec stack whose board frames are the board image: the same corners, so the
-    same rig (to 1e-7 relative: OpenCV's calibration sums in parallel threads, and two runs on the
-    same corners differ by about 1e-10 px), with the projector's size taken from the codec."""
+    """Each camera a codec stack whose board frames are the board image (the first pose a zip): the
+    same corners, so the same rig (to 1e-7 relative: OpenCV's calibration sums in parallel threads,
+    and two runs on the same corners differ by about 1e-10 px), the projector's size the codec's."""
     codec = read_codec("gcps-v1:1280x800")
     stacked = []
     for source in captures:
@@ -123,7 +123,10 @@ def test_codec_stacks_give_the_same_rig_and_the_codecs_projector_size(
             image = cv2.imread(str(source / camera / "board.png"), cv2.IMREAD_UNCHANGED)
             assert image is not None
             write_codec_stack(codec, np.repeat(image[None], codec.n_frames, axis=0), pose / camera)
+            (pose / camera / "codec.json").unlink()  # a capture's codec.json lies at its top
         stacked.append(pose)
+    # the first pose as a zip of both cameras' stacks
+    stacked[0] = Path(shutil.make_archive(str(tmp_path / "pose_00"), "zip", root_dir=stacked[0]))
     out, report = tmp_path / "rig.json", tmp_path / "report.json"
     assert _run(stacked, out, report, "--codec", "gcps-v1:1280x800", "--fix-k3") == 0
     stacked_rig, single_rig = json.loads(out.read_text()), json.loads(calibrated[0])
