@@ -1,6 +1,6 @@
 """The rig pages' import of a two-camera OpenCV calibration (issue 24): the same recognition as
 ``gcps rig import`` (:func:`metrology.core.rig_import.import_rig`), so a file with ``M1 D1 M2 D2 R T``
-becomes a stereo rig and the summary names the nodes it read."""
+becomes a stereo rig (the Rigs page makes one) and the summary names the nodes it read."""
 
 from __future__ import annotations
 
@@ -47,3 +47,29 @@ def test_the_rig_pages_import_reads_a_two_camera_file_as_a_stereo_rig(tmp_path):
         "R": "stereo.yml#R",
         "T": "stereo.yml#T",
     }
+
+
+def test_the_rigs_page_imports_a_two_camera_file_as_a_stereo_rig(client_alice, alice, tmp_path):
+    """The Rigs page's calibration-file form: a stereo rig, and its page names the nodes it read."""
+    from html import unescape
+
+    from metrology.rigs.models import Rig
+
+    path = _stereo_file(tmp_path / "stereo.yml")
+    done = client_alice.post(
+        "/rigs/",
+        {
+            "action": "calibration",
+            "import-name": "pair",
+            "import-calibration_file": SimpleUploadedFile("stereo.yml", path.read_bytes()),
+            "import-projector_width": 1280,
+            "import-projector_height": 800,
+        },
+    )
+    errors = [line for line in unescape(done.content.decode()).splitlines() if "errorlist" in line]
+    assert done.status_code == 302, errors
+    rig = Rig.objects.get(owner=alice)
+    assert isinstance(rig.to_core(), StereoRig) and rig.name == "pair"
+    page = unescape(client_alice.get(done["Location"]).content.decode())
+    for key, node in (("camera0_K", "M1"), ("camera1_K", "M2"), ("R", "R"), ("T", "T")):
+        assert f"{key} from {node}" in page, (key, node)
