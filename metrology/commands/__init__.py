@@ -25,6 +25,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     "capture",
     "rig",
     "calibrate_procam",
+    "calibrate_stereo",
     "gamma_correct",
     "cache",
     "inspect",

@@ -1,4 +1,5 @@
-"""``gcps rig import``: write a pinhole rig file from calibration outputs (see docs/pinhole.md).
+"""``gcps rig import``: write a pinhole or stereo rig file from calibration outputs (see docs/pinhole.md,
+docs/stereo-calibration.md).
 
 ::
 
@@ -6,10 +7,16 @@
         --set camera_K=SRC --set camera_dist=SRC --set projector_K=SRC --set projector_dist=SRC \\
         --set R=SRC --set T=SRC            # or --set rvec=SRC instead of R
     gcps rig import --out RIG.json --projector-size W H --opencv calibration.xml
+    gcps rig import --out STEREO.json --projector-size W H --opencv stereo.yml   # M1 D1 M2 D2 R T
+    gcps rig import --out STEREO.json --camera-size W H --projector-size W H \
+        --set camera0_K=SRC --set camera0_dist=SRC --set camera1_K=SRC --set camera1_dist=SRC \
+        --set R=SRC --set T=SRC            # camera 1's pose, X_c1 = R X_c0 + T
 
 ``SRC`` is a text matrix file, ``FILE.yml#NODE``, ``FILE.xml#NODE``, ``FILE.npz#KEY``,
 ``FILE.npy`` or ``FILE.json#dotted.key`` (:mod:`metrology.core.rig_import`). ``--set`` wins
-over what ``--opencv`` found. Prints a JSON summary naming the source of every value.
+over what ``--opencv`` found. A FileStorage file with ``M1 D1 M2 D2``, a pose (``R T`` or
+``Rlr Tlr``) and no projector node is a two-camera file and gives a stereo rig; ``--model``
+overrides that. Prints a JSON summary naming the model and the source of every value.
 """
 
 from __future__ import annotations
@@ -17,16 +24,20 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-SET_KEYS = "camera_K, camera_dist, projector_K, projector_dist, R, rvec, T"
+SET_KEYS = (
+    "camera_K, camera_dist, projector_K, projector_dist, R, rvec, T; for a stereo rig camera0_K, camera0_dist, "
+    "camera1_K, camera1_dist, R, rvec, T and optionally projector_K, projector_dist, projector_R, projector_rvec, "
+    "projector_T"
+)
 
 
 def register(subparsers: Any) -> None:
     """Add ``gcps rig`` (with its ``import`` subcommand) to the ``gcps`` parser's subparsers."""
-    rig = subparsers.add_parser("rig", help="rig files: import a calibrated pinhole rig")
+    rig = subparsers.add_parser("rig", help="rig files: import a calibrated pinhole or stereo rig")
     sub = rig.add_subparsers(dest="rig_command", required=True, metavar="ACTION")
     p = sub.add_parser(
         "import",
-        help="write a pinhole rig file from calibration matrices (text, OpenCV YAML/XML, npz, npy, JSON)",
+        help="write a pinhole or stereo rig file from calibration matrices (text, OpenCV YAML/XML, npz, npy, JSON)",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -48,6 +59,11 @@ def register(subparsers: Any) -> None:
         help=f"one value: KEY one of {SET_KEYS} (repeatable)",
     )
     p.add_argument("--opencv", metavar="FILE", help="OpenCV FileStorage file: values found by their node names")
+    p.add_argument(
+        "--model",
+        choices=("pinhole", "stereo"),
+        help="rig model to write (default: recognised from the --opencv file's nodes or the --set keys)",
+    )
     p.set_defaults(func=cmd_rig_import)
 
 
@@ -62,6 +78,7 @@ def cmd_rig_import(args: argparse.Namespace) -> dict[str, Any]:
         camera_size=tuple(args.camera_size) if args.camera_size else None,
         opencv=args.opencv,
         sets=list(args.set),
+        model=args.model,
     )
     with atomic_path(args.out) as tmp:
         tmp.write_text(imported.rig.to_json(), encoding="utf-8")

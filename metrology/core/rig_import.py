@@ -1,4 +1,5 @@
-"""Import a pinhole rig from calibration outputs: matrices in text, OpenCV FileStorage, npz/npy, JSON.
+"""Import a pinhole or a stereo rig from calibration outputs: matrices in text, OpenCV FileStorage,
+npz/npy, JSON.
 
 A *source* (``SRC``) names one matrix or vector:
 
@@ -16,6 +17,14 @@ A value is read by its element count whatever its shape (:data:`COUNTS`): ``came
 ``R`` 9, ``rvec`` 3 (a Rodrigues vector, instead of ``R``), ``T`` 3 (mm); any other count is a
 ``ValueError`` naming the key, the source and the count. :func:`opencv_sources` recognises the
 node names of common FileStorage layouts (:data:`OPENCV_NODE_NAMES`).
+
+Two cameras (a stereo rig, :data:`STEREO_KEYS`): ``camera0_K``, ``camera0_dist``, ``camera1_K``,
+``camera1_dist``, ``R``/``rvec`` and ``T`` (camera 1's pose, ``X_c1 = R X_c0 + T``, mm), and
+optionally a calibrated projector ``projector_K``, ``projector_dist``, ``projector_R`` /
+``projector_rvec`` and ``projector_T`` (``X_p = R_p X_c0 + T_p``). A FileStorage file is a
+two-camera file (:func:`opencv_model`) when it has ``M1 D1 M2 D2``, a pose (``R T`` or
+``Rlr Tlr``) and no projector node (``M4``, ``D4``, a name starting with ``proj_`` or
+``projector_``): then ``M1``/``D1`` are camera 0, ``M2``/``D2`` camera 1 (:data:`STEREO_NODE_NAMES`).
 """
 
 from __future__ import annotations
@@ -23,7 +32,7 @@ from __future__ import annotations
 import json
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,7 +40,9 @@ from typing import Any
 import cv2
 import numpy as np
 
+from metrology.core.geometry.base import GeometryError, GeometryModel
 from metrology.core.geometry.pinhole import PinholeRig
+from metrology.core.geometry.stereo import StereoRig
 
 KEYS: tuple[str, ...] = ("camera_K", "camera_dist", "projector_K", "projector_dist", "R", "rvec", "T")
 """The values ``--set KEY=SRC`` accepts."""
@@ -47,6 +58,45 @@ COUNTS: dict[str, tuple[int, ...]] = {
 }
 """Element counts each key accepts."""
 
+STEREO_KEYS: tuple[str, ...] = (
+    "camera0_K",
+    "camera0_dist",
+    "camera1_K",
+    "camera1_dist",
+    "R",
+    "rvec",
+    "T",
+    "projector_K",
+    "projector_dist",
+    "projector_R",
+    "projector_rvec",
+    "projector_T",
+)
+"""The values ``--set KEY=SRC`` accepts for a stereo rig (``R``/``rvec``/``T``: camera 1's pose)."""
+
+COUNTS.update(
+    {
+        "camera0_K": COUNTS["camera_K"],
+        "camera1_K": COUNTS["camera_K"],
+        "camera0_dist": COUNTS["camera_dist"],
+        "camera1_dist": COUNTS["camera_dist"],
+        "projector_R": COUNTS["R"],
+        "projector_rvec": COUNTS["rvec"],
+        "projector_T": COUNTS["T"],
+    }
+)
+
+PINHOLE = PinholeRig.model
+STEREO = StereoRig.model
+MODEL_CHOICES: tuple[str, ...] = (PINHOLE, STEREO)
+"""The rig models an import writes (``--model``)."""
+
+SET_KEYS: dict[str, tuple[str, ...]] = {PINHOLE: KEYS, STEREO: STEREO_KEYS}
+"""The ``--set`` keys of each model."""
+
+ROTATIONS: tuple[tuple[str, str], ...] = (("R", "rvec"), ("projector_R", "projector_rvec"))
+"""Keys giving one rotation as a matrix or as a Rodrigues vector (either, not both)."""
+
 OPENCV_NODE_NAMES: dict[str, tuple[str, ...]] = {
     "camera_K": ("cam_int", "camera_matrix", "cameraMatrix", "cam_K", "camera_K", "K1", "M1", "cam_mtx", "mtx_cam"),
     "camera_dist": ("cam_dist", "dist_coeffs", "distCoeffs", "camera_dist", "cam_dist_coeffs", "D1", "dist_cam"),
@@ -59,6 +109,28 @@ OPENCV_NODE_NAMES: dict[str, tuple[str, ...]] = {
 """FileStorage node names recognised by ``--opencv`` for each key (exact names). Besides the names
 of OpenCV's samples and common stereo scripts, the layout that numbers its devices (``M1 D1``
 camera, ``M4 D4`` projector) and names the projector's pose from the camera ``Rlp Tlp``."""
+
+STEREO_NODE_NAMES: dict[str, tuple[str, ...]] = {
+    "camera0_K": ("M1", "K1", "cameraMatrix1", "camera_matrix_1"),
+    "camera0_dist": ("D1", "distCoeffs1", "dist_coeffs_1"),
+    "camera1_K": ("M2", "K2", "cameraMatrix2", "camera_matrix_2"),
+    "camera1_dist": ("D2", "distCoeffs2", "dist_coeffs_2"),
+    "R": ("R", "Rlr"),
+    "rvec": ("rvec", "om"),
+    "T": ("T", "Tlr"),
+}
+"""FileStorage node names of a two-camera file (OpenCV's ``stereo_calib`` sample, ``Rlr Tlr`` of
+structured-light suites): camera 1's pose is ``R``/``T``. A stereo file names no projector."""
+
+NODE_NAMES: dict[str, dict[str, tuple[str, ...]]] = {PINHOLE: OPENCV_NODE_NAMES, STEREO: STEREO_NODE_NAMES}
+"""The node names recognised for each model."""
+
+STEREO_SIGNATURE: tuple[tuple[str, ...], ...] = (("M1",), ("D1",), ("M2",), ("D2",), ("R", "Rlr"), ("T", "Tlr"))
+"""A two-camera file has one name of each group ..."""
+
+PROJECTOR_NODES: tuple[str, ...] = ("M4", "D4")
+PROJECTOR_NODE_PREFIXES: tuple[str, ...] = ("proj_", "projector_")
+"""... and none of these projector nodes (exact names, or names starting with a prefix)."""
 
 CAMERA_SIZE_NODES: dict[str, str] = {
     "img_shape": "HW",
@@ -225,20 +297,16 @@ def check_count(key: str, value: ReadValue) -> np.ndarray:
 # --------------------------------------------------------------------------- --opencv
 @dataclass(frozen=True)
 class OpenCVScan:
-    """What :func:`opencv_sources` found: sources per key and the camera size if a node gives it."""
+    """What :func:`opencv_sources` found: the model, sources per key and the camera size if a node gives it."""
 
     sources: dict[str, str]
     camera_size: tuple[int, int] | None
     camera_size_node: str | None
+    model: str = "pinhole"
 
 
-def opencv_sources(path: str) -> OpenCVScan:
-    """Recognise the nodes of a FileStorage file by name (:data:`OPENCV_NODE_NAMES`).
-
-    A key is taken only when exactly one of its recognised names is present (two names for
-    the same key with different values are an error naming both). ``R`` wins over ``rvec``
-    when both are present and agree.
-    """
+def _filestorage_names(path: str) -> list[str]:
+    """The top-level node names of FileStorage file ``path`` (RigImportError naming ``--opencv``)."""
     p = Path(path)
     if p.suffix.lower() not in (".yml", ".yaml", ".xml"):
         raise RigImportError(f"--opencv {path!r}: expected an OpenCV FileStorage .yml, .yaml or .xml file")
@@ -252,11 +320,35 @@ def opencv_sources(path: str) -> OpenCVScan:
     try:
         if not fs.isOpened():
             raise RigImportError(f"--opencv {path!r}: not an OpenCV FileStorage file")
-        names = list(fs.root().keys())
+        return list(fs.root().keys())
     finally:
         fs.release()
+
+
+def opencv_model(names: list[str] | tuple[str, ...]) -> str:
+    """:data:`STEREO` for the node names of a two-camera file (:data:`STEREO_SIGNATURE`, no
+    projector node), else :data:`PINHOLE`."""
+    has_pose_pair = ("R" in names and "T" in names) or ("Rlr" in names and "Tlr" in names)
+    has_cameras = all(name in names for name in ("M1", "D1", "M2", "D2"))
+    has_projector = any(n in PROJECTOR_NODES or n.startswith(PROJECTOR_NODE_PREFIXES) for n in names)
+    return STEREO if has_cameras and has_pose_pair and not has_projector else PINHOLE
+
+
+def opencv_sources(path: str, model: str | None = None) -> OpenCVScan:
+    """Recognise the nodes of a FileStorage file by name: the model (``model`` when given, else
+    :func:`opencv_model`) and its values (:data:`OPENCV_NODE_NAMES` for a pinhole rig,
+    :data:`STEREO_NODE_NAMES` for a stereo rig).
+
+    A key is taken only when exactly one of its recognised names is present (two names for
+    the same key with different values are an error naming both). ``R`` wins over ``rvec``
+    when both are present and agree.
+    """
+    names = _filestorage_names(path)
+    chosen = model or opencv_model(names)
+    if chosen not in MODEL_CHOICES:
+        raise RigImportError(f"--model must be one of {', '.join(MODEL_CHOICES)}, got {chosen!r}")
     sources: dict[str, str] = {}
-    for key, candidates in OPENCV_NODE_NAMES.items():
+    for key, candidates in NODE_NAMES[chosen].items():
         found = [name for name in candidates if name in names]
         if len(found) > 1:
             values = [read_source(f"{path}#{name}", key).values for name in found]
@@ -277,10 +369,35 @@ def opencv_sources(path: str) -> OpenCVScan:
                 w, h = (int(v[1]), int(v[0])) if order == "HW" else (int(v[0]), int(v[1]))
                 size, size_node = (w, h), f"{path}#{name} ({'rows, cols' if order == 'HW' else 'width, height'})"
                 break
-    return OpenCVScan(sources=sources, camera_size=size, camera_size_node=size_node)
+    return OpenCVScan(sources=sources, camera_size=size, camera_size_node=size_node, model=chosen)
 
 
 # --------------------------------------------------------------------------- the rig
+def _rotation(values: Mapping[str, np.ndarray], key: str, rvec_key: str) -> np.ndarray | None:
+    """``values[key]`` as a (3, 3) matrix, or ``values[rvec_key]`` through ``cv2.Rodrigues``; None if neither."""
+    if key in values and rvec_key in values:
+        raise RigImportError(f"give {key} or {rvec_key}, not both")
+    if key in values:
+        return values[key].reshape(3, 3)
+    if rvec_key in values:
+        return np.asarray(cv2.Rodrigues(values[rvec_key].reshape(3, 1))[0])
+    return None
+
+
+def _check_sizes(**sizes: tuple[float, float]) -> None:
+    for name, size in sizes.items():
+        if len(size) != 2 or not all(math.isfinite(x) and x > 0 for x in size):
+            raise RigImportError(f"{name.replace('_', ' ')} must be two positive numbers W H, got {size!r}")
+
+
+def _matrix(values: Mapping[str, np.ndarray], key: str) -> list[list[float]]:
+    return values[key].reshape(3, 3).tolist()
+
+
+def _dist(values: Mapping[str, np.ndarray], key: str) -> list[float]:
+    return values[key].tolist() if key in values else []
+
+
 def rig_from_values(
     values: Mapping[str, np.ndarray], camera_size: tuple[int, int], projector_size: tuple[float, float]
 ) -> PinholeRig:
@@ -292,37 +409,23 @@ def rig_from_values(
     for key in ("camera_K", "projector_K", "T"):
         if key not in values:
             raise RigImportError(f"{key} is missing: give --set {key}=SRC")
-    if "R" in values and "rvec" in values:
-        raise RigImportError("give R or rvec, not both")
-    if "R" in values:
-        R = values["R"].reshape(3, 3)
-    elif "rvec" in values:
-        R = cv2.Rodrigues(values["rvec"].reshape(3, 1))[0]
-    else:
+    R = _rotation(values, "R", "rvec")
+    if R is None:
         raise RigImportError("R is missing: give --set R=SRC (a 3x3 matrix) or --set rvec=SRC (Rodrigues)")
-    for name, size in (("camera size", camera_size), ("projector size", projector_size)):
-        if len(size) != 2 or not all(math.isfinite(x) and x > 0 for x in size):
-            raise RigImportError(f"{name} must be two positive numbers W H, got {size!r}")
-
-    def k(key: str) -> list[list[float]]:
-        return values[key].reshape(3, 3).tolist()
-
-    def dist(key: str) -> list[float]:
-        return values[key].tolist() if key in values else []
-
+    _check_sizes(camera_size=camera_size, projector_size=projector_size)
     data = {
         "model": PinholeRig.model,
         "camera": {
             "width_px": camera_size[0],
             "height_px": camera_size[1],
-            "K": k("camera_K"),
-            "dist": dist("camera_dist"),
+            "K": _matrix(values, "camera_K"),
+            "dist": _dist(values, "camera_dist"),
         },
         "projector": {
             "width": projector_size[0],
             "height": projector_size[1],
-            "K": k("projector_K"),
-            "dist": dist("projector_dist"),
+            "K": _matrix(values, "projector_K"),
+            "dist": _dist(values, "projector_dist"),
         },
         "R": R.tolist(),
         "T": values["T"].tolist(),
@@ -330,23 +433,102 @@ def rig_from_values(
     return PinholeRig.from_dict(data)
 
 
+def stereo_rig_dict(
+    values: Mapping[str, np.ndarray], camera_size: tuple[int, int], projector_size: tuple[float, float]
+) -> dict[str, Any]:
+    """The stereo rig file's object (``"model": "stereo"``, docs/stereo.md) from values checked by
+    :func:`check_count`: both cameras of size ``camera_size`` ``(width_px, height_px)``, camera 1's
+    pose ``R``/``rvec``, ``T`` (``X_c1 = R X_c0 + T``, mm) and the projector's size
+    ``(width, height)``, with its ``K``, ``dist``, ``R``, ``T`` when ``projector_K`` is given."""
+    for key in ("camera0_K", "camera1_K", "T"):
+        if key not in values:
+            raise RigImportError(f"{key} is missing: give --set {key}=SRC")
+    R = _rotation(values, "R", "rvec")
+    if R is None:
+        raise RigImportError("R is missing: give --set R=SRC (a 3x3 matrix) or --set rvec=SRC (Rodrigues)")
+    _check_sizes(camera_size=camera_size, projector_size=projector_size)
+    w, h = camera_size
+    projector: dict[str, Any] = {"width": projector_size[0], "height": projector_size[1]}
+    R_p = _rotation(values, "projector_R", "projector_rvec")
+    calibrated = [key for key in ("projector_K", "projector_T") if key in values]
+    calibrated += ["projector_R"] if R_p is not None else []
+    if calibrated:
+        for key in ("projector_K", "projector_R", "projector_T"):
+            if key not in calibrated:
+                raise RigImportError(
+                    f"{key} is missing: a calibrated projector needs projector_K, projector_R (or projector_rvec) "
+                    f"and projector_T; give --set {key}=SRC"
+                )
+        assert R_p is not None
+        projector.update(
+            {"K": _matrix(values, "projector_K"), "dist": _dist(values, "projector_dist"), "R": R_p.tolist()}
+        )
+        projector["T"] = values["projector_T"].tolist()
+    elif "projector_dist" in values:
+        raise RigImportError("projector_dist without projector_K: give --set projector_K=SRC too")
+    return {
+        "model": STEREO,
+        "cameras": [
+            {"width_px": w, "height_px": h, "K": _matrix(values, "camera0_K"), "dist": _dist(values, "camera0_dist")},
+            {
+                "width_px": w,
+                "height_px": h,
+                "K": _matrix(values, "camera1_K"),
+                "dist": _dist(values, "camera1_dist"),
+                "R": R.tolist(),
+                "T": values["T"].tolist(),
+            },
+        ],
+        "projector": projector,
+    }
+
+
+def stereo_from_values(
+    values: Mapping[str, np.ndarray], camera_size: tuple[int, int], projector_size: tuple[float, float]
+) -> GeometryModel:
+    """The stereo rig of :func:`stereo_rig_dict`, validated by its model
+    (:meth:`StereoRig.from_dict`; its errors become :class:`RigImportError`)."""
+    try:
+        return StereoRig.from_dict(stereo_rig_dict(values, camera_size, projector_size))
+    except GeometryError as exc:
+        raise RigImportError(str(exc)) from exc
+
+
+BUILDERS: dict[str, Callable[[Mapping[str, np.ndarray], tuple[int, int], tuple[float, float]], GeometryModel]] = {
+    PINHOLE: rig_from_values,
+    STEREO: stereo_from_values,
+}
+"""The rig of each model from its values, its camera size and its projector size."""
+
+
 @dataclass(frozen=True)
 class ImportedRig:
     """What :func:`import_rig` read: the rig, the source of each value, the camera size and where it came from."""
 
-    rig: PinholeRig
+    rig: GeometryModel
     sources: dict[str, str]
     camera_size: tuple[int, int]
     camera_size_from: str | None
 
     def summary(self) -> dict[str, Any]:
-        """``read`` (each value's source), ``camera_size`` (value and where it came from) and the axis
-        ``triangulate auto`` picks: what ``gcps rig import`` prints and the rig page shows."""
-        return {
+        """``model``, ``read`` (each value's source), ``camera_size`` (value and where it came from) and,
+        for a pinhole rig, the axis ``triangulate auto`` picks: what ``gcps rig import`` prints and the
+        rig page shows."""
+        out: dict[str, Any] = {
+            "model": self.rig.model,
             "read": dict(self.sources),
             "camera_size": {"value": list(self.camera_size), "from": self.camera_size_from},
-            "triangulate_auto": self.rig.auto_axis(),
         }
+        auto_axis = getattr(self.rig, "auto_axis", None)
+        if auto_axis is not None:
+            out["triangulate_auto"] = auto_axis()
+        return out
+
+
+def _implied_model(sets: tuple[str, ...] | list[str]) -> str | None:
+    """:data:`STEREO` when a ``--set`` names a key only a stereo rig has, else None."""
+    stereo_only = set(STEREO_KEYS) - set(KEYS)
+    return STEREO if any(item.partition("=")[0] in stereo_only for item in sets) else None
 
 
 def import_rig(
@@ -355,11 +537,16 @@ def import_rig(
     camera_size: tuple[int, int] | None = None,
     opencv: str | None = None,
     sets: tuple[str, ...] | list[str] = (),
+    model: str | None = None,
 ) -> ImportedRig:
-    """A pinhole rig from calibration outputs: the values an OpenCV FileStorage file holds under the
-    recognised node names (``opencv``, :func:`opencv_sources`) and the ``KEY=SRC`` items of
-    ``sets`` (:func:`read_source`; a ``--set`` overrides what ``--opencv`` found, ``R`` and ``rvec``
-    replacing each other). The one import of ``gcps rig import`` and of the rig page.
+    """A pinhole or stereo rig from calibration outputs: the values an OpenCV FileStorage file
+    holds under the recognised node names (``opencv``, :func:`opencv_sources`) and the ``KEY=SRC``
+    items of ``sets`` (:func:`read_source`; a ``--set`` overrides what ``--opencv`` found, ``R``
+    and ``rvec`` replacing each other). The one import of ``gcps rig import`` and of the rig page.
+
+    The model is ``model`` when given (``--model``), else stereo when a ``--set`` names a stereo
+    key (``camera0_K``...), else what :func:`opencv_model` recognises in the ``opencv`` file,
+    else pinhole. Both cameras of a stereo rig have ``camera_size``.
 
     Raises
     ------
@@ -367,29 +554,36 @@ def import_rig(
         Naming the source, the key or the missing value (the messages speak of ``--opencv`` and
         ``--set`` as the command's options).
     """
+    if model is not None and model not in MODEL_CHOICES:
+        raise RigImportError(f"--model must be one of {', '.join(MODEL_CHOICES)}, got {model!r}")
+    chosen = model or _implied_model(sets)
     sources: dict[str, str] = {}
     size_from = "--camera-size" if camera_size else None
     if opencv:
-        scan = opencv_sources(opencv)
+        scan = opencv_sources(opencv, chosen)
+        chosen = scan.model
         sources.update(scan.sources)
         if camera_size is None and scan.camera_size is not None:
             camera_size, size_from = scan.camera_size, scan.camera_size_node
+    chosen = chosen or PINHOLE
+    allowed = SET_KEYS[chosen]
     set_keys: set[str] = set()
     for item in sets:
         key, sep, spec = item.partition("=")
         if not sep or not spec:
             raise RigImportError(f"--set takes KEY=SRC, got {item!r}")
-        if key not in KEYS:
-            raise RigImportError(f"--set: unknown key {key!r}; expected one of {', '.join(KEYS)}")
+        if key not in allowed:
+            raise RigImportError(f"--set: unknown key {key!r} for a {chosen} rig; expected one of {', '.join(allowed)}")
         sources[key] = spec
         set_keys.add(key)
-    if "R" in set_keys and "rvec" not in set_keys:
-        sources.pop("rvec", None)  # --set R overrides a rotation vector found by --opencv
-    if "rvec" in set_keys and "R" not in set_keys:
-        sources.pop("R", None)
+    for matrix_key, rvec_key in ROTATIONS:
+        if matrix_key in set_keys and rvec_key not in set_keys:
+            sources.pop(rvec_key, None)  # --set R overrides a rotation vector found by --opencv
+        if rvec_key in set_keys and matrix_key not in set_keys:
+            sources.pop(matrix_key, None)
     if camera_size is None:
         raise RigImportError("--camera-size W H is required (no image size node was found)")
     values = {key: check_count(key, read_source(spec, key)) for key, spec in sources.items()}
     size = (int(camera_size[0]), int(camera_size[1]))
-    rig = rig_from_values(values, size, (float(projector_size[0]), float(projector_size[1])))
+    rig = BUILDERS[chosen](values, size, (float(projector_size[0]), float(projector_size[1])))
     return ImportedRig(rig=rig, sources=sources, camera_size=size, camera_size_from=size_from)

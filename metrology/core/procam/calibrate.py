@@ -112,7 +112,7 @@ class ProcamCalibration:
     poses: tuple[PoseObservation, ...] = ()
 
 
-def _chosen_poses(
+def chosen_poses(
     selection: PoseSelection,
     board: BoardSpec,
     camera_size: tuple[int, int],
@@ -196,7 +196,7 @@ def calibrate_procam(
     cam_size = (int(camera_size[0]), int(camera_size[1]))
     proj_size = (round(projector_size[0]), round(projector_size[1]))
     selection = select_usable_poses(poses, board, min_decoded_fraction)
-    selection, devices = _chosen_poses(selection, board, cam_size, proj_size, fix_k3)
+    selection, devices = chosen_poses(selection, board, cam_size, proj_size, fix_k3)
     points = fit_points(selection)
     stereo = stereo_fit(points, devices, cam_size, joint=joint, fix_k3=fix_k3)
     refits = leave_one_out_fits(points, cam_size, proj_size, joint=joint, fix_k3=fix_k3)
