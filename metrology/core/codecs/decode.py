@@ -601,10 +601,13 @@ def decode_codec(
             if paired_rows:  # every row counts; vertical pairs (2k, 2k + 1)
                 lower = tuple(a[1::2] for a in rows_of)
                 upper = tuple(a[0 : 2 * lower[0].shape[0] : 2] for a in rows_of)
-            else:
-                upper, lower = (tuple(a[top[: under.size]] for a in rows_of), tuple(a[under] for a in rows_of))
+            else:  # views where the positions are evenly spaced (they are: every s-th row and the next)
+                upper, lower = (
+                    tuple(a[_evenly(top[: under.size])] for a in rows_of),
+                    tuple(a[_evenly(under)] for a in rows_of),
+                )
             checks[plan.name] = check_axis_rows(
-                rows_of if paired_rows else tuple(a[top] for a in rows_of),  # type: ignore[arg-type]
+                rows_of if paired_rows else tuple(a[_evenly(top)] for a in rows_of),  # type: ignore[arg-type]
                 (upper, lower),  # type: ignore[arg-type]
                 judged_counts[plan.name],
                 plan.axis,
@@ -654,6 +657,16 @@ def _with_levels(plan: _AxisPlan, stack: np.ndarray, codec: Codec, opts: CodecDe
     first = plan.axis.phase[0] if plan.axis.phase else None
     model = sample_levels(stack, g, codec.white, codec.black, first, opts.min_modulation, f"axes.{plan.name}.gray")
     return replace(plan, levels=model)
+
+
+def _evenly(index: np.ndarray) -> slice | np.ndarray:
+    """``index`` (sorted intp positions) as a slice when evenly spaced (a view instead of a copy)."""
+    if index.size == 0:
+        return slice(0, 0)
+    step = int(index[1] - index[0]) if index.size > 1 else 1
+    if step > 0 and np.array_equal(index, np.arange(index[0], index[0] + step * index.size, step)):
+        return slice(int(index[0]), int(index[0]) + step * index.size, step)
+    return index
 
 
 @dataclass(frozen=True, eq=False)
