@@ -13,7 +13,7 @@ import math
 import os
 import threading
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
@@ -21,6 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 T = TypeVar("T")
+U = TypeVar("U")
 
 DEFAULT_TILE_PX = 1 << 17
 """Pixels per tile of work. A tile's call of the decoding kernel is about thirty numpy and
@@ -67,6 +68,16 @@ def run_tiled(
             run(rows)
         return
     list(_thread_pool(n_threads).map(run, tiles))
+
+
+def map_threads(func: Callable[[U], T], items: Sequence[U], threads: int | None = None) -> list[T]:
+    """``[func(item) for item in items]``, on the pool's ``threads`` threads (default
+    :data:`DEFAULT_THREADS`; in order). For work that releases the GIL (hashing, OpenCV, numpy);
+    ``func`` must not wait for the pool itself."""
+    n_threads = threads if threads is not None else DEFAULT_THREADS
+    if n_threads <= 1 or len(items) <= 1:
+        return [func(item) for item in items]
+    return list(_thread_pool(n_threads).map(func, items))
 
 
 def run_beside(func: Callable[[], T], threads: int | None = None) -> Callable[[], T]:
