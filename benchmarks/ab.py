@@ -154,6 +154,8 @@ def main() -> int:
                         for row, seconds in run_once(trees[side], bench, args.repeats).items():
                             samples[side].setdefault(row, []).append(seconds)
                 print(f"round {round_index + 1}/{args.rounds} done", file=sys.stderr, flush=True)
+                if args.json:  # the samples so far, should the run be cut short
+                    args.json.write_text(json.dumps({"samples": samples, "rounds_done": round_index + 1}))
         finally:
             for path in made:
                 subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(path)], check=False)
