@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/ab.py --old ac75eb3 --new HEAD                  # 15 rounds of decode, codecs, pinhole
     .venv/bin/python benchmarks/ab.py --old ac75eb3 --new HEAD --benches decode --rounds 21
+    .venv/bin/python benchmarks/ab.py --old ac75eb3 --new HEAD --benches decode,codecs --codec-rows 24,32,42
 
 Each commit is checked out in a temporary git worktree (``--old-tree``/``--new-tree`` use an
 existing checkout instead) and runs *its own* benchmark scripts (``benchmarks/decode.py``,
@@ -53,6 +54,9 @@ def pinhole_rows(out: str, json_path: Path) -> Samples:
     return {f"pinhole: {k}": v for k, v in data["seconds"].items()}
 
 
+CODEC_ROWS: list[str] = []
+"""``--rows`` of ``codecs.py`` when ``--codec-rows`` is given (else its default rows)."""
+
 BENCHES: dict[str, tuple[Callable[[int, Path], list[str]], Callable[[str, Path], Samples]]] = {
     "decode": (
         lambda repeats, js: [
@@ -67,7 +71,10 @@ BENCHES: dict[str, tuple[Callable[[int, Path], list[str]], Callable[[str, Path],
         ],
         decode_rows,
     ),
-    "codecs": (lambda repeats, js: ["codecs.py", "--no-opencv", "--repeats", str(repeats)], codecs_rows),
+    "codecs": (
+        lambda repeats, js: ["codecs.py", "--no-opencv", "--repeats", str(repeats), *CODEC_ROWS],
+        codecs_rows,
+    ),
     "pinhole": (lambda repeats, js: ["pinhole.py", "--repeats", str(repeats)], pinhole_rows),
 }
 """Each benchmark: its command line (after ``benchmarks/``) and the parser of its output."""
@@ -116,7 +123,13 @@ def main() -> int:
     parser.add_argument("--tolerance", type=float, default=0.05)
     parser.add_argument("--json", type=Path, help="write every sample here")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--codec-rows",
+        help="codecs.py's stacks only, e.g. 24,32,42 (the rows both commits have; rendering them is most of its time)",
+    )
     args = parser.parse_args()
+    if args.codec_rows:
+        CODEC_ROWS[:] = ["--rows", args.codec_rows]
     benches = args.benches.split(",")
     unknown = sorted(set(benches) - set(BENCHES))
     if unknown:
@@ -141,6 +154,8 @@ def main() -> int:
                         for row, seconds in run_once(trees[side], bench, args.repeats).items():
                             samples[side].setdefault(row, []).append(seconds)
                 print(f"round {round_index + 1}/{args.rounds} done", file=sys.stderr, flush=True)
+                if args.json:  # the samples so far, should the run be cut short
+                    args.json.write_text(json.dumps({"samples": samples, "rounds_done": round_index + 1}))
         finally:
             for path in made:
                 subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(path)], check=False)

@@ -76,7 +76,7 @@ from metrology.core.geometry.base import (
 )
 from metrology.core.option_checks import check_bool, check_keys, check_positive
 from metrology.core.patterns import N_GRAY_BITS
-from metrology.core.tiling import run_tiled, thread_scratch
+from metrology.core.tiling import run_beside, run_tiled, thread_scratch
 from metrology.core.uncertainty import stage_coordinate_sigma
 
 CODES_PER_PERIOD = 4.0
@@ -996,11 +996,13 @@ def _fused_measure(
     surface = None if reference is None else reference.surface
     blur_variance = 0.0 if reference is None else reference.blur_variance_px2
 
-    start = time.perf_counter()
-    codec_check = check_gcps_v1_sample(stack, codec, nlp, filters.min_modulation)
-    timings["codec_check_s"] = time.perf_counter() - start
-    refuse_inconsistent(codec_check, options)
+    def checked_sample() -> tuple[Mapping[str, AxisCheck], float]:
+        start = time.perf_counter()
+        return check_gcps_v1_sample(stack, codec, nlp, filters.min_modulation), time.perf_counter() - start
 
+    # the self-check (its own 8 row pairs) runs on a pool thread beside the fused pass (inline with one
+    # thread); an inconsistent capture is refused before the filters
+    pending_check = run_beside(checked_sample, threads)
     start = time.perf_counter()
     correct_blur = blur_variance > 0  # then heights come from the corrected codes
     gray_surface = None if reference is None else reference.gray_surface
@@ -1008,6 +1010,8 @@ def _fused_measure(
     fused = _fused_pass(
         prepared, nlp, surface, stack, options, threads, triangulate=not correct_blur, gray_words=gray_words
     )
+    codec_check, timings["codec_check_s"] = pending_check()
+    refuse_inconsistent(codec_check, options)
     z_mm, codes, visibility, gray_codes = fused.z_mm, fused.codes, fused.visibility, fused.gray_codes
     del fused  # the visibility map goes once the mixed-pixel filter has read it
     if filters.edge_band_px > 0:

@@ -31,6 +31,7 @@ from metrology.core.codecs.model import Codec
 from metrology.core.codecs.stack import ExposureStack
 from metrology.core.geometry.base import GeometryModel, ReferenceSurface
 from metrology.core.measure import MeasureOptions, Reference, prepare_reference
+from metrology.core.tiling import map_threads
 
 KIND = "reference"
 """The local cache's sub-folder of decoded references."""
@@ -40,9 +41,10 @@ _SURFACE_MODULES = "metrology.core.geometry."
 
 
 def stack_digest(images: npt.ArrayLike | ExposureStack | tuple[np.ndarray, ...]) -> str:
-    """SHA-256 (hex) of a stack's shape, dtype and bytes; of a multi-exposure capture, of each
-    exposure's description (name, time, gain, brightness) and its stack's digest, in order; of a
-    capture of several cameras (a tuple of stacks), of each camera's stack's digest, in order."""
+    """SHA-256 (hex) of a stack's shape, dtype and the SHA-256 of each :data:`DIGEST_CHUNK` bytes of
+    its frames, in order; of a multi-exposure capture, of each exposure's description (name, time,
+    gain, brightness) and its stack's digest, in order; of a capture of several cameras (a tuple of
+    stacks), of each camera's stack's digest, in order."""
     if isinstance(images, tuple):
         digest = hashlib.sha256(b"gcps-cameras|")
         for frames in images:
@@ -55,9 +57,19 @@ def stack_digest(images: npt.ArrayLike | ExposureStack | tuple[np.ndarray, ...])
             digest.update(stack_digest(frames).encode())
         return digest.hexdigest()
     stack = np.ascontiguousarray(images)
-    digest = hashlib.sha256(f"{stack.shape}|{stack.dtype.str}|".encode())
-    digest.update(stack.reshape(-1).view(np.uint8).data)
+    data = stack.reshape(-1).view(np.uint8)
+    # a hash list: the SHA-256 of every DIGEST_CHUNK bytes, on the pool's threads (hashlib releases
+    # the GIL), then of their concatenation: ~2x faster on two cores than one pass, as strong
+    chunks = [data[start : start + DIGEST_CHUNK] for start in range(0, data.size, DIGEST_CHUNK)]
+    parts = map_threads(lambda chunk: hashlib.sha256(chunk.data).digest(), chunks)
+    digest = hashlib.sha256(f"gcps-chunks/{DIGEST_CHUNK}|{stack.shape}|{stack.dtype.str}|".encode())
+    for part in parts:
+        digest.update(part)
     return digest.hexdigest()
+
+
+DIGEST_CHUNK = 1 << 21
+"""Bytes per chunk of :func:`stack_digest`'s hash list (2 MiB: a 1280x1024 gcps-v1 stack is 7 chunks)."""
 
 
 def reference_key(model: GeometryModel, digest: str, codec: Codec | None, options: MeasureOptions) -> str:

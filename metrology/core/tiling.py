@@ -13,11 +13,15 @@ import math
 import os
 import threading
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
 
 import numpy as np
 import numpy.typing as npt
+
+T = TypeVar("T")
+U = TypeVar("U")
 
 DEFAULT_TILE_PX = 1 << 17
 """Pixels per tile of work. A tile's call of the decoding kernel is about thirty numpy and
@@ -64,6 +68,30 @@ def run_tiled(
             run(rows)
         return
     list(_thread_pool(n_threads).map(run, tiles))
+
+
+def map_threads(func: Callable[[U], T], items: Sequence[U], threads: int | None = None) -> list[T]:
+    """``[func(item) for item in items]``, on the pool's ``threads`` threads (default
+    :data:`DEFAULT_THREADS`; in order). For work that releases the GIL (hashing, OpenCV, numpy);
+    ``func`` must not wait for the pool itself."""
+    n_threads = threads if threads is not None else DEFAULT_THREADS
+    if n_threads <= 1 or len(items) <= 1:
+        return [func(item) for item in items]
+    return list(_thread_pool(n_threads).map(func, items))
+
+
+def run_beside(func: Callable[[], T], threads: int | None = None) -> Callable[[], T]:
+    """Start ``func()`` on a thread of the pool while the caller goes on; returns the function
+    that waits for its result (re-raising its exception). With one thread (``threads`` 1, or a
+    one-core default) ``func`` runs at once, in the caller's thread.
+
+    ``func`` must not wait for the pool itself (``run_tiled`` with several threads): it could
+    wait for its own thread."""
+    n_threads = threads if threads is not None else DEFAULT_THREADS
+    if n_threads <= 1:
+        value = func()
+        return lambda: value
+    return _thread_pool(n_threads).submit(func).result
 
 
 _pools: dict[tuple[int, int], ThreadPoolExecutor] = {}

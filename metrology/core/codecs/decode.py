@@ -69,7 +69,7 @@ from metrology.core.codecs.check import (
 from metrology.core.codecs.gray import LevelModel, centre_lut, classify_tile, digit_positions, sample_levels
 from metrology.core.codecs.model import Axis, Codec, Stage
 from metrology.core.patterns import binary_from_gray
-from metrology.core.tiling import run_tiled, thread_scratch
+from metrology.core.tiling import run_beside, run_tiled, thread_scratch
 
 REASON_VALID = 0
 REASON_TOO_DARK = 1
@@ -590,21 +590,30 @@ def decode_codec(
                 judged_counts[name] += count
 
     run_tiled(run, height, width, threads)
-    axes: dict[str, AxisDecoding] = {}
-    checks: dict[str, AxisCheck] = {}
-    for plan in plans:
-        out = outputs[plan.name]
-        sample = samples.get(plan.name)
-        if sample is not None:  # judged by the gray/phase tolerance: reasons 0, 3, 4 (and 6, none yet)
-            judged = cv2.LUT(out["reason"][sample.rows], _JUDGED_LUT).view(bool)
-            rows_of = (sample.coordinate, sample.centre, judged)
+    # the self-check's rows, judged before the slip repair changes any reason (reasons 0, 3, 4)
+    check_rows_of = {
+        plan.name: (sample.coordinate, sample.centre, cv2.LUT(outputs[plan.name]["reason"][sample.rows], _JUDGED_LUT))
+        for plan in plans
+        if (sample := samples.get(plan.name)) is not None
+    }
+
+    def self_check() -> dict[str, AxisCheck]:
+        checks: dict[str, AxisCheck] = {}
+        for plan in plans:
+            if plan.name not in check_rows_of:
+                continue
+            coordinate, centre, judged = check_rows_of[plan.name]
+            rows_of = (coordinate, centre, judged.view(bool))
             if paired_rows:  # every row counts; vertical pairs (2k, 2k + 1)
                 lower = tuple(a[1::2] for a in rows_of)
                 upper = tuple(a[0 : 2 * lower[0].shape[0] : 2] for a in rows_of)
-            else:
-                upper, lower = (tuple(a[top[: under.size]] for a in rows_of), tuple(a[under] for a in rows_of))
+            else:  # views where the positions are evenly spaced (they are: every s-th row and the next)
+                upper, lower = (
+                    tuple(a[_evenly(top[: under.size])] for a in rows_of),
+                    tuple(a[_evenly(under)] for a in rows_of),
+                )
             checks[plan.name] = check_axis_rows(
-                rows_of if paired_rows else tuple(a[top] for a in rows_of),  # type: ignore[arg-type]
+                rows_of if paired_rows else tuple(a[_evenly(top)] for a in rows_of),  # type: ignore[arg-type]
                 (upper, lower),  # type: ignore[arg-type]
                 judged_counts[plan.name],
                 plan.axis,
@@ -612,6 +621,13 @@ def decode_codec(
             )
             if checks[plan.name].status == INCONSISTENT and not paired_rows:  # name the likely correction
                 checks[plan.name] = with_suggestion(checks[plan.name], stack, codec, plan.name, decode_codec, options)
+        return checks
+
+    # the check reads its own copies of the rows: it runs beside the slip repair on a pool thread
+    checked = run_beside(self_check, threads if any(opts.repair_slips and p.slip_period > 0 for p in plans) else 1)
+    axes: dict[str, AxisDecoding] = {}
+    for plan in plans:
+        out = outputs[plan.name]
         slips = 0
         if opts.repair_slips and plan.slip_period > 0:
             final_period = plan.chain[-1].period
@@ -641,7 +657,7 @@ def decode_codec(
         saturated_pixels=int(sum(saturated_counts)),
         shape=(height, width),
         stats={"gray_levels": levels} if levels else {},
-        codec_check=checks,
+        codec_check=checked(),
     )
 
 
@@ -654,6 +670,16 @@ def _with_levels(plan: _AxisPlan, stack: np.ndarray, codec: Codec, opts: CodecDe
     first = plan.axis.phase[0] if plan.axis.phase else None
     model = sample_levels(stack, g, codec.white, codec.black, first, opts.min_modulation, f"axes.{plan.name}.gray")
     return replace(plan, levels=model)
+
+
+def _evenly(index: np.ndarray) -> slice | np.ndarray:
+    """``index`` (sorted intp positions) as a slice when evenly spaced (a view instead of a copy)."""
+    if index.size == 0:
+        return slice(0, 0)
+    step = int(index[1] - index[0]) if index.size > 1 else 1
+    if step > 0 and np.array_equal(index, np.arange(index[0], index[0] + step * index.size, step)):
+        return slice(int(index[0]), int(index[0]) + step * index.size, step)
+    return index
 
 
 @dataclass(frozen=True, eq=False)
