@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from metrology.core.inspection import alignment, conformance
-from metrology.core.inspection.distance import SurfaceDistance
+from metrology.core.inspection.distance import Deviations, SurfaceDistance, scatter
 from metrology.core.inspection.nominal import NominalModel
 from metrology.core.inspection.scan import Scan
 from metrology.core.option_checks import check_int, check_keys, check_number, check_positive
@@ -266,7 +266,7 @@ def inspect(nominal: NominalModel, scan: Scan, options: InspectOptions | None = 
             )
         with timer.phase("deviations"):
             aligned = alignment.apply(fit.transform, points)
-            dev = surface.deviations(aligned)
+            dev = _deviations(surface, aligned, candidates, fit.deviations)
         with timer.phase("uncertainty"):
             rays = None
             if sigma is not None and scan.sigma_along_ray:
@@ -297,6 +297,21 @@ def inspect(nominal: NominalModel, scan: Scan, options: InspectOptions | None = 
         software_version=software_version(),
         timings_s=dict(timer.timings_s),
     )
+
+
+def _deviations(
+    surface: SurfaceDistance, aligned: np.ndarray, fitted: np.ndarray, known: Deviations | None
+) -> Deviations:
+    """The deviations of the ``(N, 3)`` aligned points: those of the fit's points (at ``fitted``)
+    taken from the fit's last iteration (the same transform, the same numbers), the others computed."""
+    if known is None:
+        return surface.deviations(aligned)
+    rest = np.ones(aligned.shape[0], bool)
+    rest[fitted] = False
+    others = np.flatnonzero(rest)
+    if others.size == 0:
+        return scatter(aligned.shape[0], [(fitted, known)])
+    return scatter(aligned.shape[0], [(fitted, known), (others, surface.deviations(aligned[others]))])
 
 
 def _start(
