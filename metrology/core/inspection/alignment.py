@@ -254,8 +254,8 @@ def _iterate(
         dev = surface.deviations(aligned)
         keep, floored = _kept(dev.distance_mm, trim_k, floor)
         system = _normal_system(aligned[keep], dev.direction[keep], dev.distance_mm[keep], weights[keep])
-        if (converged and not floored) or iterations >= max_iterations:
-            return transform, iterations, converged and not floored, system, keep, floor, dev
+        if converged or iterations >= max_iterations:
+            return transform, iterations, converged, system, keep, floor, dev
         step = system.step()
         transform = _compose(step, system.centre) @ transform
         iterations += 1
@@ -263,7 +263,7 @@ def _iterate(
             np.linalg.norm(step[:3]) < ROTATION_TOL_RAD * tolerance_scale
             and np.linalg.norm(step[3:]) < TRANSLATION_TOL_MM * tolerance_scale
         )
-        converged = bool(small or system.step_in_std(step) < std_fraction)
+        converged = bool(small or system.step_in_std(step) < std_fraction) and not floored  # an unfloored step
         floor *= TRIM_FLOOR_DECAY
 
 
