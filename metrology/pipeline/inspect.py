@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from metrology.core.inspection import alignment, conformance
-from metrology.core.inspection.distance import SurfaceDistance
+from metrology.core.inspection.distance import Deviations, SurfaceDistance, scatter
 from metrology.core.inspection.nominal import NominalModel
 from metrology.core.inspection.scan import Scan
 from metrology.core.option_checks import check_int, check_keys, check_number, check_positive
@@ -252,7 +252,8 @@ def inspect(nominal: NominalModel, scan: Scan, options: InspectOptions | None = 
         if candidates.size > options.fit_points:
             candidates = np.sort(rng.choice(candidates, options.fit_points, replace=False))
         with timer.phase("start"):
-            initial, start = _start(surface, points[candidates], options)
+            viewpoint = scan.ray_origin_mm if len(scan.shape) == 2 else None  # a point map: one view
+            initial, start = _start(surface, points[candidates], options, viewpoint)
         with timer.phase("best_fit"):
             fit = alignment.best_fit(
                 surface,
@@ -261,10 +262,11 @@ def inspect(nominal: NominalModel, scan: Scan, options: InspectOptions | None = 
                 sigma_mm=None if sigma is None else sigma[candidates],
                 trim_k=options.trim_k,
                 max_iterations=options.max_iterations,
+                trim_floor_mm=2 * start["voxel_mm"] if options.init == "auto" else 0.0,
             )
         with timer.phase("deviations"):
             aligned = alignment.apply(fit.transform, points)
-            dev = surface.deviations(aligned)
+            dev = _deviations(surface, aligned, candidates, fit.deviations)
         with timer.phase("uncertainty"):
             rays = None
             if sigma is not None and scan.sigma_along_ray:
@@ -297,15 +299,34 @@ def inspect(nominal: NominalModel, scan: Scan, options: InspectOptions | None = 
     )
 
 
-def _start(surface: SurfaceDistance, points: np.ndarray, options: InspectOptions) -> tuple[np.ndarray, dict[str, Any]]:
-    """The start transform and how it was found."""
+def _deviations(
+    surface: SurfaceDistance, aligned: np.ndarray, fitted: np.ndarray, known: Deviations | None
+) -> Deviations:
+    """The deviations of the ``(N, 3)`` aligned points: those of the fit's points (at ``fitted``)
+    taken from the fit's last iteration (the same transform, the same numbers), the others computed."""
+    if known is None:
+        return surface.deviations(aligned)
+    rest = np.ones(aligned.shape[0], bool)
+    rest[fitted] = False
+    others = np.flatnonzero(rest)
+    if others.size == 0:
+        return scatter(aligned.shape[0], [(fitted, known)])
+    return scatter(aligned.shape[0], [(fitted, known), (others, surface.deviations(aligned[others]))])
+
+
+def _start(
+    surface: SurfaceDistance, points: np.ndarray, options: InspectOptions, viewpoint: np.ndarray | None = None
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """The start transform and how it was found (``viewpoint``: the camera centre of a one-view scan)."""
     if options.init == "identity":
         return np.eye(4), {"method": "identity"}
     if options.init == "pairs":
         scan = np.array([pair[0] for pair in options.pairs])
         nominal = np.array([pair[1] for pair in options.pairs])
         return alignment.kabsch(scan, nominal), {"method": "pairs", "pairs": len(options.pairs)}
-    found = alignment.global_registration(surface, points, seed=options.seed, restarts=options.restarts)
+    found = alignment.global_registration(
+        surface, points, seed=options.seed, restarts=options.restarts, viewpoint_mm=viewpoint
+    )
     return found.transform, {
         "method": "auto",
         "seed": found.seed,
