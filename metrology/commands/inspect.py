@@ -30,7 +30,11 @@ if TYPE_CHECKING:
 def register(subparsers: Any) -> None:
     """Add ``inspect`` to the ``gcps`` subcommands."""
     p = subparsers.add_parser("inspect", help="a scan against its nominal model: alignment, deviations, conformance")
-    p.add_argument("--nominal", required=True, help="nominal triangle mesh in mm (.stl binary or ASCII, .ply, .obj)")
+    p.add_argument(
+        "--nominal",
+        required=True,
+        help="nominal triangle mesh in mm (.stl binary or ASCII, .ply, .obj; .step/.stp with cadquery-ocp)",
+    )
     p.add_argument(
         "--scan", required=True, help="points: .ply (x y z [sigma_mm]) or (H, W, 3) .npy as gcps measure --xyz writes"
     )

@@ -5,11 +5,14 @@ millimetres, its default), tessellates each face with ``BRepMesh_IncrementalMesh
 triangles in mm, each face's triangles wound so that their right-hand normal points out of the
 material (a face stored *reversed* in the solid has its triangles flipped).
 
-The tessellation's tolerance is recorded (:data:`LINEAR_TOLERANCE_MM`, :data:`ANGULAR_TOLERANCE_RAD`
-by default): every triangle's vertices lie on the exact surface and its interior within the
-linear tolerance of it (the chord height of a curved face: ``R (1 - cos(theta / 2))`` for an
-edge spanning ``theta`` of a radius ``R``), so a deviation measured against the mesh is the one
-against the solid to within that tolerance.
+The tessellation's tolerances are recorded (:data:`LINEAR_TOLERANCE_MM`, :data:`ANGULAR_TOLERANCE_RAD`
+by default) with the nominal model: every triangle's vertices lie on the exact surface, and BRepMesh
+aims to keep its interior within the linear tolerance of it (the chord height of a curved face,
+``R (1 - cos(theta / 2))`` for an edge spanning ``theta`` of a radius ``R``). It is a target,
+not a bound: on a sphere of radius 10 mm at 0.01 mm the deepest triangle centroid lies
+0.017 mm inside the sphere (99 % of them within 0.0075 mm; 5089 vertices, 10174 triangles, read
+in about 1 s), so a deviation against the mesh is the one against the solid to within about
+twice the linear tolerance on curved faces, exactly on planar ones.
 
 ``cadquery-ocp`` is an optional dependency (``pip install 'gcps-lab[step]'``); :func:`read_step`
 raises :class:`ImportError` saying so where it is absent.
@@ -23,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-LINEAR_TOLERANCE_MM = 0.001
+LINEAR_TOLERANCE_MM = 0.01
 """Default largest distance between a triangle and the exact surface, mm."""
 ANGULAR_TOLERANCE_RAD = 0.1
 """Default largest angle between neighbouring triangles' normals on a curved face, rad."""
@@ -37,6 +40,12 @@ def ocp_available() -> bool:
     except ImportError:
         return False
     return True
+
+
+def _face(topods: Any, shape: Any) -> Any:
+    """The shape as a ``TopoDS_Face`` (``TopoDS.Face`` in OCP 8, ``TopoDS.Face_s`` before)."""
+    cast = getattr(topods, "Face", None) or topods.Face_s
+    return cast(shape)
 
 
 def read_step(
@@ -85,7 +94,7 @@ def read_step(
     count = 0
     explorer = TopExp_Explorer(shape, TopAbs_FACE)
     while explorer.More():
-        face = TopoDS.Face_s(explorer.Current())
+        face = _face(TopoDS, explorer.Current())
         location = TopLoc_Location()
         triangulation = BRep_Tool.Triangulation_s(face, location)
         explorer.Next()
