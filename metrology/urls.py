@@ -96,6 +96,11 @@ api_patterns = [
         inspections.InspectionDeviationsApi.as_view(),
         name="inspection-deviations",
     ),
+    path(
+        "inspections/<int:inspection_id>/deviations.ply",
+        inspections.InspectionDeviationsPlyApi.as_view(),
+        name="inspection-deviations-ply",
+    ),
     path("rigs/<int:rig_id>/inspection-plan/", inspections.RigInspectionPlanApi.as_view(), name="rig-inspection-plan"),
     *acquisition_urls.api_patterns,
     path("schema/", SpectacularAPIView.as_view(), name="schema"),

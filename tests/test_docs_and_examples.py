@@ -99,6 +99,7 @@ def test_example_inspection_runs_as_documented(tmp_path):
     (tmp_path / "scan.ply").write_bytes(ply_points_bytes({k: scan[:, i] for i, k in enumerate("xyz")}))
     args = ["--nominal", str(EXAMPLES / "inspection-step-block.stl"), "--scan", str(tmp_path / "scan.ply")]
     args += ["--init", str(EXAMPLES / "inspection-pairs.json"), "--tolerance", "0.05"]
+    args += ["--features", str(EXAMPLES / "inspection-features.json")]
     assert (
         main(
             [
@@ -118,3 +119,6 @@ def test_example_inspection_runs_as_documented(tmp_path):
     deviation = np.load(tmp_path / "dev.npy")
     np.testing.assert_allclose(deviation[raised], 0.1, atol=1e-4)
     assert report["conformance"]["nonconforming"] == int(raised.sum())
+    top, shelf = report["features"]  # the raised top is 0.1 mm off its nominal plane, the shelf is not
+    assert top["name"] == "step-top" and top["difference"]["offset_mm"] == pytest.approx(0.1, abs=1e-4)
+    assert abs(shelf["difference"]["offset_mm"]) < 1e-4 and shelf["form_mm"] < 1e-4

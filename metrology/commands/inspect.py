@@ -5,7 +5,8 @@ uncertainty and the conformance decision (docs/inspection.md).
 
     gcps inspect --nominal PART.stl|.ply|.obj --scan SCAN.ply|XYZ.npy [--sigma SIGMA.npy]
                  [--init auto|identity|PAIRS.json] [--tolerance MM] [--k K] [--systematic-mm MM]
-                 [--seed N] --out REPORT.json [--deviations DEV.npy] [--aligned ALIGNED.ply]
+                 [--seed N] [--features FEATURES.json] --out REPORT.json [--deviations DEV.npy]
+                 [--aligned ALIGNED.ply]
 
 The command reads its inputs, calls the pipeline's :func:`~metrology.pipeline.inspect.inspect`
 and writes its outputs, each atomically, only once all are computed: a refused run (exit 2,
@@ -29,7 +30,11 @@ if TYPE_CHECKING:
 def register(subparsers: Any) -> None:
     """Add ``inspect`` to the ``gcps`` subcommands."""
     p = subparsers.add_parser("inspect", help="a scan against its nominal model: alignment, deviations, conformance")
-    p.add_argument("--nominal", required=True, help="nominal triangle mesh in mm (.stl binary or ASCII, .ply, .obj)")
+    p.add_argument(
+        "--nominal",
+        required=True,
+        help="nominal triangle mesh in mm (.stl binary or ASCII, .ply, .obj; .step/.stp with cadquery-ocp)",
+    )
     p.add_argument(
         "--scan", required=True, help="points: .ply (x y z [sigma_mm]) or (H, W, 3) .npy as gcps measure --xyz writes"
     )
@@ -49,6 +54,11 @@ def register(subparsers: Any) -> None:
         help="the rig's systematic uncertainty, mm (default 0)",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of --init auto (default 0)")
+    p.add_argument(
+        "--features",
+        metavar="FEATURES.json",
+        help='features to fit on regions of the aligned scan: a JSON list of {"name", "kind", "region"}',
+    )
     p.add_argument("--out", required=True, help="report (.json, gcps-inspection/1)")
     p.add_argument("--deviations", help="float32 signed deviations in the scan's order, NaN where no point (.npy)")
     p.add_argument("--aligned", help="the scan's points in the nominal frame with deviation_mm (.ply)")
@@ -61,6 +71,7 @@ def cmd_inspect(args: argparse.Namespace) -> dict[str, Any]:
 
     import numpy as np
 
+    from metrology.core.inspection.feature_regions import FeatureSpec, parse_features
     from metrology.core.inspection.nominal import read_nominal
     from metrology.core.io import atomic_path
     from metrology.core.io.meshes import ply_points_bytes
@@ -83,6 +94,15 @@ def cmd_inspect(args: argparse.Namespace) -> dict[str, Any]:
         if len(pairs) < 3:
             raise BadInputError(f"--init {init}: at least 3 point pairs are needed, got {len(pairs)}")
         init = "pairs"
+    features: tuple[FeatureSpec, ...] = ()
+    if args.features:
+        features_file = Path(args.features)
+        if features_file.suffix.lower() != ".json" or not features_file.is_file():
+            raise BadInputError(f"--features {args.features}: must be an existing .json file")
+        try:
+            features = parse_features(json.loads(features_file.read_text()))
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise BadInputError(f"--features {args.features}: {exc}") from None
     try:
         options = InspectOptions(
             init=init,
@@ -91,6 +111,7 @@ def cmd_inspect(args: argparse.Namespace) -> dict[str, Any]:
             k=args.k,
             systematic_mm=args.systematic_mm,
             seed=args.seed,
+            features=features,
         )
     except ValueError as exc:
         raise BadInputError(str(exc)) from None
@@ -132,6 +153,7 @@ def cmd_inspect(args: argparse.Namespace) -> dict[str, Any]:
         "rms_mm": report["alignment"]["rms_mm"],
         "symmetric_dof": len(report["alignment"]["symmetric_dof"]),
         "conformance": report["conformance"],
+        "features": {f["name"]: f["difference"] or f["error"] for f in report.get("features", [])},
         "warnings": list(nominal.warnings),
     }
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 from django import forms
@@ -490,8 +491,19 @@ class InspectionForm(forms.Form):
         min_value=0.0,
         help_text="Empty: the rig's latest characterization (its mean error), or 0 without one",
     )
+    features = forms.CharField(
+        label="Features (JSON)",
+        required=False,
+        widget=forms.Textarea(attrs={"rows": 4, "spellcheck": "false"}),
+        help_text='A JSON list of {"name", "kind": plane|sphere|cylinder|circle, "region": {"box_mm": '
+        '[[x0, y0, z0], [x1, y1, z1]], "near_faces": [...], "within_mm": d}} in the nominal\'s frame '
+        "(docs/inspection.md); empty: none",
+    )
 
     def __init__(self, *args, nominals=(), **kwargs):
+        initial = kwargs.get("initial")
+        if initial and isinstance(initial.get("features"), list):  # a plan's stored features, shown as JSON
+            kwargs["initial"] = {**initial, "features": json.dumps(initial["features"]) if initial["features"] else ""}
         super().__init__(*args, **kwargs)
         set_choices(
             self,
@@ -500,6 +512,20 @@ class InspectionForm(forms.Form):
             + [(str(n.pk), f"#{n.pk} {n.name} ({n.triangle_count} triangles)") for n in nominals],
         )
 
+    def clean_features(self) -> list[dict[str, Any]]:
+        """The features typed as JSON, validated (:func:`~metrology.core.inspection.feature_regions.parse_features`)."""
+        from metrology.core.inspection.feature_regions import parse_features
+
+        text = (self.cleaned_data.get("features") or "").strip()
+        if not text:
+            return []
+        try:
+            return [spec.to_dict() for spec in parse_features(json.loads(text))]
+        except json.JSONDecodeError as exc:
+            raise forms.ValidationError(f"Not valid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno}).") from None
+        except ValueError as exc:
+            raise forms.ValidationError(str(exc)) from None
+
     def options(self) -> dict[str, Any]:
         """The inspection options the form gives (those left empty are not set)."""
         data = self.cleaned_data
@@ -507,4 +533,6 @@ class InspectionForm(forms.Form):
         for name in ("tolerance_mm", "systematic_mm"):
             if data.get(name) is not None:
                 options[name] = data[name]
+        if data.get("features"):
+            options["features"] = data["features"]
         return options

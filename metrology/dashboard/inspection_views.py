@@ -116,7 +116,43 @@ def _inspection_context(inspection) -> dict[str, Any]:
         )
     ]
     context["transform"] = report.get("transform")
+    context["feature_rows"] = feature_rows(report.get("features") or [])
     return context
+
+
+def _quantity_text(name: str, value: Any) -> str:
+    """A compared quantity's value: mm to 0.1 um, degrees to 1e-4; "-" when absent."""
+    if value is None:
+        return "-"
+    if name.endswith("_deg"):
+        return f"{float(value):.4f}°"
+    return f"{float(value):.4f} mm"
+
+
+def feature_rows(features: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per compared quantity of each feature of the report (``features``, docs/inspection.md):
+    the feature (on its first row), the quantity, its measured value, standard uncertainty, nominal
+    value and difference; a feature without numbers gets one row with its error."""
+    rows: list[dict[str, Any]] = []
+    for feature in features:
+        head = {"name": feature.get("name"), "kind": feature.get("kind"), "points": feature.get("points")}
+        if feature.get("error"):
+            rows.append({**head, "first": True, "error": feature["error"]})
+            continue
+        for index, q in enumerate(feature.get("quantities") or []):
+            name = str(q.get("name"))
+            rows.append(
+                {
+                    **head,
+                    "first": index == 0,
+                    "quantity": name.removesuffix("_mm").removesuffix("_deg").replace("_", " "),
+                    "measured": _quantity_text(name, q.get("measured")),
+                    "std": _quantity_text(name, q.get("u_measured")),
+                    "nominal": _quantity_text(name, q.get("nominal")),
+                    "difference": _quantity_text(name, q.get("difference")),
+                }
+            )
+    return rows
 
 
 def _um(value: Any) -> str:
@@ -167,10 +203,19 @@ def inspection_report(request: HttpRequest, inspection_id: int) -> HttpResponse:
     return render(request, "dashboard/inspection_report.html", _inspection_context(inspection))
 
 
+def _feature_history(inspections: list[Any], name: Any) -> list[dict[str, Any]]:
+    """``[{"measurement": id, "feature": the report's entry named name or None}]``, in the inspections' order."""
+    history = []
+    for inspection in inspections:
+        found = [f for f in (inspection.report or {}).get("features") or [] if f.get("name") == name]
+        history.append({"measurement": inspection.measurement_id, "feature": found[0] if found else None})
+    return history
+
+
 @login_required
 @require_http_methods(["GET", "POST"])
 def rig_inspection_plan(request: HttpRequest, rig_id: int) -> HttpResponse:
-    from metrology.figures.inspection import plan_trend
+    from metrology.figures.inspection import feature_trend, plan_trend
 
     rig = rig_selectors.get_rig(request.user, rig_id)
     plan = selectors.plan_of_rig(rig)
@@ -190,9 +235,21 @@ def rig_inspection_plan(request: HttpRequest, rig_id: int) -> HttpResponse:
             return redirect("dashboard:rig-inspection-plan", rig.pk)
     inspections = list(selectors.plan_inspections(plan)) if plan else []
     trend = plan_trend([{"measurement": i.measurement_id, "deviation": i.report.get("deviation")} for i in inspections])
+    names = [f.get("name") for f in (plan.options.get("features") or [])] if plan else []
+    feature_trends = [
+        (f"feature_trend_{index}", f"Feature {name}", feature_trend(str(name), _feature_history(inspections, name)))
+        for index, name in enumerate(names)
+    ]
     return render(
         request,
         "dashboard/rig_inspection_plan.html",
-        {"rig": rig, "plan": plan, "form": form, "inspections": inspections, "trend": trend},
+        {
+            "rig": rig,
+            "plan": plan,
+            "form": form,
+            "inspections": inspections,
+            "trend": trend,
+            "feature_trends": feature_trends,
+        },
         status=400 if request.method == "POST" else 200,
     )

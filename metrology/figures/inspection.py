@@ -1,5 +1,5 @@
 """Figures of an inspection: the deviation colour map on the measured points, the deviation histogram,
-and a plan's trend across measurements.
+and a plan's trends across measurements (the deviations, and each feature's differences from the nominal).
 
 Inputs are plain arrays and the stored ``gcps-inspection/1`` report (docs/inspection.md). The
 deviation scale is diverging and centred at 0 (blue inside the material, red outside), symmetric
@@ -138,4 +138,37 @@ def plan_trend(rows: Sequence[dict[str, Any]]) -> go.Figure:
             )
         )
     fig.update_layout(**base_layout(title, "measurement", "deviation (um)"))
+    return fig
+
+
+def feature_trend(name: str, rows: Sequence[dict[str, Any]]) -> go.Figure:
+    """One feature of a plan across measurements: each compared quantity's difference from the
+    nominal (``measured - nominal``; um for the ``*_mm`` quantities, the form error among them), in
+    order. ``rows``: ``{"measurement": id, "feature": the report's feature entry or None}``
+    (docs/inspection.md); a measurement where the feature has no numbers is a gap."""
+    title = f"Feature {name} across measurements"
+    rows = [row for row in rows if row.get("feature") and not row["feature"].get("error")]
+    if not rows:
+        return empty_figure(title, "no finished inspection with this feature yet")
+    labels = [f"#{row['measurement']}" for row in rows]
+    names: list[str] = []
+    for row in rows:
+        names += [q["name"] for q in row["feature"].get("quantities") or [] if q["name"] not in names]
+    fig = go.Figure()
+    for index, quantity in enumerate(q for q in names if q.endswith("_mm")):
+        values = []
+        for row in rows:
+            found = [q for q in row["feature"].get("quantities") or [] if q["name"] == quantity]
+            difference = found[0].get("difference") if found else None
+            values.append(None if difference is None else float(difference) * 1000.0)
+        fig.add_trace(
+            go.Scatter(
+                x=labels,
+                y=values,
+                mode="lines+markers",
+                name=quantity.removesuffix("_mm").replace("_", " "),
+                line={"color": PALETTE[index % len(PALETTE)]},
+            )
+        )
+    fig.update_layout(**base_layout(title, "measurement", "measured - nominal (um)"))
     return fig

@@ -1,5 +1,5 @@
 """REST endpoints for inspections: nominal models (upload, list, delete), inspections of measurements
-(request, read, deviations.npy, report.html) and a rig's inspection plan."""
+(request, read, deviations.npy, deviations.ply, report.html) and a rig's inspection plan."""
 
 from __future__ import annotations
 
@@ -78,6 +78,7 @@ class InspectionSerializer(JobStateMixin, serializers.ModelSerializer):
             return {}
         return {
             "deviations.npy": reverse("inspection-deviations", kwargs={"inspection_id": inspection.pk}),
+            "deviations.ply": reverse("inspection-deviations-ply", kwargs={"inspection_id": inspection.pk}),
             "report.html": reverse("dashboard:inspection-report", kwargs={"inspection_id": inspection.pk}),
         }
 
@@ -212,6 +213,25 @@ class InspectionDeviationsApi(APIView):
             default_storage,
             inspection.deviations_npy.name,
             filename=f"inspection-{inspection.pk}-deviations.npy",
+            content_type="application/octet-stream",
+        )
+
+
+class InspectionDeviationsPlyApi(APIView):
+    @extend_schema(
+        responses={(200, "application/octet-stream"): OpenApiResponse(OpenApiTypes.BINARY)},
+        operation_id="inspections_deviations_ply",
+        summary="The points with a deviation in the nominal's frame (mm): deviation_mm and, when known, sigma_mm",
+    )
+    def get(self, request: Request, inspection_id: int) -> HttpResponseBase:
+        inspection = selectors.get_inspection(request.user, inspection_id)
+        if not inspection.deviations_npy:
+            raise Http404(f"inspection {inspection.pk} has no deviations: its job is {inspection.job.status}")
+        return storage_file_response(
+            request,
+            default_storage,
+            services.deviations_ply(inspection),
+            filename=f"inspection-{inspection.pk}-deviations.ply",
             content_type="application/octet-stream",
         )
 

@@ -241,6 +241,49 @@ def _inspect(nominal: Any, points: np.ndarray, sigma: np.ndarray | None, inspect
         raise job_services.JobFailedError(f"the inspection cannot be done: {exc}") from exc
 
 
+def deviations_ply(inspection: Inspection) -> str:
+    """The storage name of the finished inspection's ``deviations.ply``, built on first request.
+
+    A binary PLY point cloud (:func:`metrology.core.io.points.ply_point_cloud`) of every point that
+    has a deviation, in the nominal's frame (the report's transform applied to the measurement's
+    points), mm, with ``deviation_mm`` (signed, positive outside the material) and, when the
+    measurement stored its sigma map, ``sigma_mm`` (each point's standard uncertainty as measured,
+    along the model's sigma direction, mm). Kept in the bounded folder of derived files
+    (:func:`metrology.measurements.derived.derived_files`), keyed by the stored deviations.
+
+    Raises
+    ------
+    Conflict
+        The inspection has no deviations yet (its job is not done).
+    """
+    from metrology.core.io.points import ply_point_cloud
+    from metrology.measurements.derived import CACHE_PREFIX, derived_files, measurement_points
+
+    if not inspection.deviations_npy:
+        raise Conflict(f"inspection {inspection.pk} has no deviations: its job is {inspection.job.status}")
+    digest = hashlib.sha256(inspection.deviations_npy.name.encode()).hexdigest()[:16]
+    name = f"{CACHE_PREFIX}/inspection-{inspection.pk}-deviations-{digest}.ply"
+    if default_storage.exists(name):
+        return name
+    measurement = inspection.measurement
+    deviation = np.asarray(_load_array(inspection.deviations_npy), dtype=np.float64).reshape(-1)
+    points = np.asarray(measurement_points(measurement), dtype=np.float64).reshape(-1, 3)
+    if points.shape[0] != deviation.shape[0]:
+        raise Conflict(f"inspection {inspection.pk}: its deviations do not match the measurement's points")
+    transform = np.asarray(inspection.report["transform"], dtype=np.float64)
+    keep = np.isfinite(deviation) & np.isfinite(points).all(axis=1)
+    aligned = points[keep] @ transform[:3, :3].T + transform[:3, 3]
+    sigma = None
+    if measurement.sigma_npy:
+        sigma = np.asarray(_load_array(measurement.sigma_npy), dtype=np.float64).reshape(-1)[keep]
+    data = ply_point_cloud(aligned, sigma_mm=sigma, deviation_mm=deviation[keep])
+    stored = default_storage.save(name, File(io.BytesIO(data), name="deviations.ply"))
+    if stored != name:  # another request stored it first: keep theirs
+        default_storage.delete(stored)
+    derived_files().trim(keep=name)
+    return name
+
+
 @transaction.atomic
 def set_plan(*, owner, rig, nominal: NominalModel, options: dict[str, Any] | None = None, active: bool = True):
     """Create or replace ``rig``'s inspection plan (one per rig). The options are kept as given

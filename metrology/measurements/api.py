@@ -33,6 +33,7 @@ CONTENT_TYPES = {
     "sigma.npy": "application/octet-stream",
     "points.npy": "application/octet-stream",
     "exposure.npy": "application/octet-stream",
+    "points.e57": "application/octet-stream",
 }
 
 
@@ -202,7 +203,7 @@ def file_view(filename: str) -> type[APIView]:
     URLs); a derived file not built yet queues its job and answers 202 with the job to poll
     (``Location``, ``Retry-After``); compactly stored points are streamed as the dense ``.npy``.
     """
-    field = RESULT_FILES[filename]
+    field = RESULT_FILES[filename] or filename.replace(".", "_")
     content_type = CONTENT_TYPES[filename]
     operation_id = "measurements_" + filename.replace(".", "_")
 
@@ -235,6 +236,7 @@ def file_view(filename: str) -> type[APIView]:
                 return response
             assert result.name is not None
             if not result.ready:
+                derived.check_buildable(filename)
                 job = services.request_derived_file(measurement, filename)
                 if job.status != job.Status.DONE or not default_storage.exists(result.name):
                     return pending_response(request, job, filename)

@@ -35,11 +35,16 @@ from django.core.files.storage import default_storage
 from django.db.models.fields.files import FieldFile
 
 from metrology.measurements.derived_cache import DerivedFiles
-from metrology.measurements.models import RESULT_FILES, Measurement
+from metrology.measurements.models import RESULT_FILES, Measurement, stored_file
 
 DERIVED_FILES: tuple[str, ...] = ("height.tiff", "mesh.ply", "mesh.stl", "mesh.obj")
 """Result files built from the stored height map by a job when first asked for (and ``points.npy`` where the heights
-give the points: :func:`points_follow_from_heights`)."""
+give the points: :func:`points_follow_from_heights`; ``points.e57`` wherever there are points: :func:`has_points`)."""
+
+E57_FILE = "points.e57"
+"""The measured points as an ASTM E2807 (E57) file (:func:`metrology.core.io.e57.write_e57`): one scan,
+the points in mm in the rig's model frame with the identity pose, each point's camera pixel as its
+row and column index, and no intensity (a measurement stores no modulation map)."""
 
 STORED_FILES: tuple[str, ...] = ("height.npy", "gray_only_height.npy", "sigma.npy", "points.npy", "exposure.npy")
 """Result files a measurement job stores."""
@@ -72,10 +77,14 @@ def derived_files() -> DerivedFiles:
 
 def available_files(measurement: Measurement) -> list[str]:
     """Names of the result files a measurement can serve now (none until its height map is stored)."""
-    stored = [name for name, field in RESULT_FILES.items() if getattr(measurement, field)]
+    stored = [name for name in RESULT_FILES if stored_file(measurement, name)]
     if not measurement.height_npy:
         return stored
-    derived = [*DERIVED_FILES, *(["points.npy"] if points_follow_from_heights(measurement) else [])]
+    derived = [
+        *DERIVED_FILES,
+        *(["points.npy"] if points_follow_from_heights(measurement) else []),
+        *([E57_FILE] if has_points(measurement) else []),
+    ]
     return [name for name in RESULT_FILES if name in stored or name in derived]
 
 
@@ -91,6 +100,26 @@ def points_follow_from_heights(measurement: Measurement) -> bool:
         return bool(model_from_dict(measurement.rig_values).prepare().has_model_plane)
     except ValueError:
         return False
+
+
+def has_points(measurement: Measurement) -> bool:
+    """True when the measurement has points (stored, or its heights on its model's camera rays)."""
+    return bool(measurement.height_npy) and (bool(measurement.points_npy) or points_follow_from_heights(measurement))
+
+
+def check_buildable(filename: str) -> None:
+    """Conflict (409) when the server cannot build ``filename``: an E57 file needs the optional
+    ``pye57`` (``pip install 'gcps-lab[e57]'``)."""
+    if filename != E57_FILE:
+        return
+    from metrology.errors import Conflict
+
+    try:
+        import pye57  # noqa: F401
+    except ImportError:
+        raise Conflict(
+            "points.e57: this server cannot write E57 files: pye57 is not installed (pip install 'gcps-lab[e57]')"
+        ) from None
 
 
 def cache_name(measurement: Measurement, filename: str) -> str:
@@ -144,8 +173,10 @@ def measurement_points(measurement: Measurement, z_mm: np.ndarray | None = None)
 
 def is_derived(measurement: Measurement, filename: str) -> bool:
     """True when ``filename`` of ``measurement`` is built by a derived-file job (not stored by its measurement)."""
-    if getattr(measurement, RESULT_FILES[filename]) or not measurement.height_npy:
+    if stored_file(measurement, filename) or not measurement.height_npy:
         return False
+    if filename == E57_FILE:
+        return has_points(measurement)
     return filename in DERIVED_FILES or (filename == "points.npy" and points_follow_from_heights(measurement))
 
 
@@ -156,8 +187,7 @@ def open_result_file(measurement: Measurement, filename: str) -> ResultFile | No
     built yet comes back with ``ready=False`` (queue :func:`metrology.measurements.services.request_derived_file`);
     compactly stored points are streamed as the dense ``.npy`` (``chunks``).
     """
-    field = RESULT_FILES[filename]
-    stored = getattr(measurement, field)
+    stored = stored_file(measurement, filename)
     if stored and filename == "points.npy":  # stored compactly: sent as the dense map
         return ResultFile(filename, chunks=npy_chunks(measurement_points(measurement)))
     if stored:
@@ -185,8 +215,9 @@ def npy_chunks(array: np.ndarray) -> Iterator[bytes]:
 
 def write_derived_file(measurement: Measurement, filename: str, path: Path) -> None:
     """Write the derived file ``filename`` of ``measurement`` (one of :data:`DERIVED_FILES`, or the
-    derived ``points.npy``) to the local file ``path``: the TIFF height map (float32, NaN kept), a mesh
-    (:func:`metrology.core.mesh.mesh_file_chunks`), or the ``(H, W, 3)`` float32 points, mm."""
+    derived ``points.npy``, or ``points.e57``) to the local file ``path``: the TIFF height map (float32, NaN
+    kept), a mesh (:func:`metrology.core.mesh.mesh_file_chunks`), the ``(H, W, 3)`` float32 points, mm, or
+    the points as E57 (:data:`E57_FILE`)."""
     from metrology.core.geometry import model_from_dict
     from metrology.core.io import write_height_tiff
     from metrology.core.mesh import GridMesh, mesh_file_chunks, surface_mesh
@@ -197,6 +228,11 @@ def write_derived_file(measurement: Measurement, filename: str, path: Path) -> N
     if filename == "points.npy":
         with open(path, "wb") as out:
             np.save(out, measurement_points(measurement))
+        return
+    if filename == E57_FILE:
+        from metrology.core.io.e57 import write_e57
+
+        write_e57(path, measurement_points(measurement), name=f"GCPS Lab measurement {measurement.pk}")
         return
 
     def build() -> GridMesh:

@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from django.conf import settings
 from django.db import models
 
-RESULT_FILES: dict[str, str] = {
+if TYPE_CHECKING:
+    from django.db.models.fields.files import FieldFile
+
+RESULT_FILES: dict[str, str | None] = {
     "height.npy": "height_npy",
     "height.tiff": "height_tiff",
     "gray_only_height.npy": "gray_only_npy",
@@ -15,7 +20,17 @@ RESULT_FILES: dict[str, str] = {
     "sigma.npy": "sigma_npy",
     "points.npy": "points_npy",
     "exposure.npy": "exposure_npy",
+    "points.e57": None,
 }
+"""Each result file's model field, None for a file that is only ever derived (never stored by a
+measurement job: ``points.e57``)."""
+
+
+def stored_file(measurement: Measurement, filename: str) -> FieldFile | None:
+    """The stored file ``filename`` of ``measurement`` (a FieldFile that may be empty), None when the
+    file is only ever derived."""
+    field = RESULT_FILES[filename]
+    return None if field is None else getattr(measurement, field)
 
 
 class Measurement(models.Model):

@@ -19,6 +19,7 @@ import numpy as np
 
 from metrology.core.inspection import alignment, conformance
 from metrology.core.inspection.distance import Deviations, SurfaceDistance, scatter
+from metrology.core.inspection.feature_regions import FeatureSpec, measure_features, parse_features
 from metrology.core.inspection.nominal import NominalModel
 from metrology.core.inspection.scan import Scan
 from metrology.core.option_checks import check_int, check_keys, check_number, check_positive
@@ -59,9 +60,13 @@ class InspectOptions:
         Robust trimming: residuals beyond ``trim_k`` MADs (x 1.4826) of the median leave the fit.
     max_iterations : int
         Of the best fit.
+    features : tuple of FeatureSpec
+        Features fitted on regions of the aligned scan and compared with the nominal
+        (:mod:`metrology.core.inspection.feature_regions`); empty: none.
 
     JSON form (:meth:`to_dict`): the attributes by name, ``pairs`` as a list of
-    ``{"scan": [x, y, z], "nominal": [x, y, z]}``. :meth:`from_dict` reads any subset.
+    ``{"scan": [x, y, z], "nominal": [x, y, z]}``, ``features`` as a list of
+    ``{"name", "kind", "region", "band_mm"}``. :meth:`from_dict` reads any subset.
     """
 
     init: str = "auto"
@@ -74,6 +79,7 @@ class InspectOptions:
     fit_points: int = 100_000
     trim_k: float = alignment.TRIM_K
     max_iterations: int = alignment.MAX_ITERATIONS
+    features: tuple[FeatureSpec, ...] = ()
 
     def __post_init__(self) -> None:
         if self.init not in INITS:
@@ -94,6 +100,7 @@ class InspectOptions:
         check_int("fit_points", self.fit_points, 100, 100_000_000)
         check_positive("trim_k", self.trim_k)
         check_int("max_iterations", self.max_iterations, 1, 1000)
+        object.__setattr__(self, "features", parse_features(self.features))
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -107,6 +114,7 @@ class InspectOptions:
             "fit_points": self.fit_points,
             "trim_k": self.trim_k,
             "max_iterations": self.max_iterations,
+            "features": [feature.to_dict() for feature in self.features],
         }
 
     @classmethod
@@ -158,6 +166,8 @@ class InspectionResult:
         The input's shape of per-point values (``(N,)`` or ``(H, W)``).
     start : dict
         How the start transform was found (method; seed, voxel and restarts' scores for ``auto``).
+    features : list of dict
+        One entry per asked feature (:func:`~metrology.core.inspection.feature_regions.measure_features`).
     """
 
     fit: alignment.FitResult
@@ -170,6 +180,7 @@ class InspectionResult:
     options: InspectOptions
     software_version: str
     timings_s: dict[str, float] = field(default_factory=dict)
+    features: list[dict[str, Any]] = field(default_factory=list)
 
     def deviation_map(self) -> np.ndarray:
         """float32 deviations in the input's shape, NaN where there is no point."""
@@ -195,9 +206,10 @@ class InspectionResult:
 
     def report(self, provenance: Mapping[str, Any]) -> dict[str, Any]:
         """The ``gcps-inspection/1`` report (docs/inspection.md); ``provenance`` is completed with
-        the software version, the options and the seed."""
+        the software version, the options and the seed. ``features`` follows ``conformance`` only
+        when features were asked for (an addition to ``gcps-inspection/1``)."""
         fit = self.fit
-        return {
+        report: dict[str, Any] = {
             "format": REPORT_FORMAT,
             "transform": fit.transform.tolist(),
             "alignment": {
@@ -223,6 +235,13 @@ class InspectionResult:
                 "timings_s": self.timings_s,
             },
         }
+        if self.options.features:
+            report = {
+                **{key: value for key, value in report.items() if key != "provenance"},
+                "features": self.features,
+                "provenance": report["provenance"],
+            }
+        return report
 
     @property
     def valid(self) -> np.ndarray:
@@ -275,6 +294,18 @@ def inspect(nominal: NominalModel, scan: Scan, options: InspectOptions | None = 
             u_point = np.where(usable, u_point, np.nan)
             u_fit = fit.normal_uncertainty_mm(aligned, dev.direction)
             u = conformance.combined_uncertainty(u_point, u_fit, options.systematic_mm)
+        features: list[dict[str, Any]] = []
+        if options.features:
+            with timer.phase("features"):
+                features = measure_features(
+                    options.features,
+                    aligned,
+                    dev.distance_mm,
+                    dev.face,
+                    nominal.vertices,
+                    nominal.faces,
+                    sigma_mm=None if sigma is None else u_point,
+                )
         n = scan.points_mm.shape[0]
         deviation = np.full(n, np.nan)
         deviation[index] = dev.distance_mm
@@ -296,6 +327,7 @@ def inspect(nominal: NominalModel, scan: Scan, options: InspectOptions | None = 
         options=options,
         software_version=software_version(),
         timings_s=dict(timer.timings_s),
+        features=features,
     )
 
 

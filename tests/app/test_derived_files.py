@@ -53,7 +53,14 @@ def cache_files(media_root: Path) -> list[Path]:
 def test_measurement_stores_heights_only_under_3x_the_height_map(api, measurement_id, media_root):
     body = api.get(f"/api/measurements/{measurement_id}/").json()
     stored_names = {"height.npy", "gray_only_height.npy"}
-    assert set(body["files"]) == stored_names | {"height.tiff", "mesh.ply", "mesh.stl", "mesh.obj", "points.npy"}
+    assert set(body["files"]) == stored_names | {
+        "height.tiff",
+        "mesh.ply",
+        "mesh.stl",
+        "mesh.obj",
+        "points.npy",
+        "points.e57",
+    }
     measurement = Measurement.objects.get(pk=measurement_id)
     assert not (measurement.mesh_ply or measurement.mesh_stl or measurement.mesh_obj or measurement.height_tiff)
     assert not measurement.points_npy  # the paper's rig: the points are the heights on the camera rays

@@ -1,6 +1,8 @@
 """Inspections through the application (tasks in-process): nominal models uploaded and validated, an
 inspection job on a measurement of the virtual rig with a planted pit, the report and the deviation
-map through the API, the pages, and a rig's inspection plan applied to its next measurement.
+map through the API, the feature table, the exports (the measurement's points as E57, the
+inspection's deviations as PLY), the pages, and a rig's inspection plan applied to its next
+measurement with a trend per feature.
 
 The scene is SMALL_RIG's block (25 mm high on the reference plane, rows 30-89, columns 40-119) with
 a square pit 0.1 mm deep in its top (rows 55-64, columns 75-84); the nominal model is the block
@@ -13,72 +15,24 @@ the 16-bit rendering's quantisation away from the block's edges, so the pit's de
 from __future__ import annotations
 
 import io
-import struct
 
 import numpy as np
 import pytest
 
 from metrology.core.geometry.crossed_axes import Rig
 from metrology.inspections.models import Inspection
-from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
+from tests.app.inspection_parts import (
+    PIT_DEPTH_MM,
+    SMALL_RIG,
+    TOP_FEATURE,
+    block_nominal,
+    pitted_block_heights,
+    stl_bytes,
+)
+from tests.app.stacks import render_images, stack_zip
 from tests.app.uploads import upload
 
 pytestmark = pytest.mark.django_db(transaction=True)
-
-PIT = (slice(55, 65), slice(75, 85))
-PIT_DEPTH_MM = 0.1
-
-
-def stl_bytes(vertices: np.ndarray, faces: np.ndarray) -> bytes:
-    """A binary STL of the triangles ``vertices[faces]`` (normals written as zero: readers recompute)."""
-    out = io.BytesIO()
-    out.write(b"GCPS test nominal".ljust(80, b" "))
-    out.write(struct.pack("<I", len(faces)))
-    for face in faces:
-        out.write(struct.pack("<3f", 0.0, 0.0, 0.0))
-        for index in face:
-            out.write(struct.pack("<3f", *vertices[index]))
-        out.write(b"\0\0")
-    return out.getvalue()
-
-
-def _corners(points: np.ndarray, rows: tuple[int, int], cols: tuple[int, int]) -> np.ndarray:
-    """The outer corners (X, Y, Z) of the pixel block ``rows x cols`` (inclusive centres), half a pixel
-    beyond the outermost centres, counter-clockwise seen from above (+Z): (r0, c0), (r0, c1), (r1, c1), (r1, c0)."""
-    (r0, r1), (c0, c1) = rows, cols
-    out = []
-    for r, c, dr, dc in ((r0, c0, -1, -1), (r0, c1, -1, 1), (r1, c1, 1, 1), (r1, c0, 1, -1)):
-        centre = points[r, c]
-        step_r = points[r, c] - points[r - dr, c]  # away from the block
-        step_c = points[r, c] - points[r, c - dc]
-        out.append(centre + 0.5 * step_r + 0.5 * step_c)
-    corners = np.array(out)
-    # counter-clockwise seen from +Z (X right, Y up): order by angle about the centre
-    centre = corners.mean(axis=0)
-    angles = np.arctan2(corners[:, 1] - centre[1], corners[:, 0] - centre[0])
-    return corners[np.argsort(angles)]
-
-
-def block_nominal() -> tuple[np.ndarray, np.ndarray]:
-    """The block without its pit as a triangle mesh in the paper's frame (module docstring)."""
-    prepared = Rig.from_dict(SMALL_RIG).prepare()
-    shape = (SMALL_RIG["height_px"], SMALL_RIG["width_px"])
-    top = _corners(prepared.points_from_heights(np.full(shape, 25.0)), (30, 89), (40, 119))
-    foot = _corners(prepared.points_from_heights(np.zeros(shape)), (30, 89), (40, 119))
-    ground = np.array([[0.0, -400.0, 0.0], [800.0, -400.0, 0.0], [800.0, 400.0, 0.0], [0.0, 400.0, 0.0]])
-    vertices = np.vstack([ground, top, foot])
-    faces = [(0, 1, 2), (0, 2, 3), (4, 5, 6), (4, 6, 7)]  # ground and top, normals +Z
-    for i in range(4):  # walls: top edge i -> i+1 and the footprint below it, normal outward
-        a, b = 4 + i, 4 + (i + 1) % 4
-        fa, fb = a + 4, b + 4
-        faces += [(a, fa, fb), (a, fb, b)]
-    return vertices, np.array(faces)
-
-
-def pitted_block_heights() -> np.ndarray:
-    z = block_heights()
-    z[PIT] -= PIT_DEPTH_MM
-    return z
 
 
 @pytest.fixture
@@ -125,8 +79,8 @@ def test_nominal_upload_is_validated_and_described(api, nominal):
     assert len(api.get("/api/nominals/").json()) == 1  # nothing stored from the refused uploads
 
 
-def test_inspection_finds_the_pit_and_decides_conformance(api, pitted_measurement, nominal):
-    options = {"init": "identity", "tolerance_mm": 0.05, "k": 2, "systematic_mm": 0.0}
+def test_inspection_finds_the_pit_and_decides_conformance(api, pitted_measurement, nominal, tmp_path, monkeypatch):
+    options = {"init": "identity", "tolerance_mm": 0.05, "k": 2, "systematic_mm": 0.0, "features": [TOP_FEATURE]}
     response = api.post(
         "/api/inspections/",
         {"measurement": pitted_measurement, "nominal": nominal["id"], "options": options},
@@ -160,6 +114,45 @@ def test_inspection_finds_the_pit_and_decides_conformance(api, pitted_measuremen
     assert counts["nonconforming"] >= pit.size, report  # every pit point is out of tolerance
     assert counts["conforming"] > 0.9 * counts["nonconforming"] + top.sum() * 0.9
 
+    # the top's plane: the pit is its flatness (minimum zone), its offset from the nominal ~0
+    (feature,) = report["features"]
+    assert feature["name"] == "top" and feature["error"] is None and feature["points"] > 0.9 * top.sum()
+    assert feature["form"]["name"] == "flatness" and abs(feature["form_mm"] - PIT_DEPTH_MM) < 0.010, feature["form"]
+    assert abs(feature["difference"]["offset_mm"]) < 0.005 and feature["difference"]["tilt_deg"] < 0.01
+    assert feature["nominal"]["form_mm"] < 1e-6  # the nominal's top is two coplanar triangles
+
+    # exports: the inspection's deviations as PLY (nominal frame), the measurement's points as E57
+    from metrology.core.io.e57 import read_e57
+    from metrology.core.io.points import read_ply
+    from metrology.inspections.models import Inspection as InspectionRow
+    from metrology.measurements.derived import measurement_points
+
+    row = InspectionRow.objects.select_related("measurement").get(pk=body["id"])
+    points = measurement_points(row.measurement).astype(np.float64)
+    ply = api.get(body["files"]["deviations.ply"])
+    assert ply.status_code == 200
+    cloud = read_ply(b"".join(ply.streaming_content))
+    has = np.isfinite(dev)
+    np.testing.assert_array_equal(cloud.vertex["deviation_mm"], dev[has])  # float32 both
+    np.testing.assert_allclose(cloud.points, points[has] @ transform[:3, :3].T + transform[:3, 3], atol=1e-9)
+    assert ("sigma_mm" in cloud.vertex) == bool(row.measurement.sigma_npy)
+
+    e57_url = f"/api/measurements/{pitted_measurement}/points.e57"
+    with monkeypatch.context() as patched:  # a server without the optional pye57: a clear 409
+        patched.setitem(__import__("sys").modules, "pye57", None)
+        refused = api.get(e57_url)
+    assert refused.status_code == 409 and "pye57 is not installed" in refused.json()["error"], refused.content
+    e57 = api.get(e57_url)
+    assert e57.status_code == 200, e57
+    (tmp_path / "points.e57").write_bytes(b"".join(e57.streaming_content))
+    (scan,) = read_e57(tmp_path / "points.e57")
+    valid = np.isfinite(points).all(axis=-1)
+    assert scan.points_mm.shape == (int(valid.sum()), 3) and scan.intensity is None
+    assert scan.row is not None and scan.column is not None and valid[scan.row, scan.column].all()
+    # float32 metres about the centroid, the centroid in the pose: the model frame's points to 0.1 um
+    np.testing.assert_allclose(scan.points_mm, points[scan.row, scan.column], atol=1e-4)
+    np.testing.assert_allclose(scan.rotation, np.eye(3), atol=1e-12)
+
     # the pages: the inspection with its figures, the printable report, the lists
     from django.test import Client
 
@@ -170,6 +163,8 @@ def test_inspection_finds_the_pit_and_decides_conformance(api, pitted_measuremen
     html = page.content.decode()
     assert 'id="fig-deviation_map"' in html and 'id="fig-deviation_histogram"' in html
     assert f"data-nonconforming>{counts['nonconforming']}<" in html
+    assert 'data-feature="top"' in html and 'data-difference="top offset"' in html
+    assert f'href="/api/inspections/{body["id"]}/deviations.ply"' in html
     assert client.get(f"/inspections/{body['id']}/report/").status_code == 200
     assert client.get("/inspections/").status_code == 200 and client.get("/nominals/").status_code == 200
     assert b"Inspect against a nominal model" in client.get(f"/measurements/{pitted_measurement}/").content
@@ -178,7 +173,7 @@ def test_inspection_finds_the_pit_and_decides_conformance(api, pitted_measuremen
 def test_plan_inspects_each_new_measurement(api, rig, nominal):
     plan = api.put(
         f"/api/rigs/{rig['id']}/inspection-plan/",
-        {"nominal": nominal["id"], "options": {"init": "identity", "tolerance_mm": 0.05}},
+        {"nominal": nominal["id"], "options": {"init": "identity", "tolerance_mm": 0.05, "features": [TOP_FEATURE]}},
         format="json",
     )
     assert plan.status_code == 200, plan.content
@@ -199,6 +194,9 @@ def test_plan_inspects_each_new_measurement(api, rig, nominal):
     client.force_login(Inspection.objects.get(pk=inspections[0]["id"]).owner)
     page = client.get(f"/rigs/{rig['id']}/inspection-plan/")
     assert page.status_code == 200 and b'id="fig-plan_trend"' in page.content
+    assert b'id="fig-feature_trend_0"' in page.content and b"Feature top" in page.content
+    assert inspections[0]["report"]["features"][0]["name"] == "top"
+    assert b"&quot;near_faces&quot;: [2, 3]" in page.content  # the plan's features in the form, as JSON
 
 
 def test_inspection_requests_are_checked(api, other_api, pitted_measurement, nominal):

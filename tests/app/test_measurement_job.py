@@ -45,6 +45,7 @@ def test_measurement_runs_and_serves_heights_and_meshes(api, rig, captures, medi
         "mesh.ply",
         "mesh.stl",
         "mesh.obj",
+        "points.e57",
     }
 
     download = api.get(f"/api/measurements/{measurement_id}/height.npy")

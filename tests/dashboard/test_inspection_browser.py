@@ -13,7 +13,7 @@ from __future__ import annotations
 import pytest
 
 from metrology.measurements.services import request_measurement
-from tests.app.test_inspections import block_nominal, pitted_block_heights, stl_bytes
+from tests.app.inspection_parts import block_nominal, pitted_block_heights, stl_bytes
 from tests.browser import CHROMIUM, shot
 from tests.conftest import PASSWORD
 from tests.dashboard.conftest import upload

@@ -1,7 +1,8 @@
 """The nominal model of an inspection: a validated triangle mesh in millimetres.
 
-:func:`read_nominal` reads binary or ASCII STL, PLY or OBJ (:mod:`metrology.core.io.meshes`) and
-:func:`nominal_from_arrays` validates any vertex/face arrays:
+:func:`read_nominal` reads binary or ASCII STL, PLY or OBJ (:mod:`metrology.core.io.meshes`), and STEP
+where OpenCASCADE is installed (:mod:`metrology.core.io.step`, tessellated with a recorded
+tolerance), and :func:`nominal_from_arrays` validates any vertex/face arrays:
 
 - units: millimetres, as the file's numbers are (STL, PLY and OBJ carry no unit);
 - vertices with bit-identical coordinates are merged (an STL stores each facet's corners
@@ -60,6 +61,9 @@ class NominalModel:
         The file's faces were all inward and have been flipped.
     warnings : tuple of str
         How the sign is decided when the orientation is not established.
+    tessellation : dict or None
+        How a STEP solid became triangles (method and tolerances, :func:`metrology.core.io.step.read_step`);
+        None for a mesh file.
     """
 
     vertices: np.ndarray
@@ -72,6 +76,7 @@ class NominalModel:
     signed_volume_mm3: float = 0.0
     flipped: bool = False
     warnings: tuple[str, ...] = field(default=())
+    tessellation: dict[str, Any] | None = None
 
     @property
     def units(self) -> str:
@@ -124,16 +129,30 @@ class NominalModel:
             "signed_volume_mm3": self.signed_volume_mm3,
             "flipped": self.flipped,
             "warnings": list(self.warnings),
+            **({"tessellation": dict(self.tessellation)} if self.tessellation is not None else {}),
         }
 
 
 def read_nominal(path: str | os.PathLike[str]) -> NominalModel:
-    """The validated nominal model of a mesh file (STL, PLY, OBJ), mm; ValueError with a one-line
-    message when the file is unreadable or holds no usable triangle."""
+    """The validated nominal model of a mesh file (STL, PLY, OBJ) or a STEP file (``.step``/``.stp``,
+    with ``cadquery-ocp``), mm; ValueError with a one-line message when the file is unreadable or
+    holds no usable triangle, or is STEP without OpenCASCADE."""
+    from dataclasses import replace
+
+    from metrology.core.io.step import STEP_SUFFIXES, read_step
+
     file = Path(path)
-    vertices, faces = read_mesh_arrays(file)
+    tessellation = None
+    if file.suffix.lower() in STEP_SUFFIXES:
+        try:
+            vertices, faces, tessellation = read_step(file)
+        except ImportError as exc:
+            raise ValueError(str(exc)) from None
+    else:
+        vertices, faces = read_mesh_arrays(file)
     digest = hashlib.sha256(file.read_bytes()).hexdigest()
-    return nominal_from_arrays(vertices, faces, sha256=digest, name=file.name)
+    nominal = nominal_from_arrays(vertices, faces, sha256=digest, name=file.name)
+    return nominal if tessellation is None else replace(nominal, tessellation=tessellation)
 
 
 def nominal_from_arrays(
