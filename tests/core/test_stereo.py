@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from metrology.core.geometry.stereo_match import Bilinear, curvature_maps, match_rows
+from metrology.core.geometry.stereo_match import Bilinear, match_rows
 from metrology.core.measure import MeasureOptions, measure
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions
@@ -33,22 +33,44 @@ def test_a_row_is_matched_inside_its_monotone_run_without_pixel_locking():
 
 
 def test_ambiguous_and_inconsistent_matches_are_refused():
-    # camera 1's row folds back: 13 lies in two segments (x 1..2 and 4..5), 20 in one
-    u1 = np.array([[10.0, 12.0, 14.0, 16.0, 12.5, 20.0, 22.0]], np.float32)
+    # camera 1's row folds back over two pixels: 13 lies in two segments (x 1..2 and 4..5), 21 in one
+    u1 = np.array([[10.0, 12.0, 14.0, 16.0, 12.5, 13.5, 20.0, 22.0]], np.float32)
     u0 = np.array([[13.0, 21.0]], np.float32)
     m = match_rows(u0, u1, 0.0, 100.0)
-    assert np.isnan(m.x1[0, 0]) and m.x1[0, 1] == pytest.approx(5.5)
-    # camera 0's row folds back after its second pixel: 15, 17 and 19 would match back to two
-    # places of it (left-right inconsistent); 11 and 21 are unique there
-    u0 = np.array([[11.0, 19.0, 15.0, 17.0, 21.0]], np.float32)
+    assert np.isnan(m.x1[0, 0]) and m.x1[0, 1] == pytest.approx(6.5)
+    # camera 0's row folds back over two pixels after its first: 19, 20, 15 and 17 would match back
+    # to two places of it (left-right inconsistent); 11 and 21 are unique there
+    u0 = np.array([[11.0, 19.0, 20.0, 15.0, 17.0, 21.0]], np.float32)
     u1 = np.array([[10.0, 12.0, 14.0, 16.0, 18.0, 20.0, 22.0]], np.float32)
     m = match_rows(u0, u1, 0.0, 100.0)
-    assert m.x1[0, 0] == pytest.approx(0.5) and m.x1[0, 4] == pytest.approx(5.5)
-    assert np.isnan(m.x1[0, 1:4]).all()
+    assert m.x1[0, 0] == pytest.approx(0.5) and m.x1[0, 5] == pytest.approx(5.5)
+    assert np.isnan(m.x1[0, 1:5]).all()
     # undecoded neighbours never give a position
     u1 = np.array([[10.0, np.nan, 14.0, 16.0]], np.float32)
     m = match_rows(np.array([[11.0, 15.0]], np.float32), u1, 0.0, 100.0)
     assert np.isnan(m.x1[0, 0]) and m.x1[0, 1] == pytest.approx(2.5)
+
+
+@pytest.mark.parametrize("outlier", [40.0, 1.0])
+def test_an_isolated_out_of_order_value_refuses_itself_only(outlier: float) -> None:
+    """One spike (or dip) in a monotone row, in either camera, is refused alone: before the fix a
+    spike refused every pixel right of it (none was above it), a dip every pixel left of it."""
+    ramp = np.arange(10.0, 30.0, 2.0, dtype=np.float32)  # 10, 12, ..., 28 at x 0..9
+    q = np.arange(10.5, 27.5, 2.0, dtype=np.float32)  # 10.5, 12.5, ..., 26.5: x1 = 0.25, 1.25, ...
+    want = (q - 10.0) / 2.0
+    # camera 0: pixel 4 (18.5) replaced by the outlier
+    u0 = q.copy()
+    u0[4] = outlier
+    m = match_rows(u0[None], ramp[None], 0.0, 100.0)
+    assert np.isnan(m.x1[0, 4])
+    np.testing.assert_allclose(np.delete(m.x1[0], 4), np.delete(want, 4), atol=1e-6)
+    # camera 1: pixel 5 (20) replaced: the two segments beside it give nothing, the rest as before
+    u1 = ramp.copy()
+    u1[5] = outlier
+    m = match_rows(q[None], u1[None], 0.0, 100.0)
+    lost = (want > 4) & (want < 6)  # the segments x 4..5 and 5..6
+    assert lost.sum() == 2 and np.isnan(m.x1[0, lost]).all()
+    np.testing.assert_allclose(m.x1[0, ~lost], want[~lost], atol=1e-6)
 
 
 def test_sampling_is_exact_for_a_quadratic_map_and_never_blends_nan():
@@ -57,7 +79,7 @@ def test_sampling_is_exact_for_a_quadratic_map_and_never_blends_nan():
     rng = np.random.default_rng(1)
     x, y = rng.uniform(1.2, 12.8, 200), rng.uniform(1.2, 9.8, 200)
     sampler = Bilinear.at(x, y, image.shape)
-    got = sampler.sample(image, curvature=curvature_maps(image))
+    got = sampler.sample(image, curvature=True)
     want = 3 + 0.5 * x - 0.25 * y + 0.02 * x * x + 0.03 * x * y - 0.01 * y * y
     np.testing.assert_allclose(got, want, atol=2e-5)
     holed = image.copy()
