@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from metrology.core.geometry.base import GeometryOptions
 from metrology.core.geometry.stereo_match import Bilinear, match_rows
 from metrology.core.measure import MeasureOptions, measure
 from metrology.core.scenes import make_scene
@@ -118,6 +119,31 @@ def test_noise_free_renders_measure_within_1um(scene: str, axes: str) -> None:
     assert median <= 1e-3 and p99 <= 5e-3
     # the depth is camera 0's Z
     np.testing.assert_allclose(m.z_mm[judged], points[judged][:, 2], rtol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "scene",
+    ["plane", pytest.param("sphere", marks=pytest.mark.slow), pytest.param("staircase", marks=pytest.mark.slow)],
+)
+def test_the_2d_match_without_rectification_measures_within_1um(scene: str) -> None:
+    """Both axes coded, ``match="2d"``: each camera-0 pixel's (u, v) found in camera 1's image
+    (no rectification, no resampling of camera 0), the rays meeting by their midpoint."""
+    the_scene = make_scene(scene, **SCENES[scene])
+    the_codec = codec("uv")
+    capture = render_stereo_capture(RIG, the_scene, the_codec, placement=PLACEMENT, projector=PROJECTOR)
+    options = MeasureOptions(geometry=GeometryOptions(match="2d"))
+    m = measure(RIG, capture.images, the_codec, options=options)
+    points = m.points_mm().astype(np.float64)
+    truth = capture.points_mm
+    facing = facing_both(the_scene, truth)
+    judged = facing & np.isfinite(m.z_mm)
+    assert judged.sum() > 0.75 * facing.sum() > 0, f"{judged.sum()} of {facing.sum()} facing pixels measured"
+    error = np.linalg.norm(points - truth, axis=-1)[judged]
+    median, p99 = np.median(error), np.percentile(error, 99)
+    print(f"2d {scene}: {judged.sum()} px, median {median * 1e3:.3f} um, p99 {p99 * 1e3:.3f} um")
+    assert median <= 1e-3 and p99 <= 5e-3
+    with pytest.raises(ValueError, match="does not code the projector's v axis"):
+        measure(RIG, capture.images, codec("u"), options=options)
 
 
 @pytest.mark.slow

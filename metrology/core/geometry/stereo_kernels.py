@@ -185,3 +185,135 @@ def depth_tile(
             points[r, c, 0] = t * xn[r, c]
             points[r, c, 1] = t * yn[r, c]
             points[r, c, 2] = t
+
+
+@njit(nogil=True, cache=True)
+def cell_buckets(
+    u: np.ndarray, v: np.ndarray, bucket: float, nu: int, nv: int
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Camera 1's cells (the squares of four decoded pixels ``(r, c)..(r + 1, c + 1)`` of the
+    ``(h, w)`` float32 maps ``u``, ``v``) by the projector-space buckets (``bucket`` units square,
+    ``nu`` x ``nv`` of them from 0) their bounding box overlaps: ``start`` ((nu nv + 1,) int64) and
+    ``cells`` (flat index ``r w + c`` of each cell, bucket after bucket; CSR layout)."""
+    h, w = u.shape
+    counts = np.zeros(nu * nv + 1, np.int64)
+    for phase in range(2):
+        if phase == 1:
+            start = np.zeros(nu * nv + 1, np.int64)
+            for b in range(nu * nv):
+                start[b + 1] = start[b] + counts[b]
+            fill = start[:-1].copy()
+            cells = np.empty(start[nu * nv], np.int64)
+        for r in range(h - 1):
+            for c in range(w - 1):
+                a0, a1, a2, a3 = u[r, c], u[r, c + 1], u[r + 1, c], u[r + 1, c + 1]
+                b0, b1, b2, b3 = v[r, c], v[r, c + 1], v[r + 1, c], v[r + 1, c + 1]
+                lo_u = min(min(a0, a1), min(a2, a3))
+                hi_u = max(max(a0, a1), max(a2, a3))
+                lo_v = min(min(b0, b1), min(b2, b3))
+                hi_v = max(max(b0, b1), max(b2, b3))
+                if math.isnan(a0 + a1 + a2 + a3 + b0 + b1 + b2 + b3):
+                    continue
+                i0 = max(0, math.floor(lo_u / bucket))
+                i1 = min(nu - 1, math.floor(hi_u / bucket))
+                j0 = max(0, math.floor(lo_v / bucket))
+                j1 = min(nv - 1, math.floor(hi_v / bucket))
+                for j in range(j0, j1 + 1):
+                    for i in range(i0, i1 + 1):
+                        k = j * nu + i
+                        if phase == 0:
+                            counts[k] += 1
+                        else:
+                            cells[fill[k]] = r * w + c
+                            fill[k] += 1
+    return start, cells
+
+
+@njit(nogil=True, cache=True)
+def invert_cell(
+    u: np.ndarray, v: np.ndarray, cell: int, qu: float, qv: float
+) -> tuple[float, float]:  # pragma: no cover - compiled
+    """``(s, t)`` with the cell's bilinear map ``P(s, t) = (1-s)(1-t) P00 + s(1-t) P10 + (1-s)t P01 +
+    st P11 = (qu, qv)`` (Newton from the centre, 8 steps), NaN when the solution is outside
+    ``[0, 1)^2`` (a tolerance of 1e-9 on the low sides) or the cell folds."""
+    w = u.shape[1]
+    r = cell // w
+    c = cell - r * w
+    u00, u10, u01, u11 = (
+        np.float64(u[r, c]),
+        np.float64(u[r, c + 1]),
+        np.float64(u[r + 1, c]),
+        np.float64(u[r + 1, c + 1]),
+    )
+    v00, v10, v01, v11 = (
+        np.float64(v[r, c]),
+        np.float64(v[r, c + 1]),
+        np.float64(v[r + 1, c]),
+        np.float64(v[r + 1, c + 1]),
+    )
+    s = 0.5
+    t = 0.5
+    for _ in range(8):
+        fu = (1 - s) * (1 - t) * u00 + s * (1 - t) * u10 + (1 - s) * t * u01 + s * t * u11 - qu
+        fv = (1 - s) * (1 - t) * v00 + s * (1 - t) * v10 + (1 - s) * t * v01 + s * t * v11 - qv
+        us = (1 - t) * (u10 - u00) + t * (u11 - u01)
+        ut = (1 - s) * (u01 - u00) + s * (u11 - u10)
+        vs = (1 - t) * (v10 - v00) + t * (v11 - v01)
+        vt = (1 - s) * (v01 - v00) + s * (v11 - v10)
+        det = us * vt - ut * vs
+        if det == 0 or math.isnan(det):
+            return np.nan, np.nan
+        s -= (fu * vt - ut * fv) / det
+        t -= (us * fv - fu * vs) / det
+    if s >= -1e-9 and s < 1.0 and t >= -1e-9 and t < 1.0:
+        return s, t
+    return np.nan, np.nan
+
+
+@njit(nogil=True, cache=True)
+def match_2d_tile(
+    u0: np.ndarray,
+    v0: np.ndarray,
+    u1: np.ndarray,
+    v1: np.ndarray,
+    start: np.ndarray,
+    cells: np.ndarray,
+    bucket: float,
+    nu: int,
+    nv: int,
+    x1_out: np.ndarray,
+    y1_out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """For each camera-0 pixel of decoded ``(u0, v0)`` ((n, W0) float32), camera 1's sub-pixel
+    position ``(x1, y1)`` ((n, W0) float32 px) where its decoded maps ``u1``, ``v1`` take the same
+    pair: the one cell of :func:`cell_buckets` whose bilinear map holds it (:func:`invert_cell`),
+    ``x1 = c + s``, ``y1 = r + t``; NaN where no cell or more than one does (not unique)."""
+    n, m = u0.shape
+    w = u1.shape[1]
+    for r in range(n):
+        for c in range(m):
+            x1_out[r, c] = np.nan
+            y1_out[r, c] = np.nan
+            qu = np.float64(u0[r, c])
+            qv = np.float64(v0[r, c])
+            if math.isnan(qu) or math.isnan(qv):
+                continue
+            i = math.floor(qu / bucket)
+            j = math.floor(qv / bucket)
+            if i < 0 or i >= nu or j < 0 or j >= nv:
+                continue
+            k = j * nu + i
+            found = 0
+            fx = np.nan
+            fy = np.nan
+            for e in range(start[k], start[k + 1]):
+                cell = cells[e]
+                s, t = invert_cell(u1, v1, cell, qu, qv)
+                if not math.isnan(s):
+                    found += 1
+                    rr = cell // w
+                    fx = cell - rr * w + s
+                    fy = rr + t
+            if found == 1:
+                x1_out[r, c] = fx
+                y1_out[r, c] = fy

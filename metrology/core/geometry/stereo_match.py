@@ -74,7 +74,7 @@ from metrology.core.geometry.pinhole import (
     plane_coordinates_of,
     ray_points,
 )
-from metrology.core.geometry.stereo_kernels import depth_tile, match_tile, sample_tile
+from metrology.core.geometry.stereo_kernels import cell_buckets, depth_tile, match_2d_tile, match_tile, sample_tile
 from metrology.core.tiling import run_tiled, thread_scratch
 
 if TYPE_CHECKING:
@@ -372,21 +372,9 @@ class PreparedStereo(PreparedGeometry):
             ``u``: the normalized disparity ``d`` (H, W) float32 on camera 0's grid, NaN where
             not matched; ``sigma``: its standard deviation (normalized), when ``sigma`` was given.
         """
-        if len(coordinates) != 2:
-            raise GeometryError(f"a stereo rig combines the maps of 2 cameras, got {len(coordinates)}")
-        maps = []
-        for camera, coords in enumerate(coordinates):
-            m = coords.get(self.axis)
-            if m is None:
-                raise GeometryError(f"camera {camera}'s capture lacks the projector's {self.axis} axis")
-            expected = self.rig.camera_shapes[camera]
-            if tuple(m.shape) != expected:
-                raise GeometryError(
-                    f"camera {camera}'s map is {m.shape[1]}x{m.shape[0]} px but the rig's camera {camera} is "
-                    f"{expected[1]}x{expected[0]} px"
-                )
-            maps.append(self.rectify(camera, m, threads))
-        u0r, u1r = maps
+        u0r, u1r = (
+            self.rectify(camera, m[0], threads) for camera, m in enumerate(self._maps(coordinates, (self.axis,)))
+        )
         proj = self.rig.projector
         size = proj.width if self.axis == "u" else proj.height
         lo, hi = -2.0, size + 1.0  # every decoded coordinate (the codec's field and its margin)
@@ -417,6 +405,30 @@ class PreparedStereo(PreparedGeometry):
         if sigma is not None and sigma[0] is not None and sigma[1] is not None:
             sigma_out = self._disparity_sigma(sigma[0], sigma[1], x1, step, threads)
         return CombinedMaps(u=out, v=None, sigma=sigma_out)
+
+    def _maps(
+        self, coordinates: Sequence[Mapping[str, np.ndarray | None]], axes: tuple[str, ...]
+    ) -> list[list[np.ndarray]]:
+        """Each camera's float32 maps of ``axes``; :class:`GeometryError` naming the camera when one is
+        missing or its size is not the rig's camera's."""
+        if len(coordinates) != 2:
+            raise GeometryError(f"a stereo rig combines the maps of 2 cameras, got {len(coordinates)}")
+        maps = []
+        for camera, coords in enumerate(coordinates):
+            pair = []
+            for axis in axes:
+                m = coords.get(axis)
+                if m is None:
+                    raise GeometryError(f"camera {camera}'s capture lacks the projector's {axis} axis")
+                expected = self.rig.camera_shapes[camera]
+                if tuple(m.shape) != expected:
+                    raise GeometryError(
+                        f"camera {camera}'s map is {m.shape[1]}x{m.shape[0]} px but the rig's camera {camera} is "
+                        f"{expected[1]}x{expected[0]} px"
+                    )
+                pair.append(np.ascontiguousarray(m, dtype=np.float32))
+            maps.append(pair)
+        return maps
 
     def noise_gain(self) -> np.ndarray:
         """``(H, W)`` float32: the standard deviation, at each camera-0 pixel, of white noise of unit
@@ -541,6 +553,77 @@ class PreparedStereo(PreparedGeometry):
         return ray_points(self.xn, self.yn, z_mm, reference)
 
 
+MATCH_BUCKET = 4.0
+"""Side of the projector-space buckets that index camera 1's cells for the 2-D match, projector units."""
+
+
+class PreparedStereo2D(PreparedStereo):
+    """The stereo model matching in 2-D without rectification (both projector axes coded): each
+    camera-0 pixel's decoded pair ``(u, v)`` is found in camera 1's image, in the one cell of four
+    decoded pixels whose bilinear map holds it (Newton inverse; no other cell may hold it: unique
+    matches only), and the two rays meet by their midpoint.
+
+    With camera 0's ray ``t a``, ``a = (x_n, y_n, 1)``, and camera 1's ray ``C + s b`` in camera 0's
+    frame (``C = -R^T T``, ``b = R^T (x_1n, y_1n, 1)`` from camera 1's undistorted matched position),
+    the closest points have ``t = ((a.C)(b.b) - (a.b)(b.C)) / D`` and ``s = ((a.b)(a.C) - (a.a)(b.C)) / D``,
+    ``D = (a.a)(b.b) - (a.b)^2``; the point is the midpoint's projection on camera 0's ray,
+    ``t_m = ((t a + C + s b) / 2 . a) / (a.a)``. :meth:`combine` hands it on as the disparity the
+    epipolar path would have had, ``d = k / t_m``, so :meth:`triangulate_rows` is shared. No sigma
+    (the error model is the epipolar path's)."""
+
+    @property
+    def required_axes(self) -> tuple[str, ...]:
+        return ("u", "v")
+
+    def combine(
+        self,
+        coordinates: Sequence[Mapping[str, np.ndarray | None]],
+        sigma: Sequence[np.ndarray | None] | None = None,
+        threads: int | None = None,
+    ) -> CombinedMaps:
+        """Both cameras' ``u`` and ``v`` maps (``{axis: (H_c, W_c) float32}``) to the equivalent
+        disparity ``d = k / t_m`` (H, W) float32 on camera 0's grid (class docstring); ``sigma`` None."""
+        maps = self._maps(coordinates, ("u", "v"))
+        (u0, v0), (u1, v1) = maps
+        proj = self.rig.projector
+        nu = math.ceil((proj.width + 2.0) / MATCH_BUCKET)
+        nv = math.ceil((proj.height + 2.0) / MATCH_BUCKET)
+        start, cells = cell_buckets(u1, v1, MATCH_BUCKET, nu, nv)
+        h, w = self.shape
+        x1 = np.empty((h, w), np.float32)
+        y1 = np.empty((h, w), np.float32)
+
+        def run(rows: slice) -> None:
+            match_2d_tile(u0[rows], v0[rows], u1, v1, start, cells, MATCH_BUCKET, nu, nv, x1[rows], y1[rows])
+
+        run_tiled(run, h, w, threads)
+        cam1 = self.rig.camera1
+        und = undistort_pixels(np.asarray(cam1.K), cam1.distortion, x1.astype(np.float64), y1.astype(np.float64))
+        R = np.asarray(self.rig.R, np.float64)
+        T = np.asarray(self.rig.T, np.float64)
+        C = -R.T @ T
+        bx = R[0, 0] * und.x + R[1, 0] * und.y + R[2, 0]
+        by = R[0, 1] * und.x + R[1, 1] * und.y + R[2, 1]
+        bz = R[0, 2] * und.x + R[1, 2] * und.y + R[2, 2]
+        ax, ay = self.xn, self.yn
+        aa = ax * ax + ay * ay + 1.0
+        bb = bx * bx + by * by + bz * bz
+        ab = ax * bx + ay * by + bz
+        ac = ax * C[0] + ay * C[1] + C[2]
+        bc = bx * C[0] + by * C[1] + bz * C[2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            det = aa * bb - ab * ab
+            t = (ac * bb - ab * bc) / det
+            s = (ab * ac - aa * bc) / det
+            mx = (t * ax + C[0] + s * bx) / 2
+            my = (t * ay + C[1] + s * by) / 2
+            mz = (t + C[2] + s * bz) / 2
+            tm = (mx * ax + my * ay + mz) / aa
+            d = (self.k / tm).astype(np.float32)
+        d[~(tm > 0)] = np.nan
+        return CombinedMaps(u=d, v=None, sigma=None)
+
+
 def _decreasing(u1r: np.ndarray) -> bool:
     """True when the coordinate mostly falls along the rows (every 8th row's steps)."""
     steps = np.diff(u1r[::8], axis=1)
@@ -563,11 +646,12 @@ _lock = threading.Lock()
 
 
 @functools.lru_cache(maxsize=2)
-def _prepare_cached(rig: StereoRig, axis: str) -> PreparedStereo:
-    return PreparedStereo(rig, axis)
+def _prepare_cached(rig: StereoRig, axis: str, match: str = "epipolar") -> PreparedStereo:
+    return PreparedStereo2D(rig, axis) if match == "2d" else PreparedStereo(rig, axis)
 
 
-def prepare_stereo(rig: StereoRig, axis: str) -> PreparedStereo:
-    """The rig prepared for matching ``axis`` (cached per rig and axis: tables built once)."""
+def prepare_stereo(rig: StereoRig, axis: str, match: str = "epipolar") -> PreparedStereo:
+    """The rig prepared for matching ``axis`` along epipolar lines, or both axes in 2-D (``match``
+    ``"2d"``; cached per rig, axis and match: tables built once)."""
     with _lock:
-        return _prepare_cached(rig, axis)
+        return _prepare_cached(rig, axis, match)
