@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from metrology.core.geometry.base import GeometryOptions
+from metrology.core.geometry.base import GeometryError, GeometryOptions
 from metrology.core.geometry.stereo_match import Bilinear, match_rows
 from metrology.core.measure import MeasureOptions, measure
 from metrology.core.scenes import make_scene
@@ -171,3 +171,14 @@ def test_predicted_sigma_matches_the_scatter_of_realistic_renders() -> None:
     ratio = np.median(predicted[:, ok], axis=0) / observed
     print(f"predicted/observed {np.median(ratio):.3f} over {ok.sum()} px, sigma {np.median(observed) * 1e3:.1f} um")
     assert abs(np.median(ratio) - 1) < 0.2
+
+
+def test_a_single_camera_model_refuses_the_2d_match() -> None:
+    pinhole = PROJECTOR.pinhole_rig(RIG.camera0, np.eye(3), np.zeros(3))
+    size = (pinhole.projector.width, pinhole.projector.height)
+    pinhole.check_codec(size, ("u", "v"), GeometryOptions())
+    with pytest.raises(GeometryError, match="match '2d' is for stereo rigs"):
+        pinhole.check_codec(size, ("u", "v"), GeometryOptions(match="2d"))
+    assert GeometryOptions.from_dict(GeometryOptions(match="2d").to_dict()).match == "2d"
+    with pytest.raises(ValueError, match="match must be one of"):
+        GeometryOptions(match="3d")
