@@ -104,7 +104,12 @@ class GeometryOptions:
             raise ValueError(f"match must be one of {', '.join(MATCH_CHOICES)}, got {self.match!r}")
 
     def to_dict(self) -> dict[str, Any]:
-        return {"triangulate": self.triangulate, "method": self.method, "match": self.match}
+        """``{"triangulate", "method"}``, and ``"match"`` when it is not the default ``epipolar`` (so the
+        JSON of every single-camera measurement stays as it was)."""
+        data: dict[str, Any] = {"triangulate": self.triangulate, "method": self.method}
+        if self.match != "epipolar":
+            data["match"] = self.match
+        return data
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> GeometryOptions:
