@@ -121,7 +121,7 @@ def main() -> None:
     remap_maps = []
     for sampler in prepared.forward:
         cols = sampler.width
-        x = (sampler.index % cols + sampler.wx).astype(np.float32)
+        x = ((sampler.index % cols).astype(np.float32) + sampler.wx).astype(np.float32)
         y = (sampler.index // cols + sampler.wy).astype(np.float32)
         remap_maps.append((x, y))
 

@@ -23,7 +23,7 @@ from tests.import_graph import imported_modules, module_name
 ROOT = Path(__file__).resolve().parents[1]
 
 #: Loaded on demand only, never by ``django.setup()``.
-HEAVY = ("scipy", "cv2", "open3d", "plotly", "rest_framework.serializers")
+HEAVY = ("scipy", "numba", "cv2", "open3d", "plotly", "rest_framework.serializers")
 
 SETUP = "import os, django; os.environ.setdefault('DJANGO_SETTINGS_MODULE', 'metrology.settings'); django.setup()"
 

@@ -213,6 +213,13 @@ def add_measure_options(parser: argparse.ArgumentParser, *, triangulate: bool = 
             default="plane",
             help="camera ray and light plane (default), or the midpoint of camera and projector rays",
         )
+        geometry.add_argument(
+            "--match",
+            dest="stereo_match",
+            choices=["epipolar", "2d"],
+            default="epipolar",
+            help="stereo rigs: match along epipolar lines (default), or in 2-D when both axes are coded",
+        )
 
 
 def measure_options(args: argparse.Namespace, **settings: Any) -> MeasureOptions:
@@ -234,6 +241,7 @@ def measure_options(args: argparse.Namespace, **settings: Any) -> MeasureOptions
         geometry=GeometryOptions(
             triangulate=getattr(args, "triangulate", "auto"),
             method=getattr(args, "triangulation_method", "plane"),
+            match=getattr(args, "stereo_match", "epipolar"),
         ),
         **settings,
     )

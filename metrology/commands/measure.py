@@ -5,7 +5,8 @@ of any model and captures of any codec (docs/command-line.md, docs/pinhole.md).
 
     gcps measure --rig RIG.json --object OBJ [--reference REF] [--codec C] [--out Z.npy]
                  [--xyz XYZ.npy] [--sigma SIGMA.npy] [--mesh MESH.ply|.stl|.obj] [--json STATS.json]
-                 [--max-sigma MM] [--triangulate auto|u|v] [--method plane|midpoint] [decoding options]
+                 [--max-sigma MM] [--triangulate auto|u|v] [--method plane|midpoint] [--match epipolar|2d]
+                 [decoding options]
 
 ``--reference`` is required by a model that measures against the reference plane (the
 crossed-axes rig); without one a pinhole or stereo rig gives depths (camera Z). A stereo rig's

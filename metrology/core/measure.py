@@ -125,12 +125,12 @@ def split_decode_block(data: Any) -> tuple[FilterOptions, GcpsV1Options]:
     return filters, gcps_v1
 
 
-SETTINGS_KEYS: tuple[str, ...] = ("decode", "triangulate", "method")
+SETTINGS_KEYS: tuple[str, ...] = ("decode", "triangulate", "method", "match")
 """Keys of the measurement settings in an options object's JSON form (:func:`settings_to_dict`)."""
 
 
 def settings_to_dict(filters: FilterOptions, gcps_v1: GcpsV1Options, geometry: GeometryOptions) -> dict[str, Any]:
-    """``{"decode": {...}, "triangulate", "method"}``: how an options object that measures
+    """``{"decode": {...}, "triangulate", "method"[, "match"]}``: how an options object that measures
     (measure, characterize, acceptance, calibrate) writes its filters, gcps-v1 settings and
     geometry options."""
     return {"decode": decode_block(filters, gcps_v1), **geometry.to_dict()}
@@ -140,7 +140,7 @@ def settings_from_dict(data: Mapping[str, Any]) -> dict[str, Any]:
     """The ``filters``, ``gcps_v1`` and ``geometry`` keyword arguments of the settings in ``data``
     (its keys among :data:`SETTINGS_KEYS`; the others are the caller's)."""
     filters, gcps_v1 = split_decode_block(data.get("decode"))
-    geometry = GeometryOptions.from_dict({k: data[k] for k in ("triangulate", "method") if k in data})
+    geometry = GeometryOptions.from_dict({k: data[k] for k in ("triangulate", "method", "match") if k in data})
     return {"filters": filters, "gcps_v1": gcps_v1, "geometry": geometry}
 
 

@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from metrology.core.geometry.stereo_match import Bilinear, curvature_maps, match_rows
+from metrology.core.geometry.base import GeometryError, GeometryOptions
+from metrology.core.geometry.stereo_match import Bilinear, match_rows
 from metrology.core.measure import MeasureOptions, measure
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions
@@ -33,22 +34,44 @@ def test_a_row_is_matched_inside_its_monotone_run_without_pixel_locking():
 
 
 def test_ambiguous_and_inconsistent_matches_are_refused():
-    # camera 1's row folds back: 13 lies in two segments (x 1..2 and 4..5), 20 in one
-    u1 = np.array([[10.0, 12.0, 14.0, 16.0, 12.5, 20.0, 22.0]], np.float32)
+    # camera 1's row folds back over two pixels: 13 lies in two segments (x 1..2 and 4..5), 21 in one
+    u1 = np.array([[10.0, 12.0, 14.0, 16.0, 12.5, 13.5, 20.0, 22.0]], np.float32)
     u0 = np.array([[13.0, 21.0]], np.float32)
     m = match_rows(u0, u1, 0.0, 100.0)
-    assert np.isnan(m.x1[0, 0]) and m.x1[0, 1] == pytest.approx(5.5)
-    # camera 0's row folds back after its second pixel: 15, 17 and 19 would match back to two
-    # places of it (left-right inconsistent); 11 and 21 are unique there
-    u0 = np.array([[11.0, 19.0, 15.0, 17.0, 21.0]], np.float32)
+    assert np.isnan(m.x1[0, 0]) and m.x1[0, 1] == pytest.approx(6.5)
+    # camera 0's row folds back over two pixels after its first: 19, 20, 15 and 17 would match back
+    # to two places of it (left-right inconsistent); 11 and 21 are unique there
+    u0 = np.array([[11.0, 19.0, 20.0, 15.0, 17.0, 21.0]], np.float32)
     u1 = np.array([[10.0, 12.0, 14.0, 16.0, 18.0, 20.0, 22.0]], np.float32)
     m = match_rows(u0, u1, 0.0, 100.0)
-    assert m.x1[0, 0] == pytest.approx(0.5) and m.x1[0, 4] == pytest.approx(5.5)
-    assert np.isnan(m.x1[0, 1:4]).all()
+    assert m.x1[0, 0] == pytest.approx(0.5) and m.x1[0, 5] == pytest.approx(5.5)
+    assert np.isnan(m.x1[0, 1:5]).all()
     # undecoded neighbours never give a position
     u1 = np.array([[10.0, np.nan, 14.0, 16.0]], np.float32)
     m = match_rows(np.array([[11.0, 15.0]], np.float32), u1, 0.0, 100.0)
     assert np.isnan(m.x1[0, 0]) and m.x1[0, 1] == pytest.approx(2.5)
+
+
+@pytest.mark.parametrize("outlier", [40.0, 1.0])
+def test_an_isolated_out_of_order_value_refuses_itself_only(outlier: float) -> None:
+    """One spike (or dip) in a monotone row, in either camera, is refused alone: before the fix a
+    spike refused every pixel right of it (none was above it), a dip every pixel left of it."""
+    ramp = np.arange(10.0, 30.0, 2.0, dtype=np.float32)  # 10, 12, ..., 28 at x 0..9
+    q = np.arange(10.5, 27.5, 2.0, dtype=np.float32)  # 10.5, 12.5, ..., 26.5: x1 = 0.25, 1.25, ...
+    want = (q - 10.0) / 2.0
+    # camera 0: pixel 4 (18.5) replaced by the outlier
+    u0 = q.copy()
+    u0[4] = outlier
+    m = match_rows(u0[None], ramp[None], 0.0, 100.0)
+    assert np.isnan(m.x1[0, 4])
+    np.testing.assert_allclose(np.delete(m.x1[0], 4), np.delete(want, 4), atol=1e-6)
+    # camera 1: pixel 5 (20) replaced: the two segments beside it give nothing, the rest as before
+    u1 = ramp.copy()
+    u1[5] = outlier
+    m = match_rows(q[None], u1[None], 0.0, 100.0)
+    lost = (want > 4) & (want < 6)  # the segments x 4..5 and 5..6
+    assert lost.sum() == 2 and np.isnan(m.x1[0, lost]).all()
+    np.testing.assert_allclose(m.x1[0, ~lost], want[~lost], atol=1e-6)
 
 
 def test_sampling_is_exact_for_a_quadratic_map_and_never_blends_nan():
@@ -57,7 +80,7 @@ def test_sampling_is_exact_for_a_quadratic_map_and_never_blends_nan():
     rng = np.random.default_rng(1)
     x, y = rng.uniform(1.2, 12.8, 200), rng.uniform(1.2, 9.8, 200)
     sampler = Bilinear.at(x, y, image.shape)
-    got = sampler.sample(image, curvature=curvature_maps(image))
+    got = sampler.sample(image, curvature=True)
     want = 3 + 0.5 * x - 0.25 * y + 0.02 * x * x + 0.03 * x * y - 0.01 * y * y
     np.testing.assert_allclose(got, want, atol=2e-5)
     holed = image.copy()
@@ -98,6 +121,31 @@ def test_noise_free_renders_measure_within_1um(scene: str, axes: str) -> None:
     np.testing.assert_allclose(m.z_mm[judged], points[judged][:, 2], rtol=1e-6)
 
 
+@pytest.mark.parametrize(
+    "scene",
+    ["plane", pytest.param("sphere", marks=pytest.mark.slow), pytest.param("staircase", marks=pytest.mark.slow)],
+)
+def test_the_2d_match_without_rectification_measures_within_1um(scene: str) -> None:
+    """Both axes coded, ``match="2d"``: each camera-0 pixel's (u, v) found in camera 1's image
+    (no rectification, no resampling of camera 0), the rays meeting by their midpoint."""
+    the_scene = make_scene(scene, **SCENES[scene])
+    the_codec = codec("uv")
+    capture = render_stereo_capture(RIG, the_scene, the_codec, placement=PLACEMENT, projector=PROJECTOR)
+    options = MeasureOptions(geometry=GeometryOptions(match="2d"))
+    m = measure(RIG, capture.images, the_codec, options=options)
+    points = m.points_mm().astype(np.float64)
+    truth = capture.points_mm
+    facing = facing_both(the_scene, truth)
+    judged = facing & np.isfinite(m.z_mm)
+    assert judged.sum() > 0.75 * facing.sum() > 0, f"{judged.sum()} of {facing.sum()} facing pixels measured"
+    error = np.linalg.norm(points - truth, axis=-1)[judged]
+    median, p99 = np.median(error), np.percentile(error, 99)
+    print(f"2d {scene}: {judged.sum()} px, median {median * 1e3:.3f} um, p99 {p99 * 1e3:.3f} um")
+    assert median <= 1e-3 and p99 <= 5e-3
+    with pytest.raises(ValueError, match="does not code the projector's v axis"):
+        measure(RIG, capture.images, codec("u"), options=options)
+
+
 @pytest.mark.slow
 def test_predicted_sigma_matches_the_scatter_of_realistic_renders() -> None:
     """10 realistic 8-bit renders of a plane (one cast, noise drawn anew): the predicted per-point
@@ -123,3 +171,14 @@ def test_predicted_sigma_matches_the_scatter_of_realistic_renders() -> None:
     ratio = np.median(predicted[:, ok], axis=0) / observed
     print(f"predicted/observed {np.median(ratio):.3f} over {ok.sum()} px, sigma {np.median(observed) * 1e3:.1f} um")
     assert abs(np.median(ratio) - 1) < 0.2
+
+
+def test_a_single_camera_model_refuses_the_2d_match() -> None:
+    pinhole = PROJECTOR.pinhole_rig(RIG.camera0, np.eye(3), np.zeros(3))
+    size = (pinhole.projector.width, pinhole.projector.height)
+    pinhole.check_codec(size, ("u", "v"), GeometryOptions())
+    with pytest.raises(GeometryError, match="match '2d' is for stereo rigs"):
+        pinhole.check_codec(size, ("u", "v"), GeometryOptions(match="2d"))
+    assert GeometryOptions.from_dict(GeometryOptions(match="2d").to_dict()).match == "2d"
+    with pytest.raises(ValueError, match="match must be one of"):
+        GeometryOptions(match="3d")

@@ -61,6 +61,7 @@ AXES: tuple[str, ...] = ("u", "v")
 TRIANGULATE_CHOICES: tuple[str, ...] = ("auto", *AXES)
 """:attr:`GeometryOptions.triangulate` values: ``auto`` lets the model choose its axis."""
 METHOD_CHOICES: tuple[str, ...] = ("plane", "midpoint")
+MATCH_CHOICES: tuple[str, ...] = ("epipolar", "2d")
 """:attr:`GeometryOptions.method` values."""
 
 
@@ -84,25 +85,37 @@ class GeometryOptions:
         ``plane``: camera ray meets the light plane of the decoded coordinate (default);
         ``midpoint``: the midpoint of the camera ray and the projector ray (both axes, or one
         axis and its epipolar line).
+    match : {'epipolar', '2d'}
+        How a model with two cameras finds corresponding pixels: along epipolar lines (default), or
+        in 2-D without rectification when both projector axes are coded (``2d``). Models with one
+        camera accept ``epipolar`` only.
     """
 
     triangulate: str = "auto"
     method: str = "plane"
+    match: str = "epipolar"
 
     def __post_init__(self) -> None:
         if self.triangulate not in TRIANGULATE_CHOICES:
             raise ValueError(f"triangulate must be one of {', '.join(TRIANGULATE_CHOICES)}, got {self.triangulate!r}")
         if self.method not in METHOD_CHOICES:
             raise ValueError(f"method must be one of {', '.join(METHOD_CHOICES)}, got {self.method!r}")
+        if self.match not in MATCH_CHOICES:
+            raise ValueError(f"match must be one of {', '.join(MATCH_CHOICES)}, got {self.match!r}")
 
     def to_dict(self) -> dict[str, Any]:
-        return {"triangulate": self.triangulate, "method": self.method}
+        """``{"triangulate", "method"}``, and ``"match"`` when it is not the default ``epipolar`` (so the
+        JSON of every single-camera measurement stays as it was)."""
+        data: dict[str, Any] = {"triangulate": self.triangulate, "method": self.method}
+        if self.match != "epipolar":
+            data["match"] = self.match
+        return data
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> GeometryOptions:
-        unknown = sorted(set(data) - {"triangulate", "method"})
+        unknown = sorted(set(data) - {"triangulate", "method", "match"})
         if unknown:
-            raise ValueError(f"unknown geometry option(s): {', '.join(unknown)}; accepted: method, triangulate")
+            raise ValueError(f"unknown geometry option(s): {', '.join(unknown)}; accepted: match, method, triangulate")
         return cls(**data)
 
 

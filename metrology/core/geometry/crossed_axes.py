@@ -370,11 +370,13 @@ class Rig(GeometryModel):
 
 
 def _check_options(options: GeometryOptions | None) -> None:
-    if options is not None and (options.triangulate not in ("auto", "u") or options.method != "plane"):
+    if options is not None and (
+        options.triangulate not in ("auto", "u") or options.method != "plane" or options.match != "epipolar"
+    ):
         raise GeometryError(
             "a crossed-axes rig triangulates the projector's u axis by its light planes "
             f"(triangulate auto or u, method plane), got triangulate {options.triangulate!r}, "
-            f"method {options.method!r}"
+            f"method {options.method!r}, match {options.match!r}"
         )
 
 

@@ -286,6 +286,8 @@ class PinholeRig(GeometryModel):
         """The codec's projector must be the rig's, and it must code the axis the rig triangulates."""
         self._check_projector(projector_size)
         options = options or GeometryOptions()
+        if options.match != "epipolar":
+            raise GeometryError(f"a pinhole rig has one camera; match {options.match!r} is for stereo rigs")
         axis = self.auto_axis() if options.triangulate == "auto" else options.triangulate
         check_coded_axis(axis, options.triangulate, coded_axes, "rig triangulates")
 

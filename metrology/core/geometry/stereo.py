@@ -256,6 +256,12 @@ class StereoRig(GeometryModel):
             )
         axis = self.auto_axis() if options.triangulate == "auto" else options.triangulate
         check_coded_axis(axis, options.triangulate, coded_axes, "stereo rig matches between its cameras")
+        if options.match == "2d":
+            missing = [a for a in ("u", "v") if a not in coded_axes]
+            if missing:
+                raise GeometryError(
+                    f"the 2-D match (match '2d') needs both projector axes coded; the codec lacks {', '.join(missing)}"
+                )
 
     def value_rows(self) -> list[tuple[str, str]]:
         """Each camera (size, K, distortion), camera 1's pose, the baseline and the projector."""
@@ -304,4 +310,4 @@ class StereoRig(GeometryModel):
             self.check_projector(projector_size)
         self.check_codec((self.projector.width, self.projector.height), ("u", "v"), options)
         axis = self.auto_axis() if options.triangulate == "auto" else options.triangulate
-        return prepare_stereo(self, axis)
+        return prepare_stereo(self, axis, options.match)

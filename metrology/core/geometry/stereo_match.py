@@ -20,13 +20,16 @@ camera 0's pixel grid in three steps (:meth:`PreparedStereo.combine`, then
    the same rectified row where the decoded coordinate is ``q``: the segment ``[x, x + 1]`` of
    camera 1's row with ``u(x) <= q < u(x + 1)`` (both decoded), ``x_1 = x + (q - u(x)) / (u(x + 1) -
    u(x))``: linear inside a monotone run, the position from the decoded values (no pixel locking).
-   Found for a whole tile of rows by one ``searchsorted`` of row-offset keys on the row's running
-   maximum. *Unique matches only*: no decoded value right of ``x + 1`` is at most ``q`` (a
+   Found by a merge walk along camera 1's running maximum (camera 0's consistent values grow along
+   the row), in a compiled kernel (:mod:`~metrology.core.geometry.stereo_kernels`).
+   *Unique matches only*: no decoded value right of ``x + 1`` is at most ``q`` (a
    running minimum from the right), so no other segment of the row holds ``q``. *Left-right
    consistency*: matching ``q`` back from camera 1 into camera 0's row must land on the same
    pixel; with the same rule this holds exactly when ``q`` is above every decoded value left of
-   its pixel and below every one right of it, which is what is tested. (When the coordinate falls
-   along the rows both maps are negated first.)
+   its pixel and below every one right of it, which is what is tested. An *isolated out-of-order
+   value* (its two neighbours decoded and in order, itself not between them: a one-pixel spike or
+   dip) counts as not decoded in either camera, so it refuses itself alone rather than the rest of
+   its row. (When the coordinate falls along the rows both maps are negated first.)
 3. **Triangulate.** The disparity ``d = x_1n - x_0n`` (rectified normalized coordinates) is
    sampled back at each camera-0 pixel's rectified position (bilinear; exact for a plane, whose
    disparity is affine in rectified coordinates). The rays of the two cameras meet at rectified
@@ -71,7 +74,8 @@ from metrology.core.geometry.pinhole import (
     plane_coordinates_of,
     ray_points,
 )
-from metrology.core.tiling import run_tiled
+from metrology.core.geometry.stereo_kernels import cell_buckets, depth_tile, match_2d_tile, match_tile, sample_tile
+from metrology.core.tiling import run_tiled, thread_scratch
 
 if TYPE_CHECKING:
     from metrology.core.geometry.stereo import StereoRig
@@ -90,8 +94,11 @@ class Bilinear:
 
     Attributes
     ----------
-    index : intp array
+    index : int32 array
         Flat index of each position's top-left neighbour (0 outside the map).
+    inner : uint8 array
+        1 where the top-left neighbour is at least one pixel in from the map's left and top edges and
+        two from its right and bottom ones (where both curvatures of the parabolic terms exist).
     wx, wy : float32 arrays
         Weights of the right and lower neighbours, in [0, 1]; NaN outside the map (so is the sample).
     width : int
@@ -99,6 +106,7 @@ class Bilinear:
     """
 
     index: np.ndarray
+    inner: np.ndarray
     wx: np.ndarray
     wy: np.ndarray
     width: int
@@ -113,63 +121,32 @@ class Bilinear:
         iy = np.clip(np.floor(np.where(inside, y, 0.0)), 0, h - 2).astype(np.intp)
         wx = np.where(inside, x - ix, np.nan).astype(np.float32)
         wy = np.where(inside, y - iy, np.nan).astype(np.float32)
-        return cls(index=iy * w + ix, wx=wx, wy=wy, width=w)
+        inner = ((ix >= 1) & (ix <= w - 3) & (iy >= 1) & (iy <= h - 3)).astype(np.uint8)
+        index = (iy * w + ix).astype(np.int32)
+        return cls(index=index, inner=inner, wx=wx, wy=wy, width=w)
 
     def sample(
         self,
         image: np.ndarray,
         rows: slice | None = None,
         out: np.ndarray | None = None,
-        curvature: tuple[np.ndarray, np.ndarray] | None = None,
+        curvature: bool = False,
     ) -> np.ndarray:
-        """``image`` (float32, the map) at the positions (of ``rows`` of them), float32; NaN where a
-        neighbour is NaN or the position is outside. With ``curvature`` (:func:`curvature_maps` of
-        ``image``) the parabolic terms are added, ``-(wx (1 - wx) c_xx + wy (1 - wy) c_yy) / 2``
-        (exact for a quadratic map; bilinear where a curvature is unknown, at the edges)."""
+        """``image`` (float32 ``(h, w)``, the map) at the positions (of ``rows`` of them), float32; NaN
+        where a neighbour is NaN or the position is outside. With ``curvature`` the parabolic terms
+        are added, ``-(wx (1 - wx) c_xx + wy (1 - wy) c_yy) / 2`` with ``c_xx``, ``c_yy`` the second
+        differences along the row and the column averaged over the cell's two sides (exact for a
+        quadratic map; bilinear where a curvature is unknown, at the edges;
+        :func:`~metrology.core.geometry.stereo_kernels.sample_tile`)."""
         rows = rows if rows is not None else slice(0, self.index.shape[0])
-        flat = image.ravel()
-        i, wx, wy = self.index[rows], self.wx[rows], self.wy[rows]
-        a, b = flat.take(i), flat.take(i + 1)
-        top = b - a
-        top *= wx
-        top += a
-        i2 = i + self.width
-        c, d = flat.take(i2), flat.take(i2 + 1)
-        d -= c
-        d *= wx
-        d += c
-        d -= top
-        d *= wy
+        index, inner, wx, wy = self.index[rows], self.inner[rows], self.wx[rows], self.wy[rows]
+        shape = index.shape
         if out is None:
-            out = np.add(top, d)
-        else:
-            np.add(top, d, out=out)
-        if curvature is not None:  # the parabolic terms bilinear interpolation leaves out
-            cxx, cyy = (c.ravel().take(i) for c in curvature)
-            cxx *= wx * (1 - wx)
-            cyy *= wy * (1 - wy)
-            cxx += cyy
-            cxx *= np.float32(0.5)
-            np.subtract(out, cxx, out=out, where=np.isfinite(cxx))
+            out = np.empty(shape, np.float32)
+        image = np.ascontiguousarray(image, dtype=np.float32).reshape(-1, self.width)
+        two_d = (lambda a: a.reshape(1, -1)) if len(shape) == 1 else (lambda a: a)
+        sample_tile(image, two_d(index), two_d(inner), two_d(wx), two_d(wy), two_d(out), curvature)
         return out
-
-
-def curvature_maps(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The second differences of an ``(h, w)`` float32 map along its rows and columns, averaged
-    over each cell's two sides: ``cxx[k, j]`` of ``u[k, j-1..j+2]``, ``cyy[k, j]`` of ``u[k-1..k+2, j]``
-    (NaN where a neighbour is missing), for :meth:`Bilinear.sample`'s ``curvature``."""
-    h, w = image.shape
-    dxx = np.full((h, w), np.nan, np.float32)
-    dxx[:, 1:-1] = image[:, :-2] - 2 * image[:, 1:-1] + image[:, 2:]
-    cxx = np.full((h, w), np.nan, np.float32)
-    cxx[:, :-1] = dxx[:, :-1] + dxx[:, 1:]
-    cxx *= np.float32(0.5)
-    dyy = np.full((h, w), np.nan, np.float32)
-    dyy[1:-1] = image[:-2] - 2 * image[1:-1] + image[2:]
-    cyy = np.full((h, w), np.nan, np.float32)
-    cyy[:-1] = dyy[:-1] + dyy[1:]
-    cyy *= np.float32(0.5)
-    return cxx, cyy
 
 
 @dataclass(frozen=True)
@@ -311,45 +288,13 @@ def match_rows(u0: np.ndarray, u1: np.ndarray, lo: float, hi: float) -> Matched:
     Matched
         ``x1`` (n, W0) float32 camera-1 columns, ``slope`` (n, W0) float32.
     """
-    n, w1 = u1.shape
-    with np.errstate(invalid="ignore"):
-        finite1 = (u1 >= lo) & (u1 <= hi)
-        finite0 = (u0 >= lo) & (u0 <= hi)
-    offsets = np.arange(n, dtype=np.float64)[:, None] * ((hi - lo) + 2.0) - lo
-    # camera 1: running maximum from the left (the search keys), running minimum from the right
-    # two columns on (a value there at most q would hold q in a second segment)
-    keys = np.where(finite1, u1, np.float32(lo))
-    np.maximum.accumulate(keys, axis=1, out=keys)
-    keys64 = (keys + offsets).ravel()
-    right1 = np.where(finite1, u1, np.float32(np.inf))[:, ::-1]
-    right1 = np.minimum.accumulate(right1, axis=1)[:, ::-1]
-    after = np.full((n, w1), np.inf, np.float32)
-    after[:, :-2] = right1[:, 2:]
-    # camera 0: a value above everything decoded on its left and below everything on its right
-    left0 = np.where(finite0, u0, np.float32(-np.inf))
-    np.maximum.accumulate(left0, axis=1, out=left0)
-    right0 = np.where(finite0, u0, np.float32(np.inf))[:, ::-1]
-    right0 = np.minimum.accumulate(right0, axis=1)[:, ::-1]
-    record = finite0
-    record[:, 1:] &= u0[:, 1:] > left0[:, :-1]
-    record[:, :-1] &= u0[:, :-1] < right0[:, 1:]
-    found = np.searchsorted(keys64, (u0 + offsets).ravel(), side="right").reshape(u0.shape)
-    found -= 1
-    col = found - (np.arange(n, dtype=np.intp) * w1)[:, None]
-    ok = record & (col >= 0) & (col <= w1 - 2)
-    np.clip(found, 0, u1.size - 2, out=found)
-    flat1 = u1.ravel()
-    a = flat1.take(found)
-    b = flat1.take(found + 1)
-    beyond = after.ravel().take(found)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ok &= (a <= u0) & (u0 < b) & (beyond > u0)
-        step = b - a
-        x1 = u0 - a
-        x1 /= step
-    x1 += col
-    x1[~ok] = np.nan
-    return Matched(x1=x1, slope=step)
+    n, w0 = u0.shape
+    x1, slope, d = (np.empty((n, w0), np.float32) for _ in range(3))
+    scratch = np.empty((4, max(w0, u1.shape[1])), np.float64)
+    u0 = np.ascontiguousarray(u0, dtype=np.float32)
+    u1 = np.ascontiguousarray(u1, dtype=np.float32)
+    match_tile(u0, u1, float(lo), float(hi), np.zeros(w0, np.float32), 1.0, 0.0, x1, slope, d, scratch)
+    return Matched(x1=x1, slope=slope)
 
 
 class PreparedStereo(PreparedGeometry):
@@ -401,9 +346,8 @@ class PreparedStereo(PreparedGeometry):
         a neighbour is NaN or outside the image), its parabolic terms included (:class:`Bilinear`)."""
         sampler = self.forward[camera]
         image = np.ascontiguousarray(image, dtype=np.float32)
-        curvature = curvature_maps(image)
         out = np.empty(self.rect.shapes[camera], np.float32)
-        run_tiled(lambda rows: sampler.sample(image, rows, out[rows], curvature), *out.shape, threads)
+        run_tiled(lambda rows: sampler.sample(image, rows, out[rows], True), *out.shape, threads)
         return out
 
     def combine(
@@ -428,21 +372,9 @@ class PreparedStereo(PreparedGeometry):
             ``u``: the normalized disparity ``d`` (H, W) float32 on camera 0's grid, NaN where
             not matched; ``sigma``: its standard deviation (normalized), when ``sigma`` was given.
         """
-        if len(coordinates) != 2:
-            raise GeometryError(f"a stereo rig combines the maps of 2 cameras, got {len(coordinates)}")
-        maps = []
-        for camera, coords in enumerate(coordinates):
-            m = coords.get(self.axis)
-            if m is None:
-                raise GeometryError(f"camera {camera}'s capture lacks the projector's {self.axis} axis")
-            expected = self.rig.camera_shapes[camera]
-            if tuple(m.shape) != expected:
-                raise GeometryError(
-                    f"camera {camera}'s map is {m.shape[1]}x{m.shape[0]} px but the rig's camera {camera} is "
-                    f"{expected[1]}x{expected[0]} px"
-                )
-            maps.append(self.rectify(camera, m, threads))
-        u0r, u1r = maps
+        u0r, u1r = (
+            self.rectify(camera, m[0], threads) for camera, m in enumerate(self._maps(coordinates, (self.axis,)))
+        )
         proj = self.rig.projector
         size = proj.width if self.axis == "u" else proj.height
         lo, hi = -2.0, size + 1.0  # every decoded coordinate (the codec's field and its margin)
@@ -455,25 +387,48 @@ class PreparedStereo(PreparedGeometry):
         disparity = np.empty((rows, cols0), np.float32)
         x1 = np.empty((rows, cols0), np.float32)
         step = np.empty((rows, cols0), np.float32)
-        inv_f = np.float32(1.0 / rect.f)
-        offset = np.float32(rect.cx[1] / rect.f)
+        inv_f = 1.0 / rect.f
+        offset = rect.cx[1] / rect.f
+
+        width = max(cols0, rect.shapes[1][1])
 
         def run(tile: slice) -> None:
-            m = match_rows(u0r[tile], u1r[tile], lo, hi)
-            x1[tile], step[tile] = m.x1, m.slope
-            d = m.x1 * inv_f
-            d -= offset
-            d -= self._x0n
-            disparity[tile] = d
+            scratch = thread_scratch().get("stereo-match", (4, width), np.float64)
+            match_tile(
+                u0r[tile], u1r[tile], lo, hi, self._x0n, inv_f, offset, x1[tile], step[tile], disparity[tile], scratch
+            )
 
-        run_tiled(run, rows, max(cols0, rect.shapes[1][1]), threads)
+        run_tiled(run, rows, width, threads)
         out = np.empty(self.shape, np.float32)
-        bend = curvature_maps(disparity)
-        run_tiled(lambda r: self.back.sample(disparity, r, out[r], bend), *self.shape, threads)
+        run_tiled(lambda r: self.back.sample(disparity, r, out[r], True), *self.shape, threads)
         sigma_out = None
         if sigma is not None and sigma[0] is not None and sigma[1] is not None:
             sigma_out = self._disparity_sigma(sigma[0], sigma[1], x1, step, threads)
         return CombinedMaps(u=out, v=None, sigma=sigma_out)
+
+    def _maps(
+        self, coordinates: Sequence[Mapping[str, np.ndarray | None]], axes: tuple[str, ...]
+    ) -> list[list[np.ndarray]]:
+        """Each camera's float32 maps of ``axes``; :class:`GeometryError` naming the camera when one is
+        missing or its size is not the rig's camera's."""
+        if len(coordinates) != 2:
+            raise GeometryError(f"a stereo rig combines the maps of 2 cameras, got {len(coordinates)}")
+        maps = []
+        for camera, coords in enumerate(coordinates):
+            pair = []
+            for axis in axes:
+                m = coords.get(axis)
+                if m is None:
+                    raise GeometryError(f"camera {camera}'s capture lacks the projector's {axis} axis")
+                expected = self.rig.camera_shapes[camera]
+                if tuple(m.shape) != expected:
+                    raise GeometryError(
+                        f"camera {camera}'s map is {m.shape[1]}x{m.shape[0]} px but the rig's camera {camera} is "
+                        f"{expected[1]}x{expected[0]} px"
+                    )
+                pair.append(np.ascontiguousarray(m, dtype=np.float32))
+            maps.append(pair)
+        return maps
 
     def noise_gain(self) -> np.ndarray:
         """``(H, W)`` float32: the standard deviation, at each camera-0 pixel, of white noise of unit
@@ -573,14 +528,14 @@ class PreparedStereo(PreparedGeometry):
             raise GeometryError("a stereo rig triangulates the disparity that combine() gives (u); got none")
         if height_out is not None and reference is None:
             raise GeometryError("a stereo rig's heights need its reference plane (a reference capture)")
+        xn, yn = self.xn32[rows], self.yn32[rows]
+        if points_out is not None:
+            depth_tile(np.ascontiguousarray(u, dtype=np.float32), self.k[rows], xn, yn, points_out)
+        if height_out is None and (sigma_in is None or sigma_out is None):
+            return
         with np.errstate(divide="ignore", invalid="ignore"):
             t = self.k[rows] / u
         t[~(t > 0)] = np.nan
-        xn, yn = self.xn32[rows], self.yn32[rows]
-        if points_out is not None:
-            np.multiply(t, xn, out=points_out[..., 0])
-            np.multiply(t, yn, out=points_out[..., 1])
-            points_out[..., 2] = t
         if height_out is not None:
             if not isinstance(reference, PinholeReference):
                 raise GeometryError(f"reference must come from this model, got {type(reference).__name__}")
@@ -596,6 +551,77 @@ class PreparedStereo(PreparedGeometry):
         distance from the reference plane with one."""
         check_frame(self, "z_mm", z_mm)
         return ray_points(self.xn, self.yn, z_mm, reference)
+
+
+MATCH_BUCKET = 4.0
+"""Side of the projector-space buckets that index camera 1's cells for the 2-D match, projector units."""
+
+
+class PreparedStereo2D(PreparedStereo):
+    """The stereo model matching in 2-D without rectification (both projector axes coded): each
+    camera-0 pixel's decoded pair ``(u, v)`` is found in camera 1's image, in the one cell of four
+    decoded pixels whose bilinear map holds it (Newton inverse; no other cell may hold it: unique
+    matches only), and the two rays meet by their midpoint.
+
+    With camera 0's ray ``t a``, ``a = (x_n, y_n, 1)``, and camera 1's ray ``C + s b`` in camera 0's
+    frame (``C = -R^T T``, ``b = R^T (x_1n, y_1n, 1)`` from camera 1's undistorted matched position),
+    the closest points have ``t = ((a.C)(b.b) - (a.b)(b.C)) / D`` and ``s = ((a.b)(a.C) - (a.a)(b.C)) / D``,
+    ``D = (a.a)(b.b) - (a.b)^2``; the point is the midpoint's projection on camera 0's ray,
+    ``t_m = ((t a + C + s b) / 2 . a) / (a.a)``. :meth:`combine` hands it on as the disparity the
+    epipolar path would have had, ``d = k / t_m``, so :meth:`triangulate_rows` is shared. No sigma
+    (the error model is the epipolar path's)."""
+
+    @property
+    def required_axes(self) -> tuple[str, ...]:
+        return ("u", "v")
+
+    def combine(
+        self,
+        coordinates: Sequence[Mapping[str, np.ndarray | None]],
+        sigma: Sequence[np.ndarray | None] | None = None,
+        threads: int | None = None,
+    ) -> CombinedMaps:
+        """Both cameras' ``u`` and ``v`` maps (``{axis: (H_c, W_c) float32}``) to the equivalent
+        disparity ``d = k / t_m`` (H, W) float32 on camera 0's grid (class docstring); ``sigma`` None."""
+        maps = self._maps(coordinates, ("u", "v"))
+        (u0, v0), (u1, v1) = maps
+        proj = self.rig.projector
+        nu = math.ceil((proj.width + 2.0) / MATCH_BUCKET)
+        nv = math.ceil((proj.height + 2.0) / MATCH_BUCKET)
+        start, cells = cell_buckets(u1, v1, MATCH_BUCKET, nu, nv)
+        h, w = self.shape
+        x1 = np.empty((h, w), np.float32)
+        y1 = np.empty((h, w), np.float32)
+
+        def run(rows: slice) -> None:
+            match_2d_tile(u0[rows], v0[rows], u1, v1, start, cells, MATCH_BUCKET, nu, nv, x1[rows], y1[rows])
+
+        run_tiled(run, h, w, threads)
+        cam1 = self.rig.camera1
+        und = undistort_pixels(np.asarray(cam1.K), cam1.distortion, x1.astype(np.float64), y1.astype(np.float64))
+        R = np.asarray(self.rig.R, np.float64)
+        T = np.asarray(self.rig.T, np.float64)
+        C = -R.T @ T
+        bx = R[0, 0] * und.x + R[1, 0] * und.y + R[2, 0]
+        by = R[0, 1] * und.x + R[1, 1] * und.y + R[2, 1]
+        bz = R[0, 2] * und.x + R[1, 2] * und.y + R[2, 2]
+        ax, ay = self.xn, self.yn
+        aa = ax * ax + ay * ay + 1.0
+        bb = bx * bx + by * by + bz * bz
+        ab = ax * bx + ay * by + bz
+        ac = ax * C[0] + ay * C[1] + C[2]
+        bc = bx * C[0] + by * C[1] + bz * C[2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            det = aa * bb - ab * ab
+            t = (ac * bb - ab * bc) / det
+            s = (ab * ac - aa * bc) / det
+            mx = (t * ax + C[0] + s * bx) / 2
+            my = (t * ay + C[1] + s * by) / 2
+            mz = (t + C[2] + s * bz) / 2
+            tm = (mx * ax + my * ay + mz) / aa
+            d = (self.k / tm).astype(np.float32)
+        d[~(tm > 0)] = np.nan
+        return CombinedMaps(u=d, v=None, sigma=None)
 
 
 def _decreasing(u1r: np.ndarray) -> bool:
@@ -620,11 +646,12 @@ _lock = threading.Lock()
 
 
 @functools.lru_cache(maxsize=2)
-def _prepare_cached(rig: StereoRig, axis: str) -> PreparedStereo:
-    return PreparedStereo(rig, axis)
+def _prepare_cached(rig: StereoRig, axis: str, match: str = "epipolar") -> PreparedStereo:
+    return PreparedStereo2D(rig, axis) if match == "2d" else PreparedStereo(rig, axis)
 
 
-def prepare_stereo(rig: StereoRig, axis: str) -> PreparedStereo:
-    """The rig prepared for matching ``axis`` (cached per rig and axis: tables built once)."""
+def prepare_stereo(rig: StereoRig, axis: str, match: str = "epipolar") -> PreparedStereo:
+    """The rig prepared for matching ``axis`` along epipolar lines, or both axes in 2-D (``match``
+    ``"2d"``; cached per rig, axis and match: tables built once)."""
     with _lock:
-        return _prepare_cached(rig, axis)
+        return _prepare_cached(rig, axis, match)

@@ -1,0 +1,319 @@
+"""Compiled kernels of the stereo model's hot loops (numba, ``nogil``: the tiles of
+:func:`metrology.core.tiling.run_tiled` run them on the pool's threads in parallel).
+
+Each kernel does in one pass over a tile what took a dozen numpy passes and their temporaries:
+
+- :func:`sample_tile`: bilinear sampling at fixed positions with the parabolic terms (the
+  rectification of a decoded map, the disparity sampled back on camera 0's grid);
+- :func:`match_tile`: the matching of rectified rows (running extrema, a merge walk instead of a
+  ``searchsorted``), the sub-pixel position and the normalized disparity;
+- :func:`depth_tile`: the disparity to points along camera 0's rays.
+
+The equations are those of :mod:`metrology.core.geometry.stereo_match`'s module docstring; the
+arithmetic is float64 inside, float32 in and out. Compiled on first use and cached on disk
+(``cache=True``: a new process loads the machine code instead of compiling it again).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(nogil=True, cache=True)
+def sample_tile(
+    image: np.ndarray,
+    index: np.ndarray,
+    inner: np.ndarray,
+    wx: np.ndarray,
+    wy: np.ndarray,
+    out: np.ndarray,
+    curvature: bool,
+) -> None:  # pragma: no cover - compiled
+    """``out[r, c]`` = the ``(h, w)`` float32 ``image`` sampled bilinearly at the positions of
+    ``index`` (flat index of the top-left neighbour, ``(n, m)`` int32), ``wx``, ``wy`` (``(n, m)``
+    float32 weights of the right and lower neighbours; NaN outside the image): ``top = a + wx (b -
+    a)``, ``bottom = c + wx (d - c)``, ``top + wy (bottom - top)``; NaN where a neighbour is NaN.
+
+    With ``curvature`` the parabolic terms ``-(wx (1 - wx) c_xx + wy (1 - wy) c_yy) / 2`` are added
+    (exact for a quadratic map), ``c_xx = (u[j-1] - u[j] - u[j+1] + u[j+2]) / 2`` along the top-left
+    neighbour's row (the mean of the second differences at ``j`` and ``j + 1``), ``c_yy`` likewise
+    down its column; left out where either is unknown (``inner`` 0 at the image's edges, a NaN
+    neighbour)."""
+    w = image.shape[1]
+    flat = image.ravel()
+    n, m = index.shape
+    for r in range(n):
+        for c in range(m):
+            i = index[r, c]
+            fx = np.float64(wx[r, c])
+            fy = np.float64(wy[r, c])
+            a = np.float64(flat[i])
+            b = np.float64(flat[i + 1])
+            cc = np.float64(flat[i + w])
+            d = np.float64(flat[i + w + 1])
+            top = a + fx * (b - a)
+            bottom = cc + fx * (d - cc)
+            value = top + fy * (bottom - top)
+            if curvature and inner[r, c] and not math.isnan(value):
+                cxx = 0.5 * (np.float64(flat[i - 1]) - a - b + np.float64(flat[i + 2]))
+                cyy = 0.5 * (np.float64(flat[i - w]) - a - cc + np.float64(flat[i + 2 * w]))
+                bend = fx * (1.0 - fx) * cxx + fy * (1.0 - fy) * cyy
+                if not math.isnan(bend):
+                    value -= 0.5 * bend
+            out[r, c] = value
+
+
+@njit(nogil=True, cache=True)
+def clean_row(u: np.ndarray, lo: float, hi: float, out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``out[:w]`` = the float32 row ``u`` (w,) as float64, NaN where not decoded (outside ``[lo,
+    hi]``) and at an *isolated out-of-order value*: one whose two neighbours are decoded and in order
+    (``u[j-1] < u[j+1]``) while it does not lie strictly between them (a spike or a dip of one pixel).
+    Such a value is not matched and does not take part in the running extrema, so it cannot refuse
+    the rest of its row."""
+    w = u.shape[0]
+    for j in range(w):
+        v = np.float64(u[j])
+        out[j] = v if (v >= lo and v <= hi) else np.nan
+    for j in range(1, w - 1):
+        v = np.float64(u[j])
+        before = np.float64(u[j - 1])
+        after = np.float64(u[j + 1])
+        if not (before >= lo and before <= hi and after >= lo and after <= hi):
+            continue
+        if before < after and not (before < v and v < after):
+            out[j] = np.nan
+
+
+@njit(nogil=True, cache=True)
+def suffix_min(row: np.ndarray, w: int, out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``out[c]`` = the minimum of the (not NaN) values of ``row[c:w]``, ``inf`` where all are NaN."""
+    low = np.inf
+    for c in range(w - 1, -1, -1):
+        v = row[c]
+        if v < low:
+            low = v
+        out[c] = low
+
+
+@njit(nogil=True, cache=True)
+def match_tile(
+    u0: np.ndarray,
+    u1: np.ndarray,
+    lo: float,
+    hi: float,
+    x0n: np.ndarray,
+    inv_f: float,
+    offset: float,
+    x1_out: np.ndarray,
+    slope_out: np.ndarray,
+    d_out: np.ndarray,
+    scratch: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Match rows of rectified maps whose coordinate grows along the rows.
+
+    ``u0`` (n, W0), ``u1`` (n, W1) float32, decoded where in ``[lo, hi]`` (rows cleaned by
+    :func:`clean_row`). For each camera-0 pixel of value ``q`` that is a *record* (above every
+    decoded value left of it in its row, below every one right of it: the left-right consistency),
+    the segment ``[x, x + 1]`` of camera 1's row with ``u1(x) <= q < u1(x + 1)``, found by a merge
+    walk on camera 1's running maximum (the records grow along the row), kept when no decoded value
+    of camera 1 right of ``x + 1`` is at most ``q`` (unique): ``x1 = x + (q - u1(x)) / (u1(x + 1) -
+    u1(x))`` (``x1_out``), the slope ``u1(x + 1) - u1(x)`` (``slope_out``) and the normalized
+    disparity ``x1 inv_f - offset - x0n[j]`` (``d_out``), all (n, W0) float32, NaN where not
+    matched. ``scratch``: (4, max(W0, W1)) float64."""
+    n, w0 = u0.shape
+    w1 = u1.shape[1]
+    inf = np.inf
+    row0, row1, rmin0, rmin1 = scratch[0], scratch[1], scratch[2], scratch[3]
+    for r in range(n):
+        clean_row(u0[r], lo, hi, row0)
+        clean_row(u1[r], lo, hi, row1)
+        suffix_min(row1, w1, rmin1)
+        suffix_min(row0, w0, rmin0)
+        left = -inf  # the maximum decoded camera-0 value left of j
+        p = -1  # the last column of camera 1 whose running maximum is at most q
+        key = -inf  # camera 1's running maximum up to p (lo for undecoded values)
+        for j in range(w0):
+            x1_out[r, j] = np.nan
+            slope_out[r, j] = np.nan
+            d_out[r, j] = np.nan
+            q = row0[j]
+            if math.isnan(q):
+                continue
+            record = q > left and (j + 1 >= w0 or q < rmin0[j + 1])
+            left = max(left, q)
+            if not record:
+                continue
+            while p + 1 < w1:
+                nxt = row1[p + 1]
+                candidate = max(key, lo if math.isnan(nxt) else nxt)
+                if candidate > q:
+                    break
+                key = candidate
+                p += 1
+            if p < 0 or p > w1 - 2:
+                continue
+            a = row1[p]
+            b = row1[p + 1]
+            beyond = rmin1[p + 2] if p + 2 < w1 else inf
+            if a <= q and q < b and beyond > q:
+                x1 = p + (q - a) / (b - a)
+                x1_out[r, j] = x1
+                slope_out[r, j] = b - a
+                d_out[r, j] = x1 * inv_f - offset - x0n[j]
+
+
+@njit(nogil=True, cache=True)
+def depth_tile(
+    d: np.ndarray,
+    k: np.ndarray,
+    xn: np.ndarray,
+    yn: np.ndarray,
+    points: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Points on camera 0's rays from the normalized disparity ``d`` (n, m) float32: camera-0 depth
+    ``t = k / d`` (``k`` (n, m) float32 mm), the point ``t (x_n, y_n, 1)`` into ``points`` (n, m, 3)
+    float32 mm; NaN where ``t`` is not positive or ``d`` is NaN."""
+    n, m = d.shape
+    for r in range(n):
+        for c in range(m):
+            t = np.float64(k[r, c]) / np.float64(d[r, c]) if d[r, c] != 0 else np.nan
+            if not t > 0:
+                t = np.nan
+            points[r, c, 0] = t * xn[r, c]
+            points[r, c, 1] = t * yn[r, c]
+            points[r, c, 2] = t
+
+
+@njit(nogil=True, cache=True)
+def cell_buckets(
+    u: np.ndarray, v: np.ndarray, bucket: float, nu: int, nv: int
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Camera 1's cells (the squares of four decoded pixels ``(r, c)..(r + 1, c + 1)`` of the
+    ``(h, w)`` float32 maps ``u``, ``v``) by the projector-space buckets (``bucket`` units square,
+    ``nu`` x ``nv`` of them from 0) their bounding box overlaps: ``start`` ((nu nv + 1,) int64) and
+    ``cells`` (flat index ``r w + c`` of each cell, bucket after bucket; CSR layout)."""
+    h, w = u.shape
+    counts = np.zeros(nu * nv + 1, np.int64)
+    for phase in range(2):
+        if phase == 1:
+            start = np.zeros(nu * nv + 1, np.int64)
+            for b in range(nu * nv):
+                start[b + 1] = start[b] + counts[b]
+            fill = start[:-1].copy()
+            cells = np.empty(start[nu * nv], np.int64)
+        for r in range(h - 1):
+            for c in range(w - 1):
+                a0, a1, a2, a3 = u[r, c], u[r, c + 1], u[r + 1, c], u[r + 1, c + 1]
+                b0, b1, b2, b3 = v[r, c], v[r, c + 1], v[r + 1, c], v[r + 1, c + 1]
+                lo_u = min(min(a0, a1), min(a2, a3))
+                hi_u = max(max(a0, a1), max(a2, a3))
+                lo_v = min(min(b0, b1), min(b2, b3))
+                hi_v = max(max(b0, b1), max(b2, b3))
+                if math.isnan(a0 + a1 + a2 + a3 + b0 + b1 + b2 + b3):
+                    continue
+                i0 = max(0, math.floor(lo_u / bucket))
+                i1 = min(nu - 1, math.floor(hi_u / bucket))
+                j0 = max(0, math.floor(lo_v / bucket))
+                j1 = min(nv - 1, math.floor(hi_v / bucket))
+                for j in range(j0, j1 + 1):
+                    for i in range(i0, i1 + 1):
+                        k = j * nu + i
+                        if phase == 0:
+                            counts[k] += 1
+                        else:
+                            cells[fill[k]] = r * w + c
+                            fill[k] += 1
+    return start, cells
+
+
+@njit(nogil=True, cache=True)
+def invert_cell(
+    u: np.ndarray, v: np.ndarray, cell: int, qu: float, qv: float
+) -> tuple[float, float]:  # pragma: no cover - compiled
+    """``(s, t)`` with the cell's bilinear map ``P(s, t) = (1-s)(1-t) P00 + s(1-t) P10 + (1-s)t P01 +
+    st P11 = (qu, qv)`` (Newton from the centre, 8 steps), NaN when the solution is outside
+    ``[0, 1)^2`` (a tolerance of 1e-9 on the low sides) or the cell folds."""
+    w = u.shape[1]
+    r = cell // w
+    c = cell - r * w
+    u00, u10, u01, u11 = (
+        np.float64(u[r, c]),
+        np.float64(u[r, c + 1]),
+        np.float64(u[r + 1, c]),
+        np.float64(u[r + 1, c + 1]),
+    )
+    v00, v10, v01, v11 = (
+        np.float64(v[r, c]),
+        np.float64(v[r, c + 1]),
+        np.float64(v[r + 1, c]),
+        np.float64(v[r + 1, c + 1]),
+    )
+    s = 0.5
+    t = 0.5
+    for _ in range(8):
+        fu = (1 - s) * (1 - t) * u00 + s * (1 - t) * u10 + (1 - s) * t * u01 + s * t * u11 - qu
+        fv = (1 - s) * (1 - t) * v00 + s * (1 - t) * v10 + (1 - s) * t * v01 + s * t * v11 - qv
+        us = (1 - t) * (u10 - u00) + t * (u11 - u01)
+        ut = (1 - s) * (u01 - u00) + s * (u11 - u10)
+        vs = (1 - t) * (v10 - v00) + t * (v11 - v01)
+        vt = (1 - s) * (v01 - v00) + s * (v11 - v10)
+        det = us * vt - ut * vs
+        if det == 0 or math.isnan(det):
+            return np.nan, np.nan
+        s -= (fu * vt - ut * fv) / det
+        t -= (us * fv - fu * vs) / det
+    if s >= -1e-9 and s < 1.0 and t >= -1e-9 and t < 1.0:
+        return s, t
+    return np.nan, np.nan
+
+
+@njit(nogil=True, cache=True)
+def match_2d_tile(
+    u0: np.ndarray,
+    v0: np.ndarray,
+    u1: np.ndarray,
+    v1: np.ndarray,
+    start: np.ndarray,
+    cells: np.ndarray,
+    bucket: float,
+    nu: int,
+    nv: int,
+    x1_out: np.ndarray,
+    y1_out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """For each camera-0 pixel of decoded ``(u0, v0)`` ((n, W0) float32), camera 1's sub-pixel
+    position ``(x1, y1)`` ((n, W0) float32 px) where its decoded maps ``u1``, ``v1`` take the same
+    pair: the one cell of :func:`cell_buckets` whose bilinear map holds it (:func:`invert_cell`),
+    ``x1 = c + s``, ``y1 = r + t``; NaN where no cell or more than one does (not unique)."""
+    n, m = u0.shape
+    w = u1.shape[1]
+    for r in range(n):
+        for c in range(m):
+            x1_out[r, c] = np.nan
+            y1_out[r, c] = np.nan
+            qu = np.float64(u0[r, c])
+            qv = np.float64(v0[r, c])
+            if math.isnan(qu) or math.isnan(qv):
+                continue
+            i = math.floor(qu / bucket)
+            j = math.floor(qv / bucket)
+            if i < 0 or i >= nu or j < 0 or j >= nv:
+                continue
+            k = j * nu + i
+            found = 0
+            fx = np.nan
+            fy = np.nan
+            for e in range(start[k], start[k + 1]):
+                cell = cells[e]
+                s, t = invert_cell(u1, v1, cell, qu, qv)
+                if not math.isnan(s):
+                    found += 1
+                    rr = cell // w
+                    fx = cell - rr * w + s
+                    fy = rr + t
+            if found == 1:
+                x1_out[r, c] = fx
+                y1_out[r, c] = fy
