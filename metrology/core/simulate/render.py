@@ -67,6 +67,9 @@ class RenderedCapture:
     codec : Codec or None
         The codec rendered (None: gcps-v1).
     options : SimulationOptions
+    other_cameras : tuple of (frames, H_c, W_c) arrays
+        For a model of several cameras (:attr:`~metrology.core.geometry.base.GeometryModel.cameras`):
+        the stacks of cameras 1, 2, ...; ``images`` and every truth are camera 0's. Empty otherwise.
     """
 
     images: np.ndarray
@@ -77,6 +80,18 @@ class RenderedCapture:
     edges: npt.NDArray[np.bool_]
     codec: Codec | None
     options: SimulationOptions
+    other_cameras: tuple[np.ndarray, ...] = ()
+
+    @property
+    def camera_stacks(self) -> tuple[np.ndarray, ...]:
+        """Every camera's ``(frames, H_c, W_c)`` stack, camera 0 first (one for a one-camera model)."""
+        return (self.images, *self.other_cameras)
+
+    @property
+    def capture(self) -> np.ndarray | tuple[np.ndarray, ...]:
+        """What :func:`~metrology.core.measure.measure` takes: ``images`` for a one-camera model,
+        else :attr:`camera_stacks`."""
+        return self.images if not self.other_cameras else self.camera_stacks
 
     @property
     def lit(self) -> npt.NDArray[np.bool_]:
@@ -142,6 +157,8 @@ def render_capture(
         On a scene that reaches the camera, or a codec the model's projector does not match.
     """
     opts = options if options is not None else SimulationOptions()
+    if model.cameras > 1:
+        return _render_cameras(model, scene, codec or gcps_v1_codec(), opts, placement or default_placement(model))
     noise_seed = stack_seed(opts, scene)
     if uses_paper_renderer(model, codec, opts, placement, scene):
         rendered = render_stack(model, scene, opts)  # type: ignore[arg-type]
@@ -153,6 +170,22 @@ def render_capture(
     truth = cast_truth(prepared, scene, where)
     sub_rays = truth if opts.supersample == 1 else cast_truth(prepared, scene, where, supersample=opts.supersample)
     return _from_cast(scene, where, truth, sub_rays, codec, opts, noise_seed)
+
+
+def _render_cameras(
+    model: GeometryModel, scene: Scene, codec: Codec, opts: SimulationOptions, placement: ScenePlacement
+) -> RenderedCapture:
+    """A model of several cameras (a stereo rig): :func:`~metrology.core.simulate.stereo.render_stereo_capture`
+    with its default projector (the rig's calibrated one, else a pinhole projector half-way between
+    the cameras aimed at the scene), camera 0's capture carrying the others' stacks."""
+    from metrology.core.geometry.stereo import StereoRig
+    from metrology.core.simulate.stereo import render_stereo_capture
+
+    if not isinstance(model, StereoRig):
+        raise ValueError(f"the virtual rig renders two-camera stereo rigs, not a {model.short_label} rig")
+    rendered = render_stereo_capture(model, scene, codec, opts, placement=placement)
+    first, *others = rendered.cameras
+    return replace(first, other_cameras=tuple(c.images for c in others))
 
 
 def render_flats(
