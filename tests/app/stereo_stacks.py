@@ -30,6 +30,32 @@ RIG = StereoRig(camera0=CAMERA0, camera1=CAMERA1, R=_POSE1.R, T=_POSE1.T, projec
 """The rig file of the tests' stereo rig (its projector's size only)."""
 
 
+def _wide(camera: PinholeCamera) -> PinholeCamera:
+    (fx, _, cx), (_, fy, cy), _row = camera.K
+    return PinholeCamera(160, 120, ((fx * 0.32, 0.0, cx), (0.0, fy * 0.32, cy), (0.0, 0.0, 1.0)), camera.dist)
+
+
+WIDE_RIG = StereoRig(
+    camera0=_wide(CAMERA0), camera1=_wide(CAMERA1), R=_POSE1.R, T=_POSE1.T, projector=StereoProjector(PROJ_W, PROJ_H)
+)
+WIDE_CODEC = {
+    "codec": "gcps-codec/1",
+    "frames": 15,
+    "projector": {"width": PROJ_W, "height": PROJ_H},
+    "white": [13],
+    "black": [14],
+    "axes": {
+        "u": {
+            "phase": [{"frames": list(range(8)), "period": 64.0, "shift": 1, "origin": -0.5, "waveform": "sine"}],
+            "gray": {"frames": list(range(8, 13)), "word": 64.0, "order": "msb_first", "origin": -0.5},
+        }
+    },
+}
+"""A coarser codec for :data:`WIDE_RIG` (periods of 64 projector px, about 10 of its camera pixels)."""
+""":data:`RIG` with focal lengths of 160 px: the virtual rig's scenes (a field 500 mm wide) then sit at
+500 mm, where its cameras converge (the application places scenes where camera 0 sees that field)."""
+
+
 def render(scene: str, **params: float) -> StereoCapture:
     """Noise-free 16-bit frames of :data:`CODEC` of ``make_scene(scene, **params)`` facing camera 0
     at :data:`~tests.stereo_rig.Z0` mm, lit by :data:`~tests.stereo_rig.PROJECTOR`."""
