@@ -179,7 +179,7 @@ def request_simulated_capture(
 def run_simulate_capture(job: Job, run: job_services.JobRun) -> None:
     """Job handler: render the stack, store it (and the truth heights), then publish the capture."""
     from metrology.captures.codecs import capture_codec
-    from metrology.core.codecs.stack import write_capture
+    from metrology.core.codecs.stack import write_cameras_capture
 
     capture = Capture.objects.select_related("rig").get(job=job)
     if capture.file:  # already stored by an earlier attempt that committed
@@ -199,7 +199,7 @@ def run_simulate_capture(job: Job, run: job_services.JobRun) -> None:
     with tempfile.TemporaryDirectory(prefix="gcps-capture-") as tmp:
         with run.phase("write", 70):
             zip_path = Path(tmp) / "stack.zip"
-            write_capture(stack.images, zip_path, request.codec)
+            write_cameras_capture(stack.camera_stacks, zip_path, request.codec)
             with zip_path.open("rb") as handle:
                 checksum, size = _sha256(handle)
                 stack_name = run.save_file(default_storage, _new_stack_name(capture.rig), File(handle))

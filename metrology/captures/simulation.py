@@ -76,14 +76,14 @@ def depth_range_mm(model: Any) -> tuple[float, float]:
 
 
 def estimated_render_bytes(model: Any, options: Any) -> int:
-    """Peak memory of rendering a stack for ``rig`` with ``options``, bytes.
+    """Peak memory of rendering a stack for ``rig`` with ``options``, bytes (every camera's).
 
     ``H W (400 + 170 s^2)`` with ``s`` the sub-rays per pixel along each axis: the traced peak
     is 286 + 152 (s^2 - 1) bytes per pixel noise-free and ~90 more with noise and blur.
     """
     subrays = int(options.supersample) ** 2
-    height, width = model.shape
-    return int(width) * int(height) * (_BYTES_PER_PIXEL + _BYTES_PER_SUBRAY * subrays)
+    peak = sum(int(h) * int(w) for h, w in model.camera_shapes)  # every camera's cast is kept
+    return peak * (_BYTES_PER_PIXEL + _BYTES_PER_SUBRAY * subrays)
 
 
 def check_scene_values(model: Any, name: str, params: Mapping[str, Any]) -> None:

@@ -41,6 +41,13 @@ class AcquiredStack:
     bit_depth: int
     truth_mm: np.ndarray | None = None
     metadata: Mapping[str, Any] = field(default_factory=dict)
+    other_cameras: tuple[np.ndarray, ...] = ()
+    """A rig of several cameras: the stacks of cameras 1, 2, ... (``images`` and ``truth_mm`` are camera 0's)."""
+
+    @property
+    def camera_stacks(self) -> tuple[np.ndarray, ...]:
+        """Every camera's stack, camera 0 first."""
+        return (self.images, *self.other_cameras)
 
 
 @runtime_checkable
@@ -100,7 +107,13 @@ class VirtualRigSource:
         images = np.asarray(rendered.images)
         bit_depth = int(getattr(options, "bit_depth", 16 if images.dtype == np.uint16 else 8))
         truth = getattr(rendered, "truth_mm", None)
-        return AcquiredStack(images=images, bit_depth=bit_depth, truth_mm=truth, metadata={"source": self.name})
+        return AcquiredStack(
+            images=images,
+            bit_depth=bit_depth,
+            truth_mm=truth,
+            metadata={"source": self.name},
+            other_cameras=tuple(np.asarray(other) for other in rendered.other_cameras),
+        )
 
 
 SOURCES: dict[str, CaptureSource] = {VirtualRigSource.name: VirtualRigSource()}

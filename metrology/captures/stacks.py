@@ -26,12 +26,14 @@ MIB = 1024 * 1024
 def stack_limits(rig: Rig, frames: int | None = None) -> dict[str, int]:
     """Bounds passed to the core's readers: pixels per image, and the expanded bytes of a zip of the
     eleven gcps-v1 images (``frames`` None) or of ``frames`` images of a codec plus its codec.json,
-    each of at most 4 channels x 16 bit with generous room for file headers."""
-    pixels = rig.width_px * rig.height_px
-    expanded = 11 * (pixels * 8 + MIB) if frames is None else (frames + 1) * (pixels * 8 + MIB)
+    each of at most 4 channels x 16 bit with generous room for file headers; per camera of the rig
+    (its largest camera's pixels)."""
+    shapes = rig.to_core().camera_shapes
+    pixels = max(h * w for h, w in shapes)
+    per_camera = 11 * (pixels * 8 + MIB) if frames is None else (frames + 1) * (pixels * 8 + MIB)
     return {
         "max_pixels": min(pixels, settings.GCPS_MAX_STACK_PIXELS),
-        "max_bytes": min(expanded, max(settings.GCPS_MAX_UPLOAD_BYTES, 64 * MIB) * 4),
+        "max_bytes": min(len(shapes) * per_camera, max(settings.GCPS_MAX_UPLOAD_BYTES, 64 * MIB) * 4),
     }
 
 
@@ -72,16 +74,21 @@ def upload_limits(rig: Rig) -> dict[str, int]:
     """Bounds of a multi-exposure capture's reader: pixels per image, and expanded bytes of the
     whole zip (all exposures: the largest expansion :func:`stack_limits` allows any stack)."""
     return {
-        "max_pixels": min(rig.width_px * rig.height_px, settings.GCPS_MAX_STACK_PIXELS),
+        "max_pixels": min(max(h * w for h, w in rig.to_core().camera_shapes), settings.GCPS_MAX_STACK_PIXELS),
         "max_bytes": max(settings.GCPS_MAX_UPLOAD_BYTES, 64 * MIB) * 4,
     }
 
 
 def frame_shape(stack: Any) -> tuple[int, int]:
-    """``(H, W)`` of a read stack: a single stack's ``images`` or a multi-exposure one's ``stack``."""
+    """``(H, W)`` of a read stack: a single stack's ``images``, a multi-exposure one's ``stack``, or
+    camera 0's of a capture of several cameras (:class:`~metrology.core.codecs.stack.CameraCodecStacks`)."""
     exposures = getattr(stack, "stack", None)
     if exposures is not None:
         height, width = exposures.frame_shape
+        return int(height), int(width)
+    cameras = getattr(stack, "stacks", None)
+    if cameras is not None:  # a capture of several cameras: camera 0's
+        height, width = cameras[0].shape[1:]
         return int(height), int(width)
     height, width = stack.images.shape[1:]
     return int(height), int(width)
@@ -133,6 +140,8 @@ def read_upload_stack(
     codec = codec_of(value)
     check_codec_for_rig(codec, rig)
     upload.seek(0)
+    if rig.to_core().cameras > 1:
+        return value, read_cameras_upload(upload, rig, codec, expected_bit_depth=expected_bit_depth)
     try:
         multi = is_exposure_capture(upload, max_bytes=upload_limits(rig)["max_bytes"])
     except StackError as exc:
@@ -155,20 +164,65 @@ def read_upload_stack(
             f"capture stack refused: the frames are {width}x{height} px "
             f"but the rig is {rig.width_px}x{rig.height_px} px"
         )
-    if expected_bit_depth is not None and stack.bit_depth != expected_bit_depth:
-        raise BadInput(
-            f"capture stack refused: the images are {stack.bit_depth}-bit "
-            f"but bit_depth {expected_bit_depth} was declared"
-        )
+    _check_bit_depth(stack.bit_depth, expected_bit_depth)
     return value, stack
+
+
+def _check_bit_depth(bit_depth: int, expected: int | None) -> None:
+    if expected is not None and bit_depth != expected:
+        raise BadInput(f"capture stack refused: the images are {bit_depth}-bit but bit_depth {expected} was declared")
+
+
+def read_cameras_upload(upload: Any, rig: Any, codec: Any, *, expected_bit_depth: int | None = None) -> Any:
+    """Validate the capture of a rig of several cameras (docs/stereo.md): ``cam0/``, ``cam1/`` ...
+    each a complete stack of ``codec``'s frames, of its camera's size; a
+    :class:`~metrology.core.codecs.stack.CameraCodecStacks` (``stacks``, one ``(frames, H_c, W_c)``
+    array per camera, camera 0 first).
+
+    Multi-exposure captures of several cameras (``cam0/exp0/`` ...) are refused: the core measures
+    exposures on one-camera rigs only (:func:`metrology.core.measure.camera_stacks`).
+
+    Raises
+    ------
+    BadInput
+        Naming the camera and the file (a camera's folder missing, a frame missing or unreadable, a
+        camera's frames of another size than the rig's camera).
+    """
+    from metrology.core.codecs.stack import is_exposure_capture, read_camera_stacks
+    from metrology.core.io import StackError
+
+    model = rig.to_core()
+    limits = stack_limits(rig, codec.n_frames)
+    try:
+        if is_exposure_capture(upload, max_bytes=upload_limits(rig)["max_bytes"]):
+            raise BadInput(
+                f"capture stack refused: multi-exposure captures (exposures.json) are measured on one-camera "
+                f"rigs only, and this {model.short_label} rig has {model.cameras} cameras"
+            )
+        upload.seek(0)
+        read = read_camera_stacks(upload, codec, model.cameras, **limits)
+    except (StackError, CodecError) as exc:
+        raise BadInput(f"capture stack refused: {exc}") from None
+    for index, (images, (height, width)) in enumerate(zip(read.stacks, model.camera_shapes, strict=True)):
+        got_h, got_w = images.shape[1:]
+        if (got_h, got_w) != (height, width):
+            raise BadInput(
+                f"capture stack refused: camera {index}'s frames (cam{index}/) are {got_w}x{got_h} px "
+                f"but the rig's camera {index} is {width}x{height} px"
+            )
+    _check_bit_depth(read.bit_depth, expected_bit_depth)
+    return read
 
 
 def load_capture_images(capture: Any) -> Any:
     """The ``(frames, H, W)`` images of a stored capture in its codec's order: the eleven named
     patterns of gcps-v1, or a codec's frames; for a multi-exposure capture an
-    :class:`~metrology.core.codecs.stack.ExposureStack` (in a worker). Raises ``ValueError`` when not stored."""
+    :class:`~metrology.core.codecs.stack.ExposureStack`; for a rig of several cameras a tuple of
+    one such stack per camera, camera 0 first (in a worker). Raises ``ValueError`` when not stored."""
     if capture.exposures:
         return load_exposure_stack(capture)
+    if capture.rig.to_core().cameras > 1:
+        return load_camera_stacks(capture).stacks
     if is_gcps_v1(capture_codec(capture)):
         return load_capture_stack(capture).images
     return load_codec_stack(capture).images
@@ -177,16 +231,35 @@ def load_capture_images(capture: Any) -> Any:
 def load_codec_stack(capture: Any) -> Any:
     """The stored stack of a capture of any codec, in codec order (a :class:`CodecStack`); in a worker.
 
+    For a rig of several cameras, camera 0's stack (what the capture's page decodes and checks).
     Raises ``ValueError`` if it is not stored or does not match its codec.
     """
-    from metrology.core.codecs.stack import read_codec_stack
+    from metrology.core.codecs.stack import CodecStack, read_codec_stack
 
+    if capture.rig.to_core().cameras > 1:
+        cameras = load_camera_stacks(capture)
+        return CodecStack(cameras.stacks[0], cameras.codec, (), cameras.codec_source)
     if not capture.file:
         raise ValueError(f"capture {capture.pk} has no stored stack yet (its simulation has not finished)")
     codec = capture_codec(capture)
     limits = stack_limits(capture.rig, codec.n_frames)
     with capture.file.open("rb") as handle:
         return read_codec_stack(handle, codec, max_pixels=limits["max_pixels"], max_bytes=limits["max_bytes"])
+
+
+def load_camera_stacks(capture: Any) -> Any:
+    """The stored capture of a rig of several cameras as a
+    :class:`~metrology.core.codecs.stack.CameraCodecStacks` (``stacks``: camera 0 first), in a
+    worker. Raises ``ValueError`` if it is not stored or does not match its codec."""
+    from metrology.core.codecs.stack import read_camera_stacks
+
+    if not capture.file:
+        raise ValueError(f"capture {capture.pk} has no stored stack yet (its simulation has not finished)")
+    codec = capture_codec(capture)
+    with capture.file.open("rb") as handle:
+        return read_camera_stacks(
+            handle, codec, capture.rig.to_core().cameras, **stack_limits(capture.rig, codec.n_frames)
+        )
 
 
 def load_exposure_stack(capture: Any) -> Any:

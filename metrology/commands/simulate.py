@@ -140,7 +140,7 @@ def cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
     """Render the scene (or stage series) through the rig and write it; the summary."""
     import numpy as np
 
-    from metrology.core.codecs.stack import write_capture
+    from metrology.core.codecs.stack import write_cameras_capture
     from metrology.core.io import series_capture_name, write_series
     from metrology.core.scenes import make_scene
     from metrology.core.simulate import ScenePlacement, render_capture, render_series
@@ -175,7 +175,7 @@ def cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
         captures: dict[float, list[str]] = {}
         for z_in, repeat, rendered in series:
             name = series_capture_name(z_in, repeat)
-            write_capture(rendered.images, out / name, codec)
+            write_cameras_capture(rendered.camera_stacks, out / name, codec)
             captures.setdefault(z_in, []).append(name)
         write_series(captures, out / "series.json")
         return {
@@ -194,7 +194,7 @@ def cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
         raise BadInputError(f"scene {args.scene!r}: {exc}") from exc
     check_output(args.truth, (".npy",), "--truth")
     rendered = render_capture(model, scene, codec, options, placement=placement)
-    write_capture(rendered.images, args.out, codec)
+    write_cameras_capture(rendered.camera_stacks, args.out, codec)
     if args.truth:
         from metrology.core.io import write_height_npy
 

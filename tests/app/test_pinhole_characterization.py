@@ -12,7 +12,7 @@ import pytest
 from django.test import Client
 
 from metrology.characterizations.models import Characterization
-from tests.app.uploads import post_capture
+from tests.app.uploads import characterize, post_capture
 from tests.pinhole_stacks import CODEC, capture_zip
 
 pytestmark = pytest.mark.django_db(transaction=True)
@@ -43,11 +43,7 @@ def test_pinhole_characterization_through_the_api(api, pinhole_rig):
         assert stage.status_code == 201, stage.content
         assert stage.json()["z_in_mm"] == z
         series.append({"z_in_mm": z, "captures": [stage.json()["id"]]})
-    request = {"rig": rig_id, "reference": ref.json()["id"], "series": series, "options": {"n_points": 7, "rows": 3}}
-    response = api.post("/api/characterizations/", request, format="json")
-    assert response.status_code == 202, response.content
-    body = api.get(f"/api/characterizations/{response.json()['id']}/").json()
-    assert body["status"] == "done", body
+    body = characterize(api, rig_id, ref.json()["id"], series, {"n_points": 7, "rows": 3})
     assert body["rig_values"]["model"] == "pinhole"
     results = body["results"]
     assert results["model"] == "pinhole" and results["z_in_mm"] == list(STAGE_MM)

@@ -31,3 +31,14 @@ def upload_heights(api, rig_id, z, role, **fields) -> dict:
     response = api.post(f"/api/rigs/{rig_id}/captures/", {"file": handle, "role": role, **fields}, format="multipart")
     assert response.status_code == 201, response.content
     return response.json()
+
+
+def characterize(api, rig_id: int, reference_id: int, series: list[dict], options: dict) -> dict:
+    """POST a characterization of ``series`` (``[{"z_in_mm", "captures"}]``) and return it once its
+    in-process job is done (the request must be accepted and the job must succeed)."""
+    request = {"rig": rig_id, "reference": reference_id, "series": series, "options": options}
+    response = api.post("/api/characterizations/", request, format="json")
+    assert response.status_code == 202, response.content
+    body = api.get(f"/api/characterizations/{response.json()['id']}/").json()
+    assert body["status"] == "done", body
+    return body

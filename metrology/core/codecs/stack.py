@@ -497,6 +497,11 @@ class CameraCodecStacks:
     codec: Codec
     codec_source: str
 
+    @property
+    def bit_depth(self) -> int:
+        """8 or 16: the cameras' frames share one bit depth (checked when read)."""
+        return 8 if self.stacks[0].dtype == np.uint8 else 16
+
 
 def read_camera_stacks(
     source: str | os.PathLike[str] | IO[bytes],
@@ -754,3 +759,14 @@ def write_capture(images: npt.ArrayLike, dest: str | os.PathLike[str], codec: Co
         return write_stack(images, dest)
     assert codec is not None
     return write_codec_stack(codec, images, dest)
+
+
+def write_cameras_capture(
+    stacks: Sequence[npt.ArrayLike], dest: str | os.PathLike[str], codec: Codec | None = None
+) -> Path:
+    """Write the capture of a rig's cameras (one ``(frames, H_c, W_c)`` stack each, camera 0 first):
+    a single camera's as :func:`write_capture`, several as ``cam0/``, ``cam1/`` ...
+    (:func:`write_camera_stacks`)."""
+    if len(stacks) == 1:
+        return write_capture(stacks[0], dest, codec)
+    return write_camera_stacks(stacks, dest, codec)

@@ -26,8 +26,9 @@ from metrology.core.geometry.base import GeometryModel
 from metrology.core.io.exposures import Exposure
 from metrology.core.scenes import Scene
 from metrology.core.simulate.cast import ScenePlacement, cast_truth
+from metrology.core.simulate.frames import RenderedCapture, _edges
 from metrology.core.simulate.options import SimulationOptions
-from metrology.core.simulate.render import RenderedCapture, _edges, default_placement
+from metrology.core.simulate.render import default_placement
 from metrology.core.simulate.series import stack_seed
 
 FloatArray = npt.NDArray[np.float64]

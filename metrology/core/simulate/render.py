@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 import numpy.typing as npt
@@ -30,10 +30,10 @@ from metrology.core.codecs.model import Codec, gcps_v1_codec, is_gcps_v1
 from metrology.core.codecs.render import render_codec
 from metrology.core.geometry.base import GeometryModel
 from metrology.core.scenes import FIELD_WIDTH_MM, Scene, StageScene
-from metrology.core.simulate.cast import CastTruth, ScenePlacement, cast_truth
+from metrology.core.simulate.cast import ScenePlacement, cast_truth
+from metrology.core.simulate.frames import RenderedCapture, _from_cast
 from metrology.core.simulate.options import SimulationOptions, _is_int, camera_image
 from metrology.core.simulate.paper_rig import (
-    EDGE_JUMP_MM,
     RenderedStack,
     crossed_rig_truth,
     paper_series,
@@ -43,45 +43,6 @@ from metrology.core.simulate.paper_rig import (
 from metrology.core.simulate.series import series_seed, stack_seed
 
 FloatArray = npt.NDArray[np.float64]
-
-
-@dataclass(frozen=True, eq=False)
-class RenderedCapture:
-    """One simulated capture of a codec and its ground truth per camera pixel.
-
-    Attributes
-    ----------
-    images : (frames, H, W) uint8 or uint16 array
-        Camera images in the codec's frame order.
-    truth_mm : (H, W) float32 array
-        Height above the scene's reference plane of the point each pixel centre sees, mm; NaN
-        where the point is not lit by the coded field (shadow, outside the projector).
-    points_mm : (H, W, 3) float64 array
-        That point in the model frame, mm (NaN where not lit).
-    u, v : (H, W) float64 arrays
-        Its true projector coordinates, projector units (NaN where not lit; ``v`` NaN on the
-        paper's rig rendered without a projector size).
-    edges : (H, W) bool array
-        Pixels at a depth discontinuity (a height jump of more than ``EDGE_JUMP_MM`` to a
-        4-neighbour) or at a lit/unlit boundary.
-    codec : Codec or None
-        The codec rendered (None: gcps-v1).
-    options : SimulationOptions
-    """
-
-    images: np.ndarray
-    truth_mm: npt.NDArray[np.float32]
-    points_mm: FloatArray
-    u: FloatArray
-    v: FloatArray
-    edges: npt.NDArray[np.bool_]
-    codec: Codec | None
-    options: SimulationOptions
-
-    @property
-    def lit(self) -> npt.NDArray[np.bool_]:
-        """Pixels whose centre sees a lit point (``isfinite(truth_mm)``)."""
-        return np.isfinite(self.truth_mm)
 
 
 def uses_paper_renderer(
@@ -142,6 +103,8 @@ def render_capture(
         On a scene that reaches the camera, or a codec the model's projector does not match.
     """
     opts = options if options is not None else SimulationOptions()
+    if model.cameras > 1:
+        return _render_cameras(model, scene, codec or gcps_v1_codec(), opts, placement or default_placement(model))
     noise_seed = stack_seed(opts, scene)
     if uses_paper_renderer(model, codec, opts, placement, scene):
         rendered = render_stack(model, scene, opts)  # type: ignore[arg-type]
@@ -153,6 +116,22 @@ def render_capture(
     truth = cast_truth(prepared, scene, where)
     sub_rays = truth if opts.supersample == 1 else cast_truth(prepared, scene, where, supersample=opts.supersample)
     return _from_cast(scene, where, truth, sub_rays, codec, opts, noise_seed)
+
+
+def _render_cameras(
+    model: GeometryModel, scene: Scene, codec: Codec, opts: SimulationOptions, placement: ScenePlacement
+) -> RenderedCapture:
+    """A model of several cameras (a stereo rig): :func:`~metrology.core.simulate.stereo.render_stereo_capture`
+    with its default projector (the rig's calibrated one, else a pinhole projector half-way between
+    the cameras aimed at the scene), camera 0's capture carrying the others' stacks."""
+    from metrology.core.geometry.stereo import StereoRig
+    from metrology.core.simulate.stereo import render_stereo_capture
+
+    if not isinstance(model, StereoRig):
+        raise ValueError(f"the virtual rig renders two-camera stereo rigs, not a {model.short_label} rig")
+    rendered = render_stereo_capture(model, scene, codec, opts, placement=placement)
+    first, *others = rendered.cameras
+    return replace(first, other_cameras=tuple(c.images for c in others))
 
 
 def render_flats(
@@ -257,18 +236,6 @@ def _cast_series(
             yield z, repeat, render_capture(model, factory(z), codec, capture_opts, placement=placement)
 
 
-def _edges(height: FloatArray, lit: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
-    edges = np.zeros(height.shape, dtype=bool)
-    with np.errstate(invalid="ignore"):
-        jump_x = (np.abs(np.diff(height, axis=1)) > EDGE_JUMP_MM) | (lit[:, 1:] != lit[:, :-1])
-        jump_y = (np.abs(np.diff(height, axis=0)) > EDGE_JUMP_MM) | (lit[1:, :] != lit[:-1, :])
-    edges[:, 1:] |= jump_x
-    edges[:, :-1] |= jump_x
-    edges[1:, :] |= jump_y
-    edges[:-1, :] |= jump_y
-    return edges
-
-
 def _from_paper(
     model: GeometryModel,
     rendered: RenderedStack,
@@ -294,40 +261,6 @@ def _from_paper(
         u=u,
         v=v,
         edges=rendered.edges,
-        codec=codec,
-        options=opts,
-    )
-
-
-def _from_cast(
-    scene: Scene,
-    placement: ScenePlacement,
-    truth: CastTruth,
-    sub_rays: CastTruth,
-    codec: Codec,
-    opts: SimulationOptions,
-    seed: int | np.random.SeedSequence,
-) -> RenderedCapture:
-    """The codec's frames from the sub-rays' true coordinates, the truth from the pixel centres'."""
-    X, Y, _ = placement.scene_coordinates(sub_rays.points_mm)
-    hit = np.isfinite(X) & np.isfinite(Y)
-    albedo = np.where(hit, scene.albedo(np.where(hit, X, 0.0), np.where(hit, Y, 0.0)), 1.0)
-    images = render_codec(
-        codec,
-        sub_rays.u if "u" in codec.axes else None,
-        sub_rays.v if "v" in codec.axes else None,
-        opts,
-        albedo=albedo,
-        seed=seed,
-    )
-    lit = truth.lit
-    return RenderedCapture(
-        images=images,
-        truth_mm=np.where(lit, truth.height_mm, np.nan).astype(np.float32),
-        points_mm=np.where(lit[..., None], truth.points_mm, np.nan),
-        u=truth.u,
-        v=truth.v,
-        edges=_edges(truth.height_mm, lit),
         codec=codec,
         options=opts,
     )

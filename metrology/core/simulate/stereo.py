@@ -25,8 +25,8 @@ from metrology.core.geometry.rig_file import Matrix3
 from metrology.core.geometry.stereo import StereoRig
 from metrology.core.scenes import Scene
 from metrology.core.simulate.cast import CastTruth, ScenePlacement, cast_truth
+from metrology.core.simulate.frames import RenderedCapture, _from_cast
 from metrology.core.simulate.options import SimulationOptions
-from metrology.core.simulate.render import RenderedCapture, _from_cast
 from metrology.core.simulate.series import stack_seed
 
 PROJECTOR_FIELD_MARGIN = 1.25
