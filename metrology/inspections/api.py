@@ -198,6 +198,14 @@ class InspectionDetailApi(APIView):
         return Response(InspectionSerializer(selectors.get_inspection(request.user, inspection_id)).data)
 
 
+def _finished(request: Request, inspection_id: int) -> Inspection:
+    """The user's inspection ``inspection_id`` once it has deviations (404 naming its job's status before)."""
+    inspection = selectors.get_inspection(request.user, inspection_id)
+    if not inspection.deviations_npy:
+        raise Http404(f"inspection {inspection.pk} has no deviations: its job is {inspection.job.status}")
+    return inspection
+
+
 class InspectionDeviationsApi(APIView):
     @extend_schema(
         responses={(200, "application/octet-stream"): OpenApiResponse(OpenApiTypes.BINARY)},
@@ -205,9 +213,7 @@ class InspectionDeviationsApi(APIView):
         summary="Signed deviations (H, W) float32 mm, NaN where no point (positive outside the material)",
     )
     def get(self, request: Request, inspection_id: int) -> HttpResponseBase:
-        inspection = selectors.get_inspection(request.user, inspection_id)
-        if not inspection.deviations_npy:
-            raise Http404(f"inspection {inspection.pk} has no deviations: its job is {inspection.job.status}")
+        inspection = _finished(request, inspection_id)
         return storage_file_response(
             request,
             default_storage,
@@ -224,9 +230,7 @@ class InspectionDeviationsPlyApi(APIView):
         summary="The points with a deviation in the nominal's frame (mm): deviation_mm and, when known, sigma_mm",
     )
     def get(self, request: Request, inspection_id: int) -> HttpResponseBase:
-        inspection = selectors.get_inspection(request.user, inspection_id)
-        if not inspection.deviations_npy:
-            raise Http404(f"inspection {inspection.pk} has no deviations: its job is {inspection.job.status}")
+        inspection = _finished(request, inspection_id)
         return storage_file_response(
             request,
             default_storage,
