@@ -704,11 +704,7 @@ class PreparedPinhole(PreparedGeometry):
         return np.where(in_front, u, np.nan), np.where(in_front, v, np.nan)
 
     def reference(self, u: np.ndarray | None, v: np.ndarray | None, threads: int | None = None) -> PinholeReference:
-        from metrology.core.geometry.base import triangulate_frame
-
-        result = triangulate_frame(self, u, v, points=True, heights=False, threads=threads)
-        assert result.points_mm is not None
-        return fit_reference_plane(result.points_mm, self.shape)
+        return reference_plane(self, u, v, threads)
 
     def triangulate_rows(
         self,
@@ -1043,6 +1039,18 @@ def camera_rays_of(
     d = np.stack([xn, yn, np.ones_like(xn)], axis=-1)
     d /= np.linalg.norm(d, axis=-1, keepdims=True)
     return CameraRays(origin_mm=np.zeros(3), direction=d)
+
+
+def reference_plane(
+    prepared: PreparedGeometry, u: np.ndarray | None, v: np.ndarray | None, threads: int | None = None
+) -> PinholeReference:
+    """:func:`fit_reference_plane` of the points ``prepared`` triangulates from a reference capture's
+    decoded maps (the :meth:`PreparedGeometry.reference` of models whose frame is camera 0's)."""
+    from metrology.core.geometry.base import triangulate_frame
+
+    result = triangulate_frame(prepared, u, v, points=True, heights=False, threads=threads)
+    assert result.points_mm is not None
+    return fit_reference_plane(result.points_mm, prepared.shape)
 
 
 def fit_reference_plane(points_mm: np.ndarray, shape: tuple[int, int]) -> PinholeReference:

@@ -70,9 +70,9 @@ from metrology.core.geometry.pinhole import (
     PinholeReference,
     PinholeRig,
     camera_rays_of,
-    fit_reference_plane,
     plane_coordinates_of,
     ray_points,
+    reference_plane,
 )
 from metrology.core.geometry.stereo_kernels import cell_buckets, depth_tile, match_2d_tile, match_tile, sample_tile
 from metrology.core.tiling import run_tiled, thread_scratch
@@ -503,11 +503,7 @@ class PreparedStereo(PreparedGeometry):
 
     def reference(self, u: np.ndarray | None, v: np.ndarray | None, threads: int | None = None) -> PinholeReference:
         """The plane through the points of a reference capture (``u``: its disparity from :meth:`combine`)."""
-        from metrology.core.geometry.base import triangulate_frame
-
-        result = triangulate_frame(self, u, v, points=True, heights=False, threads=threads)
-        assert result.points_mm is not None
-        return fit_reference_plane(result.points_mm, self.shape)
+        return reference_plane(self, u, v, threads)
 
     def triangulate_rows(
         self,
