@@ -6,7 +6,7 @@ The pinhole rig is made as a user would make it from an OpenCV calibration: the 
 where the model has L and alpha), the captures page's simulate forms (a reference, an object, a
 master block where the model can be calibrated, a stage series), a measurement (titled height or
 depth map as its result is), the paper's calibration, a characterization of the stage series, the
-default codec form, a restore from the history, and a calibration file imported into the rig
+default codec form, the inspection plan page, a restore from the history, and a calibration file imported into the rig
 itself. Each job runs in the dashboard's in-process worker and must end ``done``; every page must
 load without a JavaScript error. A button the walk does not know fails the test, so an action
 added to the rig page is added to the walk.
@@ -37,6 +37,7 @@ RIG_PAGE_BUTTONS = {
     "New calibration",
     "New characterization",
     "Sensitivity (Figs. 4-6)",
+    "Inspection plan",
 }
 """Every button of a rig page's action bar that this walk knows how to exercise."""
 PAPER_ONLY = {"New calibration", "Sensitivity (Figs. 4-6)"}
@@ -114,6 +115,12 @@ def walk(page, base: str, rig_url: str, name: str, quantity: str) -> None:
     page.click("p.downloads >> text=Projector-camera calibration")
     page.wait_for_selector("h1")
     assert page.locator("form").count() >= 1  # the board-pose form (walked by test_procam_browser.py)
+
+    page.goto(rig_url)
+    page.click("p.downloads >> text=Inspection plan")
+    page.wait_for_url(f"**/rigs/{rig_id}/inspection-plan/")
+    assert page.locator("h2#h-plan").inner_text() == "No plan yet"  # the plan form (walked by the inspection tests)
+    assert page.locator("form button:has-text('Set the plan')").count() == 1
 
     # the default codec, then a restore from the history
     page.goto(rig_url)

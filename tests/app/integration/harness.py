@@ -174,8 +174,16 @@ class Stack:
         raise AssertionError(f"web server did not start; see {self.logs / (name + '.log')}")
 
     def start_worker(
-        self, name: str, extra_env: dict[str, str] | None = None, pool: tuple[str, ...] = ("-P", "solo")
+        self,
+        name: str,
+        extra_env: dict[str, str] | None = None,
+        pool: tuple[str, ...] = ("-P", "solo"),
+        *,
+        wait: bool = True,
     ) -> subprocess.Popen:
+        """A Celery worker on this stack's queue; with ``wait`` (the default) returns once it is ready,
+        else at once (``wait_ready`` waits later: a worker takes 1.6 s to start on a quiet machine and
+        much longer on a loaded one)."""
         celery = [sys.executable, "-m", "celery", "-A", "workers", "worker", *pool, "-Q", self.queue]
         options = ["-n", f"{name}-{self.queue}@%h", "--without-gossip", "--without-mingle", "--loglevel=INFO"]
         process = self._spawn(
@@ -183,11 +191,17 @@ class Stack:
             [*celery, *options],
             extra_env,
         )
+        if wait:
+            self.wait_ready(name, process)
+        return process
+
+    def wait_ready(self, name: str, process: subprocess.Popen) -> None:
+        """Wait (60 s at most) until the worker ``name`` logs that it is ready."""
         deadline = time.monotonic() + 60
         log = self.logs / f"{name}.log"
         while time.monotonic() < deadline:
             if log.exists() and b"ready." in log.read_bytes():
-                return process
+                return
             if process.poll() is not None:
                 raise AssertionError(f"worker {name} exited: {log.read_text(errors='replace')}")
             time.sleep(0.2)

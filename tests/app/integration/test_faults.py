@@ -6,8 +6,10 @@ tests that restart Redis start their own ``redis-server`` on a free port, never 
 
 from __future__ import annotations
 
+import contextlib
 import re
 import secrets
+import threading
 import time
 from collections.abc import Iterator
 
@@ -135,11 +137,11 @@ def test_a_worker_survives_a_redis_restart_while_it_holds_a_delayed_retry(privat
     assert started.status_code == 202, started.text
     job_id = started.json()["job"]
     (task_id,) = sql(stack, "SELECT celery_task_id FROM jobs_job WHERE id = %s", (job_id,))[0]
-    # As if a worker had claimed the job and died a moment ago: its message (same task id) comes back
-    # while the heartbeat is fresh, so the worker that gets it holds a countdown retry (the BUSY path).
-    # "Fresh" must outlast the worker's start: with the stack's 3 s the faked heartbeat had gone stale
-    # before a worker started on a loaded machine (5+ s: 2 of 2 runs failed, the job simply ran), so
-    # this worker is started with staleness at 10 s (its countdown, and the wait below, follow).
+    # As if another worker held the job: its message (same task id) comes back while the job's
+    # heartbeat is fresh, so the worker that gets it holds a countdown retry (the BUSY path). The
+    # heartbeat is kept fresh by this test until that retry is logged (a worker's start outlasted a
+    # fixed staleness on a loaded machine: the job simply ran), then left to go stale. Staleness
+    # (and with it the retry's countdown) is 10 s, so the retry is still held when Redis restarts.
     stack.env["GCPS_JOB_STALE_SECONDS"] = "10"
     sql(
         stack,
@@ -147,8 +149,9 @@ def test_a_worker_survives_a_redis_restart_while_it_holds_a_delayed_retry(privat
         "started_at = now(), heartbeat_at = now(), phase = 'measure' WHERE id = %s",
         (job_id,),
     )
-    worker = stack.start_worker("worker-1")
-    wait_until(lambda: "retry: Retry in" in worker_log(stack, "worker-1"), 30, "the BUSY retry")
+    with heartbeat_kept_fresh(stack, job_id):
+        worker = stack.start_worker("worker-1")
+        wait_until(lambda: "retry: Retry in" in worker_log(stack, "worker-1"), 60, "the BUSY retry")
     # the retry's message is back in the worker, held until its countdown ends
     wait_until(lambda: worker_log(stack, "worker-1").count(f"run_job[{task_id}] received") >= 2, 30, "the held retry")
     redis_server.restart(down_s=1.0)  # without persistence: the held retry's message is gone from Redis
@@ -160,6 +163,25 @@ def test_a_worker_survives_a_redis_restart_while_it_holds_a_delayed_retry(privat
     again = http.get(url(http, f"/api/jobs/{job_id}/")).json()
     assert (again["attempts"], again["finished_at"]) == (2, body["finished_at"])
     assert worker.poll() is None, worker_log(stack, "worker-1")[-3000:]
+
+
+@contextlib.contextmanager
+def heartbeat_kept_fresh(stack, job_id: int, every_s: float = 0.5) -> Iterator[None]:
+    """Refresh the job's ``heartbeat_at`` every ``every_s`` seconds while the block runs, as a live
+    worker holding the job would."""
+    stop = threading.Event()
+
+    def beat() -> None:
+        while not stop.wait(every_s):
+            sql(stack, "UPDATE jobs_job SET heartbeat_at = now() WHERE id = %s", (job_id,))
+
+    thread = threading.Thread(target=beat, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
 
 
 def stack_stale_s(stack) -> float:
@@ -181,9 +203,11 @@ def test_a_dead_workers_job_is_taken_over_within_30_s_without_beat(private_stack
     )
     job_id = measurement.json()["job"]
     wait_for(http, f"/api/jobs/{job_id}/", lambda b: b["status"] == "running" and b["progress"] >= 20, timeout=60)
-    second = stack.start_worker("worker-2")  # idle, consuming the same queue
+    # the other worker is started, not waited for: on a loaded machine its start outlasted the job
+    second = stack.start_worker("worker-2", wait=False)
     stack.kill(first)
     killed_at = time.monotonic()
+    stack.wait_ready("worker-2", second)
     taken = wait_for(http, f"/api/jobs/{job_id}/", lambda b: b["attempts"] == 2, timeout=40, interval=0.2)
     takeover_s = time.monotonic() - killed_at
     assert takeover_s < 30.0, takeover_s
