@@ -9,7 +9,8 @@ to periods), so one set of thresholds means the same on every model and codec:
   either end of the projector, ``0`` or ``extent * s``, are refused (the projector's blur
   biases the phase at the edges of its image);
 - the mixed-pixel filter (:func:`unreliable_mask`): depth steps, a band around invalid pixels,
-  visibility dips and creases of the camera blur's bias;
+  visibility dips (beyond the visibility's own noise: :func:`visibility_sigma`) and creases of
+  the camera blur's bias;
 - the camera blur's phase bias ``s2/2 laplacian(c)`` is removed (:mod:`metrology.core.blur`).
 
 The decoder's own validity rules (modulation, saturation, gray/phase consistency) come first;
@@ -24,6 +25,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from scipy.special import gammaincinv
 
 from metrology.core.blur import blur_bias_exceeds
 from metrology.core.option_checks import check_number
@@ -43,9 +45,10 @@ class FilterOptions:
     ``field_margin_codes``: codes closer than this to either end of the coded field are refused
     (the projector's blur biases the phase at the edges of the coded field).
     ``min_visibility_ratio``: object pixels whose fringe visibility ``B / 2A`` falls
-    below this fraction of the highest visibility in their 3x3 neighbourhood are
-    mixed pixels (two phases averaged across a depth step lower the visibility,
-    whatever the albedo); 0 disables the test.
+    below this fraction of the highest visibility in their 3x3 neighbourhood, by more than
+    :data:`DIP_NOISE_SIGMAS` standard deviations of their visibility's noise
+    (:func:`visibility_sigma`), are mixed pixels (two phases averaged across a depth step
+    lower the visibility, whatever the albedo); 0 disables the test.
     ``blur_variance_px2``: variance of the camera's blur (defocus and pixel area), px^2,
     whose phase bias ``s2/2 laplacian(l)`` is removed from the object's codes
     (:mod:`metrology.core.blur`); None estimates it from the reference capture, 0 turns
@@ -118,6 +121,109 @@ def refuse_outside_field(codes: np.ndarray, margin_codes: float, extent_codes: f
     codes[outside] = np.nan
 
 
+DIP_NOISE_SIGMAS = 3.0
+"""How far below ``ratio * max3x3(V)`` a pixel's visibility must fall, in standard deviations of
+its own visibility's noise, to be a mixed pixel (:func:`unreliable_mask`). The largest of nine
+noisy neighbours sits about 1.5 sigma above their mean, so a pixel of a smooth surface is a seed
+only ``1.7 + 0.15 V / sigma_V`` sigma below its mean: 3.7 sigma (1 pixel in 10^4) at the dark
+end of an 8-bit bracket (``V / sigma_V ~ 13``, a modulation of 10 grey levels at 1.5 of noise),
+fewer above. A 50/50 mix across a depth step (77 % of the visibility, 8 % of it under 0.85) is
+found wherever ``sigma_V < 0.027 V``: with 8 steps and ``V ~ 0.4``, a modulation of 21 times
+the noise or more (32 grey levels at 1.5)."""
+
+
+NOISE_SAMPLE_PX = 1 << 16
+"""Pixels sampled (evenly) by :func:`noise_by_intensity`."""
+
+NOISE_BINS = 16
+"""Intensity bins (equally populated) of :func:`noise_by_intensity`."""
+
+
+def noise_by_intensity(mean: np.ndarray, noise: np.ndarray, dof: int) -> np.ndarray:
+    """The camera noise per pixel as a function of intensity, from a noisy per-pixel estimate.
+
+    A phase fit of N steps leaves ``dof = N - 3`` degrees of freedom for its residual noise
+    estimate ``s`` (:mod:`metrology.core.codecs.decode`), so ``s^2`` scatters as
+    ``sigma^2 chi2(dof) / dof``: with 4 steps a single pixel's estimate is off by a factor of
+    two half the time. The camera's noise depends on the pixel's intensity (read noise, shot
+    noise), so the pixels with a finite ``s`` (at most :data:`NOISE_SAMPLE_PX`, sampled evenly)
+    are sorted into :data:`NOISE_BINS` equally populated bins of their mean ``A``; each bin's
+    noise is ``sigma_j = sqrt(median(s^2) / m(dof))``, with ``m(dof)`` the median of
+    ``chi2(dof) / dof`` (0.455 for one degree of freedom), which outliers (saturated or mixed
+    pixels' residuals) do not move; ``sigma(A)`` is interpolated linearly between the bins'
+    median ``A`` (constant beyond them).
+
+    Parameters
+    ----------
+    mean : (H, W) float32 array
+        Each pixel's mean intensity ``A``, grey levels (NaN: no estimate).
+    noise : (H, W) float32 array
+        Each pixel's residual noise estimate ``s``, grey levels (NaN: none).
+    dof : int
+        Degrees of freedom of ``s``, >= 1.
+
+    Returns
+    -------
+    (H, W) float32 array
+        ``sigma(A)``, grey levels; NaN where ``A`` is NaN, and everywhere when fewer than
+        ``NOISE_BINS`` pixels carry an estimate.
+    """
+    if dof < 1:
+        raise ValueError(f"dof must be >= 1, got {dof!r}")
+    a_all = mean.reshape(-1)
+    s_all = noise.reshape(-1)
+    stride = max(1, a_all.size // NOISE_SAMPLE_PX)
+    a, s = a_all[::stride], s_all[::stride]
+    known = np.isfinite(a) & np.isfinite(s)
+    out = np.full(mean.shape, np.nan, np.float32)
+    if np.count_nonzero(known) < NOISE_BINS:
+        return out
+    a, s = a[known].astype(np.float64), s[known].astype(np.float64)
+    order = np.argsort(a, kind="stable")
+    a_bins = np.array_split(a[order], NOISE_BINS)
+    s2_bins = np.array_split(s[order] ** 2, NOISE_BINS)
+    centres = np.array([np.median(b) for b in a_bins])
+    chi2_median = 2.0 * float(gammaincinv(dof / 2, 0.5)) / dof  # median of chi2(dof) / dof
+    sigmas = np.sqrt(np.array([np.median(b) for b in s2_bins]) / chi2_median)
+    finite = np.isfinite(mean)
+    out[finite] = np.interp(mean[finite], centres, sigmas)
+    return out
+
+
+def visibility_sigma(
+    visibility: np.ndarray, mean: np.ndarray, noise_grey: np.ndarray, steps_b: int, steps_a: int
+) -> np.ndarray:
+    """Standard deviation of the fringe visibility ``V = B / 2A`` from the camera noise.
+
+    With independent noise ``sigma`` (grey levels) on each frame, the least-squares amplitude
+    ``B`` of an ``N_B``-step sequence has ``sigma_B = sigma sqrt(2 / N_B)`` and the mean ``A`` of an
+    ``N_A``-step one ``sigma_A = sigma / sqrt(N_A)``; to first order
+
+        ``sigma_V^2 = sigma_B^2 / (2A)^2 + V^2 sigma_A^2 / A^2 = (sigma / A)^2 (1 / (2 N_B) + V^2 / N_A)``.
+
+    Parameters
+    ----------
+    visibility, mean, noise_grey : (H, W) float32 arrays
+        ``V``, ``A`` (grey levels) and ``sigma`` (grey levels, e.g. :func:`noise_by_intensity`).
+    steps_b, steps_a : int
+        ``N_B`` and ``N_A``, >= 1.
+
+    Returns
+    -------
+    (H, W) float32 array
+        ``sigma_V``; NaN where an input is NaN or ``A <= 0``.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v2 = np.square(visibility, dtype=np.float32)
+        v2 *= np.float32(1.0 / steps_a)
+        v2 += np.float32(0.5 / steps_b)
+        np.sqrt(v2, out=v2)
+        v2 *= noise_grey
+        v2 /= mean
+    v2[~(mean > 0)] = np.nan
+    return v2
+
+
 _VISIBILITY_NEIGHBOURHOOD = np.ones((3, 3), np.uint8)
 _CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 
@@ -130,6 +236,7 @@ def unreliable_mask(
     min_visibility_ratio: float = 0.0,
     threads: int | None = None,
     *,
+    visibility_noise: np.ndarray | None = None,
     blur_variance_px2: float = 0.0,
     max_blur_bias_codes: float = 0.0,
 ) -> np.ndarray:
@@ -150,12 +257,19 @@ def unreliable_mask(
     visibility : (H, W) float32 array, optional
         Fringe visibility ``B / 2A`` of each pixel.
     min_visibility_ratio : float
-        Pixels whose visibility is below this fraction of the maximum of their 3x3
+        Pixels whose visibility is below this fraction ``r`` of the maximum of their 3x3
         neighbourhood are seeds too: a pixel straddling a depth step averages two
         phases, which lowers its visibility whatever the albedo (a 50/50 mix across
-        a 10 mm step keeps ~77 % of it).
+        a 10 mm step keeps ~77 % of it). With ``visibility_noise`` the dip must exceed the
+        visibility's noise: a seed is a pixel where
+        ``V < r max3x3(V) - k sigma_V``, ``k =`` :data:`DIP_NOISE_SIGMAS`.
     threads : int, optional
         Threads over row tiles.
+    visibility_noise : (H, W) float32 array, optional
+        ``sigma_V``, the standard deviation of each pixel's visibility
+        (:func:`visibility_sigma`); NaN where unknown, which makes no seed. None: no margin
+        (``V < r max3x3(V)``, right for noise-free captures only: on a dark pixel, with a
+        modulation of 10 grey levels at 1.5 of noise, a third of the pixels dip for noise alone).
     blur_variance_px2, max_blur_bias_codes : float
         The camera blur's variance (px^2) and the largest first-order blur bias
         ``|s2/2 laplacian(l)|`` (code units) of a reported pixel: beyond it the pixel lies
@@ -183,6 +297,7 @@ def unreliable_mask(
     ratio = np.float32(min_visibility_ratio)
     # the visibility map when the visibility test runs, else None
     tested_visibility = visibility if min_visibility_ratio > 0 else None
+    margin = np.float32(DIP_NOISE_SIGMAS)
     use_creases = blur_variance_px2 > 0 and max_blur_bias_codes > 0
     creases = np.empty(codes.shape, bool) if use_creases else None
     # rows of context: the code steps' reach, or the 5x5 Laplacian's plus the creases' band
@@ -209,6 +324,11 @@ def unreliable_mask(
                 v, _VISIBILITY_NEIGHBOURHOOD, dst=scratch.get("local_max", c.shape, np.float32)
             )
             local_max *= ratio
+            if visibility_noise is not None:  # r max3x3(V) - k sigma_V
+                noise = np.multiply(
+                    visibility_noise[top:bottom], margin, out=scratch.get("dip_noise", c.shape, np.float32)
+                )
+                local_max -= noise
             s |= np.less(v, local_max, out=scratch.get("dip", c.shape, bool))
         if creases is not None:
             crease = blur_bias_exceeds(

@@ -53,7 +53,13 @@ from metrology.core.codecs.check import (
     sampled_rows,
     with_suggestion,
 )
-from metrology.core.codecs.decode import CodecDecodeOptions, CodecDecoding, decode_codec, validate_codec_stack
+from metrology.core.codecs.decode import (
+    AxisDecoding,
+    CodecDecodeOptions,
+    CodecDecoding,
+    decode_codec,
+    validate_codec_stack,
+)
 from metrology.core.codecs.exposures import NO_EXPOSURE, decode_exposures
 from metrology.core.codecs.model import Codec, gcps_v1_codec, is_gcps_v1
 from metrology.core.codecs.stack import ExposureStack
@@ -66,7 +72,13 @@ from metrology.core.decode import (
     smooth_fringes,
     validate_stack,
 )
-from metrology.core.filters import FilterOptions, refuse_outside_field, unreliable_mask
+from metrology.core.filters import (
+    FilterOptions,
+    noise_by_intensity,
+    refuse_outside_field,
+    unreliable_mask,
+    visibility_sigma,
+)
 from metrology.core.geometry.base import (
     GeometryModel,
     GeometryOptions,
@@ -747,6 +759,7 @@ def _decode_and_filter(
         vis[~np.isfinite(vis)] = np.nan
         if filters.edge_band_px > 0:
             obj = what == "object"
+            tests_dips = obj and filters.min_visibility_ratio > 0
             dropped |= unreliable_mask(
                 c,
                 filters.discontinuity_codes,
@@ -754,6 +767,7 @@ def _decode_and_filter(
                 vis if obj else None,
                 filters.min_visibility_ratio if obj else 0.0,
                 threads,
+                visibility_noise=_codec_visibility_noise(codec, axis, decoded, vis) if tests_dips else None,
                 blur_variance_px2=0.0 if reference is None else reference.blur_variance_px2,
                 max_blur_bias_codes=filters.max_blur_bias_codes if obj else 0.0,
             )
@@ -778,6 +792,23 @@ def _decode_and_filter(
             for c in codes.values():
                 correct_blur_bias(c, reference.blur_variance_px2)
     return coded
+
+
+def _codec_visibility_noise(codec: Codec, axis: str, decoded: AxisDecoding, vis: np.ndarray) -> np.ndarray | None:
+    """``sigma_V`` of an axis's visibility (:func:`~metrology.core.filters.visibility_sigma`) from
+    its decoder's noise, pooled by intensity (:func:`~metrology.core.filters.noise_by_intensity`):
+    ``B`` and the noise come from the finest sequence of the final stage, ``A`` from the first
+    sequence (else the white and black frames). None when no noise was estimated (N = 3)."""
+    phase = codec.axes[axis].phase
+    final = codec.axes[axis].chain()[-1].indices
+    if not phase or not final:
+        return None
+    steps_b = phase[min(final, key=lambda j: phase[j].period)].steps
+    if steps_b < 4:
+        return None
+    steps_a = phase[0].steps
+    sigma = noise_by_intensity(decoded.mean, decoded.noise, steps_b - 3)
+    return visibility_sigma(vis, decoded.mean, sigma, steps_b, steps_a)
 
 
 def _codec_measure(

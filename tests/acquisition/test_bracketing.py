@@ -93,7 +93,7 @@ def test_agent_exposures_option():
 def test_the_virtual_camera_bracket_meets_the_coverage_point_without_being_told_the_scene():
     """The scene of tests/core/test_exposure_measure.py (a pinhole rig, 8-step phase + gray code, a
     plane with a specular patch on a 0.001..0.03 matte ramp, 8-bit, 1.5 grey levels of noise, no
-    camera defocus, visibility-dip ratio 0.5: docs/exposures.md says why), seen by the agent's
+    camera defocus: docs/exposures.md says why; the default filters), seen by the agent's
     virtual camera: the agent only sees its white and black frames."""
     from metrology.core.codecs.stack import ExposureStack
     from metrology.core.io.exposures import Exposure
@@ -101,7 +101,7 @@ def test_the_virtual_camera_bracket_meets_the_coverage_point_without_being_told_
     from metrology.core.scenes import make_scene
     from metrology.core.simulate import SimulationOptions
     from metrology.core.simulate.exposures import render_exposures
-    from tests.core.exposure_scene import CODEC, FILTERS, NOISE_GREY, RIG, Z0
+    from tests.core.exposure_scene import CODEC, NOISE_GREY, RIG, Z0
 
     options = SimulationOptions.realistic_8bit(seed=3, camera_defocus_px=0.0)
     values = {f.name: getattr(options, f.name) for f in dataclasses.fields(options)}
@@ -130,9 +130,9 @@ def test_the_virtual_camera_bracket_meets_the_coverage_point_without_being_told_
     lit = truth.truth.lit
     assert np.nanmax(truth.reflectance) / np.nanmin(truth.reflectance) >= 990
     for images in stack.images:
-        single = measure(RIG, images, CODEC, options=MeasureOptions(filters=FILTERS, allow_inconsistent_codec=True))
+        single = measure(RIG, images, CODEC, options=MeasureOptions(allow_inconsistent_codec=True))
         assert (np.isfinite(single.z_mm) & lit).sum() <= 0.85 * lit.sum()
-    result = measure(RIG, stack, CODEC, options=MeasureOptions(filters=FILTERS, sigma=True))
+    result = measure(RIG, stack, CODEC, options=MeasureOptions(sigma=True))
     points = result.points_mm().astype(np.float64)
     measured = np.isfinite(points[..., 2]) & lit
     assert measured.sum() >= 0.99 * lit.sum()

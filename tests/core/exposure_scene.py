@@ -9,7 +9,6 @@ import math
 from typing import Any
 
 from metrology.core.codecs import codec_from_dict
-from metrology.core.filters import FilterOptions
 from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, look_at_rig
 from metrology.core.io.exposures import Exposure
 
@@ -47,7 +46,3 @@ def _codec() -> Any:
 
 
 CODEC = _codec()
-# the visibility-dip test of the mixed-pixel filter at its default (0.85 of the 3x3 maximum) drops
-# about a third of the pixels whose modulation is near 10 grey levels (the dark end of every
-# exposure of an 8-bit bracket over 1000:1) for noise alone, in single exposures as in fused ones
-FILTERS = FilterOptions(min_visibility_ratio=0.5)

@@ -19,7 +19,7 @@ from metrology.core.measure import MeasureOptions, measure
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import ScenePlacement, SimulationOptions
 from metrology.core.simulate.exposures import HdrReflectance, render_exposures
-from tests.core.exposure_scene import CODEC, EXPOSURES, FILTERS, NOISE_GREY, RIG, Z0
+from tests.core.exposure_scene import CODEC, EXPOSURES, NOISE_GREY, RIG, Z0
 
 
 def test_hdr_reflectance_spans_1000_to_1() -> None:
@@ -47,14 +47,14 @@ def test_each_single_exposure_measures_at_most_85_percent(realistic: Any) -> Non
     lit = realistic.truth.lit
     assert np.nanmax(realistic.reflectance) / np.nanmin(realistic.reflectance) >= 990  # the lit part spans ~1000:1
     for images in realistic.stack.images:
-        options = MeasureOptions(filters=FILTERS, allow_inconsistent_codec=True)
+        options = MeasureOptions(allow_inconsistent_codec=True)
         measured = np.isfinite(measure(RIG, images, CODEC, options=options).z_mm) & lit
         assert measured.sum() <= 0.85 * lit.sum()
 
 
 def test_three_fused_exposures_measure_99_percent_at_the_predicted_noise(realistic: Any) -> None:
     lit = realistic.truth.lit
-    result = measure(RIG, realistic.stack, CODEC, options=MeasureOptions(filters=FILTERS, sigma=True))
+    result = measure(RIG, realistic.stack, CODEC, options=MeasureOptions(sigma=True))
     points = _points(result)
     measured = np.isfinite(points[..., 2]) & lit
     assert measured.sum() >= 0.99 * lit.sum()
