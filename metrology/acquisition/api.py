@@ -150,9 +150,9 @@ class AcquisitionDetailApi(APIView):
     def get(self, request: Request, acquisition_id: int) -> Response:
         acquisition = _get_acquisition(request.user, acquisition_id)
         services.expire_agents(acquisition.rig)
-        acquisition.refresh_from_db()
-        acquisition.job.refresh_from_db()
-        return Response(acquisition_data(acquisition))
+        # read again in one statement: the acquisition's capture and its job's status are committed
+        # together, and two reads could see the job done and the capture not yet set
+        return Response(acquisition_data(_get_acquisition(request.user, acquisition_id)))
 
 
 # ----------------------------------------------------------------------------- agent protocol

@@ -25,6 +25,14 @@ def wait_for_job(page, next_url_glob: str) -> None:
     page.wait_for_url(next_url_glob)
 
 
+def wait_until_shown_done(page) -> None:
+    """On a result page that was rendered while its job ran: wait until the page shows the job done
+    after its own reload (the progress bar's script reloads the page 0.4 s after the badge turns
+    done; a navigation started in between is aborted by that reload)."""
+    page.locator("h1 .badge.done").wait_for()
+    page.locator(".js-job").wait_for(state="detached")
+
+
 def simulate(page, rig_url: str, scene: str, z: str = "", noise: str = "none", seed: str = "1") -> None:
     """Simulate one capture of ``scene`` on the rig's captures page and wait until it is stored."""
     page.goto(f"{rig_url}captures/")

@@ -21,7 +21,7 @@ import re
 import pytest
 
 from tests.browser import CHROMIUM, shot
-from tests.dashboard.browser_forms import create_rig, log_in, simulate, simulate_stage_series
+from tests.dashboard.browser_forms import create_rig, log_in, simulate, simulate_stage_series, wait_until_shown_done
 from tests.pinhole_stacks import PROJ_H, PROJ_W, write_filestorage_yaml
 
 pytestmark = [
@@ -91,7 +91,7 @@ def walk(page, base: str, rig_url: str, name: str, quantity: str) -> None:
         page.fill("#id_master_height_mm", "40")
         page.click("text=Run calibration")
         page.wait_for_url(re.compile(r".*/calibrations/\d+/$"))
-        page.wait_for_selector("h1 .badge.done")
+        wait_until_shown_done(page)
         shot(page, f"rig-walk-{name}-04-calibration")
         page.goto(rig_url)
         page.click("p.downloads >> text=Sensitivity (Figs. 4-6)")
@@ -107,7 +107,7 @@ def walk(page, base: str, rig_url: str, name: str, quantity: str) -> None:
     page.fill("#id_n_points", "5")
     page.click("text=Run characterization")
     page.wait_for_url(re.compile(r".*/characterizations/\d+/$"))
-    page.wait_for_selector("h1 .badge.done")
+    wait_until_shown_done(page)
     page.wait_for_selector("#fig-in_out .main-svg")  # its figures drawn
     shot(page, f"rig-walk-{name}-05-characterization")
 
