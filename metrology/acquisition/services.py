@@ -319,12 +319,13 @@ def store_acquired_capture(
 ) -> Capture:
     """Validate the uploaded stack and store it as the acquisition's capture; the job is then done.
 
-    The stack is read and checked in full by the capture reader (names, shapes, the rig's size) and
-    must show the codec's fringes (:func:`~metrology.core.codecs.decode.fringe_refusal`: modulation
-    present, coordinates following the code; else the acquisition fails with the reason and
-    :class:`BadInput` names it) before anything is written; the file is saved, then the rows are
-    written in one transaction that re-checks that this agent still runs the acquisition (else the
-    file is deleted again).
+    The stack is read and checked in full by the capture reader (names, shapes, the rig's size; a
+    rig of several cameras: ``cam0/``, ``cam1/`` ..., each camera's stack) and must show the codec's
+    fringes, in every camera's stack (:func:`~metrology.core.codecs.decode.fringe_refusal`:
+    modulation present, coordinates following the code; else the acquisition fails with the
+    reason, naming the camera, and :class:`BadInput` names it) before anything is written; the
+    file is saved, then the rows are written in one transaction that re-checks that this agent
+    still runs the acquisition (else the file is deleted again).
     """
     job = _running_for(agent, acquisition)
     rig = acquisition.rig
@@ -334,8 +335,14 @@ def store_acquired_capture(
     codec, stack = read_upload_stack(upload, rig, codec=stored_codec_value(acquisition))
     exposures = stored_exposures(stack)
     # a bracketed acquisition (docs/exposures.md) must show the fringes in its most exposed stack
-    shown = stack.stack.images[-1] if exposures is not None else stack.images
-    refusal = fringe_refusal(shown, rig_codecs.codec_of(codec))
+    cameras = getattr(stack, "stacks", None)  # a capture of several cameras: each camera's stack
+    shown = [stack.stack.images[-1] if exposures is not None else stack.images] if cameras is None else cameras
+    refusal = None
+    for index, images in enumerate(shown):
+        refusal = fringe_refusal(images, rig_codecs.codec_of(codec))
+        if refusal is not None:
+            refusal = f"camera {index} (cam{index}/): {refusal}" if len(shown) > 1 else refusal
+            break
     if refusal is not None:
         # nothing is stored; the job fails with the reason (the page shows it), the agent gets it as a 400
         reason = f"the uploaded stack was refused: {refusal}"

@@ -158,13 +158,19 @@ def acquisition_page(request: AuthenticatedHttpRequest, acquisition_id: int) -> 
 
 @login_required
 def acquisition_thumbnail(request: AuthenticatedHttpRequest, acquisition_id: int, frame: int) -> HttpResponse:
-    """Frame ``frame`` of the stored capture, 160 px wide (area-averaged), PNG."""
+    """Frame ``frame`` of the stored capture (of camera ``?camera=K`` on a rig of several cameras,
+    default 0), 160 px wide (area-averaged), PNG."""
     acquisition = _own_acquisition(request, acquisition_id)
     if acquisition.capture is None:
         raise Http404("This acquisition has no stored capture.")
     from metrology.captures.stacks import load_capture_images
 
     images = load_capture_images(acquisition.capture)
+    if isinstance(images, tuple):  # one stack per camera, camera 0 first
+        camera = request.GET.get("camera", "0")
+        if not camera.isdigit() or int(camera) >= len(images):
+            raise Http404(f"No camera {camera}.")
+        images = images[int(camera)]
     if not 0 <= frame < images.shape[0]:
         raise Http404(f"No frame {frame}.")
     image = images[frame]

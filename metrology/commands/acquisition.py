@@ -8,7 +8,7 @@ import json
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # imported where used, so that gcps starts without them
-    from metrology.acquisition.agent.cameras import Camera
+    from metrology.acquisition.agent.cameras import RigCameras
     from metrology.acquisition.agent.sequencer import SequenceOptions
 
 
@@ -30,35 +30,37 @@ def json_option(value: str | None, option: str) -> dict[str, Any] | None:
     return data
 
 
-def faults(value: str | None) -> tuple[int, int]:
-    """``latency=N,saturate=M``: every N-th / M-th grab faulty (testing aid)."""
+def faults(value: str | None) -> tuple[int, int, int]:
+    """``latency=N,saturate=M[,camera=K]``: every N-th / M-th grab faulty on camera K (default 0; testing aid)."""
     if not value:
-        return 0, 0
-    counts = {"latency": 0, "saturate": 0}
+        return 0, 0, 0
+    counts = {"latency": 0, "saturate": 0, "camera": 0}
     for item in value.split(","):
         key, _, number = item.partition("=")
         if key.strip() not in counts or not number.strip().isdigit():
-            raise bad(f"--inject-faults expects latency=N,saturate=M, got {value!r}")
+            raise bad(f"--inject-faults expects latency=N,saturate=M[,camera=K], got {value!r}")
         counts[key.strip()] = int(number)
-    return counts["latency"], counts["saturate"]
+    return counts["latency"], counts["saturate"], counts["camera"]
 
 
-def open_camera(args: argparse.Namespace) -> Camera:
-    """The camera ``--camera`` names (wrapped to inject faults when asked)."""
-    from metrology.acquisition.agent.cameras import FaultyCamera, make_camera
+def open_camera(args: argparse.Namespace) -> RigCameras:
+    """The rig's cameras ``--camera`` (and ``--camera1``) name, wrapped to inject faults when asked."""
+    from metrology.acquisition.agent.cameras import FaultyCamera, make_cameras
 
+    specs = [args.camera] + ([args.camera1] if args.camera1 else [])
     try:
-        camera = make_camera(
-            args.camera,
+        cameras = make_cameras(
+            specs,
+            trigger_line=args.trigger_line,
             scene=json_option(args.scene, "--scene"),
             options=json_option(args.sim_options, "--sim-options"),
         )
     except ValueError as exc:
         raise bad(str(exc)) from None
-    latency, saturate = faults(args.inject_faults)
+    latency, saturate, camera = faults(args.inject_faults)
     if latency or saturate:
-        camera = FaultyCamera(camera, latency_every=latency, saturate_every=saturate)
-    return camera
+        cameras = FaultyCamera(cameras, latency_every=latency, saturate_every=saturate, camera=camera)
+    return cameras
 
 
 def sequence_options(args: argparse.Namespace) -> SequenceOptions:
@@ -76,12 +78,22 @@ def add_camera_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--camera",
         required=True,
-        help="opencv:DEVICE (index, /dev/videoN or a video file), genicam:PRODUCER.cti, virtual",
+        help="opencv:DEVICE (index, /dev/videoN or a video file), genicam:PRODUCER.cti, virtual "
+        "(camera 0 of a stereo rig; virtual renders every camera of the rig)",
+    )
+    p.add_argument("--camera1", help="camera 1 of a stereo rig (two-camera rigs), a backend as --camera")
+    p.add_argument(
+        "--trigger-line",
+        metavar="LINE",
+        help="stereo rigs of two GenICam cameras: expose both on one trigger, camera 0 on software, camera 1 on "
+        "its input LINE (e.g. Line0) wired to camera 0's exposure output (default: grab one after the other)",
     )
     p.add_argument("--settle", type=float, default=0.1, help="wait after each confirmed pattern, s (default 0.1)")
     p.add_argument("--max-grabs", type=int, default=4, help="grabs per pattern before giving up (default 4)")
     p.add_argument("--scene", help='virtual camera: the object scene, JSON, e.g. \'{"name": "sphere"}\'')
     p.add_argument("--sim-options", help="virtual camera: simulation options, JSON, e.g. '{\"bit_depth\": 8}'")
     p.add_argument(
-        "--inject-faults", metavar="latency=N,saturate=M", help="testing: every N-th grab late, M-th saturated"
+        "--inject-faults",
+        metavar="latency=N,saturate=M[,camera=K]",
+        help="testing: every N-th grab late, M-th saturated, on camera K (default 0)",
     )

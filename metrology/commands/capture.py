@@ -33,7 +33,7 @@ def register(subparsers: Any) -> None:
 
 def cmd_capture(args: argparse.Namespace) -> dict[str, Any]:
     from metrology.acquisition.agent.cameras import AcquisitionTarget, CameraError
-    from metrology.acquisition.agent.client import stack_zip
+    from metrology.acquisition.agent.client import cameras_zip
     from metrology.acquisition.agent.patterns import resolve_codec
     from metrology.acquisition.agent.sequencer import AcquisitionError, InstantProjector, run_sequence
     from metrology.core.io.atomic import atomic_path, write_text_atomic
@@ -74,7 +74,7 @@ def cmd_capture(args: argparse.Namespace) -> dict[str, Any]:
         if args.projector == "page":
             projector.close()
     reports = result.frame_reports()
-    data = stack_zip(result.images, codec)
+    data = cameras_zip(result.camera_stacks, codec)
     with atomic_path(out) as tmp:
         tmp.write_bytes(data)
     checks_path = out.with_suffix(".checks.json")

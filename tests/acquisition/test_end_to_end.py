@@ -8,6 +8,7 @@ that sequencing, confirmation and frame choice are right, and it then measures e
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -58,15 +59,16 @@ def server(live_server, transactional_db, alice_token, rig):
     }
 
 
-@pytest.fixture
-def projector(server, monkeypatch):
-    """The rig's projector page open in headless Chromium (1024x768 CSS pixels, devicePixelRatio 1)."""
+@contextlib.contextmanager
+def projector_page(server, monkeypatch, width: int = 1024, height: int = 768):
+    """The projector page of ``server["rig"]`` open in headless Chromium (``width`` x ``height`` CSS
+    pixels, devicePixelRatio 1)."""
     # Playwright's sync API runs an event loop in this thread; the test's own ORM reads are still synchronous
     monkeypatch.setenv("DJANGO_ALLOW_ASYNC_UNSAFE", "true")
     sync_api = pytest.importorskip("playwright.sync_api")
     with sync_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        context = browser.new_context(viewport={"width": 1024, "height": 768}, device_scale_factor=1)
+        context = browser.new_context(viewport={"width": width, "height": height}, device_scale_factor=1)
         context.add_cookies([{"name": "sessionid", "value": server["session"], "url": server["url"]}])
         page = context.new_page()
         errors: list[str] = []
@@ -76,6 +78,13 @@ def projector(server, monkeypatch):
         assert errors == [], errors
         context.close()
         browser.close()
+
+
+@pytest.fixture
+def projector(server, monkeypatch):
+    """The rig's projector page open in headless Chromium (1024x768 CSS pixels, devicePixelRatio 1)."""
+    with projector_page(server, monkeypatch) as page:
+        yield page
 
 
 def start_agent(server, *extra: str) -> subprocess.Popen:
@@ -128,6 +137,22 @@ def wait_registered(server, timeout_s: float = 30.0) -> dict:
             return body
         time.sleep(0.1)
     raise AssertionError("the agent did not register")
+
+
+def run_one_acquisition(server, agent_args: tuple[str, ...], **body) -> dict:
+    """Start an agent with ``agent_args`` for one acquisition, request it with ``body``, and return
+    it once finished (the agent must exit cleanly)."""
+    agent = start_agent(server, "--settle", "0.03", "--max-acquisitions", "1", *agent_args)
+    try:
+        wait_registered(server)
+        queued = acquire(server, **body)
+        done = wait_finished(server, queued["id"])
+        _, err = agent.communicate(timeout=60)
+    finally:
+        if agent.poll() is None:
+            agent.kill()
+    assert agent.returncode == 0, err
+    return done
 
 
 def error_statistics(z_mm: np.ndarray, truth_mm: np.ndarray) -> dict[str, float]:
@@ -203,16 +228,7 @@ def test_agent_acquires_a_phase_gray_codec_stored_with_its_codec_decoding_to_the
     from tests.acquisition.helpers import phase_gray_codec
 
     document = phase_gray_codec(("u", "v"))
-    agent = start_agent(server, "--settle", "0.03", "--max-acquisitions", "1", "--inject-faults", "latency=9")
-    try:
-        wait_registered(server)
-        queued = acquire(server, role="object", exposure=10, codec=document)
-        done = wait_finished(server, queued["id"])
-        _, err = agent.communicate(timeout=60)
-    finally:
-        if agent.poll() is None:
-            agent.kill()
-    assert agent.returncode == 0, err
+    done = run_one_acquisition(server, ("--inject-faults", "latency=9"), role="object", exposure=10, codec=document)
     assert done["status"] == "done", done["error"]
     canonical = codec_from_dict(document).to_dict()
     capture = Capture.objects.get(pk=done["capture"])
@@ -235,6 +251,32 @@ def test_agent_acquires_a_phase_gray_codec_stored_with_its_codec_decoding_to_the
         assert np.median(error) < 0.15, (index, float(np.median(error)))
         assert np.mean(error < 1.0) > 0.99, (index, float(np.mean(error < 1.0)))
         print(f"axis {'uv'[index]}: {both.sum()} px decoded, median |error| {np.median(error):.4f} px")
+
+
+def test_agent_drives_both_cameras_of_a_stereo_rig_and_stores_a_stereo_capture(server, monkeypatch):
+    """A stereo rig: the agent (virtual camera, its two-camera mode; every fifth grab of camera 1 late)
+    grabs both cameras under each pattern the page confirms; the stored capture holds both cameras'
+    stacks exactly as the direct simulation of the stereo rig."""
+    from metrology.captures.stacks import load_capture_images
+    from metrology.core.codecs import codec_from_dict
+    from metrology.core.simulate import render_capture
+    from metrology.rigs.services import create_rig
+    from tests.app.stereo_stacks import WIDE_CODEC, WIDE_RIG
+
+    stereo = create_rig(owner=server["rig"].owner, data={**WIDE_RIG.to_dict(), "name": "stereo", "codec": WIDE_CODEC})
+    server = {**server, "rig": stereo}
+    with projector_page(server, monkeypatch, WIDE_CODEC["projector"]["width"], WIDE_CODEC["projector"]["height"]):
+        done = run_one_acquisition(server, ("--inject-faults", "latency=5,camera=1"), role="object", exposure=10)
+    assert done["status"] == "done", done["error"]
+    capture = Capture.objects.get(pk=done["capture"])
+    assert capture.parameters["camera"].startswith("virtual+faults") and capture.parameters["regrabs"] > 0
+    frames = Acquisition.objects.get(pk=done["id"]).frames
+    assert {f["camera"] for f in frames} == {0, 1} and {f["camera"] for f in frames if f["regrabs"]} == {1}
+    scene = make_scene("sphere", rig=WIDE_RIG)
+    options = SimulationOptions(**SIM_OPTIONS)
+    simulated = render_capture(WIDE_RIG, scene, codec_from_dict(WIDE_CODEC), options).camera_stacks
+    for got, want in zip(load_capture_images(capture), simulated, strict=True):
+        np.testing.assert_array_equal(got, want)
 
 
 def test_agent_killed_mid_capture_fails_the_job_and_stores_nothing(server, projector, settings, media_root):

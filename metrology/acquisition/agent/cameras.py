@@ -7,15 +7,24 @@ A backend is named on the command line by a spec:
 - ``genicam:PRODUCER.cti[:INDEX]`` (GenICam/GigE Vision/USB3 Vision through the optional
   ``harvesters`` package);
 - ``virtual`` (the virtual rig, :mod:`metrology.core.simulate`, through the rig's own model: it
-  renders what the camera would see under the pattern the projector REPORTS it shows).
+  renders what the camera would see under the pattern the projector REPORTS it shows; on a stereo
+  rig, what each of its two cameras would see).
 
 Frames are single-channel ``(H, W)`` uint8 or uint16 arrays (colour cameras are converted to grey).
+
+The sequencer drives a rig's cameras together (:class:`RigCameras`): each grab returns one frame
+per camera of the rig, camera 0 first. A one-camera backend is :class:`SingleCamera`; two backends
+of a stereo rig are a :class:`CameraPair` (exposed by one hardware trigger where both backends have
+one, :class:`TriggeredCamera`, else grabbed one after the other once the pattern is shown and the
+settle time is over); the virtual camera renders every camera of the rig itself. The rig decides:
+the cameras must be as many as the rig file's (:func:`rig_camera_count`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -68,6 +77,164 @@ class Camera(Protocol):
 
     def close(self) -> None:
         """Release the device."""
+
+
+@runtime_checkable
+class RigCameras(Protocol):
+    """The cameras of a rig, grabbed together under each projected pattern, camera 0 first."""
+
+    name: str
+
+    @property
+    def camera_count(self) -> int:
+        """How many frames each grab returns (the rig's cameras, once prepared)."""
+
+    def open(self) -> None:
+        """Open every device (raises :class:`CameraError`)."""
+
+    def prepare(self, target: AcquisitionTarget) -> None:
+        """Called before each acquisition; raises :class:`CameraError` when the rig has another number of cameras."""
+
+    def set_exposure(self, exposure_ms: float) -> None:
+        """Set every camera's exposure time, ms."""
+
+    def grab(self, shown: Shown) -> tuple[np.ndarray, ...]:
+        """One frame per camera under ``shown``, camera 0 first, each ``(H_c, W_c)`` uint8/uint16."""
+
+    def expected(self, shown: Shown) -> tuple[np.ndarray | None, ...]:
+        """Per camera, the noise-free image expected under ``shown`` when known, else None."""
+
+    def close(self) -> None:
+        """Release every device."""
+
+
+@runtime_checkable
+class TriggeredCamera(Protocol):
+    """A backend whose frames can be exposed on a trigger (GenICam's ``TriggerMode``)."""
+
+    name: str
+
+    def use_trigger(self, source: str) -> None:
+        """Expose one frame per trigger from ``source``: ``"Software"`` (:meth:`fire`) or an input line
+        (``"Line0"``)."""
+
+    def fire(self) -> None:
+        """Issue a software trigger."""
+
+    def fetch(self) -> np.ndarray:
+        """The frame of the last trigger (waits for it), ``(H, W)`` uint8/uint16."""
+
+
+def rig_camera_count(geometry: dict[str, Any]) -> int:
+    """How many cameras the rig file ``geometry`` has (its model's ``cameras``); 1 without a rig file."""
+    if not geometry:
+        return 1
+    from metrology.core.geometry import model_from_dict
+
+    try:
+        return int(model_from_dict(geometry).cameras)
+    except ValueError as exc:
+        raise CameraError(f"the rig's file cannot be read: {exc}") from None
+
+
+def _check_camera_count(name: str, count: int, target: AcquisitionTarget) -> None:
+    wanted = rig_camera_count(target.rig_geometry)
+    if wanted != count:
+        raise CameraError(
+            f"the rig has {wanted} camera(s) and the agent drives {count} ({name}): give one camera per camera "
+            "of the rig, camera 0 first (--camera SPEC --camera1 SPEC), or --camera virtual"
+        )
+
+
+class SingleCamera:
+    """One backend as the cameras of a one-camera rig."""
+
+    camera_count = 1
+
+    def __init__(self, camera: Camera) -> None:
+        self.camera = camera
+        self.name = camera.name
+
+    def open(self) -> None:
+        self.camera.open()
+
+    def prepare(self, target: AcquisitionTarget) -> None:
+        _check_camera_count(self.name, 1, target)
+        self.camera.prepare(target)
+
+    def set_exposure(self, exposure_ms: float) -> None:
+        self.camera.set_exposure(exposure_ms)
+
+    def grab(self, shown: Shown) -> tuple[np.ndarray, ...]:
+        return (self.camera.grab(shown),)
+
+    def expected(self, shown: Shown) -> tuple[np.ndarray | None, ...]:
+        return (self.camera.expected(shown),)
+
+    def close(self) -> None:
+        self.camera.close()
+
+
+class CameraPair:
+    """Two backends as a stereo rig's cameras, camera 0 first.
+
+    Without ``trigger_line`` a grab takes camera 0's frame, then camera 1's, both after the
+    projector confirmed the pattern and the settle time passed (the pattern stays on while both are
+    grabbed). With ``trigger_line`` both backends must have a hardware trigger
+    (:class:`TriggeredCamera`): camera 0 exposes on a software trigger, camera 1 on its input line
+    ``trigger_line``, wired to camera 0's exposure output (set up in the vendor's tool), so one
+    :meth:`~TriggeredCamera.fire` exposes both at once; a grab fires and fetches both frames.
+    """
+
+    camera_count = 2
+
+    def __init__(self, first: Camera, second: Camera, trigger_line: str | None = None) -> None:
+        self.cameras = (first, second)
+        self.trigger_line = trigger_line
+        triggered = f" (triggered, camera 1 on {trigger_line})" if trigger_line else ""
+        self.name = f"{first.name},{second.name}{triggered}"
+
+    def open(self) -> None:
+        for camera in self.cameras:
+            camera.open()
+        if self.trigger_line is None:
+            return
+        first, second = self.cameras
+        for camera in self.cameras:
+            if not isinstance(camera, TriggeredCamera):
+                raise CameraError(f"camera {camera.name} has no hardware trigger (GenICam cameras have one)")
+        assert isinstance(first, TriggeredCamera) and isinstance(second, TriggeredCamera)
+        first.use_trigger("Software")
+        second.use_trigger(self.trigger_line)
+
+    def prepare(self, target: AcquisitionTarget) -> None:
+        _check_camera_count(self.name, 2, target)
+        for camera in self.cameras:
+            camera.prepare(target)
+
+    def set_exposure(self, exposure_ms: float) -> None:
+        for camera in self.cameras:
+            camera.set_exposure(exposure_ms)
+
+    def grab(self, shown: Shown) -> tuple[np.ndarray, ...]:
+        first, second = self.cameras
+        if self.trigger_line is None:
+            return first.grab(shown), second.grab(shown)
+        assert isinstance(first, TriggeredCamera) and isinstance(second, TriggeredCamera)
+        first.fire()
+        return first.fetch(), second.fetch()
+
+    def expected(self, shown: Shown) -> tuple[np.ndarray | None, ...]:
+        return tuple(camera.expected(shown) for camera in self.cameras)
+
+    def close(self) -> None:
+        for camera in self.cameras:
+            camera.close()
+
+
+def as_rig_cameras(camera: Camera | RigCameras) -> RigCameras:
+    """``camera`` itself when it drives a rig's cameras, else a :class:`SingleCamera` of it."""
+    return camera if isinstance(camera, RigCameras) else SingleCamera(camera)
 
 
 def _grey(frame: np.ndarray) -> np.ndarray:
@@ -145,6 +312,7 @@ class GenICamCamera:
         self.producer = producer
         self.index = index
         self.name = f"genicam:{producer}:{index}"
+        self.trigger: str | None = None
         self._harvester: Any = None
         self._acquirer: Any = None
 
@@ -175,7 +343,33 @@ class GenICamCamera:
         except Exception as exc:
             raise CameraError(f"camera {self.name} refused exposure {exposure_ms} ms: {exc}") from None
 
+    def use_trigger(self, source: str) -> None:
+        """``TriggerSelector = FrameStart``, ``TriggerMode = On``, ``TriggerSource = source`` (the
+        acquisition restarted around the change)."""
+        nodes = self._acquirer.remote_device.node_map
+        self._acquirer.stop()
+        try:
+            nodes.TriggerSelector.value = "FrameStart"
+            nodes.TriggerMode.value = "On"
+            nodes.TriggerSource.value = source
+        except Exception as exc:
+            raise CameraError(f"camera {self.name} refused trigger source {source}: {exc}") from None
+        finally:
+            self._acquirer.start()
+        self.trigger = source
+
+    def fire(self) -> None:
+        try:
+            self._acquirer.remote_device.node_map.TriggerSoftware.execute()
+        except Exception as exc:
+            raise CameraError(f"camera {self.name} refused a software trigger: {exc}") from None
+
     def grab(self, shown: Shown) -> np.ndarray:
+        if self.trigger == "Software":
+            self.fire()
+        return self.fetch()
+
+    def fetch(self) -> np.ndarray:
         with self._acquirer.fetch(timeout=10) as buffer:
             component = buffer.payload.components[0]
             frame = np.array(component.data, copy=True).reshape(component.height, component.width, -1)
@@ -194,7 +388,7 @@ class GenICamCamera:
 
 
 class VirtualCamera:
-    """The virtual rig as a camera: the frame the camera would see under the pattern the projector reports.
+    """The virtual rig as the rig's cameras: the frames they would see under the pattern the projector reports.
 
     It renders through the rig's own geometric model (any model of the core's registry: the rig
     file the server sends, ``AcquisitionTarget.rig_geometry``) with the virtual rig's one entry,
@@ -215,6 +409,13 @@ class VirtualCamera:
     time then has its own camera noise (the seed follows the exposure). ``"distance_mm"`` places
     the scene facing the camera at that distance (default the model's own placement,
     :func:`~metrology.core.simulate.render.default_placement`).
+
+    Two-camera mode: on a rig of two cameras (a stereo rig) each grab returns both cameras'
+    frames, camera 0 first: the codec's frames are :func:`~metrology.core.simulate.render_capture`'s
+    (:func:`~metrology.core.simulate.stereo.render_stereo_capture`: the same frames as ``gcps
+    simulate`` of the stereo rig), the white and black frames
+    :func:`~metrology.core.simulate.render_camera_flats`'s under the same projector, each camera with
+    its own noise. HDR scenes are rendered on one-camera rigs only.
     """
 
     def __init__(
@@ -244,6 +445,11 @@ class VirtualCamera:
         self._cache: dict[str, Any] = {}
         self._reflectance: Any = None
 
+    @property
+    def camera_count(self) -> int:
+        """The prepared rig's cameras (1 before :meth:`prepare`)."""
+        return 1 if self.target is None else int(self._rig().cameras)
+
     def open(self) -> None:
         return None
 
@@ -252,9 +458,13 @@ class VirtualCamera:
             raise CameraError("the virtual camera needs the rig's geometry")
         self.target = target
         try:
-            self._rig()
+            cameras = self._rig().cameras
         except ValueError as exc:
+            self.target = None
             raise CameraError(f"the virtual camera cannot render this rig: {exc}") from None
+        if cameras > 1 and self.hdr is not None:
+            self.target = None
+            raise CameraError(f"the virtual camera renders HDR scenes on one-camera rigs only; this rig has {cameras}")
         self._cache = {}
         self._reflectance = None
 
@@ -328,12 +538,12 @@ class VirtualCamera:
             self._reflectance = scene_reflectance(rig, scene, size, placement=self.placement, **changes)
         return self._reflectance
 
-    def _frames(self, rig, scene, codec, opts) -> np.ndarray:
-        """The codec's frames at this exposure (the HDR map's single-exposure render, else the plain one)."""
+    def _frames(self, rig, scene, codec, opts) -> tuple[np.ndarray, ...]:
+        """Each camera's codec frames at this exposure (the HDR map's single-exposure render, else the plain one)."""
         from metrology.core.simulate import render_capture
 
         if self.hdr is None:
-            return render_capture(rig, scene, codec, opts, placement=self.placement).images
+            return render_capture(rig, scene, codec, opts, placement=self.placement).camera_stacks
         from metrology.core.io.exposures import Exposure
         from metrology.core.simulate.exposures import render_exposures
 
@@ -341,26 +551,26 @@ class VirtualCamera:
         rendered = render_exposures(
             rig, scene, [Exposure("grab", 1000.0)], codec, opts, reflectance=rho, placement=self.placement
         )
-        return rendered.stack.images[0]
+        return (rendered.stack.images[0],)
 
     def _render(self, part: str) -> Any:
-        """``"flats"`` (white and black frames) or ``"stack"`` (the codec's frames and their
-        noise-free ``"clean"`` twins), rendered once per exposure."""
+        """``"flats"`` (per camera, the white and black frames) or ``"stack"`` (per camera, the
+        codec's frames, and their noise-free ``"clean"`` twins), rendered once per exposure."""
         if part in self._cache:
             return self._cache[part]
         if self.target is None:
             raise CameraError("the virtual camera was not prepared for an acquisition")
-        from metrology.core.simulate import render_flats
+        from metrology.core.simulate import render_camera_flats, render_flats
 
         rig, scene, opts, codec = self._rig(), self._scene(), self._hdr_options(), self._codec()
         try:
             if part == "flats":
                 if self.hdr is None:
-                    white, black = render_flats(rig, scene, opts, placement=self.placement)
+                    pairs = render_camera_flats(rig, scene, opts, placement=self.placement)
                 else:  # on the path of render_exposures, bounded by the codec's projector
                     rho, size = self._hdr_reflectance(rig, scene, codec), self._projector_size(codec)
-                    white, black = render_flats(
-                        rig, scene, opts, placement=self.placement, reflectance=rho, projector_size=size
+                    pairs = (
+                        render_flats(rig, scene, opts, placement=self.placement, reflectance=rho, projector_size=size),
                     )
             else:
                 self._cache["stack"] = self._frames(rig, scene, codec, opts)
@@ -368,60 +578,78 @@ class VirtualCamera:
                 return self._cache[part]
         except ValueError as exc:
             raise CameraError(f"the virtual camera cannot render this acquisition: {exc}") from None
-        rng = np.random.default_rng([opts.seed, 4242])
-        flats = {}
-        for key, grey in (("white", white), ("black", black)):
-            noisy = grey + opts.noise_grey * rng.standard_normal(grey.shape) if opts.noise_grey > 0 else grey
-            flats[key] = np.clip(np.rint(noisy), 0, opts.full_scale).astype(opts.dtype)
+        flats = []
+        for index, pair in enumerate(pairs):  # camera 0's noise as before the two-camera mode
+            rng = np.random.default_rng([opts.seed, 4242, index] if index else [opts.seed, 4242])
+            frames = {}
+            for key, grey in zip(("white", "black"), pair, strict=True):
+                noisy = grey + opts.noise_grey * rng.standard_normal(grey.shape) if opts.noise_grey > 0 else grey
+                frames[key] = np.clip(np.rint(noisy), 0, opts.full_scale).astype(opts.dtype)
+            flats.append(frames)
         self._cache["flats"] = flats
         return flats
 
-    def grab(self, shown: Shown) -> np.ndarray:
+    def grab(self, shown: Shown) -> tuple[np.ndarray, ...]:
         if shown.kind == "frame":
-            return self._render("stack")[shown.frame].copy()
-        flats = self._render("flats")
-        return (flats["white"] if shown.kind == "white" else flats["black"]).copy()
+            return tuple(stack[shown.frame].copy() for stack in self._render("stack"))
+        key = "white" if shown.kind == "white" else "black"
+        return tuple(frames[key].copy() for frames in self._render("flats"))
 
-    def expected(self, shown: Shown) -> np.ndarray | None:
+    def expected(self, shown: Shown) -> tuple[np.ndarray | None, ...]:
         if shown.kind != "frame":
-            return None
+            return (None,) * self.camera_count
         self._render("stack")
-        return self._cache["clean"][shown.frame]
+        return tuple(stack[shown.frame] for stack in self._cache["clean"])
 
     def close(self) -> None:
         self._cache = {}
 
 
 class FaultyCamera:
-    """Wraps a camera and injects the faults a real rig shows, on a fixed schedule (for tests and demos).
+    """Wraps a rig's cameras and injects the faults a real rig shows into camera ``camera``'s frames,
+    on a fixed schedule (for tests and demos).
 
-    Every ``latency_every``-th grab returns the frame of the previously shown pattern (a camera
-    whose frame was exposed before the projector switched); every ``saturate_every``-th grab
-    returns a saturated frame (the frame times 4, clipped). 0 disables a fault.
+    Every ``latency_every``-th grab returns, for that camera, the frame of the previously shown
+    pattern (a camera whose frame was exposed before the projector switched); every
+    ``saturate_every``-th grab a saturated frame (the frame times 4, clipped). 0 disables a fault.
+    The other cameras' frames are left as grabbed.
     """
 
-    def __init__(self, inner: Camera, latency_every: int = 0, saturate_every: int = 0) -> None:
-        self.inner = inner
+    def __init__(
+        self, inner: Camera | RigCameras, latency_every: int = 0, saturate_every: int = 0, camera: int = 0
+    ) -> None:
+        if camera < 0:
+            raise ValueError(f"the faulty camera's index must be 0 or more, got {camera}")
+        self.inner = as_rig_cameras(inner)
         self.latency_every = latency_every
         self.saturate_every = saturate_every
-        self.name = f"{inner.name}+faults(latency_every={latency_every},saturate_every={saturate_every})"
+        self.camera = camera
+        on = f",camera={camera}" if camera else ""
+        self.name = f"{self.inner.name}+faults(latency_every={latency_every},saturate_every={saturate_every}{on})"
         self.grabs = 0
         self.injected: list[tuple[int, str]] = []
         self._last: tuple[tuple[str, int], np.ndarray] | None = None  # (pattern, frame) of the last pattern
         self._previous: np.ndarray | None = None  # the frame of the pattern shown before it
+
+    @property
+    def camera_count(self) -> int:
+        return self.inner.camera_count
 
     def open(self) -> None:
         self.inner.open()
 
     def prepare(self, target: AcquisitionTarget) -> None:
         self.inner.prepare(target)
+        if self.camera >= self.inner.camera_count:
+            raise CameraError(f"faults are injected on camera {self.camera}; the rig has {self.inner.camera_count}")
         self._last = self._previous = None
 
     def set_exposure(self, exposure_ms: float) -> None:
         self.inner.set_exposure(exposure_ms)
 
-    def grab(self, shown: Shown) -> np.ndarray:
-        frame = self.inner.grab(shown)
+    def grab(self, shown: Shown) -> tuple[np.ndarray, ...]:
+        frames = list(self.inner.grab(shown))
+        frame = frames[self.camera]
         pattern = (shown.kind, shown.frame)
         if self._last is None or self._last[0] != pattern:
             self._previous = self._last[1] if self._last is not None else None
@@ -429,21 +657,23 @@ class FaultyCamera:
         self.grabs += 1
         if self.latency_every and self.grabs % self.latency_every == 0 and self._previous is not None:
             self.injected.append((self.grabs, "latency"))
-            return self._previous.copy()
-        if self.saturate_every and self.grabs % self.saturate_every == 0:
+            frames[self.camera] = self._previous.copy()
+        elif self.saturate_every and self.grabs % self.saturate_every == 0:
             self.injected.append((self.grabs, "saturated"))
             top = np.iinfo(frame.dtype).max
-            return np.minimum(frame.astype(np.uint32) * 4, top).astype(frame.dtype)
-        return frame
+            frames[self.camera] = np.minimum(frame.astype(np.uint32) * 4, top).astype(frame.dtype)
+        return tuple(frames)
 
-    def expected(self, shown: Shown) -> np.ndarray | None:
+    def expected(self, shown: Shown) -> tuple[np.ndarray | None, ...]:
         return self.inner.expected(shown)
 
     def close(self) -> None:
         self.inner.close()
 
 
-def make_camera(spec: str, *, scene: dict[str, Any] | None = None, options: dict[str, Any] | None = None) -> Camera:
+def make_camera(
+    spec: str, *, scene: dict[str, Any] | None = None, options: dict[str, Any] | None = None
+) -> Camera | RigCameras:
     """The camera backend named by ``spec`` (module docstring). Raises ``ValueError`` naming a bad spec."""
     kind, _, rest = spec.partition(":")
     if kind == "opencv":
@@ -467,3 +697,26 @@ def make_camera(spec: str, *, scene: dict[str, Any] | None = None, options: dict
         except (TypeError, ValueError) as exc:
             raise ValueError(f"virtual camera options: {exc}") from None
     raise ValueError(f"camera {spec!r} is not known; use opencv:DEVICE, genicam:PRODUCER.cti or virtual")
+
+
+def make_cameras(
+    specs: Sequence[str],
+    *,
+    trigger_line: str | None = None,
+    scene: dict[str, Any] | None = None,
+    options: dict[str, Any] | None = None,
+) -> RigCameras:
+    """The rig's cameras named by ``specs``, camera 0 first: one spec (a one-camera rig's backend, or
+    ``virtual``, which renders every camera of the rig), or two backends of a stereo rig
+    (:class:`CameraPair`, hardware-triggered with ``trigger_line``). Raises ``ValueError`` naming a bad spec."""
+    if len(specs) not in (1, 2):
+        raise ValueError(f"give one camera per camera of the rig (1 or 2), got {len(specs)}")
+    cameras = [make_camera(spec, scene=scene, options=options) for spec in specs]
+    if len(cameras) == 1:
+        if trigger_line is not None:
+            raise ValueError("a trigger line synchronises the two cameras of a stereo rig: give --camera1 too")
+        return as_rig_cameras(cameras[0])
+    first, second = cameras
+    if isinstance(first, RigCameras) or isinstance(second, RigCameras):
+        raise ValueError("the virtual camera renders every camera of the rig: give --camera virtual alone")
+    return CameraPair(first, second, trigger_line)

@@ -19,7 +19,8 @@ pattern ``P_k`` (uint8 projector image) after ``I_{k-1}`` under ``P_{k-1}``:
 - **correlation** (when the camera knows the expected image, e.g. the virtual rig): Pearson's
   correlation of ``I_k`` with the expected image over lit pixels, refused below
   ``min_correlation``; tested only where the expected image's spread over the lit pixels reaches
-  ``min_contrast`` of their median contrast ``C`` (else there is no pattern to recognise).
+  ``min_contrast`` of their median contrast ``C`` (else there is no pattern to recognise); a flat
+  frame there (no spread at all: a late, noise-free black frame) has correlation 0.
 
 The white frame itself is refused when fewer than ``min_lit_fraction`` of the pixels are lit
 (the camera saw no projector light: it returned the black frame, or the projector is off), or
@@ -58,12 +59,14 @@ class CheckOptions:
 
 @dataclass
 class FrameCheck:
-    """The checks of one grabbed frame. ``ok`` is False with ``reasons`` when it is refused."""
+    """The checks of one grabbed frame of camera ``camera`` (0 on a one-camera rig). ``ok`` is False
+    with ``reasons`` when it is refused."""
 
     name: str
     kind: str
     frame: int
     grab: int
+    camera: int = 0
     ok: bool = True
     reasons: list[str] = field(default_factory=list)
     saturated_fraction: float = 0.0
@@ -102,10 +105,11 @@ def projector_change(previous: np.ndarray | None, current: np.ndarray | None, le
 
 
 class FrameChecker:
-    """Checks frames against the white and black frames of the same acquisition."""
+    """Checks frames of camera ``camera`` against its white and black frames of the same acquisition."""
 
-    def __init__(self, options: CheckOptions | None = None) -> None:
+    def __init__(self, options: CheckOptions | None = None, camera: int = 0) -> None:
         self.options = options or CheckOptions()
+        self.camera = camera
         self.white: np.ndarray | None = None
         self.black: np.ndarray | None = None
         self.lit: np.ndarray | None = None
@@ -121,7 +125,7 @@ class FrameChecker:
 
     def check_black(self, image: np.ndarray, name: str = "black", grab: int = 1) -> FrameCheck:
         """The black frame: only exposure figures (nothing to compare with yet)."""
-        check = FrameCheck(name=name, kind="black", frame=-1, grab=grab)
+        check = FrameCheck(name=name, kind="black", frame=-1, grab=grab, camera=self.camera)
         self._basic(check, image)
         return check
 
@@ -141,7 +145,7 @@ class FrameChecker:
         """
         if white.shape != black.shape or white.dtype != black.dtype:
             raise ValueError(f"white and black frames differ: {white.shape} {white.dtype}, {black.shape} {black.dtype}")
-        check = FrameCheck(name=name, kind="white", frame=-1, grab=grab)
+        check = FrameCheck(name=name, kind="white", frame=-1, grab=grab, camera=self.camera)
         full = self._basic(check, white)
         contrast = white.astype(np.float32) - black.astype(np.float32)
         lit = contrast >= self.options.min_contrast * full
@@ -199,7 +203,7 @@ class FrameChecker:
         if image.shape != self.white.shape or image.dtype != self.white.dtype:
             raise ValueError(f"frame {name}: {image.shape} {image.dtype}, the white frame {self.white.shape}")
         opts = self.options
-        check = FrameCheck(name=name, kind="frame", frame=frame, grab=grab)
+        check = FrameCheck(name=name, kind="frame", frame=frame, grab=grab, camera=self.camera)
         self._basic(check, image)
         lit = self.lit
         values = image.astype(np.float32)[lit]
@@ -232,8 +236,8 @@ class FrameChecker:
             # level of their median contrast) can be recognised: a frame whose lit pixels all lie in
             # one gray cell (a small bright patch at a short exposure) correlates with noise only
             varies = expected.std() >= opts.min_contrast * float(np.median(contrast))
-            if varies and got.std() > 0:
-                check.correlation = float(np.corrcoef(expected, got)[0, 1])
+            if varies:  # a flat frame where the pattern varies (the black frame, late) correlates 0
+                check.correlation = float(np.corrcoef(expected, got)[0, 1]) if got.std() > 0 else 0.0
                 if check.correlation < opts.min_correlation:
                     check.refuse(
                         f"correlation with the expected image {check.correlation:.3f} < {opts.min_correlation}"

@@ -11,6 +11,7 @@ import socket
 import threading
 import time
 import zipfile
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -19,7 +20,7 @@ import numpy as np
 import requests
 
 from metrology.acquisition.agent.bracketing import BracketOptions
-from metrology.acquisition.agent.cameras import AcquisitionTarget, Camera, CameraError, Shown
+from metrology.acquisition.agent.cameras import AcquisitionTarget, CameraError, RigCameras, Shown
 from metrology.acquisition.agent.patterns import ProjectedCodec, resolve_codec
 from metrology.acquisition.agent.sequencer import (
     AcquisitionError,
@@ -147,19 +148,40 @@ def stack_zip(images: np.ndarray, codec: ProjectedCodec) -> bytes:
     return exposures_zip([images], None, codec)
 
 
+def cameras_zip(stacks: Sequence[np.ndarray], codec: ProjectedCodec) -> bytes:
+    """One stack per camera of the rig, camera 0 first: a one-camera rig's as :func:`stack_zip`;
+    a stereo rig's capture (docs/stereo.md) with each camera's frames in ``cam0/``, ``cam1/`` ...
+    and ``codec.json`` at the top for a codec other than gcps-v1."""
+    from metrology.core.io.cameras import camera_folders
+
+    if len(stacks) == 1:
+        return stack_zip(stacks[0], codec)
+    return _frames_zip([f"{folder}/" for folder in camera_folders(len(stacks))], stacks, codec)
+
+
 def exposures_zip(stacks: list[np.ndarray], exposures_ms: list[float] | None, codec: ProjectedCodec) -> bytes:
     """One stack's frames as a zip of PNGs named as the codec says (``exposures_ms`` None), or a
     multi-exposure capture (docs/exposures.md): ``exposures.json`` and the frames of exposure ``i``
     in ``exp<i>/``; ``codec.json`` at the top for a codec other than gcps-v1."""
     from metrology.core.io.exposures import Exposure, exposures_json
 
+    if exposures_ms is None:
+        return _frames_zip([""], stacks, codec)
+    entries = [Exposure(f"exp{i}", float(e) * 1000.0) for i, e in enumerate(exposures_ms)]
+    folders = [f"exp{i}/" for i in range(len(stacks))]
+    return _frames_zip(folders, stacks, codec, {"exposures.json": exposures_json(entries)})
+
+
+def _frames_zip(
+    folders: Sequence[str], stacks: Sequence[np.ndarray], codec: ProjectedCodec, extra: dict[str, str] | None = None
+) -> bytes:
+    """A zip of ``extra``'s files, then each stack's frames as PNGs named as the codec says in its
+    folder (``""``: the top), then ``codec.json`` for a codec other than gcps-v1."""
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
-        if exposures_ms is not None:
-            entries = [Exposure(f"exp{i}", float(e) * 1000.0) for i, e in enumerate(exposures_ms)]
-            archive.writestr("exposures.json", exposures_json(entries))
-        for index, images in enumerate(stacks):
-            folder = "" if exposures_ms is None else f"exp{index}/"
+        for name, text in (extra or {}).items():
+            archive.writestr(name, text)
+        for folder, images in zip(folders, stacks, strict=True):
             for name, image in zip(codec.frame_names, images, strict=True):
                 ok, data = cv2.imencode(".png", image)
                 if not ok:
@@ -204,7 +226,7 @@ class _StopRequestedError(Exception):
     pass
 
 
-def run_agent(client: AgentClient, camera: Camera, options: AgentOptions, version: str) -> dict[str, Any]:
+def run_agent(client: AgentClient, camera: RigCameras, options: AgentOptions, version: str) -> dict[str, Any]:
     """Register, then take and run acquisitions until stopped (SIGTERM/SIGINT) or ``max_acquisitions`` are done.
 
     Returns a summary. Raises :class:`ProtocolError` when registration is refused.
@@ -242,7 +264,7 @@ def run_agent(client: AgentClient, camera: Camera, options: AgentOptions, versio
     return {"agent": registered.get("id"), "camera": camera.name, "acquisitions": done, "stopped": stop_reason}
 
 
-def _run_one(client: AgentClient, camera: Camera, acquisition: dict[str, Any], options: AgentOptions) -> dict:
+def _run_one(client: AgentClient, camera: RigCameras, acquisition: dict[str, Any], options: AgentOptions) -> dict:
     acq_id = int(acquisition["id"])
     frames: list[dict[str, Any]] = []
 
@@ -286,7 +308,7 @@ def _run_one(client: AgentClient, camera: Camera, acquisition: dict[str, Any], o
                 progress=progress,
             )
             reports = result.frame_reports()
-            data, exposure_ms = stack_zip(result.images, codec), result.exposure_ms
+            data, exposure_ms = cameras_zip(result.camera_stacks, codec), result.exposure_ms
         client.progress(acq_id, 97, "uploading", reports)
         body = client.upload(acq_id, data, camera=camera.name, exposure_ms=exposure_ms, frames=reports)
         return {"acquisition": acq_id, "status": "done", "capture": body.get("capture")}

@@ -5,6 +5,12 @@ white one is also the auto-exposure's frame), then the codec's frames in order. 
 fails its checks (:mod:`.checks`) is grabbed again after another settle time, up to
 ``max_grabs`` grabs; a frame still failing then stops the acquisition with
 :class:`AcquisitionError` naming the frame and the reasons, and nothing is kept.
+
+A rig of several cameras (a stereo rig, :class:`~.cameras.RigCameras`) gives one frame per camera
+at each grab, each checked as a one-camera rig's against that camera's own white and black
+frames; a pattern is accepted when every camera's frame passes, else all are grabbed again (a
+failing frame on any camera fails the pattern), so the accepted frames of a pattern come from
+one grab. One exposure serves every camera (the auto-exposure pools their white frames).
 """
 
 from __future__ import annotations
@@ -17,7 +23,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from metrology.acquisition.agent.bracketing import Bracket, BracketOptions, bracket_exposures
-from metrology.acquisition.agent.cameras import Camera, Shown
+from metrology.acquisition.agent.cameras import Camera, RigCameras, Shown, as_rig_cameras
 from metrology.acquisition.agent.checks import (
     CheckOptions,
     FrameCheck,
@@ -54,7 +60,9 @@ class SequenceOptions:
 
 @dataclass
 class AcquiredFrames:
-    """The result: ``images`` ``(n_frames, H, W)`` in codec order, the flats, every check made (incl. refused grabs)."""
+    """The result: ``images`` ``(n_frames, H, W)`` in codec order and the flats (camera 0's), every
+    check made (incl. refused grabs); on a rig of several cameras ``other_cameras``, the
+    ``(n_frames, H_c, W_c)`` stacks of cameras 1, 2, ..."""
 
     images: np.ndarray
     white: np.ndarray
@@ -62,19 +70,26 @@ class AcquiredFrames:
     exposure_ms: float | None
     checks: list[FrameCheck] = field(default_factory=list)
     exposure_steps: list[dict[str, float]] = field(default_factory=list)
+    other_cameras: tuple[np.ndarray, ...] = ()
+
+    @property
+    def camera_stacks(self) -> tuple[np.ndarray, ...]:
+        """Every camera's stack, camera 0 first."""
+        return (self.images, *self.other_cameras)
 
     def frame_reports(self) -> list[dict[str, Any]]:
-        """Per pattern: its accepted check with ``regrabs`` (refused grabs before it) and their reasons."""
-        accepted: dict[str, dict[str, Any]] = {}
-        refused: dict[str, list[str]] = {}
+        """Per pattern and camera: its accepted check with ``regrabs`` (refused grabs before it) and their reasons."""
+        accepted: dict[tuple[int, str], dict[str, Any]] = {}
+        refused: dict[tuple[int, str], list[str]] = {}
         for check in self.checks:
+            key = (check.camera, check.name)
             if not check.ok:
-                refused.setdefault(check.name, []).extend(check.reasons)
+                refused.setdefault(key, []).extend(check.reasons)
                 continue
             data = check.to_dict()
-            data["regrabs"] = len([c for c in self.checks if c.name == check.name and not c.ok])
-            data["refused_reasons"] = refused.get(check.name, [])
-            accepted[check.name] = data  # the last accepted grab of each pattern is the one kept
+            data["regrabs"] = len([c for c in self.checks if (c.camera, c.name) == key and not c.ok])
+            data["refused_reasons"] = refused.get(key, [])
+            accepted[key] = data  # the last accepted grab of each pattern is the one kept
         return list(accepted.values())
 
 
@@ -83,7 +98,7 @@ Progress = Callable[[int, str, list[dict[str, Any]]], None]
 
 def run_sequence(
     projector: Projector,
-    camera: Camera,
+    camera: Camera | RigCameras,
     codec: ProjectedCodec,
     *,
     exposure_ms: float | None,
@@ -92,9 +107,14 @@ def run_sequence(
     progress: Progress | None = None,
     start_exposure_ms: float = 10.0,
 ) -> AcquiredFrames:
-    """Acquire one stack of ``codec`` (module docstring). ``exposure_ms`` None: auto-exposure from the white frame."""
+    """Acquire one stack of ``codec`` per camera (module docstring). ``exposure_ms`` None:
+    auto-exposure from the white frame (every camera's pixels pooled). ``checker``: camera 0's
+    (the others' take its options)."""
     opts = options or SequenceOptions()
-    checker = checker or FrameChecker()
+    cameras = as_rig_cameras(camera)
+    count = cameras.camera_count
+    first = checker or FrameChecker()
+    checkers = [first, *(FrameChecker(first.options, camera=index) for index in range(1, count))]
     projected = codec.images()
     checks: list[FrameCheck] = []
     total = codec.n_frames + 2
@@ -103,85 +123,113 @@ def run_sequence(
         if progress is not None:
             progress(int(5 + 90 * done / total), phase[:64], [c.to_dict() for c in checks])
 
-    def grab(kind: str, frame: int = -1) -> tuple[Shown, np.ndarray]:
-        return _grab(projector, camera, opts, kind, frame)
+    def grab(kind: str, frame: int = -1) -> tuple[Shown, tuple[np.ndarray, ...]]:
+        return _grab(projector, cameras, opts, kind, frame)
 
     steps: list[dict[str, float]] = []
     if exposure_ms is None:
 
         def grab_white(e: float) -> np.ndarray:
-            camera.set_exposure(e)
-            return grab("white")[1]
+            cameras.set_exposure(e)
+            return np.concatenate([image.ravel() for image in grab("white")[1]])
 
         try:
             exposure_ms, steps = auto_exposure(grab_white, start_exposure_ms)
         except ValueError as exc:
             raise AcquisitionError(str(exc)) from None
-    camera.set_exposure(exposure_ms)
+    cameras.set_exposure(exposure_ms)
 
-    black = white = None
+    blacks = whites = None
     for attempt in range(1, opts.max_grabs + 1):
-        black = grab("black")[1]
-        black_check = checker.check_black(black, grab=attempt)
-        checks.append(black_check)
-        white = grab("white")[1]
-        black_after = grab("black")[1]
-        white_check = checker.check_white(white, black, grab=attempt, black_after=black_after)
-        checks.append(white_check)
-        if white_check.ok:
+        blacks = grab("black")[1]
+        checks.extend(c.check_black(black, grab=attempt) for c, black in zip(checkers, blacks, strict=True))
+        whites = grab("white")[1]
+        blacks_after = grab("black")[1]
+        white_checks = [
+            c.check_white(white, black, grab=attempt, black_after=after)
+            for c, white, black, after in zip(checkers, whites, blacks, blacks_after, strict=True)
+        ]
+        checks.extend(white_checks)
+        if all(check.ok for check in white_checks):
             break
         report(1, f"white refused ({attempt}/{opts.max_grabs})")
     else:
-        raise AcquisitionError(f"white/black frames refused {opts.max_grabs} times: {'; '.join(white_check.reasons)}")
-    assert black is not None and white is not None
+        raise AcquisitionError(f"white/black frames refused {opts.max_grabs} times: {_refusals(white_checks, count)}")
+    assert blacks is not None and whites is not None
     report(2, "black and white frames")
 
-    images: list[np.ndarray] = []
-    previous_image, previous_pattern = white, np.full_like(projected[0], 255)
-    previous_expected: np.ndarray = white  # the first frame follows the white one
+    stacks: list[list[np.ndarray]] = [[] for _ in range(count)]
+    previous_images = list(whites)
+    previous_pattern = np.full_like(projected[0], 255)
+    previous_expected: list[np.ndarray] = list(whites)  # the first frame follows the white one
     for frame, name in enumerate(codec.frame_names):
-        expected_change = projector_change(previous_pattern, projected[frame], checker.options.change_level)
+        projector_expected = projector_change(previous_pattern, projected[frame], first.options.change_level)
         for attempt in range(1, opts.max_grabs + 1):
-            shown, image = grab("frame", frame)
-            expected_image = camera.expected(shown)
-            if expected_image is not None:  # the lit pixels' own change
-                expected_change = checker.expected_change(previous_expected, expected_image)
-            check = checker.check_frame(
-                image,
-                name=name,
-                frame=frame,
-                previous_image=previous_image,
-                expected_change=expected_change,
-                expected_image=expected_image,
-                grab=attempt,
-            )
-            checks.append(check)
-            if check.ok:
+            shown, images = grab("frame", frame)
+            expected_images = cameras.expected(shown)
+            frame_checks = []
+            for index, (check_camera, image, expected_image) in enumerate(
+                zip(checkers, images, expected_images, strict=True)
+            ):
+                expected_change = projector_expected
+                if expected_image is not None:  # the lit pixels' own change
+                    expected_change = check_camera.expected_change(previous_expected[index], expected_image)
+                frame_checks.append(
+                    check_camera.check_frame(
+                        image,
+                        name=name,
+                        frame=frame,
+                        previous_image=previous_images[index],
+                        expected_change=expected_change,
+                        expected_image=expected_image,
+                        grab=attempt,
+                    )
+                )
+            checks.extend(frame_checks)
+            if all(check.ok for check in frame_checks):
                 break
-            report(frame + 2, f"re-grab {name}: {check.reasons[0]}")
+            report(frame + 2, f"re-grab {name}: {_refusals(frame_checks, count)}")
         else:
             raise AcquisitionError(
-                f"frame {name} refused after {opts.max_grabs} grabs: {'; '.join(checks[-1].reasons)}"
+                f"frame {name} refused after {opts.max_grabs} grabs: {_refusals(frame_checks, count)}"
             )
-        images.append(image)
-        previous_image, previous_pattern = image, projected[frame]
-        previous_expected = expected_image if expected_image is not None else image
+        for index, (image, expected_image) in enumerate(zip(images, expected_images, strict=True)):
+            stacks[index].append(image)
+            previous_images[index] = image
+            previous_expected[index] = expected_image if expected_image is not None else image
+        previous_pattern = projected[frame]
         report(frame + 3, f"grabbed {name}")
     projector.show("black")
     return AcquiredFrames(
-        images=np.stack(images), white=white, black=black, exposure_ms=exposure_ms, checks=checks, exposure_steps=steps
+        images=np.stack(stacks[0]),
+        white=whites[0],
+        black=blacks[0],
+        exposure_ms=exposure_ms,
+        checks=checks,
+        exposure_steps=steps,
+        other_cameras=tuple(np.stack(stack) for stack in stacks[1:]),
+    )
+
+
+def _refusals(checks: Sequence[FrameCheck], count: int) -> str:
+    """The refused checks' reasons, each named by its camera on a rig of several cameras."""
+    return "; ".join(
+        f"camera {check.camera}: {reason}" if count > 1 else reason
+        for check in checks
+        if not check.ok
+        for reason in check.reasons
     )
 
 
 def _grab(
-    projector: Projector, camera: Camera, opts: SequenceOptions, kind: str, frame: int = -1
-) -> tuple[Shown, np.ndarray]:
-    """Show a pattern, check that the projector reports it, wait the settle time, grab."""
+    projector: Projector, cameras: RigCameras, opts: SequenceOptions, kind: str, frame: int = -1
+) -> tuple[Shown, tuple[np.ndarray, ...]]:
+    """Show a pattern, check that the projector reports it, wait the settle time, grab every camera."""
     shown = projector.show(kind, frame)
     if shown.kind != kind or (kind == "frame" and shown.frame != frame):
         raise AcquisitionError(f"the projector reports showing {shown.kind} {shown.frame}, not {kind} {frame}")
     time.sleep(opts.settle_s)
-    return shown, camera.grab(shown)
+    return shown, cameras.grab(shown)
 
 
 @dataclass
@@ -199,7 +247,7 @@ class BracketedFrames:
 
 def run_bracketed_sequence(
     projector: Projector,
-    camera: Camera,
+    camera: Camera | RigCameras,
     codec: ProjectedCodec,
     *,
     exposures_ms: Sequence[float] | None,
@@ -216,12 +264,18 @@ def run_bracketed_sequence(
     (``max_white_saturated`` 1), the shortest's may not.
     """
     opts = options or SequenceOptions()
+    cameras = as_rig_cameras(camera)
+    if cameras.camera_count > 1:
+        raise AcquisitionError(
+            f"multi-exposure captures are acquired on one-camera rigs only; this rig has {cameras.camera_count} "
+            "cameras (run the agent without --exposures)"
+        )
     bracket = None
     if exposures_ms is None:
 
         def grab_flats(e: float) -> tuple[np.ndarray, np.ndarray]:
-            camera.set_exposure(e)
-            return _grab(projector, camera, opts, "white")[1], _grab(projector, camera, opts, "black")[1]
+            cameras.set_exposure(e)
+            return _grab(projector, cameras, opts, "white")[1][0], _grab(projector, cameras, opts, "black")[1][0]
 
         try:
             bracket = bracket_exposures(grab_flats, start_exposure_ms, bracket_options)
@@ -244,7 +298,7 @@ def run_bracketed_sequence(
 
         checker = FrameChecker(CheckOptions(max_white_saturated=1.0)) if index else FrameChecker()
         stacks.append(
-            run_sequence(projector, camera, codec, exposure_ms=exposure, options=opts, checker=checker, progress=step)
+            run_sequence(projector, cameras, codec, exposure_ms=exposure, options=opts, checker=checker, progress=step)
         )
     return BracketedFrames(stacks, bracket)
 

@@ -27,6 +27,7 @@ from metrology.core.simulate.paper_rig import (
 from metrology.core.simulate.render import (
     RenderedCapture,
     default_placement,
+    render_camera_flats,
     render_capture,
     render_flats,
     render_series,
@@ -46,6 +47,7 @@ __all__ = [
     "emitted_pattern",
     "noise_free_16bit",
     "realistic_8bit",
+    "render_camera_flats",
     "render_capture",
     "render_flat_frames",
     "render_flats",

@@ -183,6 +183,41 @@ def render_flats(
     return frames[0], frames[1]
 
 
+def render_camera_flats(
+    model: GeometryModel,
+    scene: Scene,
+    options: SimulationOptions | None = None,
+    *,
+    placement: ScenePlacement | None = None,
+) -> tuple[tuple[FloatArray, FloatArray], ...]:
+    """Each camera's noise-free ``(white, black)`` images, camera 0 first: :func:`render_flats` for a
+    model of one camera; for a stereo rig, :func:`render_flats` of each camera's pinhole rig with the
+    projector that lights :func:`render_capture`'s stereo frames
+    (:func:`~metrology.core.simulate.stereo.lighting_projector`, bounded by the rig's projector
+    size), the scene placed in that camera's frame.
+
+    Returns
+    -------
+    tuple of (white, black)
+        One pair of ``(H_c, W_c)`` float64 arrays per camera, grey levels as :func:`render_flats`'s.
+    """
+    opts = options if options is not None else SimulationOptions()
+    if model.cameras == 1:
+        return (render_flats(model, scene, opts, placement=placement),)
+    from metrology.core.geometry.stereo import StereoRig
+    from metrology.core.simulate.stereo import camera_rigs, lighting_projector
+
+    if not isinstance(model, StereoRig):
+        raise ValueError(f"the virtual rig renders two-camera stereo rigs, not a {model.short_label} rig")
+    where = placement if placement is not None else default_placement(model)
+    size = (round(model.projector.width), round(model.projector.height))
+    projector = lighting_projector(model, where, None)
+    return tuple(
+        render_flats(pinhole, scene, opts, placement=in_camera, projector_size=size)
+        for pinhole, in_camera in camera_rigs(model, where, projector)
+    )
+
+
 def render_series(
     model: GeometryModel,
     z_in_mm: Sequence[float],

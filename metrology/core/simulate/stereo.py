@@ -80,6 +80,34 @@ def default_projector(rig: StereoRig, placement: ScenePlacement, field_width_mm:
     return ProjectorPlacement(projector=lens, R=aimed.R, T=aimed.T)
 
 
+def lighting_projector(
+    rig: StereoRig,
+    placement: ScenePlacement,
+    projector: ProjectorPlacement | None = None,
+    field_width_mm: float | None = None,
+) -> ProjectorPlacement:
+    """``projector``, else :func:`default_projector` for ``placement`` (``field_width_mm`` default:
+    camera 0's field at the placement's distance, ``W0 * |origin| / fx0``)."""
+    if projector is not None:
+        return projector
+    distance = float(np.linalg.norm(placement.origin_mm))
+    width = field_width_mm or rig.camera0.width_px * distance / rig.camera0.K[0][0]
+    return default_projector(rig, placement, width)
+
+
+def camera_rigs(
+    rig: StereoRig, placement: ScenePlacement, projector: ProjectorPlacement
+) -> tuple[tuple[PinholeRig, ScenePlacement], tuple[PinholeRig, ScenePlacement]]:
+    """Per camera, camera 0 first: the pinhole rig of that camera and ``projector``, and the scene's
+    placement moved into that camera's frame (``X_c1 = R X_c0 + T``): what every stereo render casts."""
+    poses = ((np.eye(3), np.zeros(3)), (np.asarray(rig.R, np.float64), np.asarray(rig.T, np.float64)))
+    first, second = (
+        (projector.pinhole_rig(camera, R_c, T_c), placement.in_frame(R_c, T_c))
+        for camera, (R_c, T_c) in zip((rig.camera0, rig.camera1), poses, strict=True)
+    )
+    return first, second
+
+
 @dataclass(frozen=True, eq=False)
 class StereoCapture:
     """A rendered stereo capture.
@@ -147,16 +175,10 @@ def cast_stereo(
     camera 0's field at the placement's distance). ``codec`` gives the projector's size, which must
     be the rig's."""
     rig.check_projector((codec.projector_width, codec.projector_height))
-    if projector is None:
-        distance = float(np.linalg.norm(placement.origin_mm))
-        width = field_width_mm or rig.camera0.width_px * distance / rig.camera0.K[0][0]
-        projector = default_projector(rig, placement, width)
-    poses = ((np.eye(3), np.zeros(3)), (np.asarray(rig.R, np.float64), np.asarray(rig.T, np.float64)))
+    projector = lighting_projector(rig, placement, projector, field_width_mm)
     placements, truths, sub_rays = [], [], []
-    for camera, (R_c, T_c) in zip((rig.camera0, rig.camera1), poses, strict=True):
-        pinhole = projector.pinhole_rig(camera, R_c, T_c)
+    for pinhole, where in camera_rigs(rig, placement, projector):
         prepared = pinhole.prepare(pinhole.shape, (codec.projector_width, codec.projector_height))
-        where = placement.in_frame(R_c, T_c)
         truth = cast_truth(prepared, scene, where)
         placements.append(where)
         truths.append(truth)

@@ -12,7 +12,7 @@
       var row = document.createElement("tr");
       var change = f.change_fraction === null || f.change_fraction === undefined ? "" :
         fixed(f.change_fraction, 3) + (f.expected_change === null || f.expected_change === undefined ? "" : " (" + fixed(f.expected_change, 3) + ")");
-      [f.name + (f.ok === false ? " (refused)" : ""), "", String(f.regrabs || 0), fixed(f.saturated_fraction, 4),
+      [(f.camera ? "cam" + f.camera + "/" : "") + f.name + (f.ok === false ? " (refused)" : ""), "", String(f.regrabs || 0), fixed(f.saturated_fraction, 4),
        fixed(f.dark_fraction, 4), change, fixed(f.correlation, 4),
        (f.refused_reasons || []).concat(f.reasons || []).join("; ")].forEach(function (t) { row.appendChild(cell(t)); });
       body.appendChild(row);
