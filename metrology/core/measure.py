@@ -86,7 +86,6 @@ from metrology.core.geometry.base import (
     ReferenceSurface,
     triangulate_frame,
 )
-from metrology.core.geometry.stereo_fusion import points_per_pairs
 from metrology.core.option_checks import check_bool, check_keys, check_positive
 from metrology.core.patterns import N_GRAY_BITS
 from metrology.core.tiling import run_beside, run_tiled, thread_scratch
@@ -408,6 +407,8 @@ class Measurement:
     def points_per_pairs(self) -> dict[str, int] | None:
         """The measured points per pair combination of :meth:`pairs_map`
         (:func:`~metrology.core.geometry.stereo_fusion.points_per_pairs`), None for one camera."""
+        from metrology.core.geometry.stereo_fusion import points_per_pairs  # its kernels: numba, on demand
+
         pairs = self.pairs_map()
         return None if pairs is None else points_per_pairs(pairs)
 

@@ -59,6 +59,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from metrology.core.geometry.base import GeometryOptions, triangulate_frame
+from metrology.core.geometry.stereo_kernels import camera1_depth_tile, fuse_tile
 
 if TYPE_CHECKING:
     from metrology.core.geometry.pinhole import PinholeRig
@@ -134,7 +135,10 @@ class PairFusion:
         self._Rp = np.asarray(projector.R, np.float64)
         self._Tp = np.asarray(projector.T, np.float64)
         G = stereo.rect.R0 @ self._Rp.T
-        self._g_i, self._g_z = G[:, self._i], G[:, 2]
+        i, Tp = self._i, self._Tp
+        # camera1_depth's plane terms (b, g_i, g_z, T_i, T_z) and the projector's rows i and z with T
+        self._plane = np.array([stereo.rect.baseline_mm, *G[:, i], *G[:, 2], Tp[i], Tp[2]], np.float64)
+        self._projector_rows = np.array([*self._Rp[i], Tp[i], *self._Rp[2], Tp[2]], np.float64)
 
     def camera0_projector(self, q: np.ndarray, threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Camera 0 - projector depth ``t_0p`` (mm) of camera 0's decoded coordinate ``q`` ((H, W)
@@ -153,19 +157,20 @@ class PairFusion:
     def camera1_projector(self, rows: slice, xp: np.ndarray, d: np.ndarray) -> np.ndarray:
         """Camera 1 - projector depth ``t_1p`` (mm, on camera 0's ray; module docstring) of camera 0's
         ``rows``: the light plane ``x_p`` and camera 1's matched ray at normalized disparity ``d``
-        ((n, W) float64 each); NaN where the point is not in front of camera 0."""
+        ((n, W) float64 each); NaN where the point is not in front of camera 0
+        (:func:`~metrology.core.geometry.stereo_kernels.camera1_depth`)."""
         s = self.stereo
-        x_r, y_r, w = s.x0r[rows], s.y0r[rows], s.w[rows]
-        b = s.rect.baseline_mm
-        gi, gz = self._g_i, self._g_z
-        m = [gi[k] - xp * gz[k] for k in range(3)]
-        nT = self._Tp[self._i] - xp * self._Tp[2]
-        x1 = x_r + d
-        with np.errstate(divide="ignore", invalid="ignore"):
-            Z = (b * m[0] - nT) / (m[0] * x1 + m[1] * y_r + m[2])
-            along = (Z * x1 - b) * x_r + Z * y_r * y_r + Z
-            t = along / (x_r * x_r + y_r * y_r + 1.0) / w
-        return np.where(t > 0, t, np.nan)
+        out = np.empty(np.shape(xp))
+        camera1_depth_tile(
+            np.ascontiguousarray(xp, np.float64),
+            np.ascontiguousarray(d, np.float64),
+            s.x0r[rows],
+            s.y0r[rows],
+            s.w[rows],
+            self._plane,
+            out,
+        )
+        return out
 
     def fuse(
         self,
@@ -176,7 +181,8 @@ class PairFusion:
         d_per_q: np.ndarray,
         threads: int | None = None,
     ) -> FusedDepth:
-        """Fuse the pairs' depths of camera 0's pixels (module docstring).
+        """Fuse the pairs' depths of camera 0's pixels (module docstring), tile by tile in a compiled
+        kernel (:func:`~metrology.core.geometry.stereo_kernels.fuse_tile`).
 
         Parameters
         ----------
@@ -196,85 +202,46 @@ class PairFusion:
         from metrology.core.tiling import run_tiled
 
         q32 = np.ascontiguousarray(q, np.float32)
-        t0p, xp = self.camera0_projector(q32, threads)
-        t0p_h, xp_h = self.camera0_projector(q32 + np.float32(COORDINATE_STEP), threads)
-        weight = self.stereo.self_weight()
+        points = [
+            triangulate_frame(self.pinhole, at, None, points=True, heights=False, threads=threads).points_mm
+            for at in (q32, q32 + np.float32(COORDINATE_STEP))
+        ]
+        p0, p0h = points
+        assert p0 is not None and p0h is not None
+        shared = np.asarray(d_per_q, np.float32) * self.stereo.self_weight()
+        s = self.stereo
         shape = q32.shape
         out = FusedDepth(
             t_mm=np.empty(shape),
             sigma_mm=np.empty(shape),
             pairs=np.empty(shape, np.uint8),
-            estimates={"01": np.empty(shape), "0p": t0p, "1p": np.empty(shape)},
+            estimates={"01": np.empty(shape), "0p": p0[..., 2].astype(np.float64), "1p": np.empty(shape)},
         )
+        steps = np.array([COORDINATE_STEP, DISPARITY_STEP])
+        inputs = [np.ascontiguousarray(a, np.float32) for a in (d, sigma0, sigma_d, shared)]
 
         def run(rows: slice) -> None:
-            self._fuse_rows(
-                rows,
-                d[rows].astype(np.float64),
-                (t0p[rows], t0p_h[rows], xp[rows], xp_h[rows]),
-                (sigma0[rows].astype(np.float64), sigma_d[rows].astype(np.float64)),
-                d_per_q[rows].astype(np.float64) * weight[rows],
-                out,
+            dd, s0, sd, sh = (a[rows] for a in inputs)
+            fuse_tile(
+                dd,
+                p0[rows],
+                p0h[rows],
+                s0,
+                sd,
+                sh,
+                s.k[rows],
+                s.x0r[rows],
+                s.y0r[rows],
+                s.w[rows],
+                self._plane,
+                self._projector_rows,
+                steps,
+                out.t_mm[rows],
+                out.sigma_mm[rows],
+                out.pairs[rows],
+                out.estimates["01"][rows],
+                out.estimates["1p"][rows],
             )
 
         run_tiled(run, shape[0], shape[1], threads)
         return out
-
-    def _fuse_rows(
-        self,
-        rows: slice,
-        d: np.ndarray,
-        projector: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-        sigmas: tuple[np.ndarray, np.ndarray],
-        shared: np.ndarray,
-        out: FusedDepth,
-    ) -> None:
-        """:meth:`fuse` of camera 0's ``rows`` into ``out`` (float64 ``(n, W)`` inputs): ``projector``
-        holds ``t_0p``, ``x_p`` at ``q`` and at ``q + h``; ``sigmas`` ``sigma_0`` and ``sigma_d``;
-        ``shared`` the disparity's share of camera 0's noise ``c / (s f)``."""
-        t0p, t0p_h, xp, xp_h = projector
-        sigma0, sigma_d = sigmas
-        h = COORDINATE_STEP
-        k = self.stereo.k[rows].astype(np.float64)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t01 = k / d
-            t01[~(t01 > 0)] = np.nan
-            t1p = self.camera1_projector(rows, xp, d)
-            a0p = (t0p_h - t0p) / h
-            a1p = (self.camera1_projector(rows, xp_h, d) - t1p) / h
-            b1p = (self.camera1_projector(rows, xp, d + DISPARITY_STEP) - t1p) / DISPARITY_STEP
-            b01 = -t01 / d
-            # Sigma_m of (q, d) and g = d(q, d)/dt along the ray
-            vq, vd = sigma0 * sigma0, sigma_d * sigma_d
-            cqd = shared * vq
-            gq, gd = 1.0 / a0p, 1.0 / b01
-            det = vq * vd - cqd * cqd
-            iq = (vd * gq - cqd * gd) / det
-            id_ = (vq * gd - cqd * gq) / det
-            info = gq * iq + gd * id_
-            zq, zd = iq / info, id_ / info
-            # w = J (J^T J)^-1 z over the available estimates (t_1p's row zero where it is missing)
-            has1p = np.isfinite(t1p) & np.isfinite(a1p) & np.isfinite(b1p)
-            a1 = np.where(has1p, a1p, 0.0)
-            b1 = np.where(has1p, b1p, 0.0)
-            jqq, jqd, jdd = a0p * a0p + a1 * a1, a1 * b1, b01 * b01 + b1 * b1
-            jdet = jqq * jdd - jqd * jqd
-            yq = (jdd * zq - jqd * zd) / jdet
-            yd = (jqq * zd - jqd * zq) / jdet
-            w01, w0p, w1p = b01 * yd, a0p * yq, a1 * yq + b1 * yd
-            fused = (w01 * t01 + w0p * t0p + w1p * np.where(has1p, t1p, 0.0)) / (w01 + w0p + w1p)
-            sigma_f = 1.0 / np.sqrt(info)
-        good = np.isfinite(t01) & np.isfinite(t0p) & np.isfinite(fused) & np.isfinite(sigma_f)
-        only_0p = np.isfinite(t0p) & ~np.isfinite(t01)
-        only_01 = np.isfinite(t01) & ~good & ~only_0p
-        t = np.where(good, fused, np.where(only_0p, t0p, np.where(only_01, t01, np.nan)))
-        sigma = np.where(
-            good, sigma_f, np.where(only_0p, np.abs(a0p) * sigma0, np.where(only_01, np.abs(b01) * sigma_d, np.nan))
-        )
-        pairs = np.where(good, PAIR_CAMERAS | PAIR_CAMERA0_PROJECTOR, 0).astype(np.uint8)
-        pairs[good & has1p] |= PAIR_CAMERA1_PROJECTOR
-        pairs[only_0p] = PAIR_CAMERA0_PROJECTOR
-        pairs[only_01] = PAIR_CAMERAS
-        out.t_mm[rows], out.sigma_mm[rows], out.pairs[rows] = t, sigma, pairs
-        out.estimates["01"][rows] = t01
-        out.estimates["1p"][rows] = np.where(has1p, t1p, np.nan)

@@ -425,12 +425,8 @@ class PreparedStereo(PreparedGeometry):
             pairs = np.where(np.isfinite(out), np.uint8(PAIR_CAMERAS), np.uint8(0))
             return CombinedMaps(u=out, v=None, sigma=sigma_out, pairs=pairs)
         # equal unit noise in both cameras when no noise maps are given: the weights from the geometry alone
-        sigma0, sigma1 = (
-            (np.asarray(sigma[0], np.float32), np.asarray(sigma[1], np.float32))  # type: ignore[index]
-            if given
-            else (np.ones(self.shape, np.float32), np.ones(self.rig.camera_shapes[1], np.float32))
-        )
-        sigma_d = sigma_out if sigma_out is not None else self._disparity_sigma(sigma0, sigma1, x1, step, threads)
+        sigma_d = sigma_out if sigma_out is not None else self._disparity_sigma(None, None, x1, step, threads)
+        sigma0 = np.asarray(sigma[0], np.float32) if given else np.ones(self.shape, np.float32)  # type: ignore[index]
         with np.errstate(divide="ignore", invalid="ignore"):
             per_q = np.float32(sign) / (step * np.float32(rect.f))
         d_per_q = np.empty(self.shape, np.float32)
@@ -519,20 +515,29 @@ class PreparedStereo(PreparedGeometry):
             return self._self_weight
 
     def _disparity_sigma(
-        self, sigma0: np.ndarray, sigma1: np.ndarray, x1: np.ndarray, slope: np.ndarray, threads: int | None
+        self,
+        sigma0: np.ndarray | None,
+        sigma1: np.ndarray | None,
+        x1: np.ndarray,
+        slope: np.ndarray,
+        threads: int | None,
     ) -> np.ndarray:
         """The disparity's standard deviation on camera 0's grid (normalized; module docstring):
         ``sqrt(sigma_0^2 + sigma_1^2) / |u_1'| / f`` at the matched pixels, sampled back on camera
         0's grid, times the resampling chain's noise gain (:meth:`noise_gain`, the same for both
-        cameras' share: both go onto a rectified grid and back)."""
+        cameras' share: both go onto a rectified grid and back). ``sigma0``, ``sigma1`` None: unit
+        noise in both cameras."""
         rect = self.rect
-        s0 = self.rectify(0, sigma0, threads)
-        s1 = self.rectify(1, sigma1, threads)
-        rows, cols1 = rect.shapes[1]
         hit = np.isfinite(x1)
-        at = np.where(hit, np.clip(np.rint(x1), 0, cols1 - 1), 0).astype(np.intp)
-        at += (np.arange(rows, dtype=np.intp) * cols1)[:, None]
-        sigma_x1 = np.hypot(s0, s1.ravel().take(at))
+        if sigma0 is None or sigma1 is None:
+            sigma_x1 = np.full(x1.shape, math.sqrt(2.0), np.float32)
+        else:
+            s0 = self.rectify(0, sigma0, threads)
+            s1 = self.rectify(1, sigma1, threads)
+            rows, cols1 = rect.shapes[1]
+            at = np.where(hit, np.clip(np.rint(x1), 0, cols1 - 1), 0).astype(np.intp)
+            at += (np.arange(rows, dtype=np.intp) * cols1)[:, None]
+            sigma_x1 = np.hypot(s0, s1.ravel().take(at))
         sigma_d = sigma_x1 / np.abs(slope * np.float32(rect.f))
         sigma_d[~hit] = np.nan
         back = np.empty(self.shape, np.float32)
