@@ -14,6 +14,9 @@ projector coordinate ``u`` per pixel (set up outside the timers). Rows:
   their rectified grids, matched along the rows, the disparity sampled back on camera 0's grid)
   then :meth:`PreparedStereo.triangulate_rows` of the whole frame to points (H, W, 3) float32;
   tables prepared beforehand (``prepare tables`` times that one-off cost);
+- ``stereo + calibrated projector: fuse 3 pairs``: the same with the rig's projector calibrated (the
+  projector that lights the plane): the camera-projector pairs fused with the camera pair
+  (:mod:`metrology.core.geometry.stereo_fusion`), without noise maps (equal weights per camera);
 - ``cv2.remap of the two maps``: ``cv2.remap`` (bilinear, float32 maps) of both decoded maps onto
   the same rectified grids: the part of the work OpenCV does (quantised to 1/32 px, which is why
   the model samples with exact weights instead);
@@ -30,6 +33,7 @@ the work. Prints one line per row, the load average and a JSON line.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import statistics
@@ -41,7 +45,7 @@ import cv2
 import numpy as np
 
 from metrology.core.geometry import model_from_dict
-from metrology.core.geometry.stereo import StereoRig
+from metrology.core.geometry.stereo import StereoProjector, StereoRig
 from metrology.core.geometry.stereo_match import PreparedStereo, _prepare_cached
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import ScenePlacement, cast_truth
@@ -52,6 +56,7 @@ PREPARE = "prepare tables"
 STEREO = "stereo: rectify + match + triangulate"
 REMAP = "cv2.remap of the two maps"
 TRIANGULATE = "cv2.triangulatePoints"
+FUSED = "stereo + calibrated projector: fuse 3 pairs"
 
 
 CPU_S: dict[str, float] = {}
@@ -73,8 +78,9 @@ def _time(fn: Callable[[], object], repeats: int, name: str, warm: bool = True) 
     return statistics.median(times)
 
 
-def _maps(rig: StereoRig) -> tuple[np.ndarray, np.ndarray]:
-    """Each camera's exact u of a plane 400 mm away, tilted by 10 degrees about y."""
+def _maps(rig: StereoRig) -> tuple[np.ndarray, np.ndarray, StereoRig]:
+    """Each camera's exact u of a plane 400 mm away, tilted by 10 degrees about y, and the rig with
+    the projector that lights it calibrated."""
     angle = np.radians(10.0)
     placement = ScenePlacement(
         origin_mm=np.array([0.0, 0.0, 400.0]),
@@ -91,7 +97,9 @@ def _maps(rig: StereoRig) -> tuple[np.ndarray, np.ndarray]:
         prepared = pinhole.prepare(pinhole.shape, (rig.projector.width, rig.projector.height))
         where = placement.in_frame(Rc, Tc)
         maps.append(cast_truth(prepared, scene, where).u.astype(np.float32))
-    return maps[0], maps[1]
+    lens = projector.projector
+    calibrated = StereoProjector(lens.width, lens.height, K=lens.K, dist=lens.dist, R=projector.R, T=projector.T)
+    return maps[0], maps[1], dataclasses.replace(rig, projector=calibrated)
 
 
 def main() -> None:
@@ -101,7 +109,7 @@ def main() -> None:
     args = parser.parse_args()
     rig = model_from_dict(json.loads((ROOT / "examples" / "stereo-rig.json").read_text()))
     assert isinstance(rig, StereoRig)
-    u0, u1 = _maps(rig)
+    u0, u1, calibrated = _maps(rig)
     h, w = rig.shape
     t0 = time.perf_counter()
     prepared = _prepare_cached(rig, "u")
@@ -115,6 +123,16 @@ def main() -> None:
 
     stereo_s = _time(stereo, args.repeats, STEREO)
     valid = np.isfinite(points[..., 2])
+
+    fusing = _prepare_cached(calibrated, "u")
+    fused_points = np.empty((h, w, 3), np.float32)
+
+    def fused() -> None:
+        combined = fusing.combine([{"u": u0}, {"u": u1}], None, args.threads)
+        fusing.triangulate_rows(slice(0, h), combined.u, None, points_out=fused_points)
+
+    fused_s = _time(fused, max(1, args.repeats // 3), FUSED)
+    fused_agree = float(np.nanmax(np.abs(fused_points - points)))
 
     # cv2.remap of the two maps onto the same rectified grids
     rect = prepared.rect
@@ -156,16 +174,17 @@ def main() -> None:
     ours = points.reshape(-1, 3)[ok].astype(np.float64)
     agree = float(np.abs(Xr @ rect.R0 - ours).max())  # R0^T X_r, row vectors
     mpx = h * w / 1e6
-    rows = {PREPARE: prepare_s, STEREO: stereo_s, REMAP: remap_s, TRIANGULATE: tri_s}
+    rows = {PREPARE: prepare_s, STEREO: stereo_s, FUSED: fused_s, REMAP: remap_s, TRIANGULATE: tri_s}
     for name, seconds in rows.items():
         cpu = CPU_S.get(name)
         cpu_text = f"  cpu {cpu * 1e3:8.1f} ms" if cpu is not None else ""
         print(f"{name:40s} {seconds * 1e3:8.1f} ms  {mpx / seconds:7.1f} Mpx/s{cpu_text}")
     print(f"matched {valid.mean():.1%} of camera 0's pixels; cv2.triangulatePoints agrees within {agree * 1e3:.4f} um")
+    print(f"fused points agree with the camera pair's within {fused_agree * 1e3:.4f} um")
     load = os.getloadavg()[0]
     print(f"load average {load:.1f} on {os.cpu_count()} cores")
     report = {"size": [w, h], "seconds": rows, "cpu_seconds": CPU_S, "valid_fraction": float(valid.mean())}
-    print(json.dumps({**report, "agree_mm": agree, "load_average": load}))
+    print(json.dumps({**report, "agree_mm": agree, "fused_agree_mm": fused_agree, "load_average": load}))
 
 
 if __name__ == "__main__":

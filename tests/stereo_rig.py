@@ -93,3 +93,13 @@ def facing_both(scene: Scene, points_mm: np.ndarray, max_angle_deg: float = 60.0
         with np.errstate(invalid="ignore"):
             facing &= (normal * view).sum(axis=-1) > limit
     return facing
+
+
+CALIBRATED_RIG = StereoRig(
+    camera0=CAMERA0,
+    camera1=CAMERA1,
+    R=_POSE1.R,
+    T=_POSE1.T,
+    projector=StereoProjector(PROJ_W, PROJ_H, K=LENS.K, dist=LENS.dist, R=_PROJ.R, T=_PROJ.T),
+)
+""":data:`RIG` with its projector calibrated: :data:`PROJECTOR`, which lights the renders."""

@@ -175,6 +175,10 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
         if ply_mesh and exposure is not None:  # a multi-exposure object: the exposure of each vertex
             assert points is not None
             mesh = mesh.with_exposure(exposure, np.isfinite(z) & np.isfinite(points).all(axis=-1))
+        pairs = measurement.pairs_map()
+        if ply_mesh and pairs is not None:  # a stereo rig: the pairs that measured each vertex
+            assert points is not None
+            mesh = mesh.with_pairs(pairs, np.isfinite(z) & np.isfinite(points).all(axis=-1))
 
     if args.out:
         write_height_npy(z, args.out)

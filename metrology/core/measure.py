@@ -322,6 +322,10 @@ class Measurement:
     codec_check : mapping of str to AxisCheck
         The codec self-check of the object capture per checked axis (on the fused gcps-v1 path,
         of 8 pairs of rows decoded by the codec decoder: :func:`check_gcps_v1_sample`).
+    pairs : (H, W) uint8 array or None
+        For a model of several devices (:meth:`PreparedGeometry.combine`), the pairs that measured
+        each pixel (a stereo rig's bits: :mod:`metrology.core.geometry.stereo_fusion`); None for one
+        camera. :meth:`pairs_map` zeroes it where ``z_mm`` is not finite.
     """
 
     z_mm: np.ndarray
@@ -336,6 +340,7 @@ class Measurement:
     dropped_by_max_sigma: int = 0
     timings_s: dict[str, float] = field(default_factory=dict)
     codec_check: Mapping[str, AxisCheck] = field(default_factory=dict)
+    pairs: np.ndarray | None = None
 
     @property
     def model(self) -> GeometryModel:
@@ -384,6 +389,28 @@ class Measurement:
         assert self.decoding is not None
         counts = np.bincount(used.ravel(), minlength=NO_EXPOSURE + 1)
         return {name: int(counts[index]) for index, name in enumerate(self.decoding.exposure_names)}
+
+    def pairs_map(self) -> np.ndarray | None:
+        """Which pairs of a model of several devices measured each point (docs/stereo.md).
+
+        Returns
+        -------
+        (H, W) uint8 array or None
+            :attr:`pairs` (bit 0 camera 0 - camera 1, bit 1 camera 0 - projector, bit 2 camera 1 -
+            projector), 0 where ``z_mm`` is not finite (a point dropped by a later filter too); None
+            for a model of one camera.
+        """
+        if self.pairs is None:
+            return None
+        return np.where(np.isfinite(self.z_mm), self.pairs, np.uint8(0)).astype(np.uint8)
+
+    def points_per_pairs(self) -> dict[str, int] | None:
+        """The measured points per pair combination of :meth:`pairs_map`
+        (:func:`~metrology.core.geometry.stereo_fusion.points_per_pairs`), None for one camera."""
+        from metrology.core.geometry.stereo_fusion import points_per_pairs  # its kernels: numba, on demand
+
+        pairs = self.pairs_map()
+        return None if pairs is None else points_per_pairs(pairs)
 
     def points_mm(self, dtype: npt.DTypeLike = np.float32) -> np.ndarray:
         """``(H, W, 3)`` points of ``dtype``, mm, in the model frame (:attr:`GeometryModel.frame`);
@@ -904,6 +931,7 @@ def _codec_measure(
         dropped_by_max_sigma=dropped,
         timings_s=timings,
         codec_check=coded.decoding.codec_check,
+        pairs=None if combined is None else combined.pairs,
     )
 
 

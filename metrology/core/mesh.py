@@ -447,6 +447,10 @@ class GridMesh:
     exposure : (V,) uint8 array or None
         The exposure of a multi-exposure capture that measured each vertex (0 the least exposed,
         docs/exposures.md): PLY files carry it as the vertex property ``exposure`` (uchar).
+    pairs : (V,) uint8 array or None
+        Which pairs of a stereo rig measured each vertex (bit 0 camera 0 - camera 1, bit 1 camera 0 -
+        projector, bit 2 camera 1 - projector; docs/stereo.md): PLY files carry it as the vertex
+        property ``pairs`` (uchar).
     deviation_mm : (V,) float32 array or None
         Each vertex's signed deviation from a nominal model, mm (positive outside the material,
         NaN where unknown): PLY files carry it as the vertex property ``deviation_mm``.
@@ -457,6 +461,7 @@ class GridMesh:
     sigma_mm: np.ndarray | None = None
     exposure: np.ndarray | None = None
     deviation_mm: np.ndarray | None = None
+    pairs: np.ndarray | None = None
 
     def with_sigma(self, sigma_mm: npt.ArrayLike, valid: npt.ArrayLike) -> GridMesh:
         """The mesh with the per-vertex sigma of a ``(H, W)`` sigma map at the ``valid`` pixels
@@ -467,6 +472,11 @@ class GridMesh:
         """The mesh with the per-vertex exposure of a ``(H, W)`` uint8 exposure map at the
         ``valid`` pixels (the vertices' pixels, row-major)."""
         return dataclasses.replace(self, exposure=self._per_vertex(exposure, valid, np.uint8, "exposure"))
+
+    def with_pairs(self, pairs: npt.ArrayLike, valid: npt.ArrayLike) -> GridMesh:
+        """The mesh with the per-vertex pairs of a ``(H, W)`` uint8 pairs map (a stereo rig's
+        :meth:`~metrology.core.measure.Measurement.pairs_map`) at the ``valid`` pixels."""
+        return dataclasses.replace(self, pairs=self._per_vertex(pairs, valid, np.uint8, "pairs"))
 
     def with_deviation(self, deviation_mm: npt.ArrayLike, valid: npt.ArrayLike) -> GridMesh:
         """The mesh with the per-vertex deviation of a ``(H, W)`` deviation map at the ``valid`` pixels."""
@@ -544,6 +554,7 @@ _PLY_VERTEX_PROPERTIES: tuple[tuple[str, str, str], ...] = (
     ("sigma_mm", "float", "<f4"),
     ("deviation_mm", "float", "<f4"),
     ("exposure", "uchar", "u1"),
+    ("pairs", "uchar", "u1"),
 )
 """The optional per-vertex properties of a :class:`GridMesh`, in file order: attribute (and PLY
 property) name, PLY type, numpy dtype."""
@@ -561,8 +572,8 @@ def _ply_extra(mesh: GridMesh) -> list[tuple[str, str, str, np.ndarray]]:
 
 def ply_chunks(mesh: GridMesh, *, chunk_rows: int = STREAM_CHUNK_ROWS) -> Iterator[bytes]:
     """Binary little-endian PLY of ``mesh``, as open3d writes it: float64 ``x y z nx ny nz`` per
-    vertex (plus, when the mesh has them, a float32 ``sigma_mm``, a float32 ``deviation_mm`` and a
-    uchar ``exposure``, in that order), ``uchar`` count + ``uint`` indices per face. The header
+    vertex (plus, when the mesh has them, a float32 ``sigma_mm``, a float32 ``deviation_mm``, a
+    uchar ``exposure`` and a uchar ``pairs``, in that order), ``uchar`` count + ``uint`` indices per face. The header
     comes first, before the vertex normals are computed."""
     n_vertices, n_triangles = len(mesh.vertices), len(mesh.triangles)
     extra = _ply_extra(mesh)

@@ -33,6 +33,7 @@ CONTENT_TYPES = {
     "sigma.npy": "application/octet-stream",
     "points.npy": "application/octet-stream",
     "exposure.npy": "application/octet-stream",
+    "pairs.npy": "application/octet-stream",
     "points.e57": "application/octet-stream",
 }
 

@@ -4,7 +4,8 @@ A measurement job stores ``height.npy``, its points (``points.npz``, the measure
 and a bit mask: :mod:`metrology.core.io.points`; dense ``(H, W, 3)`` ``.npy`` files stored before
 are read too), ``gray_only_height.npy`` and ``sigma.npy`` (float32, the only copies of the data),
 ``exposure.npy`` for a multi-exposure object (uint8, carried by the PLY as the vertex property
-``exposure``) and its statistics. Every reader of the points (the ``points.npy`` download, meshes, figures,
+``exposure``), ``pairs.npy`` for a stereo rig (uint8 bits, the PLY's vertex property ``pairs``) and its
+statistics. Every reader of the points (the ``points.npy`` download, meshes, figures,
 acceptance) reads them through :func:`measurement_points`, which returns the dense ``(H, W, 3)``
 float32 map bit for bit as measured. The TIFF height map, the PLY, STL and OBJ meshes (and
 ``points.npy`` where the heights give the points) are functions of those and the rig's model:
@@ -46,7 +47,14 @@ E57_FILE = "points.e57"
 the points in mm in the rig's model frame with the identity pose, each point's camera pixel as its
 row and column index, and no intensity (a measurement stores no modulation map)."""
 
-STORED_FILES: tuple[str, ...] = ("height.npy", "gray_only_height.npy", "sigma.npy", "points.npy", "exposure.npy")
+STORED_FILES: tuple[str, ...] = (
+    "height.npy",
+    "gray_only_height.npy",
+    "sigma.npy",
+    "points.npy",
+    "exposure.npy",
+    "pairs.npy",
+)
 """Result files a measurement job stores."""
 
 CACHE_PREFIX = "derived"
@@ -243,6 +251,8 @@ def write_derived_file(measurement: Measurement, filename: str, path: Path) -> N
             mesh = mesh.with_exposure(
                 _load(measurement.exposure_npy), np.isfinite(z) & np.isfinite(points).all(axis=-1)
             )
+        if filename == "mesh.ply" and measurement.pairs_npy:  # a stereo rig: the pairs of each vertex
+            mesh = mesh.with_pairs(_load(measurement.pairs_npy), np.isfinite(z) & np.isfinite(points).all(axis=-1))
         return mesh
 
     with open(path, "wb") as out:

@@ -20,6 +20,7 @@ RESULT_FILES: dict[str, str | None] = {
     "sigma.npy": "sigma_npy",
     "points.npy": "points_npy",
     "exposure.npy": "exposure_npy",
+    "pairs.npy": "pairs_npy",
     "points.e57": None,
 }
 """Each result file's model field, None for a file that is only ever derived (never stored by a
@@ -54,6 +55,11 @@ class Measurement(models.Model):
         max_length=300,
         blank=True,
         help_text="Which exposure measured each point, uint8 (H, W), 255 none (multi-exposure objects)",
+    )
+    pairs_npy = models.FileField(
+        max_length=300,
+        blank=True,
+        help_text="Which pairs of devices measured each point, uint8 (H, W) bits, 0 none (stereo rigs)",
     )
     statistics = models.JSONField(default=dict, blank=True)
     options = models.JSONField(

@@ -9,7 +9,9 @@ float32 mm, the model frame, stored as the measured pixels' points and a bit mas
 :attr:`~metrology.core.measure.Measurement.points_follow_from_heights`), and when computed
 ``gray_only_height.npy`` and ``sigma.npy``, and for a multi-exposure object ``exposure.npy`` (uint8
 ``(H, W)``: the exposure that measured each point, 255 none; the statistics count the points per
-exposure, ``points_per_exposure``); the TIFF, the meshes and points the heights give are
+exposure, ``points_per_exposure``), and for a stereo rig ``pairs.npy`` (uint8 ``(H, W)``: the pairs of
+devices that measured each point, bits as docs/stereo.md says, 0 none; the statistics count the points
+per combination, ``points_per_pairs``); the TIFF, the meshes and points the heights give are
 derived on request (:mod:`metrology.measurements.derived`).
 """
 
@@ -140,6 +142,9 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
     exposure = result.measurement.exposure_map()
     if exposure is not None:  # a multi-exposure object: which exposure measured each point
         arrays["exposure.npy"] = exposure
+    pairs = result.measurement.pairs_map()
+    if pairs is not None:  # a stereo rig: which pairs of devices measured each point
+        arrays["pairs.npy"] = pairs
     with run.phase("store", 80):
         names = save_arrays(run, prefix, arrays)
         if points is not None:
@@ -162,6 +167,7 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
             gray_only_npy=names.get("gray_only_height.npy", ""),
             sigma_npy=names.get("sigma.npy", ""),
             exposure_npy=names.get("exposure.npy", ""),
+            pairs_npy=names.get("pairs.npy", ""),
             statistics=statistics,
             options=result.options.to_dict(),
         )

@@ -91,7 +91,8 @@ class MeasureResult:
         """Valid pixels and min/max/mean/std of ``z``, what ``z`` is, the rig's model, the axis and
         method triangulated, the points dropped by ``max_sigma_mm`` and the median sigma (and the
         gray-code-only heights' figures where computed; for a multi-exposure object,
-        ``points_per_exposure``: the measured points of each exposure by name)."""
+        ``points_per_exposure``: the measured points of each exposure by name; for a stereo rig,
+        ``points_per_pairs``: the measured points of each combination of pairs, docs/stereo.md)."""
         m = self.measurement
         stats: dict[str, Any] = dict(height_statistics(m.z_mm))
         if m.gray_z_mm is not None:
@@ -109,6 +110,9 @@ class MeasureResult:
         per_exposure = m.points_per_exposure()
         if per_exposure is not None:  # a multi-exposure object: the points each exposure measured
             stats["points_per_exposure"] = per_exposure
+        per_pairs = m.points_per_pairs()
+        if per_pairs is not None:  # a stereo rig: the points each combination of pairs measured
+            stats["points_per_pairs"] = per_pairs
         return stats
 
     def to_dict(self) -> dict[str, Any]:

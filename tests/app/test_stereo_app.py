@@ -6,6 +6,7 @@ measurement page. Jobs run in-process (tests/app). Renders: noise-free 16-bit, 1
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import zipfile
@@ -18,7 +19,7 @@ from metrology.captures.models import Capture
 from metrology.core.scenes import make_scene
 from tests.app.stereo_stacks import RIG, cameras_zip, render, upload_file
 from tests.app.uploads import characterize
-from tests.stereo_rig import facing_both
+from tests.stereo_rig import CALIBRATED_RIG, facing_both
 
 pytestmark = [pytest.mark.django_db(transaction=True), pytest.mark.xdist_group("stereo_app")]
 
@@ -106,6 +107,36 @@ def test_stereo_uploads_are_validated_per_camera(api, stereo_rig, renders):
     multi = post(api, rig_id, exposures_of(cameras_zip((cam0, cam1))), "object")
     assert multi.status_code == 400 and "multi-exposure captures" in multi.json()["error"], multi.content
     assert Capture.objects.filter(rig_id=rig_id).count() == 1
+
+
+def test_a_calibrated_projector_s_pairs_map_is_stored_and_carried_by_the_ply(api, renders):
+    """The rig with its projector calibrated (the one that lit the renders): the job stores the pairs map
+    (``pairs.npy``, uint8 bits, 0 exactly where not measured), the statistics count its combinations and
+    the PLY download carries each vertex's pairs (docs/stereo.md)."""
+    calibrated = dataclasses.replace(RIG, projector=CALIBRATED_RIG.projector)
+    created = api.post("/api/rigs/", {**calibrated.to_dict(), "name": "stereo, projector calibrated"}, format="json")
+    assert created.status_code == 201, created.content
+    plate = post(api, created.json()["id"], cameras_zip(renders["plate"].images), "object")
+    assert plate.status_code == 201, plate.content
+    result = measure(api, {"rig": created.json()["id"], "object": plate.json()["id"]})
+    z = fetch(api, result["files"]["height.npy"])
+    pairs = fetch(api, result["files"]["pairs.npy"])
+    assert pairs.dtype == np.uint8 and pairs.shape == z.shape == (120, 160)
+    measured = np.isfinite(z)
+    assert np.array_equal(pairs > 0, measured) and measured.mean() > 0.9
+    counts = result["statistics"]["points_per_pairs"]
+    assert counts["camera0-camera1+camera0-projector+camera1-projector"] == int((pairs == 7).sum()) > 0
+    assert counts["camera0-projector"] == int((pairs == 2).sum()) > 0  # where camera 1 does not see
+    assert sum(counts.values()) == result["statistics"]["valid_pixels"]
+    ply = b"".join(api.get(result["files"]["mesh.ply"]).streaming_content)
+    header, _, data = ply.partition(b"end_header\n")
+    assert b"property uchar pairs\n" in header
+    vertices = int(header.split(b"element vertex ")[1].split(b"\n")[0])
+    assert vertices == measured.sum()
+    extra = [("sigma_mm", "<f4")] if b"property float sigma_mm" in header else []
+    record = np.dtype([("p", "<f8", (3,)), ("n", "<f8", (3,)), *extra, ("pairs", "u1")])
+    written = np.frombuffer(data[: vertices * record.itemsize], record)
+    assert np.array_equal(written["pairs"], pairs[measured])
 
 
 @pytest.mark.slow

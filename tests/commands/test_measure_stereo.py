@@ -17,11 +17,12 @@ from metrology.commands.common import BadInputError
 from metrology.commands.measure import cmd_measure
 from metrology.core import local_cache
 from metrology.core.codecs.stack import read_camera_stacks, write_camera_stacks
+from metrology.core.geometry.stereo import StereoRig
 from metrology.core.io.errors import StackError
 from metrology.core.measure import measure
 from metrology.core.scenes import make_scene
 from metrology.core.simulate.stereo import render_stereo_capture
-from tests.stereo_rig import PLACEMENT, PROJECTOR, RIG, codec
+from tests.stereo_rig import CALIBRATED_RIG, PLACEMENT, PROJECTOR, RIG, codec
 
 CODEC = codec("u")
 
@@ -38,12 +39,16 @@ def _args(tmp: Path, **extra: object) -> argparse.Namespace:
     return build_parser().parse_args(argv)
 
 
+def _written(tmp: Path, rig: StereoRig, capture) -> Path:
+    """``rig.json`` and the capture's ``object.zip`` in ``tmp``; the zip's path."""
+    (tmp / "rig.json").write_text(rig.to_json())
+    return write_camera_stacks(capture.images, tmp / "object.zip", CODEC)
+
+
 def test_measure_a_stereo_capture(tmp_path: Path, capture) -> None:
-    (tmp_path / "rig.json").write_text(RIG.to_json())
-    write_camera_stacks(capture.images, tmp_path / "object.zip", CODEC)
     args = _args(
         tmp_path,
-        object=tmp_path / "object.zip",
+        object=_written(tmp_path, RIG, capture),
         xyz=tmp_path / "xyz.npy",
         out=tmp_path / "z.npy",
         sigma=tmp_path / "s.npy",
@@ -72,6 +77,25 @@ def test_measure_a_stereo_capture(tmp_path: Path, capture) -> None:
     np.testing.assert_array_equal(np.load(tmp_path / "xyz2.npy"), xyz)
     with pytest.raises(BadInputError, match="give --out"):
         cmd_measure(_args(tmp_path, object=tmp_path / "object.zip"))
+
+
+def test_a_calibrated_projector_s_pairs_reach_the_ply_and_the_summary(tmp_path: Path, capture) -> None:
+    """With the projector calibrated, ``--json`` counts the points of each combination of pairs and a
+    PLY mesh carries each vertex's pairs (a uchar property ``pairs``, docs/stereo.md)."""
+    obj = _written(tmp_path, CALIBRATED_RIG, capture)
+    summary = cmd_measure(
+        _args(tmp_path, object=obj, xyz=tmp_path / "x.npy", mesh=tmp_path / "m.ply", json=tmp_path / "s.json")
+    )
+    stats = json.loads((tmp_path / "s.json").read_text())
+    per_pairs = stats["points_per_pairs"]
+    assert summary["points_per_pairs"] == per_pairs
+    assert (
+        sum(per_pairs.values()) == stats["valid_pixels"] == int(np.isfinite(np.load(tmp_path / "x.npy")[..., 2]).sum())
+    )
+    assert per_pairs["camera0-camera1+camera0-projector+camera1-projector"] > 0.9 * stats["valid_pixels"]
+    assert per_pairs["camera0-projector"] > 0  # the edge of camera 0's field that camera 1 does not see
+    header = (tmp_path / "m.ply").read_bytes().partition(b"end_header")[0]
+    assert b"property uchar pairs" in header
 
 
 def test_bad_stereo_captures_name_the_camera(tmp_path: Path, capture) -> None:

@@ -231,11 +231,15 @@ class CombinedMaps:
         stereo rig: the disparity of the matched cameras as ``u``). NaN where not measured.
     sigma : (H, W) float32 array or None
         Its ``sigma_in``: the standard deviation of what ``u`` (the triangulated axis) holds.
+    pairs : (H, W) uint8 array or None
+        For a model of several devices: which of its pairs measured each pixel (bits; a stereo rig's
+        are in :mod:`~metrology.core.geometry.stereo_fusion`), 0 where none did; None for one camera.
     """
 
     u: np.ndarray | None
     v: np.ndarray | None
     sigma: np.ndarray | None = None
+    pairs: np.ndarray | None = None
 
 
 class ReferenceSurface(ABC):

@@ -16,7 +16,8 @@ centres at integer coordinates; ``K`` and ``dist`` as in pinhole rig files
 (:mod:`metrology.core.geometry.rig_file`). The ``projector`` holds at least its size in the
 codec's units (``width``, ``height``); with ``K`` (and optionally ``dist``), ``R`` and ``T``
 (``X_p = R X_c0 + T``) it is calibrated too (the depth never needs it: the two cameras
-triangulate; the virtual rig and later fused camera-projector pairs use it).
+triangulate; the virtual rig lights its scenes with it, and measurement fuses the camera-projector
+pairs with the camera pair: :mod:`metrology.core.geometry.stereo_fusion`).
 
 Measurement (:class:`PreparedStereo`) is in :mod:`metrology.core.geometry.stereo_match`.
 """

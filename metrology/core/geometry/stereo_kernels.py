@@ -317,3 +317,144 @@ def match_2d_tile(
             if found == 1:
                 x1_out[r, c] = fx
                 y1_out[r, c] = fy
+
+
+@njit(nogil=True, cache=True)
+def camera1_depth(
+    xp: float, d: float, x_r: float, y_r: float, w: float, plane: np.ndarray
+) -> float:  # pragma: no cover - compiled
+    """Camera 1 - projector depth on camera 0's ray (mm; :mod:`~metrology.core.geometry.stereo_fusion`):
+    camera 1's ray ``Y(Z) = (Z (x_r + d) - b, Z y_r, Z)`` (camera 0's rectified frame) meets the light
+    plane ``m . Y + n . T_p = 0``, ``m = g_i - x_p g_z``, ``n . T_p = T_i - x_p T_z``, at ``Z = (b m_x - n .
+    T_p) / (m . (x_r + d, y_r, 1))``; the point's foot on ``a = (x_r, y_r, 1)`` is ``(Y . a) / (a . a)``,
+    over ``w`` camera 0's depth. ``plane``: ``(b, g_i[0..2], g_z[0..2], T_i, T_z)`` float64. NaN unless
+    positive."""
+    b = plane[0]
+    m0 = plane[1] - xp * plane[4]
+    m1 = plane[2] - xp * plane[5]
+    m2 = plane[3] - xp * plane[6]
+    nT = plane[7] - xp * plane[8]
+    x1 = x_r + d
+    den = m0 * x1 + m1 * y_r + m2
+    if den == 0.0 or math.isnan(den):
+        return np.nan
+    Z = (b * m0 - nT) / den
+    t = ((Z * x1 - b) * x_r + Z * y_r * y_r + Z) / (x_r * x_r + y_r * y_r + 1.0) / w
+    return t if t > 0 else np.nan
+
+
+@njit(nogil=True, cache=True)
+def camera1_depth_tile(
+    xp: np.ndarray, d: np.ndarray, x_r: np.ndarray, y_r: np.ndarray, w: np.ndarray, plane: np.ndarray, out: np.ndarray
+) -> None:  # pragma: no cover - compiled
+    """:func:`camera1_depth` of every pixel of the ``(n, m)`` float64 arrays into ``out``."""
+    n, m = xp.shape
+    for r in range(n):
+        for c in range(m):
+            out[r, c] = camera1_depth(xp[r, c], d[r, c], x_r[r, c], y_r[r, c], w[r, c], plane)
+
+
+@njit(nogil=True, cache=True)
+def _projector_coordinate(p: np.ndarray, r: int, c: int, projector: np.ndarray) -> float:  # pragma: no cover
+    """The undistorted normalized projector coordinate ``(R_p P + T_p)_i / (R_p P + T_p)_z`` of the
+    float32 point ``p[r, c]``; ``projector``: ``(R_p[i], T_i, R_p[2], T_z)`` (8 float64)."""
+    x, y, z = np.float64(p[r, c, 0]), np.float64(p[r, c, 1]), np.float64(p[r, c, 2])
+    coded = projector[0] * x + projector[1] * y + projector[2] * z + projector[3]
+    depth = projector[4] * x + projector[5] * y + projector[6] * z + projector[7]
+    return coded / depth
+
+
+@njit(nogil=True, cache=True)
+def fuse_tile(
+    d: np.ndarray,
+    p0: np.ndarray,
+    p0h: np.ndarray,
+    sigma0: np.ndarray,
+    sigma_d: np.ndarray,
+    shared: np.ndarray,
+    k: np.ndarray,
+    x_r: np.ndarray,
+    y_r: np.ndarray,
+    w: np.ndarray,
+    plane: np.ndarray,
+    projector: np.ndarray,
+    steps: np.ndarray,
+    t_out: np.ndarray,
+    sigma_out: np.ndarray,
+    pairs_out: np.ndarray,
+    t01_out: np.ndarray,
+    t1p_out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """The fusion of :mod:`~metrology.core.geometry.stereo_fusion` (its docstring's equations) for a
+    tile of camera 0's pixels, ``(n, m)`` each: ``d`` the normalized disparity, ``p0``/``p0h`` the camera
+    0 - projector points (float32 ``(n, m, 3)``) at ``q`` and ``q + h``, ``sigma0``, ``sigma_d``, ``shared``
+    (``c / (s f)``), ``k``, camera 0's rectified ``x_r, y_r, w``; ``plane`` as :func:`camera1_depth`,
+    ``projector`` as :func:`_projector_coordinate`, ``steps`` ``(h, h_d)``. Writes the fused depth and
+    sigma (mm), the pairs bits (1, 2, 4), ``t_01`` and ``t_1p`` (NaN where not measured)."""
+    n, m = d.shape
+    h, hd = steps[0], steps[1]
+    for r in range(n):
+        for c in range(m):
+            dd = np.float64(d[r, c])
+            t01 = k[r, c] / dd if dd != 0 else np.nan
+            if not t01 > 0:
+                t01 = np.nan
+            t0p = float(p0[r, c, 2])
+            if not t0p > 0:
+                t0p = np.nan
+            xp = _projector_coordinate(p0, r, c, projector)
+            xph = _projector_coordinate(p0h, r, c, projector)
+            a0p = (np.float64(p0h[r, c, 2]) - t0p) / h
+            xr, yr, ww = x_r[r, c], y_r[r, c], w[r, c]
+            t1p = camera1_depth(xp, dd, xr, yr, ww, plane)
+            a1p = (camera1_depth(xph, dd, xr, yr, ww, plane) - t1p) / h
+            b1p = (camera1_depth(xp, dd + hd, xr, yr, ww, plane) - t1p) / hd
+            has1p = not (math.isnan(t1p) or math.isnan(a1p) or math.isnan(b1p))
+            s0 = np.float64(sigma0[r, c])
+            sd = np.float64(sigma_d[r, c])
+            t01_out[r, c] = t01
+            t1p_out[r, c] = t1p if has1p else np.nan
+            fused = np.nan
+            sigma_f = np.nan
+            if not (math.isnan(t01) or math.isnan(t0p)):
+                b01 = -t01 / dd
+                vq = s0 * s0
+                vd = sd * sd
+                cqd = np.float64(shared[r, c]) * vq
+                gq = 1.0 / a0p
+                gd = 1.0 / b01
+                det = vq * vd - cqd * cqd
+                iq = (vd * gq - cqd * gd) / det
+                idd = (vq * gd - cqd * gq) / det
+                info = gq * iq + gd * idd
+                zq = iq / info
+                zd = idd / info
+                a1 = a1p if has1p else 0.0
+                b1 = b1p if has1p else 0.0
+                jqq = a0p * a0p + a1 * a1
+                jqd = a1 * b1
+                jdd = b01 * b01 + b1 * b1
+                jdet = jqq * jdd - jqd * jqd
+                yq = (jdd * zq - jqd * zd) / jdet
+                yd = (jqq * zd - jqd * zq) / jdet
+                w01 = b01 * yd
+                w0p = a0p * yq
+                w1p = a1 * yq + b1 * yd
+                fused = (w01 * t01 + w0p * t0p + (w1p * t1p if has1p else 0.0)) / (w01 + w0p + w1p)
+                sigma_f = 1.0 / math.sqrt(info) if info > 0 else np.nan
+            if not (math.isnan(fused) or math.isnan(sigma_f)):
+                t_out[r, c] = fused
+                sigma_out[r, c] = sigma_f
+                pairs_out[r, c] = 7 if has1p else 3
+            elif math.isnan(t01) and not math.isnan(t0p):
+                t_out[r, c] = t0p
+                sigma_out[r, c] = abs(a0p) * s0
+                pairs_out[r, c] = 2
+            elif not math.isnan(t01):
+                t_out[r, c] = t01
+                sigma_out[r, c] = abs(t01 / dd) * sd
+                pairs_out[r, c] = 1
+            else:
+                t_out[r, c] = np.nan
+                sigma_out[r, c] = np.nan
+                pairs_out[r, c] = 0

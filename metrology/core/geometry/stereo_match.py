@@ -50,7 +50,7 @@ import math
 import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
@@ -74,6 +74,7 @@ from metrology.core.geometry.pinhole import (
     ray_points,
     reference_plane,
 )
+from metrology.core.geometry.stereo_fusion import PAIR_CAMERAS, PairFusion
 from metrology.core.geometry.stereo_kernels import cell_buckets, depth_tile, match_2d_tile, match_tile, sample_tile
 from metrology.core.tiling import run_tiled, thread_scratch
 
@@ -304,8 +305,13 @@ class PreparedStereo(PreparedGeometry):
 
     Its :meth:`combine` turns both cameras' decoded maps of :attr:`axis` into the normalized
     disparity ``d`` on camera 0's grid (and its sigma); :meth:`triangulate_rows` reads ``d`` as
-    its ``u`` (and the disparity's sigma as ``sigma_in``).
+    its ``u`` (and the disparity's sigma as ``sigma_in``). With a calibrated projector it also fuses
+    the camera-projector pairs with the camera pair (:attr:`fusion`,
+    :mod:`~metrology.core.geometry.stereo_fusion`).
     """
+
+    fuses_projector: ClassVar[bool] = True
+    """Whether a calibrated projector's pairs are fused with the camera pair (the epipolar match)."""
 
     def __init__(self, rig: StereoRig, axis: str) -> None:
         self.model = rig
@@ -322,6 +328,7 @@ class PreparedStereo(PreparedGeometry):
         xn, yn = _camera_tables(rig.camera0)
         x0r, y0r, w = _rectified_normalized(rect.R0, xn, yn)
         self.back = Bilinear.at(x0r * rect.f + rect.cx[0], y0r * rect.f + rect.cy, rect.shapes[0])
+        self.x0r, self.y0r, self.w = x0r, y0r, w  # camera 0's pixels in its rectified frame (float64)
         self.xn, self.yn = xn, yn
         self.xn32, self.yn32 = xn.astype(np.float32), yn.astype(np.float32)
         self.norm_d = np.sqrt(xn * xn + yn * yn + 1.0).astype(np.float32)
@@ -329,7 +336,10 @@ class PreparedStereo(PreparedGeometry):
         cols = np.arange(rect.shapes[0][1], dtype=np.float32)
         self._x0n = (cols - np.float32(rect.cx[0])) / np.float32(rect.f)  # rectified camera-0 columns, normalized
         self._projector = _projector_geometry(rig)
+        fuses = self._projector is not None and self.fuses_projector
+        self.fusion = PairFusion(self, self._projector) if fuses and self._projector is not None else None
         self._gain: np.ndarray | None = None
+        self._self_weight: np.ndarray | None = None
         self._gain_lock = threading.Lock()
 
     # ------------------------------------------------------------------ interface
@@ -357,7 +367,8 @@ class PreparedStereo(PreparedGeometry):
         threads: int | None = None,
     ) -> CombinedMaps:
         """Rectify both cameras' maps of :attr:`axis`, match them and sample the disparity back on
-        camera 0's grid (module docstring, steps 1-3).
+        camera 0's grid (module docstring, steps 1-3); with a calibrated projector, fuse the
+        camera-projector pairs with the camera pair (:mod:`~metrology.core.geometry.stereo_fusion`).
 
         Parameters
         ----------
@@ -370,18 +381,22 @@ class PreparedStereo(PreparedGeometry):
         -------
         CombinedMaps
             ``u``: the normalized disparity ``d`` (H, W) float32 on camera 0's grid, NaN where
-            not matched; ``sigma``: its standard deviation (normalized), when ``sigma`` was given.
+            not matched (with a calibrated projector the fused depth's ``d = k / t``, NaN where no
+            pair measured); ``sigma``: its standard deviation (normalized), when ``sigma`` was given;
+            ``pairs``: the pairs that measured each pixel (uint8 bits,
+            :data:`~metrology.core.geometry.stereo_fusion.PAIR_CAMERAS` ...).
         """
-        u0r, u1r = (
-            self.rectify(camera, m[0], threads) for camera, m in enumerate(self._maps(coordinates, (self.axis,)))
-        )
+        (u0,), (u1,) = self._maps(coordinates, (self.axis,))
+        u0r, u1r = self.rectify(0, u0, threads), self.rectify(1, u1, threads)
         proj = self.rig.projector
         size = proj.width if self.axis == "u" else proj.height
         lo, hi = -2.0, size + 1.0  # every decoded coordinate (the codec's field and its margin)
+        sign = 1.0
         if _decreasing(u1r):
             np.negative(u0r, out=u0r)
             np.negative(u1r, out=u1r)
             lo, hi = -hi, -lo
+            sign = -1.0
         rect = self.rect
         rows, cols0 = rect.shapes[0]
         disparity = np.empty((rows, cols0), np.float32)
@@ -401,10 +416,26 @@ class PreparedStereo(PreparedGeometry):
         run_tiled(run, rows, width, threads)
         out = np.empty(self.shape, np.float32)
         run_tiled(lambda r: self.back.sample(disparity, r, out[r], True), *self.shape, threads)
+        given = sigma is not None and sigma[0] is not None and sigma[1] is not None
         sigma_out = None
-        if sigma is not None and sigma[0] is not None and sigma[1] is not None:
+        if given:
+            assert sigma is not None and sigma[0] is not None and sigma[1] is not None
             sigma_out = self._disparity_sigma(sigma[0], sigma[1], x1, step, threads)
-        return CombinedMaps(u=out, v=None, sigma=sigma_out)
+        if self.fusion is None:
+            pairs = np.where(np.isfinite(out), np.uint8(PAIR_CAMERAS), np.uint8(0))
+            return CombinedMaps(u=out, v=None, sigma=sigma_out, pairs=pairs)
+        # equal unit noise in both cameras when no noise maps are given: the weights from the geometry alone
+        sigma_d = sigma_out if sigma_out is not None else self._disparity_sigma(None, None, x1, step, threads)
+        sigma0 = np.asarray(sigma[0], np.float32) if given else np.ones(self.shape, np.float32)  # type: ignore[index]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            per_q = np.float32(sign) / (step * np.float32(rect.f))
+        d_per_q = np.empty(self.shape, np.float32)
+        run_tiled(lambda r: self.back.sample(per_q, r, d_per_q[r]), *self.shape, threads)
+        fused = self.fusion.fuse(u0, out, sigma0, sigma_d, d_per_q, threads)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d = (self.k / fused.t_mm).astype(np.float32)
+            sigma_fused = (fused.sigma_mm * np.abs(d) / fused.t_mm).astype(np.float32) if given else None
+        return CombinedMaps(u=d, v=None, sigma=sigma_fused, pairs=fused.pairs)
 
     def _maps(
         self, coordinates: Sequence[Mapping[str, np.ndarray | None]], axes: tuple[str, ...]
@@ -453,21 +484,60 @@ class PreparedStereo(PreparedGeometry):
                 self._gain = np.sqrt(mean).astype(np.float32)
             return self._gain
 
+    def self_weight(self) -> np.ndarray:
+        """``(H, W)`` float32: the weight ``c`` each camera-0 pixel has on its own value after the
+        resampling chain (onto camera 0's rectified grid and back, bilinear weights): ``c = sum_r b_r
+        f_r``, ``b_r`` the back-sampling weight of the rectified pixel ``r`` and ``f_r`` that pixel's
+        forward weight on the camera-0 pixel. With white noise of standard deviation ``sigma`` per
+        pixel it is the covariance of a pixel's noise and its resampled noise over ``sigma^2`` (the
+        disparity shares camera 0's noise with the pixel's coordinate:
+        :mod:`~metrology.core.geometry.stereo_fusion`). Exact, computed once."""
+        with self._gain_lock:
+            if self._self_weight is None:
+                back, forward = self.back, self.forward[0]
+                h, w = self.shape
+                own = np.arange(h * w, dtype=np.int64).reshape(h, w)
+                bx, by = np.nan_to_num(back.wx.astype(np.float64)), np.nan_to_num(back.wy.astype(np.float64))
+                fwx, fwy = np.nan_to_num(forward.wx.ravel()), np.nan_to_num(forward.wy.ravel())
+                findex = forward.index.ravel().astype(np.int64)
+                total = np.zeros((h, w), np.float64)
+                for dy in (0, 1):
+                    for dx in (0, 1):
+                        weight_b = (bx if dx else 1 - bx) * (by if dy else 1 - by)
+                        r = back.index.astype(np.int64) + dx + dy * back.width
+                        fx, fy, base = fwx[r].astype(np.float64), fwy[r].astype(np.float64), findex[r]
+                        for ey in (0, 1):
+                            for ex in (0, 1):
+                                hit = base + ex + ey * forward.width == own
+                                weight_f = (fx if ex else 1 - fx) * (fy if ey else 1 - fy)
+                                total += np.where(hit, weight_b * weight_f, 0.0)
+                self._self_weight = total.astype(np.float32)
+            return self._self_weight
+
     def _disparity_sigma(
-        self, sigma0: np.ndarray, sigma1: np.ndarray, x1: np.ndarray, slope: np.ndarray, threads: int | None
+        self,
+        sigma0: np.ndarray | None,
+        sigma1: np.ndarray | None,
+        x1: np.ndarray,
+        slope: np.ndarray,
+        threads: int | None,
     ) -> np.ndarray:
         """The disparity's standard deviation on camera 0's grid (normalized; module docstring):
         ``sqrt(sigma_0^2 + sigma_1^2) / |u_1'| / f`` at the matched pixels, sampled back on camera
         0's grid, times the resampling chain's noise gain (:meth:`noise_gain`, the same for both
-        cameras' share: both go onto a rectified grid and back)."""
+        cameras' share: both go onto a rectified grid and back). ``sigma0``, ``sigma1`` None: unit
+        noise in both cameras."""
         rect = self.rect
-        s0 = self.rectify(0, sigma0, threads)
-        s1 = self.rectify(1, sigma1, threads)
-        rows, cols1 = rect.shapes[1]
         hit = np.isfinite(x1)
-        at = np.where(hit, np.clip(np.rint(x1), 0, cols1 - 1), 0).astype(np.intp)
-        at += (np.arange(rows, dtype=np.intp) * cols1)[:, None]
-        sigma_x1 = np.hypot(s0, s1.ravel().take(at))
+        if sigma0 is None or sigma1 is None:
+            sigma_x1 = np.full(x1.shape, math.sqrt(2.0), np.float32)
+        else:
+            s0 = self.rectify(0, sigma0, threads)
+            s1 = self.rectify(1, sigma1, threads)
+            rows, cols1 = rect.shapes[1]
+            at = np.where(hit, np.clip(np.rint(x1), 0, cols1 - 1), 0).astype(np.intp)
+            at += (np.arange(rows, dtype=np.intp) * cols1)[:, None]
+            sigma_x1 = np.hypot(s0, s1.ravel().take(at))
         sigma_d = sigma_x1 / np.abs(slope * np.float32(rect.f))
         sigma_d[~hit] = np.nan
         back = np.empty(self.shape, np.float32)
@@ -567,6 +637,8 @@ class PreparedStereo2D(PreparedStereo):
     epipolar path would have had, ``d = k / t_m``, so :meth:`triangulate_rows` is shared. No sigma
     (the error model is the epipolar path's)."""
 
+    fuses_projector: ClassVar[bool] = False
+
     @property
     def required_axes(self) -> tuple[str, ...]:
         return ("u", "v")
@@ -617,7 +689,8 @@ class PreparedStereo2D(PreparedStereo):
             tm = (mx * ax + my * ay + mz) / aa
             d = (self.k / tm).astype(np.float32)
         d[~(tm > 0)] = np.nan
-        return CombinedMaps(u=d, v=None, sigma=None)
+        pairs = np.where(np.isfinite(d), np.uint8(PAIR_CAMERAS), np.uint8(0))
+        return CombinedMaps(u=d, v=None, sigma=None, pairs=pairs)
 
 
 def _decreasing(u1r: np.ndarray) -> bool:
