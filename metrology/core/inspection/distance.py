@@ -38,6 +38,14 @@ INTERIOR = 1e-4
 """Barycentric margin (float32 Open3D coordinates) beyond which a closest point is inside its face."""
 CHUNK = 1 << 18
 """Points per block of the float64 step (bounded temporaries)."""
+ORDER_BITS = 10
+"""Bits per axis of the Morton key that orders a query (:func:`spatial_order`)."""
+ORDER_MIN_POINTS = 4096
+"""Queries of fewer points are passed to Open3D in their own order."""
+_SPREAD_BITS = np.bitwise_or.reduce(
+    [((np.arange(1 << ORDER_BITS) >> bit) & 1) << (3 * bit) for bit in range(ORDER_BITS)]
+).astype(np.uint32)
+"""``(2^ORDER_BITS,)`` uint32: a cell index with bit ``b`` moved to bit ``3 b`` (Morton interleaving)."""
 
 
 @dataclass(frozen=True)
@@ -94,6 +102,7 @@ class SurfaceDistance:
         vertices = nominal.vertices
         faces = nominal.faces.astype(np.int64)
         self.centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+        self.half_size = float(0.5 * (vertices.max(axis=0) - vertices.min(axis=0)).max())
         self.vertices = vertices
         self.faces = faces
         a, b, c = (vertices[faces[:, k]] for k in range(3))
@@ -129,12 +138,23 @@ class SurfaceDistance:
     def closest_faces(self, points_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The triangle holding the closest point of each ``(N, 3)`` point, ``(N,)`` int64, and that
         point's barycentric coordinates ``(N, 2)`` float32 ``(u, v)``: ``c = (1 - u - v) a + u b + v c``
-        (Open3D, float32)."""
+        (Open3D, float32; the points are queried in :func:`spatial_order`, the answers returned in
+        the points' order)."""
         import open3d
 
-        query = open3d.core.Tensor.from_numpy(np.ascontiguousarray(points_mm - self.centre, dtype=np.float32))
-        answer = self.scene.compute_closest_points(query)
-        return answer["primitive_ids"].numpy().astype(np.int64), answer["primitive_uvs"].numpy()
+        query = np.ascontiguousarray(points_mm - self.centre, dtype=np.float32)
+        order = spatial_order(query, self.half_size) if query.shape[0] >= ORDER_MIN_POINTS else None
+        answer = self.scene.compute_closest_points(
+            open3d.core.Tensor.from_numpy(query if order is None else query[order])
+        )
+        ids, uvs = answer["primitive_ids"].numpy(), answer["primitive_uvs"].numpy()
+        if order is None:
+            return ids.astype(np.int64), uvs
+        face = np.empty(ids.shape[0], np.int64)
+        face[order] = ids
+        uv = np.empty_like(uvs)
+        uv[order] = uvs
+        return face, uv
 
     def deviations(self, points_mm: np.ndarray) -> Deviations:
         """Signed distances of ``(N, 3)`` points (mm, finite) to the surface (module docstring).
@@ -220,6 +240,22 @@ class SurfaceDistance:
         direction = np.where(in_face[:, None] | (distance[:, None] == 0), normal, gradient)
         feature = np.where(is_vertex, VERTEX, np.where(is_edge, EDGE, FACE)).astype(np.int8)
         return signed, closest, direction, face, feature, boundary
+
+
+def spatial_order(points: np.ndarray, half_size: float) -> np.ndarray:
+    """``(N,)`` int64: an order of ``(N, 3)`` points (centred on the mesh's bounding box, mm) along
+    a Z-order (Morton) curve through a ``2^ORDER_BITS`` grid per axis over the cube of half side
+    ``half_size`` (points beyond it are clamped to its border cells).
+
+    Open3D answers closest-point queries in the order given; consecutive queries that are near
+    each other walk the same branches of its bounding-volume hierarchy, which then stay in cache:
+    1.2 M points scattered over the benchmark's part take 0.7 s in this order against 1.2 s in a
+    random one (the answers are the same, point by point)."""
+    cells = (1 << ORDER_BITS) - 1
+    scale = np.float32(cells / (2.0 * half_size if half_size > 0 else 1.0))
+    grid = np.clip((points + np.float32(half_size)) * scale, 0, cells).astype(np.int32)
+    key = _SPREAD_BITS[grid[:, 0]] | (_SPREAD_BITS[grid[:, 1]] << 1) | (_SPREAD_BITS[grid[:, 2]] << 2)
+    return np.argsort(key)
 
 
 def signed_distance(nominal: NominalModel, points_mm: np.ndarray) -> np.ndarray:
