@@ -31,13 +31,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from metrology.core.inspection.nominal import NominalModel
+from metrology.core.tiling import map_threads, nested_threads
 
 FACE, EDGE, VERTEX = 0, 1, 2
 """Feature codes of :attr:`Deviations.feature`."""
 INTERIOR = 1e-4
 """Barycentric margin (float32 Open3D coordinates) beyond which a closest point is inside its face."""
-CHUNK = 1 << 18
-"""Points per block of the float64 step (bounded temporaries)."""
+BLOCK_POINTS = 1 << 15
+"""Points per block of the float64 step (:meth:`SurfaceDistance.deviations`)."""
 ORDER_BITS = 10
 """Bits per axis of the Morton key that orders a query (:func:`spatial_order`)."""
 ORDER_MIN_POINTS = 4096
@@ -107,6 +108,7 @@ class SurfaceDistance:
         self.faces = faces
         a, b, c = (vertices[faces[:, k]] for k in range(3))
         self.face_normals = _unit(np.cross(b - a, c - a))
+        self.face_origins = a  # (F, 3): each face's first corner
         # edge k of a face runs from corner k to corner k + 1
         n = vertices.shape[0]
         start, end = faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)
@@ -156,27 +158,36 @@ class SurfaceDistance:
         uv[order] = uvs
         return face, uv
 
-    def deviations(self, points_mm: np.ndarray) -> Deviations:
+    def deviations(self, points_mm: np.ndarray, threads: int | None = None) -> Deviations:
         """Signed distances of ``(N, 3)`` points (mm, finite) to the surface (module docstring).
 
         Where Open3D's closest point lies inside its triangle by more than :data:`INTERIOR`
         (barycentric), the closest point is that triangle's interior in float64 too and the
-        distance is ``(p - a) . n_f``; the other points take the full float64 closest-feature step."""
+        distance is ``(p - a) . n_f``; the other points take the full float64 closest-feature step.
+        The float64 step runs in blocks of :data:`BLOCK_POINTS` points (their temporaries stay in
+        cache) on ``threads`` threads (:func:`metrology.core.tiling.map_threads`; default: the
+        machine's cores, at most four; one when called from a thread of that pool); every block
+        writes its own rows of the outputs."""
         points = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
         face, uv = self.closest_faces(points)
-        u, v = uv[:, 0], uv[:, 1]
-        interior = (u > INTERIOR) & (v > INTERIOR) & (1.0 - u - v > INTERIOR)
-        normal = self.face_normals[face]
-        distance = _dot(points - self.vertices[self.faces[face, 0]], normal)
-        closest = points - distance[:, None] * normal
-        direction = normal
-        feature = np.zeros(points.shape[0], np.int8)
-        boundary = np.zeros(points.shape[0], bool)
-        rest = np.flatnonzero(~interior)
-        for block in _blocks(rest.size):
-            index = rest[block]
-            values = self._exact(points[index], face[index])
-            distance[index], closest[index], direction[index], _, feature[index], boundary[index] = values
+        n = points.shape[0]
+        distance, closest, direction = np.empty(n), np.empty((n, 3)), np.empty((n, 3))
+        feature, boundary = np.zeros(n, np.int8), np.zeros(n, bool)
+
+        def run(block: slice) -> None:
+            p, f = points[block], face[block]
+            normal = np.take(self.face_normals, f, axis=0, out=direction[block])
+            d = _dot(p - self.face_origins[f], normal)
+            distance[block] = d
+            np.subtract(p, d[:, None] * normal, out=closest[block])
+            u, v = uv[block, 0], uv[block, 1]
+            rest = np.flatnonzero((u <= INTERIOR) | (v <= INTERIOR) | (1.0 - u - v <= INTERIOR)) + block.start
+            if rest.size:
+                values = self._exact(points[rest], face[rest])
+                distance[rest], closest[rest], direction[rest], _, feature[rest], boundary[rest] = values
+
+        blocks = [slice(i, min(i + BLOCK_POINTS, n)) for i in range(0, n, BLOCK_POINTS)]
+        map_threads(run, blocks, nested_threads(threads))
         return Deviations(distance, closest, direction, face, feature, boundary)
 
     def _exact(
@@ -275,7 +286,3 @@ def _unit(v: np.ndarray) -> np.ndarray:
 def _sum_by(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
     """``(size, 3)``: the rows of ``values`` summed by ``index``."""
     return np.stack([np.bincount(index, values[:, k], minlength=size) for k in range(3)], axis=1)
-
-
-def _blocks(n: int) -> list[slice]:
-    return [slice(i, min(i + CHUNK, n)) for i in range(0, n, CHUNK)]
