@@ -78,20 +78,6 @@ class Deviations:
     boundary: np.ndarray
 
 
-def scatter(size: int, pieces: list[tuple[np.ndarray, Deviations]]) -> Deviations:
-    """The deviations of ``size`` points assembled from ``pieces``: ``(index (M,) int, Deviations of
-    those M points)``, the indices together covering ``0 .. size - 1`` once."""
-    fields = ("distance_mm", "closest_mm", "direction", "face", "feature", "boundary")
-    out = []
-    for name in fields:
-        first = getattr(pieces[0][1], name)
-        values = np.empty((size, *first.shape[1:]), first.dtype)
-        for index, piece in pieces:
-            values[index] = getattr(piece, name)
-        out.append(values)
-    return Deviations(*out)
-
-
 class SurfaceDistance:
     """A nominal mesh prepared for signed distances (the Open3D scene, face, edge and vertex
     pseudo-normals). Thread-safe for queries once built."""
