@@ -246,8 +246,9 @@ def spatial_order(points: np.ndarray, half_size: float) -> np.ndarray:
 
     Open3D answers closest-point queries in the order given; consecutive queries that are near
     each other walk the same branches of its bounding-volume hierarchy, which then stay in cache:
-    1.2 M points scattered over the benchmark's part take 0.7 s in this order against 1.2 s in a
-    random one (the answers are the same, point by point)."""
+    Open3D's query of 1.2 M points scattered over the benchmark's part takes 0.78 s of CPU in this
+    order against 1.3 s in a random one (the answers are the same, point by point); ordering them
+    costs about 0.15 s."""
     cells = (1 << ORDER_BITS) - 1
     scale = np.float32(cells / (2.0 * half_size if half_size > 0 else 1.0))
     grid = np.clip((points + np.float32(half_size)) * scale, 0, cells).astype(np.int32)
