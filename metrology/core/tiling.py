@@ -94,6 +94,14 @@ def run_beside(func: Callable[[], T], threads: int | None = None) -> Callable[[]
     return _thread_pool(n_threads).submit(func).result
 
 
+def nested_threads(threads: int | None = None) -> int | None:
+    """``threads`` for a call of :func:`run_tiled` or :func:`map_threads` that may itself run on
+    one of the pool's threads: 1 there (a nested call on the same pool would wait for workers
+    that are all busy), ``threads`` elsewhere."""
+    return 1 if threading.current_thread().name.startswith(_THREAD_PREFIX) else threads
+
+
+_THREAD_PREFIX = "gcps-tile"
 _pools: dict[tuple[int, int], ThreadPoolExecutor] = {}
 _pools_lock = threading.Lock()
 
@@ -105,7 +113,7 @@ def _thread_pool(n_threads: int) -> ThreadPoolExecutor:
     with _pools_lock:
         pool = _pools.get(key)
         if pool is None:
-            pool = _pools[key] = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="gcps-tile")
+            pool = _pools[key] = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix=_THREAD_PREFIX)
         return pool
 
 

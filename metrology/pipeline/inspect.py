@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from metrology.core.inspection import alignment, conformance
-from metrology.core.inspection.distance import Deviations, SurfaceDistance, scatter
+from metrology.core.inspection.distance import Deviations, SurfaceDistance
 from metrology.core.inspection.feature_regions import FeatureSpec, measure_features, parse_features
 from metrology.core.inspection.nominal import NominalModel
 from metrology.core.inspection.scan import Scan
@@ -285,30 +285,37 @@ def inspect(nominal: NominalModel, scan: Scan, options: InspectOptions | None = 
             )
         with timer.phase("deviations"):
             aligned = alignment.apply(fit.transform, points)
-            dev = _deviations(surface, aligned, candidates, fit.deviations)
+            pieces = _deviation_pieces(surface, aligned, candidates, fit.deviations)
         with timer.phase("uncertainty"):
-            rays = None
-            if sigma is not None and scan.sigma_along_ray:
-                rays = (points - scan.ray_origin_mm) @ fit.transform[:3, :3].T  # ray directions, nominal frame
-            u_point = conformance.point_uncertainty(sigma, dev.direction, rays=rays)
-            u_point = np.where(usable, u_point, np.nan)
-            u_fit = fit.normal_uncertainty_mm(aligned, dev.direction)
-            u = conformance.combined_uncertainty(u_point, u_fit, options.systematic_mm)
+            m = index.size
+            distance, face, u_point, u = np.empty(m), np.empty(m, np.int64), np.empty(m), np.empty(m)
+            to_nominal = alignment.rigid_transform(fit.transform[:3, :3], np.zeros(3))  # the rotation alone
+            for rows, aligned_rows, dev in pieces:
+                distance[rows], face[rows] = dev.distance_mm, dev.face
+                rays = None
+                if sigma is not None and scan.sigma_along_ray:  # ray directions, nominal frame
+                    rays = alignment.apply(to_nominal, points[rows] - scan.ray_origin_mm)
+                u_rows = conformance.point_uncertainty(None if sigma is None else sigma[rows], dev.direction, rays=rays)
+                u_fit = fit.normal_uncertainty_mm(aligned_rows, dev.direction)
+                u_point[rows] = u_rows
+                u[rows] = conformance.combined_uncertainty(u_rows, u_fit, options.systematic_mm)
+            u_point[~usable] = np.nan
+            u[~usable] = np.nan
         features: list[dict[str, Any]] = []
         if options.features:
             with timer.phase("features"):
                 features = measure_features(
                     options.features,
                     aligned,
-                    dev.distance_mm,
-                    dev.face,
+                    distance,
+                    face,
                     nominal.vertices,
                     nominal.faces,
                     sigma_mm=None if sigma is None else u_point,
                 )
         n = scan.points_mm.shape[0]
         deviation = np.full(n, np.nan)
-        deviation[index] = dev.distance_mm
+        deviation[index] = distance
         uncertainty = np.full(n, np.nan)
         uncertainty[index] = u
         aligned_all = np.full((n, 3), np.nan)
@@ -331,19 +338,24 @@ def inspect(nominal: NominalModel, scan: Scan, options: InspectOptions | None = 
     )
 
 
-def _deviations(
+def _deviation_pieces(
     surface: SurfaceDistance, aligned: np.ndarray, fitted: np.ndarray, known: Deviations | None
-) -> Deviations:
-    """The deviations of the ``(N, 3)`` aligned points: those of the fit's points (at ``fitted``)
-    taken from the fit's last iteration (the same transform, the same numbers), the others computed."""
+) -> list[tuple[np.ndarray | slice, np.ndarray, Deviations]]:
+    """The deviations of the ``(N, 3)`` aligned points in pieces ``(rows, aligned[rows], their
+    deviations)`` covering the rows once: those of the fit's points (at ``fitted``) taken from the
+    fit's last iteration (the same transform, the same numbers), the others computed. Pieces, not
+    one assembled :class:`Deviations`: the callers need a few of its fields per point, and copying
+    the ``(N, 3)`` ones of 1.3 M points into one array took 0.16 s."""
     if known is None:
-        return surface.deviations(aligned)
+        return [(slice(None), aligned, surface.deviations(aligned))]
     rest = np.ones(aligned.shape[0], bool)
     rest[fitted] = False
     others = np.flatnonzero(rest)
-    if others.size == 0:
-        return scatter(aligned.shape[0], [(fitted, known)])
-    return scatter(aligned.shape[0], [(fitted, known), (others, surface.deviations(aligned[others]))])
+    pieces: list[tuple[np.ndarray | slice, np.ndarray, Deviations]] = [(fitted, aligned[fitted], known)]
+    if others.size:
+        aligned_others = aligned[others]
+        pieces.append((others, aligned_others, surface.deviations(aligned_others)))
+    return pieces
 
 
 def _start(

@@ -7,7 +7,16 @@ import numpy as np
 import pytest
 
 from metrology.core.allocation import retain_freed_memory
-from metrology.core.tiling import MIN_TILE_PX, Scratch, row_tiles, run_tiled, scratch_nbytes, thread_scratch
+from metrology.core.tiling import (
+    MIN_TILE_PX,
+    Scratch,
+    map_threads,
+    nested_threads,
+    row_tiles,
+    run_tiled,
+    scratch_nbytes,
+    thread_scratch,
+)
 
 
 def test_row_tiles_cover_the_rows_once():
@@ -63,3 +72,8 @@ def test_retain_freed_memory_applies_on_glibc():
     applied = retain_freed_memory()
     if platform.system() == "Linux" and platform.libc_ver()[0] == "glibc":
         assert applied is True
+
+
+def test_nested_threads_is_one_on_a_thread_of_the_pool():
+    assert nested_threads(3) == 3 and nested_threads() is None
+    assert map_threads(lambda threads: nested_threads(threads), [2, None], threads=2) == [1, 1]

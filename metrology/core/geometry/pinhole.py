@@ -92,7 +92,7 @@ from metrology.core.geometry.rig_file import (
     positive,
     translation,
 )
-from metrology.core.tiling import run_tiled
+from metrology.core.tiling import nested_threads, run_tiled
 
 MODEL_NAME = "pinhole"
 TOP_KEYS: tuple[str, ...] = ("model", "camera", "projector", "R", "T")
@@ -357,9 +357,8 @@ class PinholeRig(GeometryModel):
 
 
 def _table_threads() -> int | None:
-    """Threads for building tables: one inside a tile worker (a nested run_tiled on the same
-    pool would wait for workers that are all busy), the default elsewhere."""
-    return 1 if threading.current_thread().name.startswith("gcps-tile") else None
+    """Threads for building tables: one inside a tile worker, the default elsewhere (:func:`nested_threads`)."""
+    return nested_threads()
 
 
 @functools.lru_cache(maxsize=2)  # tables of a 2048x1536 rig with distortion: ~285 MB

@@ -31,13 +31,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from metrology.core.inspection.nominal import NominalModel
+from metrology.core.tiling import map_threads, nested_threads
 
 FACE, EDGE, VERTEX = 0, 1, 2
 """Feature codes of :attr:`Deviations.feature`."""
 INTERIOR = 1e-4
 """Barycentric margin (float32 Open3D coordinates) beyond which a closest point is inside its face."""
-CHUNK = 1 << 18
-"""Points per block of the float64 step (bounded temporaries)."""
+BLOCK_POINTS = 1 << 15
+"""Points per block of the float64 step (:meth:`SurfaceDistance.deviations`)."""
+ORDER_BITS = 10
+"""Bits per axis of the Morton key that orders a query (:func:`spatial_order`)."""
+ORDER_MIN_POINTS = 4096
+"""Queries of fewer points are passed to Open3D in their own order."""
+_SPREAD_BITS = np.bitwise_or.reduce(
+    [((np.arange(1 << ORDER_BITS) >> bit) & 1) << (3 * bit) for bit in range(ORDER_BITS)]
+).astype(np.uint32)
+"""``(2^ORDER_BITS,)`` uint32: a cell index with bit ``b`` moved to bit ``3 b`` (Morton interleaving)."""
 
 
 @dataclass(frozen=True)
@@ -69,20 +78,6 @@ class Deviations:
     boundary: np.ndarray
 
 
-def scatter(size: int, pieces: list[tuple[np.ndarray, Deviations]]) -> Deviations:
-    """The deviations of ``size`` points assembled from ``pieces``: ``(index (M,) int, Deviations of
-    those M points)``, the indices together covering ``0 .. size - 1`` once."""
-    fields = ("distance_mm", "closest_mm", "direction", "face", "feature", "boundary")
-    out = []
-    for name in fields:
-        first = getattr(pieces[0][1], name)
-        values = np.empty((size, *first.shape[1:]), first.dtype)
-        for index, piece in pieces:
-            values[index] = getattr(piece, name)
-        out.append(values)
-    return Deviations(*out)
-
-
 class SurfaceDistance:
     """A nominal mesh prepared for signed distances (the Open3D scene, face, edge and vertex
     pseudo-normals). Thread-safe for queries once built."""
@@ -94,10 +89,12 @@ class SurfaceDistance:
         vertices = nominal.vertices
         faces = nominal.faces.astype(np.int64)
         self.centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+        self.half_size = float(0.5 * (vertices.max(axis=0) - vertices.min(axis=0)).max())
         self.vertices = vertices
         self.faces = faces
         a, b, c = (vertices[faces[:, k]] for k in range(3))
         self.face_normals = _unit(np.cross(b - a, c - a))
+        self.face_origins = a  # (F, 3): each face's first corner
         # edge k of a face runs from corner k to corner k + 1
         n = vertices.shape[0]
         start, end = faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)
@@ -129,34 +126,54 @@ class SurfaceDistance:
     def closest_faces(self, points_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The triangle holding the closest point of each ``(N, 3)`` point, ``(N,)`` int64, and that
         point's barycentric coordinates ``(N, 2)`` float32 ``(u, v)``: ``c = (1 - u - v) a + u b + v c``
-        (Open3D, float32)."""
+        (Open3D, float32; the points are queried in :func:`spatial_order`, the answers returned in
+        the points' order)."""
         import open3d
 
-        query = open3d.core.Tensor.from_numpy(np.ascontiguousarray(points_mm - self.centre, dtype=np.float32))
-        answer = self.scene.compute_closest_points(query)
-        return answer["primitive_ids"].numpy().astype(np.int64), answer["primitive_uvs"].numpy()
+        query = np.ascontiguousarray(points_mm - self.centre, dtype=np.float32)
+        order = spatial_order(query, self.half_size) if query.shape[0] >= ORDER_MIN_POINTS else None
+        answer = self.scene.compute_closest_points(
+            open3d.core.Tensor.from_numpy(query if order is None else query[order])
+        )
+        ids, uvs = answer["primitive_ids"].numpy(), answer["primitive_uvs"].numpy()
+        if order is None:
+            return ids.astype(np.int64), uvs
+        face = np.empty(ids.shape[0], np.int64)
+        face[order] = ids
+        uv = np.empty_like(uvs)
+        uv[order] = uvs
+        return face, uv
 
-    def deviations(self, points_mm: np.ndarray) -> Deviations:
+    def deviations(self, points_mm: np.ndarray, threads: int | None = None) -> Deviations:
         """Signed distances of ``(N, 3)`` points (mm, finite) to the surface (module docstring).
 
         Where Open3D's closest point lies inside its triangle by more than :data:`INTERIOR`
         (barycentric), the closest point is that triangle's interior in float64 too and the
-        distance is ``(p - a) . n_f``; the other points take the full float64 closest-feature step."""
+        distance is ``(p - a) . n_f``; the other points take the full float64 closest-feature step.
+        The float64 step runs in blocks of :data:`BLOCK_POINTS` points (their temporaries stay in
+        cache) on ``threads`` threads (:func:`metrology.core.tiling.map_threads`; default: the
+        machine's cores, at most four; one when called from a thread of that pool); every block
+        writes its own rows of the outputs."""
         points = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
         face, uv = self.closest_faces(points)
-        u, v = uv[:, 0], uv[:, 1]
-        interior = (u > INTERIOR) & (v > INTERIOR) & (1.0 - u - v > INTERIOR)
-        normal = self.face_normals[face]
-        distance = _dot(points - self.vertices[self.faces[face, 0]], normal)
-        closest = points - distance[:, None] * normal
-        direction = normal
-        feature = np.zeros(points.shape[0], np.int8)
-        boundary = np.zeros(points.shape[0], bool)
-        rest = np.flatnonzero(~interior)
-        for block in _blocks(rest.size):
-            index = rest[block]
-            values = self._exact(points[index], face[index])
-            distance[index], closest[index], direction[index], _, feature[index], boundary[index] = values
+        n = points.shape[0]
+        distance, closest, direction = np.empty(n), np.empty((n, 3)), np.empty((n, 3))
+        feature, boundary = np.zeros(n, np.int8), np.zeros(n, bool)
+
+        def run(block: slice) -> None:
+            p, f = points[block], face[block]
+            normal = np.take(self.face_normals, f, axis=0, out=direction[block])
+            d = _dot(p - self.face_origins[f], normal)
+            distance[block] = d
+            np.subtract(p, d[:, None] * normal, out=closest[block])
+            u, v = uv[block, 0], uv[block, 1]
+            rest = np.flatnonzero((u <= INTERIOR) | (v <= INTERIOR) | (1.0 - u - v <= INTERIOR)) + block.start
+            if rest.size:
+                values = self._exact(points[rest], face[rest])
+                distance[rest], closest[rest], direction[rest], _, feature[rest], boundary[rest] = values
+
+        blocks = [slice(i, min(i + BLOCK_POINTS, n)) for i in range(0, n, BLOCK_POINTS)]
+        map_threads(run, blocks, nested_threads(threads))
         return Deviations(distance, closest, direction, face, feature, boundary)
 
     def _exact(
@@ -222,6 +239,23 @@ class SurfaceDistance:
         return signed, closest, direction, face, feature, boundary
 
 
+def spatial_order(points: np.ndarray, half_size: float) -> np.ndarray:
+    """``(N,)`` int64: an order of ``(N, 3)`` points (centred on the mesh's bounding box, mm) along
+    a Z-order (Morton) curve through a ``2^ORDER_BITS`` grid per axis over the cube of half side
+    ``half_size`` (points beyond it are clamped to its border cells).
+
+    Open3D answers closest-point queries in the order given; consecutive queries that are near
+    each other walk the same branches of its bounding-volume hierarchy, which then stay in cache:
+    Open3D's query of 1.2 M points scattered over the benchmark's part takes 0.78 s of CPU in this
+    order against 1.3 s in a random one (the answers are the same, point by point); ordering them
+    costs about 0.15 s."""
+    cells = (1 << ORDER_BITS) - 1
+    scale = np.float32(cells / (2.0 * half_size if half_size > 0 else 1.0))
+    grid = np.clip((points + np.float32(half_size)) * scale, 0, cells).astype(np.int32)
+    key = _SPREAD_BITS[grid[:, 0]] | (_SPREAD_BITS[grid[:, 1]] << 1) | (_SPREAD_BITS[grid[:, 2]] << 2)
+    return np.argsort(key)
+
+
 def signed_distance(nominal: NominalModel, points_mm: np.ndarray) -> np.ndarray:
     """``(N,)`` float64 signed distances (mm) of ``(N, 3)`` points to ``nominal`` (module docstring)."""
     return SurfaceDistance(nominal).deviations(points_mm).distance_mm
@@ -239,7 +273,3 @@ def _unit(v: np.ndarray) -> np.ndarray:
 def _sum_by(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
     """``(size, 3)``: the rows of ``values`` summed by ``index``."""
     return np.stack([np.bincount(index, values[:, k], minlength=size) for k in range(3)], axis=1)
-
-
-def _blocks(n: int) -> list[slice]:
-    return [slice(i, min(i + CHUNK, n)) for i in range(0, n, CHUNK)]

@@ -7,9 +7,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from metrology.core.inspection.distance import EDGE, FACE, VERTEX, SurfaceDistance
+from metrology.core.inspection.distance import (
+    BLOCK_POINTS,
+    EDGE,
+    FACE,
+    ORDER_MIN_POINTS,
+    VERTEX,
+    SurfaceDistance,
+    spatial_order,
+)
 from metrology.core.inspection.nominal import nominal_from_arrays
-from tests.core.inspection.parts import cube
+from metrology.core.tiling import map_threads
+from tests.core.inspection.parts import asymmetric_part, cube
 
 EXACT = 1e-12  # mm: float64 recomputation of the closest feature
 
@@ -122,3 +131,31 @@ def test_magnitude_agrees_with_open3d_distance() -> None:
     np.testing.assert_allclose(np.abs(found), reference, atol=2e-5)  # float32 at 35 mm
     radius = np.linalg.norm(points, axis=1)
     assert (np.sign(found) == np.sign(radius - 30.0))[np.abs(radius - 30.0) > 0.5].all()
+
+
+def test_spatial_order_of_a_query_changes_no_answer() -> None:
+    """A large query is passed to Open3D in Z order; its answers, back in the points' order, are
+    those of the same points asked a few at a time (each in its own order). Points beyond the
+    bounding box are ordered too (clamped to its border cells)."""
+    surface = SurfaceDistance(asymmetric_part())
+    rng = np.random.default_rng(5)
+    points = rng.uniform(-20.0, 80.0, (3 * ORDER_MIN_POINTS, 3))
+    order = spatial_order((points - surface.centre).astype(np.float32), surface.half_size)
+    assert np.array_equal(np.sort(order), np.arange(points.shape[0])) and not np.array_equal(order, np.sort(order))
+    face, uv = surface.closest_faces(points)
+    pieces = [surface.closest_faces(points[i : i + 1000]) for i in range(0, points.shape[0], 1000)]
+    np.testing.assert_array_equal(face, np.concatenate([p[0] for p in pieces]))
+    np.testing.assert_array_equal(uv, np.concatenate([p[1] for p in pieces]))
+
+
+def test_deviations_in_blocks_on_threads_equal_one_thread_and_nest_in_the_pool() -> None:
+    """The float64 step's blocks on two threads give the one-thread numbers, and a call from a
+    thread of the pool (which then takes one thread) does not wait for itself."""
+    surface = SurfaceDistance(cube())
+    points = np.random.default_rng(9).uniform(-0.5, 1.5, (2 * BLOCK_POINTS + 17, 3))
+    alone = surface.deviations(points, threads=1)
+    together = surface.deviations(points, threads=2)
+    nested = map_threads(lambda half: surface.deviations(half, threads=2), np.array_split(points, 2), threads=2)
+    for name in ("distance_mm", "closest_mm", "direction", "face", "feature", "boundary"):
+        np.testing.assert_array_equal(getattr(together, name), getattr(alone, name))
+        np.testing.assert_array_equal(np.concatenate([getattr(d, name) for d in nested]), getattr(alone, name))
