@@ -16,9 +16,12 @@ import pytest
 from django.test import Client
 
 from metrology.accounts.services import create_user_with_token
+from metrology.devserver import disable_nagle
 from metrology.rigs.services import create_rig
 from tests.app.stacks import SMALL_RIG
 from tests.browser import CHROMIUM, CHROMIUM_ARGS, TIMEOUT_MS
+
+disable_nagle()  # pytest-django's live server is Django's development server (metrology/devserver.py)
 
 #: Far above anything a test does (the suite's fastest loops make a few hundred requests).
 RAISED_RATE = "1000000/hour"
