@@ -54,7 +54,6 @@ def test_beat_schedule_makes_a_worker_store_a_report(tmp_path, media_root):
     with fresh_database() as database_url:
         stack = BeatStack(database_url, media, logs)
         try:
-            stack.manage("migrate", "--noinput")
             code = SETUP.format(rig=repr({**SMALL_RIG, "name": "beat rig"}), options=repr(OPTIONS))
             made = json.loads(re.search(r"^RESULT (.*)$", stack.manage("shell", "-c", code), re.M).group(1))
             stack.start_worker("worker-reports")

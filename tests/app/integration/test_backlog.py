@@ -33,7 +33,6 @@ def backlog_stack(tmp_path, media_root) -> Iterator[tuple[Stack, RedisServer]]:
             # no help from the broker's redelivery of unacknowledged messages: only the sweep recovers
             stack.env["GCPS_BROKER_VISIBILITY_TIMEOUT"] = "3600"
             try:
-                stack.manage("migrate", "--noinput")
                 stack.start_web()
                 yield stack, server
             finally:

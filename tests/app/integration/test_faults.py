@@ -94,7 +94,6 @@ def private_stack(tmp_path, media_root, redis_server) -> Iterator[Stack]:
     with fresh_database() as database_url:
         stack = Stack(database_url, media_root, logs, redis_url=redis_server.url)
         try:
-            stack.manage("migrate", "--noinput")
             stack.start_web()
             yield stack
         finally:

@@ -81,7 +81,6 @@ def supervised(tmp_path, media_root) -> Iterator[tuple[Stack, Supervisor]]:
         with fresh_database() as database_url:
             stack = Stack(database_url, media_root, logs, redis_url=redis_server.url)
             try:
-                stack.manage("migrate", "--noinput")
                 port = free_port()
                 run_dir = tmp_path / "run"
                 run_dir.mkdir()
