@@ -370,3 +370,25 @@ def test_a_series_capture_is_render_stack_with_series_seed() -> None:
     assert len(seeds) == 100 and 5 not in seeds
     with pytest.raises(ValueError, match="repeat"):
         series_seed(5, 0, -1)
+
+
+@pytest.mark.parametrize("scene_name", ["sphere", "staircase", "two_spheres", "block"])
+def test_segments_that_never_pass_over_the_object_are_not_marched(scene_name: str, monkeypatch) -> None:
+    """The shadow test skips the segments whose trace on the plane meets no footprint box
+    (``cast._may_pass_over_the_object``); the truth is identical to marching every segment."""
+    from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, look_at_rig
+    from metrology.core.simulate import ScenePlacement, cast_truth
+    from metrology.core.simulate import cast as cast_module
+
+    camera = PinholeCamera(200, 150, ((300.0, 0, 99.5), (0, 300.0, 74.5), (0, 0, 1)), (-0.05, 0.01, 0, 0, 0))
+    projector = PinholeProjector(256, 192, ((300.0, 0, 127.5), (0, 300.0, 95.5), (0, 0, 1)))
+    rig = look_at_rig(camera, projector, (-160.0, 8.0, 10.0), (0.0, 0.0, 600.0))
+    prepared = rig.prepare(rig.shape, (projector.width, projector.height))
+    scene, placement = make_scene(scene_name), ScenePlacement.facing_camera(600.0)
+    skipped = cast_truth(prepared, scene, placement)
+    every_segment = lambda scene, x0, *rest: np.ones(x0.shape, bool)  # noqa: E731
+    monkeypatch.setattr(cast_module, "_may_pass_over_the_object", every_segment)
+    marched = cast_truth(prepared, scene, placement)
+    assert (~marched.lit).sum() > 400  # about 500 pixels in the shadow of each of these scenes
+    np.testing.assert_array_equal(skipped.lit, marched.lit)
+    np.testing.assert_array_equal(skipped.points_mm, marched.points_mm)

@@ -279,6 +279,33 @@ def _height_step(rate: FloatArray, sideways_mm: float) -> float:
     return float(min(MAX_HEIGHT_STEP_MM, sideways_mm / max(float(tangent.max()), 1e-12)))
 
 
+def _may_pass_over_the_object(
+    scene: Scene, x0: FloatArray, y0: FloatArray, dx: FloatArray, dy: FloatArray, ds: FloatArray, s_top: FloatArray
+) -> npt.NDArray[np.bool_]:
+    """False for rising segments ``(x0 + t dx, y0 + t dy)``, ``t`` in ``[0, s_top]``, whose trace on
+    the plane meets none of the scene's footprint boxes (:attr:`Scene.footprints_mm`): the height is
+    0 all along them while they rise from a point on or above the plane, so nothing blocks them.
+    True elsewhere (descending segments, scenes without footprint boxes). Slab test per box:
+    ``t`` in ``[(b0 - x0) / dx, (b1 - x0) / dx]`` (sorted) for each axis, intersected with ``[0, s_top]``."""
+    boxes = scene.footprints_mm
+    if not boxes:
+        return np.ones(x0.shape, bool)
+    meets = np.zeros(x0.shape, bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for bx0, bx1, by0, by1 in boxes:
+            lo, hi = np.zeros_like(x0), s_top.copy()
+            for start, step, b0, b1 in ((x0, dx, bx0, bx1), (y0, dy, by0, by1)):
+                t0, t1 = (b0 - start) / step, (b1 - start) / step
+                parallel = step == 0  # inside the slab for every t, or for none
+                outside = parallel & ((start < b0) | (start > b1))
+                t0 = np.where(parallel, np.where(outside, np.inf, -np.inf), t0)
+                t1 = np.where(parallel, np.where(outside, -np.inf, np.inf), t1)
+                np.maximum(lo, np.minimum(t0, t1), out=lo)
+                np.minimum(hi, np.maximum(t0, t1), out=hi)
+            meets |= lo <= hi
+    return meets | (ds <= 0)
+
+
 def _shadowed(
     centre_mm: np.ndarray, scene: Scene, placement: ScenePlacement, points: FloatArray, sideways_mm: float
 ) -> npt.NDArray[np.bool_]:
@@ -302,7 +329,7 @@ def _shadowed(
     rise = np.where(ds > 0, scene.z_max_mm - s0, np.abs(ds))
     steps = np.maximum(2, np.ceil(rise / _height_step(rate, sideways_mm))).astype(np.int64)
     blocked = np.zeros(len(q0), dtype=bool)
-    pending = np.flatnonzero(s_top > 0)
+    pending = np.flatnonzero((s_top > 0) & _may_pass_over_the_object(scene, x0, y0, dx, dy, ds, s_top))
     i = 0
     while pending.size:
         i += 1
