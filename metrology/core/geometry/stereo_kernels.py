@@ -99,6 +99,55 @@ def suffix_min(row: np.ndarray, w: int, out: np.ndarray) -> None:  # pragma: no 
 
 
 @njit(nogil=True, cache=True)
+def run_position(
+    before: float, a: float, b: float, after: float, q: float
+) -> tuple[float, float]:  # pragma: no cover - compiled
+    """Where a monotone run of samples takes ``q`` between two of them, ``a = u(0) <= q < b = u(1)``:
+    ``(s, u'(s))``, ``s`` in ``[0, 1)`` px from ``a``'s sample, the slope in units per px.
+
+    Linear interpolation, ``s = (q - a) / (b - a)``, misplaces ``s`` by ``s (1 - s) u'' / (2 u')``
+    px (``u'' / (8 u')`` mid-segment). Inside a monotone run (``before = u(-1) < a``, ``after = u(2)
+    > b``) the cubic through the four samples,
+
+        ``P(s) = a + s (b - a) + s (s - 1) (c_2 + c_3 s)``,
+        ``c_3 = (D_1 - D_0) / 6``, ``c_2 = D_0 / 2 + c_3``,
+
+    ``D_0 = before - 2 a + b`` and ``D_1 = a - 2 b + after`` the second differences at 0 and 1, is
+    solved for ``P(s) = q`` by Newton from the linear ``s`` (three steps; the error is then of the
+    order of the fourth derivative); with one outer sample only, the parabola through three
+    (``c_3 = 0``, ``c_2 = D_0 / 2`` or ``D_1 / 2``); at a run's ends (no outer sample in order),
+    linear with the secant ``b - a``. Where the polynomial is not increasing or its root leaves
+    ``[0, 1]`` the linear result is kept, so ``s`` stays in its segment and varies continuously with
+    ``q`` (no pixel locking). An outer sample whose second difference is not below the segment's
+    step (``|D| >= b - a``: no smooth function sampled finely, e.g. a jump at a fringe's edge) is
+    not used."""
+    lin = (q - a) / (b - a)
+    step = b - a
+    has_before = before < a and abs(before - 2.0 * a + b) < step
+    has_after = after > b and abs(a - 2.0 * b + after) < step
+    if not (has_before or has_after):
+        return lin, b - a
+    c3 = 0.0
+    if has_before and has_after:
+        c3 = ((a - 2.0 * b + after) - (before - 2.0 * a + b)) / 6.0
+        c2 = 0.5 * (before - 2.0 * a + b) + c3
+    elif has_before:
+        c2 = 0.5 * (before - 2.0 * a + b)
+    else:
+        c2 = 0.5 * (a - 2.0 * b + after)
+    s = lin
+    for _ in range(3):
+        slope = (b - a) + (2.0 * s - 1.0) * (c2 + c3 * s) + s * (s - 1.0) * c3
+        if not slope > 0:
+            return lin, b - a
+        s -= (a + s * (b - a) + s * (s - 1.0) * (c2 + c3 * s) - q) / slope
+    slope = (b - a) + (2.0 * s - 1.0) * (c2 + c3 * s) + s * (s - 1.0) * c3
+    if not (s >= 0.0 and s < 1.0 and slope > 0):
+        return lin, b - a
+    return s, slope
+
+
+@njit(nogil=True, cache=True)
 def match_tile(
     u0: np.ndarray,
     u1: np.ndarray,
@@ -119,10 +168,12 @@ def match_tile(
     decoded value left of it in its row, below every one right of it: the left-right consistency),
     the segment ``[x, x + 1]`` of camera 1's row with ``u1(x) <= q < u1(x + 1)``, found by a merge
     walk on camera 1's running maximum (the records grow along the row), kept when no decoded value
-    of camera 1 right of ``x + 1`` is at most ``q`` (unique): ``x1 = x + (q - u1(x)) / (u1(x + 1) -
-    u1(x))`` (``x1_out``), the slope ``u1(x + 1) - u1(x)`` (``slope_out``) and the normalized
-    disparity ``x1 inv_f - offset - x0n[j]`` (``d_out``), all (n, W0) float32, NaN where not
-    matched. ``scratch``: (4, max(W0, W1)) float64."""
+    of camera 1 right of ``x + 1`` is at most ``q`` (unique): ``x1 = x + s``, ``s`` where the run's
+    local polynomial through its samples takes ``q`` (:func:`run_position`: the cubic through
+    ``u1(x - 1) .. u1(x + 2)`` inside a monotone run, linear at its ends) (``x1_out``), the
+    polynomial's slope there (``slope_out``, projector units per px) and the normalized disparity
+    ``x1 inv_f - offset - x0n[j]`` (``d_out``), all (n, W0) float32, NaN where not matched.
+    ``scratch``: (4, max(W0, W1)) float64."""
     n, w0 = u0.shape
     w1 = u1.shape[1]
     inf = np.inf
@@ -159,9 +210,12 @@ def match_tile(
             b = row1[p + 1]
             beyond = rmin1[p + 2] if p + 2 < w1 else inf
             if a <= q and q < b and beyond > q:
-                x1 = p + (q - a) / (b - a)
+                before = row1[p - 1] if p >= 1 else np.nan
+                after = row1[p + 2] if p + 2 < w1 else np.nan
+                s, slope = run_position(before, a, b, after, q)
+                x1 = p + s
                 x1_out[r, j] = x1
-                slope_out[r, j] = b - a
+                slope_out[r, j] = slope
                 d_out[r, j] = x1 * inv_f - offset - x0n[j]
 
 

@@ -19,7 +19,9 @@ camera 0's pixel grid in three steps (:meth:`PreparedStereo.combine`, then
 2. **Match.** For every valid rectified camera-0 pixel of value ``q``, the camera-1 position on
    the same rectified row where the decoded coordinate is ``q``: the segment ``[x, x + 1]`` of
    camera 1's row with ``u(x) <= q < u(x + 1)`` (both decoded), ``x_1 = x + (q - u(x)) / (u(x + 1) -
-   u(x))``: linear inside a monotone run, the position from the decoded values (no pixel locking).
+   u(x))`` refined to the root of the cubic through ``u(x - 1) .. u(x + 2)`` inside a monotone run
+   (:func:`~metrology.core.geometry.stereo_kernels.run_position`; linear interpolation errs by up
+   to ``u'' / (8 u')`` px), the position from the decoded values (no pixel locking).
    Found by a merge walk along camera 1's running maximum (camera 0's consistent values grow along
    the row), in a compiled kernel (:mod:`~metrology.core.geometry.stereo_kernels`).
    *Unique matches only*: no decoded value right of ``x + 1`` is at most ``q`` (a

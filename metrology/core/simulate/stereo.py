@@ -3,7 +3,7 @@
 A stereo rig's file may hold its projector's size alone (the projector only labels the surface),
 but rendering needs the projector's place and lens: :func:`render_stereo_capture` takes them
 separately (:class:`ProjectorPlacement`; by default the rig's calibrated projector, or a pinhole
-projector half-way between the cameras, aimed at the scene's centre).
+projector half-way between the cameras, aimed at the centre of camera 0's field on the scene's plane).
 
 Each camera is rendered as a pinhole rig of that camera and the projector (the scene placed in
 camera 0's frame, moved into camera 1's by ``X_c1 = R X_c0 + T``), through the same caster and codec
@@ -59,10 +59,24 @@ def _matrix(R: np.ndarray) -> Matrix3:
     return (_triple(R[0]), _triple(R[1]), _triple(R[2]))
 
 
+def field_centre(placement: ScenePlacement) -> np.ndarray:
+    """``(3,)`` float64 mm: where camera 0's optical axis ``t (0, 0, 1)`` meets the scene's
+    reference plane, ``t = (e_n . o) / e_n_z`` (``o`` the placement's origin): the centre of camera
+    0's field on the plane. The scene's origin itself may lie far outside that field (the scenes are
+    laid out around ``X = 352 mm``, the paper's field centre). A plane along the axis gives the
+    origin."""
+    normal = np.asarray(placement.e_n, np.float64)
+    origin = np.asarray(placement.origin_mm, np.float64)
+    if abs(normal[2]) < 1e-9:
+        return origin
+    return np.array([0.0, 0.0, float(normal @ origin) / normal[2]])
+
+
 def default_projector(rig: StereoRig, placement: ScenePlacement, field_width_mm: float) -> ProjectorPlacement:
     """The rig's calibrated projector, else a distortion-free pinhole projector of the rig's
     projector size centred half-way between the cameras (a tenth of the baseline above them),
-    aimed at the scene's origin, its image :data:`PROJECTOR_FIELD_MARGIN` times the field."""
+    aimed at camera 0's field (:func:`field_centre`), its image :data:`PROJECTOR_FIELD_MARGIN`
+    times the field."""
     proj = rig.projector
     if proj.calibrated:
         assert proj.K is not None and proj.R is not None and proj.T is not None
@@ -71,7 +85,7 @@ def default_projector(rig: StereoRig, placement: ScenePlacement, field_width_mm:
     R, T = np.asarray(rig.R), np.asarray(rig.T)
     c1 = -R.T @ T
     centre = 0.5 * c1 + np.array([0.0, -0.1 * rig.baseline_mm, 0.0])
-    target = placement.origin_mm
+    target = field_centre(placement)
     distance = float(np.linalg.norm(target - centre))
     fx = proj.width * distance / (PROJECTOR_FIELD_MARGIN * field_width_mm)
     K = ((fx, 0.0, (proj.width - 1) / 2), (0.0, fx, (proj.height - 1) / 2), (0.0, 0.0, 1.0))
@@ -87,10 +101,10 @@ def lighting_projector(
     field_width_mm: float | None = None,
 ) -> ProjectorPlacement:
     """``projector``, else :func:`default_projector` for ``placement`` (``field_width_mm`` default:
-    camera 0's field at the placement's distance, ``W0 * |origin| / fx0``)."""
+    camera 0's field on the scene's plane, ``W0 * |c| / fx0`` with ``c`` its :func:`field_centre`)."""
     if projector is not None:
         return projector
-    distance = float(np.linalg.norm(placement.origin_mm))
+    distance = float(np.linalg.norm(field_centre(placement)))
     width = field_width_mm or rig.camera0.width_px * distance / rig.camera0.K[0][0]
     return default_projector(rig, placement, width)
 
