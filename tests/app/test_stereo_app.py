@@ -137,6 +137,12 @@ def test_a_calibrated_projector_s_pairs_map_is_stored_and_carried_by_the_ply(api
     record = np.dtype([("p", "<f8", (3,)), ("n", "<f8", (3,)), *extra, ("pairs", "u1")])
     written = np.frombuffer(data[: vertices * record.itemsize], record)
     assert np.array_equal(written["pairs"], pairs[measured])
+    # the measurement page draws the map, each combination's pixels in its legend
+    page = Client()
+    page.force_login(api.user)
+    html = page.get(f"/measurements/{result['id']}/").content.decode()
+    assert 'id="fig-pairs_map"' in html, html[:2000]
+    assert f"camera0-projector ({int((pairs == 2).sum())} px)" in html
 
 
 @pytest.mark.slow
