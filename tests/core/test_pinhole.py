@@ -272,15 +272,16 @@ def test_undistortion_grid_matches_newton() -> None:
     from metrology.core.geometry.projector_grid import GRID_TOL, UndistortionGrid
 
     K = np.asarray(PROJECTOR.K)
-    grid = UndistortionGrid.build(K, PROJECTOR.distortion, 320, 200)
-    assert grid is not None and grid.error <= GRID_TOL
     rng = np.random.default_rng(5)
     u = rng.uniform(-0.5, 319.5, 20000).astype(np.float32)
     v = rng.uniform(-0.5, 199.5, 20000).astype(np.float32)
     exact = undistort_pixels(K, PROJECTOR.distortion, u.astype(np.float64), v.astype(np.float64), tol_px=1e-10)
-    dx, _ = grid.lookup(grid.dx, u, v)
-    x = (u.astype(np.float64) - K[0, 2]) / K[0, 0] + dx
-    assert np.abs(x - exact.x).max() * K[0, 0] < 2 * GRID_TOL
+    for axis, truth, f in (("u", exact.x, K[0, 0]), ("v", exact.y, K[1, 1])):
+        grid = UndistortionGrid.build(K, PROJECTOR.distortion, 320, 200, axis)
+        assert grid is not None and grid.error <= GRID_TOL
+        q, dq = grid.normalized(u, v, derivative=True)
+        assert np.abs(q - truth).max() * f < 2 * GRID_TOL
+        assert dq is not None and np.abs(dq * f - 1.0).max() < 0.5  # a slope near 1 / f
 
 
 def test_triangulate_frame_depth_heights_and_sigma() -> None:
@@ -459,7 +460,9 @@ def test_projector_grid_only_for_codecs_of_both_axes(monkeypatch: pytest.MonkeyP
 
     built: list[object] = []
     real = pinhole._projector_grid
-    monkeypatch.setattr(pinhole, "_projector_grid", lambda projector: built.append(projector) or real(projector))
+    monkeypatch.setattr(
+        pinhole, "_projector_grid", lambda projector, axis: built.append(projector) or real(projector, axis)
+    )
     _prepare_cached.cache_clear()
     rig = _rig("u")
     truth = _truth("u", "sphere")

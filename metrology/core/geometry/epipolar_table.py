@@ -104,8 +104,9 @@ class EpipolarTable:
         c_range: tuple[float, float],
         scale_w: float,
         scale_c: float,
+        tol: float = LINE_TOL,
     ) -> EpipolarTable | None:
-        """The coarsest table meeting :data:`LINE_TOL`, or None.
+        """The coarsest table meeting ``tol`` (default :data:`LINE_TOL`), or None.
 
         ``solve`` as :data:`Solver`; ``slope(c0)`` the lines' ``c1``; ``domain = (lo, hi)`` the
         coded coordinates covered (projector units); ``c_range`` the intercepts covered;
@@ -129,12 +130,15 @@ class EpipolarTable:
                 herm = _hermite(q[sub], dq[sub] * step_w)
                 mid = herm[..., 0] + 0.5 * herm[..., 1] + 0.25 * herm[..., 2] + 0.125 * herm[..., 3]
                 err_w = _nanmax(np.abs(mid - exact)) * scale_w
-                if err_w > LINE_TOL / 2:
+                if err_w > tol / 2:
                     continue
                 err_c = _nanmax(np.abs(q[2:] - 2 * q[1:-1] + q[:-2])) / 8 * scale_w if n_lines > 2 else 0.0
-                if err_w + err_c > LINE_TOL:
+                if err_w + err_c > tol:
                     break  # a finer step across the lines
-                return cls._from_nodes(q, dq, lo, step_w, c_range[0], step_c, err_w + err_c, scale_w)
+                table = cls._from_nodes(q, dq, lo, step_w, c_range[0], step_c, err_w + err_c, scale_w, tol)
+                if table.error <= tol:
+                    return table
+                break  # the B_3 left out is too large: a finer step across the lines
         return None
 
     @classmethod
@@ -148,16 +152,17 @@ class EpipolarTable:
         step_c: float,
         error: float,
         scale_w: float,
+        tol: float = LINE_TOL,
     ) -> EpipolarTable:
         """The table of node values ``q`` and slopes ``dq`` (``(n_lines, n_w)``, normalized
         units); ``error`` (projector units) grows by the ``B_3`` left out, and by ``B_2`` when
-        that too fits within :data:`LINE_TOL` (mildly distorted projectors: six planes)."""
+        that too fits within ``tol`` (mildly distorted projectors: six planes)."""
         n_lines, n_w = q.shape
         herm = _hermite(q, dq * step_w)  # (n_lines, n_w - 1, 4)
         a, b = herm[:-1], herm[1:] - herm[:-1]
         error += _nanmax(np.abs(b[..., 3])) * scale_w
         b2 = _nanmax(np.abs(b[..., 2])) * scale_w
-        n_b = 2 if error + b2 <= LINE_TOL else 3  # B_2 too is left out where the budget allows
+        n_b = 2 if error + b2 <= tol else 3  # B_2 too is left out where the budget allows
         error += b2 if n_b == 2 else 0.0
         planes = np.full((4 + n_b, n_lines - 1, n_w + 1), np.nan, np.float32)
         planes[:4, :, 1:-1] = np.moveaxis(a, -1, 0)

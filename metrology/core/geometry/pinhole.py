@@ -366,17 +366,19 @@ def _prepare_cached(rig: PinholeRig, axis: str, method: str) -> PreparedPinhole:
     return PreparedPinhole(rig, axis, method)
 
 
-def _projector_grid(projector: PinholeProjector) -> UndistortionGrid | None:
-    """The projector's :class:`UndistortionGrid` from the local cache, else built (and stored)."""
+def _projector_grid(projector: PinholeProjector, axis: str) -> UndistortionGrid | None:
+    """The projector's :class:`UndistortionGrid` of the coded ``axis`` from the local cache, else
+    built (and stored)."""
     parts = {
-        "projector": {"width": projector.width, "height": projector.height, "K": projector.K, "dist": projector.dist}
+        "axis": axis,
+        "projector": {"width": projector.width, "height": projector.height, "K": projector.K, "dist": projector.dist},
     }
     key = local_cache.entry_key(GRID_CACHE_KIND, {**parts, "format": TABLES_FORMAT})
     stored = local_cache.load(GRID_CACHE_KIND, key)
     if stored is not None:
         return UndistortionGrid.from_arrays(stored) if stored else None
     K = np.asarray(projector.K, dtype=np.float64)
-    grid = UndistortionGrid.build(K, projector.distortion, projector.width, projector.height)
+    grid = UndistortionGrid.build(K, projector.distortion, projector.width, projector.height, axis)
     local_cache.store(GRID_CACHE_KIND, key, grid.to_arrays() if grid is not None else {})
     return grid
 
@@ -550,6 +552,10 @@ class PreparedPinhole(PreparedGeometry):
             kept = {}
             if self._p_distorted:
                 self._line = self._build_line_table(xn, yn)
+        if self._p_distorted:  # the compiled kernels of its frames, loaded while preparing
+            from metrology.core.geometry import pinhole_kernels
+
+            pinhole_kernels.warm()
         T, Kp = self._T, self._Kp
         fx, s, cx, fy, cy = Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]
         if self.axis == "u":
@@ -676,7 +682,7 @@ class PreparedPinhole(PreparedGeometry):
             return None
         with self._grid_lock:
             if not self._grid_built:
-                self._grid = _projector_grid(self.rig.projector)
+                self._grid = _projector_grid(self.rig.projector, self.axis)
                 self._grid_built = True
             return self._grid
 
@@ -807,7 +813,7 @@ class PreparedPinhole(PreparedGeometry):
         assert grid is not None
         want_sigma = sigma_in is not None and sigma_out is not None
         u, v = (coded, other) if self.axis == "u" else (other, coded)
-        q, dq = grid.normalized(self.axis, u, v, want_sigma)
+        q, dq = grid.normalized(u, v, want_sigma)
         return self._plane_of(rows, q, dq, sigma_in, sigma_out, points_out)
 
     def _plane_from_line(

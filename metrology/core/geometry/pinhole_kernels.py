@@ -6,7 +6,7 @@ their temporaries (issue 22 item 2):
 
 - :func:`table_tile`: the epipolar table (:class:`~metrology.core.geometry.epipolar_table.EpipolarTable`)
   at each pixel's coded coordinate: the coded normalized coordinate ``q`` and ``dq/dw``;
-- :func:`grid_tile`: the projector's bicubic undistortion grid
+- :func:`grid_tile`: the projector's undistortion table
   (:class:`~metrology.core.geometry.projector_grid.UndistortionGrid`) at ``(u, v)``: ``q`` and ``dq/dw``;
 - :func:`plane_tile`: the plane of ``q`` met by each pixel's camera ray, ``t = (q T_z - T_i) /
   (Rd_i - q Rd_z)`` (NaN unless ``t > 0``), with ``sigma_in`` the point's standard uncertainty
@@ -64,51 +64,6 @@ def _table_at(
 
 
 @njit(nogil=True, cache=True, error_model="numpy", fastmath={"contract"})
-def _grid_at(
-    u: float,
-    v: float,
-    coef: np.ndarray,
-    axis_u: bool,
-    inv_step: float,
-    n_cols: int,
-    n_rows: int,
-    fx: float,
-    skew: float,
-    cx: float,
-    fy: float,
-    cy: float,
-) -> tuple[float, float]:  # pragma: no cover - compiled
-    """``(q, dq/dw)`` of the undistortion grid at ``(u, v)``: the cell of ``g_u = (u + 1) / step``,
-    ``g_v = (v + 1) / step`` (clipped to the grid), ``a, b`` the position inside it; ``q`` the
-    affine part (``x_lin = (u - cx - s y_lin) / fx``, ``y_lin = (v - cy) / fy``) plus the bicubic
-    correction ``sum_ij C_ij s^i o^j`` with the cell's row of ``coef`` (``(cells, 16)``, ``C_ij`` at
-    ``4 i + j``, ``s`` the coded axis' position: ``a`` for axis u, ``b`` for v, ``o`` the other),
-    and its derivative along the coded axis. NaN for NaN input."""
-    gu = (u + 1.0) * inv_step
-    gv = (v + 1.0) * inv_step
-    if gu != gu or gv != gv:
-        return np.nan, np.nan
-    gu = min(max(gu, 0.0), n_cols - 1e-3)
-    gv = min(max(gv, 0.0), n_rows - 1e-3)
-    cu = math.floor(gu)
-    cv = math.floor(gv)
-    a = gu - cu
-    b = gv - cv
-    k = int(cv) * n_cols + int(cu)
-    y_lin = (v - cy) / fy
-    if axis_u:
-        sp, op, lin, dlin = a, b, (u - cx - skew * y_lin) / fx, 1.0 / fx
-    else:
-        sp, op, lin, dlin = b, a, y_lin, 1.0 / fy
-    r0 = ((np.float64(coef[k, 3]) * op + coef[k, 2]) * op + coef[k, 1]) * op + coef[k, 0]
-    r1 = ((np.float64(coef[k, 7]) * op + coef[k, 6]) * op + coef[k, 5]) * op + coef[k, 4]
-    r2 = ((np.float64(coef[k, 11]) * op + coef[k, 10]) * op + coef[k, 9]) * op + coef[k, 8]
-    r3 = ((np.float64(coef[k, 15]) * op + coef[k, 14]) * op + coef[k, 13]) * op + coef[k, 12]
-    value = lin + (((r3 * sp + r2) * sp + r1) * sp + r0)
-    return value, dlin + ((3.0 * r3 * sp + 2.0 * r2) * sp + r1) * inv_step
-
-
-@njit(nogil=True, cache=True, error_model="numpy", fastmath={"contract"})
 def _plane_at(
     q: float, dq: float, rdi: float, rdz: float, tz: float, ti: float
 ) -> tuple[float, float]:  # pragma: no cover - compiled
@@ -147,13 +102,16 @@ def table_tile(
 
 @njit(nogil=True, cache=True, error_model="numpy", fastmath={"contract"})
 def grid_tile(
-    u: np.ndarray,
-    v: np.ndarray,
-    coef: np.ndarray,
-    axis_u: bool,
-    inv_step: float,
+    coded: np.ndarray,
+    other: np.ndarray,
+    planes: np.ndarray,
+    g0: float,
+    inv_h: float,
     n_cols: int,
-    n_rows: int,
+    c_lo: float,
+    inv_step_c: float,
+    n_lines: int,
+    axis_u: bool,
     fx: float,
     skew: float,
     cx: float,
@@ -163,14 +121,30 @@ def grid_tile(
     dq_out: np.ndarray,
     want_dq: bool,
 ) -> None:  # pragma: no cover - compiled
-    """``q_out[i], dq_out[i]`` = :func:`_grid_at` of ``(u[i], v[i])`` (``(n,)`` float32)."""
-    for i in range(u.shape[0]):
-        q, dq = _grid_at(
-            np.float64(u[i]), np.float64(v[i]), coef, axis_u, inv_step, n_cols, n_rows, fx, skew, cx, fy, cy
-        )
-        q_out[i] = q
+    """``q_out[i], dq_out[i]``: the undistorted normalized coordinate of the coded axis at the
+    decoded ``coded[i]``, ``other[i]`` (``(n,)`` float32, projector units) and its derivative
+    along the coded axis, from the projector's undistortion table
+    (:class:`~metrology.core.geometry.projector_grid.UndistortionGrid`): the affine part
+    (``x_lin = (u - cx - s y_lin) / fx``, ``y_lin = (v - cy) / fy``) plus the tabulated
+    correction, :func:`_table_at` between the rows ``j`` and ``j + 1`` of ``g = (other - c_lo) /
+    step_c`` (clamped to the table). NaN for NaN input."""
+    for i in range(coded.shape[0]):
+        w = np.float64(coded[i])
+        o = np.float64(other[i])
+        g = float((o - c_lo) * inv_step_c)
+        if g != g:
+            q_out[i] = np.nan
+            if want_dq:
+                dq_out[i] = np.nan
+            continue
+        g = min(max(g, 0.0), n_lines - 1.0)
+        j = min(math.floor(g), n_lines - 2)
+        q, dq = _table_at(w, j * n_cols, g - j, planes, g0, inv_h, n_cols)
+        u, v = (w, o) if axis_u else (o, w)
+        y_lin = (v - cy) / fy
+        q_out[i] = q + ((u - cx - skew * y_lin) / fx if axis_u else y_lin)
         if want_dq:
-            dq_out[i] = dq
+            dq_out[i] = dq + (1.0 / fx if axis_u else 1.0 / fy)
 
 
 @njit(nogil=True, cache=True, error_model="numpy", fastmath={"contract"})
@@ -211,3 +185,13 @@ def plane_tile(
 def flat(a: np.ndarray, dtype: type[np.generic] = np.float32) -> np.ndarray:
     """``a`` as a contiguous one-dimensional array of ``dtype`` (a view when it already is one)."""
     return np.ascontiguousarray(a, dtype=dtype).reshape(-1)
+
+
+def warm() -> None:
+    """Load (or compile) the kernels now, on empty arrays of the types the tiles pass: numba's first
+    call costs a few tenths of a second, which the preparation of a distorted rig pays on its
+    thread (``gcps measure`` reads the captures meanwhile) instead of the first frame."""
+    e, planes = np.empty(0, np.float32), np.empty((7, 1), np.float32)
+    table_tile(e, np.empty(0, np.int32), e, planes, 0.0, 1.0, 1, e, e, False)
+    grid_tile(e, e, planes, 0.0, 1.0, 1, 0.0, 1.0, 2, True, 1.0, 0.0, 0.0, 1.0, 0.0, e, e, False)
+    plane_tile(e, e, e, e, 1.0, 0.0, e, e, e, False, e, e, e, False, e)
