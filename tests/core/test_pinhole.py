@@ -475,3 +475,37 @@ def test_projector_grid_only_for_codecs_of_both_axes(monkeypatch: pytest.MonkeyP
     triangulate_frame(prep, truth.u.astype(np.float32), truth.v.astype(np.float32), heights=False)
     assert len(built) == 1
     _prepare_cached.cache_clear()
+
+
+@pytest.mark.parametrize("both_axes", [False, True])
+def test_compiled_paths_write_any_output_layout(both_axes: bool) -> None:
+    """Through a distorted projector the compiled kernels write the points straight into a
+    contiguous output; a strided output (a view of a larger array) and float64 decoded maps get
+    the same points and sigmas, NaN where the frame is not lit."""
+    rig = _rig("u")
+    truth = _truth("u", "sphere")
+    prep = rig.prepare(rig.shape, (320, 200))
+    u = truth.u.astype(np.float32)
+    v = truth.v.astype(np.float32) if both_axes else None
+    sigma_u = np.full(u.shape, 0.02, np.float32)
+    if both_axes:
+        prep.used_axes(("u", "v"))
+    ref = triangulate_frame(prep, u, v, heights=False, sigma=sigma_u)
+    assert ref.points_mm is not None and ref.sigma_mm is not None
+    rows = slice(10, 40)
+    wide = np.full((rows.stop - rows.start, rig.shape[1], 4), -1.0, np.float32)
+    sigma_wide = np.full((rows.stop - rows.start, rig.shape[1], 2), -1.0, np.float32)
+    prep.triangulate_rows(
+        rows,
+        u[rows].astype(np.float64),
+        None if v is None else v[rows].astype(np.float64),
+        points_out=wide[..., :3],
+        sigma_in=sigma_u[rows],
+        sigma_out=sigma_wide[..., 0],
+    )
+    np.testing.assert_allclose(wide[..., :3], ref.points_mm[rows], rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(sigma_wide[..., 0], ref.sigma_mm[rows], rtol=1e-6)
+    assert np.all(wide[..., 3] == -1.0) and np.all(sigma_wide[..., 1] == -1.0)
+    lit = truth.lit[rows]
+    assert lit.any() and (~lit).any()
+    assert np.isnan(wide[..., 2][~lit & ~np.isfinite(u[rows])]).all()
