@@ -272,15 +272,16 @@ def test_undistortion_grid_matches_newton() -> None:
     from metrology.core.geometry.projector_grid import GRID_TOL, UndistortionGrid
 
     K = np.asarray(PROJECTOR.K)
-    grid = UndistortionGrid.build(K, PROJECTOR.distortion, 320, 200)
-    assert grid is not None and grid.error <= GRID_TOL
     rng = np.random.default_rng(5)
     u = rng.uniform(-0.5, 319.5, 20000).astype(np.float32)
     v = rng.uniform(-0.5, 199.5, 20000).astype(np.float32)
     exact = undistort_pixels(K, PROJECTOR.distortion, u.astype(np.float64), v.astype(np.float64), tol_px=1e-10)
-    dx, _ = grid.lookup(grid.dx, u, v)
-    x = (u.astype(np.float64) - K[0, 2]) / K[0, 0] + dx
-    assert np.abs(x - exact.x).max() * K[0, 0] < 2 * GRID_TOL
+    for axis, truth, f in (("u", exact.x, K[0, 0]), ("v", exact.y, K[1, 1])):
+        grid = UndistortionGrid.build(K, PROJECTOR.distortion, 320, 200, axis)
+        assert grid is not None and grid.error <= GRID_TOL
+        q, dq = grid.normalized(u, v, derivative=True)
+        assert np.abs(q - truth).max() * f < 2 * GRID_TOL
+        assert dq is not None and np.abs(dq * f - 1.0).max() < 0.5  # a slope near 1 / f
 
 
 def test_triangulate_frame_depth_heights_and_sigma() -> None:
@@ -459,7 +460,9 @@ def test_projector_grid_only_for_codecs_of_both_axes(monkeypatch: pytest.MonkeyP
 
     built: list[object] = []
     real = pinhole._projector_grid
-    monkeypatch.setattr(pinhole, "_projector_grid", lambda projector: built.append(projector) or real(projector))
+    monkeypatch.setattr(
+        pinhole, "_projector_grid", lambda projector, axis: built.append(projector) or real(projector, axis)
+    )
     _prepare_cached.cache_clear()
     rig = _rig("u")
     truth = _truth("u", "sphere")
@@ -472,3 +475,37 @@ def test_projector_grid_only_for_codecs_of_both_axes(monkeypatch: pytest.MonkeyP
     triangulate_frame(prep, truth.u.astype(np.float32), truth.v.astype(np.float32), heights=False)
     assert len(built) == 1
     _prepare_cached.cache_clear()
+
+
+@pytest.mark.parametrize("both_axes", [False, True])
+def test_compiled_paths_write_any_output_layout(both_axes: bool) -> None:
+    """Through a distorted projector the compiled kernels write the points straight into a
+    contiguous output; a strided output (a view of a larger array) and float64 decoded maps get
+    the same points and sigmas, NaN where the frame is not lit."""
+    rig = _rig("u")
+    truth = _truth("u", "sphere")
+    prep = rig.prepare(rig.shape, (320, 200))
+    u = truth.u.astype(np.float32)
+    v = truth.v.astype(np.float32) if both_axes else None
+    sigma_u = np.full(u.shape, 0.02, np.float32)
+    if both_axes:
+        prep.used_axes(("u", "v"))
+    ref = triangulate_frame(prep, u, v, heights=False, sigma=sigma_u)
+    assert ref.points_mm is not None and ref.sigma_mm is not None
+    rows = slice(10, 40)
+    wide = np.full((rows.stop - rows.start, rig.shape[1], 4), -1.0, np.float32)
+    sigma_wide = np.full((rows.stop - rows.start, rig.shape[1], 2), -1.0, np.float32)
+    prep.triangulate_rows(
+        rows,
+        u[rows].astype(np.float64),
+        None if v is None else v[rows].astype(np.float64),
+        points_out=wide[..., :3],
+        sigma_in=sigma_u[rows],
+        sigma_out=sigma_wide[..., 0],
+    )
+    np.testing.assert_allclose(wide[..., :3], ref.points_mm[rows], rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(sigma_wide[..., 0], ref.sigma_mm[rows], rtol=1e-6)
+    assert np.all(wide[..., 3] == -1.0) and np.all(sigma_wide[..., 1] == -1.0)
+    lit = truth.lit[rows]
+    assert lit.any() and (~lit).any()
+    assert np.isnan(wide[..., 2][~lit & ~np.isfinite(u[rows])]).all()

@@ -18,7 +18,8 @@ float32 coefficients from as many contiguous planes and a cubic in the position 
 
     Q = sum_m tau^m (A_m + a_c B_m),   A: the cubic of row j, B: row j+1 minus row j
 
-evaluated by Horner's rule on the blended coefficients, all on contiguous float32 arrays. ``B_3``
+evaluated by Horner's rule on the blended coefficients, in one compiled pass per tile
+(:mod:`metrology.core.geometry.pinhole_kernels`; float32 coefficients, float64 arithmetic). ``B_3``
 (the change of the cubic term from one line to the next, ~1e-6 projector units on strongly
 distorted projectors) is left out and its largest value added to the table's error.
 
@@ -103,8 +104,9 @@ class EpipolarTable:
         c_range: tuple[float, float],
         scale_w: float,
         scale_c: float,
+        tol: float = LINE_TOL,
     ) -> EpipolarTable | None:
-        """The coarsest table meeting :data:`LINE_TOL`, or None.
+        """The coarsest table meeting ``tol`` (default :data:`LINE_TOL`), or None.
 
         ``solve`` as :data:`Solver`; ``slope(c0)`` the lines' ``c1``; ``domain = (lo, hi)`` the
         coded coordinates covered (projector units); ``c_range`` the intercepts covered;
@@ -128,12 +130,15 @@ class EpipolarTable:
                 herm = _hermite(q[sub], dq[sub] * step_w)
                 mid = herm[..., 0] + 0.5 * herm[..., 1] + 0.25 * herm[..., 2] + 0.125 * herm[..., 3]
                 err_w = _nanmax(np.abs(mid - exact)) * scale_w
-                if err_w > LINE_TOL / 2:
+                if err_w > tol / 2:
                     continue
                 err_c = _nanmax(np.abs(q[2:] - 2 * q[1:-1] + q[:-2])) / 8 * scale_w if n_lines > 2 else 0.0
-                if err_w + err_c > LINE_TOL:
+                if err_w + err_c > tol:
                     break  # a finer step across the lines
-                return cls._from_nodes(q, dq, lo, step_w, c_range[0], step_c, err_w + err_c, scale_w)
+                table = cls._from_nodes(q, dq, lo, step_w, c_range[0], step_c, err_w + err_c, scale_w, tol)
+                if table.error <= tol:
+                    return table
+                break  # the B_3 left out is too large: a finer step across the lines
         return None
 
     @classmethod
@@ -147,16 +152,17 @@ class EpipolarTable:
         step_c: float,
         error: float,
         scale_w: float,
+        tol: float = LINE_TOL,
     ) -> EpipolarTable:
         """The table of node values ``q`` and slopes ``dq`` (``(n_lines, n_w)``, normalized
         units); ``error`` (projector units) grows by the ``B_3`` left out, and by ``B_2`` when
-        that too fits within :data:`LINE_TOL` (mildly distorted projectors: six planes)."""
+        that too fits within ``tol`` (mildly distorted projectors: six planes)."""
         n_lines, n_w = q.shape
         herm = _hermite(q, dq * step_w)  # (n_lines, n_w - 1, 4)
         a, b = herm[:-1], herm[1:] - herm[:-1]
         error += _nanmax(np.abs(b[..., 3])) * scale_w
         b2 = _nanmax(np.abs(b[..., 2])) * scale_w
-        n_b = 2 if error + b2 <= LINE_TOL else 3  # B_2 too is left out where the budget allows
+        n_b = 2 if error + b2 <= tol else 3  # B_2 too is left out where the budget allows
         error += b2 if n_b == 2 else 0.0
         planes = np.full((4 + n_b, n_lines - 1, n_w + 1), np.nan, np.float32)
         planes[:4, :, 1:-1] = np.moveaxis(a, -1, 0)
@@ -175,50 +181,34 @@ class EpipolarTable:
         base = np.where(inside, j * self.n_cols, 0).astype(np.int32)
         return base, frac
 
+    def kernel_args(self) -> tuple[np.ndarray, float, float, int]:
+        """``(planes, g0, 1 / h, n_cols)``: the table as the compiled kernels of
+        :mod:`metrology.core.geometry.pinhole_kernels` read it (``g0 = lo - h``, column 0 the guard)."""
+        return self.planes, self.lo - self.step_w, 1.0 / self.step_w, self.n_cols
+
     def evaluate(
         self, coded: np.ndarray, base: np.ndarray, frac: np.ndarray, derivative: bool = False
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """``q`` (float32, the shape of ``coded``) at coded coordinates ``coded`` of pixels with
         :meth:`pixel_rows` ``(base, frac)``, and with ``derivative`` ``dq/dw`` (per projector
-        unit); NaN outside the table."""
-        inv = np.float32(1.0 / self.step_w)
-        # column 0 is the guard; w - (lo - h) is exact in float32 for w below 2^(24 - 13) and
-        # lo, h of few bits (-1.5, a power of two), so is the scaling by 1/h and tau below
-        g = np.subtract(coded, np.float32(self.lo - self.step_w), dtype=np.float32)
-        g *= inv
-        np.clip(g, np.float32(0.0), np.float32(self.n_cols - 1e-3), out=g)
-        cell = np.floor(g)
-        with np.errstate(invalid="ignore"):
-            idx = cell.astype(np.int32)  # NaN: an arbitrary index, clipped to the guard below
-        tau = np.subtract(g, cell, out=g)
-        idx += base
-        # one gather per plane: A_0..A_3, B_0..B_2 (or B_0, B_1) of each pixel's cell
-        z = self.planes.take(idx, axis=1, mode="clip")
-        if len(z) == 7:
-            c2 = np.multiply(z[6], frac, out=z[6])
-            c2 += z[2]
-        else:  # B_2 left out
-            c2 = z[2]
-        c1 = np.multiply(z[5], frac, out=z[5])
-        c1 += z[1]
-        deriv = None
-        if derivative:  # dq/dtau = c1 + 2 c2 tau + 3 A3 tau^2, per projector unit: times 1/h
-            d = z[3] * np.float32(3.0)
-            d *= tau
-            d += np.float32(2.0) * c2
-            d *= tau
-            d += c1
-            d *= inv
-            deriv = d
-        acc = np.multiply(z[3], tau, out=z[3])
-        acc += c2
-        acc *= tau
-        acc += c1
-        acc *= tau
-        acc += z[0]
-        c0 = np.multiply(z[4], frac, out=z[4])
-        acc += c0
-        return acc, deriv
+        unit); NaN outside the table. One compiled pass
+        (:func:`~metrology.core.geometry.pinhole_kernels.table_tile`, float64 inside)."""
+        from metrology.core.geometry import pinhole_kernels as kernels
+
+        if not np.shape(coded) == np.shape(base) == np.shape(frac):
+            raise ValueError("coded, base and frac must have one shape")
+        q = np.empty(np.shape(coded), np.float32)
+        dq = np.empty(q.shape if derivative else 0, np.float32)
+        kernels.table_tile(
+            kernels.flat(coded),
+            kernels.flat(base, np.int32),
+            kernels.flat(frac),
+            *self.kernel_args(),
+            q.reshape(-1),
+            dq.reshape(-1),
+            derivative,
+        )
+        return q, (dq if derivative else None)
 
 
 def _hermite(q: np.ndarray, d: np.ndarray) -> np.ndarray:

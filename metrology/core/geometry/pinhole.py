@@ -28,7 +28,7 @@ undistorted normalized coordinates (computed once per rig and frame size, Newton
   meets it at ``t = -(T_x - x_p T_z) / ((R d)_x - x_p (R d)_z)``. Without projector distortion
   ``x_p`` is affine in ``u`` and ``t = -(a + b u) / (A + B u)`` with per-pixel tables ``A, B``
   (a Mobius map of ``u``, no iteration). With distortion the decoded ``u`` is a distorted
-  coordinate: with ``v`` decoded too, ``(u, v)`` is undistorted jointly (a bilinear grid, built
+  coordinate: with ``v`` decoded too, ``(u, v)`` is undistorted jointly (a bicubic grid, built
   only for codecs that code both axes); with ``u`` alone the uncoded coordinate follows the
   pixel's epipolar line ``y_p = c0 + c1 x_p`` (exact in undistorted projector coordinates) and
   ``x_p`` solves ``fx D_x(x_p, c0 + c1 x_p) + s D_y + cx = u``: every epipolar line passes
@@ -106,7 +106,7 @@ PROJECTOR_TOL = 1e-6
 """Convergence tolerance of the projector coordinate's undistortion, projector units."""
 PROJECTOR_MAX_ITER = 30
 
-TABLES_FORMAT = 3
+TABLES_FORMAT = 4
 """Version of the prepared tables' layout in the local cache (:mod:`metrology.core.local_cache`)."""
 CACHE_KIND = "pinhole"
 """The local cache's folder for prepared pinhole tables."""
@@ -366,17 +366,19 @@ def _prepare_cached(rig: PinholeRig, axis: str, method: str) -> PreparedPinhole:
     return PreparedPinhole(rig, axis, method)
 
 
-def _projector_grid(projector: PinholeProjector) -> UndistortionGrid | None:
-    """The projector's :class:`UndistortionGrid` from the local cache, else built (and stored)."""
+def _projector_grid(projector: PinholeProjector, axis: str) -> UndistortionGrid | None:
+    """The projector's :class:`UndistortionGrid` of the coded ``axis`` from the local cache, else
+    built (and stored)."""
     parts = {
-        "projector": {"width": projector.width, "height": projector.height, "K": projector.K, "dist": projector.dist}
+        "axis": axis,
+        "projector": {"width": projector.width, "height": projector.height, "K": projector.K, "dist": projector.dist},
     }
     key = local_cache.entry_key(GRID_CACHE_KIND, {**parts, "format": TABLES_FORMAT})
     stored = local_cache.load(GRID_CACHE_KIND, key)
     if stored is not None:
         return UndistortionGrid.from_arrays(stored) if stored else None
     K = np.asarray(projector.K, dtype=np.float64)
-    grid = UndistortionGrid.build(K, projector.distortion, projector.width, projector.height)
+    grid = UndistortionGrid.build(K, projector.distortion, projector.width, projector.height, axis)
     local_cache.store(GRID_CACHE_KIND, key, grid.to_arrays() if grid is not None else {})
     return grid
 
@@ -550,6 +552,10 @@ class PreparedPinhole(PreparedGeometry):
             kept = {}
             if self._p_distorted:
                 self._line = self._build_line_table(xn, yn)
+        if self._p_distorted:  # the compiled kernels of its frames, loaded while preparing
+            from metrology.core.geometry import pinhole_kernels
+
+            pinhole_kernels.warm()
         T, Kp = self._T, self._Kp
         fx, s, cx, fy, cy = Kp[0, 0], Kp[0, 1], Kp[0, 2], Kp[1, 1], Kp[1, 2]
         if self.axis == "u":
@@ -676,7 +682,7 @@ class PreparedPinhole(PreparedGeometry):
             return None
         with self._grid_lock:
             if not self._grid_built:
-                self._grid = _projector_grid(self.rig.projector)
+                self._grid = _projector_grid(self.rig.projector, self.axis)
                 self._grid_built = True
             return self._grid
 
@@ -725,12 +731,12 @@ class PreparedPinhole(PreparedGeometry):
             raise GeometryError("the pinhole model has no model plane: heights need a reference capture")
         if reference is not None and not isinstance(reference, PinholeReference):
             raise GeometryError(f"reference must come from this model's reference(), got {type(reference).__name__}")
-        t_rows, mid = self._depth_rows(rows, u, v, sigma_in, sigma_out)
+        t_rows, mid, written = self._depth_rows(rows, u, v, sigma_in, sigma_out, points_out)
         tab = self.tables()
         xn, yn = tab["xn32"][rows], tab["yn32"][rows]
         if mid is not None:  # midpoint method: points off the camera ray
             px, py, pz = mid
-        if points_out is not None:
+        if points_out is not None and not written:
             if mid is None:
                 np.multiply(t_rows, xn, out=points_out[..., 0])
                 np.multiply(t_rows, yn, out=points_out[..., 1])
@@ -755,9 +761,11 @@ class PreparedPinhole(PreparedGeometry):
         v: np.ndarray | None,
         sigma_in: np.ndarray | None,
         sigma_out: np.ndarray | None,
-    ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray] | None]:
-        """Ray parameter ``t`` (= camera Z, mm) of each pixel of ``rows``, ``(n, W)`` float32, and
-        for the midpoint method the midpoints' ``(X, Y, Z)`` (float64, mm; None otherwise)."""
+        points_out: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray] | None, bool]:
+        """Ray parameter ``t`` (= camera Z, mm) of each pixel of ``rows``, ``(n, W)`` float32, for
+        the midpoint method the midpoints' ``(X, Y, Z)`` (float64, mm; None otherwise), and
+        whether the points ``t d`` were written to ``points_out`` too (by a compiled kernel)."""
         tab = self.tables()
         coded = u if self.axis == "u" else v
         assert coded is not None
@@ -780,13 +788,15 @@ class PreparedPinhole(PreparedGeometry):
                     np.multiply(np.abs(dtdw), tab["norm_d"][rows], out=sigma_out)
                     sigma_out *= sigma_in
             t[~(t > 0)] = np.nan
-            return t, None
+            return t, None, False
         if other is None and self.method == "plane" and self._line is not None:
-            return self._plane_from_line(rows, coded, sigma_in, sigma_out), None
+            t, written = self._plane_from_line(rows, coded, sigma_in, sigma_out, points_out)
+            return t, None, written
         if other is not None and self.method == "plane" and self.undistortion_grid() is not None:
-            return self._plane_from_grid(rows, coded, other, sigma_in, sigma_out), None
+            t, written = self._plane_from_grid(rows, coded, other, sigma_in, sigma_out, points_out)
+            return t, None, written
         xp, yp, dxp_dw = self._projector_normalized(rows, coded, other)
-        return self._intersect(rows, xp, yp, dxp_dw, sigma_in, sigma_out)
+        return (*self._intersect(rows, xp, yp, dxp_dw, sigma_in, sigma_out), False)
 
     def _plane_from_grid(
         self,
@@ -795,28 +805,34 @@ class PreparedPinhole(PreparedGeometry):
         other: np.ndarray,
         sigma_in: np.ndarray | None,
         sigma_out: np.ndarray | None,
-    ) -> np.ndarray:
-        """Both axes through a distorted projector: ``(u, v)`` undistorted by the grid (bilinear,
-        error below :data:`GRID_TOL`), then :meth:`_plane_of`; float32 ``(n, W)``."""
+        points_out: np.ndarray | None,
+    ) -> tuple[np.ndarray, bool]:
+        """Both axes through a distorted projector: ``(u, v)`` undistorted by the grid (bicubic,
+        error below :data:`GRID_TOL`), then :meth:`_plane_of`."""
         grid = self._grid
         assert grid is not None
         want_sigma = sigma_in is not None and sigma_out is not None
         u, v = (coded, other) if self.axis == "u" else (other, coded)
-        q, dq = grid.normalized(self.axis, u, v, want_sigma)
-        return self._plane_of(rows, q, dq, sigma_in, sigma_out)
+        q, dq = grid.normalized(u, v, want_sigma)
+        return self._plane_of(rows, q, dq, sigma_in, sigma_out, points_out)
 
     def _plane_from_line(
-        self, rows: slice, coded: np.ndarray, sigma_in: np.ndarray | None, sigma_out: np.ndarray | None
-    ) -> np.ndarray:
+        self,
+        rows: slice,
+        coded: np.ndarray,
+        sigma_in: np.ndarray | None,
+        sigma_out: np.ndarray | None,
+        points_out: np.ndarray | None,
+    ) -> tuple[np.ndarray, bool]:
         """One coded axis through a distorted projector: ``q`` from the epipolar table (one
-        gather and a cubic per pixel), then :meth:`_plane_of`; float32 ``(n, W)``, NaN for coded
-        coordinates outside :meth:`_coded_domain`."""
+        gather and a cubic per pixel), then :meth:`_plane_of`; NaN for coded coordinates outside
+        :meth:`_coded_domain`."""
         line = self._line
         assert line is not None
         tab = self.tables()
         want_sigma = sigma_in is not None and sigma_out is not None
         q, dq = line.evaluate(coded, tab["line_base"][rows], tab["line_frac"][rows], want_sigma)
-        return self._plane_of(rows, q, dq, sigma_in, sigma_out)
+        return self._plane_of(rows, q, dq, sigma_in, sigma_out, points_out)
 
     def _plane_of(
         self,
@@ -825,26 +841,46 @@ class PreparedPinhole(PreparedGeometry):
         dq: np.ndarray | None,
         sigma_in: np.ndarray | None,
         sigma_out: np.ndarray | None,
-    ) -> np.ndarray:
-        """The plane of the coded axis' undistorted normalized coordinate ``q`` (float32, used
-        as scratch): ``t = (q T_z - T_i) / (Rd_i - q Rd_z)``, NaN unless ``t > 0``; with
-        ``dq = dq/dw`` the sigma ``|dt/dq dq/dw| |d| sigma_in``."""
+        points_out: np.ndarray | None,
+    ) -> tuple[np.ndarray, bool]:
+        """The plane of the coded axis' undistorted normalized coordinate ``q`` (float32 ``(n,
+        W)``) met by each pixel's ray, in one compiled pass
+        (:func:`~metrology.core.geometry.pinhole_kernels.plane_tile`): ``t = (q T_z - T_i) / (Rd_i
+        - q Rd_z)``, NaN unless ``t > 0``; with ``dq = dq/dw``, ``sigma_in`` and ``sigma_out`` the
+        sigma ``|dt/dq dq/dw| |d| sigma_in`` (mm) written to ``sigma_out``; the points ``t (x_n,
+        y_n, 1)`` (mm) written straight to ``points_out`` when that is a contiguous float32 ``(n,
+        W, 3)`` array (one pass less). Returns ``t`` (float32 ``(n, W)``) and whether the points
+        were written."""
+        from metrology.core.geometry import pinhole_kernels as kernels
+
         tab = self.tables()
         T = self._T
-        Ti = T[0] if self.axis == "u" else T[1]
-        rdi, rdz = tab["rdi32"][rows], tab["rdz32"][rows]
-        num = q * np.float32(T[2])
-        num -= np.float32(Ti)
-        den = np.multiply(q, rdz, out=q)
-        np.subtract(rdi, den, out=den)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            if sigma_in is not None and sigma_out is not None and dq is not None:
-                dtdq = (np.float32(T[2]) * den + num * rdz) / (den * den)
-                np.multiply(np.abs(dtdq * dq), tab["norm_d"][rows], out=sigma_out)
-                sigma_out *= sigma_in
-            t = np.divide(num, den, out=num)
-            np.copyto(t, np.float32(np.nan), where=~(t > 0))
-        return t
+        T_i = T[0] if self.axis == "u" else T[1]
+        t = np.empty(q.shape, np.float32)
+        want_sigma = sigma_in is not None and sigma_out is not None and dq is not None
+        sigma = np.empty(t.shape if want_sigma else 0, np.float32)
+        empty = np.empty(0, np.float32)
+        write = points_out is not None and points_out.flags.c_contiguous and points_out.dtype == np.float32
+        kernels.plane_tile(
+            kernels.flat(q),
+            kernels.flat(dq) if want_sigma and dq is not None else empty,
+            kernels.flat(tab["rdi32"][rows]),
+            kernels.flat(tab["rdz32"][rows]),
+            float(T[2]),
+            float(T_i),
+            kernels.flat(tab["norm_d"][rows]),
+            kernels.flat(sigma_in) if want_sigma and sigma_in is not None else empty,
+            sigma.reshape(-1),
+            want_sigma,
+            kernels.flat(tab["xn32"][rows]),
+            kernels.flat(tab["yn32"][rows]),
+            points_out.reshape(-1) if write and points_out is not None else empty,
+            write,
+            t.reshape(-1),
+        )
+        if want_sigma and sigma_out is not None:
+            sigma_out[...] = sigma
+        return t, write
 
     def _projector_normalized(
         self, rows: slice, coded: np.ndarray, other: np.ndarray | None
