@@ -82,7 +82,7 @@ def measurement_figures(measurement, row: int | None = None) -> tuple[dict[str, 
         figures["sigma_map"].update_yaxes(title_text=axes.y_label)
     pairs = load_npy(measurement.pairs_npy)
     if pairs is not None:  # a stereo rig: which pairs of devices measured each point
-        from metrology.figures.measurement import pairs_figure
+        from metrology.figures.pairs import pairs_figure
 
         figures["pairs_map"] = pairs_figure(pairs)
     return figures, row, height
