@@ -1,7 +1,7 @@
 """Inspection in headless Chromium: upload a nominal model through the form, inspect a finished
 measurement against it from the measurement's page, watch the job, see the deviation map (a
-diverging scale centred at 0 with the tolerance marked), the histogram and the conformance counts,
-open the printable report.
+diverging scale centred at 0 with the tolerance marked), the histogram, the conformance counts and
+the features table (a plane typed as JSON in the form), open the printable report.
 
 The scene and the nominal are tests/app/test_inspections.py's (a block with a 0.1 mm pit, the block
 without it). Jobs run in the in-process worker of tests/dashboard/conftest.py; screenshots go to
@@ -10,10 +10,12 @@ artifacts/screenshots/ (inspection-*.png).
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from metrology.measurements.services import request_measurement
-from tests.app.inspection_parts import block_nominal, pitted_block_heights, stl_bytes
+from tests.app.inspection_parts import PIT_DEPTH_MM, TOP_FEATURE, block_nominal, pitted_block_heights, stl_bytes
 from tests.browser import CHROMIUM, shot
 from tests.conftest import PASSWORD
 from tests.dashboard.conftest import upload
@@ -59,6 +61,7 @@ def test_inspection_in_the_browser(live_server, alice, pitted_measurement, worke
     page.select_option("#id_nominal", label=page.locator("#id_nominal option").nth(1).inner_text())
     page.select_option("#id_init", "identity")
     page.fill("#id_tolerance_mm", "0.05")
+    page.fill("#id_features", json.dumps([TOP_FEATURE]))  # the block's top plane, typed as JSON
     page.click("text=Run inspection")
     page.wait_for_url("**/inspections/*/")
     page.wait_for_selector("#fig-deviation_map .main-svg")  # the page reloaded with the result
@@ -69,6 +72,12 @@ def test_inspection_in_the_browser(live_server, alice, pitted_measurement, worke
     # the colour bar is centred at 0 and marks the tolerance
     ticks = page.locator("#fig-deviation_map .colorbar").text_content() or ""
     assert "+T 50" in ticks and "-T -50" in ticks and "0" in ticks
+    # the features table: the top plane's flatness is the pit's depth (minimum zone)
+    feature = page.locator("table[data-features] tr[data-feature=top]")
+    assert feature.locator("th").inner_text() == "top" and "plane" in feature.inner_text()
+    flatness = page.locator("table[data-features] tr", has_text="flatness").locator("td.num").nth(0).inner_text()
+    value, unit = flatness.split()
+    assert unit == "mm" and abs(float(value) - PIT_DEPTH_MM) < 0.010, flatness  # as the API test's bound
     shot(page, "inspection-02-result")
 
     page.click("text=Report (HTML)")
