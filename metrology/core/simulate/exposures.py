@@ -26,7 +26,7 @@ from metrology.core.geometry.base import GeometryModel
 from metrology.core.io.exposures import Exposure
 from metrology.core.scenes import Scene
 from metrology.core.simulate.cast import ScenePlacement, cast_truth
-from metrology.core.simulate.frames import RenderedCapture, _edges
+from metrology.core.simulate.frames import RenderedCapture
 from metrology.core.simulate.options import SimulationOptions
 from metrology.core.simulate.render import default_placement
 from metrology.core.simulate.series import stack_seed
@@ -193,14 +193,5 @@ def render_exposures(
     lit = truth.lit
     Xc, Yc, _ = where.scene_coordinates(truth.points_mm)
     centre = np.where(lit, rho_map(np.where(lit, Xc, 0.0), np.where(lit, Yc, 0.0)), np.nan)
-    rendered = RenderedCapture(
-        images=stacks[-1],
-        truth_mm=np.where(lit, truth.height_mm, np.nan).astype(np.float32),
-        points_mm=np.where(lit[..., None], truth.points_mm, np.nan),
-        u=truth.u,
-        v=truth.v,
-        edges=_edges(truth.height_mm, lit),
-        codec=codec,
-        options=opts,
-    )
+    rendered = RenderedCapture.from_truth(stacks[-1], truth, codec, opts)
     return RenderedExposures(ExposureStack(stacks, ordered), rendered, centre, factors)

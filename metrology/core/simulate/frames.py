@@ -71,6 +71,24 @@ class RenderedCapture:
         """Pixels whose centre sees a lit point (``isfinite(truth_mm)``)."""
         return np.isfinite(self.truth_mm)
 
+    @classmethod
+    def from_truth(
+        cls, images: np.ndarray, truth: CastTruth, codec: Codec | None, options: SimulationOptions
+    ) -> RenderedCapture:
+        """``images`` with the ground truth of the pixel centres' ``truth``: heights, points and
+        projector coordinates, NaN where not lit, and the edges."""
+        lit = truth.lit
+        return cls(
+            images=images,
+            truth_mm=np.where(lit, truth.height_mm, np.nan).astype(np.float32),
+            points_mm=np.where(lit[..., None], truth.points_mm, np.nan),
+            u=truth.u,
+            v=truth.v,
+            edges=_edges(truth.height_mm, lit),
+            codec=codec,
+            options=options,
+        )
+
 
 def _edges(height: FloatArray, lit: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
     edges = np.zeros(height.shape, dtype=bool)
@@ -105,14 +123,4 @@ def _from_cast(
         albedo=albedo,
         seed=seed,
     )
-    lit = truth.lit
-    return RenderedCapture(
-        images=images,
-        truth_mm=np.where(lit, truth.height_mm, np.nan).astype(np.float32),
-        points_mm=np.where(lit[..., None], truth.points_mm, np.nan),
-        u=truth.u,
-        v=truth.v,
-        edges=_edges(truth.height_mm, lit),
-        codec=codec,
-        options=opts,
-    )
+    return RenderedCapture.from_truth(images, truth, codec, opts)
