@@ -20,8 +20,15 @@ extras=""
 [ "${1:-}" = "--dev" ] && extras="[dev]"
 hash="$(sha256sum pyproject.toml | cut -c1-16)"
 have="$(cat "$stamp" 2>/dev/null || true)"
+# uv installs the versions pip would (same resolution of pyproject.toml's bounds) in about a sixth
+# of the time: parallel downloads, a cache shared by every clone on the machine, no bytecode
+# compiled ahead (Python writes it on first import). pip is the fallback where uv cannot install.
 if [ "$have" != "${hash}${extras}" ] && [ "$have" != "${hash}[dev]" ]; then
-  .venv/bin/python -m pip install --quiet --upgrade pip
-  .venv/bin/python -m pip install --quiet -e ".${extras}"
+  if ! { .venv/bin/python -m pip install -qq "uv>=0.9" \
+      && .venv/bin/uv pip install --quiet --python .venv/bin/python -e ".${extras}"; }; then
+    echo "setup: uv could not install; installing with pip" >&2
+    .venv/bin/python -m pip install --quiet --upgrade pip
+    .venv/bin/python -m pip install --quiet -e ".${extras}"
+  fi
   echo "${hash}${extras}" > "$stamp"
 fi

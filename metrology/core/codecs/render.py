@@ -26,11 +26,21 @@ Two things live here:
 
 The virtual rig's one entry, :func:`metrology.core.simulate.render_capture`, gives these true
 coordinates for any geometric model.
+
+A noisy render keeps its noise-free frames (keyed by the coordinates' and reflectance's SHA-1, the
+codec and the options but the seed; at most :data:`CLEAN_CACHE_BYTES`), and every render keeps its
+blurred-pattern tables (:data:`TABLE_CACHE_BYTES`): the renders of a Monte Carlo over noise seeds
+then only draw their noise, with images identical to those rendered with nothing kept.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import math
+import threading
+from collections import OrderedDict
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -149,6 +159,29 @@ def _emitted(role: FrameRole, x: FloatArray, sigma: float, gamma: float) -> Floa
     n = math.ceil((hi - lo) / step) + 1
     if n > 2**24:
         raise ValueError(f"projector blur table too large ({n} samples); reduce the coordinate range or the blur")
+    return np.interp(x, lo + np.arange(n) * step, _blurred_table(role, lo, step, n, sigma, gamma))
+
+
+_TABLES: OrderedDict[tuple[object, ...], FloatArray] = OrderedDict()
+_TABLES_LOCK = threading.Lock()
+TABLE_CACHE_BYTES = 64 * 2**20
+"""Bound of the blurred-pattern tables kept for the next render (least recently used dropped first)."""
+
+
+def _blurred_table(role: FrameRole, lo: float, step: float, n: int, sigma: float, gamma: float) -> FloatArray:
+    """``n`` samples from ``lo`` by ``step`` of the blurred pattern ``G_sigma * pattern^gamma``: the
+    stepped pattern's cell means of 8 sub-samples, blurred by a Gaussian truncated at 6 sigma.
+
+    Renders of one scene draw the same table again and again (a Monte Carlo over noise seeds), and
+    the blur is most of a render's cost: tables are kept, bounded by :data:`TABLE_CACHE_BYTES`. A
+    kept table is the one computed for the same arguments, so the images do not depend on the cache.
+    """
+    key = (role, lo, step, n, sigma, gamma)
+    with _TABLES_LOCK:
+        kept = _TABLES.get(key)
+        if kept is not None:
+            _TABLES.move_to_end(key)
+            return kept
     sub = (np.arange(8) + 0.5) / 8 - 0.5
     fine = (lo + np.arange(n)[:, None] * step + sub[None, :] * step).ravel()
     table = pattern_value(role, fine)
@@ -156,7 +189,13 @@ def _emitted(role: FrameRole, x: FloatArray, sigma: float, gamma: float) -> Floa
         table = table**gamma
     table = table.reshape(n, 8).mean(axis=1)
     table = gaussian_filter1d(table, sigma / step, mode="nearest", truncate=6.0)
-    return np.interp(x, lo + np.arange(n) * step, table)
+    table.setflags(write=False)
+    if table.nbytes <= TABLE_CACHE_BYTES // 4:
+        with _TABLES_LOCK:
+            _TABLES[key] = table
+            while sum(t.nbytes for t in _TABLES.values()) > TABLE_CACHE_BYTES:
+                _TABLES.popitem(last=False)
+    return table
 
 
 def square_wave_bias_px(steps: int, period: float, blur_px: float, harmonics: int = 200) -> float:
@@ -283,24 +322,67 @@ def render_codec(
     if not math.isfinite(blur) or blur < 0:
         raise ValueError(f"projector_blur_px must be finite and >= 0, got {projector_blur_px!r}")
     full = float(opts.full_scale)
-    lit_index = np.flatnonzero(lit)
-    lit_coords = {name: x.ravel()[lit_index] for name, x in coords.items()}
-    base = albedo_map * opts.ambient
-    gain = (albedo_map * opts.projector_gain).ravel()[lit_index]
     rng = np.random.default_rng(opts.seed if seed is None else seed)
     # the projected value of a pre-compensated codec is s**(1/g); the projector emits it**gamma
     gamma = opts.projector_gamma / (codec.precompensated_gamma or 1.0)
+
+    def clean_frames() -> Iterator[FloatArray]:
+        lit_index = np.flatnonzero(lit)
+        lit_coords = {name: x.ravel()[lit_index] for name, x in coords.items()}
+        base = albedo_map * opts.ambient
+        gain = (albedo_map * opts.projector_gain).ravel()[lit_index]
+        for role in frame_roles(codec):
+            intensity = base.copy()
+            if role.kind in ("phase", "gray"):
+                emitted = _emitted(role, lit_coords[role.axis], blur, gamma)
+            else:
+                emitted = _emitted(role, np.zeros(lit_index.size), 0.0, gamma)
+            intensity.ravel()[lit_index] += gain * emitted
+            yield camera_image(intensity, height, width, opts) * full
+
+    frames: Iterable[FloatArray] = clean_frames()
+    if opts.noise_grey > 0:  # noise drawn anew on a kept noise-free render: a Monte Carlo's renders
+        key = (repr(codec), _digest(coords, albedo_map), dataclasses.replace(opts, seed=0), blur)
+        frames = _kept_clean_render(key, frames, codec.n_frames * height * width * 8)
     images = np.empty((codec.n_frames, height, width), opts.dtype)
-    for f, role in enumerate(frame_roles(codec)):
-        intensity = base.copy()
-        if role.kind in ("phase", "gray"):
-            emitted = _emitted(role, lit_coords[role.axis], blur, gamma)
-        else:
-            emitted = _emitted(role, np.zeros(lit_index.size), 0.0, gamma)
-        intensity.ravel()[lit_index] += gain * emitted
-        img = camera_image(intensity, height, width, opts)
-        grey = img * full
+    for f, grey in enumerate(frames):
         if opts.noise_grey > 0:
             grey = grey + opts.noise_grey * rng.standard_normal(grey.shape)
         images[f] = np.clip(np.rint(grey), 0, full).astype(opts.dtype)
     return images
+
+
+_CLEAN: OrderedDict[tuple[object, ...], FloatArray] = OrderedDict()
+CLEAN_CACHE_BYTES = 128 * 2**20
+"""Bound of the noise-free renders kept (least recently used dropped first): a noisy render of the
+same coordinates, reflectance and options but another seed then only draws its noise."""
+
+
+def _digest(coords: dict[str, FloatArray], albedo: FloatArray) -> str:
+    """SHA-1 of the true coordinates and the reflectance map (a render's whole scene)."""
+    h = hashlib.sha1()
+    for name in sorted(coords):
+        h.update(name.encode())
+        h.update(np.ascontiguousarray(coords[name]).data)
+    h.update(repr(albedo.shape).encode())
+    h.update(np.ascontiguousarray(albedo).data)
+    return h.hexdigest()
+
+
+def _kept_clean_render(key: tuple[object, ...], frames: Iterable[FloatArray], nbytes: int) -> Iterable[FloatArray]:
+    """The noise-free frames ``(frames, H, W)`` float64 grey levels of ``key``: kept ones, or
+    ``frames`` computed now and kept when they fit a quarter of :data:`CLEAN_CACHE_BYTES`."""
+    with _TABLES_LOCK:
+        kept = _CLEAN.get(key)
+        if kept is not None:
+            _CLEAN.move_to_end(key)
+            return kept
+    if nbytes > CLEAN_CACHE_BYTES // 4:
+        return frames
+    stack = np.stack(list(frames))
+    stack.setflags(write=False)
+    with _TABLES_LOCK:
+        _CLEAN[key] = stack
+        while sum(s.nbytes for s in _CLEAN.values()) > CLEAN_CACHE_BYTES:
+            _CLEAN.popitem(last=False)
+    return stack

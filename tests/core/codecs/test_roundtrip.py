@@ -211,3 +211,21 @@ def test_gray_only_chain_thresholded_at_a_phase_mean() -> None:
     lit = np.isfinite(U)
     assert axis.valid[lit].all()
     np.testing.assert_allclose(axis.coordinate[lit], 2.0 * np.floor((U[lit] + 0.5) / 2.0) + 0.5, atol=1e-4)
+
+
+def test_noisy_renders_reuse_the_noise_free_render_without_changing_an_image() -> None:
+    """The renderer keeps a scene's blurred-pattern tables and noise-free frames, so a Monte Carlo
+    over seeds draws only noise: every image equals the one rendered with nothing kept."""
+    from metrology.core.codecs import render
+
+    codec = builtin_codec("gcps-v1")
+    u = np.linspace(-3.0, codec.projector_width + 3.0, 96 * 129).reshape(96, 129)
+    options = SimulationOptions.realistic_8bit()
+    kept = [render_codec(codec, u, None, options, seed=seed) for seed in (1, 2, 1)]
+    render._CLEAN.clear()
+    render._TABLES.clear()
+    fresh = render_codec(codec, u, None, options, seed=2)
+    assert np.array_equal(kept[0], kept[2]) and np.array_equal(kept[1], fresh)
+    assert not np.array_equal(kept[0], kept[1])  # the noise is drawn anew
+    other_scene = render_codec(codec, u + 0.25, None, options, seed=2)  # another scene: not the kept render
+    assert np.abs(other_scene.astype(int) - fresh.astype(int)).max() > 10
