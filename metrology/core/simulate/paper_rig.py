@@ -337,14 +337,22 @@ class _CodeSampler:
         self.pad = pad
         self.index = t.astype(np.intp)
         self.frac = t - self.index
+        self._size = -1  # the table size the clamped cells below are for
 
     def sample(self, table: FloatArray) -> FloatArray:
         """Values of ``table`` (zero at both ends, extended by zeros) at the codes."""
         last = table.size - 1
-        index = np.minimum(self.index, last - 1)
-        frac = np.where(self.index >= last, 0.0, self.frac)
-        base = table[index]
-        return base + frac * (table[index + 1] - base)
+        if table.size != self._size:  # the clamped cells of every table of this size, once
+            self._below = np.minimum(self.index, last - 1)
+            self._above = self._below + 1
+            self._frac = np.where(self.index >= last, 0.0, self.frac)
+            self._size = table.size
+        base = table.take(self._below)
+        step = table.take(self._above)
+        step -= base
+        step *= self._frac
+        step += base
+        return step
 
 
 # --------------------------------------------------------------------------- rendering
