@@ -20,6 +20,7 @@ the board's square edges to the camera's pixel rows and columns (keep it 15 to 3
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -29,7 +30,7 @@ import numpy.typing as npt
 from metrology.core.codecs.model import Codec
 from metrology.core.codecs.render import render_codec
 from metrology.core.distortion import project_normalized, undistort_pixels
-from metrology.core.geometry.pinhole import PinholeRig
+from metrology.core.geometry.pinhole import PinholeCamera, PinholeRig
 from metrology.core.procam.board import BoardSpec
 from metrology.core.simulate import SimulationOptions
 
@@ -65,13 +66,7 @@ def board_truth(
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """True ``u``, ``v`` and albedo on the camera's ``supersample``-times finer grid, ``(H s, W s)`` float64."""
     s = int(supersample)
-    h, w = rig.camera.height_px, rig.camera.width_px
-    sub = (np.arange(s) + 0.5) / s - 0.5
-    xs = (np.arange(w)[:, None] + sub[None, :]).ravel()
-    ys = (np.arange(h)[:, None] + sub[None, :]).ravel()
-    U, V = np.meshgrid(xs, ys)
-    und = undistort_pixels(np.asarray(rig.camera.K), rig.camera.distortion, U, V)
-    d = np.stack([und.x, und.y, np.ones_like(und.x)], axis=-1)
+    d = _sub_ray_directions(rig.camera, s)
     n = pose.R[:, 2]
     with np.errstate(invalid="ignore", divide="ignore"):
         t = float(n @ pose.t) / (d @ n)
@@ -83,20 +78,23 @@ def board_truth(
     fp = np.abs(t) / (fx * s)
     sq = board.size_mm
 
-    def dark(c: FloatArray, r: FloatArray) -> FloatArray:
-        inside = (c >= -1) & (c <= board.cols - 1) & (r >= -1) & (r <= board.rows - 1)
-        return (inside & ((c + r) % 2 == 0)).astype(np.float64)
-
     k = np.round(Xb[..., 0] / sq)
     m = np.round(Xb[..., 1] / sq)
+    # square (c, r) is dark where it lies on the board and c + r is even; the four squares around a
+    # sub-sample are (k - i, m - j), i, j in {0, 1}: their parities from one modulo
+    with np.errstate(invalid="ignore"):
+        even = (k + m) % 2 == 0
+        column = [(k - i >= -1) & (k - i <= board.cols - 1) for i in (0, 1)]
+        row = [(m - j >= -1) & (m - j <= board.rows - 1) for j in (0, 1)]
+
+    def dark(i: int, j: int) -> FloatArray:
+        return (column[i] & row[j] & (even if (i + j) % 2 == 0 else ~even)).astype(np.float64)
+
     with np.errstate(invalid="ignore"):
         a = np.clip(0.5 + (Xb[..., 0] - k * sq) / fp, 0.0, 1.0)
         b = np.clip(0.5 + (Xb[..., 1] - m * sq) / fp, 0.0, 1.0)
     dark_fraction = (
-        a * b * dark(k, m)
-        + a * (1 - b) * dark(k, m - 1)
-        + (1 - a) * b * dark(k - 1, m)
-        + (1 - a) * (1 - b) * dark(k - 1, m - 1)
+        a * b * dark(0, 0) + a * (1 - b) * dark(0, 1) + (1 - a) * b * dark(1, 0) + (1 - a) * (1 - b) * dark(1, 1)
     )
     albedo = LIGHT_ALBEDO + (DARK_ALBEDO - LIGHT_ALBEDO) * dark_fraction
     Rr = np.asarray(rig.R)
@@ -109,6 +107,20 @@ def board_truth(
     u = np.where(front, u, np.nan)
     v = np.where(front, v, np.nan)
     return u, v, albedo
+
+
+@functools.lru_cache(maxsize=4)
+def _sub_ray_directions(camera: PinholeCamera, s: int) -> FloatArray:
+    """``(H s, W s, 3)`` float64 directions ``(x, y, 1)`` of the camera's sub-pixel centres
+    (undistorted normalized coordinates): the same for every pose, so kept (read-only)."""
+    sub = (np.arange(s) + 0.5) / s - 0.5
+    xs = (np.arange(camera.width_px)[:, None] + sub[None, :]).ravel()
+    ys = (np.arange(camera.height_px)[:, None] + sub[None, :]).ravel()
+    U, V = np.meshgrid(xs, ys)
+    und = undistort_pixels(np.asarray(camera.K), camera.distortion, U, V)
+    d = np.stack([und.x, und.y, np.ones_like(und.x)], axis=-1)
+    d.setflags(write=False)
+    return d
 
 
 def true_corners(rig: PinholeRig, board: BoardSpec, pose: BoardPose) -> tuple[FloatArray, FloatArray]:
