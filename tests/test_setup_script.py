@@ -1,6 +1,9 @@
 """scripts/setup.sh installs once: the dev install satisfies the plain one (demo <-> test switches
-install nothing), and a changed pyproject.toml installs again. Run on a copy, with a stand-in
-``.venv/bin/python`` that records the pip calls instead of installing."""
+install nothing), and a changed pyproject.toml installs again; the dev install takes the optional
+STEP reader (cadquery-ocp) in the same pip call, wheels only, and without a wheel says that the STEP
+tests will be skipped and installs the dev extras alone. Run on a copy, with a stand-in
+``.venv/bin/python`` that records the pip calls instead of installing (and fails the wheels-only
+call, as pip does where no wheel exists, when asked to)."""
 
 from __future__ import annotations
 
@@ -11,7 +14,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def make_copy(tmp_path: Path) -> tuple[Path, Path]:
+DEV_STEP = "-m pip install --quiet --only-binary cadquery-ocp,vtk -e .[dev,step]"
+DEV = "-m pip install --quiet -e .[dev]"
+
+
+def make_copy(tmp_path: Path, no_wheel: bool = False) -> tuple[Path, Path]:
     project = tmp_path / "project"
     (project / "scripts").mkdir(parents=True)
     shutil.copy(ROOT / "scripts" / "setup.sh", project / "scripts" / "setup.sh")
@@ -19,17 +26,20 @@ def make_copy(tmp_path: Path) -> tuple[Path, Path]:
     log = tmp_path / "pip.log"
     python = project / ".venv" / "bin" / "python"
     python.parent.mkdir(parents=True)
-    python.write_text(f'#!/bin/sh\necho "$*" >> {log}\n')
+    fail = 'case "$*" in *--only-binary*) exit 1;; esac\n' if no_wheel else ""
+    python.write_text(f'#!/bin/sh\necho "$*" >> {log}\n{fail}')
     python.chmod(0o755)
     return project, log
 
 
-def installs(project: Path, log: Path, *args: str) -> list[str]:
+def installs(project: Path, log: Path, *args: str, said: list[str] | None = None) -> list[str]:
     before = log.read_text().splitlines() if log.exists() else []
     result = subprocess.run(
         ["bash", "scripts/setup.sh", *args], cwd=project, capture_output=True, text=True, timeout=60
     )
     assert result.returncode == 0, result.stderr
+    if said is not None:
+        said.extend(result.stderr.splitlines())
     after = log.read_text().splitlines() if log.exists() else []
     return [line for line in after[len(before) :] if "install" in line and "-e" in line]
 
@@ -38,11 +48,22 @@ def test_dev_install_satisfies_the_demo_and_changes_reinstall(tmp_path):
     if shutil.which("sha256sum") is None:
         raise AssertionError("sha256sum is needed by scripts/setup.sh")
     project, log = make_copy(tmp_path)
-    assert installs(project, log, "--dev") == ["-m pip install --quiet -e .[dev]"]
+    assert installs(project, log, "--dev") == [DEV_STEP]
     assert installs(project, log) == []  # the demo after the tests
     assert installs(project, log, "--dev") == []  # and the tests again
     with (project / "pyproject.toml").open("a") as handle:
         handle.write("\n# changed\n")
     assert installs(project, log) == ["-m pip install --quiet -e ."]
-    assert installs(project, log, "--dev") == ["-m pip install --quiet -e .[dev]"]
+    assert installs(project, log, "--dev") == [DEV_STEP]
     assert installs(project, log) == []
+
+
+def test_without_a_step_wheel_the_dev_install_goes_on_and_says_so(tmp_path):
+    project, log = make_copy(tmp_path, no_wheel=True)
+    said: list[str] = []
+    assert installs(project, log, "--dev", said=said) == [DEV_STEP, DEV]
+    assert said == ["setup.sh: no cadquery-ocp wheel for this platform: the STEP tests will be skipped"]
+    assert installs(project, log, "--dev") == [] and installs(project, log) == []
+    stamp = project / ".venv" / ".gcps-installed"
+    stamp.write_text(stamp.read_text().replace("[dev]-step", "[dev]"))  # set up before the STEP extra
+    assert installs(project, log, "--dev") == [DEV_STEP, DEV]
