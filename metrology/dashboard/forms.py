@@ -9,6 +9,7 @@ from django import forms
 
 from metrology.captures.models import Capture
 from metrology.captures.simulation import PRESETS
+from metrology.core.io.step import LINEAR_TOLERANCE_MM
 from metrology.dashboard.selectors import capture_origin
 from metrology.jobs.models import Job
 
@@ -461,8 +462,11 @@ class ProcamCalibrationForm(forms.Form):
 class NominalUploadForm(forms.Form):
     file = forms.FileField(
         label="Nominal model",
-        help_text="A triangle mesh in millimetres: binary or ASCII STL, PLY or OBJ, faces oriented outwards",
-        widget=forms.ClearableFileInput(attrs={"accept": ".stl,.ply,.obj"}),
+        help_text=(
+            "A triangle mesh in millimetres (binary or ASCII STL, PLY or OBJ, faces oriented outwards) "
+            f"or a STEP file (.step, .stp), tessellated to {LINEAR_TOLERANCE_MM} mm"
+        ),
+        widget=forms.ClearableFileInput(attrs={"accept": ".stl,.ply,.obj,.step,.stp"}),
     )
     name = forms.CharField(label="Name", required=False, max_length=200, help_text="Default: the file's name")
 

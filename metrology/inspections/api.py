@@ -33,6 +33,7 @@ class NominalSerializer(serializers.ModelSerializer):
             "id",
             "name",
             "file_format",
+            "tessellation",
             "sha256",
             "size_bytes",
             "triangle_count",
@@ -44,7 +45,10 @@ class NominalSerializer(serializers.ModelSerializer):
 
 
 class NominalUploadSerializer(serializers.Serializer):
-    file = serializers.FileField(help_text="A triangle mesh in mm: binary or ASCII STL, PLY or OBJ")
+    file = serializers.FileField(
+        help_text="A triangle mesh in mm (binary or ASCII STL, PLY or OBJ) or a STEP file (.step, .stp; "
+        "tessellated at upload, needs the server's optional cadquery-ocp)"
+    )
     name = serializers.CharField(required=False, max_length=200, help_text="A name (default: the file's)")
 
 

@@ -8,13 +8,26 @@ from django.db import models
 
 
 class NominalModel(models.Model):
-    """An uploaded triangle mesh in mm (STL, PLY or OBJ), validated by
-    :func:`metrology.core.inspection.nominal.read_nominal` when it was stored."""
+    """An uploaded nominal model in mm: a triangle mesh (STL, PLY or OBJ) or a STEP solid, validated by
+    :func:`metrology.core.inspection.nominal.read_nominal` when it was stored.
+
+    ``file``, ``file_format``, ``sha256`` and ``size_bytes`` describe the uploaded file. A STEP file is
+    tessellated once, at upload, with the tolerances recorded in ``tessellation``; its triangles are
+    kept in ``mesh_file`` (binary PLY), which inspections read as they read an uploaded mesh
+    (:attr:`mesh`)."""
 
     owner = models.ForeignKey(settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="nominal_models")
     name = models.CharField(max_length=200)
-    file = models.FileField(max_length=300)
-    file_format = models.CharField(max_length=8, help_text="stl, ply or obj")
+    file = models.FileField(max_length=300, help_text="The uploaded file")
+    file_format = models.CharField(max_length=8, help_text="The uploaded file's format: stl, ply, obj or step")
+    mesh_file = models.FileField(
+        max_length=300, blank=True, help_text="A STEP upload's tessellation (binary PLY, mm); empty for a mesh upload"
+    )
+    tessellation = models.JSONField(
+        null=True,
+        blank=True,
+        help_text="How a STEP upload became triangles (method, linear and angular tolerances, faces)",
+    )
     sha256 = models.CharField(max_length=64)
     size_bytes = models.PositiveBigIntegerField()
     triangle_count = models.PositiveIntegerField()
@@ -27,6 +40,12 @@ class NominalModel(models.Model):
 
     def __str__(self) -> str:
         return f"{self.name} (nominal {self.pk})"
+
+    @property
+    def mesh(self) -> tuple[models.fields.files.FieldFile, str]:
+        """The triangles an inspection reads and their format: ``(mesh_file, "ply")`` for a STEP
+        upload, ``(file, file_format)`` for a mesh upload."""
+        return (self.mesh_file, "ply") if self.mesh_file else (self.file, self.file_format)
 
 
 class Inspection(models.Model):

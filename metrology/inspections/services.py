@@ -1,6 +1,11 @@
 """Writes for inspections: store a nominal model, request an inspection (a queued job), compute it in a
 worker, keep a rig's inspection plan and apply it to each new measurement of the rig.
 
+A nominal model is a mesh file (STL, PLY, OBJ) or a STEP file; a STEP file is read by the same core
+reader as ``gcps inspect`` (:func:`~metrology.core.inspection.nominal.read_nominal`, tessellated at its
+recorded tolerance) once, at upload, and its triangles are stored beside it as a binary PLY that the
+jobs read as they read an uploaded mesh.
+
 One request and one job handler for every geometric model: the job reads the measurement's points
 (``(H, W, 3)`` float32 mm in the model frame, :func:`metrology.measurements.derived.measurement_points`)
 and, when the measurement computed them, its per-point sigmas, and calls the pipeline's
@@ -14,6 +19,7 @@ import hashlib
 import io
 import math
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 from uuid import uuid4
@@ -24,6 +30,8 @@ from django.core.files import File
 from django.core.files.storage import default_storage
 from django.db import transaction
 
+from metrology.core.io.meshes import triangle_mesh_ply_bytes
+from metrology.core.io.step import STEP_SUFFIXES, ocp_available
 from metrology.errors import BadInput, Conflict
 from metrology.inspections.models import Inspection, InspectionPlan, NominalModel
 from metrology.jobs import services as job_services
@@ -31,14 +39,17 @@ from metrology.jobs.models import Job
 from metrology.measurements.models import Measurement
 from metrology.pipeline.jsonsafe import json_safe
 
-NOMINAL_FORMATS: tuple[str, ...] = ("stl", "ply", "obj")
-"""File name extensions a nominal model may have (the mesh readers of metrology.core.io.meshes)."""
+NOMINAL_FORMATS: tuple[str, ...] = ("stl", "ply", "obj", "step", "stp")
+"""File name extensions a nominal model may have: the mesh readers of metrology.core.io.meshes and STEP
+(metrology.core.io.step, where cadquery-ocp is installed)."""
+STEP_FORMATS: tuple[str, ...] = tuple(suffix.lstrip(".") for suffix in STEP_SUFFIXES)
+STEP_EXTRA = "pip install 'gcps-lab[step]' (cadquery-ocp)"
 
 
 def _suffix(name: str) -> str:
     suffix = Path(name).suffix.lower().lstrip(".")
     if suffix not in NOMINAL_FORMATS:
-        raise BadInput(f"file: a nominal model must be .stl, .ply or .obj, got {name!r}")
+        raise BadInput(f"file: a nominal model must be .stl, .ply, .obj, .step or .stp, got {name!r}")
     return suffix
 
 
@@ -52,19 +63,35 @@ def _read_nominal_file(path: Path, name: str) -> Any:
         raise BadInput(f"file: {name}: {exc}") from exc
 
 
-def upload_nominal(*, owner, upload, name: str | None = None) -> NominalModel:
-    """Validate an uploaded mesh (STL, PLY or OBJ, mm) and store it as a nominal model.
+def upload_nominal(
+    *, owner, upload, name: str | None = None, step_reader_available: Callable[[], bool] = ocp_available
+) -> NominalModel:
+    """Validate an uploaded mesh (STL, PLY or OBJ, mm) or STEP file and store it as a nominal model.
+
+    A STEP file (``.step``, ``.stp``) is tessellated by the core reader at its default tolerances
+    (:mod:`metrology.core.io.step`, recorded in ``tessellation``) and the triangles kept, outward and
+    merged as :func:`~metrology.core.inspection.nominal.nominal_from_arrays` left them, as a binary PLY
+    in ``mesh_file``; ``file``, ``sha256`` and ``size_bytes`` are the STEP file's, ``file_format`` is
+    ``"step"``. ``step_reader_available`` says whether this server can read STEP (default: whether
+    ``cadquery-ocp`` imports).
 
     Raises
     ------
     BadInput
-        Naming the problem (size, format, an empty or unreadable mesh); nothing is stored.
+        Naming the problem (size, format, an empty or unreadable file, STEP on a server without
+        ``cadquery-ocp``: naming the extra to install); nothing is stored.
     """
     limit = settings.GCPS_MAX_UPLOAD_BYTES
     if upload.size is not None and upload.size > limit:
         raise BadInput(f"upload of {upload.size} bytes exceeds the limit of {limit} bytes (GCPS_MAX_UPLOAD_BYTES)")
     filename = Path(upload.name or "nominal").name
     suffix = _suffix(filename)
+    is_step = suffix in STEP_FORMATS
+    if is_step and not step_reader_available():
+        raise BadInput(
+            f"file: {filename}: this server cannot read STEP files: OpenCASCADE is not installed ({STEP_EXTRA}); "
+            "upload the part as STL, PLY or OBJ, or ask the administrator to install the extra"
+        )
     upload.seek(0)
     digest = hashlib.sha256()
     size = 0
@@ -77,14 +104,22 @@ def upload_nominal(*, owner, upload, name: str | None = None) -> NominalModel:
                 out.write(chunk)
         nominal = _read_nominal_file(path, filename)
         summary = json_safe(nominal.summary())
+        folder_name = f"nominals/{uuid4().hex}"
         with path.open("rb") as stored_file:
-            stored = default_storage.save(f"nominals/{uuid4().hex}/{filename}", File(stored_file, name=filename))
+            stored = default_storage.save(f"{folder_name}/{filename}", File(stored_file, name=filename))
+    mesh = ""
     try:
+        if is_step:
+            mesh_bytes = triangle_mesh_ply_bytes(nominal.vertices, nominal.faces)
+            mesh_name = f"{Path(filename).stem}.tessellated.ply"
+            mesh = default_storage.save(f"{folder_name}/{mesh_name}", File(io.BytesIO(mesh_bytes), name=mesh_name))
         return NominalModel.objects.create(
             owner=owner,
             name=(name or Path(filename).stem)[:200],
             file=stored,
-            file_format=suffix,
+            file_format="step" if is_step else suffix,
+            mesh_file=mesh,
+            tessellation=None if nominal.tessellation is None else json_safe(dict(nominal.tessellation)),
             sha256=digest.hexdigest(),
             size_bytes=size,
             triangle_count=int(nominal.triangle_count),
@@ -92,7 +127,9 @@ def upload_nominal(*, owner, upload, name: str | None = None) -> NominalModel:
             summary=summary,
         )
     except Exception:
-        default_storage.delete(stored)
+        for name_stored in (stored, mesh):
+            if name_stored:
+                default_storage.delete(name_stored)
         raise
 
 
@@ -100,10 +137,11 @@ def delete_nominal(nominal: NominalModel) -> None:
     """Delete a nominal model and its file; Conflict while an inspection or a plan uses it."""
     if nominal.inspections.exists() or nominal.plans.exists():
         raise Conflict(f"nominal model {nominal.pk} is used by inspections or an inspection plan; delete those first")
-    name = nominal.file.name
+    names = [nominal.file.name, nominal.mesh_file.name]
     nominal.delete()
-    if name:
-        default_storage.delete(name)
+    for name in names:
+        if name:
+            default_storage.delete(name)
 
 
 def inspect_options(options: dict[str, Any] | None) -> dict[str, Any]:
@@ -180,9 +218,10 @@ def run_inspection(job: Job, run: job_services.JobRun) -> None:
     with run.phase("read", 5):
         points = np.asarray(measurement_points(measurement), dtype=np.float64)
         sigma = _load_array(measurement.sigma_npy) if measurement.sigma_npy else None
+        mesh, mesh_format = inspection.nominal.mesh
         with tempfile.TemporaryDirectory() as folder:
-            path = Path(folder) / f"nominal.{inspection.nominal.file_format}"
-            with inspection.nominal.file.open("rb") as source, path.open("wb") as out:
+            path = Path(folder) / f"nominal.{mesh_format}"
+            with mesh.open("rb") as source, path.open("wb") as out:
                 out.write(source.read())
             nominal = _read_nominal_file(path, inspection.nominal.name)
     if sigma is not None and sigma.shape != points.shape[:2]:
@@ -190,7 +229,13 @@ def run_inspection(job: Job, run: job_services.JobRun) -> None:
     with run.phase("inspect", 15):
         result = _inspect(nominal, points, sigma, inspection)
     provenance = {
-        "nominal": {"id": inspection.nominal.pk, "sha256": inspection.nominal.sha256, "units": nominal.units},
+        "nominal": {
+            "id": inspection.nominal.pk,
+            "sha256": inspection.nominal.sha256,
+            "units": nominal.units,
+            "format": inspection.nominal.file_format,
+            **({"tessellation": inspection.nominal.tessellation} if inspection.nominal.tessellation else {}),
+        },
         "scan": {"measurement": measurement.pk, "software_version": measurement.job.software_version},
         "rig": {"id": measurement.rig_id, "values": measurement.rig_values},
         "systematic": job.parameters.get("systematic") or {"mm": 0.0, "from": "none"},

@@ -6,11 +6,13 @@ from __future__ import annotations
 
 import io
 import struct
+from pathlib import Path
 
 import numpy as np
 
 from metrology.core.geometry.crossed_axes import Rig
 from tests.app.stacks import SMALL_RIG, block_heights
+from tests.core.inspection.parts import polygon_faces_shape, write_step
 
 PIT = (slice(55, 65), slice(75, 85))
 PIT_DEPTH_MM = 0.1
@@ -62,6 +64,15 @@ def block_nominal() -> tuple[np.ndarray, np.ndarray]:
         fa, fb = a + 4, b + 4
         faces += [(a, fa, fb), (a, fb, b)]
     return vertices, np.array(faces)
+
+
+def block_step(path: Path) -> Path:
+    """The block without its pit as a STEP file (needs ``cadquery-ocp``): :func:`block_nominal`'s
+    vertices as six planar faces, the ground, the top and the four walls, outward; tessellated, they
+    are the same twelve triangles (an open surface: the ground is one face under the block)."""
+    vertices, _ = block_nominal()
+    walls = [(4 + i, 8 + i, 8 + (i + 1) % 4, 4 + (i + 1) % 4) for i in range(4)]
+    return write_step(polygon_faces_shape(vertices, [(0, 1, 2, 3), (4, 5, 6, 7), *walls]), path)
 
 
 def pitted_block_heights() -> np.ndarray:

@@ -14,18 +14,22 @@ the 16-bit rendering's quantisation away from the block's edges, so the pit's de
 
 from __future__ import annotations
 
+import hashlib
 import io
+import sys
 
 import numpy as np
 import pytest
 
 from metrology.core.geometry.crossed_axes import Rig
+from metrology.core.io.step import LINEAR_TOLERANCE_MM, ocp_available
 from metrology.inspections.models import Inspection
 from tests.app.inspection_parts import (
     PIT_DEPTH_MM,
     SMALL_RIG,
     TOP_FEATURE,
     block_nominal,
+    block_step,
     pitted_block_heights,
     stl_bytes,
 )
@@ -67,7 +71,8 @@ def test_nominal_upload_is_validated_and_described(api, nominal):
     assert download.status_code == 200
 
     for name, content, expected in (
-        ("part.step", b"ISO-10303-21;", "must be .stl, .ply or .obj"),
+        ("part.igs", b"IGES", "must be .stl, .ply, .obj, .step or .stp"),
+        ("bad.step", b"ISO-10303-21;\nnot really\n", "bad.step"),  # unreadable, or no cadquery-ocp: a 400 either way
         ("empty.stl", b"", "empty"),
         ("garbage.ply", b"not a ply file at all", "garbage.ply"),
     ):
@@ -77,6 +82,91 @@ def test_nominal_upload_is_validated_and_described(api, nominal):
         assert response.status_code == 400, (name, response.content)
         assert expected in response.json()["error"], response.json()
     assert len(api.get("/api/nominals/").json()) == 1  # nothing stored from the refused uploads
+
+
+@pytest.mark.skipif(not ocp_available(), reason="STEP needs the optional cadquery-ocp (pip install 'gcps-lab[step]')")
+def test_step_nominal_is_tessellated_stored_and_inspected(api, pitted_measurement, tmp_path):
+    """The block as a STEP file of six planar faces: stored with the STEP file's hash and size, the
+    tessellation's tolerance and triangle count, then read by the inspection job as a mesh is: the
+    pit found as against the STL nominal (-0.1 mm within 10 um, the rest of the top within 5 um)."""
+    step = block_step(tmp_path / "block.step").read_bytes()
+    data = io.BytesIO(step)
+    data.name = "block.step"
+    response = api.post("/api/nominals/", {"file": data}, format="multipart")
+    assert response.status_code == 201, response.content
+    nominal = response.json()
+    assert nominal["file_format"] == "step" and nominal["name"] == "block" and nominal["units"] == "mm"
+    assert nominal["sha256"] == hashlib.sha256(step).hexdigest() and nominal["size_bytes"] == len(step)
+    assert nominal["triangle_count"] == 12, nominal  # two per planar face, as block_nominal's
+    tessellation = nominal["tessellation"]
+    assert tessellation["linear_tolerance_mm"] == LINEAR_TOLERANCE_MM and tessellation["faces"] == 6, tessellation
+    assert nominal["summary"]["tessellation"] == tessellation
+    download = api.get(f"/api/nominals/{nominal['id']}/file/")
+    assert download.status_code == 200 and b"".join(download.streaming_content) == step  # the STEP file itself
+    from django.core.files.storage import default_storage
+
+    from metrology.inspections.models import NominalModel
+
+    stored = NominalModel.objects.get(pk=nominal["id"])
+    assert stored.mesh[1] == "ply" and stored.mesh_file.name.endswith("block.tessellated.ply")
+    spare = io.BytesIO(step)
+    spare.name = "spare.stp"
+    spare_id = api.post("/api/nominals/", {"file": spare}, format="multipart").json()["id"]
+    files = [NominalModel.objects.get(pk=spare_id).file.name, NominalModel.objects.get(pk=spare_id).mesh_file.name]
+    assert all(default_storage.exists(name) for name in files)
+    assert api.delete(f"/api/nominals/{spare_id}/").status_code == 204
+    assert not any(default_storage.exists(name) for name in files)  # the STEP file and its tessellation
+
+    options = {"init": "identity", "tolerance_mm": 0.05, "systematic_mm": 0.0}
+    request = {"measurement": pitted_measurement, "nominal": nominal["id"], "options": options}
+    response = api.post("/api/inspections/", request, format="json")
+    assert response.status_code == 202, response.content
+    body = api.get(f"/api/inspections/{response.json()['id']}/").json()
+    assert body["status"] == "done", body
+    provenance = body["report"]["provenance"]["nominal"]
+    assert provenance["sha256"] == nominal["sha256"] and provenance["format"] == "step"
+    assert provenance["tessellation"] == tessellation
+    dev = np.load(io.BytesIO(b"".join(api.get(body["files"]["deviations.npy"]).streaming_content)))
+    assert abs(float(np.median(dev[57:63, 77:83])) + PIT_DEPTH_MM) < 0.010, np.median(dev[57:63, 77:83])
+    top = np.zeros(dev.shape, bool)
+    top[35:85, 45:115] = True
+    top[52:68, 72:88] = False
+    assert np.isfinite(dev[top]).mean() > 0.95 and np.nanpercentile(np.abs(dev[top]), 99) < 0.005
+
+    from django.test import Client
+
+    client = Client()
+    client.force_login(api.user)
+    page = client.get("/nominals/").content.decode()
+    assert f"<td data-tessellation>{LINEAR_TOLERANCE_MM} mm, 0.1 rad</td>" in page and ">STEP<" in page
+    report = client.get(f"/inspections/{body['id']}/report/").content.decode()
+    assert f"(STEP, 12 triangles tessellated at {LINEAR_TOLERANCE_MM} mm, 0.1 rad, mm)" in report
+
+
+def test_step_upload_without_the_extra_is_refused(api, monkeypatch):
+    """A server without cadquery-ocp answers a STEP upload with a 400 naming the extra (the import of
+    OpenCASCADE fails as where it is not installed); the service's availability check can be given."""
+    from django.core.files.uploadedfile import SimpleUploadedFile
+
+    from metrology.errors import BadInput
+    from metrology.inspections.services import upload_nominal
+
+    content = b"ISO-10303-21;\nHEADER;\nENDSEC;\nDATA;\nENDSEC;\nEND-ISO-10303-21;\n"
+    with monkeypatch.context() as patched:
+        for module in [name for name in sys.modules if name == "OCP" or name.startswith("OCP.")] + ["OCP"]:
+            patched.setitem(sys.modules, module, None)  # import OCP raises ImportError
+        for name in ("part.step", "PART.STP"):
+            data = io.BytesIO(content)
+            data.name = name
+            response = api.post("/api/nominals/", {"file": data}, format="multipart")
+            assert response.status_code == 400, response.content
+            error = response.json()["error"]
+            assert name in error and "pip install 'gcps-lab[step]' (cadquery-ocp)" in error, error
+    with pytest.raises(BadInput, match=r"cannot read STEP files.*gcps-lab\[step\]"):
+        upload_nominal(
+            owner=api.user, upload=SimpleUploadedFile("part.step", content), step_reader_available=lambda: False
+        )
+    assert api.get("/api/nominals/").json() == []  # nothing stored
 
 
 def test_inspection_finds_the_pit_and_decides_conformance(api, pitted_measurement, nominal, tmp_path, monkeypatch):

@@ -1,7 +1,8 @@
-"""Inspection in headless Chromium: upload a nominal model through the form, inspect a finished
-measurement against it from the measurement's page, watch the job, see the deviation map (a
-diverging scale centred at 0 with the tolerance marked), the histogram, the conformance counts and
-the features table (a plane typed as JSON in the form), open the printable report.
+"""Inspection in headless Chromium: upload a nominal model through the form (and, with cadquery-ocp, a
+STEP file, its tessellation tolerance shown), inspect a finished measurement against it from the
+measurement's page, watch the job, see the deviation map (a diverging scale centred at 0 with the
+tolerance marked), the histogram, the conformance counts and the features table (a plane typed as
+JSON in the form), open the printable report.
 
 The scene and the nominal are tests/app/test_inspections.py's (a block with a 0.1 mm pit, the block
 without it). Jobs run in the in-process worker of tests/dashboard/conftest.py; screenshots go to
@@ -14,8 +15,16 @@ import json
 
 import pytest
 
+from metrology.core.io.step import LINEAR_TOLERANCE_MM, ocp_available
 from metrology.measurements.services import request_measurement
-from tests.app.inspection_parts import PIT_DEPTH_MM, TOP_FEATURE, block_nominal, pitted_block_heights, stl_bytes
+from tests.app.inspection_parts import (
+    PIT_DEPTH_MM,
+    TOP_FEATURE,
+    block_nominal,
+    block_step,
+    pitted_block_heights,
+    stl_bytes,
+)
 from tests.browser import CHROMIUM, shot
 from tests.conftest import PASSWORD
 from tests.dashboard.conftest import upload
@@ -48,6 +57,13 @@ def test_inspection_in_the_browser(live_server, alice, pitted_measurement, worke
 
     page.click("nav.main >> text=Inspections")
     page.click("text=Nominal models")
+    if ocp_available():  # a STEP file through the same form, tessellated, its tolerance shown
+        page.set_input_files("#id_file", str(block_step(tmp_path / "part.step")))
+        page.click("button:has-text('Upload')")
+        page.wait_for_selector("td:has-text('part')")
+        row = page.locator("tr", has_text="part")
+        assert "STEP" in row.inner_text() and "12" in row.inner_text()
+        assert row.locator("[data-tessellation]").inner_text() == f"{LINEAR_TOLERANCE_MM} mm, 0.1 rad"
     page.set_input_files("#id_file", str(nominal))
     page.fill("#id_name", "block")
     page.click("button:has-text('Upload')")
@@ -58,6 +74,7 @@ def test_inspection_in_the_browser(live_server, alice, pitted_measurement, worke
     page.goto(f"{base}/measurements/{pitted_measurement.pk}/")
     page.wait_for_selector("#fig-height_map .main-svg")  # the measurement is done
     page.click("text=Inspect against a nominal model")
+    assert "block (12 triangles)" in page.locator("#id_nominal option").nth(1).inner_text()  # the STL, the newest
     page.select_option("#id_nominal", label=page.locator("#id_nominal option").nth(1).inner_text())
     page.select_option("#id_init", "identity")
     page.fill("#id_tolerance_mm", "0.05")

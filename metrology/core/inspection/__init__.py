@@ -2,7 +2,7 @@
 
 Modules:
 
-- :mod:`.nominal`: the nominal triangle mesh (STL, PLY, OBJ), validated, in mm;
+- :mod:`.nominal`: the nominal triangle mesh (STL, PLY, OBJ, or a tessellated STEP solid), validated, in mm;
 - :mod:`.scan`: the scan's points in input order, their sigma and how it is meant;
 - :mod:`.distance`: signed distances to the surface, sign by angle-weighted pseudo-normals;
 - :mod:`.alignment`: starts (global registration, point pairs, 3-2-1 datums) and the weighted,

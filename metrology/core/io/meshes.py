@@ -10,6 +10,8 @@ little/big endian and ASCII) and OBJ, to plain numpy arrays.
   an element with list properties may only come after ``vertex``.
 - :func:`read_mesh_arrays` reads a mesh of any of the three formats: STL as above, PLY and OBJ
   through Open3D (``enable_post_processing=False``: no vertex merging, no normal changes).
+- :func:`triangle_mesh_ply_bytes` writes a triangle mesh as a binary PLY with double vertices (how
+  the application stores a STEP nominal's tessellation), read back exactly by :func:`read_mesh_arrays`.
 
 Every reader raises ``ValueError`` with a one-line message on a malformed or empty file.
 """
@@ -183,3 +185,28 @@ def ply_points_bytes(columns: dict[str, np.ndarray]) -> bytes:
     for name in names:
         table[name] = columns[name]
     return ("\n".join(header) + "\n").encode("ascii") + table.tobytes()
+
+
+def triangle_mesh_ply_bytes(vertices: np.ndarray, faces: np.ndarray) -> bytes:
+    """A binary little-endian PLY triangle mesh: ``vertices`` ``(V, 3)`` mm written as double (read
+    back bit for bit by :func:`read_mesh_arrays`), ``faces`` ``(F, 3)`` vertex indices as int32,
+    their order (winding) kept."""
+    points = np.ascontiguousarray(vertices, dtype="<f8").reshape(-1, 3)
+    triangles = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if triangles.size and (triangles.min() < 0 or triangles.max() >= points.shape[0]):
+        raise ValueError("a face refers to a vertex that does not exist")
+    header = [
+        "ply",
+        "format binary_little_endian 1.0",
+        f"element vertex {points.shape[0]}",
+        "property double x",
+        "property double y",
+        "property double z",
+        f"element face {triangles.shape[0]}",
+        "property list uchar int vertex_indices",
+        "end_header",
+    ]
+    table = np.empty(triangles.shape[0], np.dtype([("n", "u1"), ("index", "<i4", (3,))]))
+    table["n"] = 3
+    table["index"] = triangles
+    return ("\n".join(header) + "\n").encode("ascii") + points.tobytes() + table.tobytes()

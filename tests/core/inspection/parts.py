@@ -1,8 +1,10 @@
-"""Test parts for inspection: meshes with known geometry, STL/PLY writers, random poses."""
+"""Test parts for inspection: meshes with known geometry, STL/PLY/STEP writers, random poses."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -102,3 +104,36 @@ def write_ply_points(path: Path, points: np.ndarray, sigma: np.ndarray | None = 
     body = "\n".join(" ".join(repr(float(v)) for v in row) for row in table)
     path.write_text("\n".join(header) + "\n" + body + "\n")
     return path
+
+
+def write_step(shape: Any, path: Path) -> Path:
+    """Write an OpenCASCADE shape (``TopoDS_Shape``, needs ``cadquery-ocp``) as a STEP file at ``path``."""
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
+
+    writer = STEPControl_Writer()
+    writer.Transfer(shape, STEPControl_AsIs)
+    if writer.Write(str(path)) != IFSelect_RetDone:
+        raise OSError(f"{path}: OpenCASCADE could not write the STEP file")
+    return path
+
+
+def polygon_faces_shape(vertices: np.ndarray, polygons: Sequence[Sequence[int]]) -> Any:
+    """A compound of planar faces (needs ``cadquery-ocp``), one per polygon of vertex indices into
+    ``vertices`` ``(V, 3)`` mm, each bounded by the closed polygon in its order (counter-clockwise seen
+    from the side its normal points to)."""
+    from OCP.BRep import BRep_Builder
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace, BRepBuilderAPI_MakePolygon
+    from OCP.gp import gp_Pnt
+    from OCP.TopoDS import TopoDS_Compound
+
+    builder = BRep_Builder()
+    compound = TopoDS_Compound()
+    builder.MakeCompound(compound)
+    for polygon in polygons:
+        wire = BRepBuilderAPI_MakePolygon()
+        for index in polygon:
+            wire.Add(gp_Pnt(*(float(x) for x in vertices[index])))
+        wire.Close()
+        builder.Add(compound, BRepBuilderAPI_MakeFace(wire.Wire(), True).Face())
+    return compound

@@ -1,6 +1,7 @@
 """Nominal meshes: binary and ASCII STL read by our parser, PLY and OBJ through Open3D, all to the
 same validated model; degenerate faces dropped and counted; inward faces flipped; open meshes
-warned; empty and malformed files refused."""
+warned; empty and malformed files refused; a validated model written as a binary PLY (how the
+application stores a STEP file's tessellation) read back bit for bit."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 
 from metrology.core.inspection.nominal import nominal_from_arrays, read_nominal
+from metrology.core.io.meshes import read_mesh_arrays, triangle_mesh_ply_bytes
 from tests.core.inspection.parts import cube, write_ascii_stl, write_binary_stl
 
 
@@ -41,6 +43,21 @@ def test_every_format_reads_the_same_cube(tmp_path: Path, form: str) -> None:
 
     assert nominal.sha256 == hashlib.sha256(path.read_bytes()).hexdigest()
     _same_surface(nominal.vertices, nominal.faces, box.vertices, box.faces)
+
+
+def test_a_validated_model_written_as_ply_reads_back_bit_for_bit(tmp_path: Path) -> None:
+    rng = np.random.default_rng(5)
+    box = cube(10.0)
+    vertices = box.vertices + rng.normal(scale=1e-3, size=box.vertices.shape)  # not representable in float32
+    path = tmp_path / "tessellation.ply"
+    path.write_bytes(triangle_mesh_ply_bytes(vertices, box.faces))
+    read_vertices, read_faces = read_mesh_arrays(path)
+    np.testing.assert_array_equal(read_vertices, vertices)  # doubles: exact
+    np.testing.assert_array_equal(read_faces, box.faces)  # the winding kept
+    again = read_nominal(path)
+    assert again.triangle_count == 12 and again.oriented and not again.flipped and not again.warnings
+    with pytest.raises(ValueError, match="does not exist"):
+        triangle_mesh_ply_bytes(vertices, box.faces + 8)
 
 
 def test_degenerate_faces_are_dropped_and_counted() -> None:

@@ -18,20 +18,11 @@ import pytest
 
 from metrology.core.inspection.nominal import read_nominal
 from metrology.core.io.step import LINEAR_TOLERANCE_MM, ocp_available
+from tests.core.inspection.parts import write_step
 
 pytestmark = pytest.mark.skipif(
     not ocp_available(), reason="STEP needs the optional cadquery-ocp (pip install 'gcps-lab[step]')"
 )
-
-
-def write_step(shape, path: Path) -> Path:
-    from OCP.IFSelect import IFSelect_RetDone
-    from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
-
-    writer = STEPControl_Writer()
-    writer.Transfer(shape, STEPControl_AsIs)
-    assert writer.Write(str(path)) == IFSelect_RetDone
-    return path
 
 
 def test_step_box_and_sphere(tmp_path: Path) -> None:
