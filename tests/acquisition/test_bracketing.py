@@ -15,7 +15,7 @@ from metrology.acquisition.agent.bracketing import BracketOptions, bracket_expos
 from metrology.acquisition.agent.cameras import AcquisitionTarget, VirtualCamera
 from metrology.acquisition.agent.patterns import resolve_codec
 from metrology.acquisition.agent.sequencer import InstantProjector, SequenceOptions, run_bracketed_sequence
-from metrology.commands.agent import exposures_option
+from metrology.commands.acquisition import exposures_option
 
 FULL = 255
 AMBIENT, GAIN = 0.05, 0.8
