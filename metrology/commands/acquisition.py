@@ -105,6 +105,11 @@ def bracket_options(max_exposures: int) -> BracketOptions:
         raise bad(f"--max-exposures: {exc}") from None
 
 
+def exposure_choice(args: argparse.Namespace) -> tuple[ExposureChoice | None, BracketOptions]:
+    """``--exposures`` and the automatic bracket's options with ``--max-exposures``."""
+    return exposures_option(args.exposures), bracket_options(args.max_exposures)
+
+
 def add_camera_options(p: argparse.ArgumentParser) -> None:
     """The camera and sequencing options of ``agent`` and ``capture``."""
     p.add_argument(

@@ -14,8 +14,7 @@ from metrology.commands.acquisition import (
     add_camera_options,
     add_exposures_options,
     bad,
-    bracket_options,
-    exposures_option,
+    exposure_choice,
     open_camera,
     sequence_options,
 )
@@ -45,14 +44,15 @@ def cmd_agent(args: argparse.Namespace) -> dict[str, Any]:
     if not args.server.startswith(("http://", "https://")):
         raise bad(f"--server must be an http:// or https:// URL, got {args.server!r}")
     camera = open_camera(args)
+    exposures, bracket = exposure_choice(args)
     client = AgentClient(args.server, args.token, args.rig)
     options = AgentOptions(
         sequence=sequence_options(args),
         poll_s=args.poll,
         max_acquisitions=args.max_acquisitions,
         confirm_timeout_s=args.confirm_timeout,
-        exposures=exposures_option(args.exposures),
-        bracket=bracket_options(args.max_exposures),
+        exposures=exposures,
+        bracket=bracket,
     )
     try:
         return run_agent(client, camera, options, software_version())
