@@ -272,6 +272,7 @@ def test_acquire_takes_the_exposures_of_a_multi_exposure_capture_and_refuses_bad
         ({"exposures": [1, -10]}, "exposures must be finite exposure times in (0, 60000] ms"),
         ({"exposures": [0]}, "exposures must be finite"),
         ({"exposures": "1,1e400"}, "exposures must be finite"),
+        ({"exposures": [10**400]}, "exposures must be 'auto' or exposure times in ms"),
         ({"exposures": [10, 1, 10]}, "exposures must be distinct"),
         ({"exposures": list(range(1, 10))}, "exposures may list at most 8 exposure times, got 9"),
         ({"exposures": []}, "exposures must list at least one"),

@@ -82,7 +82,7 @@ def parse_exposures(value: object, limit: int = MAX_REQUESTED_EXPOSURES) -> Expo
             raise ValueError(f"exposures must be exposure times in ms, got {item!r}")
         try:
             time_ms = float(item)
-        except ValueError:
+        except (ValueError, OverflowError):
             raise ValueError(
                 f"exposures must be 'auto' or exposure times in ms such as 1,10,100, got {value!r}"
             ) from None
