@@ -14,7 +14,7 @@ from typing import Any
 from asgiref.sync import sync_to_async
 from django.http import HttpRequest, HttpResponse
 from django.utils import timezone
-from drf_spectacular.utils import extend_schema
+from drf_spectacular.utils import extend_schema, extend_schema_field
 from rest_framework import serializers, status
 from rest_framework.parsers import FormParser, MultiPartParser
 from rest_framework.request import Request
@@ -22,6 +22,7 @@ from rest_framework.response import Response
 from rest_framework.views import APIView
 
 from metrology.acquisition import longpoll, services
+from metrology.acquisition.agent.bracketing import MAX_REQUESTED_EXPOSURES
 from metrology.acquisition.models import Acquisition, Agent, ProjectorState
 from metrology.api_input import BoundedJSONParser
 from metrology.captures.models import Capture
@@ -46,12 +47,45 @@ def _get_acquisition(user, acquisition_id: int) -> Acquisition:
     return acquisition
 
 
+@extend_schema_field(
+    {
+        "oneOf": [
+            {"type": "string", "enum": ["auto"], "description": "The agent brackets from white and black frames"},
+            {
+                "type": "array",
+                "items": {"type": "number", "minimum": 0, "exclusiveMinimum": True, "maximum": 60000},
+                "minItems": 1,
+                "maxItems": MAX_REQUESTED_EXPOSURES,
+                "description": "Exposure times, ms, distinct (stored shortest first)",
+            },
+        ],
+        "nullable": True,
+        "description": (
+            'A multi-exposure capture (docs/exposures.md): "auto" (at most max_exposures) or exposure '
+            "times in ms; overrides the agent's --exposures. Omitted or null: the agent's choice (one "
+            "exposure unless it runs with --exposures). One-camera rigs only; not with exposure."
+        ),
+        "example": [1.0, 10.0, 100.0],
+    }
+)
+class ExposuresField(serializers.JSONField):
+    """``"auto"`` or exposure times in ms (validated by the service)."""
+
+
 class AcquireSerializer(serializers.Serializer):
     role = serializers.ChoiceField(choices=Capture.Role.choices)
     z_in_mm = serializers.FloatField(required=False, allow_null=True, help_text="Stage position, mm")
     repeat = serializers.IntegerField(required=False, min_value=0, max_value=1_000_000, default=0)
     exposure = serializers.FloatField(
         required=False, allow_null=True, help_text="Exposure, ms; omitted: the agent's auto-exposure"
+    )
+    exposures = ExposuresField(required=False, allow_null=True)
+    max_exposures = serializers.IntegerField(
+        required=False,
+        allow_null=True,
+        min_value=1,
+        max_value=MAX_REQUESTED_EXPOSURES,
+        help_text='Most exposures of the automatic bracket (exposures "auto"); omitted: the agent\'s --max-exposures',
     )
     codec = serializers.JSONField(
         required=False,
@@ -74,6 +108,8 @@ def acquisition_data(acquisition: Acquisition) -> dict[str, Any]:
         "z_in_mm": acquisition.z_in_mm,
         "repeat": acquisition.repeat,
         "exposure_ms": acquisition.exposure_ms,
+        "exposures": acquisition.exposures,
+        "max_exposures": acquisition.max_exposures,
         "codec": stored if isinstance(stored, dict) else codec.spec,
         "frame_names": list(codec.frame_names),
         "projector": {"width": codec.width, "height": codec.height},
@@ -136,6 +172,8 @@ class RigAcquireApi(APIView):
             z_in_mm=data.get("z_in_mm"),
             repeat=data.get("repeat", 0),
             exposure_ms=data.get("exposure"),
+            exposures=data.get("exposures"),
+            max_exposures=data.get("max_exposures"),
             codec=data.get("codec"),
             session_id=data.get("session"),
         )

@@ -7,6 +7,7 @@ from typing import Any
 
 from django import forms
 
+from metrology.acquisition.agent.bracketing import MAX_REQUESTED_EXPOSURES, parse_exposures
 from metrology.captures.models import Capture
 from metrology.json_input import load_json_text
 
@@ -18,6 +19,19 @@ class AcquireForm(forms.Form):
     exposure = forms.FloatField(
         required=False, min_value=0.001, max_value=60_000, label="Exposure (ms)", help_text="Empty: automatic"
     )
+    exposures = forms.CharField(
+        required=False,
+        max_length=200,
+        label="Exposures (multi-exposure)",
+        help_text="Empty: one exposure (or the agent's --exposures). auto: the agent brackets; or times, ms: 1,10,100",
+    )
+    max_exposures = forms.IntegerField(
+        required=False,
+        min_value=1,
+        max_value=MAX_REQUESTED_EXPOSURES,
+        label="Most exposures",
+        help_text="With auto; empty: the agent's --max-exposures",
+    )
     codec = forms.CharField(
         required=False,
         widget=forms.Textarea(attrs={"rows": 2}),
@@ -26,6 +40,14 @@ class AcquireForm(forms.Form):
             "or a gcps-codec/1 JSON object"
         ),
     )
+
+    def clean_exposures(self) -> Any:
+        """``"auto"``, the times (ms, shortest first) or None (:func:`parse_exposures`)."""
+        try:
+            choice = parse_exposures(self.cleaned_data.get("exposures"))
+        except ValueError as exc:
+            raise forms.ValidationError(str(exc)) from None
+        return list(choice) if isinstance(choice, tuple) else choice
 
     def clean_codec(self) -> Any:
         """The codec as the API takes it: a name, or the parsed JSON object when the text starts with ``{``."""

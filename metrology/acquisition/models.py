@@ -37,6 +37,15 @@ class Acquisition(models.Model):
     z_in_mm = models.FloatField(null=True, blank=True)
     repeat = models.PositiveIntegerField(default=0)
     exposure_ms = models.FloatField(null=True, blank=True, help_text="Requested exposure, ms (None: automatic)")
+    exposures = models.JSONField(
+        null=True,
+        blank=True,
+        help_text='A multi-exposure capture: "auto" (bracketed by the agent) or exposure times, ms, shortest '
+        "first (None: one exposure, or the agent's --exposures)",
+    )
+    max_exposures = models.PositiveSmallIntegerField(
+        null=True, blank=True, help_text='Most exposures of an automatic bracket (exposures "auto"; None: the agent\'s)'
+    )
     codec = models.JSONField(help_text='The codec: {"name": "gcps-v1:1024x768"} or a gcps-codec/1 document')
     job = models.OneToOneField("jobs.Job", on_delete=models.CASCADE, related_name="acquisition")
     agent = models.ForeignKey(Agent, null=True, blank=True, on_delete=models.SET_NULL, related_name="acquisitions")

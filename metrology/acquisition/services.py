@@ -21,6 +21,7 @@ from django.db import transaction
 from django.utils import timezone
 
 from metrology.acquisition import longpoll
+from metrology.acquisition.agent.bracketing import MAX_REQUESTED_EXPOSURES, parse_exposures
 from metrology.acquisition.agent.patterns import ProjectedCodec, resolve_codec
 from metrology.acquisition.models import Acquisition, Agent, ProjectorState
 from metrology.captures import services as capture_services
@@ -175,19 +176,28 @@ def request_acquisition(
     exposure_ms: float | None = None,
     codec: Any = None,
     session_id: int | None = None,
+    exposures: Any = None,
+    max_exposures: int | None = None,
 ) -> Acquisition:
     """Queue a capture for the rig's agent. Returns the acquisition with its queued job.
+
+    ``exposures`` asks for a multi-exposure capture (docs/exposures.md): ``"auto"`` (the agent
+    brackets, at most ``max_exposures``, 1..8; None: the agent's ``--max-exposures``) or a list of
+    exposure times in ms (:func:`~metrology.acquisition.agent.bracketing.parse_exposures`: at most
+    8, distinct, stored shortest first). It overrides the agent's ``--exposures``; None leaves the
+    choice to the agent.
 
     Raises
     ------
     BadInput
-        On a bad role/stage position/exposure/codec; nothing is stored.
+        On a bad role/stage position/exposure/exposures/codec; nothing is stored.
     """
     if role not in Capture.Role.values:
         raise BadInput(f"role must be one of {', '.join(Capture.Role.values)}, got {role!r}")
     capture_services._check_stage(role, z_in_mm)
     if exposure_ms is not None and not (0 < exposure_ms <= 60_000):
         raise BadInput(f"exposure must be a number of milliseconds in (0, 60000], got {exposure_ms}")
+    choice = _exposure_choice(rig, exposure_ms, exposures, max_exposures)
     value = acquisition_codec_value(rig, codec)
     try:
         resolve_codec(value)  # the agent must be able to render it
@@ -204,6 +214,8 @@ def request_acquisition(
                 "z_in_mm": z_in_mm,
                 "repeat": repeat,
                 "exposure_ms": exposure_ms,
+                "exposures": choice,
+                "max_exposures": max_exposures,
                 "codec": value,
             },
         )
@@ -216,12 +228,39 @@ def request_acquisition(
             z_in_mm=z_in_mm,
             repeat=repeat,
             exposure_ms=exposure_ms,
+            exposures=choice,
+            max_exposures=max_exposures,
             codec={"name": value} if isinstance(value, str) else value,
             job=job,
         )
         job.parameters["acquisition"] = acquisition.pk
         job.save(update_fields=["parameters"])
     return acquisition
+
+
+def _exposure_choice(rig: Rig, exposure_ms: float | None, exposures: Any, max_exposures: int | None) -> Any:
+    """The request's multi-exposure choice as stored: None, ``"auto"`` or the times (ms) shortest
+    first. Raises :class:`BadInput` naming the field."""
+    try:
+        choice = parse_exposures(exposures)
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    if max_exposures is not None:
+        if choice != "auto":
+            raise BadInput('max_exposures applies to exposures "auto" only (the agent\'s automatic bracket)')
+        if isinstance(max_exposures, bool) or not 1 <= max_exposures <= MAX_REQUESTED_EXPOSURES:
+            raise BadInput(f"max_exposures must be an integer in 1..{MAX_REQUESTED_EXPOSURES}, got {max_exposures!r}")
+    if choice is None:
+        return None
+    if exposure_ms is not None:
+        raise BadInput("give exposure (one exposure) or exposures (a multi-exposure capture), not both")
+    cameras = len(rig.to_core().camera_shapes)
+    if cameras > 1:
+        raise BadInput(
+            f"exposures: multi-exposure captures are acquired on one-camera rigs only; rig {rig.name!r} has "
+            f"{cameras} cameras"
+        )
+    return list(choice) if isinstance(choice, tuple) else choice
 
 
 def acquisition_codec_value(rig: Rig, codec: Any) -> Any:

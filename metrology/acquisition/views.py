@@ -109,6 +109,8 @@ def acquire_page(request: AuthenticatedHttpRequest, rig_id: int) -> HttpResponse
                 z_in_mm=data.get("z_in_mm"),
                 repeat=data.get("repeat") or 0,
                 exposure_ms=data.get("exposure"),
+                exposures=data.get("exposures"),
+                max_exposures=data.get("max_exposures"),
                 codec=data.get("codec") or None,
             )
         except DomainError as exc:

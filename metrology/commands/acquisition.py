@@ -8,6 +8,7 @@ import json
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # imported where used, so that gcps starts without them
+    from metrology.acquisition.agent.bracketing import BracketOptions, ExposureChoice
     from metrology.acquisition.agent.cameras import RigCameras
     from metrology.acquisition.agent.sequencer import SequenceOptions
 
@@ -71,6 +72,42 @@ def sequence_options(args: argparse.Namespace) -> SequenceOptions:
         return SequenceOptions(settle_s=args.settle, max_grabs=args.max_grabs)
     except ValueError as exc:
         raise bad(str(exc)) from None
+
+
+def add_exposures_options(p: argparse.ArgumentParser, serves: str) -> None:
+    """``--exposures`` and ``--max-exposures`` (multi-exposure captures, docs/exposures.md); ``serves``
+    says which captures they apply to."""
+    p.add_argument(
+        "--exposures",
+        help=f"multi-exposure captures for {serves} (docs/exposures.md): 'auto' (bracketed from white and "
+        "black frames) or up to 8 exposure times in ms, e.g. 1,10,100",
+    )
+    p.add_argument("--max-exposures", type=int, default=3, help="most exposures of an automatic bracket (default 3)")
+
+
+def exposures_option(value: str | None) -> ExposureChoice | None:
+    """``--exposures``: None, ``"auto"``, or the exposure times (ms, distinct, at most 8), shortest first."""
+    from metrology.acquisition.agent.bracketing import parse_exposures
+
+    try:
+        return parse_exposures(value)
+    except ValueError as exc:
+        raise bad(f"--{exc}") from None
+
+
+def bracket_options(max_exposures: int) -> BracketOptions:
+    """The automatic bracket's options with ``--max-exposures``."""
+    from metrology.acquisition.agent.bracketing import BracketOptions
+
+    try:
+        return BracketOptions(max_exposures=max_exposures)
+    except ValueError as exc:
+        raise bad(f"--max-exposures: {exc}") from None
+
+
+def exposure_choice(args: argparse.Namespace) -> tuple[ExposureChoice | None, BracketOptions]:
+    """``--exposures`` and the automatic bracket's options with ``--max-exposures``."""
+    return exposures_option(args.exposures), bracket_options(args.max_exposures)
 
 
 def add_camera_options(p: argparse.ArgumentParser) -> None:

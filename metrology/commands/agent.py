@@ -10,7 +10,14 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from metrology.commands.acquisition import add_camera_options, bad, open_camera, sequence_options
+from metrology.commands.acquisition import (
+    add_camera_options,
+    add_exposures_options,
+    bad,
+    exposure_choice,
+    open_camera,
+    sequence_options,
+)
 
 
 def register(subparsers: Any) -> None:
@@ -25,36 +32,8 @@ def register(subparsers: Any) -> None:
         "--max-acquisitions", type=int, default=0, help="stop after this many (default 0: run until stopped)"
     )
     p.add_argument("--confirm-timeout", type=float, default=30.0, help="seconds to wait for the page to show a pattern")
-    p.add_argument(
-        "--exposures",
-        help="multi-exposure captures (docs/exposures.md): 'auto' (bracketed from white and black frames) "
-        "or exposure times in ms, e.g. 1,10,100",
-    )
-    p.add_argument("--max-exposures", type=int, default=3, help="most exposures of an automatic bracket (default 3)")
+    add_exposures_options(p, "the acquisitions that choose neither exposures nor an exposure")
     p.set_defaults(func=cmd_agent)
-
-
-def exposures_option(value: str | None) -> str | tuple[float, ...] | None:
-    """``--exposures``: None, ``"auto"``, or the exposure times (ms, > 0)."""
-    if value is None or value.strip().lower() == "auto":
-        return None if value is None else "auto"
-    try:
-        times = tuple(float(part) for part in value.split(","))
-    except ValueError:
-        raise bad(f"--exposures must be 'auto' or exposure times in ms such as 1,10,100, got {value!r}") from None
-    if not times or any(not (0 < t < float("inf")) for t in times) or len(set(times)) != len(times):
-        raise bad(f"--exposures must be distinct positive exposure times in ms, got {value!r}")
-    return times
-
-
-def bracket_options(max_exposures: int) -> Any:
-    """The automatic bracket's options with ``--max-exposures``."""
-    from metrology.acquisition.agent.bracketing import BracketOptions
-
-    try:
-        return BracketOptions(max_exposures=max_exposures)
-    except ValueError as exc:
-        raise bad(f"--max-exposures: {exc}") from None
 
 
 def cmd_agent(args: argparse.Namespace) -> dict[str, Any]:
@@ -65,14 +44,15 @@ def cmd_agent(args: argparse.Namespace) -> dict[str, Any]:
     if not args.server.startswith(("http://", "https://")):
         raise bad(f"--server must be an http:// or https:// URL, got {args.server!r}")
     camera = open_camera(args)
+    exposures, bracket = exposure_choice(args)
     client = AgentClient(args.server, args.token, args.rig)
     options = AgentOptions(
         sequence=sequence_options(args),
         poll_s=args.poll,
         max_acquisitions=args.max_acquisitions,
         confirm_timeout_s=args.confirm_timeout,
-        exposures=exposures_option(args.exposures),
-        bracket=bracket_options(args.max_exposures),
+        exposures=exposures,
+        bracket=bracket,
     )
     try:
         return run_agent(client, camera, options, software_version())

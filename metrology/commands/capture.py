@@ -2,7 +2,9 @@
 
 ``gcps capture --camera BACKEND --out STACK.zip [--codec gcps-v1|FILE.json]`` shows the patterns on
 a local projector page (or none, with the virtual camera), grabs each frame, checks it, and
-writes the stack with its checks beside it (``STACK.checks.json``).
+writes the stack with its checks beside it (``STACK.checks.json``). With ``--exposures auto`` or
+``--exposures 1,10,100`` it writes a multi-exposure capture (docs/exposures.md) as the agent
+uploads it (:func:`~metrology.acquisition.agent.client.acquire_capture`).
 """
 
 from __future__ import annotations
@@ -12,19 +14,21 @@ import json
 from pathlib import Path
 from typing import Any
 
-from metrology.commands.acquisition import add_camera_options, bad, open_camera, sequence_options
+from metrology.commands import acquisition as shared
+from metrology.commands.acquisition import bad
 
 
 def register(subparsers: Any) -> None:
     """Add ``capture`` to the ``gcps`` subcommands."""
     p = subparsers.add_parser("capture", help="acquire one stack locally, without a server")
-    add_camera_options(p)
+    shared.add_camera_options(p)
     p.add_argument("--out", required=True, help="the stack, a .zip (checks beside it in .checks.json)")
     p.add_argument("--codec", default="gcps-v1", help="gcps-v1 or gcps-v1:WIDTHxHEIGHT (default gcps-v1, 1024x768)")
     p.add_argument("--role", choices=["reference", "object", "master", "stage"], default="object")
     p.add_argument("--z-in", type=float, help="stage position, mm (role stage; the virtual camera's stage height)")
     p.add_argument("--rig", help="rig JSON (the virtual camera's geometry)")
     p.add_argument("--exposure", type=float, help="exposure, ms (default: auto-exposure from the white frame)")
+    shared.add_exposures_options(p, "this capture (instead of --exposure)")
     p.add_argument("--projector", choices=["page", "none"], default="page", help="page: serve the projector page")
     p.add_argument("--port", type=int, default=8765, help="port of the local projector page (default 8765)")
     p.add_argument("--confirm-timeout", type=float, default=60.0, help="seconds to wait for the page to show a pattern")
@@ -33,10 +37,14 @@ def register(subparsers: Any) -> None:
 
 def cmd_capture(args: argparse.Namespace) -> dict[str, Any]:
     from metrology.acquisition.agent.cameras import AcquisitionTarget, CameraError
-    from metrology.acquisition.agent.client import cameras_zip
+    from metrology.acquisition.agent.client import acquire_capture
     from metrology.acquisition.agent.patterns import resolve_codec
-    from metrology.acquisition.agent.sequencer import AcquisitionError, InstantProjector, run_sequence
+    from metrology.acquisition.agent.sequencer import AcquisitionError, InstantProjector
     from metrology.core.io.atomic import atomic_path, write_text_atomic
+
+    exposures, bracket = shared.exposure_choice(args)
+    if exposures is not None and args.exposure is not None:
+        raise bad("give --exposure (one exposure) or --exposures (a multi-exposure capture), not both")
 
     try:
         codec = resolve_codec(args.codec)
@@ -52,7 +60,7 @@ def cmd_capture(args: argparse.Namespace) -> dict[str, Any]:
         geometry = json.loads(Path(args.rig).read_text())
     if args.role == "stage" and args.z_in is None:
         raise bad("--z-in is required for --role stage")
-    camera = open_camera(args)
+    camera = shared.open_camera(args)
     if args.projector == "none" and camera.name.split("+")[0] != "virtual":
         raise bad("--projector none works with the virtual camera only; use --projector page")
     projector: Any
@@ -66,24 +74,37 @@ def cmd_capture(args: argparse.Namespace) -> dict[str, Any]:
     try:
         camera.open()
         camera.prepare(AcquisitionTarget(role=args.role, z_in_mm=args.z_in, codec=codec, rig_geometry=geometry))
-        result = run_sequence(projector, camera, codec, exposure_ms=args.exposure, options=sequence_options(args))
+        result = acquire_capture(
+            projector,
+            camera,
+            codec,
+            exposure_ms=args.exposure,
+            exposures=exposures,
+            bracket=bracket,
+            options=shared.sequence_options(args),
+        )
     except (AcquisitionError, CameraError) as exc:
         raise bad(str(exc)) from None
     finally:
         camera.close()
         if args.projector == "page":
             projector.close()
-    reports = result.frame_reports()
-    data = cameras_zip(result.camera_stacks, codec)
     with atomic_path(out) as tmp:
-        tmp.write_bytes(data)
+        tmp.write_bytes(result.data)
     checks_path = out.with_suffix(".checks.json")
-    checks = {"camera": camera.name, "exposure_ms": result.exposure_ms, "frames": reports}
+    checks: dict[str, Any] = {"camera": camera.name, "exposure_ms": result.exposure_ms}
+    if result.exposures_ms is not None:
+        checks["exposures_ms"] = result.exposures_ms
+        checks["bracket"] = result.bracket.to_dict() if result.bracket is not None else None
+    checks["frames"] = result.reports
     write_text_atomic(json.dumps(checks, indent=2) + "\n", checks_path)
-    return {
+    summary = {
         "out": str(out),
         "checks": str(checks_path),
         "camera": camera.name,
         "exposure_ms": result.exposure_ms,
-        "regrabs": sum(r["regrabs"] for r in reports),
+        "regrabs": sum(r["regrabs"] for r in result.reports),
     }
+    if result.exposures_ms is not None:
+        summary["exposures_ms"] = result.exposures_ms
+    return summary

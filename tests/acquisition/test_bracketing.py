@@ -6,6 +6,7 @@ pixels at the predicted noise while each of its exposures alone measures at most
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 
 import numpy as np
@@ -15,7 +16,7 @@ from metrology.acquisition.agent.bracketing import BracketOptions, bracket_expos
 from metrology.acquisition.agent.cameras import AcquisitionTarget, VirtualCamera
 from metrology.acquisition.agent.patterns import resolve_codec
 from metrology.acquisition.agent.sequencer import InstantProjector, SequenceOptions, run_bracketed_sequence
-from metrology.commands.agent import exposures_option
+from metrology.commands.acquisition import exposures_option
 
 FULL = 255
 AMBIENT, GAIN = 0.05, 0.8
@@ -144,3 +145,53 @@ def test_the_virtual_camera_bracket_meets_the_coverage_point_without_being_told_
     assert float(np.median(along / predicted)) / 0.6745 <= 1.15
     per_exposure = result.points_per_exposure()
     assert per_exposure is not None and min(per_exposure.values()) > 0.1 * measured.sum()
+
+
+def test_gcps_capture_brackets_and_writes_the_multi_exposure_capture_gcps_measure_reads(tmp_path, capsys):
+    """``gcps capture --exposures auto`` on the virtual camera (the pinhole test rig's 1000:1 plane at
+    600 mm, 8 steps + gray code, 8-bit, 1 grey level of noise): the same bracketed sequence as the
+    agent's, written as exposures.json + exp0/ exp1/ exp2/ + codec.json, which ``gcps measure`` reads
+    and measures on the true plane (measured: 99.93 % of the lit pixels, median error 55 um, 1 point
+    off by more than 1 mm); ``--exposures 30,3`` takes those times; bad choices exit 2."""
+    from metrology.cli import main
+    from metrology.core.codecs.stack import read_exposure_stack
+    from tests.pinhole_stacks import CODEC, RIG, cast_scene
+
+    rig_path, codec_path, out = tmp_path / "rig.json", tmp_path / "codec.json", tmp_path / "hdr.zip"
+    rig_path.write_text(RIG.to_json())
+    codec_path.write_text(json.dumps(CODEC))
+    capture = [
+        "capture", "--camera", "virtual", "--projector", "none", "--rig", str(rig_path), "--codec", str(codec_path),
+        "--scene", '{"name": "plane", "hdr": true, "distance_mm": 600}', "--settle", "0",
+        "--sim-options", '{"bit_depth": 8, "noise_grey": 1.0}', "--out", str(out),
+    ]  # fmt: skip
+    assert main([*capture, "--exposures", "auto"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    exposures = summary["exposures_ms"]
+    assert len(exposures) == 3 and exposures == sorted(exposures) and summary["exposure_ms"] == exposures[0]
+    checks = json.loads(out.with_suffix(".checks.json").read_text())
+    assert checks["exposures_ms"] == exposures and checks["bracket"]["complete"]
+    assert len(checks["frames"]) == 3 * (CODEC["frames"] + 2)  # per exposure: white, black and the codec's frames
+    read = read_exposure_stack(out)
+    assert [e.exposure_us for e in read.stack.exposures] == pytest.approx([e * 1000 for e in exposures])
+    assert read.codec is not None and read.codec.n_frames == CODEC["frames"]  # codec.json at the top
+
+    xyz, stats = tmp_path / "xyz.npy", tmp_path / "stats.json"
+    measure = ["--quiet", "measure", "--rig", str(rig_path), "--object", str(out), "--out", str(tmp_path / "z.npy")]
+    assert main([*measure, "--xyz", str(xyz), "--json", str(stats)]) == 0
+    truth = cast_scene("plane", 600.0)
+    points = np.load(xyz).astype(np.float64)
+    measured = np.isfinite(points[..., 2]) & truth.lit
+    assert measured.sum() >= 0.99 * truth.lit.sum()
+    error = np.linalg.norm(points - truth.points_mm, axis=-1)[measured]
+    assert np.median(error) < 0.2 and np.mean(error > 1.0) <= 1e-3, (np.median(error), np.mean(error > 1.0))
+    per_exposure = json.loads(stats.read_text())["points_per_exposure"]
+    assert sorted(per_exposure) == ["exp0", "exp1", "exp2"] and min(per_exposure.values()) > 0.1 * measured.sum()
+
+    assert main([*capture, "--exposures", "30,3"]) == 0
+    assert json.loads(capsys.readouterr().out)["exposures_ms"] == [3.0, 30.0]
+    assert [e.exposure_us for e in read_exposure_stack(out).stack.exposures] == [3000.0, 30000.0]
+    for bad, message in ((("--exposures", "3,3"), "--exposures must be distinct"),
+                         (("--exposures", "3,30", "--exposure", "5"), "not both")):  # fmt: skip
+        assert main([*capture, *bad]) == 2
+        assert message in capsys.readouterr().err

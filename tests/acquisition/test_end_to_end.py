@@ -253,6 +253,41 @@ def test_agent_acquires_a_phase_gray_codec_stored_with_its_codec_decoding_to_the
         print(f"axis {'uv'[index]}: {both.sum()} px decoded, median |error| {np.median(error):.4f} px")
 
 
+def test_agent_takes_each_requests_exposures_over_its_own(server, projector):
+    """``gcps agent --exposures 4,40`` (its default) on the virtual camera's 1000:1 plane: a request
+    for exposures [20, 2] ms is captured at 2 and 20 ms, one for "auto" with max_exposures 2 at the
+    automatic bracket's two exposures (10.4 and 820 ms on this part, which needs three: an
+    incomplete bracket), each stored as a multi-exposure capture with those times."""
+    from metrology.captures.stacks import load_capture_images
+    from metrology.core.codecs.stack import ExposureStack
+
+    agent = start_agent(
+        server, "--settle", "0.03", "--max-acquisitions", "2", "--scene", '{"name": "plane", "hdr": true}',
+        "--exposures", "4,40",
+    )  # fmt: skip
+    try:
+        wait_registered(server)
+        listed = acquire(server, role="object", exposures=[20, 2])
+        auto = acquire(server, role="object", exposures="auto", max_exposures=2)
+        done = [wait_finished(server, queued["id"]) for queued in (listed, auto)]
+        _, err = agent.communicate(timeout=60)
+    finally:
+        if agent.poll() is None:
+            agent.kill()
+    assert agent.returncode == 0, err
+    assert [body["status"] for body in done] == ["done", "done"], [body["error"] for body in done]
+    listed_capture, auto_capture = (Capture.objects.get(pk=body["capture"]) for body in done)
+    assert [e["exposure_us"] for e in listed_capture.exposures] == [2000.0, 20000.0]
+    auto_us = [e["exposure_us"] for e in auto_capture.exposures]
+    assert len(auto_us) == 2 and auto_us[0] == pytest.approx(10_430, rel=0.05) and auto_us[1] > 20 * auto_us[0]
+    stored = load_capture_images(listed_capture)
+    assert isinstance(stored, ExposureStack) and len(stored.images) == 2
+    # grabbed at those times: the specular patch saturates at 20 ms, not at 2 ms
+    patch = stored.images[0].max(axis=0) >= 20
+    assert patch.sum() > 100 and not (stored.images[0] == 255).any()
+    assert (stored.images[1].max(axis=0)[patch] == 255).mean() > 0.9
+
+
 def test_agent_drives_both_cameras_of_a_stereo_rig_and_stores_a_stereo_capture(server, monkeypatch):
     """A stereo rig: the agent (virtual camera, its two-camera mode; every fifth grab of camera 1 late)
     grabs both cameras under each pattern the page confirms; the stored capture holds both cameras'

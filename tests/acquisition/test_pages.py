@@ -36,6 +36,23 @@ def test_acquire_page_shows_agent_status_and_queues(client_alice, alice_token, r
     assert acquisition.exposure_ms == 12.0 and acquisition.job.status == Job.Status.QUEUED
 
 
+def test_acquire_form_asks_for_a_multi_exposure_capture(client_alice, rig):
+    page = client_alice.get(f"/rigs/{rig.pk}/acquire/").content.decode()
+    assert 'name="exposures"' in page and 'name="max_exposures"' in page
+    bad = client_alice.post(f"/rigs/{rig.pk}/acquire/", {"role": "object", "exposures": "10,1,10"})
+    assert bad.status_code == 400 and "exposures must be distinct exposure times" in bad.content.decode()
+    bad = client_alice.post(f"/rigs/{rig.pk}/acquire/", {"role": "object", "exposures": "1,10", "max_exposures": "2"})
+    assert bad.status_code == 400 and "max_exposures applies to exposures" in bad.content.decode()
+    assert Acquisition.objects.count() == 0
+    client_alice.post(f"/rigs/{rig.pk}/acquire/", {"role": "object", "exposures": "100, 1,10"})
+    client_alice.post(f"/rigs/{rig.pk}/acquire/", {"role": "object", "exposures": "auto", "max_exposures": "2"})
+    listed, auto = Acquisition.objects.order_by("id")
+    assert listed.exposures == [1.0, 10.0, 100.0] and (auto.exposures, auto.max_exposures) == ("auto", 2)
+    assert "exposures 1.0, 10.0, 100.0 ms" in client_alice.get(f"/acquisitions/{listed.pk}/").content.decode()
+    html = client_alice.get(f"/acquisitions/{auto.pk}/").content.decode()
+    assert "exposures bracketed automatically (at most 2)" in html
+
+
 def test_acquisition_page_shows_checks_and_thumbnails(client_alice, alice_token, rig):
     api = Client(HTTP_AUTHORIZATION=f"Token {alice_token[1]}")
     session = api.post(

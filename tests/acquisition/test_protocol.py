@@ -259,3 +259,64 @@ def test_a_bracketed_acquisition_uploads_a_multi_exposure_capture(api, rig):
     assert isinstance(stored, ExposureStack)
     for images, frames in zip(stored.images, acquired.stacks, strict=True):
         assert np.array_equal(images, frames.images)  # bit for bit as grabbed
+
+
+def test_acquire_takes_the_exposures_of_a_multi_exposure_capture_and_refuses_bad_ones(api, rig):
+    """``exposures``: "auto" (with ``max_exposures``) or times in ms, stored shortest first; every
+    refusal a 400 naming the field, nothing stored (docs/exposures.md). The schema's part is in
+    tests/app/test_openapi.py."""
+    from metrology.rigs.services import create_rig
+    from tests.app.stereo_stacks import WIDE_RIG
+
+    url = f"/api/rigs/{rig.pk}/captures/acquire/"
+    refusals = [
+        ({"exposures": [1, -10]}, "exposures must be finite exposure times in (0, 60000] ms"),
+        ({"exposures": [0]}, "exposures must be finite"),
+        ({"exposures": "1,1e400"}, "exposures must be finite"),
+        ({"exposures": [10**400]}, "exposures must be 'auto' or exposure times in ms"),
+        ({"exposures": [10, 1, 10]}, "exposures must be distinct"),
+        ({"exposures": list(range(1, 10))}, "exposures may list at most 8 exposure times, got 9"),
+        ({"exposures": []}, "exposures must list at least one"),
+        ({"exposures": "bright"}, "exposures must be 'auto' or exposure times in ms"),
+        ({"exposures": {"auto": True}}, "exposures must be 'auto' or a list"),
+        ({"exposures": [True]}, "exposures must be exposure times in ms"),
+        ({"exposures": [1, 10], "max_exposures": 2}, 'max_exposures applies to exposures "auto" only'),
+        ({"exposures": "auto", "max_exposures": 9}, "max_exposures"),
+        ({"exposures": [1, 10], "exposure": 5}, "give exposure (one exposure) or exposures"),
+    ]
+    for extra, message in refusals:
+        response = post(api, url, {"role": "object", **extra})
+        assert response.status_code == 400, (extra, response.content)
+        assert message in response.json()["error"], (extra, response.json())
+    stereo = create_rig(owner=rig.owner, data={**WIDE_RIG.to_dict(), "name": "stereo"})
+    response = post(api, f"/api/rigs/{stereo.pk}/captures/acquire/", {"role": "object", "exposures": [1, 10]})
+    assert response.status_code == 400 and "one-camera rigs only" in response.json()["error"]
+    assert Acquisition.objects.count() == 0 and Job.objects.count() == 0
+
+    listed = post(api, url, {"role": "object", "exposures": [100, 1.5, 10]}).json()
+    assert listed["exposures"] == [1.5, 10.0, 100.0] and listed["max_exposures"] is None
+    auto = post(api, url, {"role": "object", "exposures": "AUTO", "max_exposures": 2}).json()
+    assert auto["exposures"] == "auto" and auto["max_exposures"] == 2
+    single = post(api, url, {"role": "object", "exposure": 4}).json()
+    assert single["exposures"] is None and single["exposure_ms"] == 4.0
+    assert Job.objects.get(pk=listed["job"]).parameters["exposures"] == [1.5, 10.0, 100.0]
+    # the agent takes them with the acquisition, oldest first
+    session = register(api, rig)
+    taken = post(api, f"/api/rigs/{rig.pk}/agent/take/", {"session": session}).json()
+    assert taken["id"] == listed["id"] and taken["exposures"] == [1.5, 10.0, 100.0]
+
+
+def test_the_agent_honours_the_requests_exposures_over_its_own_default():
+    """:func:`requested_exposures`: the request's ``exposures`` (and ``max_exposures``), or its single
+    ``exposure``, over the agent's ``--exposures``/``--max-exposures``, which serve the requests
+    that choose neither."""
+    from metrology.acquisition.agent.bracketing import BracketOptions
+    from metrology.acquisition.agent.client import AgentOptions, requested_exposures
+    from metrology.acquisition.agent.sequencer import SequenceOptions
+
+    options = AgentOptions(SequenceOptions(), exposures=(4.0, 40.0), bracket=BracketOptions(max_exposures=5))
+    assert requested_exposures({"exposures": [2.0, 20.0]}, options) == ((2.0, 20.0), options.bracket)
+    choice, bracket = requested_exposures({"exposures": "auto", "max_exposures": 2}, options)
+    assert choice == "auto" and bracket.max_exposures == 2
+    assert requested_exposures({"exposure_ms": 8.0, "exposures": None}, options) == (None, options.bracket)
+    assert requested_exposures({"exposure_ms": None, "exposures": None}, options) == ((4.0, 40.0), options.bracket)

@@ -129,6 +129,10 @@ def test_request_examples_are_documented_and_valid(schema):
     request = schema["components"]["schemas"]["SimulateRequest"]
     assert request["properties"]["scene"]["required"] == ["name"]
     assert request["properties"]["preset"]["default"] == "realistic"
+    # an acquisition's exposures (docs/acquisition.md): "auto" or up to 8 times in ms
+    acquire = schema["components"]["schemas"]["AcquireRequest"]["properties"]
+    assert [choice.get("enum") for choice in acquire["exposures"]["oneOf"]] == [["auto"], None]
+    assert acquire["exposures"]["oneOf"][1]["maxItems"] == 8 and acquire["max_exposures"]["maximum"] == 8
 
 
 def schema_operations(schema: dict) -> set[str]:

@@ -45,6 +45,54 @@ from metrology.acquisition.agent.checks import full_scale
 GrabFlats = Callable[[float], tuple[np.ndarray, np.ndarray]]
 """``grab_flats(exposure_ms)``: the ``(white, black)`` frames grabbed at that exposure."""
 
+MAX_REQUESTED_EXPOSURES = 8
+"""Most exposures an acquisition request may ask for (a list, or ``max_exposures`` of ``"auto"``)."""
+
+ExposureChoice = str | tuple[float, ...]
+"""How a multi-exposure capture chooses its exposures: ``"auto"`` (:func:`bracket_exposures`) or the
+exposure times, ms, shortest first."""
+
+
+def parse_exposures(value: object, limit: int = MAX_REQUESTED_EXPOSURES) -> ExposureChoice | None:
+    """An exposure choice as a person or a request gives it: None or ``""`` (one exposure),
+    ``"auto"``, exposure times in ms as text (``"1,10,100"``) or a list of numbers.
+
+    Times must be finite numbers in (0, 60000] ms, distinct, at most ``limit`` of them; they are
+    returned sorted, shortest first (the order given does not matter). Raises :class:`ValueError`
+    whose message starts with ``exposures`` and says what was wrong.
+    """
+    if value is None or (isinstance(value, str) and not value.strip()):
+        return None
+    if isinstance(value, str) and value.strip().lower() == "auto":
+        return "auto"
+    items: list[object]
+    if isinstance(value, str):
+        items = [part.strip() for part in value.split(",")]
+    elif isinstance(value, list | tuple):
+        items = list(value)
+    else:
+        raise ValueError(f"exposures must be 'auto' or a list of exposure times in ms, got {value!r}")
+    if not items:
+        raise ValueError("exposures must list at least one exposure time in ms")
+    if len(items) > limit:
+        raise ValueError(f"exposures may list at most {limit} exposure times, got {len(items)}")
+    times: list[float] = []
+    for item in items:
+        if isinstance(item, bool) or not isinstance(item, str | int | float):
+            raise ValueError(f"exposures must be exposure times in ms, got {item!r}")
+        try:
+            time_ms = float(item)
+        except (ValueError, OverflowError):
+            raise ValueError(
+                f"exposures must be 'auto' or exposure times in ms such as 1,10,100, got {value!r}"
+            ) from None
+        if not (math.isfinite(time_ms) and 0 < time_ms <= 60_000):
+            raise ValueError(f"exposures must be finite exposure times in (0, 60000] ms, got {item!r}")
+        times.append(time_ms)
+    if len(set(times)) != len(times):
+        raise ValueError(f"exposures must be distinct exposure times, got {sorted(times)} with a repeated one")
+    return tuple(sorted(times))
+
 
 @dataclass(frozen=True)
 class BracketOptions:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import json
 import logging
@@ -19,11 +20,13 @@ import cv2
 import numpy as np
 import requests
 
-from metrology.acquisition.agent.bracketing import BracketOptions
-from metrology.acquisition.agent.cameras import AcquisitionTarget, CameraError, RigCameras, Shown
+from metrology.acquisition.agent.bracketing import Bracket, BracketOptions, ExposureChoice, parse_exposures
+from metrology.acquisition.agent.cameras import AcquisitionTarget, Camera, CameraError, RigCameras, Shown
 from metrology.acquisition.agent.patterns import ProjectedCodec, resolve_codec
 from metrology.acquisition.agent.sequencer import (
     AcquisitionError,
+    Progress,
+    Projector,
     SequenceOptions,
     run_bracketed_sequence,
     run_sequence,
@@ -193,14 +196,67 @@ def _frames_zip(
 
 
 @dataclass
+class AcquiredCapture:
+    """What one acquisition gives to upload or write: ``data``, the capture's zip (one stack, a
+    stereo capture, or a multi-exposure capture); ``exposure_ms``, the single stack's exposure or
+    the shortest of several; ``exposures_ms``, every exposure, shortest first (None for a single
+    stack); ``reports``, each accepted frame's checks; ``bracket``, the automatic bracket (or None)."""
+
+    data: bytes
+    exposure_ms: float | None
+    exposures_ms: list[float] | None
+    reports: list[dict[str, Any]]
+    bracket: Bracket | None = None
+
+
+def acquire_capture(
+    projector: Projector,
+    camera: Camera | RigCameras,
+    codec: ProjectedCodec,
+    *,
+    exposure_ms: float | None = None,
+    exposures: ExposureChoice | None = None,
+    bracket: BracketOptions | None = None,
+    options: SequenceOptions | None = None,
+    progress: Progress | None = None,
+) -> AcquiredCapture:
+    """Acquire one capture as ``gcps agent`` and ``gcps capture`` write it (docs/acquisition.md).
+
+    ``exposures`` None: one stack (per camera) at ``exposure_ms`` (None: the auto-exposure),
+    :func:`~.sequencer.run_sequence`; ``"auto"`` or times in ms: a multi-exposure capture
+    (docs/exposures.md), :func:`~.sequencer.run_bracketed_sequence`, written as ``exposures.json``
+    and ``exp0/``, ``exp1/``, ... Raises :class:`~.sequencer.AcquisitionError` with the reason.
+    """
+    if exposures is None:
+        result = run_sequence(projector, camera, codec, exposure_ms=exposure_ms, options=options, progress=progress)
+        return AcquiredCapture(
+            cameras_zip(result.camera_stacks, codec), result.exposure_ms, None, result.frame_reports()
+        )
+    bracketed = run_bracketed_sequence(
+        projector,
+        camera,
+        codec,
+        exposures_ms=None if isinstance(exposures, str) else exposures,
+        bracket_options=bracket,
+        options=options,
+        progress=progress,
+    )
+    times = list(bracketed.exposures_ms)
+    reports = [report for stack in bracketed.stacks for report in stack.frame_reports()]
+    data = exposures_zip([stack.images for stack in bracketed.stacks], times, codec)
+    return AcquiredCapture(data, times[0], times, reports, bracketed.bracket)
+
+
+@dataclass
 class AgentOptions:
     sequence: SequenceOptions
     poll_s: float = 1.0
     max_acquisitions: int = 0  # 0: run until stopped
     confirm_timeout_s: float = 30.0
-    exposures: str | tuple[float, ...] | None = None
+    exposures: ExposureChoice | None = None
     """None: one stack per acquisition; ``"auto"``: an automatic bracket; a tuple: those exposures, ms
-    (multi-exposure captures, docs/exposures.md)."""
+    (multi-exposure captures, docs/exposures.md). The default of the requests that choose neither
+    ``exposures`` nor ``exposure`` (:func:`requested_exposures`)."""
     bracket: BracketOptions = field(default_factory=BracketOptions)
 
 
@@ -264,6 +320,22 @@ def run_agent(client: AgentClient, camera: RigCameras, options: AgentOptions, ve
     return {"agent": registered.get("id"), "camera": camera.name, "acquisitions": done, "stopped": stop_reason}
 
 
+def requested_exposures(
+    acquisition: dict[str, Any], options: AgentOptions
+) -> tuple[ExposureChoice | None, BracketOptions]:
+    """The exposures of one acquisition and the automatic bracket's options: the request's choice
+    (``exposures``: ``"auto"`` with its ``max_exposures``, or times in ms; or one ``exposure_ms``)
+    over the agent's ``--exposures`` / ``--max-exposures``, which serve requests that choose nothing."""
+    bracket = options.bracket
+    if acquisition.get("max_exposures"):
+        bracket = dataclasses.replace(bracket, max_exposures=int(acquisition["max_exposures"]))
+    if acquisition.get("exposures") is not None:
+        return parse_exposures(acquisition["exposures"]), bracket
+    if acquisition.get("exposure_ms") is not None:
+        return None, bracket
+    return options.exposures, bracket
+
+
 def _run_one(client: AgentClient, camera: RigCameras, acquisition: dict[str, Any], options: AgentOptions) -> dict:
     acq_id = int(acquisition["id"])
     frames: list[dict[str, Any]] = []
@@ -284,34 +356,27 @@ def _run_one(client: AgentClient, camera: RigCameras, acquisition: dict[str, Any
             )
         )
         projector = ServerProjector(client, acq_id, options.confirm_timeout_s)
-        if options.exposures is not None:  # a multi-exposure capture
-            bracketed = run_bracketed_sequence(
-                projector,
-                camera,
-                codec,
-                exposures_ms=None if isinstance(options.exposures, str) else options.exposures,
-                bracket_options=options.bracket,
-                options=options.sequence,
-                progress=progress,
-            )
-            reports = [report for stack in bracketed.stacks for report in stack.frame_reports()]
-            exposures = list(bracketed.exposures_ms)
-            data = exposures_zip([stack.images for stack in bracketed.stacks], exposures, codec)
-            exposure_ms: float | None = exposures[0]
-        else:
-            result = run_sequence(
-                projector,
-                camera,
-                codec,
-                exposure_ms=acquisition.get("exposure_ms"),
-                options=options.sequence,
-                progress=progress,
-            )
-            reports = result.frame_reports()
-            data, exposure_ms = cameras_zip(result.camera_stacks, codec), result.exposure_ms
-        client.progress(acq_id, 97, "uploading", reports)
-        body = client.upload(acq_id, data, camera=camera.name, exposure_ms=exposure_ms, frames=reports)
-        return {"acquisition": acq_id, "status": "done", "capture": body.get("capture")}
+        exposures, bracket = requested_exposures(acquisition, options)
+        acquired = acquire_capture(
+            projector,
+            camera,
+            codec,
+            exposure_ms=acquisition.get("exposure_ms"),
+            exposures=exposures,
+            bracket=bracket,
+            options=options.sequence,
+            progress=progress,
+        )
+        client.progress(acq_id, 97, "uploading", acquired.reports)
+        body = client.upload(
+            acq_id, acquired.data, camera=camera.name, exposure_ms=acquired.exposure_ms, frames=acquired.reports
+        )
+        return {
+            "acquisition": acq_id,
+            "status": "done",
+            "capture": body.get("capture"),
+            "exposures_ms": acquired.exposures_ms,
+        }
     except (AcquisitionError, CameraError, ValueError) as exc:
         reason = str(exc)
     except ProtocolError as exc:

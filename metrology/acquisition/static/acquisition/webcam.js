@@ -7,6 +7,15 @@
  * previous grabbed frame (on at least MIN_CHANGE of the pixels by more than CHANGE_GREY levels),
  * then the settle time, then take the next new video frame. Order: black, white, black, then the
  * codec's frames. Per frame the page reports the saturated and dark fractions and the change.
+ *
+ * Exposure: an acquisition that asks for one exposure (exposure_ms) or several (exposures, a list
+ * of ms: a multi-exposure capture, docs/exposures.md) needs a camera whose track offers a manual
+ * exposureTime (getCapabilities()); the page sets each one with applyConstraints (exposureTime in
+ * the Media Capture Image spec's units of 100 us), acquires the sequence once per exposure, and
+ * uploads exposures.json with exp0/, exp1/, ... Without that capability, for a time outside the
+ * camera's range, for exposures "auto" (the automatic bracket is the agent's), or when the white
+ * frame does not brighten from one exposure to the next (a camera that takes the setting without
+ * applying it), it fails the acquisition saying so: it never captures one exposure in their place.
  */
 (function () {
   "use strict";
@@ -143,51 +152,150 @@
     return new Blob(parts.concat(central, [new Uint8Array(end.buffer)]), { type: "application/zip" });
   }
 
+  // The exposure times (ms) the acquisition asks for: null (the webcam's own exposure), or a list
+  // (one entry for exposure_ms). Refuses what the page cannot do, with the reason.
+  function requestedExposures(acquisition) {
+    if (acquisition.exposures === "auto") {
+      throw new Error("exposures \"auto\": the webcam page does not bracket automatically; request exposure " +
+                      "times in ms (e.g. [1, 10, 100]) or run gcps agent, which brackets");
+    }
+    if (Array.isArray(acquisition.exposures)) return acquisition.exposures.map(Number);
+    if (acquisition.exposure_ms !== null && acquisition.exposure_ms !== undefined) return [Number(acquisition.exposure_ms)];
+    return null;
+  }
+
+  // Check that the track can take every exposure time (ms) manually; returns its range (100 us units).
+  function manualExposureRange(track, times) {
+    var caps = track && track.getCapabilities ? track.getCapabilities() : {};
+    var modes = caps.exposureMode || [];
+    if (!caps.exposureTime || modes.indexOf("manual") < 0) {
+      throw new Error("the camera cannot set its exposure (" + cameraLabel + " offers no manual exposureTime " +
+                      "among its capabilities), so it cannot capture the requested exposure(s) " + times.join(", ") +
+                      " ms: use a webcam whose exposure the browser can set, or gcps agent --camera opencv:...");
+    }
+    var range = caps.exposureTime;
+    times.forEach(function (ms) {
+      if (ms * 10 < range.min || ms * 10 > range.max) {
+        throw new Error("the camera's exposure time ranges over " + range.min / 10 + " to " + range.max / 10 +
+                        " ms; exposure " + ms + " ms is outside it");
+      }
+    });
+    return range;
+  }
+
+  // Set the exposure (ms) and return what the track reports using (ms), after the settle time.
+  async function setExposure(track, ms) {
+    await track.applyConstraints({ advanced: [{ exposureMode: "manual", exposureTime: ms * 10 }] });
+    var settings = track.getSettings ? track.getSettings() : {};
+    var used = settings.exposureTime ? settings.exposureTime / 10 : ms;
+    if (settings.exposureMode && settings.exposureMode !== "manual") {
+      throw new Error("the camera did not switch to manual exposure (exposureMode " + settings.exposureMode + ")");
+    }
+    await sleep(settleMs);
+    for (var k = 0; k < 3; k++) await nextVideoFrame();  // frames exposed before the change
+    return used;
+  }
+
+  // Before a multi-exposure capture: the white frame grabbed at each exposure must brighten from one
+  // exposure to the next (1.5x or more apart) by more than 10 % (and 2 grey levels) over the pixels
+  // saturated in neither; a camera that accepts exposureTime without applying it would give
+  // exposures that all look alike, so the acquisition fails instead.
+  async function checkExposuresApply(track, times, id) {
+    await P.show({ kind: "white", frame: -1, acquisition: id, seq: 0 });
+    var whites = [];
+    for (var k = 0; k < times.length; k++) {
+      await setExposure(track, times[k]);
+      whites.push((await grabAfterChange(null)).frame);
+    }
+    for (var i = 0; i + 1 < times.length; i++) {
+      if (times[i + 1] < 1.5 * times[i]) continue;
+      var a = whites[i].data, b = whites[i + 1].data, n = 0, sumA = 0, sumB = 0;
+      for (var j = 0; j < a.length; j++) {
+        if (a[j] < 255 && b[j] < 255) { n++; sumA += a[j]; sumB += b[j]; }
+      }
+      if (n < 0.01 * a.length) continue;  // saturated nearly everywhere: nothing to compare
+      var meanA = sumA / n, meanB = sumB / n;
+      if (meanB - meanA <= Math.max(2, 0.1 * meanA)) {
+        throw new Error("the camera's image did not brighten from exposure " + times[i] + " ms to " + times[i + 1] +
+                        " ms (white frame, mean grey " + meanA.toFixed(1) + " -> " + meanB.toFixed(1) + "): it does " +
+                        "not apply the exposure time it offers, so the exposures would all look alike");
+      }
+    }
+  }
+
+  // One pass of the sequence (black, white, black, the codec's frames); pushes the checks, returns the frames.
+  async function grabSequence(acquisition, checks, exposure, progress) {
+    var sequence = [{ kind: "black", name: "black" }, { kind: "white", name: "white" }, { kind: "black", name: "black" }];
+    acquisition.frame_names.forEach(function (name, k) { sequence.push({ kind: "frame", frame: k, name: name }); });
+    var previous = null, frames = [];
+    for (var s = 0; s < sequence.length; s++) {
+      var item = sequence[s], result = null;
+      await P.show({ kind: item.kind, frame: item.frame === undefined ? -1 : item.frame, acquisition: acquisition.id, seq: 0 });
+      for (var attempt = 1; attempt <= MAX_GRABS; attempt++) {
+        result = await grabAfterChange(previous);
+        if (result.frame) break;
+      }
+      if (!result.frame) {
+        throw new Error("the camera image did not change after showing " + item.name + " (" + MAX_GRABS +
+                        " tries): is the webcam looking at the projection?");
+      }
+      var check = Object.assign({ name: item.name, kind: item.kind, frame: item.frame === undefined ? -1 : item.frame,
+                                  change_fraction: result.change, regrabs: 0, refused_reasons: [], ok: true },
+                                stats(result.frame));
+      if (exposure !== null) check.exposure_ms = exposure;
+      checks.push(check);
+      previous = result.frame;
+      if (item.kind === "frame") frames.push({ name: item.name + ".png", frame: result.frame });
+      await progress((s + 1) / sequence.length, "grabbed " + item.name);
+    }
+    return frames;
+  }
+
   async function acquire(acquisition) {
     var id = acquisition.id, checks = [];
+    var times = requestedExposures(acquisition);
     // ask for the rig's camera size: the server refuses frames of another size
     var size = { width: { ideal: Number(root.dataset.cameraWidth) }, height: { ideal: Number(root.dataset.cameraHeight) } };
     var stream = await navigator.mediaDevices.getUserMedia({ video: size, audio: false });
     try {
       var track = stream.getVideoTracks()[0];
       cameraLabel = "browser:" + (track && track.label ? track.label : "webcam");
+      if (times !== null) manualExposureRange(track, times);
       video.srcObject = stream;
       await video.play();
       if (video.videoWidth !== Number(root.dataset.cameraWidth) || video.videoHeight !== Number(root.dataset.cameraHeight)) {
         throw new Error("the webcam gives " + video.videoWidth + "x" + video.videoHeight + " frames, the rig's camera is " +
                         root.dataset.cameraWidth + "x" + root.dataset.cameraHeight + ": set the rig's width_px and height_px to the webcam's");
       }
-      var sequence = [{ kind: "black", name: "black" }, { kind: "white", name: "white" }, { kind: "black", name: "black" }];
-      acquisition.frame_names.forEach(function (name, k) { sequence.push({ kind: "frame", frame: k, name: name }); });
-      var previous = null, frames = [];
-      for (var s = 0; s < sequence.length; s++) {
-        var item = sequence[s], result = null;
-        await P.show({ kind: item.kind, frame: item.frame === undefined ? -1 : item.frame, acquisition: id, seq: 0 });
-        for (var attempt = 1; attempt <= MAX_GRABS; attempt++) {
-          result = await grabAfterChange(previous);
-          if (result.frame) break;
-        }
-        if (!result.frame) {
-          throw new Error("the camera image did not change after showing " + item.name + " (" + MAX_GRABS +
-                          " tries): is the webcam looking at the projection?");
-        }
-        var check = Object.assign({ name: item.name, kind: item.kind, frame: item.frame === undefined ? -1 : item.frame,
-                                    change_fraction: result.change, regrabs: 0, refused_reasons: [], ok: true },
-                                  stats(result.frame));
-        checks.push(check);
-        previous = result.frame;
-        if (item.kind === "frame") frames.push({ name: item.name + ".png", frame: result.frame });
-        await call(url(root.dataset.progressUrl, id), {
-          session: session, percent: Math.round(5 + 85 * (s + 1) / sequence.length), phase: "grabbed " + item.name,
-          frames: checks,
+      var multi = Array.isArray(acquisition.exposures), passes = times === null ? [null] : times;
+      if (multi) await checkExposuresApply(track, times, id);
+      var files = [], used = [];
+      for (var e = 0; e < passes.length; e++) {
+        var exposure = passes[e] === null ? null : await setExposure(track, passes[e]);
+        used.push(exposure);
+        var frames = await grabSequence(acquisition, checks, exposure, function (done, phase) {
+          var label = multi ? "exposure " + (e + 1) + "/" + passes.length + ": " + phase : phase;
+          return call(url(root.dataset.progressUrl, id), {
+            session: session, percent: Math.round(5 + 85 * (e + done) / passes.length), phase: label.slice(0, 64),
+            frames: checks,
+          });
         });
+        var folder = multi ? "exp" + e + "/" : "";
+        for (var f = 0; f < frames.length; f++) {
+          files.push({ name: folder + frames[f].name, data: await pngOf(frames[f].frame) });
+        }
       }
       await P.show({ kind: "black", frame: -1, seq: 0 });
-      var files = [];
-      for (var f = 0; f < frames.length; f++) files.push({ name: frames[f].name, data: await pngOf(frames[f].frame) });
+      if (multi) {
+        var manifest = { format: "gcps-exposures/1", exposures: used.map(function (ms, k) {
+          return { name: "exp" + k, exposure_us: ms * 1000 };
+        }) };
+        files.unshift({ name: "exposures.json", data: new TextEncoder().encode(JSON.stringify(manifest)) });
+      }
       var form = new FormData();
       form.append("session", session);
       form.append("camera", cameraLabel);
+      if (used[0] !== null) form.append("exposure_ms", String(used[0]));
       form.append("frames", JSON.stringify(checks));
       form.append("file", zip(files), "acquisition-" + id + ".zip");
       var response = await fetch(url(root.dataset.uploadUrl, id), {
