@@ -449,6 +449,7 @@ def _plan(codec: Codec, with_noise: bool = True) -> list[_AxisPlan]:
             k = np.arange(seq.steps)
             delta = 2 * np.pi * seq.shift * k / seq.steps
             weights = np.stack([np.cos(delta), -np.sin(delta), np.ones(seq.steps)]).astype(np.float32)
+            alphas, alpha_scale = _recursive_alphas(np.stack([np.cos(delta), -np.sin(delta)]))
             sequences.append(
                 _SequencePlan(
                     seq.frames,
@@ -457,10 +458,10 @@ def _plan(codec: Codec, with_noise: bool = True) -> list[_AxisPlan]:
                     seq.period,
                     seq.origin,
                     need_noise=with_noise and seq.steps >= 4 and i == noise_index,
-                    recursive=_recursive_alphas(np.stack([np.cos(delta), -np.sin(delta)]))[0],
-                    recursive_scale=_recursive_alphas(np.stack([np.cos(delta), -np.sin(delta)]))[1],
+                    recursive=alphas,
+                    recursive_scale=alpha_scale,
                     frame_index=np.asarray(seq.frames, np.int64),
-                    recursive_f32=_kernel_alphas(_recursive_alphas(np.stack([np.cos(delta), -np.sin(delta)]))[0]),
+                    recursive_f32=_kernel_alphas(alphas),
                 )
             )
         lut = None
@@ -715,10 +716,12 @@ KERNELS_MODULE = "metrology.core.codecs.kernels"
 def compiled_kernels() -> ModuleType | None:
     """:mod:`metrology.core.codecs.kernels` when this process has loaded it, else None.
 
-    Importing numba costs 0.2-0.6 s in a fresh process, more than the kernel saves on the one or
-    two stacks a ``gcps decode`` or ``gcps measure`` decodes (about 15 ms of CPU per 3 megapixels
-    and 18 phase frames), so the decoder never imports it: it uses the kernel where a worker
-    (which imports every core module as it starts) or a caller decoding many stacks has loaded it.
+    Importing numba and loading the kernel from numba's disk cache cost 0.8-1.4 s in a fresh
+    process on the reference machine, far more than the kernel saves on the one or two stacks a
+    ``gcps decode`` or ``gcps measure`` decodes (20-30 ms of CPU per 2048x1536 stack of 18 phase
+    frames, ``benchmarks/codecs.py``), so the decoder never imports it: it uses the kernel where
+    a worker (:func:`metrology.jobs.handlers.preload_job_code`) or a caller decoding many stacks
+    has loaded it. Both paths give the same bits.
     """
     return sys.modules.get(KERNELS_MODULE)
 
