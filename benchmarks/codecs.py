@@ -21,7 +21,10 @@ its frames (target <= 4) and the 48-frame row's milliseconds per frame over the 
 
 Each row is timed as :func:`decode_codec` (all outputs: coordinates, modulation, mean,
 noise, reasons: what ``gcps decode --quality`` computes), as ``coordinates only`` (no noise
-maps: what ``gcps decode`` without ``--quality`` computes), and beside them ``memory bound``:
+maps: what ``gcps decode`` without ``--quality`` computes), both with the compiled phase-sum
+kernel loaded (:mod:`metrology.core.codecs.kernels`, as in a worker; ``--no-compiled``: without),
+as ``decode, OpenCV passes`` (the same decode with the kernel unloaded, what a ``gcps decode``
+process runs), and beside them ``memory bound``:
 ``np.copyto`` of the stack's bytes (the bytes decoding must read at least), in the same
 process, interleaved, medians of
 ``--repeats`` runs. ``OpenCV GrayCodePattern`` decodes the 42-frame stack's layout
@@ -51,7 +54,7 @@ sys.path.insert(0, str(ROOT))
 
 from metrology.core.allocation import retain_freed_memory  # noqa: E402
 from metrology.core.codecs import Codec, codec_from_dict  # noqa: E402
-from metrology.core.codecs.decode import decode_codec  # noqa: E402
+from metrology.core.codecs.decode import KERNELS_MODULE, CodecDecoding, decode_codec  # noqa: E402
 from metrology.core.codecs.render import _emitted, frame_roles  # noqa: E402
 
 WIDTH, HEIGHT = 2048, 1536
@@ -164,6 +167,17 @@ def interleaved(funcs: dict[str, Callable[[], object]], repeats: int) -> tuple[d
     )
 
 
+def decode_without_kernel(stack: np.ndarray, codec: Codec, threads: int | None) -> CodecDecoding:
+    """:func:`decode_codec` as a process that has not loaded the compiled kernel runs it (the
+    decoder uses the kernel only where its module is loaded: unloaded for this call)."""
+    kernels = sys.modules.pop(KERNELS_MODULE, None)
+    try:
+        return decode_codec(stack, codec, threads=threads)
+    finally:
+        if kernels is not None:
+            sys.modules[KERNELS_MODULE] = kernels
+
+
 def opencv_baselines(repeats: int) -> dict[str, Any] | None:
     """OpenCV-contrib in its own environment: GrayCodePattern on the 42-frame layout, and the
     3-step SinusoidalPattern (PSP) phase map at the same frame size (the 32-frame row's phase part)."""
@@ -206,8 +220,13 @@ def main() -> None:
     parser.add_argument("--no-opencv", action="store_true")
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--rows", default="24,32,42,48", help="which stacks, e.g. 24 or 24,42")
+    parser.add_argument("--no-compiled", action="store_true", help="decode without the compiled kernel")
     args = parser.parse_args()
     retain_freed_memory()
+    if not args.no_compiled:
+        from metrology.core.codecs import kernels
+
+        kernels.warm()
     makers = {
         "24": ("24-frame axis", codec_24),
         "32": ("32-frame two-axis", codec_32),
@@ -217,6 +236,7 @@ def main() -> None:
     result: dict[str, Any] = {
         "size": f"{WIDTH}x{HEIGHT}",
         "threads": args.threads,
+        "compiled_kernel": not args.no_compiled,
         "rows": {},
         "loadavg": os.getloadavg(),
     }
@@ -232,6 +252,9 @@ def main() -> None:
                 "coordinates only": lambda stack=stack, codec=codec: decode_codec(
                     stack, codec, with_noise=False, threads=args.threads
                 ),
+                "decode, OpenCV passes": lambda stack=stack, codec=codec: decode_without_kernel(
+                    stack, codec, args.threads
+                ),
                 "memory bound": lambda stack=stack, copy=copy: np.copyto(copy, stack),
             },
             args.repeats,
@@ -245,7 +268,14 @@ def main() -> None:
             "decode_cpu_ms": round(cpu["decode"] * 1e3, 2),
             "coordinates_only_ms": round(medians["coordinates only"] * 1e3, 2),
             "coordinates_only_mpx_s": round(px / medians["coordinates only"] / 1e6, 1),
+            "opencv_passes_ms": round(medians["decode, OpenCV passes"] * 1e3, 2),
+            "opencv_passes_cpu_ms": round(cpu["decode, OpenCV passes"] * 1e3, 2),
+            "opencv_passes_ratio_to_memory_bound": round(medians["decode, OpenCV passes"] / medians["memory bound"], 2),
             "memory_bound_ms": round(medians["memory bound"] * 1e3, 2),
+            "memory_bound_cpu_ms": round(cpu["memory bound"] * 1e3, 2),
+            # CPU time over the copy's: steadier than the wall ratio when other jobs share the cores
+            "cpu_ratio_to_memory_bound": round(cpu["decode"] / cpu["memory bound"], 2),
+            "opencv_passes_cpu_ratio_to_memory_bound": round(cpu["decode, OpenCV passes"] / cpu["memory bound"], 2),
             "memory_bound_mpx_s": round(px / medians["memory bound"] / 1e6, 1),
             "ratio_to_memory_bound": round(medians["decode"] / medians["memory bound"], 2),
             "coordinates_only_ratio_to_memory_bound": round(medians["coordinates only"] / medians["memory bound"], 2),
@@ -261,6 +291,7 @@ def main() -> None:
             "48-frame per-frame cost / 24-frame per-frame cost (<= 1.5)": round(
                 two["decode_ms_per_frame"] / one["decode_ms_per_frame"], 3
             ),
+            "24-frame decode without the kernel / copy of its frames": one["opencv_passes_ratio_to_memory_bound"],
         }
     if not args.no_opencv:
         baseline = opencv_baselines(max(1, args.repeats // 3))

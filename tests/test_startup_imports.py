@@ -215,7 +215,8 @@ receivers = [ref() for _, ref in worker_init.receivers]
 before = sorted(m for m in sys.modules if m.startswith(("metrology.pipeline.", "scipy", "cv2")))
 preload_job_code()
 after = sorted(m for m in sys.modules if m.startswith(("metrology.", "scipy", "cv2", "plotly")))
-print(json.dumps({{"connected": preload_job_code in receivers, "before": before, "after": after}}))
+warm = bool(sys.modules["metrology.core.codecs.kernels"].phase_sums_u8.signatures)
+print(json.dumps({{"connected": preload_job_code in receivers, "before": before, "after": after, "warm": warm}}))
 """
 
 
@@ -226,6 +227,7 @@ def test_a_worker_loads_the_job_code_as_it_starts():
     after = set(found["after"])
     assert {"scipy.optimize", "cv2", "plotly", "metrology.figures.characterization"} <= after
     assert {"metrology.measurements.services", "metrology.calibrations.procam_services"} <= after
+    assert found["warm"]  # the codec decoder's compiled kernel is loaded, not left to the first job
     pipelines = {module_name(path) for path in (ROOT / "metrology" / "pipeline").glob("[!_]*.py")}
     assert pipelines <= after, pipelines - after
 

@@ -48,9 +48,11 @@ straddles a depth edge is otherwise left as decoded.
 from __future__ import annotations
 
 import math
+import sys
 import threading
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, replace
+from types import ModuleType
 from typing import Any
 
 import cv2
@@ -384,6 +386,9 @@ class _SequencePlan:
     # a_k = K w_k / prod_{j > k} (1 - a_j); rows: cos, -sin; K = recursive_scale
     recursive: np.ndarray = field(default_factory=lambda: np.zeros((2, 0)))
     recursive_scale: float = 1.0
+    frame_index: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # (N,) int64: frames
+    # (2, N) float32: ``recursive`` as OpenCV's accumulateWeighted uses it, 0 where it skips a frame
+    recursive_f32: np.ndarray = field(default_factory=lambda: np.zeros((2, 0), np.float32))
 
 
 def _recursive_alphas(weights: np.ndarray) -> tuple[np.ndarray, float]:
@@ -400,6 +405,16 @@ def _recursive_alphas(weights: np.ndarray) -> tuple[np.ndarray, float]:
             alphas[row, k] = scale * w[row, k] / product
             product *= 1.0 - alphas[row, k]
     return alphas, scale
+
+
+def _kernel_alphas(alphas: np.ndarray) -> np.ndarray:
+    """(2, N) float32: the running-average factors as :func:`_opencv_sums` applies them (float32;
+    0 for the factors it skips, which leaves the average exactly as it is)."""
+    return np.where(np.abs(alphas) > _SKIPPED_ALPHA, alphas, 0.0).astype(np.float32)
+
+
+_SKIPPED_ALPHA = 1e-9
+"""Running-average factors at most this small are skipped (sin 0 and cos(pi / 2) ~ 6e-17)."""
 
 
 @dataclass(frozen=True)
@@ -434,6 +449,7 @@ def _plan(codec: Codec, with_noise: bool = True) -> list[_AxisPlan]:
             k = np.arange(seq.steps)
             delta = 2 * np.pi * seq.shift * k / seq.steps
             weights = np.stack([np.cos(delta), -np.sin(delta), np.ones(seq.steps)]).astype(np.float32)
+            alphas, alpha_scale = _recursive_alphas(np.stack([np.cos(delta), -np.sin(delta)]))
             sequences.append(
                 _SequencePlan(
                     seq.frames,
@@ -442,8 +458,10 @@ def _plan(codec: Codec, with_noise: bool = True) -> list[_AxisPlan]:
                     seq.period,
                     seq.origin,
                     need_noise=with_noise and seq.steps >= 4 and i == noise_index,
-                    recursive=_recursive_alphas(np.stack([np.cos(delta), -np.sin(delta)]))[0],
-                    recursive_scale=_recursive_alphas(np.stack([np.cos(delta), -np.sin(delta)]))[1],
+                    recursive=alphas,
+                    recursive_scale=alpha_scale,
+                    frame_index=np.asarray(seq.frames, np.int64),
+                    recursive_f32=_kernel_alphas(alphas),
                 )
             )
         lut = None
@@ -692,6 +710,33 @@ class _RowSample:
     centre: np.ndarray
 
 
+KERNELS_MODULE = "metrology.core.codecs.kernels"
+
+
+def compiled_kernels() -> ModuleType | None:
+    """:mod:`metrology.core.codecs.kernels` when this process has loaded it, else None.
+
+    Importing numba and loading the kernel from numba's disk cache cost 0.8-1.4 s in a fresh
+    process on the reference machine, far more than the kernel saves on the one or two stacks a
+    ``gcps decode`` or ``gcps measure`` decodes (20-30 ms of CPU per 2048x1536 stack of 18 phase
+    frames, ``benchmarks/codecs.py``), so the decoder never imports it: it uses the kernel where
+    a worker (:func:`metrology.jobs.handlers.preload_job_code`) or a caller decoding many stacks
+    has loaded it. Both paths give the same bits.
+    """
+    return sys.modules.get(KERNELS_MODULE)
+
+
+@dataclass(frozen=True, eq=False)
+class _TilePixels:
+    """A tile as the compiled kernel reads it: ``frames`` (F, H W) uint8 the stack's flattened
+    frames (a view), the tile's pixels ``start:stop``, and the kernels' module."""
+
+    frames: np.ndarray
+    start: int
+    stop: int
+    kernels: ModuleType
+
+
 def _decode_tile(
     stack: np.ndarray,
     rows: slice,
@@ -709,6 +754,11 @@ def _decode_tile(
     h, w = tile.shape[1:]
     shape = (h, w)
     integer = stack.dtype.kind in "ui"
+    pixels: _TilePixels | None = None
+    kernels = compiled_kernels()
+    if kernels is not None and stack.dtype == np.uint8 and stack.flags.c_contiguous:
+        start = (rows.start or 0) * w
+        pixels = _TilePixels(stack.reshape(stack.shape[0], -1), start, start + h * w, kernels)
     assert opts.saturation_level is not None
 
     # saturation: the brightest value of each pixel over the phase frames (refused) and over all (flagged)
@@ -767,6 +817,7 @@ def _decode_tile(
             white_black_mid,
             scratch,
             local,
+            pixels,
         )
         if sample is not None:
             judged[plan.name] = count
@@ -804,6 +855,7 @@ def _phase_tile(
     tag: str,
     modulation_dst: np.ndarray | None = None,
     noise_dst: np.ndarray | None = None,
+    pixels: _TilePixels | None = None,
 ) -> _PhaseResult:
     """Least-squares phase, modulation, sum and (N >= 4, when asked) noise of one sequence on a tile.
 
@@ -816,47 +868,35 @@ def _phase_tile(
     on a shared machine) over the differences of frames half a turn apart when N is even. The
     noise ``R = sum I^2 - (sum I)^2 / N - (N / 2) B^2`` with ``(N / 2) B^2 = (2 / N)(C^2 + S^2)``.
 
+    With ``pixels`` (an 8-bit tile, the compiled kernel loaded: :func:`compiled_kernels`) the same
+    four sums, to the bit, come from :func:`metrology.core.codecs.kernels.phase_sums_u8` in one
+    pass over the frames instead.
+
     ``modulation_dst`` and ``noise_dst`` (h, w) float32, optional: where B and the noise are
     written (else scratch arrays).
     """
     h, w = tile.shape[1:]
     n = seq.steps
     work = np.float32 if tile.dtype == np.uint8 else np.float64
-    cv_work = cv2.CV_32F if work is np.float32 else cv2.CV_64F
-    frames = seq.frames
     total = scratch.get(f"total{tag}", (h, w), work)
-    total.fill(0)
     sq = scratch.get(f"squares{work.__name__}", (h, w), work) if seq.need_noise else None
-    if sq is not None:
-        sq.fill(0)
-    for fi in frames:  # OpenCV's accumulators read the 8/16-bit frames directly
-        cv2.accumulate(tile[fi], total)
-        if sq is not None:
-            cv2.accumulateSquare(tile[fi], sq)
     res = scratch.get(f"sums{tag}", (2, h * w), work)
-    scale = 1.0  # c and neg_s below are K C and -K S
-    if work is np.float32:
-        # 8-bit: one running weighted average per sum, reading the uint8 frames directly
-        scale = seq.recursive_scale
-        sums = res.reshape(2, h, w)
-        sums.fill(0)
-        for row in range(2):
-            for k, fi in enumerate(frames):
-                alpha = float(seq.recursive[row, k])
-                if abs(alpha) > 1e-9:  # sin 0 and cos(pi / 2) ~ 6e-17 leave the average as it is
-                    cv2.accumulateWeighted(tile[fi], sums[row], alpha)
-    elif n % 2 == 0:
-        # cos and sin change sign half a turn later: C = sum_{k < N/2} cos_k (I_k - I_{k + N/2}), same for S
-        half = n // 2
-        d = scratch.get(f"pairs{work.__name__}", (half, h, w), work)
-        for k in range(half):
-            cv2.subtract(tile[frames[k]], tile[frames[k + half]], dst=d[k], dtype=cv_work)
-        np.einsum("ik,kj->ij", seq.weights[:2, :half].astype(work, copy=False), d.reshape(half, h * w), out=res)
+    scale = seq.recursive_scale  # c and neg_s below are K C and -K S
+    if pixels is not None and tile.dtype == np.uint8:
+        pixels.kernels.phase_sums_u8(
+            pixels.frames,
+            pixels.start,
+            pixels.stop,
+            seq.frame_index,
+            seq.recursive_f32,
+            total.reshape(-1),
+            res[0],
+            res[1],
+            (sq if sq is not None else total).reshape(-1),
+            sq is not None,
+        )
     else:
-        f = scratch.get(f"frames{work.__name__}", (n, h, w), work)
-        for k, fi in enumerate(frames):
-            np.copyto(f[k], tile[fi], casting="unsafe")
-        np.einsum("ik,kj->ij", seq.weights[:2].astype(work, copy=False), f.reshape(n, h * w), out=res)
+        scale = _opencv_sums(tile, seq, total, sq, res, scratch)
     c, neg_s = (res[i].reshape(h, w) for i in range(2))
     mag = scratch.get(f"mag{tag}", (h, w), np.float32)
     angle = scratch.get(f"angle{tag}", (h, w), np.float32)
@@ -894,6 +934,49 @@ def _phase_tile(
     return _PhaseResult(frac=frac, modulation=b, total=total32, noise=noise)
 
 
+def _opencv_sums(
+    tile: np.ndarray, seq: _SequencePlan, total: np.ndarray, sq: np.ndarray | None, res: np.ndarray, scratch: Any
+) -> float:
+    """The sums of :func:`_phase_tile` by OpenCV passes and ``einsum``: writes ``total`` (h, w),
+    ``sq`` (h, w, when given) and ``res`` (2, h w) = ``K C`` and ``-K S`` (float32 for 8-bit tiles,
+    float64 otherwise); returns K (1 but for the 8-bit running averages)."""
+    h, w = tile.shape[1:]
+    n = seq.steps
+    work = total.dtype.type
+    cv_work = cv2.CV_32F if work is np.float32 else cv2.CV_64F
+    frames = seq.frames
+    total.fill(0)
+    if sq is not None:
+        sq.fill(0)
+    for fi in frames:  # OpenCV's accumulators read the 8/16-bit frames directly
+        cv2.accumulate(tile[fi], total)
+        if sq is not None:
+            cv2.accumulateSquare(tile[fi], sq)
+    if work is np.float32:
+        # 8-bit: one running weighted average per sum, reading the uint8 frames directly
+        sums = res.reshape(2, h, w)
+        sums.fill(0)
+        for row in range(2):
+            for k, fi in enumerate(frames):
+                alpha = float(seq.recursive[row, k])
+                if abs(alpha) > _SKIPPED_ALPHA:  # sin 0 and cos(pi / 2) ~ 6e-17 leave the average as it is
+                    cv2.accumulateWeighted(tile[fi], sums[row], alpha)
+        return seq.recursive_scale
+    if n % 2 == 0:
+        # cos and sin change sign half a turn later: C = sum_{k < N/2} cos_k (I_k - I_{k + N/2}), same for S
+        half = n // 2
+        d = scratch.get(f"pairs{work.__name__}", (half, h, w), work)
+        for k in range(half):
+            cv2.subtract(tile[frames[k]], tile[frames[k + half]], dst=d[k], dtype=cv_work)
+        np.einsum("ik,kj->ij", seq.weights[:2, :half].astype(work, copy=False), d.reshape(half, h * w), out=res)
+    else:
+        f = scratch.get(f"frames{work.__name__}", (n, h, w), work)
+        for k, fi in enumerate(frames):
+            np.copyto(f[k], tile[fi], casting="unsafe")
+        np.einsum("ik,kj->ij", seq.weights[:2].astype(work, copy=False), f.reshape(n, h * w), out=res)
+    return 1.0
+
+
 def _decode_axis_tile(
     tile: np.ndarray,
     plan: _AxisPlan,
@@ -906,6 +989,7 @@ def _decode_axis_tile(
     white_black_mid: np.ndarray | None,
     scratch: Any,
     sample_rows: np.ndarray | None = None,
+    pixels: _TilePixels | None = None,
 ) -> int:
     """Decode one axis on a tile into ``out`` (views of the outputs' rows); ``sample_rows``: the
     tile's rows kept for the self-check (into ``out["sample_coordinate"]``, ``out["sample_centre"]``).
@@ -929,6 +1013,7 @@ def _decode_axis_tile(
             f"{plan.name}{i}",
             modulation_dst=out["modulation"] if plan.final == (i,) else None,
             noise_dst=out["noise"] if plan.sequences[i].need_noise else None,
+            pixels=pixels,
         )
         dark |= r.modulation < min_mod
     first_total: np.ndarray | None = None
@@ -936,7 +1021,7 @@ def _decode_axis_tile(
     if plan.axis.phase:
         first = results.get(0)
         if first is None:  # the gray threshold (and the mean map) need the first sequence
-            first = _phase_tile(tile, plan.sequences[0], exact, scratch, f"{plan.name}0")
+            first = _phase_tile(tile, plan.sequences[0], exact, scratch, f"{plan.name}0", pixels=pixels)
         first_total = first.total
     mean = out["mean"]
     if first_total is not None:
