@@ -53,6 +53,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from metrology.core import decode as decode_module  # noqa: E402
+from metrology.core import decode_kernels  # noqa: E402
 from metrology.core.allocation import retain_freed_memory  # noqa: E402
 from metrology.core.filters import FilterOptions  # noqa: E402
 from metrology.core.geometry.crossed_axes import (  # noqa: E402
@@ -79,6 +81,16 @@ def synthetic_pair(width: int, height: int, seed: int = 0) -> tuple[Rig, np.ndar
         return np.clip(np.round(images), 0, 255).astype(np.uint8)
 
     return rig, stack(0.0), stack(40.0)
+
+
+def numpy_kernel(func):
+    """``func()`` with the fused path's numpy kernel (``decode_rows``, as a ``gcps measure`` process
+    runs it) instead of the compiled one."""
+    decode_module.COMPILED = False
+    try:
+        return func()
+    finally:
+        decode_module.COMPILED = None
 
 
 def median_time(func, repeats: int) -> float:
@@ -123,6 +135,9 @@ def run_size(width: int, height: int, repeats: int, with_opencv: bool) -> dict:
         "memory bound (copy 15 B/px)": lambda: np.copyto(touched_out, touched),
         "decode + triangulate vs kept reference": lambda: measure(
             rig, obj_stack, reference=bare_reference, options=bare
+        ),
+        "  same, numpy kernel": lambda: numpy_kernel(
+            lambda: measure(rig, obj_stack, reference=bare_reference, options=bare)
         ),
         "  codec self-check (8 row pairs)": lambda: check_gcps_v1_sample(obj_stack, None, rig.nlp),
         "  same, 1 thread": lambda: measure(rig, obj_stack, reference=bare_reference, options=bare, threads=1),
@@ -197,6 +212,8 @@ def main() -> None:
         help="leave glibc's defaults (freed frames go back to the kernel and page-fault when reused)",
     )
     args = parser.parse_args()
+    # numba imported and the compiled kernel loaded, as in a Celery worker (jobs.handlers.preload_job_code)
+    decode_kernels.warm()
     if not args.release_freed_memory:
         print(f"freed memory kept for reuse (metrology.core.allocation): {retain_freed_memory()}")
     results = []
