@@ -23,6 +23,7 @@ import argparse
 import contextlib
 import threading
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from metrology.commands.common import (
@@ -41,6 +42,9 @@ if TYPE_CHECKING:
     from metrology.core.measure import MeasureOptions, Reference
 
 MESH_SUFFIXES = (".ply", ".stl", ".obj")
+READER = "gcps-measure/read_capture/1"
+"""The reader of a kept reference's key (:func:`~metrology.core.reference_cache.files_reference_key`):
+how ``gcps measure`` turns a capture's files into frames (:func:`read_capture`)."""
 
 
 def register(subparsers: Any) -> None:
@@ -93,15 +97,32 @@ def prepare_while_reading(
     return thread
 
 
+def keyed_by_files(path: str, model: GeometryModel) -> bool:
+    """Whether the reference capture at ``path`` is kept by its files' digest: any capture that
+    exists, but a multi-exposure one on a one-camera rig (whose frames decide how the object is
+    measured: read first, kept by its frames' digest)."""
+    from metrology.core.codecs.stack import is_exposure_capture
+
+    if not Path(path).exists():
+        return False  # read_capture says so
+    if model.cameras > 1:
+        return True
+    try:
+        return not is_exposure_capture(path)
+    except ValueError:  # read_capture says what is wrong with it
+        return False
+
+
 def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     """Read the rig and the captures, measure (the pipeline), write the outputs; the summary."""
     import numpy as np
 
     from metrology.core.codecs.check import summary_of
+    from metrology.core.codecs.stack import ExposureStack
     from metrology.core.io import atomic_path, write_height_npy
     from metrology.core.measure import exposure_inputs, uses_fused_gcps_v1
     from metrology.core.mesh import surface_mesh, write_mesh_file
-    from metrology.core.reference_cache import cached_reference
+    from metrology.core.reference_cache import cached_reference, cached_reference_of_files
     from metrology.pipeline.measure import measure
 
     if not (args.out or args.xyz):
@@ -134,33 +155,59 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
         preparing = prepare_while_reading(model, None, options.geometry)
     elif codec is not None:
         preparing = prepare_while_reading(model, (codec.projector_width, codec.projector_height), options.geometry)
-    reference_images = None if args.reference is None else read_capture(args.reference, codec, model, "reference")
     obj = read_capture(args.object, codec, model, "object")
+    reference_path = args.reference
+    by_files = reference_path is not None and keyed_by_files(reference_path, model)
+    reference_images = None
+    if reference_path is not None and not by_files:
+        reference_images = read_capture(reference_path, codec, model, "reference")
     if preparing is not None:
         preparing.join()  # the prepared model is in the model's cache: measure() finds it there
     # a multi-exposure capture takes both through the codec path: the kept reference too
-    obj, reference_images, codec = exposure_inputs(obj, reference_images, codec)
+    captured_obj = obj
+    obj, reference_images, measure_codec = exposure_inputs(obj, reference_images, codec)
     read_s = time.perf_counter() - started
     reference_cache: dict[str, Any] | None = None
 
+    read_frames: list[Any] = []
+
+    def read_reference() -> Any:
+        """The reference's frames as the measurement takes them (read once, on a miss of the cache)."""
+        if not read_frames:
+            images = read_capture(str(reference_path), codec, model, "reference")
+            read_frames.append(exposure_inputs(captured_obj, images, codec)[1])
+        return read_frames[0]
+
     def reference_for(opts: MeasureOptions) -> Reference | None:
         """The decoded reference, from the local cache when a process decoded it before
-        (docs/command-line.md, "Kept references")."""
+        (docs/command-line.md, "Kept references"): keyed by the capture's files, so that a hit
+        reads no image."""
         nonlocal reference_cache
-        if reference_images is None:
+        if reference_path is None:
             return None
-        kept, reference_cache = cached_reference(model, reference_images, codec, opts)
+        if by_files:
+            reader = {
+                "reader": READER,
+                "codec": None if codec is None else codec.to_dict(),
+                "object_exposures": isinstance(captured_obj, ExposureStack),
+            }
+            kept, reference_cache = cached_reference_of_files(
+                model, reference_path, read_reference, reader, measure_codec, opts
+            )
+        else:
+            assert reference_images is not None
+            kept, reference_cache = cached_reference(model, reference_images, measure_codec, opts)
         return kept
 
     result = None
     if ply_mesh and not asked_sigma:  # a PLY mesh carries sigma_mm per vertex when the codec gives it
         try:
-            result = measure(model, reference_for(options.with_sigma()), obj, options.with_sigma(), codec=codec)
+            result = measure(model, reference_for(options.with_sigma()), obj, options.with_sigma(), codec=measure_codec)
         except ValueError as exc:
             if "uncertainty" not in str(exc):
                 raise
     if result is None:
-        result = measure(model, reference_for(options), obj, options, codec=codec)
+        result = measure(model, reference_for(options), obj, options, codec=measure_codec)
     measurement = result.measurement
     z = result.z_mm
     points = measurement.points_mm() if (args.xyz or args.mesh) else None
@@ -220,12 +267,16 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
             "gray_only_valid_pixels": gray.get("valid_pixels"),
             "gray_only": gray or None,
             "reference_plane": data["reference_plane"],
-            "timings_s": {"read_s": read_s, **result.timings_s, **_reference_timings(reference_cache)},
+            "timings_s": {
+                "read_s": read_s + (reference_cache or {}).get("read_s", 0.0),  # a missed reference's read too
+                **result.timings_s,
+                **_reference_timings(reference_cache),
+            },
             "reference_cache": reference_cache,
             "options": options.to_dict(),  # as asked (a PLY mesh's sigma is computed beside them)
             "software_version": result.software_version,
             "rig": model.to_dict(),
-            "codec": result.codec_name if codec is None else codec.to_dict(),
+            "codec": result.codec_name if measure_codec is None else measure_codec.to_dict(),
             "codec_check": summary["codec_check"],
         }
         if "decoding" in data:

@@ -409,10 +409,12 @@ class Measurement:
     def points_per_pairs(self) -> dict[str, int] | None:
         """The measured points per pair combination of :meth:`pairs_map`
         (:func:`~metrology.core.geometry.stereo_fusion.points_per_pairs`), None for one camera."""
+        pairs = self.pairs_map()
+        if pairs is None:
+            return None
         from metrology.core.geometry.stereo_fusion import points_per_pairs  # its kernels: numba, on demand
 
-        pairs = self.pairs_map()
-        return None if pairs is None else points_per_pairs(pairs)
+        return points_per_pairs(pairs)
 
     def points_mm(self, dtype: npt.DTypeLike = np.float32) -> np.ndarray:
         """``(H, W, 3)`` points of ``dtype``, mm, in the model frame (:attr:`GeometryModel.frame`);
