@@ -15,6 +15,11 @@ noisy shared machine affects all rows alike, each after flushing the caches):
   ``both stacks`` decodes the reference inside the timed call too (and estimates its
   blur); ``no blur-bias bound`` leaves out the filter's crease test
   (``max_blur_bias_codes=0``), the cost of that test by difference.
+* ``same, numpy kernel``: the same with the fused path's numpy kernel
+  (:func:`~metrology.core.decode.decode_rows` then the model's ``triangulate_rows``), as a ``gcps
+  measure`` process runs it; the other rows take the compiled kernel
+  (:mod:`metrology.core.decode_kernels`, the same numbers), loaded before timing as a Celery
+  worker has it (it imports numba as it starts).
 * ``codec self-check (8 row pairs)``: what the fused path adds for the codec self-check
   (:func:`~metrology.core.measure.check_gcps_v1_sample`: the fused kernel's intermediate values
   on 8 pairs of rows, then checked); it is inside the ``decode + triangulate`` rows, this row alone says

@@ -310,8 +310,10 @@ def _kept_or_prepared(
     start = time.perf_counter()
     reference = prepare_reference(model, images, codec, options, threads=threads)
     report.update(hit=False, decode_s=time.perf_counter() - start)
+    # without gray-code-only heights (in the key) the gray surface is never read: not stored (half the entry)
+    kept = reference if options.gray_only else dataclasses.replace(reference, gray_surface=None)
     try:
-        stored = reference_arrays(reference)
+        stored = reference_arrays(kept)
     except TypeError:  # a surface this module cannot store: measured, not kept
         return reference, report
     if keep():

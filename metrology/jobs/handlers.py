@@ -95,7 +95,7 @@ def preload_job_code(**_: object) -> None:
 
     A receiver of Celery's ``worker_init`` (connected by the jobs app): the worker pays for these
     imports once as it starts, before its pool forks (the children inherit them), rather than on
-    its first job.
+    its first job; so for the compiled decoding kernel (:func:`metrology.core.decode_kernels.warm`).
     """
     for kind in sorted(_HANDLERS):
         handler_for(kind)
@@ -103,3 +103,6 @@ def preload_job_code(**_: object) -> None:
         package = importlib.import_module(name)
         for module in pkgutil.walk_packages(package.__path__, f"{name}."):
             importlib.import_module(module.name)
+    # numba is now imported: the fused gcps-v1 path takes the compiled decoding kernel
+    # (metrology.core.decode.use_compiled), whose machine code is loaded (or compiled) here too
+    importlib.import_module("metrology.core.decode_kernels").warm()

@@ -143,3 +143,19 @@ def test_files_key_hits_without_reading_and_any_changed_file_misses(stacks, tmp_
     assert missed.codes.shape == RIG.shape
     local_cache.wait()  # the miss's entry is written on a background thread
     assert cached_reference_of_files(RIG, capture, never, reader)[1]["hit"]
+
+
+def test_without_gray_only_the_gray_surface_is_not_kept(stacks, tmp_path, monkeypatch) -> None:
+    """The options (in the key) ask for no gray-code-only heights: the entry leaves out the gray
+    surface, and the heights measured against the kept reference are the same."""
+    monkeypatch.setenv(local_cache.DIR_ENV, str(tmp_path))
+    options = MeasureOptions(gray_only=False)
+    reference, first = cached_reference(RIG, stacks[0], None, options)
+    local_cache.wait()
+    kept, second = cached_reference(RIG, stacks[0], None, options)
+    assert not first["hit"] and second["hit"]
+    assert reference.gray_surface is not None and kept.gray_surface is None
+    np.testing.assert_array_equal(
+        measure(RIG, stacks[1], reference=kept, options=options).z_mm,
+        measure(RIG, stacks[1], reference=reference, options=options).z_mm,
+    )
