@@ -15,6 +15,11 @@ noisy shared machine affects all rows alike, each after flushing the caches):
   ``both stacks`` decodes the reference inside the timed call too (and estimates its
   blur); ``no blur-bias bound`` leaves out the filter's crease test
   (``max_blur_bias_codes=0``), the cost of that test by difference.
+* ``same, numpy kernel``: the same with the fused path's numpy kernel
+  (:func:`~metrology.core.decode.decode_rows` then the model's ``triangulate_rows``), as a ``gcps
+  measure`` process runs it; the other rows take the compiled kernel
+  (:mod:`metrology.core.decode_kernels`, the same numbers), loaded before timing as a Celery
+  worker has it (it imports numba as it starts).
 * ``codec self-check (8 row pairs)``: what the fused path adds for the codec self-check
   (:func:`~metrology.core.measure.check_gcps_v1_sample`: the fused kernel's intermediate values
   on 8 pairs of rows, then checked); it is inside the ``decode + triangulate`` rows, this row alone says
@@ -53,6 +58,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from metrology.core import decode as decode_module  # noqa: E402
+from metrology.core import decode_kernels  # noqa: E402
 from metrology.core.allocation import retain_freed_memory  # noqa: E402
 from metrology.core.filters import FilterOptions  # noqa: E402
 from metrology.core.geometry.crossed_axes import (  # noqa: E402
@@ -79,6 +86,16 @@ def synthetic_pair(width: int, height: int, seed: int = 0) -> tuple[Rig, np.ndar
         return np.clip(np.round(images), 0, 255).astype(np.uint8)
 
     return rig, stack(0.0), stack(40.0)
+
+
+def numpy_kernel(func):
+    """``func()`` with the fused path's numpy kernel (``decode_rows``, as a ``gcps measure`` process
+    runs it) instead of the compiled one."""
+    decode_module.COMPILED = False
+    try:
+        return func()
+    finally:
+        decode_module.COMPILED = None
 
 
 def median_time(func, repeats: int) -> float:
@@ -123,6 +140,9 @@ def run_size(width: int, height: int, repeats: int, with_opencv: bool) -> dict:
         "memory bound (copy 15 B/px)": lambda: np.copyto(touched_out, touched),
         "decode + triangulate vs kept reference": lambda: measure(
             rig, obj_stack, reference=bare_reference, options=bare
+        ),
+        "  same, numpy kernel": lambda: numpy_kernel(
+            lambda: measure(rig, obj_stack, reference=bare_reference, options=bare)
         ),
         "  codec self-check (8 row pairs)": lambda: check_gcps_v1_sample(obj_stack, None, rig.nlp),
         "  same, 1 thread": lambda: measure(rig, obj_stack, reference=bare_reference, options=bare, threads=1),
@@ -197,6 +217,8 @@ def main() -> None:
         help="leave glibc's defaults (freed frames go back to the kernel and page-fault when reused)",
     )
     args = parser.parse_args()
+    # numba imported and the compiled kernel loaded, as in a Celery worker (jobs.handlers.preload_job_code)
+    decode_kernels.warm()
     if not args.release_freed_memory:
         print(f"freed memory kept for reuse (metrology.core.allocation): {retain_freed_memory()}")
     results = []

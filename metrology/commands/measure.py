@@ -23,6 +23,8 @@ import argparse
 import contextlib
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from metrology.commands.common import (
@@ -37,10 +39,14 @@ from metrology.commands.common import (
 )
 
 if TYPE_CHECKING:
+    from metrology.core.codecs.model import Codec
     from metrology.core.geometry.base import GeometryModel, GeometryOptions
     from metrology.core.measure import MeasureOptions, Reference
 
 MESH_SUFFIXES = (".ply", ".stl", ".obj")
+READER = "gcps-measure/read_capture/1"
+"""The reader of a kept reference's key (:func:`~metrology.core.reference_cache.files_reference_key`):
+how ``gcps measure`` turns a capture's files into frames (:func:`read_capture`)."""
 
 
 def register(subparsers: Any) -> None:
@@ -93,6 +99,28 @@ def prepare_while_reading(
     return thread
 
 
+def keyed_by_files(path: str, model: GeometryModel) -> bool:
+    """Whether the reference capture at ``path`` is kept by its files' digest: any capture that
+    exists, but a multi-exposure one on a one-camera rig (whose frames decide how the object is
+    measured: read first, kept by its frames' digest)."""
+    if not Path(path).exists():
+        return False  # read_capture says so
+    return model.cameras > 1 or not is_exposures(path, model)
+
+
+def is_exposures(path: str, model: GeometryModel) -> bool:
+    """Whether :func:`read_capture` reads the capture at ``path`` as a multi-exposure capture (a
+    one-camera rig, ``exposures.json`` at its top); False where it would fail (it says why)."""
+    from metrology.core.codecs.stack import is_exposure_capture
+
+    if model.cameras > 1 or not Path(path).exists():
+        return False
+    try:
+        return is_exposure_capture(path)
+    except ValueError:
+        return False
+
+
 def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     """Read the rig and the captures, measure (the pipeline), write the outputs; the summary."""
     import numpy as np
@@ -101,7 +129,7 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     from metrology.core.io import atomic_path, write_height_npy
     from metrology.core.measure import exposure_inputs, uses_fused_gcps_v1
     from metrology.core.mesh import surface_mesh, write_mesh_file
-    from metrology.core.reference_cache import cached_reference
+    from metrology.core.reference_cache import cached_reference, cached_reference_of_files
     from metrology.pipeline.measure import measure
 
     if not (args.out or args.xyz):
@@ -134,33 +162,76 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
         preparing = prepare_while_reading(model, None, options.geometry)
     elif codec is not None:
         preparing = prepare_while_reading(model, (codec.projector_width, codec.projector_height), options.geometry)
-    reference_images = None if args.reference is None else read_capture(args.reference, codec, model, "reference")
-    obj = read_capture(args.object, codec, model, "object")
+    reference_path = args.reference
+    by_files = reference_path is not None and keyed_by_files(reference_path, model)
+    object_exposures = is_exposures(args.object, model)
+    reference_cache: dict[str, Any] | None = None
+    captured: list[Any] = []  # the object as read
+    read_frames: list[Any] = []
+
+    def read_reference() -> Any:
+        """The reference's frames as the measurement takes them (read once, on a miss of the cache)."""
+        if not read_frames:
+            images = read_capture(str(reference_path), codec, model, "reference")
+            read_frames.append(exposure_inputs(captured[0] if captured else None, images, codec)[1])
+        return read_frames[0]
+
+    def reference_for(opts: MeasureOptions, measure_codec: Codec | None) -> Reference | None:
+        """The decoded reference, from the local cache when a process decoded it before
+        (docs/command-line.md, "Kept references"): keyed by the capture's files, so that a hit
+        reads no image."""
+        nonlocal reference_cache
+        if reference_path is None:
+            return None
+        if by_files:
+            reader = {
+                "reader": READER,
+                "codec": None if codec is None else codec.to_dict(),
+                "object_exposures": object_exposures,
+            }
+            kept, reference_cache = cached_reference_of_files(
+                model, reference_path, read_reference, reader, measure_codec, opts
+            )
+        else:
+            assert reference_images is not None
+            kept, reference_cache = cached_reference(model, reference_images, measure_codec, opts)
+        return kept
+
+    # the kept reference is loaded (or read and decoded) on a thread while the object is read, when
+    # neither is a multi-exposure capture (the codec is then the captures')
+    early = by_files and not object_exposures and not (ply_mesh and not asked_sigma)
+    pending = ThreadPoolExecutor(1, thread_name_prefix="gcps-reference") if early else None
+    kept_early = None if pending is None else pending.submit(reference_for, options, codec)
+    try:
+        obj = read_capture(args.object, codec, model, "object")
+    finally:
+        if pending is not None:
+            pending.shutdown(wait=False)
+    captured.append(obj)
+    reference_images = None
+    if reference_path is not None and not by_files:
+        reference_images = read_capture(reference_path, codec, model, "reference")
     if preparing is not None:
         preparing.join()  # the prepared model is in the model's cache: measure() finds it there
     # a multi-exposure capture takes both through the codec path: the kept reference too
-    obj, reference_images, codec = exposure_inputs(obj, reference_images, codec)
+    obj, reference_images, measure_codec = exposure_inputs(obj, reference_images, codec)
     read_s = time.perf_counter() - started
-    reference_cache: dict[str, Any] | None = None
-
-    def reference_for(opts: MeasureOptions) -> Reference | None:
-        """The decoded reference, from the local cache when a process decoded it before
-        (docs/command-line.md, "Kept references")."""
-        nonlocal reference_cache
-        if reference_images is None:
-            return None
-        kept, reference_cache = cached_reference(model, reference_images, codec, opts)
-        return kept
+    if kept_early is not None:
+        assert measure_codec is codec
+        kept = kept_early.result()
+        read_s = time.perf_counter() - started  # the reference's too, read beside the object's
 
     result = None
     if ply_mesh and not asked_sigma:  # a PLY mesh carries sigma_mm per vertex when the codec gives it
         try:
-            result = measure(model, reference_for(options.with_sigma()), obj, options.with_sigma(), codec=codec)
+            reference = reference_for(options.with_sigma(), measure_codec)
+            result = measure(model, reference, obj, options.with_sigma(), codec=measure_codec)
         except ValueError as exc:
             if "uncertainty" not in str(exc):
                 raise
     if result is None:
-        result = measure(model, reference_for(options), obj, options, codec=codec)
+        reference = kept if kept_early is not None else reference_for(options, measure_codec)
+        result = measure(model, reference, obj, options, codec=measure_codec)
     measurement = result.measurement
     z = result.z_mm
     points = measurement.points_mm() if (args.xyz or args.mesh) else None
@@ -220,12 +291,16 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
             "gray_only_valid_pixels": gray.get("valid_pixels"),
             "gray_only": gray or None,
             "reference_plane": data["reference_plane"],
-            "timings_s": {"read_s": read_s, **result.timings_s, **_reference_timings(reference_cache)},
+            "timings_s": {
+                "read_s": read_s + (reference_cache or {}).get("read_s", 0.0),  # a missed reference's read too
+                **result.timings_s,
+                **_reference_timings(reference_cache),
+            },
             "reference_cache": reference_cache,
             "options": options.to_dict(),  # as asked (a PLY mesh's sigma is computed beside them)
             "software_version": result.software_version,
             "rig": model.to_dict(),
-            "codec": result.codec_name if codec is None else codec.to_dict(),
+            "codec": result.codec_name if measure_codec is None else measure_codec.to_dict(),
             "codec_check": summary["codec_check"],
         }
         if "decoding" in data:

@@ -38,8 +38,9 @@ from __future__ import annotations
 
 import functools
 import math
+import sys
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -48,6 +49,9 @@ import numpy.typing as npt
 from metrology.core.option_checks import check_number
 from metrology.core.patterns import N_GRAY_BITS, N_PHASE_STEPS, PATTERN_NAMES, binary_from_gray
 from metrology.core.tiling import run_tiled, thread_scratch
+
+if TYPE_CHECKING:
+    from metrology.core.geometry.base import HeightTerms
 
 
 def _derive_dphi_table() -> np.ndarray:
@@ -414,6 +418,111 @@ def decode_rows(
     if gray_out is not None:
         cv2.LUT(gray_word, _gray_only_codes_lut(nlp), dst=gray_out)
         gray_out += cv2.LUT(modulated.view(np.uint8), _NAN_UNLESS_TRUE_LUT, dst=word)
+
+
+COMPILED_MIN_PX = 1 << 25
+"""Frames of at least this many pixels (32 Mpx) take the compiled kernel even in a process that has not
+imported numba: there one decode saves more than numba's import costs (0.3-0.65 s)."""
+COMPILED: bool | None = None
+"""Force the kernel of :func:`decode_tile`: True the compiled one (8-bit stacks), False numpy's;
+None (default) decides with :func:`use_compiled`. For tests and benchmarks."""
+
+
+def use_compiled(dtype: npt.DTypeLike, pixels: int) -> bool:
+    """Whether :func:`decode_tile` takes the compiled kernel (:mod:`metrology.core.decode_kernels`)
+    for a stack of ``dtype`` and frames of ``pixels``: 8-bit stacks only, where numba is already
+    imported in this process (a Celery worker preloads it: ``jobs.handlers.preload_job_code``) or
+    the frame is large (:data:`COMPILED_MIN_PX`); numpy's otherwise (a ``gcps measure`` process
+    would pay more for importing numba than the kernel saves). Both give the same numbers."""
+    if np.dtype(dtype) != np.uint8:
+        return False
+    if COMPILED is not None:
+        return COMPILED
+    return "numba" in sys.modules or pixels >= COMPILED_MIN_PX
+
+
+def decode_tile(
+    stack: np.ndarray,
+    phase_images: np.ndarray,
+    rows: slice,
+    nlp: int,
+    min_modulation: float,
+    consistency_codes: float,
+    field_margin_codes: float,
+    codes: np.ndarray,
+    *,
+    compiled: bool,
+    gray_codes: np.ndarray | None = None,
+    visibility: np.ndarray | None = None,
+    heights: HeightTerms | None = None,
+    z_mm: np.ndarray | None = None,
+) -> bool:
+    """Decode the rows ``rows`` of a gcps-v1 stack into the full-frame outputs: :func:`decode_rows`,
+    or with ``compiled`` (8-bit stacks) the compiled kernel
+    (:func:`metrology.core.decode_kernels.gcps_v1_rows`: the same numbers in one pass over the
+    frames), which also writes the heights in the same pass.
+
+    ``stack`` (11, H, W); ``phase_images`` (4, H, W): its phase frames (float32 once smoothed);
+    ``codes``, ``gray_codes``, ``visibility`` (H, W) float32 as :func:`decode_rows`' ``codes_out``,
+    ``gray_out``, ``visibility_out``; ``heights``: the model's closed form over the frame
+    (:meth:`~metrology.core.geometry.base.PreparedGeometry.height_terms`), ``z_mm`` (H, W) float32.
+    Returns True when the rows of ``z_mm`` were written (the caller triangulates them otherwise).
+    """
+    outputs = [a for a in (codes, gray_codes, visibility, z_mm) if a is not None]
+    if heights is not None:
+        outputs += [heights.ref_codes, heights.slope_mm]
+    eight_bit = stack.dtype == np.uint8 and phase_images.dtype == np.uint8
+    if not (compiled and eight_bit and stack.flags.c_contiguous and all(a.flags.c_contiguous for a in outputs)):
+        decode_rows(
+            stack[:N_GRAY_BITS, rows],
+            phase_images[:, rows],
+            nlp,
+            min_modulation,
+            consistency_codes,
+            field_margin_codes,
+            codes[rows],
+            gray_out=None if gray_codes is None else gray_codes[rows],
+            visibility_out=None if visibility is None else visibility[rows],
+        )
+        return False
+    from metrology.core import decode_kernels as kernels
+
+    phase_lut, quadrant_lut = kernels.phase_tables()
+    empty = np.empty((0, 0), np.float32)
+    zero = np.float32(0)
+    ref_codes, slope, q, d, L, z = empty, empty, zero, zero, zero, empty
+    with_heights = heights is not None and z_mm is not None
+    if heights is not None and z_mm is not None:
+        ref_codes, slope, z = heights.ref_codes, heights.slope_mm, z_mm
+        q, d, L = heights.q, heights.d_mm, heights.L_mm
+    kernels.gcps_v1_rows(
+        stack,
+        rows.start,
+        rows.stop,
+        phase_lut,
+        quadrant_lut,
+        _K_LUT,
+        _ROW8_FROM_GRAY_LUT,
+        _BINARY_FROM_GRAY_F32_LUT,
+        np.float32(min_modulation),
+        np.float32(0.5 + consistency_codes),
+        np.float32(nlp / 2),
+        np.float32(nlp / 2 - field_margin_codes),
+        codes,
+        _gray_only_codes_lut(nlp),
+        empty if gray_codes is None else gray_codes,
+        gray_codes is not None,
+        empty if visibility is None else visibility,
+        visibility is not None,
+        ref_codes,
+        slope,
+        q,
+        d,
+        L,
+        z,
+        with_heights,
+    )
+    return with_heights
 
 
 def set_nan_where_false(values: np.ndarray, keep: np.ndarray, threads: int | None = None) -> None:

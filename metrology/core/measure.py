@@ -67,9 +67,11 @@ from metrology.core.decode import (
     GcpsV1Options,
     decode_rows,
     decode_stack,
+    decode_tile,
     default_min_modulation,
     set_nan_where_false,
     smooth_fringes,
+    use_compiled,
     validate_stack,
 )
 from metrology.core.filters import (
@@ -407,10 +409,12 @@ class Measurement:
     def points_per_pairs(self) -> dict[str, int] | None:
         """The measured points per pair combination of :meth:`pairs_map`
         (:func:`~metrology.core.geometry.stereo_fusion.points_per_pairs`), None for one camera."""
+        pairs = self.pairs_map()
+        if pairs is None:
+            return None
         from metrology.core.geometry.stereo_fusion import points_per_pairs  # its kernels: numba, on demand
 
-        pairs = self.pairs_map()
-        return None if pairs is None else points_per_pairs(pairs)
+        return points_per_pairs(pairs)
 
     def points_mm(self, dtype: npt.DTypeLike = np.float32) -> np.ndarray:
         """``(H, W, 3)`` points of ``dtype``, mm, in the model frame (:attr:`GeometryModel.frame`);
@@ -1159,21 +1163,27 @@ def _fused_pass(
     needs_visibility = filters.edge_band_px > 0 and filters.min_visibility_ratio > 0
     visibility = np.empty((height, width), np.float32) if needs_visibility else None
 
+    compiled = use_compiled(stack.dtype, height * width) and phase.dtype == np.uint8
+    terms = prepared.height_terms(surface) if compiled and z_mm is not None else None
+
     def run(rows: slice) -> None:
-        l = codes[rows]
-        decode_rows(
-            stack[:N_GRAY_BITS, rows],
-            phase[:, rows],
+        done = decode_tile(
+            stack,
+            phase,
+            rows,
             nlp,
             min_modulation,
             gcps.consistency_codes,
             filters.field_margin_codes,
-            l,
-            gray_out=None if gray_codes is None else gray_codes[rows],
-            visibility_out=None if visibility is None else visibility[rows],
+            codes,
+            compiled=compiled,
+            gray_codes=gray_codes,
+            visibility=visibility,
+            heights=terms,
+            z_mm=z_mm,
         )
-        if z_mm is not None:
-            prepared.triangulate_rows(rows, l, None, reference=surface, height_out=z_mm[rows])
+        if z_mm is not None and not done:
+            prepared.triangulate_rows(rows, codes[rows], None, reference=surface, height_out=z_mm[rows])
 
     run_tiled(run, height, width, threads)
     return _FusedPass(codes=codes, z_mm=z_mm, visibility=visibility, gray_codes=gray_codes)

@@ -2,14 +2,22 @@
 reference capture does not decode it again (``gcps measure``).
 
 A :class:`~metrology.core.measure.Reference` is stored in the per-host local cache
-(:mod:`metrology.core.local_cache`, kind ``reference``) under the SHA-256 of the stack's bytes
-(with its shape and dtype), the rig's model, the codec, the measurement options and the
-software version (:func:`reference_key`): a different capture, rig, codec, option or version
-decodes again. What is stored (:func:`reference_arrays`): the reference's codes (float32), its
-unreliable-pixel mask packed to bits (``np.packbits``), the blur variance, and the model's
-reference surface (and the gray-code surface of the fused gcps-v1 path) field by field, each
-array once even where two fields share it. The model, codec and geometry options come from
-the caller (they are in the key), so a read reference passes the measurement's checks.
+(:mod:`metrology.core.local_cache`, kind ``reference``) under one of two keys, each with the rig's
+model, the codec, the measurement options and the software version:
+
+- the capture's **files** (:func:`cached_reference_of_files`, what ``gcps measure`` uses): the
+  SHA-256 of the files as stored (:func:`~metrology.core.io.digests.capture_files_digest`: the
+  compressed PNGs, not the decoded frames) and the reader's options (:func:`files_reference_key`);
+  a hit reads no image, a miss reads and decodes them;
+- the decoded **frames** (:func:`cached_reference`, for frames already in memory): the SHA-256 of
+  the stack's bytes with its shape and dtype (:func:`stack_digest`, :func:`reference_key`).
+
+A different capture, rig, codec, option or version decodes again. What is stored
+(:func:`reference_arrays`): the reference's codes (float32), its unreliable-pixel mask packed to
+bits (``np.packbits``), the blur variance, and the model's reference surface (and the gray-code
+surface of the fused gcps-v1 path) field by field, each array once even where two fields share
+it. The model, codec and geometry options come from the caller (they are in the key), so a read
+reference passes the measurement's checks.
 
 A failed read or write only costs the decode (the local cache warns, never raises).
 """
@@ -20,7 +28,9 @@ import dataclasses
 import hashlib
 import importlib
 import json
+import os
 import time
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -30,6 +40,7 @@ from metrology.core import local_cache
 from metrology.core.codecs.model import Codec
 from metrology.core.codecs.stack import ExposureStack
 from metrology.core.geometry.base import GeometryModel, ReferenceSurface
+from metrology.core.io.digests import capture_files_digest
 from metrology.core.measure import MeasureOptions, Reference, prepare_reference
 from metrology.core.tiling import map_threads
 
@@ -190,26 +201,101 @@ def cached_reference(
     *,
     threads: int | None = None,
 ) -> tuple[Reference, dict[str, Any]]:
-    """:func:`~metrology.core.measure.prepare_reference`, through the local cache.
+    """:func:`~metrology.core.measure.prepare_reference`, through the local cache, keyed by the
+    decoded frames (:func:`stack_digest`).
 
-    Returns the reference and what happened: ``{"hit": bool, "hash_s", "load_s" or "decode_s"}``
-    (seconds). A miss decodes, returns, and writes the entry on a background thread
-    (:func:`metrology.core.local_cache.store_later`; the interpreter waits for it at exit).
+    Returns the reference and what happened: ``{"hit": bool, "key": "frames", "hash_s", "load_s"
+    or "decode_s"}`` (seconds). A miss decodes, returns, and writes the entry on a background
+    thread (:func:`metrology.core.local_cache.store_later`; the interpreter waits for it at exit).
     """
     options = options or MeasureOptions()
     stack: ExposureStack | np.ndarray | tuple[np.ndarray, ...]
     if isinstance(images, (tuple, list)):  # one stack per camera: results on camera 0's grid
         stack = tuple(np.asarray(frames) for frames in images)
-        frame_shape = tuple(stack[0].shape[1:])
     elif isinstance(images, ExposureStack):
         stack = images
-        frame_shape = images.frame_shape
     else:
         stack = np.asarray(images)
-        frame_shape = tuple(stack.shape[1:])
     start = time.perf_counter()
     key = reference_key(model, stack_digest(stack), codec, options)
-    report: dict[str, Any] = {"hash_s": time.perf_counter() - start}
+    report: dict[str, Any] = {"key": "frames", "hash_s": time.perf_counter() - start}
+    return _kept_or_prepared(key, model, lambda: stack, codec, options, threads, report, lambda: True)
+
+
+def files_reference_key(
+    model: GeometryModel, files_digest: str, reader: Mapping[str, Any], codec: Codec | None, options: MeasureOptions
+) -> str:
+    """The local cache key of the reference of the capture whose files' digest is ``files_digest``
+    (:func:`~metrology.core.io.digests.capture_files_digest`), read by ``reader`` (the reader's
+    options: a JSON-ready description of how the files become frames)."""
+    return local_cache.entry_key(
+        KIND,
+        {
+            "capture_files_sha256": files_digest,
+            "reader": dict(reader),
+            "model": model.to_dict(),
+            "codec": None if codec is None else codec.to_dict(),
+            "options": options.to_dict(),
+        },
+    )
+
+
+def cached_reference_of_files(
+    model: GeometryModel,
+    capture: str | os.PathLike[str],
+    read: Callable[[], npt.ArrayLike | ExposureStack | tuple[np.ndarray, ...]],
+    reader: Mapping[str, Any],
+    codec: Codec | None = None,
+    options: MeasureOptions | None = None,
+    *,
+    threads: int | None = None,
+) -> tuple[Reference, dict[str, Any]]:
+    """:func:`~metrology.core.measure.prepare_reference` of the capture at ``capture`` (a folder or a
+    file), through the local cache, keyed by the capture's files
+    (:func:`~metrology.core.io.digests.capture_files_digest`) and ``reader`` (what ``read()`` does
+    with them) besides the rig, codec, options and version (:func:`files_reference_key`): a hit
+    reads no image; a miss calls ``read()`` for the frames, decodes them and keeps the reference
+    unless the files changed meanwhile (hashed again after the read).
+
+    Returns the reference and what happened: ``{"hit": bool, "key": "files", "hash_s", "load_s",
+    or "read_s" and "decode_s"}`` (seconds).
+
+    Raises
+    ------
+    OSError
+        If the capture's files cannot be read (``read()``'s own errors pass through).
+    """
+    options = options or MeasureOptions()
+    start = time.perf_counter()
+    digest = capture_files_digest(capture, threads)
+    key = files_reference_key(model, digest, reader, codec, options)
+    report: dict[str, Any] = {"key": "files", "hash_s": time.perf_counter() - start}
+
+    def frames() -> npt.ArrayLike | ExposureStack | tuple[np.ndarray, ...]:
+        start = time.perf_counter()
+        images = read()
+        report["read_s"] = time.perf_counter() - start
+        return images
+
+    def unchanged() -> bool:
+        return capture_files_digest(capture, threads) == digest
+
+    return _kept_or_prepared(key, model, frames, codec, options, threads, report, unchanged)
+
+
+def _kept_or_prepared(
+    key: str,
+    model: GeometryModel,
+    frames: Callable[[], npt.ArrayLike | ExposureStack | tuple[np.ndarray, ...]],
+    codec: Codec | None,
+    options: MeasureOptions,
+    threads: int | None,
+    report: dict[str, Any],
+    keep: Callable[[], bool],
+) -> tuple[Reference, dict[str, Any]]:
+    """The reference stored under ``key`` when it is there and fits the model's camera 0; else the
+    reference prepared from ``frames()``, stored under ``key`` when ``keep()``. ``report`` gets
+    ``hit`` and ``load_s`` or ``decode_s``."""
     start = time.perf_counter()
     arrays = local_cache.load(KIND, key)
     if arrays is not None:
@@ -217,18 +303,31 @@ def cached_reference(
             reference = reference_from_arrays(arrays, model, codec, options)
         except ValueError:
             reference = None
-        if reference is not None and reference.shape == frame_shape:
+        if reference is not None and tuple(reference.shape) == tuple(model.camera_shapes[0]):
             report.update(hit=True, load_s=time.perf_counter() - start)
             return reference, report
+    images = frames()
     start = time.perf_counter()
-    reference = prepare_reference(model, stack, codec, options, threads=threads)
+    reference = prepare_reference(model, images, codec, options, threads=threads)
     report.update(hit=False, decode_s=time.perf_counter() - start)
+    # without gray-code-only heights (in the key) the gray surface is never read: not stored (half the entry)
+    kept = reference if options.gray_only else dataclasses.replace(reference, gray_surface=None)
     try:
-        stored = reference_arrays(reference)
+        stored = reference_arrays(kept)
     except TypeError:  # a surface this module cannot store: measured, not kept
         return reference, report
-    local_cache.store_later(KIND, key, stored)
+    if keep():
+        local_cache.store_later(KIND, key, stored)
     return reference, report
 
 
-__all__ = ["KIND", "cached_reference", "reference_arrays", "reference_from_arrays", "reference_key", "stack_digest"]
+__all__ = [
+    "KIND",
+    "cached_reference",
+    "cached_reference_of_files",
+    "files_reference_key",
+    "reference_arrays",
+    "reference_from_arrays",
+    "reference_key",
+    "stack_digest",
+]

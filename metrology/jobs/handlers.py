@@ -95,8 +95,9 @@ def preload_job_code(**_: object) -> None:
 
     A receiver of Celery's ``worker_init`` (connected by the jobs app): the worker pays for these
     imports once as it starts, before its pool forks (the children inherit them), rather than on
-    its first job; so for the codec decoder's compiled kernel (:mod:`metrology.core.codecs.kernels`),
-    which it also loads.
+    its first job; so for the compiled decoding kernels (numba reads their disk cache), which it
+    also loads: :func:`metrology.core.decode_kernels.warm` (the fused gcps-v1 path) and
+    :func:`metrology.core.codecs.kernels.warm` (the codec decoder's phase sums).
     """
     for kind in sorted(_HANDLERS):
         handler_for(kind)
@@ -104,8 +105,7 @@ def preload_job_code(**_: object) -> None:
         package = importlib.import_module(name)
         for module in pkgutil.walk_packages(package.__path__, f"{name}."):
             importlib.import_module(module.name)
-    # the codec decoder's compiled kernel, loaded (numba reads its disk cache: 0.4-0.9 s) now
-    # rather than by the first decode of a job; loaded, the decoder uses it
-    from metrology.core.codecs import kernels
-
-    kernels.warm()
+    # numba is now imported: the decoders take their compiled kernels, loaded (or compiled) now
+    # rather than by the first decode of a job
+    for kernels in ("metrology.core.decode_kernels", "metrology.core.codecs.kernels"):
+        importlib.import_module(kernels).warm()

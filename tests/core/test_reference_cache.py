@@ -9,10 +9,13 @@ import pytest
 from metrology.core import local_cache
 from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.geometry.pinhole import PinholeReference
+from metrology.core.io import read_stack, write_stack
+from metrology.core.io.digests import capture_files_digest
 from metrology.core.measure import MeasureOptions, measure, prepare_reference
 from metrology.core.reference_cache import (
     KIND,
     cached_reference,
+    cached_reference_of_files,
     reference_arrays,
     reference_from_arrays,
     reference_key,
@@ -94,3 +97,65 @@ def test_second_call_hits_and_another_stack_or_option_misses(stacks, tmp_path, m
     )
     assert not cached_reference(RIG, stacks[0], None, changed)[1]["hit"]
     local_cache.wait()
+
+
+def test_files_key_hits_without_reading_and_any_changed_file_misses(stacks, tmp_path, monkeypatch) -> None:
+    """Keyed by the capture's files: a hit reads no image (``read`` is never called); a changed,
+    added or renamed file, another reader or another option misses."""
+    monkeypatch.setenv(local_cache.DIR_ENV, str(tmp_path / "cache"))
+    capture = tmp_path / "reference"
+    write_stack(stacks[0], capture)
+    reads: list[int] = []
+
+    def read() -> np.ndarray:
+        reads.append(1)
+        return read_stack(capture, rig=RIG).images
+
+    def never() -> np.ndarray:
+        raise AssertionError("a hit must not read the capture's images")
+
+    reader = {"reader": "test/1"}
+    reference, first = cached_reference_of_files(RIG, capture, read, reader)
+    local_cache.wait()
+    assert not first["hit"] and first["key"] == "files" and first["read_s"] > 0 and reads == [1]
+    kept, second = cached_reference_of_files(RIG, capture, never, reader)
+    assert second["hit"] and "read_s" not in second
+    _same(kept.codes, reference.codes)
+    _same(kept.surface.slope_mm, reference.surface.slope_mm)  # type: ignore[attr-defined]
+    assert not cached_reference_of_files(RIG, capture, read, {"reader": "test/2"})[1]["hit"]
+    assert not cached_reference_of_files(RIG, capture, read, reader, None, MeasureOptions(gray_only=False))[1]["hit"]
+
+    digest = capture_files_digest(capture)
+    (capture / "notes.txt").write_text("x")  # an added file
+    assert capture_files_digest(capture) != digest
+    (capture / "notes.txt").rename(capture / "notes2.txt")  # a renamed one
+    renamed = capture_files_digest(capture)
+    assert renamed != digest
+    (capture / "notes2.txt").unlink()
+    assert capture_files_digest(capture) == digest
+    changed = stacks[0].copy()
+    changed[7, 5, 5] ^= 1  # one grey level of one pixel of PS_0
+    write_stack(changed, capture)
+    assert capture_files_digest(capture) != digest
+    local_cache.wait()
+    missed, third = cached_reference_of_files(RIG, capture, read, reader)
+    assert not third["hit"] and len(reads) == 4
+    assert missed.codes.shape == RIG.shape
+    local_cache.wait()  # the miss's entry is written on a background thread
+    assert cached_reference_of_files(RIG, capture, never, reader)[1]["hit"]
+
+
+def test_without_gray_only_the_gray_surface_is_not_kept(stacks, tmp_path, monkeypatch) -> None:
+    """The options (in the key) ask for no gray-code-only heights: the entry leaves out the gray
+    surface, and the heights measured against the kept reference are the same."""
+    monkeypatch.setenv(local_cache.DIR_ENV, str(tmp_path))
+    options = MeasureOptions(gray_only=False)
+    reference, first = cached_reference(RIG, stacks[0], None, options)
+    local_cache.wait()
+    kept, second = cached_reference(RIG, stacks[0], None, options)
+    assert not first["hit"] and second["hit"]
+    assert reference.gray_surface is not None and kept.gray_surface is None
+    np.testing.assert_array_equal(
+        measure(RIG, stacks[1], reference=kept, options=options).z_mm,
+        measure(RIG, stacks[1], reference=reference, options=options).z_mm,
+    )

@@ -16,6 +16,7 @@ L > 2 its base-L reflected gray digits, shown as grey levels ``d / (L - 1)``) co
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import re
@@ -790,6 +791,13 @@ def gcps_v1_codec(width: int = 1024, height: int = 768, nlp: int = 128) -> Codec
     """
     if width <= 0 or height <= 0 or not 1 <= nlp <= 128:
         raise CodecError(f"gcps-v1 needs a positive projector size and nlp in 1..128, got {width}x{height}, {nlp}")
+    return _gcps_v1_codec(width, height, nlp)
+
+
+@functools.lru_cache(maxsize=32)
+def _gcps_v1_codec(width: int, height: int, nlp: int) -> Codec:
+    """:func:`gcps_v1_codec`, built once per size (every fused measurement's self-check asks for it:
+    0.25 ms of parsing each time); a codec is frozen."""
     word = width / nlp
     from metrology.core.patterns import PATTERN_NAMES
 

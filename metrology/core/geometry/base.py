@@ -242,6 +242,32 @@ class CombinedMaps:
     pairs: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class HeightTerms:
+    """The closed form of heights from light codes over a frame (Eqs. 14, 16, 17), for a kernel
+    that decodes and triangulates in one pass (:mod:`metrology.core.decode_kernels`):
+    ``D = slope (l - r) / (1 + q l)``, ``z = L D / (d + D)`` for a light code ``l``, float32 in that
+    order of operations (:meth:`PreparedGeometry.height_terms`).
+
+    Attributes
+    ----------
+    ref_codes : (H, W) float32 array
+        The reference codes ``r``, code units, NaN where the reference is not measured.
+    slope_mm : (H, W) float32 array
+        ``slope``, mm per code.
+    q : numpy.float32
+        ``q``, per code.
+    d_mm, L_mm : numpy.float32
+        ``d`` and ``L``, mm.
+    """
+
+    ref_codes: np.ndarray
+    slope_mm: np.ndarray
+    q: np.float32
+    d_mm: np.float32
+    L_mm: np.float32
+
+
 class ReferenceSurface(ABC):
     """A reference surface prepared from a capture of the reference plane, kept for many
     measurements. Model-specific and opaque to callers: build it with
@@ -433,6 +459,13 @@ class PreparedGeometry(ABC):
             If a required axis is None, or ``height_out`` is asked without a reference from
             a model that has no model plane.
         """
+
+    def height_terms(self, reference: ReferenceSurface | None) -> HeightTerms | None:
+        """The closed form of :meth:`triangulate_rows`' heights for ``u`` read as light codes over
+        the frame against ``reference`` (:class:`HeightTerms`), giving the same float32 heights; None
+        (the default) when the model has none, or reads ``u`` otherwise: the caller then calls
+        :meth:`triangulate_rows`."""
+        return None
 
     @abstractmethod
     def points_from_heights(self, z_mm: np.ndarray, reference: ReferenceSurface | None = None) -> np.ndarray:

@@ -36,6 +36,7 @@ from metrology.core.geometry.base import (
     GeometryError,
     GeometryModel,
     GeometryOptions,
+    HeightTerms,
     ImageAxes,
     ParameterField,
     PlaneCoordinates,
@@ -798,6 +799,18 @@ class PreparedCrossedAxes(PreparedGeometry):
             self.points_rows(rows, z, points_out)
         if sigma_in is not None and sigma_out is not None:
             self.sigma_rows(l, ref_codes, slope, sigma_in, sigma_out)
+
+    def height_terms(self, reference: ReferenceSurface | None) -> HeightTerms | None:
+        """:meth:`height_rows`' terms over the frame (light codes read directly: no code scale)."""
+        if self.code_scale_u is not None:
+            return None
+        if reference is None:
+            ref_codes, slope = self._model_codes, self._model_slope
+        elif isinstance(reference, CrossedAxesReference):
+            ref_codes, slope = reference.codes, reference.slope_mm
+        else:
+            return None
+        return HeightTerms(ref_codes=ref_codes, slope_mm=slope, q=self._q, d_mm=self._d, L_mm=self._L)
 
     def height_rows(self, l: np.ndarray, ref_codes: np.ndarray, slope_mm: np.ndarray, z_out: np.ndarray) -> None:
         """The in-place float32 kernel of Eqs. 14, 16, 17 on a tile (temporaries in the thread's scratch):

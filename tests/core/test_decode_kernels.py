@@ -1,0 +1,100 @@
+"""The compiled gcps-v1 kernel (metrology.core.decode_kernels) against the numpy kernel: the same
+float32 numbers, bit for bit, on every 8-bit pair of phase differences and through measure()."""
+
+import numpy as np
+import pytest
+
+from metrology.core import decode as decode_module
+from metrology.core.decode import decode_tile, use_compiled
+from metrology.core.filters import FilterOptions
+from metrology.core.geometry.crossed_axes import Rig
+from metrology.core.measure import MeasureOptions, measure, prepare_reference
+from tests.core.ideal_stacks import RIG, ideal_stack, plane_codes
+
+OUTPUTS = ("codes", "gray_codes", "visibility", "z_mm")
+
+
+def every_difference_stack(seed: int = 1) -> np.ndarray:
+    """An (11, 511, 511) uint8 stack whose pixels take every pair ``s = I1 - I3``, ``c = I0 - I2``
+    in -255..255 once, with random phase frames under that constraint and gray frames within 3
+    grey levels of the phase mean (so that every bit pattern occurs)."""
+    rng = np.random.default_rng(seed)
+    s, c = (a.ravel() for a in np.meshgrid(np.arange(-255, 256), np.arange(-255, 256), indexing="ij"))
+    p3 = rng.integers(np.maximum(0, -s), np.minimum(255, 255 - s) + 1)
+    p2 = rng.integers(np.maximum(0, -c), np.minimum(255, 255 - c) + 1)
+    phase = np.stack([p2 + c, p3 + s, p2, p3]).reshape(4, 511, 511)
+    mean = phase.sum(axis=0) // 4
+    gray = np.clip(mean[None] + rng.integers(-3, 4, (7, 511, 511)), 0, 255)
+    return np.concatenate([gray, phase]).astype(np.uint8)
+
+
+def decode_both_ways(stack: np.ndarray, compiled: bool) -> dict[str, np.ndarray]:
+    """Every output of the fused path's tile decoder on ``stack`` (two tiles), heights against a
+    random reference with holes."""
+    _, height, width = stack.shape
+    rig = Rig(L_mm=1022.0, d_mm=352.0, alpha_rad=0.332, fw_mm=500.0, nlp=128, width_px=width, height_px=height)
+    prepared = rig.prepare(None, None)
+    rng = np.random.default_rng(7)
+    ref_codes = np.where(rng.random((height, width)) < 0.1, np.nan, rng.uniform(0, 128, (height, width)))
+    surface = prepared.reference(ref_codes.astype(np.float32), None)
+    out = {name: np.full((height, width), -7.0, np.float32) for name in OUTPUTS}
+    for rows in (slice(0, 200), slice(200, height)):
+        done = decode_tile(
+            stack,
+            stack[7:],
+            rows,
+            128,
+            10.2,
+            0.35,
+            0.5,
+            out["codes"],
+            compiled=compiled,
+            gray_codes=out["gray_codes"],
+            visibility=out["visibility"],
+            heights=prepared.height_terms(surface),
+            z_mm=out["z_mm"],
+        )
+        assert done == compiled
+        if not done:
+            prepared.triangulate_rows(rows, out["codes"][rows], None, reference=surface, height_out=out["z_mm"][rows])
+    return out
+
+
+def test_compiled_kernel_equals_numpy_kernel_on_every_difference_pair():
+    stack = every_difference_stack()
+    numpy_out, compiled_out = decode_both_ways(stack, False), decode_both_ways(stack, True)
+    for name in OUTPUTS:
+        np.testing.assert_array_equal(compiled_out[name], numpy_out[name], err_msg=name)
+    # the test covers every branch: valid and invalid codes, modulated and not
+    valid = np.isfinite(numpy_out["codes"]).mean()
+    assert 0.2 < valid < 0.8 and np.isnan(numpy_out["gray_codes"]).any()
+
+
+@pytest.mark.parametrize("gray_only", [False, True])
+def test_measure_with_the_compiled_kernel_equals_numpy(monkeypatch, gray_only):
+    ref_stack = ideal_stack(plane_codes(RIG, 0.0), bits=8, noise=1.5, seed=1)
+    obj_stack = ideal_stack(plane_codes(RIG, 25.0), bits=8, noise=1.5, seed=2)
+    options = MeasureOptions(filters=FilterOptions(blur_variance_px2=0.0), gray_only=gray_only)
+    reference = prepare_reference(RIG, ref_stack, None, options)
+    terms = RIG.prepare(None, None).height_terms(reference.surface)
+    # what the compiled kernel needs, or it would fall back to numpy's and the test prove nothing
+    assert terms is not None and terms.ref_codes.flags.c_contiguous and obj_stack.flags.c_contiguous
+    results = {}
+    for compiled in (False, True):
+        monkeypatch.setattr(decode_module, "COMPILED", compiled)
+        assert use_compiled(np.uint8, 100) is compiled
+        results[compiled] = measure(RIG, obj_stack, reference=reference, options=options)
+    for name in ("z_mm", "codes", "gray_z_mm"):
+        a, b = getattr(results[False], name), getattr(results[True], name)
+        if a is None:
+            assert b is None and not gray_only
+            continue
+        np.testing.assert_array_equal(b, a, err_msg=name)
+    assert abs(np.nanmedian(results[True].z_mm) - 25.0) < 0.02
+
+
+def test_use_compiled_is_for_8_bit_stacks_only(monkeypatch):
+    monkeypatch.setattr(decode_module, "COMPILED", True)
+    assert not use_compiled(np.uint16, 100) and use_compiled(np.uint8, 100)
+    monkeypatch.setattr(decode_module, "COMPILED", None)
+    assert use_compiled(np.uint8, decode_module.COMPILED_MIN_PX)
