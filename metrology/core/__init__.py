@@ -18,5 +18,6 @@ triangulates (:mod:`.measure`). Packages and files:
   programs' calibration files as a pinhole rig;
 - :mod:`.mesh`: meshes and point clouds of any model; :mod:`.io`: file formats;
 - :mod:`.tiling`, :mod:`.allocation`: row tiles on a kept thread pool, glibc's freed-memory reuse;
+- :mod:`.compiled`: the compiled (numba) kernels, warmed by workers and the test script;
 - :mod:`.option_checks`: the checks every options dataclass shares.
 """

@@ -95,9 +95,8 @@ def preload_job_code(**_: object) -> None:
 
     A receiver of Celery's ``worker_init`` (connected by the jobs app): the worker pays for these
     imports once as it starts, before its pool forks (the children inherit them), rather than on
-    its first job; so for the compiled decoding kernels (numba reads their disk cache), which it
-    also loads: :func:`metrology.core.decode_kernels.warm` (the fused gcps-v1 path) and
-    :func:`metrology.core.codecs.kernels.warm` (the codec decoder's phase sums).
+    its first job; so for the core's compiled kernels (numba reads their disk cache), which it
+    also loads (:func:`metrology.core.compiled.warm_all`).
     """
     for kind in sorted(_HANDLERS):
         handler_for(kind)
@@ -107,5 +106,6 @@ def preload_job_code(**_: object) -> None:
             importlib.import_module(module.name)
     # numba is now imported: the decoders take their compiled kernels, loaded (or compiled) now
     # rather than by the first decode of a job
-    for kernels in ("metrology.core.decode_kernels", "metrology.core.codecs.kernels"):
-        importlib.import_module(kernels).warm()
+    from metrology.core.compiled import warm_all
+
+    warm_all()
