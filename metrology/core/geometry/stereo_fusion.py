@@ -202,8 +202,10 @@ class PairFusion:
         from metrology.core.tiling import run_tiled
 
         q32 = np.ascontiguousarray(q, np.float32)
-        points = [
-            triangulate_frame(self.pinhole, at, None, points=True, heights=False, threads=threads).points_mm
+        points = [  # q is the matched axis's coordinate: the pinhole model's u or v
+            triangulate_frame(
+                self.pinhole, *((at, None) if self._i == 0 else (None, at)), points=True, heights=False, threads=threads
+            ).points_mm
             for at in (q32, q32 + np.float32(COORDINATE_STEP))
         ]
         p0, p0h = points
