@@ -631,10 +631,10 @@ def exposure_inputs(
     if not (_has_exposures(obj) or _has_exposures(reference)):
         return obj, reference, codec
     codec = codec if codec is not None else gcps_v1_codec()
-    fused_obj: Any = _as_exposures(obj)
+    fused_obj: Any = as_exposures(obj)
     fused_reference: Any = reference
     if reference is not None and not isinstance(reference, Reference):
-        fused_reference = _as_exposures(reference)
+        fused_reference = as_exposures(reference)
     return fused_obj, fused_reference, codec
 
 
@@ -645,11 +645,12 @@ def _has_exposures(capture: Any) -> bool:
     return isinstance(capture, ExposureStack)
 
 
-def _as_exposures(capture: Any) -> Any:
+def as_exposures(capture: Any) -> Any:
     """``capture`` with every single stack an :class:`ExposureStack` of one exposure (per camera for
-    a sequence of per-camera captures, a tuple of them)."""
+    a sequence of per-camera captures, a tuple of them): how a single capture is measured beside a
+    multi-exposure one (docs/exposures.md)."""
     if isinstance(capture, (tuple, list)):
-        return tuple(_as_exposures(stack) for stack in capture)
+        return tuple(as_exposures(stack) for stack in capture)
     return capture if isinstance(capture, ExposureStack) else ExposureStack.single(np.asarray(capture))
 
 
@@ -1271,6 +1272,7 @@ __all__ = [
     "MeasureOptions",
     "Measurement",
     "Reference",
+    "as_exposures",
     "camera_stacks",
     "check_gcps_v1_sample",
     "decode_block",
