@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import cv2
 import numpy as np
 import pytest
 
@@ -20,7 +19,7 @@ from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions
 from metrology.core.simulate.exposures import render_stereo_exposures
 from tests.core.exposure_scene import EXPOSURES
-from tests.stereo_rig import PLACEMENT, PROJECTOR, RIG, codec, facing_both
+from tests.stereo_rig import PLACEMENT, PROJECTOR, RIG, codec, facing_both, lit_in_both
 
 CODEC = codec("u")
 
@@ -73,27 +72,6 @@ def test_one_camera_multi_exposure_the_other_single(noise_free: Any) -> None:
     assert np.median(error) <= 1e-3
 
 
-def _lit_in_both(rendered: Any) -> np.ndarray:
-    """(H0, W0) bool: camera-0 pixels lit whose point camera 1 sees lit (nearest pixel, 1 px inside)."""
-    truth = rendered.points_mm
-    ok = np.isfinite(truth).all(axis=-1) & rendered.capture.cameras[0].lit
-    rvec, _ = cv2.Rodrigues(np.asarray(RIG.R, np.float64))
-    cam1 = RIG.camera1
-    projected, _ = cv2.projectPoints(
-        np.where(ok[..., None], truth, 0.0).reshape(-1, 1, 3),
-        rvec,
-        np.asarray(RIG.T, np.float64),
-        np.asarray(cam1.K, np.float64),
-        np.asarray(cam1.dist, np.float64),
-    )
-    xy = np.rint(projected.reshape(*truth.shape[:2], 2)).astype(int)
-    x, y = xy[..., 0], xy[..., 1]
-    inside = ok & (x >= 1) & (x < cam1.width_px - 1) & (y >= 1) & (y < cam1.height_px - 1)
-    both = inside.copy()
-    both[inside] = rendered.capture.cameras[1].lit[y[inside], x[inside]]
-    return both
-
-
 @pytest.mark.slow
 def test_realistic_8_bit_stereo_exposures_fused_measure_what_no_single_one_does() -> None:
     """8-bit, 1.5 grey levels of noise, no camera defocus (docs/exposures.md), the default filters.
@@ -105,7 +83,8 @@ def test_realistic_8_bit_stereo_exposures_fused_measure_what_no_single_one_does(
     scene = make_scene("plane", z_mm=0.0)
     rendered = render_stereo_exposures(RIG, scene, EXPOSURES, CODEC, options, placement=PLACEMENT, projector=PROJECTOR)
     assert np.nanmax(rendered.reflectance) / np.nanmin(rendered.reflectance) >= 990
-    lit = _lit_in_both(rendered)
+    cameras = rendered.capture.cameras
+    lit = lit_in_both(rendered.points_mm, cameras[0].lit, cameras[1].lit)
     assert lit.sum() > 0.99 * lit.size
     for index in range(3):
         single = tuple(stack.images[index] for stack in rendered.stacks)

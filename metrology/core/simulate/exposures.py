@@ -33,7 +33,14 @@ from metrology.core.simulate.frames import RenderedCapture
 from metrology.core.simulate.options import SimulationOptions
 from metrology.core.simulate.render import default_placement
 from metrology.core.simulate.series import stack_seed
-from metrology.core.simulate.stereo import ProjectorPlacement, StereoCapture, StereoCast, cast_stereo
+from metrology.core.simulate.stereo import (
+    ProjectorPlacement,
+    StereoCapture,
+    StereoCast,
+    camera_rigs,
+    cast_stereo,
+    lighting_projector,
+)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -103,9 +110,16 @@ def scene_reflectance(
     """The default map of :func:`render_exposures` (:meth:`HdrReflectance.spanning` the lit field
     of pixel centres, with ``changes``) for ``scene`` seen through ``model`` by a projector of
     ``projector_size`` (width, height): a fixed map, so that the frames of every exposure of a
-    camera (the agent's virtual camera) see one part."""
+    camera (the agent's virtual camera) see one part. For a stereo rig, camera 0's field under the
+    projector that lights its renders (:func:`render_stereo_exposures`)."""
     where = placement if placement is not None else default_placement(model)
-    truth = cast_truth(model.prepare(model.shape, projector_size), scene, where)
+    if model.cameras > 1:  # a stereo rig: camera 0's field, lit as render_stereo_exposures lights it
+        if not isinstance(model, StereoRig):
+            raise ValueError(f"the virtual rig renders two-camera stereo rigs, not a {model.short_label} rig")
+        pinhole, where = camera_rigs(model, where, lighting_projector(model, where))[0]
+        truth = cast_truth(pinhole.prepare(pinhole.shape, projector_size), scene, where)
+    else:
+        truth = cast_truth(model.prepare(model.shape, projector_size), scene, where)
     X, Y, _ = where.scene_coordinates(truth.points_mm)
     hit = np.isfinite(X) & np.isfinite(Y)
     return HdrReflectance.spanning(X[hit], Y[hit], **changes)
