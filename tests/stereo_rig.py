@@ -95,6 +95,29 @@ def facing_both(scene: Scene, points_mm: np.ndarray, max_angle_deg: float = 60.0
     return facing
 
 
+def lit_in_both(points_mm: np.ndarray, lit0: np.ndarray, lit1: np.ndarray, rig: StereoRig | None = None) -> np.ndarray:
+    """``(H0, W0)`` bool: camera-0 pixels lit (``lit0``) whose true point ``points_mm`` (camera 0's
+    frame, mm) projects into camera 1 of ``rig`` (default :data:`RIG`; nearest pixel, 1 px inside
+    its border) on a pixel lit there (``lit1``): the pixels a stereo measurement can reach."""
+    import cv2
+
+    rig = rig or RIG
+    ok = np.isfinite(points_mm).all(axis=-1) & lit0
+    rvec, _ = cv2.Rodrigues(np.asarray(rig.R, np.float64))
+    cam1 = rig.camera1
+    xy, _ = cv2.projectPoints(
+        np.where(ok[..., None], points_mm, 0.0).reshape(-1, 1, 3),
+        rvec,
+        np.asarray(rig.T, np.float64),
+        np.asarray(cam1.K, np.float64),
+        np.asarray(cam1.dist, np.float64),
+    )
+    x, y = np.rint(xy.reshape(*points_mm.shape[:2], 2)).astype(int).transpose(2, 0, 1)
+    both = ok & (x >= 1) & (x < cam1.width_px - 1) & (y >= 1) & (y < cam1.height_px - 1)
+    both[both] = lit1[y[both], x[both]]
+    return both
+
+
 CALIBRATED_RIG = StereoRig(
     camera0=CAMERA0,
     camera1=CAMERA1,

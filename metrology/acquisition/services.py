@@ -254,13 +254,7 @@ def _exposure_choice(rig: Rig, exposure_ms: float | None, exposures: Any, max_ex
         return None
     if exposure_ms is not None:
         raise BadInput("give exposure (one exposure) or exposures (a multi-exposure capture), not both")
-    cameras = len(rig.to_core().camera_shapes)
-    if cameras > 1:
-        raise BadInput(
-            f"exposures: multi-exposure captures are acquired on one-camera rigs only; rig {rig.name!r} has "
-            f"{cameras} cameras"
-        )
-    return list(choice) if isinstance(choice, tuple) else choice
+    return list(choice) if isinstance(choice, tuple) else choice  # a stereo rig's cameras are bracketed as a pair
 
 
 def acquisition_codec_value(rig: Rig, codec: Any) -> Any:

@@ -62,14 +62,14 @@ def kept_reference(
     multi-exposure capture, so the reference is decoded as one too (a single stack as its only
     exposure: :func:`metrology.core.measure.exposure_inputs`, docs/exposures.md)."""
     from metrology.captures.stacks import load_capture_images
-    from metrology.core.codecs.stack import ExposureStack
     from metrology.core.geometry import model_from_dict
+    from metrology.core.measure import as_exposures
     from metrology.pipeline.measure import prepare_reference
 
     def prepare() -> Reference:
         images = load_capture_images(capture)
-        if exposures and not isinstance(images, ExposureStack):
-            images = ExposureStack.single(images)
+        if exposures:  # a single stack as its only exposure, per camera
+            images = as_exposures(images)
         return prepare_reference(model_from_dict(rig_values), images, options, codec=codec)
 
     return kept_references().get(reference_key(capture, rig_values, codec, options, exposures), prepare)

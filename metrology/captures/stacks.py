@@ -86,18 +86,22 @@ def frame_shape(stack: Any) -> tuple[int, int]:
     if exposures is not None:
         height, width = exposures.frame_shape
         return int(height), int(width)
-    cameras = getattr(stack, "stacks", None)
-    if cameras is not None:  # a capture of several cameras: camera 0's
-        height, width = cameras[0].shape[1:]
+    if getattr(stack, "stacks", None) is not None:  # a capture of several cameras: camera 0's
+        height, width = stack.frame_shapes[0]
         return int(height), int(width)
     height, width = stack.images.shape[1:]
     return int(height), int(width)
 
 
 def stored_exposures(stack: Any) -> list[dict[str, Any]] | None:
-    """The ``exposures.json`` entries of a read multi-exposure stack (least exposed first), None for a single one."""
+    """The ``exposures.json`` entries of a read multi-exposure stack (least exposed first; of every
+    camera for a capture of several cameras), None for a single one."""
     exposures = getattr(stack, "stack", None)
-    return None if exposures is None else [e.to_dict() for e in exposures.exposures]
+    if exposures is not None:
+        return [e.to_dict() for e in exposures.exposures]
+    if getattr(stack, "stacks", None) is not None and stack.exposures is not None:  # cam0/exp0/ ...
+        return [e.to_dict() for e in stack.exposures]
+    return None
 
 
 def read_upload_stack(
@@ -177,10 +181,9 @@ def read_cameras_upload(upload: Any, rig: Any, codec: Any, *, expected_bit_depth
     """Validate the capture of a rig of several cameras (docs/stereo.md): ``cam0/``, ``cam1/`` ...
     each a complete stack of ``codec``'s frames, of its camera's size; a
     :class:`~metrology.core.codecs.stack.CameraCodecStacks` (``stacks``, one ``(frames, H_c, W_c)``
-    array per camera, camera 0 first).
-
-    Multi-exposure captures of several cameras (``cam0/exp0/`` ...) are refused: the core measures
-    exposures on one-camera rigs only (:func:`metrology.core.measure.camera_stacks`).
+    array per camera, camera 0 first). A multi-exposure capture (``exposures.json`` at the top,
+    ``cam0/exp0/`` ..., docs/exposures.md "Stereo rigs") gives one
+    :class:`~metrology.core.codecs.stack.ExposureStack` per camera.
 
     Raises
     ------
@@ -192,19 +195,14 @@ def read_cameras_upload(upload: Any, rig: Any, codec: Any, *, expected_bit_depth
     from metrology.core.io import StackError
 
     model = rig.to_core()
-    limits = stack_limits(rig, codec.n_frames)
     try:
-        if is_exposure_capture(upload, max_bytes=upload_limits(rig)["max_bytes"]):
-            raise BadInput(
-                f"capture stack refused: multi-exposure captures (exposures.json) are measured on one-camera "
-                f"rigs only, and this {model.short_label} rig has {model.cameras} cameras"
-            )
+        multi = is_exposure_capture(upload, max_bytes=upload_limits(rig)["max_bytes"])
+        limits = upload_limits(rig) if multi else stack_limits(rig, codec.n_frames)
         upload.seek(0)
         read = read_camera_stacks(upload, codec, model.cameras, **limits)
     except (StackError, CodecError) as exc:
         raise BadInput(f"capture stack refused: {exc}") from None
-    for index, (images, (height, width)) in enumerate(zip(read.stacks, model.camera_shapes, strict=True)):
-        got_h, got_w = images.shape[1:]
+    for index, ((got_h, got_w), (height, width)) in enumerate(zip(read.frame_shapes, model.camera_shapes, strict=True)):
         if (got_h, got_w) != (height, width):
             raise BadInput(
                 f"capture stack refused: camera {index}'s frames (cam{index}/) are {got_w}x{got_h} px "
@@ -219,10 +217,10 @@ def load_capture_images(capture: Any) -> Any:
     patterns of gcps-v1, or a codec's frames; for a multi-exposure capture an
     :class:`~metrology.core.codecs.stack.ExposureStack`; for a rig of several cameras a tuple of
     one such stack per camera, camera 0 first (in a worker). Raises ``ValueError`` when not stored."""
+    if capture.rig.to_core().cameras > 1:  # an ExposureStack per camera for a multi-exposure one
+        return load_camera_stacks(capture).stacks
     if capture.exposures:
         return load_exposure_stack(capture)
-    if capture.rig.to_core().cameras > 1:
-        return load_camera_stacks(capture).stacks
     if is_gcps_v1(capture_codec(capture)):
         return load_capture_stack(capture).images
     return load_codec_stack(capture).images
@@ -234,11 +232,14 @@ def load_codec_stack(capture: Any) -> Any:
     For a rig of several cameras, camera 0's stack (what the capture's page decodes and checks).
     Raises ``ValueError`` if it is not stored or does not match its codec.
     """
-    from metrology.core.codecs.stack import CodecStack, read_codec_stack
+    from metrology.core.codecs.stack import CodecStack, ExposureStack, read_codec_stack
 
     if capture.rig.to_core().cameras > 1:
         cameras = load_camera_stacks(capture)
-        return CodecStack(cameras.stacks[0], cameras.codec, (), cameras.codec_source)
+        first = cameras.stacks[0]
+        if isinstance(first, ExposureStack):  # load_exposure_stack reads it
+            raise ValueError(f"capture {capture.pk} is a multi-exposure capture (exposures.json)")
+        return CodecStack(first, cameras.codec, (), cameras.codec_source)
     if not capture.file:
         raise ValueError(f"capture {capture.pk} has no stored stack yet (its simulation has not finished)")
     codec = capture_codec(capture)
@@ -256,19 +257,21 @@ def load_camera_stacks(capture: Any) -> Any:
     if not capture.file:
         raise ValueError(f"capture {capture.pk} has no stored stack yet (its simulation has not finished)")
     codec = capture_codec(capture)
+    limits = upload_limits(capture.rig) if capture.exposures else stack_limits(capture.rig, codec.n_frames)
     with capture.file.open("rb") as handle:
-        return read_camera_stacks(
-            handle, codec, capture.rig.to_core().cameras, **stack_limits(capture.rig, codec.n_frames)
-        )
+        return read_camera_stacks(handle, codec, capture.rig.to_core().cameras, **limits)
 
 
 def load_exposure_stack(capture: Any) -> Any:
     """The stored multi-exposure capture's :class:`~metrology.core.codecs.stack.ExposureStack`
-    (docs/exposures.md), in a worker. Raises ``ValueError`` if it is not stored or does not match its codec."""
+    (docs/exposures.md), in a worker; camera 0's for a rig of several cameras (what the capture's
+    page decodes). Raises ``ValueError`` if it is not stored or does not match its codec."""
     from metrology.core.codecs.stack import read_exposure_stack
 
     if not capture.file:
         raise ValueError(f"capture {capture.pk} has no stored stack yet")
+    if capture.rig.to_core().cameras > 1:
+        return load_camera_stacks(capture).stacks[0]
     limits = upload_limits(capture.rig)
     with capture.file.open("rb") as handle:
         return read_exposure_stack(

@@ -85,9 +85,12 @@ def _camera_images(folder: Path, codec: Any) -> Any:
 
 def _zip_camera_stack(source: str, codec: Any, index: int) -> Any:
     """Camera ``index``'s stack of a zipped pose (the zip is read once per camera)."""
-    from metrology.core.codecs.stack import read_camera_stacks
+    from metrology.core.codecs.stack import ExposureStack, read_camera_stacks
 
-    return read_camera_stacks(source, codec).stacks[index]
+    stack = read_camera_stacks(source, codec).stacks[index]
+    if isinstance(stack, ExposureStack):
+        raise ValueError(f"pose {source}: a multi-exposure capture cannot be a calibration pose; give one exposure")
+    return stack
 
 
 def _pose_loaders(source: str, codec: Any) -> tuple[Any, Any, Any]:

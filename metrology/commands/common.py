@@ -134,17 +134,19 @@ def read_capture(path: str, codec: Codec | None, model: GeometryModel, what: str
 
 
 def _read_cameras(path: str, codec: Codec | None, model: GeometryModel, what: str) -> tuple[Any, ...]:
-    """One stack per camera of a capture of several cameras (``cam0/``, ``cam1/``...), each checked
-    against its camera's size."""
+    """One stack per camera of a capture of several cameras (``cam0/``, ``cam1/``...; an
+    :class:`~metrology.core.codecs.stack.ExposureStack` each for a multi-exposure one, ``cam0/exp0/``
+    ...), each checked against its camera's size."""
     from metrology.core.codecs.stack import read_camera_stacks
 
     try:
-        stacks = read_camera_stacks(path, codec, model.cameras).stacks
+        read = read_camera_stacks(path, codec, model.cameras)
     except ValueError as exc:
         raise BadInputError(f"{what} stack: {exc}") from exc
-    for index, (images, expected) in enumerate(zip(stacks, model.camera_shapes, strict=True)):
-        if tuple(images.shape[1:]) != tuple(expected):
-            h, w = images.shape[1:]
+    stacks = read.stacks
+    for index, (shape, expected) in enumerate(zip(read.frame_shapes, model.camera_shapes, strict=True)):
+        if tuple(shape) != tuple(expected):
+            h, w = shape
             mh, mw = expected
             raise BadInputError(
                 f"{what} stack: camera {index}'s frames are {w}x{h} px but the rig's camera {index} is {mw}x{mh} px"

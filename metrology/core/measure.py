@@ -328,6 +328,10 @@ class Measurement:
         For a model of several devices (:meth:`PreparedGeometry.combine`), the pairs that measured
         each pixel (a stereo rig's bits: :mod:`metrology.core.geometry.stereo_fusion`); None for one
         camera. :meth:`pairs_map` zeroes it where ``z_mm`` is not finite.
+    camera_decodings : tuple of CodecDecoding
+        For a model of several cameras, each camera's decoding, camera 0 first (camera 0's is
+        :attr:`decoding`): per-pixel maps on that camera's own grid, among them the exposure each
+        of its pixels used (:meth:`camera_exposure_map`). Empty for one camera.
     """
 
     z_mm: np.ndarray
@@ -343,6 +347,7 @@ class Measurement:
     timings_s: dict[str, float] = field(default_factory=dict)
     codec_check: Mapping[str, AxisCheck] = field(default_factory=dict)
     pairs: np.ndarray | None = None
+    camera_decodings: tuple[CodecDecoding, ...] = ()
 
     @property
     def model(self) -> GeometryModel:
@@ -391,6 +396,39 @@ class Measurement:
         assert self.decoding is not None
         counts = np.bincount(used.ravel(), minlength=NO_EXPOSURE + 1)
         return {name: int(counts[index]) for index, name in enumerate(self.decoding.exposure_names)}
+
+    def camera_exposure_map(self, camera: int) -> np.ndarray | None:
+        """Which exposure camera ``camera`` of a model of several cameras used at each of its own
+        pixels (docs/exposures.md, "Stereo rigs").
+
+        Returns
+        -------
+        (H_c, W_c) uint8 array or None
+            On camera ``camera``'s pixel grid: the exposure index (0 the least exposed) of the
+            coordinate the model read there (the more exposed of the used axes' exposures),
+            :data:`~metrology.core.codecs.exposures.NO_EXPOSURE` (255) where none decoded. The map
+            of the decoding, before matching: a pixel of camera 1 counts whether or not a point of
+            camera 0 was matched to it. None for one camera or a single-exposure capture.
+        """
+        if not self.camera_decodings:
+            return None
+        decoding = self.camera_decodings[camera]
+        if not decoding.exposure_names:
+            return None
+        axes = [axis for axis in self.prepared.used_axes(tuple(decoding.exposure)) if axis in decoding.exposure]
+        # NO_EXPOSURE (255) is the largest uint8: a pixel no exposure decoded on one axis stays 255
+        maps = [np.asarray(decoding.exposure[axis], np.uint8) for axis in axes or [self.prepared.axis]]
+        return np.maximum.reduce(maps)
+
+    def camera_pixels_per_exposure(self, camera: int) -> dict[str, int] | None:
+        """The pixels of camera ``camera`` per exposure name of :meth:`camera_exposure_map`, and
+        ``"none"``; None for one camera or a single-exposure capture."""
+        used = self.camera_exposure_map(camera)
+        if used is None:
+            return None
+        names = self.camera_decodings[camera].exposure_names
+        counts = np.bincount(used.ravel(), minlength=NO_EXPOSURE + 1)
+        return {**{name: int(counts[index]) for index, name in enumerate(names)}, "none": int(counts[NO_EXPOSURE])}
 
     def pairs_map(self) -> np.ndarray | None:
         """Which pairs of a model of several devices measured each point (docs/stereo.md).
@@ -484,7 +522,7 @@ def prepare_reference(
         codec lacking an axis the model needs, or a bad option.
     """
     options = options or MeasureOptions()
-    multi = isinstance(images, ExposureStack)
+    multi = _has_exposures(images)
     if uses_fused_gcps_v1(model, codec, exposures=multi):
         assert not isinstance(images, ExposureStack)
         return _fused_reference(model, images, options, threads)
@@ -563,7 +601,7 @@ def measure(
             f"a {model.short_label} rig measures against a capture of the reference plane: give a reference"
         )
     obj, reference, codec = exposure_inputs(obj, reference, codec)
-    multi = isinstance(obj, ExposureStack)
+    multi = _has_exposures(obj)
     if reference is not None and not isinstance(reference, Reference):
         start = time.perf_counter()
         reference = prepare_reference(model, reference, codec, options, threads=threads)
@@ -589,15 +627,35 @@ def exposure_inputs(
     codec None becomes gcps-v1's codec and a single stack (object or reference) an
     :class:`ExposureStack` of one exposure. Otherwise they are returned as given. A caller that
     prepares the reference itself (the command line's kept references) calls this first, so that
-    the reference is prepared as :func:`measure` would prepare it."""
-    if not (isinstance(obj, ExposureStack) or isinstance(reference, ExposureStack)):
+    the reference is prepared as :func:`measure` would prepare it.
+
+    A capture of several cameras (a tuple or list of one capture per camera, camera 0 first) is
+    multi-exposure when any camera's is; each single stack of it then becomes an exposure stack of
+    one, camera by camera, the sequence kept."""
+    if not (_has_exposures(obj) or _has_exposures(reference)):
         return obj, reference, codec
     codec = codec if codec is not None else gcps_v1_codec()
-    fused_obj = obj if isinstance(obj, ExposureStack) else ExposureStack.single(np.asarray(obj))
-    fused_reference: _Ref | ExposureStack = reference
-    if reference is not None and not isinstance(reference, (Reference, ExposureStack)):
-        fused_reference = ExposureStack.single(np.asarray(reference))
+    fused_obj: Any = as_exposures(obj)
+    fused_reference: Any = reference
+    if reference is not None and not isinstance(reference, Reference):
+        fused_reference = as_exposures(reference)
     return fused_obj, fused_reference, codec
+
+
+def _has_exposures(capture: Any) -> bool:
+    """True for an :class:`ExposureStack`, or a sequence of per-camera captures holding one."""
+    if isinstance(capture, (tuple, list)):
+        return any(isinstance(stack, ExposureStack) for stack in capture)
+    return isinstance(capture, ExposureStack)
+
+
+def as_exposures(capture: Any) -> Any:
+    """``capture`` with every single stack an :class:`ExposureStack` of one exposure (per camera for
+    a sequence of per-camera captures, a tuple of them): how a single capture is measured beside a
+    multi-exposure one (docs/exposures.md)."""
+    if isinstance(capture, (tuple, list)):
+        return tuple(as_exposures(stack) for stack in capture)
+    return capture if isinstance(capture, ExposureStack) else ExposureStack.single(np.asarray(capture))
 
 
 # --------------------------------------------------------------------------- shared steps
@@ -628,7 +686,8 @@ def _frames_shape(model: GeometryModel, shape: tuple[int, ...], what: str, camer
 def camera_stacks(model: GeometryModel, images: Any) -> tuple[Any, ...]:
     """One capture per camera of ``model``, camera 0 first: ``(images,)`` for a model of one camera;
     for a model of several (:attr:`GeometryModel.cameras`), ``images`` must be a sequence of that
-    many stacks (ValueError saying so otherwise; multi-exposure captures are one camera's only)."""
+    many stacks (ValueError saying so otherwise), each a single stack or an :class:`ExposureStack`
+    (docs/exposures.md: each camera is fused per pixel over its own exposures)."""
     count = model.cameras
     if count == 1:
         return (images,)
@@ -637,9 +696,6 @@ def camera_stacks(model: GeometryModel, images: Any) -> tuple[Any, ...]:
         raise ValueError(
             f"a {model.short_label} rig's capture is one stack per camera ({count}, camera 0 first), got {got}"
         )
-    for index, stack in enumerate(images):
-        if isinstance(stack, ExposureStack):
-            raise ValueError(f"camera {index}: multi-exposure captures are measured on one-camera rigs only")
     return tuple(images)
 
 
@@ -936,6 +992,7 @@ def _codec_measure(
         timings_s=timings,
         codec_check=coded.decoding.codec_check,
         pairs=None if combined is None else combined.pairs,
+        camera_decodings=tuple(c.decoding for c in cameras) if len(cameras) > 1 else (),
     )
 
 
@@ -1225,6 +1282,7 @@ __all__ = [
     "MeasureOptions",
     "Measurement",
     "Reference",
+    "as_exposures",
     "camera_stacks",
     "check_gcps_v1_sample",
     "decode_block",

@@ -100,9 +100,8 @@ def request_measurement(
 def run_measurement(job: Job, run: job_services.JobRun) -> None:
     """Job handler: the kept reference, the object's stack, the pipeline's measure; store, publish."""
     from metrology.captures.references import kept_reference
-    from metrology.core.codecs.stack import ExposureStack
     from metrology.core.geometry import model_from_dict
-    from metrology.core.measure import MeasureOptions
+    from metrology.core.measure import MeasureOptions, as_exposures
     from metrology.pipeline.measure import measure
 
     measurement = Measurement.objects.select_related("reference__rig", "object__rig").get(job=job)
@@ -124,8 +123,8 @@ def run_measurement(job: Job, run: job_services.JobRun) -> None:
             )
     with run.phase("read", 10):
         obj = load_capture_images(measurement.object)
-    if exposures and not isinstance(obj, ExposureStack):  # against a multi-exposure reference: one exposure
-        obj = ExposureStack.single(obj)
+    if exposures:  # against a multi-exposure reference a single stack is one exposure (per camera)
+        obj = as_exposures(obj)
     with run.phase("measure", 20):
         result = measure(model, reference, obj, options, codec=codec)
     for name, seconds in result.timings_s.items():

@@ -92,7 +92,10 @@ class MeasureResult:
         method triangulated, the points dropped by ``max_sigma_mm`` and the median sigma (and the
         gray-code-only heights' figures where computed; for a multi-exposure object,
         ``points_per_exposure``: the measured points of each exposure by name; for a stereo rig,
-        ``points_per_pairs``: the measured points of each combination of pairs, docs/stereo.md)."""
+        ``points_per_pairs``: the measured points of each combination of pairs, docs/stereo.md; for a
+        stereo multi-exposure object, ``camera_pixels_per_exposure``: ``{"cam0": {name: pixels, ...,
+        "none": ...}, "cam1": ...}``, the pixels of each camera's own grid each exposure decoded,
+        docs/exposures.md "Stereo rigs")."""
         m = self.measurement
         stats: dict[str, Any] = dict(height_statistics(m.z_mm))
         if m.gray_z_mm is not None:
@@ -113,6 +116,9 @@ class MeasureResult:
         per_pairs = m.points_per_pairs()
         if per_pairs is not None:  # a stereo rig: the points each combination of pairs measured
             stats["points_per_pairs"] = per_pairs
+        per_camera = {f"cam{i}": m.camera_pixels_per_exposure(i) for i in range(len(m.camera_decodings))}
+        if any(counts is not None for counts in per_camera.values()):  # a stereo multi-exposure object
+            stats["camera_pixels_per_exposure"] = per_camera
         return stats
 
     def to_dict(self) -> dict[str, Any]:

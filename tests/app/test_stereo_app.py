@@ -103,10 +103,10 @@ def test_stereo_uploads_are_validated_per_camera(api, stereo_rig, renders):
     short = post(api, rig_id, without(cameras_zip((cam0, cam1)), "cam1/16.png"), "object")
     assert short.status_code == 400, short.content
     assert short.json()["error"].startswith("capture stack refused: camera 1:") and "16" in short.json()["error"]
-    # a multi-exposure capture of two cameras (cam0/exp0/ ...): refused, saying why
-    multi = post(api, rig_id, exposures_of(cameras_zip((cam0, cam1))), "object")
-    assert multi.status_code == 400 and "multi-exposure captures" in multi.json()["error"], multi.content
     assert Capture.objects.filter(rig_id=rig_id).count() == 1
+    # a multi-exposure capture of two cameras (cam0/exp0/ ..., tests/app/test_stereo_exposure_app.py)
+    multi = post(api, rig_id, exposures_of(cameras_zip((cam0, cam1))), "object")
+    assert multi.status_code == 201 and multi.json()["exposures"] == [{"name": "exp0", "exposure_us": 2000}]
 
 
 def test_a_calibrated_projector_s_pairs_map_is_stored_and_carried_by_the_ply(api, renders):

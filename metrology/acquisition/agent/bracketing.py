@@ -29,6 +29,11 @@ and a pixel can use any exposure in ``[2 margin B_min / m, saturation F / w]``, 
 geometrically spaced from ``e_short`` to ``e_long`` (one exposure, ``e_short``, when
 ``e_long <= e_short``). With fewer exposures than ``n`` allowed, the same span is covered with a
 wider step and :attr:`Bracket.complete` is False.
+
+Several cameras (a stereo rig, both grabbed at every probe): the quantiles are taken per camera,
+``e_short`` from the brightest camera's (the smallest ``e_short``), ``e_long`` from the darkest
+camera's (the largest) and ``r_q`` the smallest of the cameras' windows, so every camera's lit
+pixels are covered as one camera's are.
 """
 
 from __future__ import annotations
@@ -42,8 +47,9 @@ import numpy as np
 
 from metrology.acquisition.agent.checks import full_scale
 
-GrabFlats = Callable[[float], tuple[np.ndarray, np.ndarray]]
-"""``grab_flats(exposure_ms)``: the ``(white, black)`` frames grabbed at that exposure."""
+GrabFlats = Callable[[float], tuple[Any, Any]]
+"""``grab_flats(exposure_ms)``: the ``(white, black)`` frames grabbed at that exposure; on a rig of
+several cameras a tuple of frames each, one per camera."""
 
 MAX_REQUESTED_EXPOSURES = 8
 """Most exposures an acquisition request may ask for (a list, or ``max_exposures`` of ``"auto"``)."""
@@ -180,7 +186,8 @@ def bracket_exposures(grab_flats: GrabFlats, start_ms: float, options: BracketOp
     Parameters
     ----------
     grab_flats : callable
-        ``grab_flats(exposure_ms) -> (white, black)``, ``(H, W)`` uint8 or uint16 frames.
+        ``grab_flats(exposure_ms) -> (white, black)``, ``(H, W)`` uint8 or uint16 frames; or a
+        tuple of ``(H_c, W_c)`` frames each, one per camera (module docstring).
     start_ms : float
         The first probe's exposure, ms, within ``options.limits_ms``.
     options : BracketOptions, optional
@@ -195,9 +202,15 @@ def bracket_exposures(grab_flats: GrabFlats, start_ms: float, options: BracketOp
     if not low <= start_ms <= high:
         raise ValueError(f"start exposure {start_ms} ms is outside the camera's limits {opts.limits_ms}")
     probes: list[_Probe] = []
+    cameras: list[np.ndarray] = []  # the camera of each pixel of the pooled frames
 
     def probe(e: float) -> _Probe:
         white, black = grab_flats(e)
+        if isinstance(white, (tuple, list)):  # one frame per camera: pooled, each pixel's camera kept
+            if not cameras:
+                cameras.append(np.concatenate([np.full(np.asarray(w).size, i, np.int16) for i, w in enumerate(white)]))
+            white = np.concatenate([np.asarray(w).ravel() for w in white])
+            black = np.concatenate([np.asarray(b).ravel() for b in black])
         taken = _Probe(e, np.asarray(white), np.asarray(black), full_scale(np.asarray(white)))
         probes.append(taken)
         return taken
@@ -216,7 +229,7 @@ def bracket_exposures(grab_flats: GrabFlats, start_ms: float, options: BracketOp
         grown = int(lit.sum()) - lit_before
         if lit.any():
             _white, contrast_rate = _rates(probes, lit)
-            needed_long = target / float(np.quantile(contrast_rate, opts.darkest_quantile))
+            needed_long = max(target / q for q in _quantiles(contrast_rate, cameras, lit, opts.darkest_quantile))
             if e >= min(needed_long, high) and grown <= opts.darkest_quantile * lit.sum():
                 break
         if e >= high or len(probes) >= opts.max_probes:
@@ -227,11 +240,13 @@ def bracket_exposures(grab_flats: GrabFlats, start_ms: float, options: BracketOp
     if not lit.any():
         raise ValueError("no pixel is lit by the projector at any probe exposure: is the projector seen?")
     white_rate, contrast_rate = _rates(probes, lit)
-    e_short = min(high, max(low, opts.saturation * full / float(np.quantile(white_rate, opts.brightest_quantile))))
-    needed_long = target / float(np.quantile(contrast_rate, opts.darkest_quantile))
+    # several cameras: the shortest exposure from the brightest camera, the longest from the darkest
+    brightest = max(_quantiles(white_rate, cameras, lit, opts.brightest_quantile))
+    e_short = min(high, max(low, opts.saturation * full / brightest))
+    needed_long = max(target / q for q in _quantiles(contrast_rate, cameras, lit, opts.darkest_quantile))
     e_long = min(high, max(low, needed_long))
     window = opts.saturation * full * contrast_rate / (target * white_rate)
-    ratio = float(np.quantile(window, opts.darkest_quantile))
+    ratio = min(_quantiles(window, cameras, lit, opts.darkest_quantile))
     if e_long <= e_short:
         exposures: tuple[float, ...] = (float(e_short),)
         needed = 1
@@ -249,6 +264,15 @@ def bracket_exposures(grab_flats: GrabFlats, start_ms: float, options: BracketOp
         window_ratio=ratio,
         probes=[p.summary(opts.lit_level) for p in sorted(probes, key=lambda p: p.exposure_ms)],
     )
+
+
+def _quantiles(values: np.ndarray, cameras: list[np.ndarray], lit: np.ndarray, q: float) -> list[float]:
+    """The ``q`` quantile of ``values`` (1-D, one per lit pixel) per camera with lit pixels (one
+    camera when ``cameras`` is empty: the frames were one camera's)."""
+    if not cameras:
+        return [float(np.quantile(values, q))]
+    of_lit = cameras[0][lit]
+    return [float(np.quantile(values[of_lit == c], q)) for c in np.unique(of_lit)]
 
 
 def _lit(probes: list[_Probe], lit_level: float) -> np.ndarray:

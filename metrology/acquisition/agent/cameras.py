@@ -415,7 +415,10 @@ class VirtualCamera:
     (:func:`~metrology.core.simulate.stereo.render_stereo_capture`: the same frames as ``gcps
     simulate`` of the stereo rig), the white and black frames
     :func:`~metrology.core.simulate.render_camera_flats`'s under the same projector, each camera with
-    its own noise. HDR scenes are rendered on one-camera rigs only.
+    its own noise. HDR scenes on a stereo rig: one reflectance map over the scene for both cameras
+    (camera 0's field, :func:`~metrology.core.simulate.exposures.scene_reflectance`), the frames
+    :func:`~metrology.core.simulate.exposures.render_stereo_exposures`'s, the flats
+    :func:`~metrology.core.simulate.render_camera_flats`'s under that map.
     """
 
     def __init__(
@@ -458,13 +461,10 @@ class VirtualCamera:
             raise CameraError("the virtual camera needs the rig's geometry")
         self.target = target
         try:
-            cameras = self._rig().cameras
+            self._rig()  # a rig of one or two cameras, HDR scenes or not
         except ValueError as exc:
             self.target = None
             raise CameraError(f"the virtual camera cannot render this rig: {exc}") from None
-        if cameras > 1 and self.hdr is not None:
-            self.target = None
-            raise CameraError(f"the virtual camera renders HDR scenes on one-camera rigs only; this rig has {cameras}")
         self._cache = {}
         self._reflectance = None
 
@@ -548,6 +548,16 @@ class VirtualCamera:
         from metrology.core.simulate.exposures import render_exposures
 
         rho = self._hdr_reflectance(rig, scene, codec)
+        if rig.cameras > 1:  # both cameras, one map over the scene (render_stereo_exposures)
+            from metrology.core.codecs.model import gcps_v1_codec
+            from metrology.core.simulate import default_placement
+            from metrology.core.simulate.exposures import render_stereo_exposures
+
+            where = self.placement if self.placement is not None else default_placement(rig)
+            stereo = render_stereo_exposures(
+                rig, scene, [Exposure("grab", 1000.0)], codec or gcps_v1_codec(), opts, placement=where, reflectance=rho
+            )
+            return tuple(stack.images[0] for stack in stereo.stacks)
         rendered = render_exposures(
             rig, scene, [Exposure("grab", 1000.0)], codec, opts, reflectance=rho, placement=self.placement
         )
@@ -567,6 +577,9 @@ class VirtualCamera:
             if part == "flats":
                 if self.hdr is None:
                     pairs = render_camera_flats(rig, scene, opts, placement=self.placement)
+                elif rig.cameras > 1:  # each camera under one map, as render_stereo_exposures
+                    rho = self._hdr_reflectance(rig, scene, codec)
+                    pairs = render_camera_flats(rig, scene, opts, placement=self.placement, reflectance=rho)
                 else:  # on the path of render_exposures, bounded by the codec's projector
                     rho, size = self._hdr_reflectance(rig, scene, codec), self._projector_size(codec)
                     pairs = (

@@ -162,17 +162,31 @@ def cameras_zip(stacks: Sequence[np.ndarray], codec: ProjectedCodec) -> bytes:
     return _frames_zip([f"{folder}/" for folder in camera_folders(len(stacks))], stacks, codec)
 
 
-def exposures_zip(stacks: list[np.ndarray], exposures_ms: list[float] | None, codec: ProjectedCodec) -> bytes:
+def exposures_zip(
+    stacks: Sequence[np.ndarray | Sequence[np.ndarray]], exposures_ms: list[float] | None, codec: ProjectedCodec
+) -> bytes:
     """One stack's frames as a zip of PNGs named as the codec says (``exposures_ms`` None), or a
     multi-exposure capture (docs/exposures.md): ``exposures.json`` and the frames of exposure ``i``
-    in ``exp<i>/``; ``codec.json`` at the top for a codec other than gcps-v1."""
+    in ``exp<i>/``; ``codec.json`` at the top for a codec other than gcps-v1. A stack of exposure
+    ``i`` given as a sequence of one stack per camera (a stereo rig) goes to ``cam<c>/exp<i>/``
+    (docs/exposures.md, "Stereo rigs")."""
+    from metrology.core.io.cameras import camera_folder
     from metrology.core.io.exposures import Exposure, exposures_json
 
     if exposures_ms is None:
-        return _frames_zip([""], stacks, codec)
+        return _frames_zip([""], stacks, codec)  # type: ignore[arg-type]
     entries = [Exposure(f"exp{i}", float(e) * 1000.0) for i, e in enumerate(exposures_ms)]
-    folders = [f"exp{i}/" for i in range(len(stacks))]
-    return _frames_zip(folders, stacks, codec, {"exposures.json": exposures_json(entries)})
+    folders: list[str] = []
+    flat: list[np.ndarray] = []
+    for i, stack in enumerate(stacks):
+        if isinstance(stack, np.ndarray):
+            folders.append(f"exp{i}/")
+            flat.append(stack)
+            continue
+        for c, images in enumerate(stack):  # one stack per camera
+            folders.append(f"{camera_folder(c)}/exp{i}/")
+            flat.append(images)
+    return _frames_zip(folders, flat, codec, {"exposures.json": exposures_json(entries)})
 
 
 def _frames_zip(
@@ -225,7 +239,8 @@ def acquire_capture(
     ``exposures`` None: one stack (per camera) at ``exposure_ms`` (None: the auto-exposure),
     :func:`~.sequencer.run_sequence`; ``"auto"`` or times in ms: a multi-exposure capture
     (docs/exposures.md), :func:`~.sequencer.run_bracketed_sequence`, written as ``exposures.json``
-    and ``exp0/``, ``exp1/``, ... Raises :class:`~.sequencer.AcquisitionError` with the reason.
+    and ``exp0/``, ``exp1/``, ... (``cam0/exp0/`` ... on a stereo rig). Raises
+    :class:`~.sequencer.AcquisitionError` with the reason.
     """
     if exposures is None:
         result = run_sequence(projector, camera, codec, exposure_ms=exposure_ms, options=options, progress=progress)
@@ -243,7 +258,8 @@ def acquire_capture(
     )
     times = list(bracketed.exposures_ms)
     reports = [report for stack in bracketed.stacks for report in stack.frame_reports()]
-    data = exposures_zip([stack.images for stack in bracketed.stacks], times, codec)
+    per_exposure = [s.images if len(s.camera_stacks) == 1 else s.camera_stacks for s in bracketed.stacks]
+    data = exposures_zip(per_exposure, times, codec)
     return AcquiredCapture(data, times[0], times, reports, bracketed.bracket)
 
 

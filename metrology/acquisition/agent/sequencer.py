@@ -262,20 +262,21 @@ def run_bracketed_sequence(
     white and black frames grabbed at probe exposures from ``start_exposure_ms``. The longer
     exposures saturate the bright part on purpose: their white frame may saturate
     (``max_white_saturated`` 1), the shortest's may not.
+
+    On a rig of several cameras every camera is grabbed at each probe and each exposure (one stack
+    per camera per exposure, :attr:`AcquiredFrames.camera_stacks`); the bracket's shortest exposure
+    comes from the brightest camera, its longest from the darkest.
     """
     opts = options or SequenceOptions()
     cameras = as_rig_cameras(camera)
-    if cameras.camera_count > 1:
-        raise AcquisitionError(
-            f"multi-exposure captures are acquired on one-camera rigs only; this rig has {cameras.camera_count} "
-            "cameras (run the agent without --exposures)"
-        )
     bracket = None
     if exposures_ms is None:
 
-        def grab_flats(e: float) -> tuple[np.ndarray, np.ndarray]:
+        def grab_flats(e: float) -> tuple[Any, Any]:
+            """Camera 0's white and black frames; every camera's (tuples) on a rig of several."""
             cameras.set_exposure(e)
-            return _grab(projector, cameras, opts, "white")[1][0], _grab(projector, cameras, opts, "black")[1][0]
+            white, black = _grab(projector, cameras, opts, "white")[1], _grab(projector, cameras, opts, "black")[1]
+            return (white, black) if cameras.camera_count > 1 else (white[0], black[0])
 
         try:
             bracket = bracket_exposures(grab_flats, start_exposure_ms, bracket_options)

@@ -196,7 +196,13 @@ def _folder_source(label: str, folder: Path) -> _Source:
         def read_sub(member: str) -> bytes:
             return read(f"{name}/{member}")
 
-        return _Source(f"{label}/{name}", names, read_sub, lambda member: (folder / member).stat().st_size)
+        return _Source(
+            f"{label}/{name}",
+            names,
+            read_sub,
+            lambda member: (folder / member).stat().st_size,
+            sub=lambda inner: sub(f"{name}/{inner}"),  # cam0/exp0/: a camera's exposures
+        )
 
     return _Source(label, files, read, lambda name: (root / name).stat().st_size, nested, sub)
 
@@ -214,9 +220,9 @@ def _zip_source(label: str, archive: zipfile.ZipFile, max_bytes: int, max_ratio:
 
     def sub(name: str) -> _Source | None:
         head = name + "/"
-        inner = sorted(e[len(head) :] for e in entries if e.startswith(head) and "/" not in e[len(head) :])
-        if not inner:
+        if not any(e.startswith(head) for e in entries):
             return None
+        inner = sorted(e[len(head) :] for e in entries if e.startswith(head) and "/" not in e[len(head) :])
 
         def read_sub(member: str) -> bytes:
             return read(head + member)
@@ -224,7 +230,7 @@ def _zip_source(label: str, archive: zipfile.ZipFile, max_bytes: int, max_ratio:
         def size_sub(member: str) -> int:
             return size(head + member)
 
-        return _Source(f"{label}/{name}", inner, read_sub, size_sub)
+        return _Source(f"{label}/{name}", inner, read_sub, size_sub, sub=lambda deeper: sub(f"{name}/{deeper}"))
 
     return _Source(label, sorted(top), read, size, _nested_codec_files(entries), sub)
 
@@ -439,30 +445,39 @@ def read_exposure_stack(
         if codec is None:
             codec = _own_codec(src)
             origin = CODEC_FILE_NAME
-        assert src.sub is not None
-        stacks: list[np.ndarray] = []
-        first: tuple[str, np.ndarray] | None = None
-        for exposure in exposures:
-            sub = src.sub(exposure.name)
-            if sub is None:
-                raise StackError(
-                    f"capture {label} has no folder {exposure.name}/ for exposure {exposure.name!r} of "
-                    f"{EXPOSURES_FILE_NAME}"
-                )
-            if codec is None:  # no codec.json: gcps-v1 by the names, else refused
-                read = _read(sub, None, max_pixels)
-                codec, origin = read.codec, read.codec_source
-            else:
-                read = _read(sub, codec, max_pixels)
-            images = read.images
-            if first is not None and (images.shape != first[1].shape or images.dtype != first[1].dtype):
-                raise StackError(
-                    f"capture {label}: exposure {exposure.name!r} has frames of shape {images.shape[1:]} "
-                    f"{images.dtype} but exposure {first[0]!r} has {first[1].shape[1:]} {first[1].dtype}"
-                )
-            if first is None:
-                first = (exposure.name, images)
-            stacks.append(images)
+        return _read_exposures(src, exposures, codec, origin, max_pixels)
+
+
+def _read_exposures(
+    src: _Source, exposures: tuple[Exposure, ...], codec: Codec | None, origin: str, max_pixels: int
+) -> ExposureCodecStack:
+    """The stacks of ``exposures`` in their sub-folders of ``src`` (a capture's top, or one camera's
+    folder of a stereo capture); ``codec`` None: gcps-v1 by the names, else refused."""
+    label = src.label
+    assert src.sub is not None
+    stacks: list[np.ndarray] = []
+    first: tuple[str, np.ndarray] | None = None
+    for exposure in exposures:
+        sub = src.sub(exposure.name)
+        if sub is None:
+            raise StackError(
+                f"capture {label} has no folder {exposure.name}/ for exposure {exposure.name!r} of "
+                f"{EXPOSURES_FILE_NAME}"
+            )
+        if codec is None:  # no codec.json: gcps-v1 by the names, else refused
+            read = _read(sub, None, max_pixels)
+            codec, origin = read.codec, read.codec_source
+        else:
+            read = _read(sub, codec, max_pixels)
+        images = read.images
+        if first is not None and (images.shape != first[1].shape or images.dtype != first[1].dtype):
+            raise StackError(
+                f"capture {label}: exposure {exposure.name!r} has frames of shape {images.shape[1:]} "
+                f"{images.dtype} but exposure {first[0]!r} has {first[1].shape[1:]} {first[1].dtype}"
+            )
+        if first is None:
+            first = (exposure.name, images)
+        stacks.append(images)
     assert codec is not None
     return ExposureCodecStack(ExposureStack(tuple(stacks), exposures), codec, origin)
 
@@ -486,14 +501,15 @@ class CameraCodecStacks:
 
     Attributes
     ----------
-    stacks : tuple of (frames, H_c, W_c) arrays
-        One stack per camera, camera 0 first.
+    stacks : tuple of (frames, H_c, W_c) arrays, or of ExposureStack
+        One stack per camera, camera 0 first; for a multi-exposure capture (``exposures.json`` at
+        the top) each camera's :class:`ExposureStack`, the same exposures for every camera.
     codec : Codec
     codec_source : str
         As :attr:`CodecStack.codec_source`.
     """
 
-    stacks: tuple[np.ndarray, ...]
+    stacks: tuple[np.ndarray | ExposureStack, ...]
     codec: Codec
     codec_source: str
 
@@ -501,6 +517,21 @@ class CameraCodecStacks:
     def bit_depth(self) -> int:
         """8 or 16: the cameras' frames share one bit depth (checked when read)."""
         return 8 if self.stacks[0].dtype == np.uint8 else 16
+
+    @property
+    def exposures(self) -> tuple[Exposure, ...] | None:
+        """The exposures of a multi-exposure capture (every camera's, least exposed first), None
+        for a capture of single stacks."""
+        first = self.stacks[0]
+        return first.exposures if isinstance(first, ExposureStack) else None
+
+    @property
+    def frame_shapes(self) -> tuple[tuple[int, int], ...]:
+        """``(H_c, W_c)`` of each camera's frames, camera 0 first."""
+        return tuple(
+            stack.frame_shape if isinstance(stack, ExposureStack) else (int(stack.shape[1]), int(stack.shape[2]))
+            for stack in self.stacks
+        )
 
 
 def read_camera_stacks(
@@ -513,7 +544,10 @@ def read_camera_stacks(
     max_ratio: float = DEFAULT_MAX_RATIO,
 ) -> CameraCodecStacks:
     """Read a capture of ``cameras`` cameras (:mod:`metrology.core.io.cameras`): ``cam0/``,
-    ``cam1/`` ... each a complete stack of the codec's frames, ``codec.json`` optionally at the top.
+    ``cam1/`` ... each a complete stack of the codec's frames, ``codec.json`` optionally at the top;
+    or, with ``exposures.json`` at the top (docs/exposures.md, "Stereo rigs"), each camera's folder
+    holding one sub-folder per exposure (``cam0/exp0/``, ``cam0/exp1/`` ..., ``cam1/exp0/`` ...),
+    one manifest for every camera.
 
     Parameters
     ----------
@@ -530,7 +564,8 @@ def read_camera_stacks(
     StackError
         Naming the camera and the file: a camera's folder missing, a frame missing or unreadable
         (the codec's frame count), a ``codec.json`` inside a camera's folder, the cameras' bit
-        depths differing.
+        depths differing; for a multi-exposure capture also a bad ``exposures.json`` or an
+        exposure's folder missing in a camera (naming both).
     CodecError
         If the top ``codec.json`` is invalid.
     """
@@ -541,8 +576,11 @@ def read_camera_stacks(
         if codec is None:
             codec = _own_codec(src)
             origin = CODEC_FILE_NAME
+        exposures = None
+        if EXPOSURES_FILE_NAME in src.names:
+            exposures = parse_exposures(src.read(EXPOSURES_FILE_NAME), label)
         assert src.sub is not None
-        stacks: list[np.ndarray] = []
+        stacks: list[np.ndarray | ExposureStack] = []
         for index, folder in enumerate(camera_folders(cameras)):
             sub = src.sub(folder)
             if sub is None:
@@ -550,31 +588,58 @@ def read_camera_stacks(
                     f"capture {label} has no folder {folder}/ for camera {index} (a rig of {cameras} cameras: "
                     f"{', '.join(f + '/' for f in camera_folders(cameras))})"
                 )
+            read: CodecStack | ExposureCodecStack
             try:
-                read = _read(sub, codec, max_pixels)
+                read = (
+                    _read(sub, codec, max_pixels)
+                    if exposures is None
+                    else _read_exposures(sub, exposures, codec, origin, max_pixels)
+                )
             except StackError as exc:
                 raise StackError(f"camera {index}: {exc}") from None
             if codec is None:
                 codec, origin = read.codec, read.codec_source
-            if stacks and read.images.dtype != stacks[0].dtype:
+            images = read.images if isinstance(read, CodecStack) else read.stack
+            if stacks and images.dtype != stacks[0].dtype:
                 raise StackError(
-                    f"capture {label}: camera {index}'s frames are {8 * read.images.dtype.itemsize}-bit but camera "
+                    f"capture {label}: camera {index}'s frames are {8 * images.dtype.itemsize}-bit but camera "
                     f"0's are {8 * stacks[0].dtype.itemsize}-bit"
                 )
-            stacks.append(read.images)
+            stacks.append(images)
     assert codec is not None
     return CameraCodecStacks(tuple(stacks), codec, origin)
 
 
 def write_camera_stacks(
-    stacks: Sequence[npt.ArrayLike], dest: str | os.PathLike[str], codec: Codec | None = None
+    stacks: Sequence[npt.ArrayLike | ExposureStack], dest: str | os.PathLike[str], codec: Codec | None = None
 ) -> Path:
     """Write one stack per camera as ``cam0/``, ``cam1/`` ... of a new folder or ``.zip`` (atomic; the
     eleven named images of gcps-v1 when ``codec`` is None or gcps-v1, else the codec's frames and its
-    ``codec.json`` at the top). Reads back with :func:`read_camera_stacks`."""
+    ``codec.json`` at the top). :class:`ExposureStack` s (every camera's, of the same exposures) are
+    written as ``cam0/exp0/`` ... with one ``exposures.json`` at the top. Reads back with
+    :func:`read_camera_stacks`.
+
+    Raises
+    ------
+    ValueError
+        When a stack does not have one image per frame, the folder exists, or the cameras' stacks
+        mix single and multi-exposure ones or differ in their exposures.
+    """
     files: dict[str, bytes] = {}
-    for folder, images in zip(camera_folders(len(stacks)), stacks, strict=True):
-        files.update({f"{folder}/{name}": data for name, data in _stack_files(codec, np.asarray(images)).items()})
+    multi = [isinstance(stack, ExposureStack) for stack in stacks]
+    if any(multi):
+        first = stacks[0]
+        if not all(multi) or any(s.exposures != first.exposures for s in stacks):  # type: ignore[union-attr]
+            raise ValueError("a multi-exposure capture of several cameras has the same exposures for every camera")
+        assert isinstance(first, ExposureStack)
+        files[EXPOSURES_FILE_NAME] = exposures_json(first.exposures).encode()
+    for folder, stack in zip(camera_folders(len(stacks)), stacks, strict=True):
+        if isinstance(stack, ExposureStack):
+            for exposure, images in zip(stack.exposures, stack.images, strict=True):
+                own = _stack_files(codec, images)
+                files.update({f"{folder}/{exposure.name}/{name}": data for name, data in own.items()})
+        else:
+            files.update({f"{folder}/{name}": data for name, data in _stack_files(codec, np.asarray(stack)).items()})
     return _write_new(_with_codec_file(files, codec), dest)
 
 

@@ -7,7 +7,9 @@ unit_exposure_us`` the exposure relative to the one at which the plain renderer'
 and ``rho`` a reflectance map over the scene's coordinates (:class:`HdrReflectance`: a specular
 patch on a dark matte part, a range of ``patch / matte_min``, 1000:1 by default). Geometry and
 truth are those of :func:`~metrology.core.simulate.render.render_capture`'s cast path (any model,
-any codec): every exposure sees the same scene, with independent noise.
+any codec): every exposure sees the same scene, with independent noise. A stereo rig's cameras
+(:func:`render_stereo_exposures`) see one reflectance map over the scene, each through
+:func:`~metrology.core.simulate.stereo.cast_stereo`'s geometry.
 """
 
 from __future__ import annotations
@@ -23,13 +25,22 @@ from metrology.core.codecs.model import Codec, gcps_v1_codec
 from metrology.core.codecs.render import render_codec
 from metrology.core.codecs.stack import ExposureStack
 from metrology.core.geometry.base import GeometryModel
+from metrology.core.geometry.stereo import StereoRig
 from metrology.core.io.exposures import Exposure
 from metrology.core.scenes import Scene
-from metrology.core.simulate.cast import ScenePlacement, cast_truth
+from metrology.core.simulate.cast import CastTruth, ScenePlacement, cast_truth
 from metrology.core.simulate.frames import RenderedCapture
 from metrology.core.simulate.options import SimulationOptions
 from metrology.core.simulate.render import default_placement
 from metrology.core.simulate.series import stack_seed
+from metrology.core.simulate.stereo import (
+    ProjectorPlacement,
+    StereoCapture,
+    StereoCast,
+    camera_rigs,
+    cast_stereo,
+    lighting_projector,
+)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -99,9 +110,16 @@ def scene_reflectance(
     """The default map of :func:`render_exposures` (:meth:`HdrReflectance.spanning` the lit field
     of pixel centres, with ``changes``) for ``scene`` seen through ``model`` by a projector of
     ``projector_size`` (width, height): a fixed map, so that the frames of every exposure of a
-    camera (the agent's virtual camera) see one part."""
+    camera (the agent's virtual camera) see one part. For a stereo rig, camera 0's field under the
+    projector that lights its renders (:func:`render_stereo_exposures`)."""
     where = placement if placement is not None else default_placement(model)
-    truth = cast_truth(model.prepare(model.shape, projector_size), scene, where)
+    if model.cameras > 1:  # a stereo rig: camera 0's field, lit as render_stereo_exposures lights it
+        if not isinstance(model, StereoRig):
+            raise ValueError(f"the virtual rig renders two-camera stereo rigs, not a {model.short_label} rig")
+        pinhole, where = camera_rigs(model, where, lighting_projector(model, where))[0]
+        truth = cast_truth(pinhole.prepare(pinhole.shape, projector_size), scene, where)
+    else:
+        truth = cast_truth(model.prepare(model.shape, projector_size), scene, where)
     X, Y, _ = where.scene_coordinates(truth.points_mm)
     hit = np.isfinite(X) & np.isfinite(Y)
     return HdrReflectance.spanning(X[hit], Y[hit], **changes)
@@ -161,25 +179,60 @@ def render_exposures(
     placement : ScenePlacement, optional
         Default :func:`~metrology.core.simulate.render.default_placement`.
     """
-    if not (math.isfinite(unit_exposure_us) and unit_exposure_us > 0):
-        raise ValueError(f"unit_exposure_us must be a finite number > 0, got {unit_exposure_us!r}")
-    if not exposures:
-        raise ValueError("give at least one exposure")
+    ordered = _ordered(exposures, unit_exposure_us)
     opts = options if options is not None else SimulationOptions()
     codec = codec if codec is not None else gcps_v1_codec()
-    ordered = tuple(sorted(exposures, key=lambda e: (e.relative_exposure, e.name)))
     prepared = model.prepare(model.shape, (codec.projector_width, codec.projector_height))
     where = placement if placement is not None else default_placement(model)
     truth = cast_truth(prepared, scene, where)
     rays = truth if opts.supersample == 1 else cast_truth(prepared, scene, where, supersample=opts.supersample)
+    rho_map = reflectance if reflectance is not None else _spanning(rays, where)
+    factors = tuple(e.relative_exposure / unit_exposure_us for e in ordered)
+    stacks = _exposure_frames(codec, rays, where, rho_map, factors, opts, _seed_base(opts, scene))
+    rendered = RenderedCapture.from_truth(stacks[-1], truth, codec, opts)
+    return RenderedExposures(
+        ExposureStack(stacks, ordered), rendered, _centre_reflectance(truth, where, rho_map), factors
+    )
+
+
+def _ordered(exposures: Sequence[Exposure], unit_exposure_us: float) -> tuple[Exposure, ...]:
+    """``exposures`` least exposed first, after checking ``unit_exposure_us`` and that there is one."""
+    if not (math.isfinite(unit_exposure_us) and unit_exposure_us > 0):
+        raise ValueError(f"unit_exposure_us must be a finite number > 0, got {unit_exposure_us!r}")
+    if not exposures:
+        raise ValueError("give at least one exposure")
+    return tuple(sorted(exposures, key=lambda e: (e.relative_exposure, e.name)))
+
+
+def _seed_base(opts: SimulationOptions, scene: Scene) -> list[int]:
+    """The scene's noise entropy as a list of ints (exposure ``i`` seeds ``[*base, i]``)."""
+    entropy = stack_seed(opts, scene).entropy
+    return [int(e) for e in np.ravel(np.asarray(entropy, dtype=object))]
+
+
+def _spanning(rays: CastTruth, where: ScenePlacement) -> HdrReflectance:
+    """:meth:`HdrReflectance.spanning` the scene coordinates the rays hit."""
     X, Y, _ = where.scene_coordinates(rays.points_mm)
     hit = np.isfinite(X) & np.isfinite(Y)
-    rho_map = reflectance if reflectance is not None else HdrReflectance.spanning(X[hit], Y[hit])
+    return HdrReflectance.spanning(X[hit], Y[hit])
+
+
+def _exposure_frames(
+    codec: Codec,
+    rays: CastTruth,
+    where: ScenePlacement,
+    rho_map: HdrReflectance,
+    factors: tuple[float, ...],
+    opts: SimulationOptions,
+    base: list[int],
+) -> tuple[np.ndarray, ...]:
+    """One ``(frames, H, W)`` stack of ``codec`` per relative exposure ``t`` of ``factors``: the
+    rays' coordinates rendered under the albedo ``t * rho`` (1 where no ray hits), exposure ``i``'s
+    noise seeded by ``[*base, i]``."""
+    X, Y, _ = where.scene_coordinates(rays.points_mm)
+    hit = np.isfinite(X) & np.isfinite(Y)
     albedo = np.where(hit, rho_map(np.where(hit, X, 0.0), np.where(hit, Y, 0.0)), 1.0)
-    entropy = stack_seed(opts, scene).entropy
-    base = [int(e) for e in np.ravel(np.asarray(entropy, dtype=object))]
-    factors = tuple(e.relative_exposure / unit_exposure_us for e in ordered)
-    stacks = tuple(
+    return tuple(
         render_codec(
             codec,
             rays.u if "u" in codec.axes else None,
@@ -190,8 +243,110 @@ def render_exposures(
         )
         for index, t in enumerate(factors)
     )
+
+
+def _centre_reflectance(truth: CastTruth, where: ScenePlacement, rho_map: HdrReflectance) -> FloatArray:
+    """(H, W) float64: the reflectance each lit pixel centre sees, NaN where not lit."""
     lit = truth.lit
     Xc, Yc, _ = where.scene_coordinates(truth.points_mm)
-    centre = np.where(lit, rho_map(np.where(lit, Xc, 0.0), np.where(lit, Yc, 0.0)), np.nan)
-    rendered = RenderedCapture.from_truth(stacks[-1], truth, codec, opts)
-    return RenderedExposures(ExposureStack(stacks, ordered), rendered, centre, factors)
+    return np.where(lit, rho_map(np.where(lit, Xc, 0.0), np.where(lit, Yc, 0.0)), np.nan)
+
+
+@dataclass(frozen=True, eq=False)
+class RenderedStereoExposures:
+    """A rendered multi-exposure capture of a stereo rig and its truth.
+
+    Attributes
+    ----------
+    stacks : (ExposureStack, ExposureStack)
+        Each camera's exposures, camera 0 first (what :func:`~metrology.core.measure.measure`
+        takes as the object of a stereo rig), the same exposures for both.
+    capture : StereoCapture
+        The geometry's truth per camera (its cameras' ``images`` are the most exposed stacks).
+    reflectance : (H0, W0) float64
+        The reflectance each pixel centre of camera 0 sees (NaN where not lit).
+    relative_exposures : tuple of float
+        ``t`` of each exposure (module docstring).
+    """
+
+    stacks: tuple[ExposureStack, ExposureStack]
+    capture: StereoCapture
+    reflectance: FloatArray
+    relative_exposures: tuple[float, ...]
+
+    @property
+    def points_mm(self) -> FloatArray:
+        """``(H0, W0, 3)`` float64: the point each camera-0 pixel centre sees, camera 0's frame, mm."""
+        return self.capture.points_mm
+
+
+def render_stereo_exposures(
+    rig: StereoRig,
+    scene: Scene,
+    exposures: Sequence[Exposure],
+    codec: Codec,
+    options: SimulationOptions | None = None,
+    *,
+    placement: ScenePlacement,
+    reflectance: HdrReflectance | None = None,
+    unit_exposure_us: float = 1000.0,
+    projector: ProjectorPlacement | None = None,
+    cast: StereoCast | None = None,
+) -> RenderedStereoExposures:
+    """Render ``scene`` under ``reflectance`` at each exposure through both cameras of a stereo rig
+    (:func:`~metrology.core.simulate.stereo.render_stereo_capture`'s geometry, this module's
+    radiometry: ``I = t * full_scale * rho * (ambient + gain * E_f)``, clipped).
+
+    Parameters
+    ----------
+    rig : StereoRig
+    scene : Scene
+        Its geometry (its own reflectance is replaced by ``reflectance``).
+    exposures : sequence of Exposure
+        Any order; each camera's stack holds them least exposed first.
+    codec : Codec
+        Its projector size must be the rig's.
+    options : SimulationOptions, optional
+        Default noise-free 16-bit. Camera 0's exposure ``i`` is seeded as :func:`render_exposures`
+        seeds it, camera 1's by the scene's seed, 1 and ``i``.
+    placement : ScenePlacement
+        Where the scene's reference plane sits in camera 0's frame.
+    reflectance : HdrReflectance, optional
+        Over the scene's coordinates (one part for both cameras); default
+        :meth:`HdrReflectance.spanning` the field camera 0 sees (1000:1).
+    unit_exposure_us : float
+        The exposure time at which ``t = 1``, microseconds, > 0.
+    projector : ProjectorPlacement, optional
+        Default :func:`~metrology.core.simulate.stereo.default_projector`.
+    cast : StereoCast, optional
+        The scene already cast (:func:`~metrology.core.simulate.stereo.cast_stereo` with
+        ``options.supersample``).
+    """
+    ordered = _ordered(exposures, unit_exposure_us)
+    opts = options if options is not None else SimulationOptions()
+    if cast is None:
+        cast = cast_stereo(rig, scene, codec, placement, projector=projector, supersample=opts.supersample)
+    elif cast.supersample != opts.supersample:
+        raise ValueError(f"the cast has {cast.supersample} rays per pixel side, the options {opts.supersample}")
+    rho_map = reflectance if reflectance is not None else _spanning(cast.sub_rays[0], cast.placements[0])
+    factors = tuple(e.relative_exposure / unit_exposure_us for e in ordered)
+    base = _seed_base(opts, scene)
+    stacks, cameras = [], []
+    for index in range(2):
+        frames = _exposure_frames(
+            codec,
+            cast.sub_rays[index],
+            cast.placements[index],
+            rho_map,
+            factors,
+            opts,
+            [*base, index] if index else base,
+        )
+        stacks.append(ExposureStack(frames, ordered))
+        cameras.append(RenderedCapture.from_truth(frames[-1], cast.truths[index], codec, opts))
+    return RenderedStereoExposures(
+        stacks=(stacks[0], stacks[1]),
+        capture=StereoCapture(cameras=(cameras[0], cameras[1]), projector=cast.projector),
+        reflectance=_centre_reflectance(cast.truths[0], cast.placements[0], rho_map),
+        relative_exposures=factors,
+    )

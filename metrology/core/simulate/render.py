@@ -189,12 +189,14 @@ def render_camera_flats(
     options: SimulationOptions | None = None,
     *,
     placement: ScenePlacement | None = None,
+    reflectance: Callable[[FloatArray, FloatArray], FloatArray] | None = None,
 ) -> tuple[tuple[FloatArray, FloatArray], ...]:
     """Each camera's noise-free ``(white, black)`` images, camera 0 first: :func:`render_flats` for a
     model of one camera; for a stereo rig, :func:`render_flats` of each camera's pinhole rig with the
     projector that lights :func:`render_capture`'s stereo frames
     (:func:`~metrology.core.simulate.stereo.lighting_projector`, bounded by the rig's projector
-    size), the scene placed in that camera's frame.
+    size), the scene placed in that camera's frame. ``reflectance``: as :func:`render_flats`'s, one
+    map over the scene's coordinates for every camera (stereo rigs only).
 
     Returns
     -------
@@ -203,6 +205,8 @@ def render_camera_flats(
     """
     opts = options if options is not None else SimulationOptions()
     if model.cameras == 1:
+        if reflectance is not None:
+            raise ValueError("render_camera_flats takes a reflectance map for stereo rigs; use render_flats")
         return (render_flats(model, scene, opts, placement=placement),)
     from metrology.core.geometry.stereo import StereoRig
     from metrology.core.simulate.stereo import camera_rigs, lighting_projector
@@ -213,7 +217,7 @@ def render_camera_flats(
     size = (round(model.projector.width), round(model.projector.height))
     projector = lighting_projector(model, where, None)
     return tuple(
-        render_flats(pinhole, scene, opts, placement=in_camera, projector_size=size)
+        render_flats(pinhole, scene, opts, placement=in_camera, reflectance=reflectance, projector_size=size)
         for pinhole, in_camera in camera_rigs(model, where, projector)
     )
 
