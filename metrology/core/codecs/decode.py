@@ -716,6 +716,9 @@ KERNELS_MODULE = "metrology.core.codecs.kernels"
 def compiled_kernels() -> ModuleType | None:
     """:mod:`metrology.core.codecs.kernels` when this process has loaded it, else None.
 
+    With it, an 8-bit tile is decoded by its compiled kernels (phase sums, saturation, gray
+    words, reasons, slip search and repair) around the OpenCV calls whose rounding they keep
+    (``cartToPolar``, ``addWeighted``), to the same bits as without it.
     Importing numba and loading the kernel from numba's disk cache cost 0.8-1.4 s in a fresh
     process on the reference machine, far more than the kernel saves on the one or two stacks a
     ``gcps decode`` or ``gcps measure`` decodes (20-30 ms of CPU per 2048x1536 stack of 18 phase
@@ -768,6 +771,7 @@ def _decode_tile(
     phase_frames = sorted({f for plan in plans for i in plan.used for f in plan.sequences[i].frames})
     phase_saturated: np.ndarray | None = None
     n_saturated = 0
+    gray_saturation: _GraySaturation | None = None
     # with the compiled kernels, every phase sequence's sums come first: they also give the
     # brightest phase frame, so that the saturation check reads only the other frames again
     precomputed: dict[str, dict[int, _PhaseResult]] = {}
@@ -795,7 +799,18 @@ def _decode_tile(
         level = stack.dtype.type(opts.saturation_level) if integer else np.float32(opts.saturation_level)
         peak = scratch.get("peak", shape, stack.dtype)
         others = [f for f in used_frames if f not in phase_frames]
-        if pixels is not None:
+        gray = plans[0].axis.gray if len(plans) == 1 else None
+        if (
+            pixels is not None
+            and phase_peak is not None
+            and gray is not None
+            and gray.levels == 2
+            and (set(others) == set(gray.frames) | set(gray.inverse_frames or ()))
+        ):
+            # the frames besides the phase frames are the gray code's: its pass checks them
+            phase_saturated = scratch.get("phase_sat", shape, bool)
+            gray_saturation = _GraySaturation(phase_peak.reshape(-1), int(level))
+        elif pixels is not None:
             # one pass over the frames instead of a maximum per frame and three comparisons
             phase_saturated = scratch.get("phase_sat", shape, bool)
             n_saturated = pixels.kernels.saturation_u8(
@@ -857,10 +872,24 @@ def _decode_tile(
             local,
             pixels,
             precomputed.get(plan.name),
+            gray_saturation,
         )
         if sample is not None:
             judged[plan.name] = count
+    if gray_saturation is not None:
+        n_saturated = gray_saturation.count
     return n_saturated, judged
+
+
+@dataclass
+class _GraySaturation:
+    """The saturation check left to the gray code's compiled pass: ``peak`` (h w,) uint8 the
+    brightest phase frame, ``level`` the saturation level; the pass writes ``count``, the pixels
+    saturated in some frame (and the axis's ``phase_saturated``)."""
+
+    peak: np.ndarray
+    level: int
+    count: int = 0
 
 
 def _max_into(peak: np.ndarray, tile: np.ndarray, frames: list[int]) -> None:
@@ -950,6 +979,24 @@ def _phase_tile(
         np.copyto(mag, np.hypot(c, neg_s), casting="unsafe")
     else:
         cv2.cartToPolar(c, neg_s, magnitude=mag, angle=angle)
+    if pixels is not None and not exact and work is np.float32:
+        # the compiled kernel: frac, the noise and B in one pass, to the bits of the passes below
+        b_dst = modulation_dst if modulation_dst is not None else mag
+        noise_out = noise_dst if noise_dst is not None else sq
+        pixels.kernels.phase_finish(
+            angle.reshape(-1),
+            mag.reshape(-1),
+            total.reshape(-1),
+            (sq if sq is not None else total).reshape(-1),
+            sq is not None,
+            1 / n,
+            2 / n / scale**2,
+            1 / (n - 3) if n > 3 else 1.0,
+            2 / n / scale,
+            (noise_out if noise_out is not None else total).reshape(-1),
+            b_dst.reshape(-1),
+        )
+        return _PhaseResult(frac=angle, modulation=b_dst, total=total, noise=noise_out)
     # frac in [0, 1]: frac = 1 (theta = 2 pi) unwraps like 0, the rounding below absorbs it
     frac = np.multiply(angle, np.float32(1 / TWO_PI), out=angle)
     noise = None
@@ -1035,10 +1082,12 @@ def _decode_axis_tile(
     sample_rows: np.ndarray | None = None,
     pixels: _TilePixels | None = None,
     precomputed: Mapping[int, _PhaseResult] | None = None,
+    gray_saturation: _GraySaturation | None = None,
 ) -> int:
     """Decode one axis on a tile into ``out`` (views of the outputs' rows); ``sample_rows``: the
     tile's rows kept for the self-check (into ``out["sample_coordinate"]``, ``out["sample_centre"]``);
-    ``precomputed``: the chain's phase sequences already decoded on the tile (with the kernels).
+    ``precomputed``: the chain's phase sequences already decoded on the tile (with the kernels);
+    ``gray_saturation``: the saturation check the gray pass makes (writing ``phase_saturated``).
     Returns the pixels the self-check judges (reasons 0, 3, 4), 0 without ``sample_rows``."""
     h, w = tile.shape[1:]
     shape = (h, w)
@@ -1120,7 +1169,7 @@ def _decode_axis_tile(
         else:
             mode, inverse_index = (1 if white_black is not None else 0), np.empty(0, np.int64)
         assert mode != 0 or first_total is not None
-        pixels.kernels.gray_words_u8(
+        count = pixels.kernels.gray_words_u8(
             pixels.frames,
             pixels.start,
             pixels.stop,
@@ -1136,7 +1185,14 @@ def _decode_axis_tile(
             low_contrast.reshape(-1) if low_contrast is not None else np.empty(0, bool),
             float(opts.min_inverse_contrast),
             centre_dst.reshape(-1),
+            gray_saturation.peak if gray_saturation is not None else empty_u8,
+            gray_saturation.level if gray_saturation is not None else 255,
+            phase_saturated.reshape(-1)
+            if gray_saturation is not None and phase_saturated is not None
+            else np.empty(0, bool),
         )
+        if gray_saturation is not None:
+            gray_saturation.count = count
         centre = centre_dst
     elif g is not None:
         assert plan.gray_lut is not None

@@ -1,5 +1,17 @@
-"""Compiled kernel of the generic decoder's phase sums (numba, ``nogil``: the tiles of
-:func:`metrology.core.tiling.run_tiled` run it on the pool's threads in parallel).
+"""Compiled kernels of the generic decoder's 8-bit tiles (numba, ``nogil``: the tiles of
+:func:`metrology.core.tiling.run_tiled` run them on the pool's threads in parallel), each giving
+the bits of the numpy and OpenCV passes it replaces (``tests/core/codecs/test_kernels.py``):
+
+- :func:`phase_sums_u8`: a phase sequence's sums (below), and the brightest of its frames;
+- :func:`phase_finish`: from ``cv2.cartToPolar``'s magnitude and angle, the phase fraction, the
+  fit-residual noise and the modulation (ten passes of the tile);
+- :func:`saturation_u8`: the saturation check, reading only the frames that are not phase frames
+  (none at all where they are the gray code's: :func:`gray_words_u8` checks them as it reads them);
+- :func:`gray_words_u8`: a binary gray code's bits, word and centre in one pass over its frames
+  (three passes per bit and a look-up before);
+- :func:`reasons`: the reason codes and the refused pixels' NaN (seven passes before);
+- :func:`jump_pixels` and :func:`repair_slips`: the slip search of every tile and the serial
+  repair after them.
 
 For an 8-bit stack, :func:`phase_sums_u8` computes in one pass over a phase sequence's frames what
 took ``4 N`` OpenCV passes (``accumulate``, ``accumulateSquare`` and two ``accumulateWeighted``
@@ -143,6 +155,61 @@ def phase_sums_u8(
 
 
 @njit(nogil=True, cache=True, boundscheck=False)
+def phase_finish(
+    angle: np.ndarray,
+    mag: np.ndarray,
+    total: np.ndarray,
+    squares: np.ndarray,
+    want_noise: bool,
+    total_scale: float,
+    mag_scale: float,
+    residual_scale: float,
+    modulation_scale: float,
+    noise: np.ndarray,
+    modulation: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """What :func:`metrology.core.codecs.decode._phase_tile` computes from ``cv2.cartToPolar``'s
+    magnitude and angle of an 8-bit sequence, in one pass, each step rounded to float32 as the
+    OpenCV and numpy passes round it (no fused multiply-add; ``cv2.multiply`` with a scale is
+    ``(scale a) b``)::
+
+        frac = angle (1 / 2 pi)                                         (in place of angle)
+        R = max(((Q - (s_t T) T) - (s_m |m|) |m|), 0) s_r,   noise = sqrt(R)   (``want_noise``)
+        B = |m| s_B
+
+    Parameters
+    ----------
+    angle, mag : (n,) float32
+        Radians in [0, 2 pi]; ``K hypot(C, S)``.
+    total, squares : (n,) float32
+        ``sum I``, ``sum I^2`` (``squares`` read with ``want_noise`` only).
+    total_scale, mag_scale, residual_scale, modulation_scale : float
+        ``1 / N``, ``2 / (N K^2)``, ``1 / (N - 3)``, ``2 / (N K)``, rounded to float32.
+    noise : (n,) float32
+        Written with ``want_noise``.
+    modulation : (n,) float32
+        Written: B, grey levels (may be ``mag`` itself).
+    """
+    to_frac = np.float32(1 / (2 * np.pi))
+    s_t = np.float32(total_scale)
+    s_m = np.float32(mag_scale)
+    s_r = np.float32(residual_scale)
+    s_b = np.float32(modulation_scale)
+    zero = np.float32(0.0)
+    for j in range(angle.size):
+        angle[j] = angle[j] * to_frac
+    if want_noise:
+        for j in range(angle.size):
+            t = total[j]
+            m = mag[j]
+            r = (squares[j] - (s_t * t) * t) - (s_m * m) * m
+            r = r if (r >= zero or np.isnan(r)) else zero
+            noise[j] = np.sqrt(r * s_r)
+    for j in range(angle.size):
+        modulation[j] = mag[j] * s_b
+
+
+@njit(nogil=True, cache=True, boundscheck=False)
 def saturation_u8(
     frames: np.ndarray,
     start: int,
@@ -216,8 +283,13 @@ def gray_words_u8(
     low_contrast: np.ndarray,
     contrast_limit: float,
     centre: np.ndarray,
-) -> None:  # pragma: no cover - compiled
-    """A binary gray code's words and their centres on the pixels ``start:stop`` of an 8-bit stack.
+    peak: np.ndarray,
+    level: int,
+    phase_saturated: np.ndarray,
+) -> int:  # pragma: no cover - compiled
+    """A binary gray code's words and their centres on the pixels ``start:stop`` of an 8-bit stack
+    (and, with ``peak``, the saturation check of :func:`saturation_u8` where the gray frames are
+    all the frames that are not phase frames).
 
     The word is ``sum_i b_i weights_i`` with the bit ``b_i = I_{gray_i} > t`` (strictly), the
     threshold ``t`` by ``mode``: 0 the first phase sequence's mean, as ``floor(total / steps)``
@@ -242,8 +314,22 @@ def gray_words_u8(
         Written in mode 2.
     centre : (stop - start,) float32
         Written: ``lut[word]``.
+    peak : (stop - start,) uint8, or (0,) for no saturation check
+        The brightest phase frame; rewritten: the brightest of it and the gray (and inverse) frames.
+    level : int
+        Saturation level, grey levels.
+    phase_saturated : (stop - start,) bool
+        Written with ``peak``: ``peak >= level`` before the gray frames.
+
+    Returns
+    -------
+    int
+        With ``peak``: the pixels at or above ``level`` in some phase or gray frame; else 0.
     """
     limit = np.float32(contrast_limit)
+    top = np.uint8(min(max(level, 0), 255))
+    saturation = peak.size > 0
+    count = 0
     inv_steps = 1.0 / steps
     bits = gray_index.size
     word = np.empty(CHUNK_PX, np.int32)
@@ -266,8 +352,19 @@ def gray_words_u8(
             for j in range(m):
                 min_contrast[o + j] = 255
         mc = min_contrast[o : o + m] if mode == 2 else min_contrast[0:0]
+        pk = peak[o : o + m] if saturation else peak[0:0]
+        if saturation:
+            for j in range(m):
+                phase_saturated[o + j] = pk[j] >= top
         for i in range(bits):
             f = frames[gray_index[i], c0:c1]
+            if saturation:
+                for j in range(m):
+                    pk[j] = max(pk[j], f[j])
+                if mode == 2:
+                    g = frames[inverse_index[i], c0:c1]
+                    for j in range(m):
+                        pk[j] = max(pk[j], g[j])
             weight = np.int32(weights[i])
             if mode == 2:
                 inv = frames[inverse_index[i], c0:c1]
@@ -284,6 +381,12 @@ def gray_words_u8(
         if mode == 2:
             for j in range(m):
                 low_contrast[o + j] = np.float32(min_contrast[o + j]) < limit
+        if saturation:
+            n = np.int32(0)
+            for j in range(m):
+                n += np.int32(pk[j] >= top)
+            count += int(n)
+    return count
 
 
 @njit(nogil=True, cache=True, boundscheck=False)
@@ -476,7 +579,8 @@ def warm() -> None:
     u = np.zeros(0, np.uint8)
     phase_sums_u8(frames, 0, 0, i, alphas, e, e, e, e, False, u, 0)
     saturation_u8(frames, 0, 0, u, i, 255, b)
-    gray_words_u8(frames, 0, 0, i, i, np.zeros(2, np.float32), 0, e, 1, u, i, u, b, 4.0, e)
+    phase_finish(e, e, e, e, True, 1.0, 1.0, 1.0, 1.0, e, e)
+    gray_words_u8(frames, 0, 0, i, i, np.zeros(2, np.float32), 0, e, 1, u, i, u, b, 4.0, e, u, 255, b)
     reasons(e, -0.5, 0.5, b, b, b, b, b, u)
     x = np.zeros((0, 0), np.float32)
     jump_pixels(x, 0.5, np.zeros(0, np.intp))
