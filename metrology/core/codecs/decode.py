@@ -1414,7 +1414,8 @@ def slip_candidates(x: np.ndarray, half_period: float) -> np.ndarray:
     scratch = thread_scratch()
     kernels = compiled_kernels()
     if kernels is not None and x.dtype == np.float32 and x.flags.c_contiguous:
-        found = scratch.get("jump_flat", (h * w,), np.intp)
+        # a tile's indices in the thread's scratch; a whole frame's (a caller without candidates) not kept
+        found = scratch.get("jump_flat", (h * w,), np.intp) if h * w <= 1 << 18 else np.empty(h * w, np.intp)
         return found[: kernels.jump_pixels(x, half, found)].copy()
     mx = my = None
     if w > 1:
