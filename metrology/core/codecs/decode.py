@@ -716,6 +716,9 @@ KERNELS_MODULE = "metrology.core.codecs.kernels"
 def compiled_kernels() -> ModuleType | None:
     """:mod:`metrology.core.codecs.kernels` when this process has loaded it, else None.
 
+    With it, an 8-bit tile is decoded by its compiled kernels (phase sums, saturation, gray
+    words, reasons, slip search and repair) around the OpenCV calls whose rounding they keep
+    (``cartToPolar``, ``addWeighted``), to the same bits as without it.
     Importing numba and loading the kernel from numba's disk cache cost 0.8-1.4 s in a fresh
     process on the reference machine, far more than the kernel saves on the one or two stacks a
     ``gcps decode`` or ``gcps measure`` decodes (20-30 ms of CPU per 2048x1536 stack of 18 phase
@@ -768,18 +771,68 @@ def _decode_tile(
     phase_frames = sorted({f for plan in plans for i in plan.used for f in plan.sequences[i].frames})
     phase_saturated: np.ndarray | None = None
     n_saturated = 0
+    gray_saturation: _GraySaturation | None = None
+    # with the compiled kernels, every phase sequence's sums come first: they also give the
+    # brightest phase frame, so that the saturation check reads only the other frames again
+    precomputed: dict[str, dict[int, _PhaseResult]] = {}
+    if pixels is not None:
+        phase_peak = scratch.get("phase_peak", shape, np.uint8) if check_saturation and phase_frames else None
+        peak_mode = 1
+        for plan in plans:
+            out = outputs[plan.name]
+            results = precomputed[plan.name] = {}
+            for i in plan.used:
+                results[i] = _phase_tile(
+                    tile,
+                    plan.sequences[i],
+                    bool(opts.exact_phase),
+                    scratch,
+                    f"{plan.name}{i}",
+                    modulation_dst=out["modulation"][rows] if plan.final == (i,) else None,
+                    noise_dst=out["noise"][rows] if plan.sequences[i].need_noise else None,
+                    pixels=pixels,
+                    peak=phase_peak,
+                    peak_mode=peak_mode if phase_peak is not None else 0,
+                )
+                peak_mode = 2
     if check_saturation:
         level = stack.dtype.type(opts.saturation_level) if integer else np.float32(opts.saturation_level)
         peak = scratch.get("peak", shape, stack.dtype)
         others = [f for f in used_frames if f not in phase_frames]
-        if phase_frames:
+        gray = plans[0].axis.gray if len(plans) == 1 else None
+        if (
+            pixels is not None
+            and phase_peak is not None
+            and gray is not None
+            and gray.levels == 2
+            and (set(others) == set(gray.frames) | set(gray.inverse_frames or ()))
+        ):
+            # the frames besides the phase frames are the gray code's: its pass checks them
+            phase_saturated = scratch.get("phase_sat", shape, bool)
+            gray_saturation = _GraySaturation(phase_peak.reshape(-1), int(level))
+        elif pixels is not None:
+            # one pass over the frames instead of a maximum per frame and three comparisons
+            phase_saturated = scratch.get("phase_sat", shape, bool)
+            n_saturated = pixels.kernels.saturation_u8(
+                pixels.frames,
+                pixels.start,
+                pixels.stop,
+                phase_peak.reshape(-1) if phase_peak is not None else np.empty(0, np.uint8),
+                np.asarray(others, np.int64),
+                int(level),
+                phase_saturated.reshape(-1),
+            )
+            if not phase_frames:
+                phase_saturated = None
+        elif phase_frames:
             _max_into(peak, tile, phase_frames)
             phase_saturated = np.greater_equal(peak, level, out=scratch.get("phase_sat", shape, bool))
             for f in others:
                 np.maximum(peak, tile[f], out=peak)
         else:
             _max_into(peak, tile, others)
-        n_saturated = int(np.count_nonzero(peak >= level))
+        if pixels is None:
+            n_saturated = int(np.count_nonzero(peak >= level))
 
     # white / black threshold, shared by the axes
     white_black: np.ndarray | None = None
@@ -818,10 +871,25 @@ def _decode_tile(
             scratch,
             local,
             pixels,
+            precomputed.get(plan.name),
+            gray_saturation,
         )
         if sample is not None:
             judged[plan.name] = count
+    if gray_saturation is not None:
+        n_saturated = gray_saturation.count
     return n_saturated, judged
+
+
+@dataclass
+class _GraySaturation:
+    """The saturation check left to the gray code's compiled pass: ``peak`` (h w,) uint8 the
+    brightest phase frame, ``level`` the saturation level; the pass writes ``count``, the pixels
+    saturated in some frame (and the axis's ``phase_saturated``)."""
+
+    peak: np.ndarray
+    level: int
+    count: int = 0
 
 
 def _max_into(peak: np.ndarray, tile: np.ndarray, frames: list[int]) -> None:
@@ -856,6 +924,8 @@ def _phase_tile(
     modulation_dst: np.ndarray | None = None,
     noise_dst: np.ndarray | None = None,
     pixels: _TilePixels | None = None,
+    peak: np.ndarray | None = None,
+    peak_mode: int = 0,
 ) -> _PhaseResult:
     """Least-squares phase, modulation, sum and (N >= 4, when asked) noise of one sequence on a tile.
 
@@ -873,7 +943,8 @@ def _phase_tile(
     pass over the frames instead.
 
     ``modulation_dst`` and ``noise_dst`` (h, w) float32, optional: where B and the noise are
-    written (else scratch arrays).
+    written (else scratch arrays). ``peak`` (h, w) uint8, with ``pixels`` only: the brightest of
+    the sequence's frames written (``peak_mode`` 1) or maxed into it (2).
     """
     h, w = tile.shape[1:]
     n = seq.steps
@@ -894,6 +965,8 @@ def _phase_tile(
             res[1],
             (sq if sq is not None else total).reshape(-1),
             sq is not None,
+            peak.reshape(-1) if peak is not None else np.empty(0, np.uint8),
+            peak_mode if peak is not None else 0,
         )
     else:
         scale = _opencv_sums(tile, seq, total, sq, res, scratch)
@@ -906,6 +979,24 @@ def _phase_tile(
         np.copyto(mag, np.hypot(c, neg_s), casting="unsafe")
     else:
         cv2.cartToPolar(c, neg_s, magnitude=mag, angle=angle)
+    if pixels is not None and not exact and work is np.float32:
+        # the compiled kernel: frac, the noise and B in one pass, to the bits of the passes below
+        b_dst = modulation_dst if modulation_dst is not None else mag
+        noise_out = noise_dst if noise_dst is not None else sq
+        pixels.kernels.phase_finish(
+            angle.reshape(-1),
+            mag.reshape(-1),
+            total.reshape(-1),
+            (sq if sq is not None else total).reshape(-1),
+            sq is not None,
+            1 / n,
+            2 / n / scale**2,
+            1 / (n - 3) if n > 3 else 1.0,
+            2 / n / scale,
+            (noise_out if noise_out is not None else total).reshape(-1),
+            b_dst.reshape(-1),
+        )
+        return _PhaseResult(frac=angle, modulation=b_dst, total=total, noise=noise_out)
     # frac in [0, 1]: frac = 1 (theta = 2 pi) unwraps like 0, the rounding below absorbs it
     frac = np.multiply(angle, np.float32(1 / TWO_PI), out=angle)
     noise = None
@@ -990,9 +1081,13 @@ def _decode_axis_tile(
     scratch: Any,
     sample_rows: np.ndarray | None = None,
     pixels: _TilePixels | None = None,
+    precomputed: Mapping[int, _PhaseResult] | None = None,
+    gray_saturation: _GraySaturation | None = None,
 ) -> int:
     """Decode one axis on a tile into ``out`` (views of the outputs' rows); ``sample_rows``: the
-    tile's rows kept for the self-check (into ``out["sample_coordinate"]``, ``out["sample_centre"]``).
+    tile's rows kept for the self-check (into ``out["sample_coordinate"]``, ``out["sample_centre"]``);
+    ``precomputed``: the chain's phase sequences already decoded on the tile (with the kernels);
+    ``gray_saturation``: the saturation check the gray pass makes (writing ``phase_saturated``).
     Returns the pixels the self-check judges (reasons 0, 3, 4), 0 without ``sample_rows``."""
     h, w = tile.shape[1:]
     shape = (h, w)
@@ -1005,15 +1100,19 @@ def _decode_axis_tile(
     results: dict[int, _PhaseResult] = {}
     for i in plan.used:
         # the final sequence's B and noise go straight into the outputs
-        r = results[i] = _phase_tile(
-            tile,
-            plan.sequences[i],
-            exact,
-            scratch,
-            f"{plan.name}{i}",
-            modulation_dst=out["modulation"] if plan.final == (i,) else None,
-            noise_dst=out["noise"] if plan.sequences[i].need_noise else None,
-            pixels=pixels,
+        r = results[i] = (
+            precomputed[i]
+            if precomputed is not None
+            else _phase_tile(
+                tile,
+                plan.sequences[i],
+                exact,
+                scratch,
+                f"{plan.name}{i}",
+                modulation_dst=out["modulation"] if plan.final == (i,) else None,
+                noise_dst=out["noise"] if plan.sequences[i].need_noise else None,
+                pixels=pixels,
+            )
         )
         dark |= r.modulation < min_mod
     first_total: np.ndarray | None = None
@@ -1059,6 +1158,42 @@ def _decode_axis_tile(
             tile, g, plan.levels, lo, span, scratch, plan.name, resolve_adjacent=adjacent_ok
         )
         centre = np.take(plan.gray_lut, index, out=centre_dst)
+    elif g is not None and pixels is not None:
+        # the compiled kernel: thresholds, bits, word and centre in one pass over the gray frames
+        assert plan.gray_lut is not None
+        empty_u8 = np.empty(0, np.uint8)
+        if g.inverse_frames is not None:
+            mode, inverse_index = 2, np.asarray(g.inverse_frames, np.int64)
+            low_contrast = scratch.get(f"lowc{plan.name}", shape, bool)
+            min_contrast = scratch.get(f"minc{plan.name}", shape, np.uint8)
+        else:
+            mode, inverse_index = (1 if white_black is not None else 0), np.empty(0, np.int64)
+        assert mode != 0 or first_total is not None
+        count = pixels.kernels.gray_words_u8(
+            pixels.frames,
+            pixels.start,
+            pixels.stop,
+            np.asarray(g.frames, np.int64),
+            np.left_shift(1, np.asarray(plan.gray_positions, np.int64)),
+            plan.gray_lut,
+            mode,
+            first_total.reshape(-1) if mode == 0 and first_total is not None else np.empty(0, np.float32),
+            plan.sequences[0].steps if plan.sequences else 1,
+            white_black.reshape(-1) if mode == 1 and white_black is not None else empty_u8,
+            inverse_index,
+            min_contrast.reshape(-1) if min_contrast is not None else empty_u8,
+            low_contrast.reshape(-1) if low_contrast is not None else np.empty(0, bool),
+            float(opts.min_inverse_contrast),
+            centre_dst.reshape(-1),
+            gray_saturation.peak if gray_saturation is not None else empty_u8,
+            gray_saturation.level if gray_saturation is not None else 255,
+            phase_saturated.reshape(-1)
+            if gray_saturation is not None and phase_saturated is not None
+            else np.empty(0, bool),
+        )
+        if gray_saturation is not None:
+            gray_saturation.count = count
+        centre = centre_dst
     elif g is not None:
         assert plan.gray_lut is not None
         word_dtype = np.uint8 if g.bits <= 8 else np.uint16
@@ -1190,6 +1325,18 @@ def _decode_axis_tile(
     else:
         noise_out.fill(np.nan)
 
+    if pixels is not None:
+        # the compiled kernel: the reasons and the NaN of the refused pixels in one pass
+        if sample_rows is not None:
+            np.take(x, sample_rows, axis=0, out=out["sample_coordinate"])
+        none = np.empty(0, bool)
+        masks = [
+            m.reshape(-1) if m is not None else none
+            for m in (inconsistent, low_contrast, phase_saturated if plan.used else None, dark, ambiguous)
+        ]
+        judged = pixels.kernels.reasons(x.reshape(-1), -0.5, plan.extent - 0.5, *masks, out["reason"].reshape(-1))
+        return judged if sample_rows is not None else 0
+
     # reasons: the flags form a 6-bit index (ambiguous level 32, dark 16, saturated 8, low contrast 4,
     # inconsistent 2, outside 1) that a table turns into the first applicable reason
     flags = scratch.get("flags", shape, np.uint8)
@@ -1265,6 +1412,11 @@ def slip_candidates(x: np.ndarray, half_period: float) -> np.ndarray:
     # 1 where a jump (NaN compares false); a tile without any needs no index search. The
     # differences go to per-thread scratch arrays (fresh large arrays cost page faults)
     scratch = thread_scratch()
+    kernels = compiled_kernels()
+    if kernels is not None and x.dtype == np.float32 and x.flags.c_contiguous:
+        # a tile's indices in the thread's scratch; a whole frame's (a caller without candidates) not kept
+        found = scratch.get("jump_flat", (h * w,), np.intp) if h * w <= 1 << 18 else np.empty(h * w, np.intp)
+        return found[: kernels.jump_pixels(x, half, found)].copy()
     mx = my = None
     if w > 1:
         dx = cv2.absdiff(x[:, 1:], x[:, :-1], dst=scratch.get("jump_dx", (h, w - 1), np.float32))
@@ -1313,6 +1465,14 @@ def repair_slips(
     x = coordinate
     half = np.float32(slip_period / 2)
     flat = slip_candidates(x, slip_period / 2) if candidates is None else np.unique(candidates)
+    kernels = compiled_kernels()
+    if kernels is not None and x.dtype == np.float32 and x.flags.c_contiguous and reason.flags.c_contiguous:
+        bound = centre if centre is not None else np.empty((0, 0), np.float32)
+        return int(
+            kernels.repair_slips(
+                x, reason, flat.astype(np.intp), slip_period, final_period, bound, cell_reach, REASON_SLIP_REPAIRED
+            )
+        )
     rows, cols = np.divmod(flat, x.shape[1])
     if rows.size == 0:
         return 0

@@ -27,10 +27,12 @@ from metrology.core.codecs.decode import (
     _plan,
     compiled_kernels,
     decode_codec,
+    repair_slips,
+    slip_candidates,
 )
 from metrology.core.simulate import SimulationOptions
 from metrology.core.tiling import thread_scratch
-from tests.core.codecs.roundtrips import axis_spec, truth_maps
+from tests.core.codecs.roundtrips import axis_spec, make_codec, multilevel_codec, truth_maps
 
 
 @pytest.fixture
@@ -82,7 +84,7 @@ def test_the_kernel_sums_are_the_opencv_passes_bits(kernels: ModuleType, steps: 
     start = rows.start * width
     kernels.phase_sums_u8(
         flat, start, start + h * width, seq.frame_index, seq.recursive_f32, k_total.ravel(), k_sums[0], k_sums[1],
-        k_squares.ravel(), True,
+        k_squares.ravel(), True, np.empty(0, np.uint8), 0,
     )  # fmt: skip
     np.testing.assert_array_equal(k_total, total)
     np.testing.assert_array_equal(k_squares, squares)
@@ -95,8 +97,9 @@ def test_the_kernel_sums_are_the_opencv_passes_bits(kernels: ModuleType, steps: 
     without_squares = np.full_like(k_squares, -1.0)
     kernels.phase_sums_u8(
         flat, start, start + h * width, seq.frame_index, seq.recursive_f32, k_total.ravel(), k_sums[0], k_sums[1],
-        without_squares.ravel(), False,
+        without_squares.ravel(), False, peak := np.full(h * width, 7, np.uint8), 2,
     )  # fmt: skip
+    np.testing.assert_array_equal(peak, np.maximum(tile[list(seq.frames)].max(axis=0).ravel(), 7))
     assert (without_squares == -1.0).all()  # not written
 
 
@@ -139,12 +142,36 @@ def two_axis_beat_codec() -> Codec:
     )
 
 
-@pytest.mark.parametrize("name", ["18 steps + gray", "3 steps, beats, inverse gray, two axes"])
+def white_black_codec() -> Codec:
+    """u: 8 phase steps of period 16 px, 4 gray bits of 16-px words thresholded at the white/black
+    mean (no inverse frames); v: a gray code with inverse frames only; white, black."""
+    u, n = axis_spec(0, 8, 16.0, bits=4)
+    v, n = axis_spec(n, None, 8.0, bits=5, inverse=True, word=8.0)
+    return make_codec(u, v, n + 2, white=[n], black=[n + 1])
+
+
+CODECS = {
+    "18 steps + gray": lambda: phase_codec(18, 1),
+    "3 steps, beats, inverse gray, two axes": two_axis_beat_codec,
+    "white/black threshold, gray-only inverse axis": white_black_codec,
+    "4-level gray + phase": lambda: multilevel_codec(4, 3, 4.0),
+}
+
+
+@pytest.mark.parametrize("name", list(CODECS))
 def test_decoding_with_the_kernel_gives_the_same_bits(kernels: ModuleType, name: str) -> None:
-    """Realistic 8-bit renders decoded with the kernel loaded and without it (as ``gcps decode``
-    runs): every output map, the slips and the summary are the same."""
-    codec = phase_codec(18, 1) if name.startswith("18") else two_axis_beat_codec()
+    """Realistic 8-bit renders decoded with the kernels loaded and without them (as ``gcps decode``
+    runs): every output map (to the bit, NaN included), the slips and the summary are the same;
+    with saturated patches (a phase frame and a gray frame) and coordinates made to slip."""
+    codec = CODECS[name]()
     stack = realistic(codec, seed=5)
+    stack[:, 5:9, 10:16] = np.maximum(stack[:, 5:9, 10:16], 200)
+    stack[0, 5:9, 10:13] = 255  # saturated in a phase (or gray) frame: refused or flagged
+    stack[-3, 20:23, 40:44] = 255  # a later frame: flagged
+    gray = next(iter(codec.axes.values())).gray
+    if gray is not None:  # bits misread at a few pixels: slips to repair (or to refuse)
+        f = gray.frames[-1]
+        stack[f, 30:32, 50:52] = 255 - stack[f, 30:32, 50:52]
     with_kernel = decode_codec(stack, codec)
     assert compiled_kernels() is kernels
     sys.modules.pop(KERNELS_MODULE)
@@ -156,7 +183,43 @@ def test_decoding_with_the_kernel_gives_the_same_bits(kernels: ModuleType, name:
     for axis, a in without.axes.items():
         b = with_kernel.axes[axis]
         assert a.valid.mean() > 0.5, axis
-        for field in ("coordinate", "modulation", "mean", "noise", "reason"):
-            np.testing.assert_array_equal(getattr(b, field), getattr(a, field), err_msg=f"{axis} {field}")
+        for field in ("coordinate", "modulation", "mean", "noise"):
+            bits = np.dtype(f"u{getattr(a, field).itemsize}")
+            assert np.array_equal(getattr(b, field).view(bits), getattr(a, field).view(bits)), f"{axis} {field}"
+        np.testing.assert_array_equal(b.reason, a.reason, err_msg=f"{axis} reason")
         assert b.slips_repaired == a.slips_repaired
     assert with_kernel.summary() == without.summary()
+    assert with_kernel.saturated_pixels == without.saturated_pixels > 0
+
+
+def test_the_slip_kernels_are_the_numpy_slip_search_and_repair(kernels: ModuleType) -> None:
+    """Coordinates with NaN holes, whole-period slips (single pixels, a 2x2 block, pixels at the
+    borders) and a depth edge: the compiled jump search gives numpy's candidates, and the compiled
+    repair moves the same pixels to the same bits (with and without the gray-word bound)."""
+    rng = np.random.default_rng(3)
+    h, w, period = 40, 57, 16.0
+    x = (np.arange(w, dtype=np.float32)[None, :] * 3.1 + rng.normal(0, 0.2, (h, w))).astype(np.float32)
+    x[:, 40:] += 300  # a depth edge
+    x[rng.random((h, w)) < 0.1] = np.nan
+    centre = (np.floor(x / period) * period + period / 2).astype(np.float32)  # the true words
+    x[[3, 17, 0, 39, 25], [5, 30, 0, 56, 41]] += np.float32(period) * np.array([1, -2, 1, 1, 3], np.float32)
+    x[10:12, 20:22] -= np.float32(period)
+    centre[17, 30] += 5 * period  # this pixel's moved coordinate is out of its word's reach
+    reason = np.where(np.isnan(x), 1, 0).astype(np.uint8)
+    with_kernel = slip_candidates(x, period / 2)
+    sys.modules.pop(KERNELS_MODULE)
+    try:
+        without = slip_candidates(x, period / 2)
+        expected = []
+        for bound in (None, centre):
+            xn, rn = x.copy(), reason.copy()
+            expected.append((repair_slips(xn, rn, period, 4.0, without, bound, 8.0 + 0.25 * period), xn, rn))
+    finally:
+        sys.modules[KERNELS_MODULE] = kernels
+    np.testing.assert_array_equal(with_kernel, without)
+    assert without.size > 20
+    for bound, (count, xn, rn) in zip((None, centre), expected, strict=True):
+        xk, rk = x.copy(), reason.copy()
+        assert repair_slips(xk, rk, period, 4.0, with_kernel, bound, 8.0 + 0.25 * period) == count >= 4
+        assert np.array_equal(xk.view(np.uint32), xn.view(np.uint32))
+        np.testing.assert_array_equal(rk, rn)
