@@ -213,8 +213,13 @@ def test_a_dead_workers_job_is_taken_over_within_30_s_without_beat(private_stack
     body = wait_for(http, f"/api/jobs/{job_id}/", finished, timeout=60)
     assert body["status"] == "done" and body["attempts"] == 2, (taken, body)
     assert second.poll() is None
-    assert worker_log(stack, "worker-2").count("succeeded in") >= 1
-    assert sum(line.endswith("'done'") for line in worker_log(stack, "worker-2").splitlines()) == 1
+    # the job's status is stored before Celery logs the task's return: wait for the log line
+    done_lines = wait_until(
+        lambda: [line for line in worker_log(stack, "worker-2").splitlines() if line.endswith("'done'")],
+        10,
+        "worker-2 to log the job's return",
+    )
+    assert len(done_lines) == 1 and "succeeded in" in done_lines[0], done_lines
     print(f"dead worker's job taken over {takeover_s:.1f} s after SIGKILL (no beat)")
 
 
@@ -248,7 +253,12 @@ def test_redis_restarted_without_persistence_during_30_queued_jobs_every_job_end
     recovery_s = time.monotonic() - restarted_at
     assert [b["status"] for b in bodies] == ["done"] * 30, [(b["id"], b["status"], b["error"]) for b in bodies]
     assert [b["attempts"] for b in bodies] == [1] * 30  # none run twice
-    logs = [worker_log(stack, name) for name in ("worker-1", "worker-2")]
+
+    def logs_of_30_runs() -> list[str] | None:  # a job's status is stored before Celery logs its return
+        logs = [worker_log(stack, name) for name in ("worker-1", "worker-2")]
+        return logs if sum(line.endswith("'done'") for log in logs for line in log.splitlines()) >= 30 else None
+
+    logs = wait_until(logs_of_30_runs, 10, "the workers to log 30 job returns")
     runs = sum(line.endswith("'done'") for log in logs for line in log.splitlines())
     assert runs == 30, runs
     resent = sum(int(n) for log in logs for n in re.findall(r"job sweep: sent (\d+) queued job", log))
