@@ -259,11 +259,17 @@ def saturation_u8(
             f = frames[other_index[k], c0:c1]
             for j in range(m):
                 peak[j] = max(peak[j], f[j])
-        n = np.int32(0)
-        for j in range(m):
-            n += np.int32(peak[j] >= top)
-        count += int(n)
+        count += _count_at_least(peak, m, top)
     return count
+
+
+@njit(nogil=True, cache=True, boundscheck=False)
+def _count_at_least(values: np.ndarray, m: int, top: int | np.uint8) -> int:  # pragma: no cover - compiled
+    """How many of ``values[:m]`` (uint8) are at least ``top``: the saturated pixels of a chunk."""
+    n = np.int32(0)
+    for j in range(m):
+        n += np.int32(values[j] >= top)
+    return int(n)
 
 
 @njit(nogil=True, cache=True, boundscheck=False)
@@ -382,10 +388,7 @@ def gray_words_u8(
             for j in range(m):
                 low_contrast[o + j] = np.float32(min_contrast[o + j]) < limit
         if saturation:
-            n = np.int32(0)
-            for j in range(m):
-                n += np.int32(pk[j] >= top)
-            count += int(n)
+            count += _count_at_least(pk, m, top)
     return count
 
 
