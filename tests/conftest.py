@@ -185,6 +185,13 @@ def logged_in(user) -> Client:
     return client
 
 
+def log_page_in(page, user, base_url: str) -> None:
+    """Give a Playwright ``page`` ``user``'s session on the server at ``base_url`` (a session cookie
+    made by :func:`logged_in`, without going through the login form)."""
+    session = logged_in(user).cookies["sessionid"].value
+    page.context.add_cookies([{"name": "sessionid", "value": session, "url": base_url}])
+
+
 @pytest.fixture
 def client_alice(alice) -> Client:
     return logged_in(alice)

@@ -9,6 +9,7 @@ import os
 import pytest
 
 from tests.browser import CHROMIUM
+from tests.conftest import log_page_in
 
 pytestmark = [
     pytest.mark.browser,
@@ -42,8 +43,6 @@ def test_header_is_sent_on_pages_and_api(client_alice, rig):
 
 @pytest.mark.django_db(transaction=True)
 def test_pages_work_under_the_policy(live_server, alice, captures, browser_page, monkeypatch):
-    from django.test import Client
-
     # Playwright's sync API keeps an event loop on this thread; the ORM calls here are synchronous
     monkeypatch.setenv("DJANGO_ALLOW_ASYNC_UNSAFE", "true")
 
@@ -58,10 +57,7 @@ def test_pages_work_under_the_policy(live_server, alice, captures, browser_page,
     page.add_init_script(RECORD_VIOLATIONS)
     console: list[str] = []
     page.on("console", lambda msg: console.append(msg.text) if msg.type == "error" else None)
-    client = Client()
-    client.force_login(alice)
-    cookie = client.cookies["sessionid"]
-    page.context.add_cookies([{"name": "sessionid", "value": cookie.value, "url": live_server.url}])
+    log_page_in(page, alice, live_server.url)
 
     visited = []
 

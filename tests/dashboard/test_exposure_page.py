@@ -14,6 +14,7 @@ from metrology.captures.services import upload_capture
 from metrology.core.geometry.crossed_axes import Rig
 from tests.app.stacks import SMALL_RIG, hdr_members, zip_bytes
 from tests.browser import CHROMIUM, shot
+from tests.conftest import log_page_in
 from tests.dashboard.helpers import figure_data
 
 HALF = SMALL_RIG["width_px"] // 2
@@ -64,16 +65,10 @@ def test_capture_page_shows_the_pixels_per_exposure_and_which_exposure_each_pixe
 @pytest.mark.skipif(not os.path.exists(CHROMIUM), reason=f"{CHROMIUM} is not installed")
 @pytest.mark.django_db(transaction=True)
 def test_capture_page_of_a_multi_exposure_capture_in_the_browser(live_server, alice, rig, browser_page, monkeypatch):
-    from django.test import Client
-
     monkeypatch.setenv("DJANGO_ALLOW_ASYNC_UNSAFE", "true")  # Playwright's loop shares this thread
     capture = _upload(alice, rig)
-    client = Client()
-    client.force_login(alice)
     page = browser_page
-    page.context.add_cookies(
-        [{"name": "sessionid", "value": client.cookies["sessionid"].value, "url": live_server.url}]
-    )
+    log_page_in(page, alice, live_server.url)
     response = page.goto(f"{live_server.url}/captures/{capture.pk}/")
     assert response is not None and response.status == 200
     page.wait_for_function("() => document.querySelector('#fig-exposure_u .main-svg') !== null")

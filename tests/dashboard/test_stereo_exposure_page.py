@@ -12,6 +12,7 @@ import pytest
 from django.core.files.uploadedfile import SimpleUploadedFile
 
 from tests.browser import CHROMIUM, shot
+from tests.conftest import log_page_in
 
 
 def _upload(owner):
@@ -39,16 +40,10 @@ def _upload(owner):
 @pytest.mark.skipif(not os.path.exists(CHROMIUM), reason=f"{CHROMIUM} is not installed")
 @pytest.mark.django_db(transaction=True)
 def test_capture_page_of_a_stereo_multi_exposure_capture_in_the_browser(live_server, alice, browser_page, monkeypatch):
-    from django.test import Client
-
     monkeypatch.setenv("DJANGO_ALLOW_ASYNC_UNSAFE", "true")  # Playwright's loop shares this thread
     capture = _upload(alice)
-    client = Client()
-    client.force_login(alice)
     page = browser_page
-    page.context.add_cookies(
-        [{"name": "sessionid", "value": client.cookies["sessionid"].value, "url": live_server.url}]
-    )
+    log_page_in(page, alice, live_server.url)
     response = page.goto(f"{live_server.url}/captures/{capture.pk}/")
     assert response is not None and response.status == 200
     page.wait_for_function("() => document.querySelector('#fig-exposure_u .main-svg') !== null")
