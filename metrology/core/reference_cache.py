@@ -85,10 +85,16 @@ DIGEST_CHUNK = 1 << 21
 
 def reference_key(model: GeometryModel, digest: str, codec: Codec | None, options: MeasureOptions) -> str:
     """The local cache key of the reference of the stack whose :func:`stack_digest` is ``digest``."""
+    return _key(model, codec, options, {"stack_sha256": digest})
+
+
+def _key(model: GeometryModel, codec: Codec | None, options: MeasureOptions, capture: Mapping[str, Any]) -> str:
+    """The local cache key of a reference: what identifies its ``capture``, with the rig's model, the
+    codec and the measurement options (and the software version: :func:`local_cache.entry_key`)."""
     return local_cache.entry_key(
         KIND,
         {
-            "stack_sha256": digest,
+            **capture,
             "model": model.to_dict(),
             "codec": None if codec is None else codec.to_dict(),
             "options": options.to_dict(),
@@ -228,16 +234,7 @@ def files_reference_key(
     """The local cache key of the reference of the capture whose files' digest is ``files_digest``
     (:func:`~metrology.core.io.digests.capture_files_digest`), read by ``reader`` (the reader's
     options: a JSON-ready description of how the files become frames)."""
-    return local_cache.entry_key(
-        KIND,
-        {
-            "capture_files_sha256": files_digest,
-            "reader": dict(reader),
-            "model": model.to_dict(),
-            "codec": None if codec is None else codec.to_dict(),
-            "options": options.to_dict(),
-        },
-    )
+    return _key(model, codec, options, {"capture_files_sha256": files_digest, "reader": dict(reader)})
 
 
 def cached_reference_of_files(
