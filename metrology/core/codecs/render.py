@@ -40,7 +40,7 @@ import hashlib
 import math
 import threading
 from collections import OrderedDict
-from collections.abc import Iterable, Iterator
+from collections.abc import Hashable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -162,10 +162,47 @@ def _emitted(role: FrameRole, x: FloatArray, sigma: float, gamma: float) -> Floa
     return np.interp(x, lo + np.arange(n) * step, _blurred_table(role, lo, step, n, sigma, gamma))
 
 
-_TABLES: OrderedDict[tuple[object, ...], FloatArray] = OrderedDict()
-_TABLES_LOCK = threading.Lock()
+class _KeptArrays:
+    """Read-only arrays by key, at most ``max_bytes`` of them, the least recently used dropped first;
+    an array larger than a quarter of the bound is not kept. Thread-safe."""
+
+    def __init__(self, max_bytes: int) -> None:
+        self.max_bytes = max_bytes
+        self._entries: OrderedDict[Hashable, FloatArray] = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()
+
+    def get(self, key: Hashable) -> FloatArray | None:
+        with self._lock:
+            kept = self._entries.get(key)
+            if kept is not None:
+                self._entries.move_to_end(key)
+            return kept
+
+    def fits(self, nbytes: int) -> bool:
+        return nbytes <= self.max_bytes // 4
+
+    def keep(self, key: Hashable, array: FloatArray) -> None:
+        """Keep ``array`` (made read-only) under ``key`` if it :meth:`fits`."""
+        array.setflags(write=False)
+        if not self.fits(array.nbytes):
+            return
+        with self._lock:
+            old = self._entries.pop(key, None)
+            self._bytes += array.nbytes - (0 if old is None else old.nbytes)
+            self._entries[key] = array
+            while self._bytes > self.max_bytes:
+                self._bytes -= self._entries.popitem(last=False)[1].nbytes
+
+    def clear(self) -> None:
+        with self._lock:
+            self._entries.clear()
+            self._bytes = 0
+
+
 TABLE_CACHE_BYTES = 64 * 2**20
 """Bound of the blurred-pattern tables kept for the next render (least recently used dropped first)."""
+_TABLES = _KeptArrays(TABLE_CACHE_BYTES)
 
 
 def _blurred_table(role: FrameRole, lo: float, step: float, n: int, sigma: float, gamma: float) -> FloatArray:
@@ -177,11 +214,9 @@ def _blurred_table(role: FrameRole, lo: float, step: float, n: int, sigma: float
     kept table is the one computed for the same arguments, so the images do not depend on the cache.
     """
     key = (role, lo, step, n, sigma, gamma)
-    with _TABLES_LOCK:
-        kept = _TABLES.get(key)
-        if kept is not None:
-            _TABLES.move_to_end(key)
-            return kept
+    kept = _TABLES.get(key)
+    if kept is not None:
+        return kept
     sub = (np.arange(8) + 0.5) / 8 - 0.5
     fine = (lo + np.arange(n)[:, None] * step + sub[None, :] * step).ravel()
     table = pattern_value(role, fine)
@@ -189,12 +224,7 @@ def _blurred_table(role: FrameRole, lo: float, step: float, n: int, sigma: float
         table = table**gamma
     table = table.reshape(n, 8).mean(axis=1)
     table = gaussian_filter1d(table, sigma / step, mode="nearest", truncate=6.0)
-    table.setflags(write=False)
-    if table.nbytes <= TABLE_CACHE_BYTES // 4:
-        with _TABLES_LOCK:
-            _TABLES[key] = table
-            while sum(t.nbytes for t in _TABLES.values()) > TABLE_CACHE_BYTES:
-                _TABLES.popitem(last=False)
+    _TABLES.keep(key, table)
     return table
 
 
@@ -342,7 +372,7 @@ def render_codec(
 
     frames: Iterable[FloatArray] = clean_frames()
     if opts.noise_grey > 0:  # noise drawn anew on a kept noise-free render: a Monte Carlo's renders
-        key = (repr(codec), _digest(coords, albedo_map), dataclasses.replace(opts, seed=0), blur)
+        key = (repr(codec), _digest(coords, albedo), dataclasses.replace(opts, seed=0), blur)
         frames = _kept_clean_render(key, frames, codec.n_frames * height * width * 8)
     images = np.empty((codec.n_frames, height, width), opts.dtype)
     for f, grey in enumerate(frames):
@@ -352,37 +382,33 @@ def render_codec(
     return images
 
 
-_CLEAN: OrderedDict[tuple[object, ...], FloatArray] = OrderedDict()
 CLEAN_CACHE_BYTES = 128 * 2**20
 """Bound of the noise-free renders kept (least recently used dropped first): a noisy render of the
 same coordinates, reflectance and options but another seed then only draws its noise."""
+_CLEAN = _KeptArrays(CLEAN_CACHE_BYTES)
 
 
-def _digest(coords: dict[str, FloatArray], albedo: FloatArray) -> str:
-    """SHA-1 of the true coordinates and the reflectance map (a render's whole scene)."""
+def _digest(coords: dict[str, FloatArray], albedo: npt.ArrayLike) -> str:
+    """SHA-1 of the true coordinates and the reflectance (a scalar or a map as given, not broadcast):
+    a render's whole scene."""
     h = hashlib.sha1()
     for name in sorted(coords):
         h.update(name.encode())
         h.update(np.ascontiguousarray(coords[name]).data)
-    h.update(repr(albedo.shape).encode())
-    h.update(np.ascontiguousarray(albedo).data)
+    reflectance = np.ascontiguousarray(albedo, dtype=np.float64)
+    h.update(repr(reflectance.shape).encode())
+    h.update(reflectance.data)
     return h.hexdigest()
 
 
 def _kept_clean_render(key: tuple[object, ...], frames: Iterable[FloatArray], nbytes: int) -> Iterable[FloatArray]:
     """The noise-free frames ``(frames, H, W)`` float64 grey levels of ``key``: kept ones, or
     ``frames`` computed now and kept when they fit a quarter of :data:`CLEAN_CACHE_BYTES`."""
-    with _TABLES_LOCK:
-        kept = _CLEAN.get(key)
-        if kept is not None:
-            _CLEAN.move_to_end(key)
-            return kept
-    if nbytes > CLEAN_CACHE_BYTES // 4:
+    kept = _CLEAN.get(key)
+    if kept is not None:
+        return kept
+    if not _CLEAN.fits(nbytes):
         return frames
     stack = np.stack(list(frames))
-    stack.setflags(write=False)
-    with _TABLES_LOCK:
-        _CLEAN[key] = stack
-        while sum(s.nbytes for s in _CLEAN.values()) > CLEAN_CACHE_BYTES:
-            _CLEAN.popitem(last=False)
+    _CLEAN.keep(key, stack)
     return stack
