@@ -88,6 +88,28 @@ def test_django_setup_imports_no_heavy_module():
     assert not found, "django.setup() imported:\n" + "\n".join(f"{name}: {chain}" for name, chain in found.items())
 
 
+#: Not loaded by the URLconf that every web server imports as it starts (its views load them on use).
+NOT_FOR_URLS = ("scipy", "numba", "open3d", "redis.asyncio")
+
+
+def test_the_urlconf_imports_no_optimiser_and_no_async_redis():
+    """Every web server process (and ``manage.py check``) imports the URLconf and with it every API
+    module; SciPy (0.4 s of CPU, for one sphere fit of the acceptance API) and ``redis.asyncio`` (for
+    the projector's long-poll) are imported where they are used."""
+    done = fresh_interpreter(
+        SETUP + "; import django.urls; django.urls.get_resolver().url_patterns; print('ready')", "-X", "importtime"
+    )
+    assert done.stdout.strip() == "ready"
+    rows = importtime_tree(done.stderr)
+    assert any(name == "metrology.measurements.api" for _, name in rows), "the URLconf was not loaded"
+    found = {
+        name: " <- ".join(reversed(import_chain(rows, index)))
+        for index, (_, name) in enumerate(rows)
+        if name in NOT_FOR_URLS
+    }
+    assert not found, "the URLconf imported:\n" + "\n".join(f"{name}: {chain}" for name, chain in found.items())
+
+
 # ----------------------------------------------------------------------------- DRF in the API layer only
 API_LAYER_NAMES = {"api.py", "serializers.py", "views.py", "urls.py", "throttling.py"}
 """The modules that speak HTTP through DRF: the API views, their serializers, the pages, the URL

@@ -23,8 +23,6 @@ from metrology.measurements.models import Measurement
 from tests.app.stacks import SMALL_RIG, block_heights, render_images, stack_zip
 from tests.app.uploads import upload
 
-o3d = pytest.importorskip("open3d")
-
 pytestmark = pytest.mark.django_db(transaction=True)
 
 
@@ -99,6 +97,8 @@ def test_mesh_is_built_by_a_job_then_served_from_the_storage(api, measurement_id
     by_heights = np.asarray(mesh_from_heights(Rig.from_dict(SMALL_RIG), z).vertices)
     np.testing.assert_allclose(np.asarray(mesh.vertices), by_heights, rtol=0, atol=1e-4)
     (tmp_path / f"m.{fmt}").write_bytes(data)
+    import open3d as o3d  # here: importing it costs every pytest worker a second at collection
+
     again = o3d.io.read_triangle_mesh(str(tmp_path / f"m.{fmt}"))
     assert len(again.triangles) == len(mesh.triangles) > 1000
     if fmt == "ply":

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from metrology.core.geometry.crossed_axes import Rig
-from metrology.core.io.step import LINEAR_TOLERANCE_MM, ocp_available
+from metrology.core.io.step import LINEAR_TOLERANCE_MM, ocp_installed
 from metrology.inspections.models import Inspection
 from tests.app.inspection_parts import (
     PIT_DEPTH_MM,
@@ -84,7 +84,7 @@ def test_nominal_upload_is_validated_and_described(api, nominal):
     assert len(api.get("/api/nominals/").json()) == 1  # nothing stored from the refused uploads
 
 
-@pytest.mark.skipif(not ocp_available(), reason="STEP needs the optional cadquery-ocp (pip install 'gcps-lab[step]')")
+@pytest.mark.skipif(not ocp_installed(), reason="STEP needs the optional cadquery-ocp (pip install 'gcps-lab[step]')")
 def test_step_nominal_is_tessellated_stored_and_inspected(api, pitted_measurement, tmp_path):
     """The block as a STEP file of six planar faces: stored with the STEP file's hash and size, the
     tessellation's tolerance and triangle count, then read by the inspection job as a mesh is: the

@@ -39,6 +39,13 @@ def stack(tmp_path, media_root, stack_storage_env) -> Iterator[Stack]:
 
 
 @pytest.fixture
+def bare_stack(tmp_path, media_root, stack_storage_env) -> Iterator[Stack]:
+    """A stack on its fresh database with no process started: the test starts what it needs."""
+    with migrated_stack(tmp_path, media_root, stack_storage_env) as stack:
+        yield stack
+
+
+@pytest.fixture
 def http(stack) -> requests.Session:
     """An HTTP session authenticated with the token of a user made by ``manage.py createuser``."""
     return authenticated(stack)

@@ -3,7 +3,6 @@ the running stack (uploads, polling a resource until it is done)."""
 
 from __future__ import annotations
 
-import secrets
 import tempfile
 import time
 from pathlib import Path
@@ -15,6 +14,7 @@ from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.io import write_stack
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_stack
+from tests.app.integration.harness import template_user_token
 from tests.app.stacks import SMALL_RIG
 
 # Bigger than the unit tests' rig so that the measurement (with meshes) takes a moment.
@@ -32,8 +32,9 @@ def simulated_zip(scene: str, **params) -> tuple[bytes, np.ndarray]:
 
 
 def authenticated(stack) -> requests.Session:
-    """An HTTP session on ``stack`` with the token of a new user (``manage.py createuser``)."""
-    key = stack.manage("createuser", f"it-{secrets.token_hex(3)}").strip()
+    """An HTTP session on ``stack`` with the token of the user its database was copied with
+    (``manage.py createuser`` in the template: :func:`harness.template_user_token`)."""
+    key = template_user_token()
     session = requests.Session()
     session.headers["Authorization"] = f"Token {key}"
     session.base = stack.base_url  # type: ignore[attr-defined]

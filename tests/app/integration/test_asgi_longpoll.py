@@ -7,7 +7,6 @@ Redis subscription is dropped). Real PostgreSQL, real Redis, real server.
 
 from __future__ import annotations
 
-import secrets
 import threading
 import time
 from collections.abc import Iterator
@@ -17,7 +16,7 @@ import pytest
 import redis
 import requests
 
-from tests.app.integration.harness import PG_ADMIN_URL, Stack, migrated_stack
+from tests.app.integration.harness import PG_ADMIN_URL, Stack, migrated_stack, template_user_token
 from tests.app.integration.helpers import RIG
 
 pytestmark = pytest.mark.integration
@@ -33,7 +32,7 @@ def asgi_stack(tmp_path, media_root) -> Iterator[Stack]:
 
 
 def session_of(stack: Stack) -> requests.Session:
-    key = stack.manage("createuser", f"asgi-{secrets.token_hex(3)}").strip()
+    key = template_user_token()
     session = requests.Session()
     session.headers["Authorization"] = f"Token {key}"
     return session

@@ -18,7 +18,14 @@ import pytest
 import redis
 import requests
 
-from tests.app.integration.harness import PG_ADMIN_URL, RedisServer, Stack, check_services, fresh_database
+from tests.app.integration.harness import (
+    PG_ADMIN_URL,
+    RedisServer,
+    Stack,
+    check_services,
+    fresh_database,
+    template_user_token,
+)
 from tests.app.integration.helpers import RIG, finished, simulated_zip, upload, url, wait_for
 from tests.app.stacks import SMALL_RIG
 
@@ -37,18 +44,19 @@ def terminate_connections(database_url: str) -> int:
 
 
 def session_for(stack) -> requests.Session:
-    key = stack.manage("createuser", f"it-{secrets.token_hex(3)}").strip()
+    key = template_user_token()
     session = requests.Session()
     session.headers["Authorization"] = f"Token {key}"
     return session
 
 
 @pytest.mark.parametrize("health_checks", ["1", "0"], ids=["health-checks", "retry-only"])
-def test_a_killed_database_connection_does_not_turn_the_next_request_into_a_500(stack, health_checks):
+def test_a_killed_database_connection_does_not_turn_the_next_request_into_a_500(bare_stack, health_checks):
     """Health checks reopen a connection killed while idle; without them, the request that meets the
     dead connection is retried once (it had written nothing) instead of answering 500."""
     # one thread serves every request, so the web server keeps one database connection across
     # requests (CONN_MAX_AGE), as a WSGI server's sync worker does
+    stack = bare_stack
     stack.env["GCPS_DB_HEALTH_CHECKS"] = health_checks
     base = stack.start_web(threaded=False)
     http = session_for(stack)

@@ -12,7 +12,7 @@ from collections.abc import Callable, Iterator
 import pytest
 import requests
 
-from tests.app.integration.harness import Stack, migrated_stack
+from tests.app.integration.harness import Stack, migrated_stack, template_user_token
 
 pytestmark = pytest.mark.integration
 
@@ -30,7 +30,7 @@ def limited_stack(tmp_path, media_root) -> Iterator[Stack]:
 
 
 def token_of(stack: Stack) -> str:
-    return stack.manage("createuser", f"rl-{secrets.token_hex(3)}").strip()
+    return template_user_token()
 
 
 def in_parallel(threads: int, calls: int, call: Callable[[requests.Session], int]) -> Counter[int]:

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import requests
 
-from tests.app.integration.harness import Stack, migrated_stack
+from tests.app.integration.harness import Stack, migrated_stack, template_user_token
 from tests.app.integration.helpers import RIG, download, finished, simulated_zip, upload, url, wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
@@ -45,7 +45,7 @@ def s3_stack(tmp_path, s3) -> Iterator[tuple[Stack, str]]:
 @pytest.fixture
 def http(s3_stack) -> requests.Session:
     stack, _bucket = s3_stack
-    key = stack.manage("createuser", "hosts").strip()
+    key = template_user_token()
     session = requests.Session()
     session.headers["Authorization"] = f"Token {key}"
     session.base = stack.base_url  # type: ignore[attr-defined]

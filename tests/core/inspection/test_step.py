@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from metrology.core.inspection.nominal import read_nominal
-from metrology.core.io.step import LINEAR_TOLERANCE_MM, ocp_available
+from metrology.core.io.step import LINEAR_TOLERANCE_MM, ocp_installed
 from tests.core.inspection.parts import write_step
 
 pytestmark = pytest.mark.skipif(
-    not ocp_available(), reason="STEP needs the optional cadquery-ocp (pip install 'gcps-lab[step]')"
+    not ocp_installed(), reason="STEP needs the optional cadquery-ocp (pip install 'gcps-lab[step]')"
 )
 
 
