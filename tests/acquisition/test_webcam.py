@@ -12,15 +12,18 @@ tests (test_end_to_end.py).
 from __future__ import annotations
 
 import contextlib
+import io
+import json
 import os
 import time
+import zipfile
 
 import numpy as np
 import pytest
 import requests
 
 from metrology.captures.models import Capture
-from metrology.captures.stacks import load_capture_stack
+from metrology.captures.stacks import load_capture_stack, load_exposure_stack
 from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions, render_flat_frames, render_stack
@@ -149,16 +152,124 @@ def test_webcam_mode_refuses_exposures_its_camera_cannot_set(server, monkeypatch
     assert Capture.objects.count() == 0
 
 
+EXPOSURES_MS = (2.0, 16.0)  # 8x apart: the short one saturates nowhere, the long one the bright patch
+
+
+def test_webcam_mode_captures_and_measures_a_multi_exposure_stack(server, monkeypatch):
+    """The success path of exposures in webcam mode, end to end: a simulated camera
+    (tests/acquisition/simulated_webcam.py: the projector canvas seen through a manual exposureTime,
+    on a 1000:1 reflectance, 8-bit clipping) stands in for the webcam; the page brackets, grabs and
+    uploads a reference and an object at 2 and 16 ms; the server stores exposures.json + exp0/, exp1/
+    and measures the two.
+
+    Ground truth, exactly (the camera's model is known): each stored frame is its own pattern at its
+    own exposure (within the one grey level of the canvas's 2:1 reduction); where neither exposure
+    clips, the frames' ratio is the times' ratio 8 to within the rounding of both (|g16 - 8 g2| <= 4.5
+    grey levels); the object is the reference plane, so it measures 0 mm; the long exposure saturates
+    the bright patch, so its points are the short exposure's, the matte ramp's the long one's. A third
+    acquisition at 0.3 ms, where the white frame changes but no pixel reaches the page's 48 grey levels
+    of contrast, fails saying so."""
+    from metrology.acquisition.agent.patterns import resolve_codec
+    from tests.acquisition import simulated_webcam as cam
+
+    monkeypatch.setenv("DJANGO_ALLOW_ASYNC_UNSAFE", "true")
+    base, rig, api = server["url"], server["rig"], server["api"]
+    with webcam_page(server, CHROMIUM_ARGS, "?webcam=1&settle=50", cam.init_script()):
+        queued = [
+            api.post(
+                f"{base}/api/rigs/{rig.pk}/captures/acquire/", json={"role": role, "exposures": list(EXPOSURES_MS)}
+            ).json()
+            for role in ("reference", "object")
+        ]
+        # 0.3 ms: the patch's white frame is 35 grey levels, its black 1: it changed, but lights no pixel
+        dim = api.post(f"{base}/api/rigs/{rig.pk}/captures/acquire/", json={"role": "object", "exposure": 0.3})
+        done = [wait_finished(api, base, item["id"], timeout_s=60.0) for item in queued]
+        refused = wait_finished(api, base, dim.json()["id"], timeout_s=30.0)
+    assert [b["status"] for b in done] == ["done", "done"], [b["error"] for b in done]
+    assert refused["status"] == "failed" and refused["capture"] is None
+    assert "the projector lights 0.00 % of the camera's pixels at exposure 0.3 ms" in refused["error"], refused
+    reference, obj = (Capture.objects.get(pk=b["capture"]) for b in done)
+
+    # the layout: exposures.json and one folder of the eleven frames per exposure, the times as asked
+    with obj.file.open("rb") as handle, zipfile.ZipFile(handle) as archive:
+        names = sorted(archive.namelist())
+        manifest = json.loads(archive.read("exposures.json"))
+    frames = [f"{name}.png" for name in resolve_codec("gcps-v1").frame_names]
+    assert names == sorted(["exposures.json"] + [f"exp{e}/{f}" for e in (0, 1) for f in frames])
+    assert manifest == {
+        "format": "gcps-exposures/1",
+        "exposures": [{"name": "exp0", "exposure_us": 2000}, {"name": "exp1", "exposure_us": 16000}],
+    }
+    assert obj.exposures == [{"name": "exp0", "exposure_us": 2000.0}, {"name": "exp1", "exposure_us": 16000.0}]
+    assert [f.get("exposure_ms") for f in done[1]["frames"]] == [2.0] * 14 + [16.0] * 14
+
+    # each frame is its own pattern at its own exposure: the projector's 2 x 2 means lie between two
+    # grey levels (the canvas rounds them), so the camera's grey lies between their two renderings
+    projector = resolve_codec("gcps-v1").images().astype(np.float64)
+    (x0, y0), k = cam.ORIGIN, cam.SCALE
+    region = projector[:, y0 : y0 + k * cam.H, x0 : x0 + k * cam.W]
+    means = region.reshape(len(frames), cam.H, k, cam.W, k).mean(axis=(2, 4))
+    for capture in (reference, obj):
+        stack = load_exposure_stack(capture)
+        assert [e.exposure_us for e in stack.exposures] == [2000.0, 16000.0]
+        short, long = (images.astype(np.float64) for images in stack.images)
+        for images, ms in zip((short, long), EXPOSURES_MS, strict=True):
+            low, high = (cam.grey(f(means) / 255, ms) for f in (np.floor, np.ceil))
+            assert ((images >= low) & (images <= high)).all(), (capture.role, ms)
+        # where neither clips: the ratio of the times, to within both roundings (0.5 + 8 * 0.5 grey)
+        ratio = EXPOSURES_MS[1] / EXPOSURES_MS[0]
+        unclipped = (long < 255) & (short >= 8)
+        assert unclipped.sum() > 0.1 * short.size
+        assert np.abs(long - ratio * short)[unclipped].max() <= 0.5 + ratio * 0.5
+        fitted = (long[unclipped] * short[unclipped]).sum() / (short[unclipped] ** 2).sum()
+        assert abs(fitted / ratio - 1) < 0.01, fitted
+        assert (long[:, :, cam.PATCH[0] : cam.PATCH[1]].max(axis=0) == 255).all()  # the bright patch clips at 16 ms
+        assert short.max() < 255  # and nowhere at 2 ms
+
+    # the measurement: the object is the reference plane (0 mm), both exposures measured points
+    response = api.post(f"{base}/api/measurements/", json={"rig": rig.pk, "reference": reference.pk, "object": obj.pk})
+    assert response.status_code == 202, response.text
+    measured = wait_measured(api, base, response.json()["id"])
+    counts = measured["statistics"]["points_per_exposure"]
+    z = np.load(io.BytesIO(api.get(f"{base}/api/measurements/{measured['id']}/height.npy").content))
+    exposure = np.load(io.BytesIO(api.get(f"{base}/api/measurements/{measured['id']}/exposure.npy").content))
+    measured_points = np.isfinite(z)
+    assert np.abs(z[measured_points]).max() < 1e-3  # mm: the same scene seen by the same camera, twice
+    assert counts == {"exp0": int((exposure == 0).sum()), "exp1": int((exposure == 1).sum())}
+    assert sum(counts.values()) == measured["statistics"]["valid_pixels"] == measured_points.sum()
+    rho = cam.reflectance()
+    patch = rho == 1.0  # its white frame reaches 230 * 1.02 at 2 ms and saturates at 16 ms
+    matte = (rho >= 0.02) & (rho <= 0.1)  # at most 0.1 * 8 * 230 * 1.02 = 188 grey levels at 16 ms
+    for region, index in ((patch, 0), (matte, 1)):
+        assert (exposure[region & measured_points] == index).all()
+        assert measured_points[region].mean() > 0.95, (index, measured_points[region].mean())
+    assert counts["exp0"] > 0.95 * patch.sum() and counts["exp1"] > 0.95 * matte.sum()
+
+
+def wait_measured(api: requests.Session, base: str, measurement_id: int, timeout_s: float = 60.0) -> dict:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        body = api.get(f"{base}/api/measurements/{measurement_id}/").json()
+        if body["status"] in ("done", "failed"):
+            assert body["status"] == "done", body
+            return body
+        time.sleep(0.2)
+    raise AssertionError(f"measurement {measurement_id} did not finish in {timeout_s} s")
+
+
 @contextlib.contextmanager
-def webcam_page(server, args: list[str], query: str):
+def webcam_page(server, args: list[str], query: str, init_script: str | None = None):
     """The rig's projector page (``query``: its webcam mode) in headless Chromium launched with
-    ``args``, once it registered as the rig's agent; its JavaScript errors are asserted absent after."""
+    ``args`` (``init_script``: JavaScript run before the page's own), once it registered as the rig's
+    agent; its JavaScript errors are asserted absent after."""
     sync_api = pytest.importorskip("playwright.sync_api")
     with sync_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=args)
         context = browser.new_context(viewport={"width": 1024, "height": 768})
         context.add_cookies([{"name": "sessionid", "value": server["session"], "url": server["url"]}])
         page = context.new_page()
+        if init_script is not None:
+            page.add_init_script(init_script)
         errors: list[str] = []
         page.on("pageerror", lambda exc: errors.append(str(exc)))
         page.goto(f"{server['url']}/rigs/{server['rig'].pk}/projector/{query}")

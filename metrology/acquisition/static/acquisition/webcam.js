@@ -4,9 +4,14 @@
  * webcam frame per pattern through getUserMedia, and uploads the stack as a zip of PNGs.
  *
  * Frame choice: after a pattern is on screen, wait until the camera image has changed from the
- * previous grabbed frame (on at least MIN_CHANGE of the pixels by more than CHANGE_GREY levels),
- * then the settle time, then take the next new video frame. Order: black, white, black, then the
- * codec's frames. Per frame the page reports the saturated and dark fractions and the change.
+ * previous grabbed frame, then the settle time, then take the next new video frame. Order: black,
+ * white, black, then the codec's frames. The white frame has changed when at least MIN_LIT of all
+ * the pixels brightened by more than CHANGE_GREY levels; from then on the change is counted over
+ * the pixels lit at this exposure (white - black >= LIT_GREY): at least MIN_CHANGE of them by more
+ * than CHANGE_GREY levels. (Counted over all the pixels, a short exposure of a bracket, which sees
+ * only the bright part of the scene, would wait for ever on the patterns that change a small part
+ * of it.) Per frame the page reports the saturated and dark fractions and the change (a fraction of
+ * the lit pixels); the white frame the lit fraction.
  *
  * Exposure: an acquisition that asks for one exposure (exposure_ms) or several (exposures, a list
  * of ms: a multi-exposure capture, docs/exposures.md) needs a camera whose track offers a manual
@@ -24,7 +29,8 @@
   var P = window.gcpsProjector;
   var csrf = root.dataset.csrf;
   var settleMs = Number(root.dataset.settleMs || 300);
-  var CHANGE_GREY = 24, MIN_CHANGE = 0.08, CHANGE_TIMEOUT_MS = 8000, MAX_GRABS = 3;
+  var CHANGE_GREY = 24, LIT_GREY = 2 * CHANGE_GREY, MIN_CHANGE = 0.08, MIN_LIT = 0.01;
+  var CHANGE_TIMEOUT_MS = 8000, MAX_GRABS = 3;
   var session = null, heartbeat = null, cameraLabel = "browser-webcam";
 
   function sleep(ms) { return new Promise(function (r) { setTimeout(r, ms); }); }
@@ -65,10 +71,24 @@
     return { width: w, height: h, data: grey };
   }
 
-  function changeFraction(a, b) {
-    var n = 0;
-    for (var i = 0; i < a.data.length; i++) if (Math.abs(a.data[i] - b.data[i]) > CHANGE_GREY) n++;
-    return n / a.data.length;
+  // the fraction of the pixels (of those where lit is non-zero, when given) that changed by more than CHANGE_GREY
+  function changeFraction(a, b, lit) {
+    var n = 0, m = 0;
+    for (var i = 0; i < a.data.length; i++) {
+      if (lit && !lit[i]) continue;
+      m++;
+      if (Math.abs(a.data[i] - b.data[i]) > CHANGE_GREY) n++;
+    }
+    return m ? n / m : 0;
+  }
+
+  // the pixels the projector lights at this exposure (1 where white - black >= LIT_GREY) and their fraction
+  function litPixels(white, black) {
+    var lit = new Uint8Array(white.data.length), n = 0;
+    for (var i = 0; i < lit.length; i++) {
+      if (white.data[i] - black.data[i] >= LIT_GREY) { lit[i] = 1; n++; }
+    }
+    return { mask: lit, fraction: n / lit.length };
   }
 
   function stats(frame) {
@@ -83,21 +103,23 @@
     return { saturated_fraction: sat / n, dark_fraction: dark / n, mean_grey: sum / n };
   }
 
-  async function grabAfterChange(previous) {
+  // the frame after the camera image changed from previous (at least minChange of the pixels where lit
+  // is non-zero, or of all of them), the settle time and a new video frame; previous null: no change awaited
+  async function grabAfterChange(previous, lit, minChange) {
     var start = performance.now();
     var changed = null;
     if (previous) {
       for (;;) {
         await nextVideoFrame();
-        changed = changeFraction(greyFrame(), previous);
-        if (changed >= MIN_CHANGE) break;
+        changed = changeFraction(greyFrame(), previous, lit);
+        if (changed >= minChange) break;
         if (performance.now() - start > CHANGE_TIMEOUT_MS) return { frame: null, change: changed };
       }
     }
     await sleep(settleMs);
     await nextVideoFrame();
     var frame = greyFrame();
-    return { frame: frame, change: previous ? changeFraction(frame, previous) : null };
+    return { frame: frame, change: previous ? changeFraction(frame, previous, lit) : null };
   }
 
   function pngOf(frame) {
@@ -205,7 +227,7 @@
     var whites = [];
     for (var k = 0; k < times.length; k++) {
       await setExposure(track, times[k]);
-      whites.push((await grabAfterChange(null)).frame);
+      whites.push((await grabAfterChange(null, null, 0)).frame);
     }
     for (var i = 0; i + 1 < times.length; i++) {
       if (times[i + 1] < 1.5 * times[i]) continue;
@@ -227,22 +249,35 @@
   async function grabSequence(acquisition, checks, exposure, progress) {
     var sequence = [{ kind: "black", name: "black" }, { kind: "white", name: "white" }, { kind: "black", name: "black" }];
     acquisition.frame_names.forEach(function (name, k) { sequence.push({ kind: "frame", frame: k, name: name }); });
-    var previous = null, frames = [];
+    var previous = null, frames = [], black = null, lit = null;
+    var at = exposure === null ? "" : " at exposure " + exposure + " ms";
     for (var s = 0; s < sequence.length; s++) {
       var item = sequence[s], result = null;
+      // the white frame: a change on MIN_LIT of all the pixels; then MIN_CHANGE of the lit pixels
+      var minChange = lit ? MIN_CHANGE : MIN_LIT;
       await P.show({ kind: item.kind, frame: item.frame === undefined ? -1 : item.frame, acquisition: acquisition.id, seq: 0 });
       for (var attempt = 1; attempt <= MAX_GRABS; attempt++) {
-        result = await grabAfterChange(previous);
+        result = await grabAfterChange(previous, lit ? lit.mask : null, minChange);
         if (result.frame) break;
       }
       if (!result.frame) {
-        throw new Error("the camera image did not change after showing " + item.name + " (" + MAX_GRABS +
+        throw new Error("the camera image did not change after showing " + item.name + at + " (" + MAX_GRABS +
                         " tries): is the webcam looking at the projection?");
       }
       var check = Object.assign({ name: item.name, kind: item.kind, frame: item.frame === undefined ? -1 : item.frame,
                                   change_fraction: result.change, regrabs: 0, refused_reasons: [], ok: true },
                                 stats(result.frame));
       if (exposure !== null) check.exposure_ms = exposure;
+      if (item.kind === "black" && black === null) black = result.frame;
+      if (item.kind === "white") {
+        lit = litPixels(result.frame, black);
+        check.lit_fraction = lit.fraction;
+        if (lit.fraction < MIN_LIT) {
+          throw new Error("the projector lights " + (100 * lit.fraction).toFixed(2) + " % of the camera's pixels" + at +
+                          " (white - black >= " + LIT_GREY + " grey levels; at least " + 100 * MIN_LIT + " % needed): " +
+                          "is the webcam looking at the projection, is the exposure long enough?");
+        }
+      }
       checks.push(check);
       previous = result.frame;
       if (item.kind === "frame") frames.push({ name: item.name + ".png", frame: result.frame });
