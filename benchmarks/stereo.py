@@ -17,6 +17,9 @@ projector coordinate ``u`` per pixel (set up outside the timers). Rows:
 - ``stereo + calibrated projector: fuse 3 pairs``: the same with the rig's projector calibrated (the
   projector that lights the plane): the camera-projector pairs fused with the camera pair
   (:mod:`metrology.core.geometry.stereo_fusion`), without noise maps (equal weights per camera);
+- ``stereo 2-D match: match + triangulate`` and ``stereo 2-D + calibrated projector: fuse 3 pairs``:
+  the same two with ``match="2d"`` (:class:`PreparedStereo2D`: each camera's ``u`` and ``v``, no
+  rectification, the rays' midpoint), without and with the projector's pairs fused;
 - ``cv2.remap of the two maps``: ``cv2.remap`` (bilinear, float32 maps) of both decoded maps onto
   the same rectified grids: the part of the work OpenCV does (quantised to 1/32 px, which is why
   the model samples with exact weights instead);
@@ -57,6 +60,8 @@ STEREO = "stereo: rectify + match + triangulate"
 REMAP = "cv2.remap of the two maps"
 TRIANGULATE = "cv2.triangulatePoints"
 FUSED = "stereo + calibrated projector: fuse 3 pairs"
+MATCH_2D = "stereo 2-D match: match + triangulate"
+FUSED_2D = "stereo 2-D + calibrated projector: fuse 3 pairs"
 
 
 CPU_S: dict[str, float] = {}
@@ -78,9 +83,9 @@ def _time(fn: Callable[[], object], repeats: int, name: str, warm: bool = True) 
     return statistics.median(times)
 
 
-def _maps(rig: StereoRig) -> tuple[np.ndarray, np.ndarray, StereoRig]:
-    """Each camera's exact u of a plane 400 mm away, tilted by 10 degrees about y, and the rig with
-    the projector that lights it calibrated."""
+def _maps(rig: StereoRig) -> tuple[list[dict[str, np.ndarray]], StereoRig]:
+    """Each camera's exact ``u`` and ``v`` of a plane 400 mm away, tilted by 10 degrees about y, and
+    the rig with the projector that lights it calibrated."""
     angle = np.radians(10.0)
     placement = ScenePlacement(
         origin_mm=np.array([0.0, 0.0, 400.0]),
@@ -96,10 +101,12 @@ def _maps(rig: StereoRig) -> tuple[np.ndarray, np.ndarray, StereoRig]:
         pinhole = projector.pinhole_rig(camera, Rc, Tc)
         prepared = pinhole.prepare(pinhole.shape, (rig.projector.width, rig.projector.height))
         where = placement.in_frame(Rc, Tc)
-        maps.append(cast_truth(prepared, scene, where).u.astype(np.float32))
+        truth = cast_truth(prepared, scene, where)
+        assert truth.v is not None
+        maps.append({"u": truth.u.astype(np.float32), "v": truth.v.astype(np.float32)})
     lens = projector.projector
     calibrated = StereoProjector(lens.width, lens.height, K=lens.K, dist=lens.dist, R=projector.R, T=projector.T)
-    return maps[0], maps[1], dataclasses.replace(rig, projector=calibrated)
+    return maps, dataclasses.replace(rig, projector=calibrated)
 
 
 def main() -> None:
@@ -109,7 +116,8 @@ def main() -> None:
     args = parser.parse_args()
     rig = model_from_dict(json.loads((ROOT / "examples" / "stereo-rig.json").read_text()))
     assert isinstance(rig, StereoRig)
-    u0, u1, calibrated = _maps(rig)
+    maps, calibrated = _maps(rig)
+    u0, u1 = maps[0]["u"], maps[1]["u"]
     h, w = rig.shape
     t0 = time.perf_counter()
     prepared = _prepare_cached(rig, "u")
@@ -133,6 +141,19 @@ def main() -> None:
 
     fused_s = _time(fused, max(1, args.repeats // 3), FUSED)
     fused_agree = float(np.nanmax(np.abs(fused_points - points)))
+
+    # the 2-D match, without and with the calibrated projector's pairs
+    points_2d = {name: np.empty((h, w, 3), np.float32) for name in (MATCH_2D, FUSED_2D)}
+    seconds_2d = {}
+    for name, which in ((MATCH_2D, rig), (FUSED_2D, calibrated)):
+        prepared_2d = _prepare_cached(which, "u", "2d")
+
+        def match_2d(p: PreparedStereo = prepared_2d, out: np.ndarray = points_2d[name]) -> None:
+            combined = p.combine(maps, None, args.threads)
+            p.triangulate_rows(slice(0, h), combined.u, None, points_out=out)
+
+        seconds_2d[name] = _time(match_2d, max(1, args.repeats // 3), name)
+    agree_2d = {name: float(np.nanmax(np.abs(p - points))) for name, p in points_2d.items()}
 
     # cv2.remap of the two maps onto the same rectified grids
     rect = prepared.rect
@@ -174,17 +195,29 @@ def main() -> None:
     ours = points.reshape(-1, 3)[ok].astype(np.float64)
     agree = float(np.abs(Xr @ rect.R0 - ours).max())  # R0^T X_r, row vectors
     mpx = h * w / 1e6
-    rows = {PREPARE: prepare_s, STEREO: stereo_s, FUSED: fused_s, REMAP: remap_s, TRIANGULATE: tri_s}
+    rows = {PREPARE: prepare_s, STEREO: stereo_s, FUSED: fused_s, **seconds_2d, REMAP: remap_s, TRIANGULATE: tri_s}
     for name, seconds in rows.items():
         cpu = CPU_S.get(name)
         cpu_text = f"  cpu {cpu * 1e3:8.1f} ms" if cpu is not None else ""
         print(f"{name:40s} {seconds * 1e3:8.1f} ms  {mpx / seconds:7.1f} Mpx/s{cpu_text}")
     print(f"matched {valid.mean():.1%} of camera 0's pixels; cv2.triangulatePoints agrees within {agree * 1e3:.4f} um")
     print(f"fused points agree with the camera pair's within {fused_agree * 1e3:.4f} um")
+    for name, value in agree_2d.items():
+        print(f"{name}: points agree with the epipolar camera pair's within {value * 1e3:.4f} um")
     load = os.getloadavg()[0]
     print(f"load average {load:.1f} on {os.cpu_count()} cores")
     report = {"size": [w, h], "seconds": rows, "cpu_seconds": CPU_S, "valid_fraction": float(valid.mean())}
-    print(json.dumps({**report, "agree_mm": agree, "fused_agree_mm": fused_agree, "load_average": load}))
+    print(
+        json.dumps(
+            {
+                **report,
+                "agree_mm": agree,
+                "fused_agree_mm": fused_agree,
+                "agree_2d_mm": agree_2d,
+                "load_average": load,
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

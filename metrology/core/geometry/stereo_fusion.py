@@ -30,6 +30,10 @@ noise after the resampling chain). ``d`` shares camera 0's noise with ``q``::
 
 with ``c`` the weight a camera-0 pixel has on itself through the rectification and back
 (:meth:`~metrology.core.geometry.stereo_match.PreparedStereo.self_weight`; white noise per pixel).
+That is the epipolar match's; the 2-D match (no rectification) gives the fusion its own ``Var d`` and
+``Cov(q, d)`` (:class:`~metrology.core.geometry.stereo_match.PreparedStereo2D`), and its disparity is
+``d = k / t_m`` of the rays' midpoint: camera 1's ray through the point on camera 0's ray, which
+is what ``t_1p`` reads. Either match feeds the same :meth:`PairFusion.fuse`.
 To first order ``t_k = t + J_k . (dq, dd)``, ``J`` the estimates' derivatives (``J_01 = (0, -t/d)``,
 ``J_0p = (dt_0p/dq, 0)``, ``J_1p = (dt_1p/dq, dt_1p/dd)``; the ``q`` derivatives by a forward difference of
 :data:`COORDINATE_STEP` projector units through the same code), so the estimates' covariance is
@@ -178,7 +182,7 @@ class PairFusion:
         d: np.ndarray,
         sigma0: np.ndarray,
         sigma_d: np.ndarray,
-        d_per_q: np.ndarray,
+        shared: np.ndarray,
         threads: int | None = None,
     ) -> FusedDepth:
         """Fuse the pairs' depths of camera 0's pixels (module docstring), tile by tile in a compiled
@@ -194,8 +198,10 @@ class PairFusion:
             Camera 0's coordinate standard deviation, projector units.
         sigma_d : (H, W) float32
             The disparity's standard deviation (normalized).
-        d_per_q : (H, W) float32
-            ``1 / (s f)``: the disparity's change per unit of camera 0's coordinate noise (signed).
+        shared : (H, W) float32
+            ``Cov(q, d) / sigma_0^2``: the disparity's change per unit of the noise it shares with camera
+            0's coordinate (signed; the epipolar match's ``c / (s f)``, the 2-D match's own:
+            :class:`~metrology.core.geometry.stereo_match.PreparedStereo2D`).
         threads : int, optional
             Threads over row tiles (does not change the result).
         """
@@ -210,7 +216,6 @@ class PairFusion:
         ]
         p0, p0h = points
         assert p0 is not None and p0h is not None
-        shared = np.asarray(d_per_q, np.float32) * self.stereo.self_weight()
         s = self.stereo
         shape = q32.shape
         out = FusedDepth(

@@ -283,6 +283,28 @@ def cell_buckets(
     return start, cells
 
 
+CELL_BOX_MARGIN = 1e-6
+"""Margin of :func:`in_cell_box`, projector units: wider than the 1e-9 (of the cell's span) by which
+:func:`invert_cell` accepts a solution outside its cell."""
+
+
+@njit(nogil=True, cache=True)
+def in_cell_box(u: np.ndarray, v: np.ndarray, cell: int, qu: float, qv: float) -> bool:  # pragma: no cover
+    """Whether ``(qu, qv)`` lies in the bounding box of the cell's four corners (widened by
+    :data:`CELL_BOX_MARGIN`): the bilinear map of the cell stays inside it, so a pair outside it has
+    no solution there and skips :func:`invert_cell`'s Newton steps (most cells of a bucket)."""
+    w = u.shape[1]
+    r = cell // w
+    c = cell - r * w
+    a0, a1, a2, a3 = u[r, c], u[r, c + 1], u[r + 1, c], u[r + 1, c + 1]
+    if qu < min(min(a0, a1), min(a2, a3)) - CELL_BOX_MARGIN or qu > max(max(a0, a1), max(a2, a3)) + CELL_BOX_MARGIN:
+        return False
+    b0, b1, b2, b3 = v[r, c], v[r, c + 1], v[r + 1, c], v[r + 1, c + 1]
+    return not (
+        qv < min(min(b0, b1), min(b2, b3)) - CELL_BOX_MARGIN or qv > max(max(b0, b1), max(b2, b3)) + CELL_BOX_MARGIN
+    )
+
+
 @njit(nogil=True, cache=True)
 def invert_cell(
     u: np.ndarray, v: np.ndarray, cell: int, qu: float, qv: float
@@ -337,17 +359,22 @@ def match_2d_tile(
     nv: int,
     x1_out: np.ndarray,
     y1_out: np.ndarray,
+    slopes_out: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """For each camera-0 pixel of decoded ``(u0, v0)`` ((n, W0) float32), camera 1's sub-pixel
     position ``(x1, y1)`` ((n, W0) float32 px) where its decoded maps ``u1``, ``v1`` take the same
     pair: the one cell of :func:`cell_buckets` whose bilinear map holds it (:func:`invert_cell`),
-    ``x1 = c + s``, ``y1 = r + t``; NaN where no cell or more than one does (not unique)."""
+    ``x1 = c + s``, ``y1 = r + t``; NaN where no cell or more than one does (not unique).
+    ``slopes_out`` ((n, W0, 5) float32) gets the cell's :func:`cell_slopes` at the match (NaN where
+    none)."""
     n, m = u0.shape
     w = u1.shape[1]
     for r in range(n):
         for c in range(m):
             x1_out[r, c] = np.nan
             y1_out[r, c] = np.nan
+            for e in range(5):
+                slopes_out[r, c, e] = np.nan
             qu = np.float64(u0[r, c])
             qv = np.float64(v0[r, c])
             if math.isnan(qu) or math.isnan(qv):
@@ -360,17 +387,46 @@ def match_2d_tile(
             found = 0
             fx = np.nan
             fy = np.nan
+            at = -1
+            fs = np.nan
+            ft = np.nan
             for e in range(start[k], start[k + 1]):
                 cell = cells[e]
+                if not in_cell_box(u1, v1, cell, qu, qv):
+                    continue
                 s, t = invert_cell(u1, v1, cell, qu, qv)
                 if not math.isnan(s):
                     found += 1
                     rr = cell // w
                     fx = cell - rr * w + s
                     fy = rr + t
+                    at, fs, ft = cell, s, t
             if found == 1:
                 x1_out[r, c] = fx
                 y1_out[r, c] = fy
+                cell_slopes(u1, v1, at, fs, ft, slopes_out[r, c])
+
+
+@njit(nogil=True, cache=True)
+def cell_slopes(
+    u: np.ndarray, v: np.ndarray, cell: int, s: float, t: float, out: np.ndarray
+) -> None:  # pragma: no cover - compiled
+    """The cell's bilinear map (:func:`invert_cell`) at ``(s, t)``: its derivatives ``du/dx, du/dy,
+    dv/dx, dv/dy`` (projector units per camera px; ``x`` along the row) and the noise gain of its
+    value, ``sqrt(sum w_i^2) = sqrt(((1-s)^2 + s^2) ((1-t)^2 + t^2))`` (white noise of unit standard
+    deviation on the four pixels), into ``out`` (5 float32)."""
+    w = u.shape[1]
+    r = cell // w
+    c = cell - r * w
+    u00, u10 = np.float64(u[r, c]), np.float64(u[r, c + 1])
+    u01, u11 = np.float64(u[r + 1, c]), np.float64(u[r + 1, c + 1])
+    v00, v10 = np.float64(v[r, c]), np.float64(v[r, c + 1])
+    v01, v11 = np.float64(v[r + 1, c]), np.float64(v[r + 1, c + 1])
+    out[0] = (1 - t) * (u10 - u00) + t * (u11 - u01)
+    out[1] = (1 - s) * (u01 - u00) + s * (u11 - u10)
+    out[2] = (1 - t) * (v10 - v00) + t * (v11 - v01)
+    out[3] = (1 - s) * (v01 - v00) + s * (v11 - v10)
+    out[4] = math.sqrt(((1 - s) ** 2 + s * s) * ((1 - t) ** 2 + t * t))
 
 
 @njit(nogil=True, cache=True)

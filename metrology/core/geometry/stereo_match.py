@@ -52,7 +52,7 @@ import math
 import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -312,9 +312,6 @@ class PreparedStereo(PreparedGeometry):
     :mod:`~metrology.core.geometry.stereo_fusion`).
     """
 
-    fuses_projector: ClassVar[bool] = True
-    """Whether a calibrated projector's pairs are fused with the camera pair (the epipolar match)."""
-
     def __init__(self, rig: StereoRig, axis: str) -> None:
         self.model = rig
         self.rig = rig
@@ -338,8 +335,7 @@ class PreparedStereo(PreparedGeometry):
         cols = np.arange(rect.shapes[0][1], dtype=np.float32)
         self._x0n = (cols - np.float32(rect.cx[0])) / np.float32(rect.f)  # rectified camera-0 columns, normalized
         self._projector = _projector_geometry(rig)
-        fuses = self._projector is not None and self.fuses_projector
-        self.fusion = PairFusion(self, self._projector) if fuses and self._projector is not None else None
+        self.fusion = PairFusion(self, self._projector) if self._projector is not None else None
         self._gain: np.ndarray | None = None
         self._self_weight: np.ndarray | None = None
         self._gain_lock = threading.Lock()
@@ -418,26 +414,41 @@ class PreparedStereo(PreparedGeometry):
         run_tiled(run, rows, width, threads)
         out = np.empty(self.shape, np.float32)
         run_tiled(lambda r: self.back.sample(disparity, r, out[r], True), *self.shape, threads)
-        given = sigma is not None and sigma[0] is not None and sigma[1] is not None
-        sigma_out = None
-        if given:
-            assert sigma is not None and sigma[0] is not None and sigma[1] is not None
-            sigma_out = self._disparity_sigma(sigma[0], sigma[1], x1, step, threads)
+        noise = _noise_maps(sigma)
+        s0, s1 = (None, None) if noise is None else noise
         if self.fusion is None:
-            pairs = np.where(np.isfinite(out), np.uint8(PAIR_CAMERAS), np.uint8(0))
-            return CombinedMaps(u=out, v=None, sigma=sigma_out, pairs=pairs)
+            return _camera_pair(out, None if noise is None else self._disparity_sigma(s0, s1, x1, step, threads))
         # equal unit noise in both cameras when no noise maps are given: the weights from the geometry alone
-        sigma_d = sigma_out if sigma_out is not None else self._disparity_sigma(None, None, x1, step, threads)
-        sigma0 = np.asarray(sigma[0], np.float32) if given else np.ones(self.shape, np.float32)  # type: ignore[index]
+        sigma_d = self._disparity_sigma(s0, s1, x1, step, threads)
         with np.errstate(divide="ignore", invalid="ignore"):
             per_q = np.float32(sign) / (step * np.float32(rect.f))
         d_per_q = np.empty(self.shape, np.float32)
         run_tiled(lambda r: self.back.sample(per_q, r, d_per_q[r]), *self.shape, threads)
-        fused = self.fusion.fuse(u0, out, sigma0, sigma_d, d_per_q, threads)
+        return self._fuse(u0, out, sigma_d, d_per_q * self.self_weight(), noise, threads)
+
+    def _fuse(
+        self,
+        q: np.ndarray,
+        d: np.ndarray,
+        sigma_d: np.ndarray,
+        shared: np.ndarray,
+        noise: tuple[np.ndarray, np.ndarray] | None,
+        threads: int | None,
+    ) -> CombinedMaps:
+        """The camera pair's disparity ``d`` ((H, W) float32, either match's) fused with the
+        camera-projector pairs (:meth:`PairFusion.fuse
+        <metrology.core.geometry.stereo_fusion.PairFusion.fuse>`: ``q`` camera 0's decoded coordinate
+        of :attr:`axis`, ``sigma_d`` the disparity's sigma and ``shared`` its ``Cov(q, d) / sigma_0^2``
+        under ``noise``, or under unit noise in both cameras when ``noise`` is None) as the maps
+        :meth:`triangulate_rows` reads: ``d = k / t`` of the fused depth, its sigma when ``noise`` was
+        given, and the pairs map."""
+        assert self.fusion is not None
+        sigma0 = np.ones(self.shape, np.float32) if noise is None else noise[0]
+        fused = self.fusion.fuse(q, d, sigma0, sigma_d, shared, threads)
         with np.errstate(divide="ignore", invalid="ignore"):
-            d = (self.k / fused.t_mm).astype(np.float32)
-            sigma_fused = (fused.sigma_mm * np.abs(d) / fused.t_mm).astype(np.float32) if given else None
-        return CombinedMaps(u=d, v=None, sigma=sigma_fused, pairs=fused.pairs)
+            fused_d = (self.k / fused.t_mm).astype(np.float32)
+            sigma = None if noise is None else (fused.sigma_mm * np.abs(fused_d) / fused.t_mm).astype(np.float32)
+        return CombinedMaps(u=fused_d, v=None, sigma=sigma, pairs=fused.pairs)
 
     def _maps(
         self, coordinates: Sequence[Mapping[str, np.ndarray | None]], axes: tuple[str, ...]
@@ -623,6 +634,9 @@ class PreparedStereo(PreparedGeometry):
 
 MATCH_BUCKET = 4.0
 """Side of the projector-space buckets that index camera 1's cells for the 2-D match, projector units."""
+MIDPOINT_STEP = 1e-6
+"""Forward-difference step of camera 1's undistorted normalized coordinates (about 1e-3 px): the 2-D
+match's ``dd/d(x_1n, y_1n)``."""
 
 
 class PreparedStereo2D(PreparedStereo):
@@ -636,10 +650,24 @@ class PreparedStereo2D(PreparedStereo):
     the closest points have ``t = ((a.C)(b.b) - (a.b)(b.C)) / D`` and ``s = ((a.b)(a.C) - (a.a)(b.C)) / D``,
     ``D = (a.a)(b.b) - (a.b)^2``; the point is the midpoint's projection on camera 0's ray,
     ``t_m = ((t a + C + s b) / 2 . a) / (a.a)``. :meth:`combine` hands it on as the disparity the
-    epipolar path would have had, ``d = k / t_m``, so :meth:`triangulate_rows` is shared. No sigma
-    (the error model is the epipolar path's)."""
+    epipolar path would have had, ``d = k / t_m``, so :meth:`triangulate_rows` is shared, and so is
+    the fusion of a calibrated projector's pairs (:meth:`PreparedStereo._fuse`).
 
-    fuses_projector: ClassVar[bool] = False
+    **Uncertainty** (first order). Camera 1's match ``x_1 = (x_1, y_1)`` solves ``P_1(x_1) = p_0``
+    (``P_1`` camera 1's bilinear ``(u, v)`` map, ``p_0`` camera 0's decoded pair), so camera 0's noise
+    ``e_0`` and camera 1's ``e_1`` (each pixel's, per axis) move it by ``dx_1 = A (e_0 - e~_1)``, ``A =
+    J^-1`` the inverse of the cell's 2x2 Jacobian ``J = d(u, v)/d(x, y)`` at the match and ``e~_1 = sum
+    w_i e_1i`` the bilinear mean of its four pixels' noise (standard deviation ``g_1 sigma_1``, ``g_1 =
+    sqrt(sum w_i^2)``). With ``g = dd/dx_1`` (:meth:`_disparity_slopes`) and ``G = g A`` (the
+    disparity's change per unit of camera 0's ``u`` and ``v``)::
+
+        Var d = |G|^2 (sigma_0^2 + g_1^2 sigma_1^2),   Cov(q, d) = G_i sigma_0^2
+
+    (``i`` the index of :attr:`axis`; camera 0's values are used as decoded, not resampled). The
+    decoder's sigma is given for :attr:`axis` only: each camera's ``v`` (or ``u``) noise is taken
+    equal to it (the same codec codes both axes; where the fringes of :attr:`axis` cross the epipolar
+    lines at right angles the other axis's noise moves the match along the fringe, which leaves ``d``
+    unchanged to first order)."""
 
     @property
     def required_axes(self) -> tuple[str, ...]:
@@ -652,7 +680,10 @@ class PreparedStereo2D(PreparedStereo):
         threads: int | None = None,
     ) -> CombinedMaps:
         """Both cameras' ``u`` and ``v`` maps (``{axis: (H_c, W_c) float32}``) to the equivalent
-        disparity ``d = k / t_m`` (H, W) float32 on camera 0's grid (class docstring); ``sigma`` None."""
+        disparity ``d = k / t_m`` (H, W) float32 on camera 0's grid (class docstring), its sigma when
+        both cameras' ``sigma`` maps (of :attr:`axis`, projector units) are given; with a calibrated
+        projector fused with the camera-projector pairs (:mod:`~metrology.core.geometry.stereo_fusion`),
+        as :meth:`PreparedStereo.combine`."""
         maps = self._maps(coordinates, ("u", "v"))
         (u0, v0), (u1, v1) = maps
         proj = self.rig.projector
@@ -662,19 +693,54 @@ class PreparedStereo2D(PreparedStereo):
         h, w = self.shape
         x1 = np.empty((h, w), np.float32)
         y1 = np.empty((h, w), np.float32)
+        slopes = np.empty((h, w, 5), np.float32)
 
         def run(rows: slice) -> None:
-            match_2d_tile(u0[rows], v0[rows], u1, v1, start, cells, MATCH_BUCKET, nu, nv, x1[rows], y1[rows])
+            match_2d_tile(
+                u0[rows], v0[rows], u1, v1, start, cells, MATCH_BUCKET, nu, nv, x1[rows], y1[rows], slopes[rows]
+            )
 
         run_tiled(run, h, w, threads)
+        x, y = x1.astype(np.float64), y1.astype(np.float64)
         cam1 = self.rig.camera1
-        und = undistort_pixels(np.asarray(cam1.K), cam1.distortion, x1.astype(np.float64), y1.astype(np.float64))
+        und = undistort_pixels(np.asarray(cam1.K), cam1.distortion, x, y)
+        d = self._midpoint_disparity(und.x, und.y)
+        d32 = d.astype(np.float32)
+        noise = _noise_maps(sigma)
+        if self.fusion is None and noise is None:
+            return _camera_pair(d32, None)
+        # the disparity's sigma and Cov(q, d) / sigma_0^2 (class docstring); unit noise without noise maps
+        gx, gy = self._disparity_slopes(und.x, und.y, d)
+        ux, uy, vx, vy, gain = (slopes[..., e].astype(np.float64) for e in range(5))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            det = ux * vy - uy * vx
+            Gu = (gx * vy - gy * vx) / det
+            Gv = (gy * ux - gx * uy) / det
+        if noise is None:
+            s0 = s1 = np.ones((h, w))
+        else:
+            s0 = noise[0].astype(np.float64)
+            h1, w1 = self.rig.camera_shapes[1]
+            j = np.clip(np.rint(np.nan_to_num(x)), 0, w1 - 1).astype(np.intp)
+            i = np.clip(np.rint(np.nan_to_num(y)), 0, h1 - 1).astype(np.intp)
+            s1 = noise[1].astype(np.float64)[i, j]
+        sigma_d = (np.hypot(Gu, Gv) * np.sqrt(s0 * s0 + (gain * s1) ** 2)).astype(np.float32)
+        sigma_d[~np.isfinite(d32)] = np.nan
+        if self.fusion is None:
+            return _camera_pair(d32, sigma_d)
+        shared = (Gu if self.axis == "u" else Gv).astype(np.float32)
+        return self._fuse(u0 if self.axis == "u" else v0, d32, sigma_d, shared, noise, threads)
+
+    def _midpoint_disparity(self, xn1: np.ndarray, yn1: np.ndarray) -> np.ndarray:
+        """``d = k / t_m`` (float64 ``(H, W)``; NaN where ``t_m <= 0`` or unmatched) of camera 1's
+        matched rays ``(x_1n, y_1n, 1)`` (undistorted normalized, float64 ``(H, W)``), the rays meeting
+        by their midpoint (class docstring)."""
         R = np.asarray(self.rig.R, np.float64)
         T = np.asarray(self.rig.T, np.float64)
         C = -R.T @ T
-        bx = R[0, 0] * und.x + R[1, 0] * und.y + R[2, 0]
-        by = R[0, 1] * und.x + R[1, 1] * und.y + R[2, 1]
-        bz = R[0, 2] * und.x + R[1, 2] * und.y + R[2, 2]
+        bx = R[0, 0] * xn1 + R[1, 0] * yn1 + R[2, 0]
+        by = R[0, 1] * xn1 + R[1, 1] * yn1 + R[2, 1]
+        bz = R[0, 2] * xn1 + R[1, 2] * yn1 + R[2, 2]
         ax, ay = self.xn, self.yn
         aa = ax * ax + ay * ay + 1.0
         bb = bx * bx + by * by + bz * bz
@@ -689,10 +755,40 @@ class PreparedStereo2D(PreparedStereo):
             my = (t * ay + C[1] + s * by) / 2
             mz = (t + C[2] + s * bz) / 2
             tm = (mx * ax + my * ay + mz) / aa
-            d = (self.k / tm).astype(np.float32)
+            d = self.k / tm
         d[~(tm > 0)] = np.nan
-        pairs = np.where(np.isfinite(d), np.uint8(PAIR_CAMERAS), np.uint8(0))
-        return CombinedMaps(u=d, v=None, sigma=None, pairs=pairs)
+        return d
+
+    def _disparity_slopes(self, xn1: np.ndarray, yn1: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``g = dd/d(x_1, y_1)`` (two float64 ``(H, W)``, per camera-1 px) of the midpoint's disparity
+        ``d`` (:meth:`_midpoint_disparity` of camera 1's matched rays ``(x_1n, y_1n)``, undistorted
+        normalized): ``g = (dd/dx_1n, dd/dy_1n) . (K' J_dist)^-1``, the first factor by forward
+        differences of :data:`MIDPOINT_STEP` (the midpoint itself, not the rectified ``x_1r``: a match
+        off the epipolar plane moves the midpoint at first order by a share of ``y_1r``), ``J_dist``
+        the lens distortion's Jacobian and ``K'`` the upper 2x2 of camera 1's ``K``."""
+        cam1 = self.rig.camera1
+        K = np.asarray(cam1.K, np.float64)
+        _, _, (a, b, c, e) = cam1.distortion.distort_with_jacobian(xn1, yn1)
+        p00, p01 = K[0, 0] * a + K[0, 1] * c, K[0, 0] * b + K[0, 1] * e  # d(pixel)/d(x_1n, y_1n)
+        p10, p11 = K[1, 1] * c, K[1, 1] * e
+        hx = (self._midpoint_disparity(xn1 + MIDPOINT_STEP, yn1) - d) / MIDPOINT_STEP  # dd / dx_1n
+        hy = (self._midpoint_disparity(xn1, yn1 + MIDPOINT_STEP) - d) / MIDPOINT_STEP
+        with np.errstate(divide="ignore", invalid="ignore"):
+            det = p00 * p11 - p01 * p10
+            return (hx * p11 - hy * p10) / det, (hy * p00 - hx * p01) / det
+
+
+def _noise_maps(sigma: Sequence[np.ndarray | None] | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """Both cameras' coordinate sigma maps as float32, or None unless both were given."""
+    if sigma is None or sigma[0] is None or sigma[1] is None:
+        return None
+    return np.asarray(sigma[0], np.float32), np.asarray(sigma[1], np.float32)
+
+
+def _camera_pair(d: np.ndarray, sigma: np.ndarray | None) -> CombinedMaps:
+    """The camera pair's disparity (and its sigma) alone, its pairs map bit 0 where it matched."""
+    pairs = np.where(np.isfinite(d), np.uint8(PAIR_CAMERAS), np.uint8(0))
+    return CombinedMaps(u=d, v=None, sigma=sigma, pairs=pairs)
 
 
 def _decreasing(u1r: np.ndarray) -> bool:
