@@ -47,5 +47,6 @@ def bare_stack(tmp_path, media_root, stack_storage_env) -> Iterator[Stack]:
 
 @pytest.fixture
 def http(stack) -> requests.Session:
-    """An HTTP session authenticated with the token of a user made by ``manage.py createuser``."""
+    """An HTTP session authenticated with the token of the user the database was copied with
+    (:func:`harness.template_user_token`)."""
     return authenticated(stack)

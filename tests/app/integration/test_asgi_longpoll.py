@@ -7,6 +7,7 @@ Redis subscription is dropped). Real PostgreSQL, real Redis, real server.
 
 from __future__ import annotations
 
+import secrets
 import threading
 import time
 from collections.abc import Iterator
@@ -31,8 +32,10 @@ def asgi_stack(tmp_path, media_root) -> Iterator[Stack]:
         yield stack
 
 
-def session_of(stack: Stack) -> requests.Session:
-    key = template_user_token()
+def session_of(stack: Stack, *, new_user: bool = False) -> requests.Session:
+    """A session of the user the stack's database was copied with, or (``new_user``) of another one
+    made by ``manage.py createuser``."""
+    key = stack.manage("createuser", f"asgi-{secrets.token_hex(3)}").strip() if new_user else template_user_token()
     session = requests.Session()
     session.headers["Authorization"] = f"Token {key}"
     return session
@@ -48,7 +51,7 @@ def database_connections(stack: Stack) -> int:
 
 def test_long_polls_leave_other_requests_unaffected_and_answer_on_change(asgi_stack):
     base = asgi_stack.base_url
-    owner, other = session_of(asgi_stack), session_of(asgi_stack)
+    owner, other = session_of(asgi_stack), session_of(asgi_stack, new_user=True)
     rig_id = owner.post(f"{base}/api/rigs/", json=RIG).json()["id"]
     assert other.post(f"{base}/api/rigs/", json={**RIG, "name": "other's"}).status_code == 201
     agent = owner.post(f"{base}/api/rigs/{rig_id}/agent/register/", json={"camera": "virtual", "name": "bench"})
