@@ -180,6 +180,7 @@ class PairFusion:
         sigma_d: np.ndarray,
         d_per_q: np.ndarray,
         threads: int | None = None,
+        self_weight: np.ndarray | None = None,
     ) -> FusedDepth:
         """Fuse the pairs' depths of camera 0's pixels (module docstring), tile by tile in a compiled
         kernel (:func:`~metrology.core.geometry.stereo_kernels.fuse_tile`).
@@ -198,6 +199,9 @@ class PairFusion:
             ``1 / (s f)``: the disparity's change per unit of camera 0's coordinate noise (signed).
         threads : int, optional
             Threads over row tiles (does not change the result).
+        self_weight : (H, W) float32, optional
+            ``c`` per pixel; default the resampling chain's
+            (:meth:`~metrology.core.geometry.stereo_match.PreparedStereo.self_weight`).
         """
         from metrology.core.tiling import run_tiled
 
@@ -210,7 +214,8 @@ class PairFusion:
         ]
         p0, p0h = points
         assert p0 is not None and p0h is not None
-        shared = np.asarray(d_per_q, np.float32) * self.stereo.self_weight()
+        weight = self.stereo.self_weight() if self_weight is None else self_weight
+        shared = np.asarray(d_per_q, np.float32) * weight
         s = self.stereo
         shape = q32.shape
         out = FusedDepth(
