@@ -38,11 +38,21 @@ camera 0's pixel grid in three steps (:meth:`PreparedStereo.combine`, then
    depth ``Z_r = b / d``; on camera 0's pixel ray ``t (x_n, y_n, 1)`` that is camera-0 depth
    ``t = Z_r / w``, ``w = (R_0 (x_n, y_n, 1))_z``, so ``t = k / d`` with the per-pixel table
    ``k = b / w``, and the point is ``t (x_n, y_n, 1)`` (camera 0's frame, mm).
+4. **Direct matches.** Steps 1 and 3 each need four decoded neighbours (a rectified sample with
+   one undecoded neighbour takes the plane through the other three; with two it is NaN), so camera
+   0's outer rows and columns and the pixels beside one camera 0 dropped get no disparity, nor do
+   those whose rectified neighbours camera 1 matched in part. Such a decoded pixel is matched at its
+   own rectified position ``(x_0, y_0)`` without resampling camera 0: its own value ``q`` in camera
+   1's rectified rows ``r = floor(y_0)`` and ``r + 1`` by step 2's rules (left-right consistency
+   against camera 0's rectified rows ``r``, ``r + 1``), ``x_1 = (1 - w) x_1(r) + w x_1(r + 1)``,
+   ``w = y_0 - r``: the line ``u_1 = q`` is straight in camera 1's rectified image for a plane lit
+   by a pinhole projector (:meth:`PreparedStereo._match_direct`).
 
 Uncertainty (first order): ``u_1(x_1) = q`` moves by ``dx_1 = (dq - du_1) / u_1'`` so
 ``sigma_x1 = sqrt(sigma_0^2 + sigma_1^2) / |u_1'|`` (rectified px, ``u_1'`` the segment's slope),
 ``sigma_d = sigma_x1 / f``, and ``sigma_point = |dt/dd| |(x_n, y_n, 1)| sigma_d = t |d|^-1 |(x_n, y_n, 1)| sigma_d``
-along camera 0's ray.
+along camera 0's ray (at a direct match camera 0's ``sigma_0`` is its own and camera 1's share is
+multiplied by its interpolation gain, :meth:`PreparedStereo._camera1_gain`).
 """
 
 from __future__ import annotations
