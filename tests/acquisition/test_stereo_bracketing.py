@@ -56,8 +56,10 @@ def test_the_virtual_camera_pair_is_bracketed_acquired_and_measured(tmp_path) ->
     with a specular patch on a 0.001..0.03 matte ramp (1000:1) 500 mm away, realistic 8-bit, no camera
     defocus, the default projector and a codec of 64-px periods (20 camera pixels; with 16-px
     periods, 5 camera pixels, the darkest end's modulation does not survive the optics). Measured:
-    the bracket 10.4, 98 and 931 ms; alone 14.5 %, 37.2 %, 54.0 % of the pixels lit in both cameras;
-    fused 97.1 %, 32 points (4e-4) off by more than 1 mm."""
+    the bracket 10.4, 98 and 931 ms; alone 14.9 %, 38.3 %, 54.9 % of the pixels lit in both cameras;
+    fused 97.8 % (the rest: partners in camera 1's top and bottom ten rows, which it does not decode),
+    43 points (5.5e-4) off by more than 1 mm (the noise tail of camera 0's darkest, directly matched
+    column: docs/exposures.md)."""
     from metrology.acquisition.agent.cameras import AcquisitionTarget, VirtualCamera
     from metrology.acquisition.agent.client import acquire_capture
     from metrology.acquisition.agent.patterns import resolve_codec
@@ -107,6 +109,8 @@ def test_the_virtual_camera_pair_is_bracketed_acquired_and_measured(tmp_path) ->
         assert (np.isfinite(m.z_mm) & lit).sum() <= 0.85 * lit.sum()
     fused = measure(RIG, stacks, codec)
     measured = np.isfinite(fused.z_mm) & lit
-    assert measured.sum() >= 0.965 * lit.sum()
     error = np.linalg.norm(fused.points_mm().astype(np.float64) - points, axis=-1)[measured]
+    far = np.count_nonzero(error > 1.0)
+    print(f"fused {measured.sum() / lit.sum():.4f} of {lit.sum()} px lit in both, {far} off by > 1 mm")
+    assert measured.sum() >= 0.975 * lit.sum()
     assert np.count_nonzero(error > 1.0) <= 1e-3 * measured.sum()

@@ -183,6 +183,7 @@ def test_the_fused_scatter_is_the_predicted_fraction_of_the_camera_pairs(match: 
     assert abs(observed_ratio / predicted_ratio - 1) < 0.1
     assert abs(fused_fit - 1) < 0.2 and abs(pair_fit - 1) < 0.2
     # where camera 1 does not see (the edge of camera 0's field): camera 0 and the projector alone
+    # (camera 0's border rows and columns that camera 1 sees are the camera pair's, matched directly)
     edge = np.isfinite(ranges["fused"]).all(axis=0) & np.isnan(ranges["pair"]).all(axis=0)
     assert edge.sum() > 200
     edge_scatter = ranges["fused"][:, edge].std(axis=0, ddof=1)

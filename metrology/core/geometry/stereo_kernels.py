@@ -4,7 +4,10 @@
 Each kernel does in one pass over a tile what took a dozen numpy passes and their temporaries:
 
 - :func:`sample_tile`: bilinear sampling at fixed positions with the parabolic terms (the
-  rectification of a decoded map, the disparity sampled back on camera 0's grid);
+  rectification of a decoded map, the disparity sampled back on camera 0's grid), and where a
+  neighbour is missing, from the three that are there (:func:`_sample_triangle`);
+- :func:`match_pixels`: camera-0 pixels matched directly at their own positions (where the
+  resampling chain lacks a neighbour);
 - :func:`match_tile`: the matching of rectified rows (running extrema, a merge walk instead of a
   ``searchsorted``), the sub-pixel position and the normalized disparity;
 - :func:`depth_tile`: the disparity to points along camera 0's rays.
@@ -21,6 +24,33 @@ import math
 import numpy as np
 from numba import njit
 
+SAMPLE_STRICT = 0
+"""Sampling mode of :func:`sample_tile`: NaN where any of the four neighbours is NaN."""
+SAMPLE_TRIANGLE = 1
+"""Sampling mode of :func:`sample_tile`: with one of the four neighbours NaN, the plane through the
+other three (inside the cell of decoded pixels)."""
+
+
+@njit(nogil=True, cache=True)
+def _sample_triangle(flat: np.ndarray, i: int, w: int, fx: float, fy: float) -> float:  # pragma: no cover
+    """The value at ``(fx, fy)`` of the cell whose top-left neighbour is ``flat[i]`` when one of its
+    four neighbours is NaN: the plane through the other three (exact for an affine map), e.g.
+    ``a + fx (b - a) + fy (c - a)`` without ``d``; NaN when two or more are NaN or the position is."""
+    a = np.float64(flat[i])
+    b = np.float64(flat[i + 1])
+    c = np.float64(flat[i + w])
+    d = np.float64(flat[i + w + 1])
+    ma, mb, mc, md = math.isnan(a), math.isnan(b), math.isnan(c), math.isnan(d)
+    if int(ma) + int(mb) + int(mc) + int(md) != 1:
+        return np.nan
+    if md:
+        return a + fx * (b - a) + fy * (c - a)
+    if mc:
+        return a + fx * (b - a) + fy * (d - b)
+    if mb:
+        return a + fy * (c - a) + fx * (d - c)
+    return d + (1.0 - fx) * (c - d) + (1.0 - fy) * (b - d)
+
 
 @njit(nogil=True, cache=True)
 def sample_tile(
@@ -31,6 +61,7 @@ def sample_tile(
     wy: np.ndarray,
     out: np.ndarray,
     curvature: bool,
+    fallback: int,
 ) -> None:  # pragma: no cover - compiled
     """``out[r, c]`` = the ``(h, w)`` float32 ``image`` sampled bilinearly at the positions of
     ``index`` (flat index of the top-left neighbour, ``(n, m)`` int32), ``wx``, ``wy`` (``(n, m)``
@@ -41,7 +72,11 @@ def sample_tile(
     (exact for a quadratic map), ``c_xx = (u[j-1] - u[j] - u[j+1] + u[j+2]) / 2`` along the top-left
     neighbour's row (the mean of the second differences at ``j`` and ``j + 1``), ``c_yy`` likewise
     down its column; left out where either is unknown (``inner`` 0 at the image's edges, a NaN
-    neighbour)."""
+    neighbour).
+
+    Where a neighbour is NaN the sample is NaN with ``fallback`` :data:`SAMPLE_STRICT`; with
+    :data:`SAMPLE_TRIANGLE` and one neighbour NaN, the plane through the other three
+    (:func:`_sample_triangle`)."""
     w = image.shape[1]
     flat = image.ravel()
     n, m = index.shape
@@ -57,7 +92,10 @@ def sample_tile(
             top = a + fx * (b - a)
             bottom = cc + fx * (d - cc)
             value = top + fy * (bottom - top)
-            if curvature and inner[r, c] and not math.isnan(value):
+            if math.isnan(value):
+                if fallback == SAMPLE_TRIANGLE and not math.isnan(fx + fy):
+                    value = np.float64(_sample_triangle(flat, i, w, fx, fy))
+            elif curvature and inner[r, c]:
                 cxx = 0.5 * (np.float64(flat[i - 1]) - a - b + np.float64(flat[i + 2]))
                 cyy = 0.5 * (np.float64(flat[i - w]) - a - cc + np.float64(flat[i + 2 * w]))
                 bend = fx * (1.0 - fx) * cxx + fy * (1.0 - fy) * cyy
@@ -148,6 +186,27 @@ def run_position(
 
 
 @njit(nogil=True, cache=True)
+def _segment_position(
+    row1: np.ndarray, min1: np.ndarray, w1: int, p: int, q: float
+) -> tuple[float, float]:  # pragma: no cover
+    """Camera 1's column ``p + s`` and slope where its cleaned row ``row1`` (suffix minimum ``min1``,
+    ``w1`` columns) takes ``q`` in the segment ``[p, p + 1]``: ``u1(p) <= q < u1(p + 1)``, unique (no
+    decoded value right of ``p + 1`` at most ``q``), ``s`` from :func:`run_position`; NaN, NaN
+    otherwise."""
+    if p < 0 or p > w1 - 2:
+        return np.nan, np.nan
+    a = row1[p]
+    b = row1[p + 1]
+    beyond = min1[p + 2] if p + 2 < w1 else np.inf
+    if not (a <= q and q < b and beyond > q):
+        return np.nan, np.nan
+    before = row1[p - 1] if p >= 1 else np.nan
+    after = row1[p + 2] if p + 2 < w1 else np.nan
+    s, slope = run_position(before, a, b, after, q)
+    return p + s, slope
+
+
+@njit(nogil=True, cache=True)
 def match_tile(
     u0: np.ndarray,
     u1: np.ndarray,
@@ -204,16 +263,8 @@ def match_tile(
                     break
                 key = candidate
                 p += 1
-            if p < 0 or p > w1 - 2:
-                continue
-            a = row1[p]
-            b = row1[p + 1]
-            beyond = rmin1[p + 2] if p + 2 < w1 else inf
-            if a <= q and q < b and beyond > q:
-                before = row1[p - 1] if p >= 1 else np.nan
-                after = row1[p + 2] if p + 2 < w1 else np.nan
-                s, slope = run_position(before, a, b, after, q)
-                x1 = p + s
+            x1, slope = _segment_position(row1, rmin1, w1, p, q)
+            if not math.isnan(x1):
                 x1_out[r, j] = x1
                 slope_out[r, j] = slope
                 d_out[r, j] = x1 * inv_f - offset - x0n[j]
@@ -568,3 +619,127 @@ def fuse_tile(
                 t_out[r, c] = np.nan
                 sigma_out[r, c] = np.nan
                 pairs_out[r, c] = 0
+
+
+@njit(nogil=True, cache=True)
+def _prefix_max(row: np.ndarray, w: int, lo: float, out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``out[c]`` = the maximum of ``row[:c + 1]`` counting a NaN as ``lo`` (the key of
+    :func:`match_tile`'s merge walk)."""
+    high = -np.inf
+    for c in range(w):
+        v = row[c]
+        high = max(high, lo if math.isnan(v) else v)
+        out[c] = high
+
+
+@njit(nogil=True, cache=True)
+def _record_max(row: np.ndarray, w: int, out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``out[c]`` = the maximum of the (not NaN) values of ``row[:c + 1]``, ``-inf`` where all are NaN."""
+    high = -np.inf
+    for c in range(w):
+        v = row[c]
+        if v > high:
+            high = v
+        out[c] = high
+
+
+@njit(nogil=True, cache=True)
+def _match_in_row(
+    q: float,
+    x0: float,
+    row0: np.ndarray,
+    max0: np.ndarray,
+    min0: np.ndarray,
+    row1: np.ndarray,
+    key1: np.ndarray,
+    min1: np.ndarray,
+) -> tuple[float, float]:  # pragma: no cover - compiled
+    """Camera 1's column ``x1`` and slope where one rectified row (cleaned ``row1``, its merge keys
+    ``key1`` and suffix minimum ``min1``) takes ``q``, for a camera-0 value at rectified column
+    ``x0`` of the same row (cleaned ``row0``, running maximum ``max0``, suffix minimum ``min0``):
+    :func:`match_tile`'s rules (a record of camera 0's row: above every decoded value left of
+    ``x0``, below every one right of it; the segment ``u1(x) <= q < u1(x + 1)`` unique in camera 1's
+    row; :func:`run_position`). NaN, NaN where not matched."""
+    w0 = row0.shape[0]
+    w1 = row1.shape[0]
+    left = math.ceil(x0) - 1  # the last column strictly left of x0
+    right = math.floor(x0) + 1  # the first column strictly right of it
+    if left >= 0 and not q > max0[min(left, w0 - 1)]:
+        return np.nan, np.nan
+    if right <= w0 - 1 and not q < min0[max(right, 0)]:
+        return np.nan, np.nan
+    # p: the last column whose merge key is at most q (keys do not decrease)
+    low, high = 0, w1
+    while low < high:
+        mid = (low + high) // 2
+        if key1[mid] <= q:
+            low = mid + 1
+        else:
+            high = mid
+    return _segment_position(row1, min1, w1, low - 1, q)
+
+
+@njit(nogil=True, cache=True)
+def match_pixels(
+    u0r: np.ndarray,
+    u1r: np.ndarray,
+    lo: float,
+    hi: float,
+    q: np.ndarray,
+    x0: np.ndarray,
+    y0: np.ndarray,
+    x0n: np.ndarray,
+    inv_f: float,
+    offset: float,
+    x1_out: np.ndarray,
+    slope_out: np.ndarray,
+    d_out: np.ndarray,
+    rows_out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Match camera-0 pixels directly, without resampling camera 0: each pixel's own decoded value
+    ``q`` ((n,) float64, the coordinate growing along the rows) at its rectified position ``(x0,
+    y0)`` ((n,) float64 rectified px, sorted by ``floor(y0)``) is matched in the two rectified rows
+    ``r = floor(y0)`` and ``r + 1`` of camera 1's map ``u1r`` (rows of camera 0's map ``u0r`` for
+    the left-right consistency; both (rows, W) float32, cleaned by :func:`clean_row`) by
+    :func:`_match_in_row`, and camera 1's column at the pixel's own epipolar line ``y0`` is
+    interpolated between the rows, ``x1 = (1 - w) x1_r + w x1_(r+1)``, ``w = y0 - r`` (the line of
+    equal ``q`` in camera 1's rectified image: exact for a plane lit by a pinhole projector); so is
+    the slope. ``x1_out``, ``slope_out`` and the normalized disparity ``d = x1 inv_f - offset - x0n``
+    ((n,) float32), and the columns on rows ``r`` and ``r + 1`` (``rows_out``, (n, 2) float64); NaN
+    where either row does not match or ``y0`` is outside the grid's rows."""
+    n = q.shape[0]
+    rows, w0 = u0r.shape
+    w1 = u1r.shape[1]
+    row0, max0, min0 = np.empty(w0), np.empty(w0), np.empty(w0)
+    row1, key1, min1 = np.empty(w1), np.empty(w1), np.empty(w1)
+    found = np.full((2, n), np.nan)  # x1 on rows r and r + 1
+    slopes = np.full((2, n), np.nan)
+    first = 0  # the pixels [first, i) have r = rho - 1, [i, j) r = rho: each row is prepared once
+    i = 0
+    top = min(max(math.floor(y0[0]), 0), rows - 2) if n else 0
+    bottom = min(max(math.floor(y0[n - 1]), 0), rows - 2) + 2 if n else 0
+    for rho in range(top, bottom):
+        j = i
+        while j < n and min(max(math.floor(y0[j]), 0), rows - 2) == rho:
+            j += 1
+        if j > first:
+            clean_row(u0r[rho], lo, hi, row0)
+            _record_max(row0, w0, max0)
+            suffix_min(row0, w0, min0)
+            clean_row(u1r[rho], lo, hi, row1)
+            _prefix_max(row1, w1, lo, key1)
+            suffix_min(row1, w1, min1)
+            for k in range(first, j):
+                second = 1 if k < i else 0
+                if q[k] >= lo and q[k] <= hi and (second == 0 or not math.isnan(found[0, k])):
+                    found[second, k], slopes[second, k] = _match_in_row(q[k], x0[k], row0, max0, min0, row1, key1, min1)
+        first, i = i, j
+    for i in range(n):
+        r = min(max(math.floor(y0[i]), 0), rows - 2)
+        w = y0[i] - r
+        x = (1.0 - w) * found[0, i] + w * found[1, i] if w >= 0.0 and w <= 1.0 else np.nan
+        x1_out[i] = x
+        slope_out[i] = (1.0 - w) * slopes[0, i] + w * slopes[1, i]
+        d_out[i] = x * inv_f - offset - x0n[i]
+        rows_out[i, 0] = found[0, i]
+        rows_out[i, 1] = found[1, i]

@@ -38,11 +38,21 @@ camera 0's pixel grid in three steps (:meth:`PreparedStereo.combine`, then
    depth ``Z_r = b / d``; on camera 0's pixel ray ``t (x_n, y_n, 1)`` that is camera-0 depth
    ``t = Z_r / w``, ``w = (R_0 (x_n, y_n, 1))_z``, so ``t = k / d`` with the per-pixel table
    ``k = b / w``, and the point is ``t (x_n, y_n, 1)`` (camera 0's frame, mm).
+4. **Direct matches.** Steps 1 and 3 each need four decoded neighbours (a rectified sample with
+   one undecoded neighbour takes the plane through the other three; with two it is NaN), so camera
+   0's outer rows and columns and the pixels beside one camera 0 dropped get no disparity, nor do
+   those whose rectified neighbours camera 1 matched in part. Such a decoded pixel is matched at its
+   own rectified position ``(x_0, y_0)`` without resampling camera 0: its own value ``q`` in camera
+   1's rectified rows ``r = floor(y_0)`` and ``r + 1`` by step 2's rules (left-right consistency
+   against camera 0's rectified rows ``r``, ``r + 1``), ``x_1 = (1 - w) x_1(r) + w x_1(r + 1)``,
+   ``w = y_0 - r``: the line ``u_1 = q`` is straight in camera 1's rectified image for a plane lit
+   by a pinhole projector (:meth:`PreparedStereo._match_direct`).
 
 Uncertainty (first order): ``u_1(x_1) = q`` moves by ``dx_1 = (dq - du_1) / u_1'`` so
 ``sigma_x1 = sqrt(sigma_0^2 + sigma_1^2) / |u_1'|`` (rectified px, ``u_1'`` the segment's slope),
 ``sigma_d = sigma_x1 / f``, and ``sigma_point = |dt/dd| |(x_n, y_n, 1)| sigma_d = t |d|^-1 |(x_n, y_n, 1)| sigma_d``
-along camera 0's ray.
+along camera 0's ray (at a direct match camera 0's ``sigma_0`` is its own and camera 1's share is
+multiplied by its interpolation gain, :meth:`PreparedStereo._camera1_gain`).
 """
 
 from __future__ import annotations
@@ -77,7 +87,16 @@ from metrology.core.geometry.pinhole import (
     reference_plane,
 )
 from metrology.core.geometry.stereo_fusion import PAIR_CAMERAS, PairFusion
-from metrology.core.geometry.stereo_kernels import cell_buckets, depth_tile, match_2d_tile, match_tile, sample_tile
+from metrology.core.geometry.stereo_kernels import (
+    SAMPLE_STRICT,
+    SAMPLE_TRIANGLE,
+    cell_buckets,
+    depth_tile,
+    match_2d_tile,
+    match_pixels,
+    match_tile,
+    sample_tile,
+)
 from metrology.core.tiling import run_tiled, thread_scratch
 
 if TYPE_CHECKING:
@@ -106,6 +125,10 @@ class Bilinear:
         Weights of the right and lower neighbours, in [0, 1]; NaN outside the map (so is the sample).
     width : int
         ``w``: the map's row stride.
+    fallback : int
+        Where a neighbour is NaN: :data:`~metrology.core.geometry.stereo_kernels.SAMPLE_STRICT` (the
+        sample is NaN) or ``SAMPLE_TRIANGLE`` (with one neighbour NaN, the plane through the other
+        three: :func:`~metrology.core.geometry.stereo_kernels.sample_tile`).
     """
 
     index: np.ndarray
@@ -113,11 +136,13 @@ class Bilinear:
     wx: np.ndarray
     wy: np.ndarray
     width: int
+    fallback: int = SAMPLE_STRICT
 
     @classmethod
-    def at(cls, x: np.ndarray, y: np.ndarray, shape: tuple[int, int]) -> Bilinear:
+    def at(cls, x: np.ndarray, y: np.ndarray, shape: tuple[int, int], fallback: int = SAMPLE_STRICT) -> Bilinear:
         """Sampling at pixel positions ``(x, y)`` (column, row; pixel centres at integers) of an
-        ``(h, w)`` map (``h, w >= 2``); positions outside ``[0, w - 1] x [0, h - 1]`` give NaN."""
+        ``(h, w)`` map (``h, w >= 2``); positions outside ``[0, w - 1] x [0, h - 1]`` give NaN;
+        ``fallback`` where a neighbour is NaN (class docstring)."""
         h, w = shape
         inside = (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
         ix = np.clip(np.floor(np.where(inside, x, 0.0)), 0, w - 2).astype(np.intp)
@@ -126,7 +151,7 @@ class Bilinear:
         wy = np.where(inside, y - iy, np.nan).astype(np.float32)
         inner = ((ix >= 1) & (ix <= w - 3) & (iy >= 1) & (iy <= h - 3)).astype(np.uint8)
         index = (iy * w + ix).astype(np.int32)
-        return cls(index=index, inner=inner, wx=wx, wy=wy, width=w)
+        return cls(index=index, inner=inner, wx=wx, wy=wy, width=w, fallback=fallback)
 
     def sample(
         self,
@@ -136,7 +161,8 @@ class Bilinear:
         curvature: bool = False,
     ) -> np.ndarray:
         """``image`` (float32 ``(h, w)``, the map) at the positions (of ``rows`` of them), float32; NaN
-        where a neighbour is NaN or the position is outside. With ``curvature`` the parabolic terms
+        where the position is outside, and where a neighbour is NaN unless :attr:`fallback` finds the
+        value from the others. With ``curvature`` the parabolic terms
         are added, ``-(wx (1 - wx) c_xx + wy (1 - wy) c_yy) / 2`` with ``c_xx``, ``c_yy`` the second
         differences along the row and the column averaged over the cell's two sides (exact for a
         quadratic map; bilinear where a curvature is unknown, at the edges;
@@ -148,7 +174,7 @@ class Bilinear:
             out = np.empty(shape, np.float32)
         image = np.ascontiguousarray(image, dtype=np.float32).reshape(-1, self.width)
         two_d = (lambda a: a.reshape(1, -1)) if len(shape) == 1 else (lambda a: a)
-        sample_tile(image, two_d(index), two_d(inner), two_d(wx), two_d(wy), two_d(out), curvature)
+        sample_tile(image, two_d(index), two_d(inner), two_d(wx), two_d(wy), two_d(out), curvature, self.fallback)
         return out
 
 
@@ -235,9 +261,11 @@ def rectification(rig: StereoRig) -> Rectification:
     if not y_hi > y_lo:
         raise GeometryError("the stereo rig's cameras share no epipolar line (their views do not overlap)")
     cy = -y_lo * f
-    rows = math.floor((y_hi - y_lo) * f) + 1
+    # whole pixels covering each extent (its last pixel centre at or beyond the extent's end: a
+    # camera-0 pixel of the outermost row or column lies on the grid, not past it)
+    rows = math.ceil((y_hi - y_lo) * f) + 1
     cx = tuple(-b[0] * f for b in bounds)
-    shapes = tuple((rows, math.floor((b[1] - b[0]) * f) + 1) for b in bounds)
+    shapes = tuple((rows, math.ceil((b[1] - b[0]) * f) + 1) for b in bounds)
     return Rectification(
         R0=R0,
         R1=R1,
@@ -262,7 +290,7 @@ def _forward(camera: PinholeCamera, Rc: np.ndarray, rect: Rectification, index: 
     with np.errstate(divide="ignore", invalid="ignore"):
         px, py = project_normalized(np.asarray(camera.K), camera.distortion, X / Z, Y / Z)
     px = np.where(Z > 0, px, np.nan)
-    return Bilinear.at(px, py, (camera.height_px, camera.width_px))
+    return Bilinear.at(px, py, (camera.height_px, camera.width_px), SAMPLE_TRIANGLE)
 
 
 @dataclass(frozen=True)
@@ -272,6 +300,31 @@ class Matched:
 
     x1: np.ndarray
     slope: np.ndarray
+
+
+@dataclass(frozen=True)
+class DirectMatches:
+    """Camera-0 pixels matched at their own positions (:meth:`PreparedStereo._match_direct`).
+
+    Attributes
+    ----------
+    index : (n,) intp
+        Flat indices of the pixels on camera 0's grid.
+    x1, slope, d : (n,) float32
+        Camera 1's rectified column at the pixel's epipolar line, camera 1's slope there (projector
+        units per px) and the normalized disparity; NaN where not matched.
+    y : (n,) float64
+        The pixel's rectified row (its epipolar line), rectified px.
+    columns : (n, 2) float64
+        Camera 1's columns on the rectified rows ``floor(y)`` and ``floor(y) + 1`` (clipped to the grid).
+    """
+
+    index: np.ndarray
+    x1: np.ndarray
+    slope: np.ndarray
+    d: np.ndarray
+    y: np.ndarray
+    columns: np.ndarray
 
 
 def match_rows(u0: np.ndarray, u1: np.ndarray, lo: float, hi: float) -> Matched:
@@ -414,17 +467,26 @@ class PreparedStereo(PreparedGeometry):
         run_tiled(run, rows, width, threads)
         out = np.empty(self.shape, np.float32)
         run_tiled(lambda r: self.back.sample(disparity, r, out[r], True), *self.shape, threads)
+        direct = self._match_direct(u0, u0r, u1r, disparity, out, sign, lo, hi, threads)
+        out.ravel()[direct.index] = direct.d
         noise = _noise_maps(sigma)
+        if self.fusion is None and noise is None:
+            return _camera_pair(out, None)
         s0, s1 = (None, None) if noise is None else noise
-        if self.fusion is None:
-            return _camera_pair(out, None if noise is None else self._disparity_sigma(s0, s1, x1, step, threads))
         # equal unit noise in both cameras when no noise maps are given: the weights from the geometry alone
-        sigma_d = self._disparity_sigma(s0, s1, x1, step, threads)
+        sigma_d = self._disparity_sigma(s0, s1, x1, step, direct, threads)
+        if noise is not None:
+            sigma_d[np.isnan(out)] = np.nan
+        if self.fusion is None:
+            return _camera_pair(out, sigma_d)
         with np.errstate(divide="ignore", invalid="ignore"):
             per_q = np.float32(sign) / (step * np.float32(rect.f))
         d_per_q = np.empty(self.shape, np.float32)
         run_tiled(lambda r: self.back.sample(per_q, r, d_per_q[r]), *self.shape, threads)
-        return self._fuse(u0, out, sigma_d, d_per_q * self.self_weight(), noise, threads)
+        d_per_q.ravel()[direct.index] = np.float32(sign) / (direct.slope * np.float32(rect.f))
+        weight = self.self_weight().copy()
+        weight.ravel()[direct.index] = 1.0  # a directly matched pixel's disparity holds all of its own noise
+        return self._fuse(u0, out, sigma_d, d_per_q * weight, noise, threads)
 
     def _fuse(
         self,
@@ -449,6 +511,111 @@ class PreparedStereo(PreparedGeometry):
             fused_d = (self.k / fused.t_mm).astype(np.float32)
             sigma = None if noise is None else (fused.sigma_mm * np.abs(fused_d) / fused.t_mm).astype(np.float32)
         return CombinedMaps(u=fused_d, v=None, sigma=sigma, pairs=fused.pairs)
+
+    def _match_direct(
+        self,
+        u0: np.ndarray,
+        u0r: np.ndarray,
+        u1r: np.ndarray,
+        disparity: np.ndarray,
+        out: np.ndarray,
+        sign: float,
+        lo: float,
+        hi: float,
+        threads: int | None = None,
+    ) -> DirectMatches:
+        """Camera 0's decoded pixels that the resampling chain left without a disparity (``out`` NaN)
+        because some of the rectified samples they are sampled back from are not decoded (at the
+        frame's border, beside a pixel camera 0 dropped) or not matched (``disparity``, rectified: at
+        the edge of camera 1's view, beside a refused match), matched at their own positions: the
+        pixel's decoded value (times ``sign``) along its own epipolar line, between camera 1's
+        rectified rows around it (:func:`~metrology.core.geometry.stereo_kernels.match_pixels`). Sets
+        ``out`` NaN where camera 0 did not decode."""
+        undecoded = np.isnan(u0)
+        out[undecoded] = np.nan
+        index = np.flatnonzero(np.isnan(out) & ~undecoded)
+        # only where the chain lacked a neighbour: among the four rectified samples the pixel is sampled
+        # back from, one camera 0 did not decode or one camera 1 matched (not where all four were
+        # decoded and camera 1 matched none: outside its view)
+        corner = self.back.index.ravel()[index]
+        cols = self.back.width
+        lacking = np.zeros(index.size, bool)
+        for offset in (0, 1, cols, cols + 1):
+            lacking |= np.isnan(u0r.ravel()[corner + offset]) | np.isfinite(disparity.ravel()[corner + offset])
+        index = index[lacking]
+        rect = self.rect
+        y = self.y0r.ravel()[index] * rect.f + rect.cy
+        order = np.argsort(np.floor(y), kind="stable")
+        index, y = index[order], y[order]
+        x0n = self.x0r.ravel()[index]
+        n = index.size
+        x1, slope, d = (np.empty(n, np.float32) for _ in range(3))
+        columns = np.empty((n, 2), np.float64)
+        q = np.float64(sign) * u0.ravel()[index].astype(np.float64)
+        x0 = x0n * rect.f + rect.cx[0]
+        rows = rect.shapes[0][0]
+        band = np.searchsorted(np.clip(np.floor(y), 0, rows - 2), np.arange(rows + 1))  # pixels per row band
+
+        def run(tile: slice) -> None:
+            part = slice(band[tile.start], band[tile.stop])
+            match_pixels(
+                u0r,
+                u1r,
+                lo,
+                hi,
+                q[part],
+                x0[part],
+                y[part],
+                x0n[part],
+                1.0 / rect.f,
+                rect.cx[1] / rect.f,
+                x1[part],
+                slope[part],
+                d[part],
+                columns[part],
+            )
+
+        run_tiled(run, rows, rect.shapes[0][1], threads)
+        return DirectMatches(index=index, x1=x1, slope=slope, d=d, y=y, columns=columns)
+
+    def _camera1_gain(self, direct: DirectMatches) -> np.ndarray:
+        """``(n,)`` float32 (NaN where not matched): the standard deviation of camera 1's column at each
+        ``direct`` match per unit
+        of white noise on camera 1's pixels, relative to its value at one pixel: the match's column is
+        ``sum_k c_k u_k`` over the rectified samples it interpolates (rows ``r``, ``r + 1`` weighted
+        ``1 - w``, ``w``; columns ``x``, ``x + 1`` of each weighted ``1 - s``, ``s``), each sample
+        ``u_k = sum_j f_kj e_j`` of camera 1's pixels ``e_j`` (bilinear weights), so the gain is
+        ``sqrt(sum_j (sum_k c_k f_kj)^2)``. The cubic's outer samples are left out (first order at the
+        segment)."""
+        rect, forward = self.rect, self.forward[1]
+        rows, cols = rect.shapes[1]
+        gain = np.full(direct.index.shape, np.nan, np.float32)
+        matched = np.flatnonzero(np.isfinite(direct.x1))
+        y, columns = direct.y[matched], direct.columns[matched]
+        r = np.clip(np.floor(y), 0, rows - 2).astype(np.intp)
+        w = y - r
+        n = matched.size
+        pixels = np.zeros((n, 16), np.int64)
+        weights = np.zeros((n, 16), np.float64)
+        fwx, fwy, findex = forward.wx.ravel(), forward.wy.ravel(), forward.index.ravel()
+        k = 0
+        for row, row_weight in ((0, 1.0 - w), (1, w)):
+            x = columns[:, row]
+            column = np.clip(np.floor(np.nan_to_num(x)), 0, cols - 2).astype(np.intp)
+            s = np.nan_to_num(x) - column
+            for dc, column_weight in ((0, 1.0 - s), (1, s)):
+                at = (r + row) * cols + column + dc
+                fx = np.nan_to_num(fwx[at].astype(np.float64))
+                fy = np.nan_to_num(fwy[at].astype(np.float64))
+                base = findex[at].astype(np.int64)
+                for ey in (0, 1):
+                    for ex in (0, 1):
+                        pixels[:, k] = base + ex + ey * forward.width
+                        weights[:, k] = row_weight * column_weight * (fx if ex else 1 - fx) * (fy if ey else 1 - fy)
+                        k += 1
+        same = pixels[:, :, None] == pixels[:, None, :]
+        gain[matched] = np.sqrt((weights[:, :, None] * weights[:, None, :] * same).sum(axis=(1, 2)))
+        return gain
 
     def _maps(
         self, coordinates: Sequence[Mapping[str, np.ndarray | None]], axes: tuple[str, ...]
@@ -533,17 +700,22 @@ class PreparedStereo(PreparedGeometry):
         sigma1: np.ndarray | None,
         x1: np.ndarray,
         slope: np.ndarray,
+        direct: DirectMatches,
         threads: int | None,
     ) -> np.ndarray:
         """The disparity's standard deviation on camera 0's grid (normalized; module docstring):
         ``sqrt(sigma_0^2 + sigma_1^2) / |u_1'| / f`` at the matched pixels, sampled back on camera
         0's grid, times the resampling chain's noise gain (:meth:`noise_gain`, the same for both
-        cameras' share: both go onto a rectified grid and back). ``sigma0``, ``sigma1`` None: unit
+        cameras' share: both go onto a rectified grid and back); at the ``direct`` matches
+        (:meth:`_match_direct`) ``sqrt(sigma_0^2 + (g_1 sigma_1)^2) / |u_1'| / f`` with camera 0's own
+        sigma (not resampled), camera 1's at the nearest rectified pixel of the match and its gain
+        ``g_1`` through the interpolation (:meth:`_camera1_gain`). ``sigma0``, ``sigma1`` None: unit
         noise in both cameras."""
         rect = self.rect
         hit = np.isfinite(x1)
         if sigma0 is None or sigma1 is None:
             sigma_x1 = np.full(x1.shape, math.sqrt(2.0), np.float32)
+            sigma_direct = np.hypot(np.float32(1.0), self._camera1_gain(direct))
         else:
             s0 = self.rectify(0, sigma0, threads)
             s1 = self.rectify(1, sigma1, threads)
@@ -551,11 +723,18 @@ class PreparedStereo(PreparedGeometry):
             at = np.where(hit, np.clip(np.rint(x1), 0, cols1 - 1), 0).astype(np.intp)
             at += (np.arange(rows, dtype=np.intp) * cols1)[:, None]
             sigma_x1 = np.hypot(s0, s1.ravel().take(at))
+            column = np.where(np.isfinite(direct.x1), np.clip(np.rint(direct.x1), 0, cols1 - 1), 0).astype(np.intp)
+            row = np.clip(np.rint(direct.y), 0, rows - 1).astype(np.intp)
+            sigma_direct = np.hypot(
+                np.asarray(sigma0, np.float32).ravel()[direct.index],
+                s1.ravel().take(row * cols1 + column) * self._camera1_gain(direct),
+            )
         sigma_d = sigma_x1 / np.abs(slope * np.float32(rect.f))
         sigma_d[~hit] = np.nan
         back = np.empty(self.shape, np.float32)
         run_tiled(lambda r: self.back.sample(sigma_d, r, back[r]), *self.shape, threads)
         back *= self.noise_gain()
+        back.ravel()[direct.index] = sigma_direct / np.abs(direct.slope * np.float32(rect.f))
         return back
 
     def plane_coordinates(self, reference: ReferenceSurface | None = None) -> PlaneCoordinates:
