@@ -11,10 +11,11 @@ scripts/services.sh
 export PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1
 # Bytecode is written and reused. With PYTHONDONTWRITEBYTECODE set (as in many container images)
 # every Python process the suite starts (pytest workers, web servers, Celery workers, agents,
-# commands) compiled each module it imported from source again: measured on 2 cores, a pytest
-# worker's collection took 14 s of CPU instead of 6 s, a Celery worker's start 3.9 s instead of
-# 1.8 s. The project's own modules are compiled here, beside ruff; installed packages' modules are
-# written by the first process that imports them.
+# commands) compiled each module it imported from source again: measured on 2 cores with nothing
+# else running, a pytest worker's collection took 11-13 s of CPU instead of 6 s, a Celery worker's
+# start 2.2-2.5 s instead of 1.8-1.9 s (the installed packages' bytecode present in both). The
+# project's own modules are compiled here, beside ruff; installed packages' modules are written by
+# the first process that imports them.
 unset PYTHONDONTWRITEBYTECODE
 .venv/bin/python -m compileall -q -j 0 metrology workers tests manage.py > /dev/null &
 compile_pid=$!

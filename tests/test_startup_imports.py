@@ -94,7 +94,7 @@ NOT_FOR_URLS = ("scipy", "numba", "open3d", "redis.asyncio")
 
 def test_the_urlconf_imports_no_optimiser_and_no_async_redis():
     """Every web server process (and ``manage.py check``) imports the URLconf and with it every API
-    module; SciPy (0.4 s of CPU, for one sphere fit of the acceptance API) and ``redis.asyncio`` (for
+    module; SciPy (0.5 s of CPU, for one sphere fit of the acceptance API) and ``redis.asyncio`` (for
     the projector's long-poll) are imported where they are used."""
     done = fresh_interpreter(
         SETUP + "; import django.urls; django.urls.get_resolver().url_patterns; print('ready')", "-X", "importtime"

@@ -216,7 +216,7 @@ def _sphere(p: np.ndarray, w: np.ndarray | None) -> SphereFit:
         return root_w[:, None] * np.column_stack([-diff / dist[:, None], -np.ones(len(q))])
 
     # SciPy's optimiser is imported here, not with the module: the web server's URLconf imports this
-    # module (the acceptance API) and would pay about 0.4 s of CPU at every start for it
+    # module (the acceptance API) and would pay about 0.5 s of CPU at every start for it
     from scipy import optimize
 
     res = optimize.least_squares(radial, np.r_[c0, r0], jac=jac, method="lm", xtol=1e-12, ftol=1e-12)

@@ -84,7 +84,7 @@ def migrated_template() -> str:
     """A database migrated by ``manage.py migrate`` once per test process, which
     :func:`fresh_database` copies; dropped when the process exits. It holds one user,
     :data:`TEMPLATE_USER`, whose token :func:`template_user_token` gives: a test's session needs no
-    ``manage.py createuser`` process of its own (about 1.5 s of CPU each). Nothing connects to it
+    ``manage.py createuser`` process of its own (about 0.5 s of CPU each). Nothing connects to it
     after that (PostgreSQL copies a template only while no one is connected to it)."""
     global _template, _template_token
     if _template is None:
