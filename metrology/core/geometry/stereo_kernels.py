@@ -185,7 +185,7 @@ def run_position(
     return s, slope
 
 
-@njit(nogil=True, cache=True)
+@njit(nogil=True, cache=True, inline="always")  # inlined in match_tile's loop: as a call it cost that kernel 30 %
 def _segment_position(
     row1: np.ndarray, min1: np.ndarray, w1: int, p: int, q: float
 ) -> tuple[float, float]:  # pragma: no cover
