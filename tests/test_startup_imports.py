@@ -51,6 +51,13 @@ def import_chain(rows: list[tuple[int, str]], index: int) -> list[str]:
     return chain[::-1]
 
 
+def import_chains(rows: list[tuple[int, str]], names: tuple[str, ...]) -> dict[str, str]:
+    """``{module: "importer <- ... <- module"}`` for each of ``names`` found in ``rows``."""
+    return {
+        name: " <- ".join(reversed(import_chain(rows, index))) for index, (_, name) in enumerate(rows) if name in names
+    }
+
+
 def test_the_import_chain_of_a_module_is_read_from_importtime():
     stderr = "\n".join(
         [
@@ -82,9 +89,7 @@ def test_django_setup_imports_no_heavy_module():
     assert done.stdout.strip() == "ready"
     rows = importtime_tree(done.stderr)
     assert any(name == "django" for _, name in rows), "no -X importtime output"
-    found = {
-        name: " <- ".join(reversed(import_chain(rows, index))) for index, (_, name) in enumerate(rows) if name in HEAVY
-    }
+    found = import_chains(rows, HEAVY)
     assert not found, "django.setup() imported:\n" + "\n".join(f"{name}: {chain}" for name, chain in found.items())
 
 
@@ -102,11 +107,7 @@ def test_the_urlconf_imports_no_optimiser_and_no_async_redis():
     assert done.stdout.strip() == "ready"
     rows = importtime_tree(done.stderr)
     assert any(name == "metrology.measurements.api" for _, name in rows), "the URLconf was not loaded"
-    found = {
-        name: " <- ".join(reversed(import_chain(rows, index)))
-        for index, (_, name) in enumerate(rows)
-        if name in NOT_FOR_URLS
-    }
+    found = import_chains(rows, NOT_FOR_URLS)
     assert not found, "the URLconf imported:\n" + "\n".join(f"{name}: {chain}" for name, chain in found.items())
 
 
@@ -291,11 +292,7 @@ def gcps_imports(tmp: Path, *args: str, forbidden: tuple[str, ...] = MEASURING_N
     assert done.returncode == 0, done.stderr[-3000:]
     rows = importtime_tree(done.stderr)
     assert any(name == "numpy" for _, name in rows), "no -X importtime output"
-    return {
-        name: " <- ".join(reversed(import_chain(rows, index)))
-        for index, (_, name) in enumerate(rows)
-        if name in forbidden
-    }
+    return import_chains(rows, forbidden)
 
 
 def test_a_planted_import_is_found_in_a_gcps_process(tmp_path: Path) -> None:
