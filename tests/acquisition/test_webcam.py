@@ -229,7 +229,8 @@ def test_webcam_mode_captures_and_measures_a_multi_exposure_stack(server, monkey
     # the measurement: the object is the reference plane (0 mm), both exposures measured points
     response = api.post(f"{base}/api/measurements/", json={"rig": rig.pk, "reference": reference.pk, "object": obj.pk})
     assert response.status_code == 202, response.text
-    measured = wait_measured(api, base, response.json()["id"])
+    measured = wait_finished(api, base, response.json()["id"], kind="measurements")
+    assert measured["status"] == "done", measured
     counts = measured["statistics"]["points_per_exposure"]
     z = np.load(io.BytesIO(api.get(f"{base}/api/measurements/{measured['id']}/height.npy").content))
     exposure = np.load(io.BytesIO(api.get(f"{base}/api/measurements/{measured['id']}/exposure.npy").content))
@@ -244,17 +245,6 @@ def test_webcam_mode_captures_and_measures_a_multi_exposure_stack(server, monkey
         assert (exposure[region & measured_points] == index).all()
         assert measured_points[region].mean() > 0.95, (index, measured_points[region].mean())
     assert counts["exp0"] > 0.95 * patch.sum() and counts["exp1"] > 0.95 * matte.sum()
-
-
-def wait_measured(api: requests.Session, base: str, measurement_id: int, timeout_s: float = 60.0) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        body = api.get(f"{base}/api/measurements/{measurement_id}/").json()
-        if body["status"] in ("done", "failed"):
-            assert body["status"] == "done", body
-            return body
-        time.sleep(0.2)
-    raise AssertionError(f"measurement {measurement_id} did not finish in {timeout_s} s")
 
 
 @contextlib.contextmanager
@@ -280,14 +270,17 @@ def webcam_page(server, args: list[str], query: str, init_script: str | None = N
     assert errors == [], errors
 
 
-def wait_finished(api: requests.Session, base: str, acquisition_id: int, timeout_s: float = 60.0) -> dict:
+def wait_finished(
+    api: requests.Session, base: str, pk: int, timeout_s: float = 60.0, kind: str = "acquisitions"
+) -> dict:
+    """The API's body of ``/api/<kind>/<id>/`` (an acquisition, or a measurement) once done or failed."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        body = api.get(f"{base}/api/acquisitions/{acquisition_id}/").json()
+        body = api.get(f"{base}/api/{kind}/{pk}/").json()
         if body["status"] in ("done", "failed"):
             return body
         time.sleep(0.2)
-    raise AssertionError(f"acquisition {acquisition_id} did not finish in {timeout_s} s: {body}")
+    raise AssertionError(f"{kind} {pk} did not finish in {timeout_s} s: {body}")
 
 
 @pytest.fixture
