@@ -483,10 +483,10 @@ class PreparedStereo(PreparedGeometry):
             per_q = np.float32(sign) / (step * np.float32(rect.f))
         d_per_q = np.empty(self.shape, np.float32)
         run_tiled(lambda r: self.back.sample(per_q, r, d_per_q[r]), *self.shape, threads)
-        d_per_q.ravel()[direct.index] = np.float32(sign) / (direct.slope * np.float32(rect.f))
-        weight = self.self_weight().copy()
-        weight.ravel()[direct.index] = 1.0  # a directly matched pixel's disparity holds all of its own noise
-        return self._fuse(u0, out, sigma_d, d_per_q * weight, noise, threads)
+        shared = d_per_q * self.self_weight()
+        # a directly matched pixel's disparity holds all of its own noise (its weight on itself is 1)
+        shared.ravel()[direct.index] = np.float32(sign) / (direct.slope * np.float32(rect.f))
+        return self._fuse(u0, out, sigma_d, shared, noise, threads)
 
     def _fuse(
         self,
