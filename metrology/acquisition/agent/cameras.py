@@ -22,8 +22,10 @@ the cameras must be as many as the rig file's (:func:`rig_camera_count`).
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -121,6 +123,9 @@ class TriggeredCamera(Protocol):
     def fire(self) -> None:
         """Issue a software trigger."""
 
+    def discard(self) -> int:
+        """Discard the frames delivered and not fetched yet (before a trigger); how many."""
+
     def fetch(self) -> np.ndarray:
         """The frame of the last trigger (waits for it), ``(H, W)`` uint8/uint16."""
 
@@ -183,7 +188,9 @@ class CameraPair:
     grabbed). With ``trigger_line`` both backends must have a hardware trigger
     (:class:`TriggeredCamera`): camera 0 exposes on a software trigger, camera 1 on its input line
     ``trigger_line``, wired to camera 0's exposure output (set up in the vendor's tool), so one
-    :meth:`~TriggeredCamera.fire` exposes both at once; a grab fires and fetches both frames.
+    :meth:`~TriggeredCamera.fire` exposes both at once; a grab discards both cameras' undelivered
+    frames, fires and fetches both frames (a camera 1 that receives no trigger fails the grab after
+    its timeout, naming it).
     """
 
     camera_count = 2
@@ -195,17 +202,22 @@ class CameraPair:
         self.name = f"{first.name},{second.name}{triggered}"
 
     def open(self) -> None:
-        for camera in self.cameras:
-            camera.open()
-        if self.trigger_line is None:
-            return
-        first, second = self.cameras
-        for camera in self.cameras:
-            if not isinstance(camera, TriggeredCamera):
-                raise CameraError(f"camera {camera.name} has no hardware trigger (GenICam cameras have one)")
-        assert isinstance(first, TriggeredCamera) and isinstance(second, TriggeredCamera)
-        first.use_trigger("Software")
-        second.use_trigger(self.trigger_line)
+        """Open both (and set their triggers); on a refusal the cameras opened are closed again."""
+        try:
+            for camera in self.cameras:
+                camera.open()
+            if self.trigger_line is None:
+                return
+            first, second = self.cameras
+            for camera in self.cameras:
+                if not isinstance(camera, TriggeredCamera):
+                    raise CameraError(f"camera {camera.name} has no hardware trigger (GenICam cameras have one)")
+            assert isinstance(first, TriggeredCamera) and isinstance(second, TriggeredCamera)
+            second.use_trigger(self.trigger_line)  # armed before camera 0 can expose
+            first.use_trigger("Software")
+        except CameraError:
+            self.close()
+            raise
 
     def prepare(self, target: AcquisitionTarget) -> None:
         _check_camera_count(self.name, 2, target)
@@ -221,6 +233,8 @@ class CameraPair:
         if self.trigger_line is None:
             return first.grab(shown), second.grab(shown)
         assert isinstance(first, TriggeredCamera) and isinstance(second, TriggeredCamera)
+        second.discard()
+        first.discard()
         first.fire()
         return first.fetch(), second.fetch()
 
@@ -305,12 +319,122 @@ class OpenCVCamera:
             self._capture = None
 
 
-class GenICamCamera:
-    """A GenICam camera (GigE Vision, USB3 Vision) through ``harvesters`` and a vendor GenTL producer (.cti)."""
+#: GenICam pixel formats (PFNC names) read as grey: the monochrome formats with their bit depth
+#: (harvesters unpacks 10/12/14-bit and packed formats into uint16) and the colour formats with
+#: their channel order for OpenCV's grey conversion.
+GENICAM_MONO_BITS = {
+    "Mono8": 8,
+    "Mono10": 10,
+    "Mono10p": 10,
+    "Mono10Packed": 10,
+    "Mono12": 12,
+    "Mono12p": 12,
+    "Mono12Packed": 12,
+    "Mono14": 14,
+    "Mono14p": 14,
+    "Mono16": 16,
+}
+GENICAM_COLOUR = {
+    "RGB8": "COLOR_RGB2GRAY",
+    "BGR8": "COLOR_BGR2GRAY",
+    "RGBa8": "COLOR_RGBA2GRAY",
+    "BGRa8": "COLOR_BGRA2GRAY",
+}
 
-    def __init__(self, producer: str, index: int = 0) -> None:
+
+def genicam_grey(data: np.ndarray, width: int, height: int, pixel_format: str) -> np.ndarray:
+    """One GenICam buffer's pixels as a grey ``(height, width)`` frame of the agent's depths.
+
+    ``data`` is the buffer's component as harvesters gives it: 1-D, ``height * width * channels``
+    values (uint8, or uint16 for the 10- to 16-bit monochrome formats). Monochrome formats of ``b``
+    bits (8 < b < 16) are scaled to the full 16-bit range, ``I16 = round(I * 65535 / (2^b - 1))``
+    (linear, 0 stays 0 and the sensor's full scale becomes 65535, so the agent's saturation and
+    exposure checks see the sensor's own full scale); 8- and 16-bit formats are returned as they
+    are. Colour formats become grey with OpenCV's weights in their channel order
+    (``0.299 R + 0.587 G + 0.114 B``). Other formats (Bayer, YUV, signed, 3-D) raise
+    :class:`CameraError` naming the format and the formats read.
+    """
+    if pixel_format in GENICAM_MONO_BITS:
+        bits = GENICAM_MONO_BITS[pixel_format]
+        frame = np.asarray(data).reshape(height, width)
+        if bits == 8:
+            return np.ascontiguousarray(frame, dtype=np.uint8)
+        frame = frame.astype(np.uint16, copy=False)
+        if bits == 16:
+            return np.ascontiguousarray(frame)
+        top = (1 << bits) - 1
+        scaled = (np.minimum(frame, top).astype(np.uint32) * 65535 + top // 2) // top
+        return scaled.astype(np.uint16)
+    if pixel_format in GENICAM_COLOUR:
+        import cv2
+
+        channels = 4 if pixel_format.endswith("a8") else 3
+        frame = np.ascontiguousarray(np.asarray(data, dtype=np.uint8).reshape(height, width, channels))
+        return cv2.cvtColor(frame, getattr(cv2, GENICAM_COLOUR[pixel_format]))
+    readable = ", ".join([*GENICAM_MONO_BITS, *GENICAM_COLOUR])
+    raise CameraError(
+        f"the camera sends {pixel_format} frames; set its PixelFormat to one of {readable} (Mono16 or Mono12 "
+        "for the finest phase) in the vendor's tool"
+    )
+
+
+class _Producers:
+    """One ``harvesters.Harvester`` per GenTL producer file in the process, shared by its cameras.
+
+    A producer library is loaded once per process: a second ``Harvester`` of the same .cti finds
+    no device (the first holds the transport layer), so the two cameras of a stereo rig on one
+    vendor's producer share one. Counted: the last camera to close resets it.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._open: dict[str, tuple[Any, int]] = {}
+
+    def acquire(self, producer: str, harvester_class: Any) -> Any:
+        key = str(Path(producer).resolve())
+        with self._lock:
+            if key in self._open:
+                harvester, users = self._open[key]
+            else:
+                harvester, users = harvester_class(), 0
+                try:
+                    harvester.add_file(key)
+                    harvester.update()
+                except Exception:
+                    harvester.reset()
+                    raise
+            self._open[key] = (harvester, users + 1)
+            return harvester
+
+    def release(self, producer: str) -> None:
+        key = str(Path(producer).resolve())
+        with self._lock:
+            harvester, users = self._open.pop(key)
+            if users > 1:
+                self._open[key] = (harvester, users - 1)
+            else:
+                harvester.reset()
+
+
+_PRODUCERS = _Producers()
+
+
+class GenICamCamera:
+    """A GenICam camera (GigE Vision, USB3 Vision) through ``harvesters`` and a vendor GenTL producer (.cti).
+
+    The acquisition starts at the first grab (or :meth:`use_trigger`), not at :meth:`open`, so the
+    trigger nodes can still be written. Free running, a grab discards the frames the camera
+    delivered before the call and the ``flush`` frames after it (those exposing at the call), and
+    returns the next one, exposed after the call; with a software trigger (:meth:`use_trigger`
+    ``"Software"``) a grab discards what was delivered, fires and returns the frame of that trigger.
+    ``timeout_s`` bounds every wait for a frame. Frames go through :func:`genicam_grey`.
+    """
+
+    def __init__(self, producer: str, index: int = 0, *, timeout_s: float = 10.0, flush: int = 1) -> None:
         self.producer = producer
         self.index = index
+        self.timeout_s = timeout_s
+        self.flush = flush
         self.name = f"genicam:{producer}:{index}"
         self.trigger: str | None = None
         self._harvester: Any = None
@@ -324,67 +448,144 @@ class GenICamCamera:
                 "GenICam cameras need the optional 'harvesters' package: pip install 'gcps-lab[genicam]' "
                 "(and the camera vendor's GenTL producer, a .cti file)"
             ) from None
-        harvester = Harvester()
-        harvester.add_file(self.producer)
-        harvester.update()
-        if len(harvester.device_info_list) <= self.index:
-            harvester.reset()
-            raise CameraError(f"camera {self.name}: {len(harvester.device_info_list)} GenICam device(s) found")
+        if not Path(self.producer).is_file():
+            raise CameraError(f"camera {self.name}: no GenTL producer at {self.producer} (the vendor's .cti file)")
+        if self._harvester is not None:
+            return
+        try:
+            harvester = _PRODUCERS.acquire(self.producer, Harvester)
+        except Exception as exc:
+            raise CameraError(f"camera {self.name}: the GenTL producer cannot be loaded: {exc}") from None
+        try:
+            found = len(harvester.device_info_list)
+            if found <= self.index:
+                raise CameraError(f"camera {self.name}: {found} GenICam device(s) found")
+            self._acquirer = harvester.create(self.index)
+        except Exception as exc:
+            _PRODUCERS.release(self.producer)
+            if isinstance(exc, CameraError):
+                raise
+            raise CameraError(f"camera {self.name} cannot be opened: {type(exc).__name__}: {exc}") from None
         self._harvester = harvester
-        self._acquirer = harvester.create(self.index)
-        self._acquirer.start()
 
     def prepare(self, target: AcquisitionTarget) -> None:
         return None
 
-    def set_exposure(self, exposure_ms: float) -> None:
+    def _nodes(self) -> Any:
+        if self._acquirer is None:
+            raise CameraError(f"camera {self.name} is not open")
+        return self._acquirer.remote_device.node_map
+
+    def _node(self, name: str) -> Any:
+        """The feature ``name`` of the camera's node map, None when the camera has none."""
         try:
-            self._acquirer.remote_device.node_map.ExposureTime.value = float(exposure_ms) * 1000.0  # microseconds
+            return getattr(self._nodes(), name)
+        except AttributeError:
+            return None
+
+    def _start(self) -> None:
+        if not self._acquirer.is_acquiring():
+            self._acquirer.start()
+
+    def set_exposure(self, exposure_ms: float) -> None:
+        """``ExposureTime`` (SFNC; ``ExposureTimeAbs`` on older cameras) in µs, ``ExposureAuto = Off`` first."""
+        node = self._node("ExposureTime") or self._node("ExposureTimeAbs")
+        if node is None:
+            raise CameraError(
+                f"camera {self.name} has no ExposureTime feature: it cannot take exposure {exposure_ms:g} ms"
+            )
+        try:
+            auto = self._node("ExposureAuto")
+            if auto is not None and auto.value != "Off":
+                auto.value = "Off"
+            node.value = float(exposure_ms) * 1000.0
         except Exception as exc:
             raise CameraError(f"camera {self.name} refused exposure {exposure_ms} ms: {exc}") from None
 
     def use_trigger(self, source: str) -> None:
-        """``TriggerSelector = FrameStart``, ``TriggerMode = On``, ``TriggerSource = source`` (the
-        acquisition restarted around the change)."""
-        nodes = self._acquirer.remote_device.node_map
-        self._acquirer.stop()
+        """``TriggerSelector = FrameStart`` (where the camera has the selector), ``TriggerMode = On``,
+        ``TriggerSource = source``; the acquisition is stopped around the change (GenICam locks the
+        trigger nodes while it runs) and started again, waiting for triggers. A source the camera's
+        ``TriggerSource`` lacks is refused before anything changes."""
+        nodes = self._nodes()
+        missing = [name for name in ("TriggerMode", "TriggerSource") if self._node(name) is None]
+        if missing:
+            raise CameraError(f"camera {self.name} has no trigger ({', '.join(missing)} missing)")
+        sources = [entry.symbolic for entry in nodes.TriggerSource.entries]
+        if source not in sources:
+            raise CameraError(
+                f"camera {self.name} refused trigger source {source}: its TriggerSource offers {', '.join(sources)}"
+            )
+        if self._acquirer.is_acquiring():
+            self._acquirer.stop()
         try:
-            nodes.TriggerSelector.value = "FrameStart"
+            if self._node("TriggerSelector") is not None:
+                nodes.TriggerSelector.value = "FrameStart"
             nodes.TriggerMode.value = "On"
             nodes.TriggerSource.value = source
         except Exception as exc:
             raise CameraError(f"camera {self.name} refused trigger source {source}: {exc}") from None
-        finally:
-            self._acquirer.start()
         self.trigger = source
+        self._start()
 
     def fire(self) -> None:
+        node = self._node("TriggerSoftware")
+        if node is None:
+            raise CameraError(f"camera {self.name} has no TriggerSoftware command")
+        self._start()
         try:
-            self._acquirer.remote_device.node_map.TriggerSoftware.execute()
+            node.execute()
         except Exception as exc:
             raise CameraError(f"camera {self.name} refused a software trigger: {exc}") from None
 
+    def discard(self) -> int:
+        """Discard the frames already delivered (an acquisition not started has none); how many."""
+        if self._acquirer is None or not self._acquirer.is_acquiring():
+            return 0
+        count = 0
+        while (buffer := self._acquirer.try_fetch(timeout=0.001)) is not None:
+            buffer.queue()
+            count += 1
+        return count
+
     def grab(self, shown: Shown) -> np.ndarray:
+        self.discard()
         if self.trigger == "Software":
             self.fire()
+        elif self.trigger is None:
+            self._start()
+            for _ in range(self.flush):
+                self.fetch()
         return self.fetch()
 
     def fetch(self) -> np.ndarray:
-        with self._acquirer.fetch(timeout=10) as buffer:
+        """The next frame delivered, waiting up to ``timeout_s`` (:class:`CameraError` then)."""
+        if self._acquirer is None:
+            raise CameraError(f"camera {self.name} is not open")
+        self._start()
+        try:
+            buffer = self._acquirer.fetch(timeout=self.timeout_s)
+        except Exception as exc:
+            waiting = f" (waiting for a trigger on {self.trigger})" if self.trigger else ""
+            raise CameraError(
+                f"camera {self.name}: no frame within {self.timeout_s:g} s{waiting}: {type(exc).__name__}"
+            ) from None
+        with buffer:  # the buffer goes back to the camera on exit: read it (and copy) inside
             component = buffer.payload.components[0]
-            frame = np.array(component.data, copy=True).reshape(component.height, component.width, -1)
-        return _grey(frame)
+            return genicam_grey(
+                np.array(component.data, copy=True), component.width, component.height, component.data_format
+            )
 
     def expected(self, shown: Shown) -> np.ndarray | None:
         return None
 
     def close(self) -> None:
         if self._acquirer is not None:
-            self._acquirer.stop()
-            self._acquirer.destroy()
+            self._acquirer.destroy()  # stops a running acquisition first
         if self._harvester is not None:
-            self._harvester.reset()
+            _PRODUCERS.release(self.producer)
         self._acquirer = self._harvester = None
+        self.trigger = None
 
 
 class VirtualCamera:
