@@ -68,7 +68,7 @@ def default_codec_for(model: Any) -> str:
     then say what to set)."""
     from metrology.core.geometry import GeometryError
 
-    size = model.prepare().projector_size
+    size = model.projector_size  # the model's own (no table is built: a rig's creation stays cheap)
     if size is None or not all(float(x).is_integer() for x in size):
         return DEFAULT_CODEC
     name = f"{DEFAULT_CODEC}:{int(size[0])}x{int(size[1])}"

@@ -71,6 +71,19 @@ def test_prepare_is_cached_and_checks_sizes():
         RIG.prepare(projector_size=(0, 10))
 
 
+def test_a_models_own_projector_size_is_what_preparing_gives():
+    """``GeometryModel.projector_size`` (read without building tables) equals the prepared model's:
+    None for the crossed-axes rig (its projector size comes with the codec), the projector's
+    pixels for a pinhole rig."""
+    from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, look_at_rig
+
+    camera = PinholeCamera(40, 30, ((50.0, 0.0, 19.5), (0.0, 50.0, 14.5), (0.0, 0.0, 1.0)), (-0.1, 0.02, 0, 0, 0))
+    projector = PinholeProjector(64, 48, ((80.0, 0.0, 31.5), (0.0, 80.0, 23.5), (0.0, 0.0, 1.0)), (0.05, 0, 0, 0, 0))
+    pinhole = look_at_rig(camera, projector, (-100.0, 0.0, 0.0), (0.0, 0.0, 500.0))
+    assert RIG.projector_size is None and RIG.prepare().projector_size is None
+    assert pinhole.projector_size == pinhole.prepare().projector_size == (64, 48)
+
+
 def test_missing_u_axis_is_named():
     prepared = RIG.prepare()
     with pytest.raises(GeometryError, match="u axis"):

@@ -613,6 +613,14 @@ class GeometryModel(ABC):
     def shape(self) -> tuple[int, int]:
         """Camera frame shape ``(height_px, width_px)`` the model describes."""
 
+    @property
+    def projector_size(self) -> tuple[float, float] | None:
+        """The projector's own size ``(width, height)`` in projector units where the model fixes it
+        (the :attr:`PreparedGeometry.projector_size` that :meth:`prepare` would give without one),
+        else None. Cheap: no table is built. Default None (a model whose projector size comes with
+        the codec)."""
+        return None
+
     @abstractmethod
     def prepare(
         self,

@@ -324,6 +324,11 @@ class PinholeRig(GeometryModel):
         return (self.camera.height_px, self.camera.width_px)
 
     @property
+    def projector_size(self) -> tuple[float, float]:
+        """The projector's ``(width, height)`` in pixels: the codec's projector must have this size."""
+        return (self.projector.width, self.projector.height)
+
+    @property
     def projector_center_mm(self) -> np.ndarray:
         """``C_p = -R^T T``: the projector's centre in the camera frame, ``(3,)`` float64, mm."""
         return np.asarray(-np.asarray(self.R).T @ np.asarray(self.T))

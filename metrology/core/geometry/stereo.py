@@ -217,6 +217,11 @@ class StereoRig(GeometryModel):
         return (self.camera0.height_px, self.camera0.width_px)
 
     @property
+    def projector_size(self) -> tuple[float, float]:
+        """The projector's ``(width, height)`` in projector units (the codec's)."""
+        return (self.projector.width, self.projector.height)
+
+    @property
     def camera_shapes(self) -> tuple[tuple[int, int], ...]:
         """Every camera's frame ``(height_px, width_px)``, camera 0 first."""
         return tuple((c.height_px, c.width_px) for c in (self.camera0, self.camera1))
