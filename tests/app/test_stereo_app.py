@@ -182,9 +182,12 @@ def test_stereo_capture_measured_characterized_and_accepted_end_to_end(api, ster
     assert probing.status_code == 200, probing.content
     report = probing.json()
     assert report["model"] == "stereo" and report["n_points"] > 3000
-    # the truth's own points fit exactly (1e-13 mm); the measured cap's tail (99.7th percentile of the
-    # point errors 26 um at these 1 mm pixels) gives size -7.1 um (-10.4 um with linear matching), form 16.6 um
-    assert abs(report["size_error_rejected_mm"]) < 0.02 and report["form_error_rejected_mm"] < 0.03, report
+    # the truth's own points fit exactly (1e-13 mm); at these 1 mm pixels the measured cap gives size
+    # -0.14 um, form 5.2 um: discretisation at the cap's edge (direct matches, surface turned 55-67 degrees
+    # from camera 1; 99.7th percentile of the radial errors 3.2 um), shrinking with the pixel (docs/stereo.md,
+    # "The VDI/VDE probing error of a noise-free sphere"; 16.6 um and -7.1 um without the one-sided
+    # parabolic terms of the resampling beside the decoded field's edge)
+    assert abs(report["size_error_rejected_mm"]) < 1e-3 and report["form_error_rejected_mm"] < 7e-3, report
     plate_depth = measure(api, {"rig": rig_id, "object": plate.json()["id"]})
     flat = api.get(f"/api/measurements/{plate_depth['id']}/acceptance/", {"test": "flatness"})
     assert flat.status_code == 200, flat.content

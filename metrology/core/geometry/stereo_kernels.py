@@ -53,6 +53,27 @@ def _sample_triangle(flat: np.ndarray, i: int, w: int, fx: float, fy: float) -> 
 
 
 @njit(nogil=True, cache=True)
+def _second_difference(flat: np.ndarray, i: int, step: int, before: bool, after: bool) -> float:  # pragma: no cover
+    """The second difference of ``flat`` across the segment ``i .. i + step`` (``step`` 1: along a
+    row, ``w``: down a column) at the segment's middle: the mean of those at its two ends,
+    ``(u[i - step] - u[i] - u[i + step] + u[i + 2 step]) / 2``, when both outer samples exist
+    (``before``, ``after``: inside the image) and are not NaN; else the one-sided
+    ``u[i - step] - 2 u[i] + u[i + step]`` or ``u[i] - 2 u[i + step] + u[i + 2 step]``; NaN when
+    neither outer sample is known. Each is exact for a quadratic map."""
+    a = np.float64(flat[i])
+    b = np.float64(flat[i + step])
+    left = np.float64(flat[i - step]) if before else np.nan
+    right = np.float64(flat[i + 2 * step]) if after else np.nan
+    if not math.isnan(left) and not math.isnan(right):
+        return 0.5 * (left - a - b + right)
+    if not math.isnan(left):
+        return left - 2.0 * a + b
+    if not math.isnan(right):
+        return a - 2.0 * b + right
+    return np.nan
+
+
+@njit(nogil=True, cache=True)
 def sample_tile(
     image: np.ndarray,
     index: np.ndarray,
@@ -64,20 +85,27 @@ def sample_tile(
     fallback: int,
 ) -> None:  # pragma: no cover - compiled
     """``out[r, c]`` = the ``(h, w)`` float32 ``image`` sampled bilinearly at the positions of
-    ``index`` (flat index of the top-left neighbour, ``(n, m)`` int32), ``wx``, ``wy`` (``(n, m)``
+    ``index`` (flat index of the top-left neighbour, ``(n, m)`` int32; ``inner`` (``(n, m)`` uint8)
+    1 where it is at least one pixel in from the image's left and top edges and two from its right
+    and bottom ones, where both symmetric stencils below fit), ``wx``, ``wy`` (``(n, m)``
     float32 weights of the right and lower neighbours; NaN outside the image): ``top = a + wx (b -
     a)``, ``bottom = c + wx (d - c)``, ``top + wy (bottom - top)``; NaN where a neighbour is NaN.
 
     With ``curvature`` the parabolic terms ``-(wx (1 - wx) c_xx + wy (1 - wy) c_yy) / 2`` are added
-    (exact for a quadratic map), ``c_xx = (u[j-1] - u[j] - u[j+1] + u[j+2]) / 2`` along the top-left
-    neighbour's row (the mean of the second differences at ``j`` and ``j + 1``), ``c_yy`` likewise
-    down its column; left out where either is unknown (``inner`` 0 at the image's edges, a NaN
-    neighbour).
+    (exact for a quadratic map), each where it is known, independently of the other:
+    ``c_xx = (u[j-1] - u[j] - u[j+1] + u[j+2]) / 2`` along the top-left neighbour's row (the mean of
+    the second differences at ``j`` and ``j + 1``), the one-sided second difference at ``j`` or
+    ``j + 1`` where ``u[j+2]`` or ``u[j-1]`` is missing (NaN, or outside the image), the bottom
+    neighbours' row where the top row has neither (:func:`_second_difference`); ``c_yy`` likewise
+    down the left neighbours' column, then the right ones'. Bilinear interpolation alone errs by up
+    to ``|c_xx + c_yy| / 8``: at the edge of the decoded field of a steep, curved surface this is the
+    error of the whole chain (docs/stereo.md, "The VDI/VDE probing error of a noise-free sphere").
 
     Where a neighbour is NaN the sample is NaN with ``fallback`` :data:`SAMPLE_STRICT`; with
     :data:`SAMPLE_TRIANGLE` and one neighbour NaN, the plane through the other three
     (:func:`_sample_triangle`)."""
     w = image.shape[1]
+    h = image.shape[0]
     flat = image.ravel()
     n, m = index.shape
     for r in range(n):
@@ -95,12 +123,31 @@ def sample_tile(
             if math.isnan(value):
                 if fallback == SAMPLE_TRIANGLE and not math.isnan(fx + fy):
                     value = np.float64(_sample_triangle(flat, i, w, fx, fy))
-            elif curvature and inner[r, c]:
-                cxx = 0.5 * (np.float64(flat[i - 1]) - a - b + np.float64(flat[i + 2]))
-                cyy = 0.5 * (np.float64(flat[i - w]) - a - cc + np.float64(flat[i + 2 * w]))
-                bend = fx * (1.0 - fx) * cxx + fy * (1.0 - fy) * cyy
-                if not math.isnan(bend):
-                    value -= 0.5 * bend
+            elif curvature:
+                cxx = np.nan
+                cyy = np.nan
+                if inner[r, c]:  # the common case: both symmetric stencils inside the image
+                    cxx = 0.5 * (np.float64(flat[i - 1]) - a - b + np.float64(flat[i + 2]))
+                    cyy = 0.5 * (np.float64(flat[i - w]) - a - cc + np.float64(flat[i + 2 * w]))
+                if math.isnan(cxx) or math.isnan(cyy):  # an edge or a missing sample: one-sided, other line
+                    ix = i % w
+                    iy = i // w
+                    left, right = ix >= 1, ix + 2 <= w - 1
+                    up, down = iy >= 1, iy + 2 <= h - 1
+                    if math.isnan(cxx):
+                        cxx = _second_difference(flat, i, 1, left, right)
+                        if math.isnan(cxx):
+                            cxx = _second_difference(flat, i + w, 1, left, right)
+                    if math.isnan(cyy):
+                        cyy = _second_difference(flat, i, w, up, down)
+                        if math.isnan(cyy):
+                            cyy = _second_difference(flat, i + 1, w, up, down)
+                if not math.isnan(cxx) and not math.isnan(cyy):
+                    value -= 0.5 * (fx * (1.0 - fx) * cxx + fy * (1.0 - fy) * cyy)
+                elif not math.isnan(cxx):
+                    value -= 0.5 * fx * (1.0 - fx) * cxx
+                elif not math.isnan(cyy):
+                    value -= 0.5 * fy * (1.0 - fy) * cyy
             out[r, c] = value
 
 

@@ -120,7 +120,7 @@ class Bilinear:
         Flat index of each position's top-left neighbour (0 outside the map).
     inner : uint8 array
         1 where the top-left neighbour is at least one pixel in from the map's left and top edges and
-        two from its right and bottom ones (where both curvatures of the parabolic terms exist).
+        two from its right and bottom ones (where both symmetric curvature stencils fit: the fast path).
     wx, wy : float32 arrays
         Weights of the right and lower neighbours, in [0, 1]; NaN outside the map (so is the sample).
     width : int
@@ -164,8 +164,9 @@ class Bilinear:
         where the position is outside, and where a neighbour is NaN unless :attr:`fallback` finds the
         value from the others. With ``curvature`` the parabolic terms
         are added, ``-(wx (1 - wx) c_xx + wy (1 - wy) c_yy) / 2`` with ``c_xx``, ``c_yy`` the second
-        differences along the row and the column averaged over the cell's two sides (exact for a
-        quadratic map; bilinear where a curvature is unknown, at the edges;
+        differences along the row and the column averaged over the cell's two sides, one-sided where
+        a neighbour beyond the cell is missing (exact for a quadratic map; each term left out only
+        where no three samples in a line give it;
         :func:`~metrology.core.geometry.stereo_kernels.sample_tile`)."""
         rows = rows if rows is not None else slice(0, self.index.shape[0])
         index, inner, wx, wy = self.index[rows], self.inner[rows], self.wx[rows], self.wy[rows]
