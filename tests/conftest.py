@@ -9,7 +9,11 @@ integration tests (tests/app/integration/conftest.py) keep the media root out of
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
 import os
+import shutil
+import sqlite3
 from pathlib import Path
 
 import pytest
@@ -118,6 +122,76 @@ def local_cache_dir(tmp_path_factory):
         root = tmp_path_factory.mktemp("local-cache")
         mp.setenv("GCPS_LOCAL_CACHE_DIR", str(root))
         yield root
+
+
+def migrations_digest() -> str:
+    """A hash of every installed app's migration files (and Django's version): what a migrated
+    database depends on."""
+    import django
+    from django.apps import apps
+
+    digest = hashlib.sha256(django.get_version().encode())
+    for config in sorted(apps.get_app_configs(), key=lambda c: c.label):
+        folder = Path(config.path) / "migrations"
+        for path in sorted(folder.glob("*.py")) if folder.is_dir() else ():
+            digest.update(f"{config.label}/{path.name}".encode())
+            digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+@pytest.fixture(scope="session")
+def django_db_setup(
+    request, django_test_environment, django_db_blocker, django_db_keepdb, django_db_use_migrations,
+    django_db_modify_db_settings, tmp_path_factory,
+):  # fmt: skip
+    """pytest-django's ``django_db_setup`` (the test database made before the first test that needs
+    one, dropped after the last), except that the embedded SQLite database is migrated once per run
+    and copied: the first pytest-xdist worker to need it migrates its own and leaves a copy, keyed by
+    :func:`migrations_digest`, in the run's temporary folder; the others copy that file and find
+    nothing to migrate. ``manage.py migrate`` of the 47 migrations takes about 4 s of CPU, once per
+    worker before. PostgreSQL test databases (``DATABASE_URL``) are made as pytest-django makes them.
+    ``--reuse-db`` keeps the database as pytest-django does; ``--nomigrations`` is not supported (the
+    suite tests its migrations)."""
+    from django.db import connections
+    from django.test.utils import setup_databases, teardown_databases
+
+    if not django_db_use_migrations:
+        raise pytest.UsageError("--nomigrations: the suite runs (and tests) its migrations")
+    connection = connections["default"]
+    test_name = connection.settings_dict.get("TEST", {}).get("NAME")
+    verbosity = request.config.option.verbose
+
+    def setup(keepdb: bool):  # type: ignore[no-untyped-def]
+        with django_db_blocker.unblock():
+            return setup_databases(verbosity=verbosity, interactive=False, keepdb=keepdb, serialized_aliases=set())
+
+    if connection.vendor != "sqlite" or not test_name or str(test_name) == ":memory:" or django_db_keepdb:
+        config = setup(keepdb=django_db_keepdb)
+    else:
+        root = tmp_path_factory.getbasetemp()
+        root = root.parent if hasattr(request.config, "workerinput") else root  # shared by the run's workers
+        template = root / f"migrated-{migrations_digest()}.sqlite3"
+        with open(root / "migrated-sqlite.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+            made_here = not template.exists()
+            if made_here:
+                config = setup(keepdb=False)
+                partial = template.with_suffix(".partial")
+                with sqlite3.connect(test_name) as source, sqlite3.connect(partial) as copy:
+                    source.backup(copy)  # the pages of the database and of its write-ahead log
+                os.replace(partial, template)
+        if not made_here:
+            for stale in (f"{test_name}-wal", f"{test_name}-shm"):  # a dead process's log would be replayed
+                Path(stale).unlink(missing_ok=True)
+            shutil.copyfile(template, test_name)
+            config = setup(keepdb=True)  # finds the copy, every migration applied
+    yield
+    if not django_db_keepdb:
+        with django_db_blocker.unblock():
+            teardown_databases(config, verbosity=verbosity)
+        if connection.vendor == "sqlite" and test_name and str(test_name) != ":memory:":
+            for log in (f"{test_name}-wal", f"{test_name}-shm"):  # Django removes the database file only
+                Path(log).unlink(missing_ok=True)
 
 
 @pytest.fixture(scope="session")
