@@ -877,7 +877,7 @@ def _decode_and_filter(
         coded.drop(threads)
         if reference is not None and reference.blur_variance_px2 > 0:
             for c in codes.values():
-                correct_blur_bias(c, reference.blur_variance_px2)
+                correct_blur_bias(c, reference.blur_variance_px2, threads)
     return coded
 
 
@@ -1154,7 +1154,7 @@ def _fused_measure(
             set_nan_where_false(z_mm, keep, threads)
         del drop, keep
     if correct_blur:
-        correct_blur_bias(codes, blur_variance)
+        correct_blur_bias(codes, blur_variance, threads)
         z_mm = _heights(prepared, codes, surface, threads)
     assert z_mm is not None
     timings["object_decode_triangulate_s"] = time.perf_counter() - start
