@@ -422,3 +422,18 @@ def test_a_gcps_process_runs_openblas_on_one_thread_unless_told(given, expected)
         env["OPENBLAS_NUM_THREADS"] = given
     done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert done.stdout.strip() == expected
+
+
+def test_a_gcps_process_freezes_its_objects_at_exit():
+    """The interpreter's final collections skip what the process imported (gc.freeze at exit):
+    a handler registered before main() runs after main's and sees the frozen objects."""
+    code = (
+        "import atexit, gc, sys\n"
+        "atexit.register(lambda: print('frozen', gc.get_freeze_count()))\n"
+        "from metrology.cli import main\n"
+        "print('before', gc.get_freeze_count())\n"
+        "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    lines = dict(line.split() for line in done.stdout.splitlines() if line.startswith(("before", "frozen")))
+    assert lines["before"] == "0" and int(lines["frozen"]) > 1000
