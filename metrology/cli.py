@@ -10,14 +10,24 @@ the subcommands that use them, to keep start-up short.
 from __future__ import annotations
 
 import argparse
+import atexit
+import functools
+import gc
 import importlib
 import json
+import os
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
 from metrology.commands import SUBCOMMANDS
 from metrology.commands.common import EXIT_BAD_INPUT, BadInputError
+
+# numpy's OpenBLAS on one thread in a gcps process unless the environment says otherwise, set before
+# numpy is imported (the subcommands import it; the imports above do not): the commands parallelise
+# over row tiles on their own threads and their BLAS calls are thin (N x 3 fits), while OpenBLAS's idle
+# worker spins for about 0.1 s after numpy's import, 25-40 ms of CPU of every gcps process.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -35,6 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one subcommand; print its summary (JSON) unless ``--quiet``; the exit status."""
+    _freeze_objects_at_exit()
     parser = build_parser()
     args = parser.parse_args(argv)
     from metrology.core.allocation import retain_freed_memory
@@ -50,6 +61,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.quiet:
         print(json.dumps(summary))
     return 0
+
+
+@functools.cache
+def _freeze_objects_at_exit() -> None:
+    """At the interpreter's exit, move every object into the cyclic collector's permanent generation
+    (``gc.freeze``): the collections of the interpreter's finalisation then skip the objects of
+    numpy, OpenCV and the package (about 40 ms of a ``gcps measure`` process's 65 ms exit on the
+    reference machine). Registered once per process; only the exit is affected."""
+    atexit.register(gc.freeze)
 
 
 def _fail(message: str) -> int:

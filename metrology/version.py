@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import os
 import subprocess
+import threading
 from functools import cache
-from importlib import metadata
 from pathlib import Path
 
 PACKAGE = "gcps-lab"
@@ -30,6 +30,8 @@ GIT_TIMEOUT_S = 5.0
 
 def package_version() -> str:
     """The installed distribution's version, or ``"0+unknown"`` when it is not installed."""
+    from importlib import metadata  # imported here: its email parser is 10-25 ms of a process's start-up
+
     try:
         return metadata.version(PACKAGE)
     except metadata.PackageNotFoundError:
@@ -76,7 +78,24 @@ def describe(root: Path = SOURCE_ROOT) -> str:
     return f"{PACKAGE} {package_version()} {revision}"
 
 
+_LOCK = threading.Lock()
+
+
 @cache
-def software_version() -> str:
-    """The version string of the running code, computed once per process (see the module docstring)."""
+def _computed() -> str:
     return describe()
+
+
+def software_version() -> str:
+    """The version string of the running code, computed once per process (see the module docstring);
+    a caller arriving while another thread computes it waits for that one computation (git runs
+    once)."""
+    with _LOCK:
+        return _computed()
+
+
+def software_version_soon() -> None:
+    """Start computing :func:`software_version` on a daemon thread, so that a later caller finds it
+    ready: in a development checkout it runs git three times (30-80 ms of wall time), which a command
+    overlaps with reading its files (``gcps measure``: the kept reference's key needs it)."""
+    threading.Thread(target=software_version, name="gcps-version", daemon=True).start()

@@ -123,15 +123,9 @@ def is_exposures(path: str, model: GeometryModel) -> bool:
 
 def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     """Read the rig and the captures, measure (the pipeline), write the outputs; the summary."""
-    import numpy as np
+    from metrology.version import software_version_soon
 
-    from metrology.core.codecs.check import summary_of
-    from metrology.core.io import atomic_path, write_height_npy
-    from metrology.core.measure import exposure_inputs, uses_fused_gcps_v1
-    from metrology.core.mesh import surface_mesh, write_mesh_file
-    from metrology.core.reference_cache import cached_reference, cached_reference_of_files
-    from metrology.pipeline.measure import measure
-
+    software_version_soon()  # the kept reference's key and the result carry it: git runs beside the imports
     if not (args.out or args.xyz):
         raise BadInputError("give --out (heights or depths) or --xyz (points), or both")
     check_output(args.out, (".npy",), "--out")
@@ -150,6 +144,22 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
             f"--reference is required: a {model.short_label} rig measures against a capture of the reference plane"
         )
     codec = captures_codec(args.codec, [("reference", args.reference), ("object", args.object)])
+    # the object's PNGs are decoded (outside the GIL) while this thread imports the measurement's
+    # modules below: on two cores the imports cost little wall time beside the reading; a read error
+    # is raised where the object is taken, as before
+    object_pool = ThreadPoolExecutor(1, thread_name_prefix="gcps-object")
+    object_read = object_pool.submit(read_capture, args.object, codec, model, "object")
+    object_pool.shutdown(wait=False)
+
+    import numpy as np
+
+    from metrology.core.codecs.check import summary_of
+    from metrology.core.io import atomic_path, write_height_npy
+    from metrology.core.measure import exposure_inputs, uses_fused_gcps_v1
+    from metrology.core.reference_cache import cached_reference, cached_reference_of_files
+    from metrology.core.tiling import run_beside
+    from metrology.pipeline.measure import measure
+
     options = measure_options(
         args,
         gray_only=bool(args.json),
@@ -203,7 +213,7 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     pending = ThreadPoolExecutor(1, thread_name_prefix="gcps-reference") if early else None
     kept_early = None if pending is None else pending.submit(reference_for, options, codec)
     try:
-        obj = read_capture(args.object, codec, model, "object")
+        obj = object_read.result()
     finally:
         if pending is not None:
             pending.shutdown(wait=False)
@@ -234,9 +244,12 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
         result = measure(model, reference, obj, options, codec=measure_codec)
     measurement = result.measurement
     z = result.z_mm
+    pending_stats = run_beside(result.statistics)  # on a pool thread while the outputs are written
     points = measurement.points_mm() if (args.xyz or args.mesh) else None
     mesh = None
     if args.mesh:
+        from metrology.core.mesh import surface_mesh, write_mesh_file
+
         reference_surface = None if measurement.reference is None else measurement.reference.surface
         mesh = surface_mesh(model, z, points_mm=points, reference=reference_surface)
         if ply_mesh and result.sigma_mm is not None:
@@ -263,7 +276,7 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
             np.save(tmp, result.sigma_mm)
     if mesh is not None:
         write_mesh_file(mesh, args.mesh)
-    stats = result.statistics()
+    stats = pending_stats()
     summary: dict[str, Any] = {
         "out": args.out,
         "xyz": args.xyz,

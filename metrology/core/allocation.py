@@ -14,8 +14,8 @@ call :func:`retain_freed_memory` once at start; the library never does it on imp
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import functools
+import sys
 
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
@@ -32,13 +32,13 @@ def retain_freed_memory(trim_threshold_bytes: int = 1 << 30) -> bool:
     bool
         True if the settings were applied (glibc), False elsewhere (a no-op).
     """
-    name = ctypes.util.find_library("c")
-    if name is None:
+    if not sys.platform.startswith("linux"):
         return False
     try:
-        libc = ctypes.CDLL(name)
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):
+        # the process's own symbols, libc's among them: no ``ctypes.util.find_library("c")``, which
+        # imports tempfile and subprocess and runs ``ldconfig -p`` (20-40 ms of every start-up)
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):  # not glibc (musl has no mallopt)
         return False
     mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
     mallopt.restype = ctypes.c_int

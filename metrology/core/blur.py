@@ -19,6 +19,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from metrology.core.tiling import nested_threads, run_tiled
+
 # Savitzky-Golay (5 points, quadratic): second derivative, and smoothing across it
 _SECOND_DERIVATIVE = (np.array([2, -1, -2, -1, 2], np.float64) / 7).astype(np.float32)
 _SMOOTHING = (np.array([-3, 12, 17, 12, -3], np.float64) / 35).astype(np.float32)
@@ -93,9 +95,18 @@ def code_laplacian(codes: npt.ArrayLike) -> np.ndarray:
     (H, W) float32 array
         ``d2l/dx2 + d2l/dy2``; NaN where the 5x5 window holds an invalid pixel.
     """
-    l = np.asarray(codes, dtype=np.float32)
+    return _block_laplacian(np.asarray(codes, dtype=np.float32), top=True, bottom=True)
+
+
+def _block_laplacian(l: np.ndarray, *, top: bool, bottom: bool) -> np.ndarray:
+    """:func:`code_laplacian` of a block of rows ``l`` (float32): NaN on its two edge columns each
+    side, and on its two first (last) rows only where ``top`` (``bottom``) says they are the
+    frame's; elsewhere those rows are wrong (the block's zero border) and left for the caller to drop."""
     laplacian: np.ndarray = cv2.filter2D(l, cv2.CV_32F, _LAPLACIAN_5X5, borderType=cv2.BORDER_CONSTANT)
-    laplacian[:2] = laplacian[-2:] = np.nan
+    if top:
+        laplacian[:2] = np.nan
+    if bottom:
+        laplacian[-2:] = np.nan
     laplacian[:, :2] = laplacian[:, -2:] = np.nan
     return laplacian
 
@@ -155,7 +166,7 @@ def blur_bias_exceeds(
     return out
 
 
-def correct_blur_bias(codes: np.ndarray, blur_variance_px2: float) -> np.ndarray:
+def correct_blur_bias(codes: np.ndarray, blur_variance_px2: float, threads: int | None = None) -> np.ndarray:
     """Remove the blur's phase bias: ``l - s2 / 2 * laplacian(l)``, in place where defined.
 
     Parameters
@@ -164,6 +175,11 @@ def correct_blur_bias(codes: np.ndarray, blur_variance_px2: float) -> np.ndarray
         Decoded codes, NaN where invalid; corrected in place.
     blur_variance_px2 : float
         Effective blur variance, px^2 (:func:`estimate_blur_variance`).
+    threads : int, optional
+        Threads over row tiles (:func:`~metrology.core.tiling.run_tiled`); the result does not
+        depend on them: each tile is computed from its rows and :data:`_HALO_ROWS` rows either
+        side, more than the Laplacian's and the smoothing's reach together, bit for bit as on the
+        whole frame.
 
     Returns
     -------
@@ -173,13 +189,29 @@ def correct_blur_bias(codes: np.ndarray, blur_variance_px2: float) -> np.ndarray
         raise ValueError(f"blur_variance_px2 must be >= 0, got {blur_variance_px2}")
     if blur_variance_px2 == 0:
         return codes
-    correction = _smooth_and_extend(code_laplacian(codes))
-    correction *= np.float32(blur_variance_px2 / 2)
-    codes -= correction  # NaN codes stay NaN
+    height, width = codes.shape
+    correction = np.empty((height, width), np.float32)
+    scale = np.float32(blur_variance_px2 / 2)
+
+    def compute(rows: slice) -> None:  # reads codes only: the tiles' halos overlap
+        lo, hi = max(0, rows.start - _HALO_ROWS), min(height, rows.stop + _HALO_ROWS)
+        block = np.asarray(codes[lo:hi], dtype=np.float32)
+        smoothed = _smooth_and_extend(_block_laplacian(block, top=lo == 0, bottom=hi == height))
+        np.multiply(smoothed[rows.start - lo : rows.stop - lo], scale, out=correction[rows])
+
+    def subtract(rows: slice) -> None:
+        codes[rows] -= correction[rows]  # NaN codes stay NaN
+
+    threads = nested_threads(threads)  # one on a thread of the pool itself
+    run_tiled(compute, height, width, threads)
+    run_tiled(subtract, height, width, threads)
     return codes
 
 
 _SMOOTHING_SIGMA_PX = 1.5
+_HALO_ROWS = 16
+"""Rows read beyond a tile by :func:`correct_blur_bias`: the 5x5 Laplacian reaches 2 rows, the
+Gaussian of sigma 1.5 px (OpenCV's 13-tap float kernel) 6 more."""
 _MIN_WEIGHT = 0.05
 
 

@@ -39,7 +39,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -53,14 +53,6 @@ from metrology.core.codecs.check import (
     sampled_rows,
     with_suggestion,
 )
-from metrology.core.codecs.decode import (
-    AxisDecoding,
-    CodecDecodeOptions,
-    CodecDecoding,
-    decode_codec,
-    validate_codec_stack,
-)
-from metrology.core.codecs.exposures import NO_EXPOSURE, decode_exposures
 from metrology.core.codecs.model import Codec, gcps_v1_codec, is_gcps_v1
 from metrology.core.codecs.stack import ExposureStack
 from metrology.core.decode import (
@@ -92,6 +84,9 @@ from metrology.core.option_checks import check_bool, check_keys, check_positive
 from metrology.core.patterns import N_GRAY_BITS
 from metrology.core.tiling import run_beside, run_tiled, thread_scratch
 from metrology.core.uncertainty import stage_coordinate_sigma
+
+if TYPE_CHECKING:  # the codec decoder is imported where a codec's stack is decoded: a gcps-v1 measurement never is
+    from metrology.core.codecs.decode import AxisDecoding, CodecDecodeOptions, CodecDecoding
 
 CODES_PER_PERIOD = 4.0
 """Code units per finest phase period on a model without codes of its own: gcps-v1's ratio (its
@@ -386,6 +381,8 @@ class Measurement:
         if not axes:
             axes = [self.prepared.axis]
         used = np.maximum.reduce([np.asarray(decoding.exposure[axis], np.uint8) for axis in axes])
+        from metrology.core.codecs.exposures import NO_EXPOSURE
+
         return np.where(np.isfinite(self.z_mm), used, np.uint8(NO_EXPOSURE)).astype(np.uint8)
 
     def points_per_exposure(self) -> dict[str, int] | None:
@@ -394,6 +391,8 @@ class Measurement:
         if used is None:
             return None
         assert self.decoding is not None
+        from metrology.core.codecs.exposures import NO_EXPOSURE
+
         counts = np.bincount(used.ravel(), minlength=NO_EXPOSURE + 1)
         return {name: int(counts[index]) for index, name in enumerate(self.decoding.exposure_names)}
 
@@ -427,6 +426,8 @@ class Measurement:
         if used is None:
             return None
         names = self.camera_decodings[camera].exposure_names
+        from metrology.core.codecs.exposures import NO_EXPOSURE
+
         counts = np.bincount(used.ravel(), minlength=NO_EXPOSURE + 1)
         return {**{name: int(counts[index]) for index, name in enumerate(names)}, "none": int(counts[NO_EXPOSURE])}
 
@@ -469,16 +470,17 @@ class Measurement:
 def height_statistics(z_mm: np.ndarray) -> dict[str, float | int | None]:
     """Count, valid fraction, and min/max/mean/std (mm) of the finite values of ``z_mm``."""
     valid = np.isfinite(z_mm)
-    n = int(valid.sum())
+    n = int(np.count_nonzero(valid))
     summary: dict[str, float | int | None] = {"valid_pixels": n, "valid_fraction": n / max(1, z_mm.size)}
     if n:
         values = z_mm[valid].astype(np.float64)
-        summary.update(
-            min_mm=float(values.min()),
-            max_mm=float(values.max()),
-            mean_mm=float(values.mean()),
-            std_mm=float(values.std()),
-        )
+        low, high = float(values.min()), float(values.max())
+        # numpy's mean and std to the bit (the same pairwise sums, divisions and square root), with
+        # the mean summed once and the deviations squared in place of a second float64 copy
+        mean = np.add.reduce(values) / n
+        values -= mean
+        np.multiply(values, values, out=values)
+        summary.update(min_mm=low, max_mm=high, mean_mm=float(mean), std_mm=float(np.sqrt(np.add.reduce(values) / n)))
     else:
         summary.update(min_mm=None, max_mm=None, mean_mm=None, std_mm=None)
     return summary
@@ -784,6 +786,8 @@ def _codec_decode_options(codec: Codec, options: MeasureOptions) -> CodecDecodeO
             "smoothing_px applies to the paper's fused gcps-v1 decoder only (a codec states its waveform), "
             f"got {options.gcps_v1.smoothing_px!r}"
         )
+    from metrology.core.codecs.decode import CodecDecodeOptions
+
     return CodecDecodeOptions(min_modulation=options.filters.min_modulation)
 
 
@@ -814,6 +818,9 @@ def _decode_and_filter(
             f"{', '.join(sorted(codec.axes)) or 'no axis'}"
         )
     decode_options = _codec_decode_options(codec, options)
+    from metrology.core.codecs.decode import decode_codec, validate_codec_stack
+    from metrology.core.codecs.exposures import decode_exposures
+
     if isinstance(images, ExposureStack):
         _frames_shape(prepared.model, images.frame_shape, what, camera)
         decoding = decode_exposures(images, codec, decode_options, with_noise=with_noise, threads=threads)
@@ -877,7 +884,7 @@ def _decode_and_filter(
         coded.drop(threads)
         if reference is not None and reference.blur_variance_px2 > 0:
             for c in codes.values():
-                correct_blur_bias(c, reference.blur_variance_px2)
+                correct_blur_bias(c, reference.blur_variance_px2, threads)
     return coded
 
 
@@ -1051,6 +1058,8 @@ def check_gcps_v1_sample(
     judged = modulation >= np.float32(min_modulation)
     check = check_axis(x, centre, judged, v1.axes["u"], width, paired_rows=True)
     if check.status == INCONSISTENT:
+        from metrology.core.codecs.decode import decode_codec
+
         check = with_suggestion(check, stack, v1, "u", decode_codec)
     return {"u": check}
 
@@ -1154,7 +1163,7 @@ def _fused_measure(
             set_nan_where_false(z_mm, keep, threads)
         del drop, keep
     if correct_blur:
-        correct_blur_bias(codes, blur_variance)
+        correct_blur_bias(codes, blur_variance, threads)
         z_mm = _heights(prepared, codes, surface, threads)
     assert z_mm is not None
     timings["object_decode_triangulate_s"] = time.perf_counter() - start
@@ -1264,6 +1273,8 @@ def _fused_sigma(
 ) -> np.ndarray:
     """Height uncertainty on the fused path: the object's noise and modulation from the codec
     decoder's built-in gcps-v1 (4-step phase, period 4 codes), then the model's propagation."""
+    from metrology.core.codecs.decode import decode_codec
+
     codec = gcps_v1_codec()
     decoding = decode_codec(stack, codec, with_noise=True, threads=threads)
     sigma_u = _sigma_of(codec, "u", decoding)

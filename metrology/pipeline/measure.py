@@ -10,20 +10,22 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
 from metrology.core import measure as core
 from metrology.core.codecs.check import summary_of
-from metrology.core.codecs.decode import CodecDecoding
 from metrology.core.codecs.model import CODEC_FORMAT, GCPS_V1, Codec, is_gcps_v1
 from metrology.core.codecs.stack import ExposureStack
 from metrology.core.geometry.base import GeometryModel
 from metrology.core.measure import Measurement, MeasureOptions, Reference, height_statistics
 from metrology.pipeline.common import PhaseTimer
 from metrology.version import software_version
+
+if TYPE_CHECKING:
+    from metrology.core.codecs.decode import CodecDecoding
 
 __all__ = ["MeasureOptions", "MeasureResult", "measure", "prepare_reference"]
 

@@ -1,6 +1,7 @@
 """The gcps command line (docs/command-line.md): round trips and every bad input (exit 2, one line, no output)."""
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -406,3 +407,33 @@ def test_a_deeply_nested_or_non_finite_rig_file_exits_2_with_one_line(captures, 
     code = main(["measure", *args, "--object", str(captures / "block.zip"), "--out", str(out)])
     err = capsys.readouterr().err
     assert code == 2 and words in err and err.count("\n") == 1 and not out.exists(), err
+
+
+@pytest.mark.parametrize(("given", "expected"), [(None, "1"), ("3", "3")])
+def test_a_gcps_process_runs_openblas_on_one_thread_unless_told(given, expected):
+    """numpy's OpenBLAS is told before numpy's import (its idle worker spins after it starts); an
+    explicit OPENBLAS_NUM_THREADS is kept."""
+    code = (
+        "import sys, metrology.cli, os; assert 'numpy' not in sys.modules; import numpy; "
+        "print(os.environ['OPENBLAS_NUM_THREADS'])"
+    )
+    env = {key: value for key, value in os.environ.items() if key != "OPENBLAS_NUM_THREADS"}
+    if given is not None:
+        env["OPENBLAS_NUM_THREADS"] = given
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == expected
+
+
+def test_a_gcps_process_freezes_its_objects_at_exit():
+    """The interpreter's final collections skip what the process imported (gc.freeze at exit):
+    a handler registered before main() runs after main's and sees the frozen objects."""
+    code = (
+        "import atexit, gc, sys\n"
+        "atexit.register(lambda: print('frozen', gc.get_freeze_count()))\n"
+        "from metrology.cli import main\n"
+        "print('before', gc.get_freeze_count())\n"
+        "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    lines = dict(line.split() for line in done.stdout.splitlines() if line.startswith(("before", "frozen")))
+    assert lines["before"] == "0" and int(lines["frozen"]) > 1000

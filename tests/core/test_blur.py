@@ -80,6 +80,23 @@ def test_laplacian_of_a_quadratic_and_the_correction():
         correct_blur_bias(codes, -1.0)
 
 
+def test_correction_on_row_tiles_equals_the_whole_frame():
+    # 256 x 512 px: one tile on one thread, four tiles of 64 rows on two or three (tiling.run_tiled);
+    # each tile reads 16 rows either side, more than the 5x5 Laplacian and the 13-tap smoothing reach
+    y, x = np.mgrid[0:256, 0:512].astype(np.float64)
+    codes = (0.2 * x + 0.003 * x**2 + 0.001 * y**2).astype(np.float32)  # laplacian 0.008 everywhere
+    rng = np.random.default_rng(3)
+    codes += rng.normal(0, 0.01, codes.shape).astype(np.float32)
+    codes[rng.random(codes.shape) < 0.02] = np.nan
+    codes[60:70, 100:140] = np.nan  # a hole across the first tiles' boundary (row 64)
+    whole = correct_blur_bias(codes.copy(), 0.5, threads=1)
+    for threads in (2, 3):
+        assert np.array_equal(correct_blur_bias(codes.copy(), 0.5, threads=threads), whole, equal_nan=True)
+    # and the correction is s2 / 2 * laplacian = 0.002 code, noise averaged over 1.5 px, away from holes
+    diff = (codes - whole)[120:250, 200:500]
+    assert np.nanmedian(diff) == pytest.approx(0.002, abs=2e-4)
+
+
 def test_estimate_refuses_too_little_data():
     with pytest.raises(ValueError, match="too few"):
         estimate_blur_variance(np.full((10, 10), np.nan), np.ones((10, 10)))

@@ -82,3 +82,16 @@ def test_unreliable_mask_drops_a_crease_with_a_one_pixel_band():
     assert tiled[2:-2, 18:24].all() and not tiled[:, 24:].any()  # tiles see their neighbours' rows
     with pytest.raises(ValueError, match="max_blur_bias_codes"):
         FilterOptions(max_blur_bias_codes=-0.01)
+
+
+def test_height_statistics_are_numpys_float64_figures_to_the_bit():
+    rng = np.random.default_rng(5)
+    z = rng.normal(40.0, 7.0, (64, 96)).astype(np.float32)
+    z[rng.random(z.shape) < 0.3] = np.nan
+    values = z[np.isfinite(z)].astype(np.float64)
+    stats = height_statistics(z)
+    assert stats["valid_pixels"] == values.size and stats["valid_fraction"] == values.size / z.size
+    assert (stats["min_mm"], stats["max_mm"]) == (values.min(), values.max())
+    assert (stats["mean_mm"], stats["std_mm"]) == (values.mean(), values.std())  # not approximately
+    assert stats["mean_mm"] == pytest.approx(40.0, abs=0.5) and stats["std_mm"] == pytest.approx(7.0, rel=0.05)
+    assert height_statistics(np.full((3, 3), np.nan, np.float32))["mean_mm"] is None

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import io
 import os
 from pathlib import Path
 
@@ -10,7 +9,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from metrology.core.io.atomic import _write_bytes_atomic
+from metrology.core.io.atomic import _write_bytes_atomic, atomic_path
 
 
 def _as_height_map(z_mm: npt.ArrayLike) -> np.ndarray:
@@ -33,9 +32,12 @@ def write_height_npy(z_mm: npt.ArrayLike, path: str | os.PathLike[str]) -> None:
         Destination file (conventionally ending in ``.npy``; used verbatim).
     """
     z = _as_height_map(z_mm)
-    buffer = io.BytesIO()
-    np.save(buffer, z, allow_pickle=False)
-    _write_bytes_atomic(path, buffer.getvalue())
+    # np.save straight into the temporary file (the bytes an in-memory np.save would hold, without
+    # its two frame-sized copies)
+    with atomic_path(path) as tmp:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # honours the umask, as _write_bytes_atomic
+        with os.fdopen(fd, "wb") as fh:
+            np.save(fh, z, allow_pickle=False)
 
 
 def read_height_npy(path: str | os.PathLike[str]) -> np.ndarray:
