@@ -420,6 +420,7 @@ class PreparedStereo(PreparedGeometry):
         coordinates: Sequence[Mapping[str, np.ndarray | None]],
         sigma: Sequence[np.ndarray | None] | None = None,
         threads: int | None = None,
+        other_sigma: Sequence[np.ndarray | None] | None = None,
     ) -> CombinedMaps:
         """Rectify both cameras' maps of :attr:`axis`, match them and sample the disparity back on
         camera 0's grid (module docstring, steps 1-3); with a calibrated projector, fuse the
@@ -856,27 +857,32 @@ class PreparedStereo2D(PreparedStereo):
     (the midpoint's slopes, ``match_2d_kernels.midpoint_tile``) and ``G = g A`` (the disparity's change
     per unit of camera 0's ``u`` and ``v``)::
 
-        Var d = |G|^2 (sigma_0^2 + g_1^2 sigma_1^2),   Cov(q, d) = G_i sigma_0^2
+        Var d = G_u^2 (sigma_0u^2 + g_1^2 sigma_1u^2) + G_v^2 (sigma_0v^2 + g_1^2 sigma_1v^2),
+        Cov(q, d) = G_i sigma_0i^2
 
-    (``i`` the index of :attr:`axis`; camera 0's values are used as decoded, not resampled). The
-    decoder's sigma is given for :attr:`axis` only: each camera's ``v`` (or ``u``) noise is taken
-    equal to it (the same codec codes both axes; where the fringes of :attr:`axis` cross the epipolar
-    lines at right angles the other axis's noise moves the match along the fringe, which leaves ``d``
-    unchanged to first order)."""
+    (``i`` :attr:`axis`; camera 0's values are used as decoded, not resampled; each camera's and
+    axis's ``sigma`` the decoder's, camera 1's at the match's nearest pixel). Without the other
+    axis's sigma maps (``other_sigma``) its noise is taken equal to :attr:`axis`'s."""
 
     @property
     def required_axes(self) -> tuple[str, ...]:
         return ("u", "v")
+
+    @property
+    def noise_axes(self) -> tuple[str, ...]:
+        return (self.axis, "v" if self.axis == "u" else "u")
 
     def combine(
         self,
         coordinates: Sequence[Mapping[str, np.ndarray | None]],
         sigma: Sequence[np.ndarray | None] | None = None,
         threads: int | None = None,
+        other_sigma: Sequence[np.ndarray | None] | None = None,
     ) -> CombinedMaps:
         """Both cameras' ``u`` and ``v`` maps (``{axis: (H_c, W_c) float32}``) to the equivalent
         disparity ``d = k / t_m`` (H, W) float32 on camera 0's grid (class docstring), its sigma when
-        both cameras' ``sigma`` maps (of :attr:`axis`, projector units) are given; with a calibrated
+        both cameras' ``sigma`` maps (of :attr:`axis`, projector units) are given (and ``other_sigma``,
+        of the other axis; taken equal to ``sigma`` without them); with a calibrated
         projector fused with the camera-projector pairs (:mod:`~metrology.core.geometry.stereo_fusion`),
         as :meth:`PreparedStereo.combine`."""
         maps = self._maps(coordinates, ("u", "v"))
@@ -923,15 +929,19 @@ class PreparedStereo2D(PreparedStereo):
             det = ux * vy - uy * vx
             Gu = (gx * vy - gy * vx) / det
             Gv = (gy * ux - gx * uy) / det
+        # each axis's noise, camera 0's at the pixel and camera 1's at the match's nearest pixel
         if noise is None:
-            s0 = s1 = np.ones((h, w))
+            s0 = s1 = o0 = o1 = np.ones((h, w))
         else:
-            s0 = noise[0].astype(np.float64)
             h1, w1 = self.rig.camera_shapes[1]
             j = np.clip(np.rint(np.nan_to_num(x1)), 0, w1 - 1).astype(np.intp)
             i = np.clip(np.rint(np.nan_to_num(y1)), 0, h1 - 1).astype(np.intp)
-            s1 = noise[1].astype(np.float64)[i, j]
-        sigma_d = (np.hypot(Gu, Gv) * np.sqrt(s0 * s0 + (gain * s1) ** 2)).astype(np.float32)
+            s0, s1 = noise[0].astype(np.float64), noise[1].astype(np.float64)[i, j]
+            other = _noise_maps(other_sigma)
+            o0, o1 = (s0, s1) if other is None else (other[0].astype(np.float64), other[1].astype(np.float64)[i, j])
+        (su0, su1), (sv0, sv1) = ((s0, s1), (o0, o1)) if self.axis == "u" else ((o0, o1), (s0, s1))
+        var_d = Gu * Gu * (su0 * su0 + (gain * su1) ** 2) + Gv * Gv * (sv0 * sv0 + (gain * sv1) ** 2)
+        sigma_d = np.sqrt(var_d).astype(np.float32)
         sigma_d[~np.isfinite(d32)] = np.nan
         if self.fusion is None:
             return _camera_pair(d32, sigma_d)
