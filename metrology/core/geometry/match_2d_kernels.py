@@ -10,7 +10,9 @@
   lens's Jacobian there (OpenCV's untilted model, Newton per point, as
   :func:`metrology.core.distortion.undistort_pixels`);
 - :func:`midpoint_tile`: the rays' midpoint as the disparity ``d = k / t_m`` and, on request, its
-  slopes ``dd/d(x_1, y_1)`` per camera-1 pixel.
+  slopes ``dd/d(x_1, y_1)`` per camera-1 pixel;
+- :func:`disparity_sigma_tile`: the disparity's sigma from each camera's and axis's decoder noise, and
+  its covariance with camera 0's coordinate (the fusion's shared term).
 
 Arithmetic float64 inside, float32 maps in and out. Compiled on first use and cached on disk
 (``cache=True``).
@@ -487,3 +489,50 @@ def refine_cubic(
             return s1, t1
     cell_slopes(u, v, r, c, s, t, out)
     return s, t
+
+
+@njit(nogil=True, cache=True)
+def disparity_sigma_tile(
+    slopes: np.ndarray,
+    g: np.ndarray,
+    x1: np.ndarray,
+    y1: np.ndarray,
+    s0: np.ndarray,
+    o0: np.ndarray,
+    s1: np.ndarray,
+    o1: np.ndarray,
+    with_noise: bool,
+    axis_u: bool,
+    sigma_out: np.ndarray,
+    shared_out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """The 2-D match's disparity sigma (``PreparedStereo2D``'s docstring) for a tile of ``(n, m)``
+    camera-0 pixels: ``G = g J^-1`` from the map's slopes at the match (``slopes``, (n, m, 5) float32 of
+    :func:`match_2d_tile`: ``J`` and the noise gain ``g_1``) and the midpoint's (``g``, (n, m, 2) float64
+    of :func:`midpoint_tile`), then ``sigma_d^2 = G_u^2 (s_0u^2 + g_1^2 s_1u^2) + G_v^2 (s_0v^2 + g_1^2
+    s_1v^2)`` into ``sigma_out`` and ``G`` of the matched axis (``axis_u``: ``u``) into ``shared_out``
+    ((n, m) float32 each). ``s0``, ``o0``: camera 0's sigma of the matched and the other axis (n, m);
+    ``s1``, ``o1``: camera 1's whole maps, read at the match's nearest pixel ``(x1, y1)``; all 1 without
+    ``with_noise`` (then 1 x 1 arrays)."""
+    n, m = sigma_out.shape
+    h1, w1 = s1.shape
+    for r in range(n):
+        for c in range(m):
+            ux, uy = np.float64(slopes[r, c, 0]), np.float64(slopes[r, c, 1])
+            vx, vy = np.float64(slopes[r, c, 2]), np.float64(slopes[r, c, 3])
+            gain = np.float64(slopes[r, c, 4])
+            gx, gy = g[r, c, 0], g[r, c, 1]
+            det = ux * vy - uy * vx
+            gu = (gx * vy - gy * vx) / det
+            gv = (gy * ux - gx * uy) / det
+            a0 = a1 = b0 = b1 = 1.0
+            if with_noise:
+                x, y = x1[r, c], y1[r, c]
+                j = min(max(round(x), 0), w1 - 1) if not math.isnan(x) else 0
+                i = min(max(round(y), 0), h1 - 1) if not math.isnan(y) else 0
+                a0, b0 = np.float64(s0[r, c]), np.float64(o0[r, c])
+                a1, b1 = np.float64(s1[i, j]), np.float64(o1[i, j])
+            su0, su1, sv0, sv1 = (a0, a1, b0, b1) if axis_u else (b0, b1, a0, a1)
+            var = gu * gu * (su0 * su0 + (gain * su1) ** 2) + gv * gv * (sv0 * sv0 + (gain * sv1) ** 2)
+            sigma_out[r, c] = math.sqrt(var)
+            shared_out[r, c] = gu if axis_u else gv

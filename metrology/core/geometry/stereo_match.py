@@ -78,6 +78,7 @@ from metrology.core.geometry.base import (
 )
 from metrology.core.geometry.match_2d_kernels import (
     cell_buckets,
+    disparity_sigma_tile,
     match_2d_tile,
     midpoint_tile,
     undistort_tile,
@@ -896,10 +897,18 @@ class PreparedStereo2D(PreparedStereo):
         y1 = np.empty((h, w), np.float32)
         slopes = np.empty((h, w, 5), np.float32)
         noise = _noise_maps(sigma)
+        other = _noise_maps(other_sigma) if noise is not None else None
         with_slopes = self.fusion is not None or noise is not None
         d = np.empty((h, w))
         g = np.empty((h, w, 2)) if with_slopes else np.empty((1, 1, 2))
+        sigma_d = np.empty((h, w), np.float32)
+        shared = np.empty((h, w), np.float32)
         geometry = self._midpoint_geometry
+        # each axis's noise, camera 0's at the pixel and camera 1's at the match's nearest pixel;
+        # equal unit noise in both cameras and axes without noise maps (the weights from the geometry alone)
+        unit = np.ones((1, 1), np.float32)
+        s0, s1 = (unit, unit) if noise is None else noise
+        o0, o1 = (s0, s1) if other is None else other
 
         def run(rows: slice) -> None:
             match_2d_tile(
@@ -917,35 +926,29 @@ class PreparedStereo2D(PreparedStereo):
                 g[rows] if with_slopes else g,
                 with_slopes,
             )
+            if with_slopes:
+                disparity_sigma_tile(
+                    slopes[rows],
+                    g[rows],
+                    x1[rows],
+                    y1[rows],
+                    s0 if noise is None else s0[rows],
+                    o0 if other is None and noise is None else o0[rows],
+                    s1,
+                    o1,
+                    noise is not None,
+                    self.axis == "u",
+                    sigma_d[rows],
+                    shared[rows],
+                )
 
         run_tiled(run, h, w, threads)
         d32 = d.astype(np.float32)
         if not with_slopes:
             return _camera_pair(d32, None)
-        # the disparity's sigma and Cov(q, d) / sigma_0^2 (class docstring); unit noise without noise maps
-        gx, gy = g[..., 0], g[..., 1]
-        ux, uy, vx, vy, gain = (slopes[..., e].astype(np.float64) for e in range(5))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            det = ux * vy - uy * vx
-            Gu = (gx * vy - gy * vx) / det
-            Gv = (gy * ux - gx * uy) / det
-        # each axis's noise, camera 0's at the pixel and camera 1's at the match's nearest pixel
-        if noise is None:
-            s0 = s1 = o0 = o1 = np.ones((h, w))
-        else:
-            h1, w1 = self.rig.camera_shapes[1]
-            j = np.clip(np.rint(np.nan_to_num(x1)), 0, w1 - 1).astype(np.intp)
-            i = np.clip(np.rint(np.nan_to_num(y1)), 0, h1 - 1).astype(np.intp)
-            s0, s1 = noise[0].astype(np.float64), noise[1].astype(np.float64)[i, j]
-            other = _noise_maps(other_sigma)
-            o0, o1 = (s0, s1) if other is None else (other[0].astype(np.float64), other[1].astype(np.float64)[i, j])
-        (su0, su1), (sv0, sv1) = ((s0, s1), (o0, o1)) if self.axis == "u" else ((o0, o1), (s0, s1))
-        var_d = Gu * Gu * (su0 * su0 + (gain * su1) ** 2) + Gv * Gv * (sv0 * sv0 + (gain * sv1) ** 2)
-        sigma_d = np.sqrt(var_d).astype(np.float32)
         sigma_d[~np.isfinite(d32)] = np.nan
         if self.fusion is None:
             return _camera_pair(d32, sigma_d)
-        shared = (Gu if self.axis == "u" else Gv).astype(np.float32)
         return self._fuse(u0 if self.axis == "u" else v0, d32, sigma_d, shared, noise, threads)
 
     @functools.cached_property
