@@ -113,8 +113,9 @@ def invert_bilinear(
         det = us * vt - ut * vs
         if det == 0 or math.isnan(det):
             return np.nan, np.nan
-        ds = (fu * vt - ut * fv) / det
-        dt = (us * fv - fu * vs) / det
+        inv = 1.0 / det
+        ds = (fu * vt - ut * fv) * inv
+        dt = (us * fv - fu * vs) * inv
         s -= ds
         t -= dt
         if abs(ds) + abs(dt) < NEWTON_TOL:
