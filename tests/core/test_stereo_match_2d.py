@@ -5,12 +5,15 @@ Small grids: each test takes well under a second once the kernels are compiled."
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from metrology.core.distortion import Distortion, undistort_pixels
 from metrology.core.geometry.match_2d_kernels import cell_buckets, match_2d_tile, undistort_tile
+from metrology.core.geometry.stereo_match import prepare_stereo
+from tests.stereo_rig import RIG
 
 H, W = 40, 48
 BUCKET = 2.0
@@ -121,3 +124,27 @@ def test_the_compiled_undistortion_agrees_with_undistort_pixels(dist: tuple[floa
     _, _, jac = distortion.distort_with_jacobian(out[..., 0], out[..., 1])
     for e in range(4):
         assert np.allclose(out[..., 2 + e][ok], jac[e][ok], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("tilt", [0.0, 0.01])
+def test_camera1s_matched_pixels_are_undistorted_for_any_lens(tilt: float) -> None:
+    """The 2-D match's undistortion of camera 1's matched pixels (:class:`PreparedStereo2D`): compiled
+    for an untilted lens, through :func:`undistort_pixels` for a tilted sensor (14 coefficients) and
+    for a point the compiled Newton leaves unconverged (far outside the image); either way the result
+    is :func:`undistort_pixels`'s within 1e-6 px and NaN stays NaN."""
+    dist = (-0.08, 0.03, -0.0003, 0.0005, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, tilt, -tilt)
+    camera1 = replace(RIG.camera1, dist=dist)
+    prepared = prepare_stereo(replace(RIG, camera1=camera1), "u", "2d")
+    rng = np.random.default_rng(8)
+    x = rng.uniform(-0.5, 319.5, (4, 30)).astype(np.float32)
+    y = rng.uniform(-0.5, 255.5, (4, 30)).astype(np.float32)
+    x[0, 0] = np.nan
+    x[1, 1], y[1, 1] = -4.0e4, 3.0e4  # beyond where the plain Newton converges in its steps
+    out = prepared._undistort_camera1(x, y)  # type: ignore[attr-defined]
+    K = np.asarray(camera1.K)
+    ref = undistort_pixels(K, camera1.distortion, x.astype(np.float64), y.astype(np.float64))
+    assert np.isnan(out[0, 0]).all() and np.isfinite(out[2:]).all()
+    same = np.isfinite(ref.x)
+    assert np.array_equal(np.isfinite(out[..., 0]), same)
+    error_px = np.hypot(out[..., 0] - ref.x, out[..., 1] - ref.y)[same] * K[0][0]
+    assert error_px.max() < 1e-6
