@@ -37,16 +37,29 @@ _PROJ = look_at_rig(CAMERA0, LENS, (75.0, -30.0, 0.0), (0.0, 0.0, Z0))
 PROJECTOR = ProjectorPlacement(projector=LENS, R=_PROJ.R, T=_PROJ.T)
 """The projector that lights the renders: between the cameras, 30 mm above them."""
 PLACEMENT = ScenePlacement.facing_camera(Z0)
+
+
+def turned_projector(angle_deg: float) -> ProjectorPlacement:
+    """:data:`PROJECTOR` turned by ``angle_deg`` about its optical axis (its centre kept): at 45 degrees
+    both axes' fringes cross the cameras' epipolar lines obliquely."""
+    a = math.radians(angle_deg)
+    R0 = np.asarray(PROJECTOR.R, np.float64)
+    centre = -R0.T @ np.asarray(PROJECTOR.T, np.float64)
+    turned = np.stack([math.cos(a) * R0[0] + math.sin(a) * R0[1], -math.sin(a) * R0[0] + math.cos(a) * R0[1], R0[2]])
+    return ProjectorPlacement(projector=PROJECTOR.projector, R=turned, T=-turned @ centre)
+
+
 CAMERA1_CENTRE = -np.asarray(RIG.R).T @ np.asarray(RIG.T)
 
 
-def _axis(first: int, extent: int) -> tuple[dict[str, Any], int]:
-    """8-step sinusoid of period 16 projector px, gray code of 16-px words (MSB first)."""
-    bits = math.ceil(math.log2((extent + 1) / 16))
-    phase = {"frames": list(range(first, first + 8)), "period": 16.0, "shift": 1, "origin": -0.5, "waveform": "sine"}
+def _axis(first: int, extent: int, period: float = 16.0) -> tuple[dict[str, Any], int]:
+    """8-step sinusoid of ``period`` projector px (16 unless given), gray code of words of that width
+    (MSB first)."""
+    bits = math.ceil(math.log2((extent + 1) / period))
+    phase = {"frames": list(range(first, first + 8)), "period": period, "shift": 1, "origin": -0.5, "waveform": "sine"}
     gray = {
         "frames": list(range(first + 8, first + 8 + bits)),
-        "word": 16.0,
+        "word": period,
         "order": "msb_first",
         "origin": -0.5,
         "inverse_frames": None,
@@ -55,12 +68,13 @@ def _axis(first: int, extent: int) -> tuple[dict[str, Any], int]:
     return {"phase": [phase], "gray": gray}, first + 8 + bits
 
 
-def codec_dict(axes: str) -> dict[str, Any]:
-    """The codec of ``axes`` (``"u"``: vertical fringes only; ``"uv"``: both axes), white and black last."""
+def codec_dict(axes: str, periods: dict[str, float] | None = None) -> dict[str, Any]:
+    """The codec of ``axes`` (``"u"``: vertical fringes only; ``"uv"``: both axes), white and black
+    last; ``periods`` the phase period of an axis other than 16 projector px."""
     spec: dict[str, Any] = {}
     n = 0
     for axis in axes:
-        spec[axis], n = _axis(n, PROJ_W if axis == "u" else PROJ_H)
+        spec[axis], n = _axis(n, PROJ_W if axis == "u" else PROJ_H, (periods or {}).get(axis, 16.0))
     return {
         "codec": "gcps-codec/1",
         "frames": n + 2,
@@ -71,8 +85,8 @@ def codec_dict(axes: str) -> dict[str, Any]:
     }
 
 
-def codec(axes: str) -> Any:
-    return codec_from_dict(codec_dict(axes))
+def codec(axes: str, periods: dict[str, float] | None = None) -> Any:
+    return codec_from_dict(codec_dict(axes, periods))
 
 
 def facing_both(scene: Scene, points_mm: np.ndarray, max_angle_deg: float = 60.0) -> np.ndarray:

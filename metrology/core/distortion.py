@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -134,13 +135,7 @@ class Distortion:
                 drad = (dnum * den - num * dden) / (den * den)
             else:
                 drad = dnum
-            sx = 2.0 * (s1 + 2.0 * s2 * r2)
-            sy = 2.0 * (s3 + 2.0 * s4 * r2)
-            jxx = radial + 2.0 * x2 * drad + 2.0 * p1 * y + 6.0 * p2 * x + sx * x
-            jxy = 2.0 * xy * drad + 2.0 * p1 * x + 2.0 * p2 * y + sx * y
-            jyx = 2.0 * xy * drad + 2.0 * p1 * x + 2.0 * p2 * y + sy * x
-            jyy = radial + 2.0 * y2 * drad + 6.0 * p1 * y + 2.0 * p2 * x + sy * y
-            jac = (jxx, jxy, jyx, jyy)
+            jac = untilted_jacobian(x, y, r2, radial, drad, p1, p2, s1, s2, s3, s4)
         if not self._tilted:
             return xp, yp, jac
         m = tilt_matrix(tx, ty)
@@ -157,6 +152,23 @@ class Distortion:
             jxx, jxy, jyx, jyy = jac
             jac = (a00 * jxx + a01 * jyx, a00 * jxy + a01 * jyy, a10 * jxx + a11 * jyx, a10 * jxy + a11 * jyy)
         return xd, yd, jac
+
+
+def untilted_jacobian(
+    x: Any, y: Any, r2: Any, radial: Any, drad: Any, p1: float, p2: float, s1: float, s2: float, s3: float, s4: float
+) -> tuple[Any, Any, Any, Any]:
+    """The untilted model's Jacobian ``(dx'/dx, dx'/dy, dy'/dx, dy'/dy)`` at ``(x, y)`` (``r2 = x^2 +
+    y^2``, ``radial`` the radial factor and ``drad`` its derivative in ``r2``): floats or arrays alike,
+    so that the compiled 2-D stereo match (:mod:`metrology.core.geometry.match_2d_kernels`) compiles
+    this very function."""
+    sx = 2.0 * (s1 + 2.0 * s2 * r2)
+    sy = 2.0 * (s3 + 2.0 * s4 * r2)
+    x2, y2, xy = x * x, y * y, x * y
+    jxx = radial + 2.0 * x2 * drad + 2.0 * p1 * y + 6.0 * p2 * x + sx * x
+    jxy = 2.0 * xy * drad + 2.0 * p1 * x + 2.0 * p2 * y + sx * y
+    jyx = 2.0 * xy * drad + 2.0 * p1 * x + 2.0 * p2 * y + sy * x
+    jyy = radial + 2.0 * y2 * drad + 6.0 * p1 * y + 2.0 * p2 * x + sy * y
+    return jxx, jxy, jyx, jyy
 
 
 def _check_K(K: npt.ArrayLike, name: str = "K") -> FloatArray:

@@ -37,7 +37,7 @@ both captures then take the codec path (gcps-v1 as its codec), steps 2 and 3 unc
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -742,6 +742,20 @@ def _sigma_of(codec: Codec, axis: str, decoding: CodecDecoding) -> np.ndarray:
     return stage_coordinate_sigma(codec, axis, decoded.noise, decoded.modulation)
 
 
+def _other_sigmas(
+    codec: Codec, prepared: PreparedGeometry, decodings: Sequence[CodecDecoding]
+) -> list[np.ndarray] | None:
+    """Each camera's coordinate sigma of the second of the model's :attr:`~PreparedGeometry.noise_axes`
+    (the 2-D stereo match reads both axes' noise); None for a model that reads one, or when that
+    axis's chain gives no noise estimate (the model then takes its noise equal to the first's)."""
+    if len(prepared.noise_axes) < 2:
+        return None
+    try:
+        return [_sigma_of(codec, prepared.noise_axes[1], decoding) for decoding in decodings]
+    except ValueError:
+        return None
+
+
 # --------------------------------------------------------------------------- the codec path
 def finest_period(codec: Codec, axis: str) -> float | None:
     """Period (projector units) of ``axis``'s last unwrapping stage, or None when it ends on a gray code."""
@@ -939,7 +953,8 @@ def _codec_measure(
     sigma_in = None if sigmas is None else sigmas[0]
     combined = None
     if len(cameras) > 1:  # the model makes camera 0's inputs of every camera's maps
-        combined = prepared.combine([_coordinates(c) for c in cameras], sigmas, threads)
+        other = _other_sigmas(codec, prepared, [c.decoding for c in cameras]) if options.wants_sigma else None
+        combined = prepared.combine([_coordinates(c) for c in cameras], sigmas, threads, other_sigma=other)
         sigma_in = combined.sigma
         timings["object_combine_s"] = time.perf_counter() - start
     surface = None if reference is None else reference.surface

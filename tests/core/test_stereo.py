@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from metrology.core.codecs import codec_from_dict
+from metrology.core.codecs import Codec, codec_from_dict
+from metrology.core.codecs.decode import decode_codec
 from metrology.core.geometry.base import GeometryError, GeometryOptions
 from metrology.core.geometry.stereo_kernels import SAMPLE_TRIANGLE
 from metrology.core.geometry.stereo_match import Bilinear, match_rows, prepare_stereo
@@ -22,8 +23,9 @@ from metrology.core.measure import MeasureOptions, measure
 from metrology.core.scenes import make_scene
 from metrology.core.simulate import SimulationOptions
 from metrology.core.simulate.render import default_placement
-from metrology.core.simulate.stereo import cast_stereo, render_stereo_capture
-from tests.stereo_rig import PLACEMENT, PROJECTOR, RIG, codec, facing_both, lit_in_both
+from metrology.core.simulate.stereo import ProjectorPlacement, StereoCapture, cast_stereo, render_stereo_capture
+from metrology.core.uncertainty import stage_coordinate_sigma
+from tests.stereo_rig import PLACEMENT, PROJECTOR, RIG, codec, facing_both, lit_in_both, turned_projector
 
 SCENES = {"plane": {"z_mm": 0.0}, "sphere": {"radius_mm": 50.0}, "staircase": {}}
 
@@ -267,22 +269,22 @@ def test_the_2d_match_without_rectification_measures_within_1um(scene: str) -> N
         measure(RIG, capture.images, codec("u"), options=options)
 
 
-@pytest.mark.slow
-def test_predicted_sigma_matches_the_scatter_of_realistic_renders() -> None:
-    """10 realistic 8-bit renders of a plane (one cast, noise drawn anew): the predicted per-point
-    sigma (both cameras' decoder noise -> the disparity's sigma -> along camera 0's ray) is the
-    observed per-pixel scatter of the depth along the ray within 20 % (median over pixels)."""
-    options = SimulationOptions.realistic_8bit()
+def _sigma_fit(
+    the_codec: Codec, options: MeasureOptions, seed: int, projector: ProjectorPlacement = PROJECTOR, n: int = 10
+) -> tuple[float, int, float, StereoCapture]:
+    """``n`` realistic 8-bit renders of a plane (one cast, noise drawn anew from ``seed``) measured
+    with ``options`` (sigma on): the median over pixels of the predicted sigma over the per-pixel
+    scatter of the depth along camera 0's ray, the pixels measured in every render, the median
+    scatter (mm) and the last capture."""
+    simulation = SimulationOptions.realistic_8bit()
     scene = make_scene("plane", z_mm=0.0)
-    the_codec = codec("u")
-    cast = cast_stereo(RIG, scene, the_codec, PLACEMENT, projector=PROJECTOR, supersample=options.supersample)
-    n = 10
+    cast = cast_stereo(RIG, scene, the_codec, PLACEMENT, projector=projector, supersample=simulation.supersample)
     ranges = np.empty((n, *RIG.shape), np.float32)
     predicted = np.empty((n, *RIG.shape), np.float32)
     for i in range(n):
-        noisy = SimulationOptions.realistic_8bit(seed=500 + i)
+        noisy = SimulationOptions.realistic_8bit(seed=seed + i)
         capture = render_stereo_capture(RIG, scene, the_codec, noisy, placement=PLACEMENT, cast=cast)
-        m = measure(RIG, capture.images, the_codec, options=MeasureOptions(sigma=True))
+        m = measure(RIG, capture.images, the_codec, options=options)
         ranges[i] = np.linalg.norm(m.points_mm(), axis=-1)
         assert m.sigma_mm is not None
         predicted[i] = m.sigma_mm
@@ -290,8 +292,40 @@ def test_predicted_sigma_matches_the_scatter_of_realistic_renders() -> None:
     assert ok.mean() > 0.5
     observed = ranges[:, ok].astype(np.float64).std(axis=0, ddof=1)
     ratio = np.median(predicted[:, ok], axis=0) / observed
-    print(f"predicted/observed {np.median(ratio):.3f} over {ok.sum()} px, sigma {np.median(observed) * 1e3:.1f} um")
-    assert abs(np.median(ratio) - 1) < 0.2
+    return float(np.median(ratio)), int(ok.sum()), float(np.median(observed)), capture
+
+
+@pytest.mark.slow
+def test_predicted_sigma_matches_the_scatter_of_realistic_renders() -> None:
+    """10 realistic 8-bit renders of a plane (one cast, noise drawn anew): the predicted per-point
+    sigma (both cameras' decoder noise -> the disparity's sigma -> along camera 0's ray) is the
+    observed per-pixel scatter of the depth along the ray within 20 % (median over pixels)."""
+    ratio, count, observed, _ = _sigma_fit(codec("u"), MeasureOptions(sigma=True), 500)
+    print(f"predicted/observed {ratio:.3f} over {count} px, sigma {observed * 1e3:.1f} um")
+    assert abs(ratio - 1) < 0.2
+
+
+@pytest.mark.slow
+def test_the_2d_match_sigma_reads_each_axis_noise() -> None:
+    """10 realistic 8-bit renders of a plane with both axes coded, ``v`` with fringes three times as
+    wide as ``u``'s (its decoder sigma 2.5 times ``u``'s), the projector turned 45 degrees about its
+    axis so that both axes' noise moves the 2-D match's disparity: the predicted sigma, from each
+    camera's and axis's decoder sigma, is the per-pixel scatter of the depth along the ray within 20 %
+    (median over pixels). Taking ``v``'s noise equal to ``u``'s (the model's fallback without
+    ``other_sigma``) predicted 0.55 times the scatter here; the measured noise, 1.04 times."""
+    the_codec = codec("uv", {"v": 48.0})
+    assert prepare_stereo(RIG, "u", "2d").noise_axes == ("u", "v")
+    options = MeasureOptions(sigma=True, geometry=GeometryOptions(match="2d"))
+    ratio, count, observed, capture = _sigma_fit(the_codec, options, 700, turned_projector(45.0))
+    decoded = decode_codec(capture.images[0], the_codec, with_noise=True).axes
+    sigma_u, sigma_v = (stage_coordinate_sigma(the_codec, a, decoded[a].noise, decoded[a].modulation) for a in "uv")
+    ratio_v = float(np.nanmedian(sigma_v) / np.nanmedian(sigma_u))
+    print(
+        f"2d, v sigma {ratio_v:.2f} x u's, projector turned 45 deg: predicted/observed {ratio:.3f} "
+        f"over {count} px, sigma {observed * 1e3:.1f} um"
+    )
+    assert ratio_v > 2.0, f"v's decoder sigma is {ratio_v:.2f} times u's"
+    assert abs(ratio - 1) < 0.2
 
 
 def test_a_single_camera_model_refuses_the_2d_match() -> None:

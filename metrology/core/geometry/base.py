@@ -330,11 +330,19 @@ class PreparedGeometry(ABC):
         of the codec's finest phase period: gcps-v1's ratio of codes to periods)."""
         return None
 
+    @property
+    def noise_axes(self) -> tuple[str, ...]:
+        """The axes whose decoder sigma :meth:`combine` reads, :attr:`axis` first: ``(axis,)``, or
+        both axes for a model that matches on both (the 2-D stereo match), whose second one's sigma
+        it takes as ``other_sigma``."""
+        return (self.axis,)
+
     def combine(
         self,
         coordinates: Sequence[Mapping[str, np.ndarray | None]],
         sigma: Sequence[np.ndarray | None] | None = None,
         threads: int | None = None,
+        other_sigma: Sequence[np.ndarray | None] | None = None,
     ) -> CombinedMaps:
         """The inputs of :meth:`triangulate_rows` from every camera's decoded maps, camera 0 first
         (:attr:`GeometryModel.cameras` of them), once per frame.
@@ -346,6 +354,9 @@ class PreparedGeometry(ABC):
             decoded; None (or absent) for an axis not read.
         sigma : sequence of (H_c, W_c) float32 arrays or None, optional
             Each camera's standard deviation of the :attr:`axis` coordinate.
+        other_sigma : sequence of (H_c, W_c) float32 arrays or None, optional
+            Each camera's standard deviation of the second of :attr:`noise_axes`, for a model that
+            reads two; None: taken equal to ``sigma``.
 
         The default (one camera) hands camera 0's maps through unchanged.
         """
