@@ -19,8 +19,10 @@ export PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1
 unset PYTHONDONTWRITEBYTECODE
 .venv/bin/python -m compileall -q -j 0 metrology workers tests manage.py > /dev/null &
 compile_pid=$!
-# the compiled kernels, compiled once here (about 3 s of CPU on a clean clone) rather than by each
-# pytest worker and each worker process started before the first had written numba's cache
+# the compiled kernels, the stereo model's included, compiled once here (about 20 s of CPU in two
+# processes on a clean clone) rather than by each pytest worker (the stereo tests of several
+# workers compiled the same kernels at once) and each Celery worker started before the first had
+# written numba's cache
 .venv/bin/python -m metrology.core.compiled &
 warm_pid=$!
 .venv/bin/ruff check metrology workers tests benchmarks
