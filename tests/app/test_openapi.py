@@ -72,7 +72,7 @@ def test_schemathesis_finds_no_server_error(live_server, tmp_path, monkeypatch, 
     output = result.stdout + result.stderr
     assert result.returncode == 0, output[-6000:]
     summary = re.search(r"(\d+) generated, (\d+) passed", output)
-    # not a vacuous run: quietly it generates about 2700 cases in its 10 s, at load 7-14 only 6-98
+    # not a vacuous run: 476 cases in its 10 s at load 0.8, at load 7-14 only 6-98
     # (schemathesis spends its budget whatever the load), so the floor is low
     assert summary and summary.group(1) == summary.group(2) and int(summary.group(1)) >= 5, output[-3000:]
     print(f"schemathesis in 10 s: {summary.group(0)}")
