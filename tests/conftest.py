@@ -10,7 +10,6 @@ integration tests (tests/app/integration/conftest.py) keep the media root out of
 from __future__ import annotations
 
 import fcntl
-import hashlib
 import os
 import shutil
 import sqlite3
@@ -24,6 +23,7 @@ from metrology.devserver import disable_nagle
 from metrology.rigs.services import create_rig
 from tests.app.stacks import SMALL_RIG
 from tests.browser import CHROMIUM, CHROMIUM_ARGS, TIMEOUT_MS
+from tests.shared_run import migrations_digest, run_folder
 
 disable_nagle()  # pytest-django's live server is Django's development server (metrology/devserver.py)
 
@@ -114,6 +114,27 @@ def name_group_in_nodeid(item: pytest.Item) -> None:
         item._nodeid = suffixed  # type: ignore[attr-defined]
 
 
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    """In the run's controller (or the only process, without xdist), after every worker has
+    finished: drop the PostgreSQL template that the integration tests' workers shared
+    (tests/app/integration/harness.py, ``migrated_template``)."""
+    if not hasattr(session.config, "workerinput"):
+        from tests.app.integration.harness import drop_run_templates
+
+        drop_run_templates(run_folder(session.config))
+
+
+@pytest.fixture(autouse=True, scope="session")
+def shared_run_folder(request):
+    """``GCPS_TEST_RUN_FOLDER``: the folder the run's workers share (tests/shared_run.py), where the
+    integration harness finds the migrated PostgreSQL template one of them made."""
+    from tests.app.integration.harness import RUN_FOLDER_ENV
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv(RUN_FOLDER_ENV, str(run_folder(request.config)))
+        yield
+
+
 @pytest.fixture(autouse=True, scope="session")
 def local_cache_dir(tmp_path_factory):
     """The local cache of prepared tables (metrology.core.local_cache) in a folder of the session,
@@ -124,25 +145,10 @@ def local_cache_dir(tmp_path_factory):
         yield root
 
 
-def migrations_digest() -> str:
-    """A hash of every installed app's migration files (and Django's version): what a migrated
-    database depends on."""
-    import django
-    from django.apps import apps
-
-    digest = hashlib.sha256(django.get_version().encode())
-    for config in sorted(apps.get_app_configs(), key=lambda c: c.label):
-        folder = Path(config.path) / "migrations"
-        for path in sorted(folder.glob("*.py")) if folder.is_dir() else ():
-            digest.update(f"{config.label}/{path.name}".encode())
-            digest.update(path.read_bytes())
-    return digest.hexdigest()[:16]
-
-
 @pytest.fixture(scope="session")
 def django_db_setup(
     request, django_test_environment, django_db_blocker, django_db_keepdb, django_db_use_migrations,
-    django_db_modify_db_settings, tmp_path_factory,
+    django_db_modify_db_settings,
 ):  # fmt: skip
     """pytest-django's ``django_db_setup`` (the test database made before the first test that needs
     one, dropped after the last), except that the embedded SQLite database is migrated once per run
@@ -168,8 +174,7 @@ def django_db_setup(
     if connection.vendor != "sqlite" or not test_name or str(test_name) == ":memory:" or django_db_keepdb:
         config = setup(keepdb=django_db_keepdb)
     else:
-        root = tmp_path_factory.getbasetemp()
-        root = root.parent if hasattr(request.config, "workerinput") else root  # shared by the run's workers
+        root = run_folder(request.config)
         template = root / f"migrated-{migrations_digest()}.sqlite3"
         with open(root / "migrated-sqlite.lock", "w") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes

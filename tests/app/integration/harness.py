@@ -1,27 +1,35 @@
 """Real processes for integration tests: a fresh PostgreSQL database, Redis, the web server, workers.
 
 Everything runs on loopback. Each run creates its own database ``gcps_test_<hex>`` (a copy of one
-migrated once per test process) and its own Celery queue, and removes the database afterwards, so
-runs do not interfere with each other or with a developer's instance.
+migrated once per pytest run and shared by its xdist workers) and its own Celery queue, and removes
+the database afterwards, so runs do not interfere with each other or with a developer's instance.
 """
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
+import json
 import os
+import re
 import secrets
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 import requests
 
 from tests.processes import free_port
+
+if TYPE_CHECKING:
+    import psycopg
 
 ROOT = Path(__file__).resolve().parents[3]
 PG_ADMIN_URL = os.environ.get("GCPS_TEST_PG_URL", "postgresql://postgres@127.0.0.1:5432/postgres")
@@ -73,41 +81,99 @@ def database_url(name: str) -> str:
     return PG_ADMIN_URL.rsplit("/", 1)[0] + f"/{name}"
 
 
-_template: str | None = None
-_template_token: str | None = None
-
 TEMPLATE_USER = "it-user"
 """The user that :func:`migrated_template` makes (``manage.py createuser``), in every copy of it."""
 
+RUN_FOLDER_ENV = "GCPS_TEST_RUN_FOLDER"
+"""The environment variable that names the run's shared folder (tests/shared_run.py), set for every
+test session by tests/conftest.py: :func:`migrated_template` keeps its lock and record there."""
+
+#: ``gcps_test_template_<creation time, Unix seconds>_<migrations digest>_<random>``: the only
+#: databases that :func:`drop_run_templates` and the clean-up of stale templates ever drop.
+TEMPLATE_NAME = re.compile(r"gcps_test_template_(\d{10})_[0-9a-f]{16}_[0-9a-f]{12}")
+#: A template older than this (seconds) was left by a killed run: the next run that makes one drops it.
+STALE_TEMPLATE_S = 86400
+
+_template: str | None = None
+_template_token: str | None = None
+
 
 def migrated_template() -> str:
-    """A database migrated by ``manage.py migrate`` once per test process, which
-    :func:`fresh_database` copies; dropped when the process exits. It holds one user,
-    :data:`TEMPLATE_USER`, whose token :func:`template_user_token` gives: a test's session needs no
-    ``manage.py createuser`` process of its own (about 0.5 s of CPU each). Nothing connects to it
-    after that (PostgreSQL copies a template only while no one is connected to it)."""
+    """The database that :func:`fresh_database` copies: migrated by ``manage.py migrate`` once per
+    test RUN, by the first pytest-xdist worker that needs it, and shared by the others. It holds one
+    user, :data:`TEMPLATE_USER`, whose token :func:`template_user_token` gives: a test's session
+    needs no ``manage.py createuser`` process of its own (about 0.5 s of CPU each). Nothing connects
+    to it after that (PostgreSQL copies a template only while no one is connected to it; concurrent
+    copies by several workers are fine).
+
+    The workers agree through the run's folder (:data:`RUN_FOLDER_ENV`): under an fcntl lock,
+    ``pg-template-<migrations digest>.json`` holds the template's name (written before it is
+    created, so that it is dropped even if its maker dies) and, once made, the user's token; a
+    worker that finds a name without a token drops that database and makes it again. The run's
+    controller (or the process, without xdist) drops it at the end of the session
+    (:func:`drop_run_templates`, from ``pytest_sessionfinish`` in tests/conftest.py)."""
     global _template, _template_token
     if _template is None:
-        import atexit
-        import tempfile
+        from tests.shared_run import migrations_digest
 
-        import psycopg
-
-        name = f"gcps_test_template_{secrets.token_hex(6)}"
-        with psycopg.connect(PG_ADMIN_URL, autocommit=True) as conn:
-            conn.execute(f'CREATE DATABASE "{name}"')
-
-        def drop() -> None:
-            with contextlib.suppress(psycopg.Error), psycopg.connect(PG_ADMIN_URL, autocommit=True) as conn:
-                conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
-
-        atexit.register(drop)
-        with tempfile.TemporaryDirectory() as scratch:
-            maker = Stack(database_url(name), Path(scratch), Path(scratch))
-            maker.manage("migrate", "--noinput")
-            _template_token = maker.manage("createuser", TEMPLATE_USER).strip()
-        _template = name
+        folder = Path(os.environ[RUN_FOLDER_ENV])
+        record = folder / f"pg-template-{migrations_digest()}.json"
+        with open(folder / "pg-template.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+            made = json.loads(record.read_text()) if record.exists() else {}
+            if "token" not in made:
+                made = _make_template(record, made.get("name"))
+        _template, _template_token = made["name"], made["token"]
     return _template
+
+
+def _make_template(record: Path, unfinished: str | None) -> dict[str, str]:
+    """Create and migrate the template that ``record`` names (after dropping ``unfinished``, the one
+    a dead worker began, and the stale templates of killed runs); write its name and user's token."""
+    import psycopg
+
+    digest = record.stem.removeprefix("pg-template-")
+    name = f"gcps_test_template_{int(time.time())}_{digest}_{secrets.token_hex(6)}"
+    with psycopg.connect(PG_ADMIN_URL, autocommit=True) as conn:
+        now = time.time()
+        for (existing,) in conn.execute("SELECT datname FROM pg_database").fetchall():
+            match = TEMPLATE_NAME.fullmatch(existing)
+            if match and (existing == unfinished or now - int(match[1]) > STALE_TEMPLATE_S):
+                _drop_template(conn, existing)
+        _write_atomically(record, {"name": name})
+        conn.execute(f'CREATE DATABASE "{name}"')
+    with tempfile.TemporaryDirectory() as scratch:
+        maker = Stack(database_url(name), Path(scratch), Path(scratch))
+        maker.manage("migrate", "--noinput")
+        made = {"name": name, "token": maker.manage("createuser", TEMPLATE_USER).strip()}
+    _write_atomically(record, made)
+    return made
+
+
+def _write_atomically(path: Path, content: dict[str, str]) -> None:
+    partial = path.with_suffix(".partial")
+    partial.write_text(json.dumps(content))
+    os.replace(partial, path)
+
+
+def _drop_template(conn: psycopg.Connection, name: str) -> None:
+    """Drop ``name`` if it is a template of this suite (:data:`TEMPLATE_NAME`), else nothing."""
+    if TEMPLATE_NAME.fullmatch(name):
+        conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
+def drop_run_templates(folder: Path) -> None:
+    """Drop the templates whose records :func:`migrated_template` left in the run's folder
+    ``folder``: by the run's controller, once every worker has finished (tests/conftest.py)."""
+    records = sorted(folder.glob("pg-template-*.json"))
+    if not records:
+        return
+    import psycopg
+
+    with contextlib.suppress(psycopg.Error), psycopg.connect(PG_ADMIN_URL, autocommit=True) as conn:
+        for record in records:
+            _drop_template(conn, json.loads(record.read_text())["name"])
+            record.unlink()
 
 
 def template_user_token() -> str:
