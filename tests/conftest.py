@@ -13,6 +13,7 @@ import fcntl
 import os
 import shutil
 import sqlite3
+from contextlib import closing
 from pathlib import Path
 
 import pytest
@@ -182,7 +183,7 @@ def django_db_setup(
             if made_here:
                 config = setup(keepdb=False)
                 partial = template.with_suffix(".partial")
-                with sqlite3.connect(test_name) as source, sqlite3.connect(partial) as copy:
+                with closing(sqlite3.connect(test_name)) as source, closing(sqlite3.connect(partial)) as copy:
                     source.backup(copy)  # the pages of the database and of its write-ahead log
                 os.replace(partial, template)
         if not made_here:

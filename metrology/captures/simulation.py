@@ -50,7 +50,10 @@ DEPTH_ABOVE_FRACTION = 0.95
 
 # Peak memory of render_stack, bytes per camera pixel and per sub-ray (measured with tracemalloc:
 # 286 B/px at one ray per pixel, 152 B per further sub-ray, 374 B/px with noise and blur), with margin.
-_BYTES_PER_PIXEL = 400
+# A process's first realistic render (3x3 sub-rays, noise and blur) peaks higher than its later ones:
+# 2006 B/px against 1468 on the 160x120 test rig (tests/app/test_simulation_bounds.py, which failed
+# with 400 here when it ran first in its process: 1930 B/px estimated).
+_BYTES_PER_PIXEL = 560
 _BYTES_PER_SUBRAY = 170
 
 
@@ -78,8 +81,9 @@ def depth_range_mm(model: Any) -> tuple[float, float]:
 def estimated_render_bytes(model: Any, options: Any) -> int:
     """Peak memory of rendering a stack for ``rig`` with ``options``, bytes (every camera's).
 
-    ``H W (400 + 170 s^2)`` with ``s`` the sub-rays per pixel along each axis: the traced peak
-    is 286 + 152 (s^2 - 1) bytes per pixel noise-free and ~90 more with noise and blur.
+    ``H W (560 + 170 s^2)`` with ``s`` the sub-rays per pixel along each axis: the traced peak
+    is 286 + 152 (s^2 - 1) bytes per pixel noise-free and ~90 more with noise and blur; a
+    process's first realistic render up to 2006 B/px at ``s`` = 3.
     """
     subrays = int(options.supersample) ** 2
     peak = sum(int(h) * int(w) for h, w in model.camera_shapes)  # every camera's cast is kept
