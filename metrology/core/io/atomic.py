@@ -10,6 +10,7 @@ import shutil
 import zipfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import BinaryIO
 
 
 @contextlib.contextmanager
@@ -44,12 +45,19 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
             tmp.unlink()
 
 
-def _write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
+@contextlib.contextmanager
+def atomic_binary_file(path: str | os.PathLike[str]) -> Iterator[BinaryIO]:
+    """Yield a new binary file, open for writing, that becomes ``path`` on success
+    (:func:`atomic_path`); created with the umask's permissions (``os.open``), unlike mkstemp's 0600."""
     with atomic_path(path) as tmp:
-        # os.open honours the umask, unlike mkstemp's 0600.
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+            yield fh
+
+
+def _write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
+    with atomic_binary_file(path) as fh:
+        fh.write(data)
 
 
 def write_text_atomic(text: str, path: str | os.PathLike[str]) -> None:

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from metrology.core.io.atomic import _write_bytes_atomic, atomic_path
+from metrology.core.io.atomic import _write_bytes_atomic, atomic_binary_file
 
 
 def _as_height_map(z_mm: npt.ArrayLike) -> np.ndarray:
@@ -34,10 +34,8 @@ def write_height_npy(z_mm: npt.ArrayLike, path: str | os.PathLike[str]) -> None:
     z = _as_height_map(z_mm)
     # np.save straight into the temporary file (the bytes an in-memory np.save would hold, without
     # its two frame-sized copies)
-    with atomic_path(path) as tmp:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # honours the umask, as _write_bytes_atomic
-        with os.fdopen(fd, "wb") as fh:
-            np.save(fh, z, allow_pickle=False)
+    with atomic_binary_file(path) as fh:
+        np.save(fh, z, allow_pickle=False)
 
 
 def read_height_npy(path: str | os.PathLike[str]) -> np.ndarray:
