@@ -88,3 +88,16 @@ def test_bad_environment_names_the_variable(tmp_path, env, message):
 
 def test_upload_limit_defaults_to_512_mb(settings):
     assert settings.GCPS_MAX_UPLOAD_BYTES == 512 * 1024 * 1024 or "GCPS_MAX_UPLOAD_BYTES" in os.environ
+
+
+@pytest.mark.django_db
+def test_the_embedded_database_runs_in_wal_mode_with_normal_sync():
+    """WAL (readers beside a writer) with ``synchronous=NORMAL`` (1): commits are not synced one by
+    one (docs/operations.md, "On the embedded default")."""
+    from django.db import connection
+
+    if connection.vendor != "sqlite":
+        pytest.skip("the embedded default's SQLite options; this run uses DATABASE_URL")
+    with connection.cursor() as cursor:
+        assert cursor.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+        assert cursor.execute("PRAGMA synchronous").fetchone()[0] == 1
