@@ -7,7 +7,12 @@ import hides a cycle from Python at start-up, not from a reader.
 
 from __future__ import annotations
 
+import pytest
+
 from tests.import_graph import find_cycle, module_graph, package_graph
+
+# one worker reads the project's imports once for every test here (tests/import_graph.py caches them)
+pytestmark = pytest.mark.xdist_group("import-graph")
 
 
 def test_the_cycle_finder_finds_a_planted_cycle():
