@@ -57,7 +57,7 @@ from metrology.core.codecs.model import Codec, gcps_v1_codec, is_gcps_v1
 from metrology.core.codecs.stack import ExposureStack
 from metrology.core.decode import (
     GcpsV1Options,
-    decode_rows,
+    decode_sampled_rows,
     decode_stack,
     decode_tile,
     default_min_modulation,
@@ -1055,18 +1055,7 @@ def check_gcps_v1_sample(
     rows = sampled_rows(stack.shape[1], pairs=8)
     shape = (rows.size, stack.shape[2])
     fraction, word, modulation = (np.empty(shape, np.float32) for _ in range(3))
-    decode_rows(
-        np.ascontiguousarray(stack[:N_GRAY_BITS, rows]),
-        np.ascontiguousarray(stack[N_GRAY_BITS:, rows]),
-        nlp,
-        min_modulation,
-        0.0,
-        0.0,
-        np.empty(shape, np.float32),
-        modulation_out=modulation,
-        fraction_out=fraction,
-        word_out=word,
-    )
+    decode_sampled_rows(stack, rows, nlp, min_modulation, fraction, word, modulation)
     w = np.float32(width / nlp)
     centre = (word + np.float32(0.5)) * w - np.float32(0.5)
     x = np.where(np.isfinite(fraction), (word + fraction) * w - np.float32(0.5), centre + 2 * w)
