@@ -501,7 +501,7 @@ def decode_tile(
         rows.stop,
         phase_lut,
         quadrant_bounds,
-        np.float32(min_modulation),
+        kernels.min_square(min_modulation),
         np.float32(0.5 + consistency_codes),
         np.float32(nlp / 2),
         np.float32(nlp / 2 - field_margin_codes),

@@ -62,6 +62,17 @@ def phase_tables() -> tuple[np.ndarray, np.ndarray]:
     return phase, bounds
 
 
+@functools.lru_cache(maxsize=16)
+def min_square(min_modulation: float) -> np.int32:
+    """The least ``n = s^2 + c^2`` (``0 .. 2 * 255^2``) whose modulation ``B = sqrt(n)``, float32 as the
+    numpy kernel computes it, reaches ``float32(min_modulation)`` (``2 * 255^2 + 1`` if none): for the
+    integer differences of 8-bit frames ``B >= min_modulation`` is ``n >= min_square`` (a correctly
+    rounded square root does not decrease with ``n``), one integer comparison per pixel."""
+    n = np.arange(2 * 255**2 + 1, dtype=np.float32)
+    reached = np.sqrt(n) >= np.float32(min_modulation)
+    return np.int32(np.argmax(reached) if reached.any() else n.size)
+
+
 @njit(inline="always")
 def binary_word(gray: np.int32) -> np.int32:  # pragma: no cover - compiled
     """The binary word ``l^`` of a 7-bit gray word: the prefix XOR of its bits, MSB first
@@ -136,7 +147,7 @@ def gcps_v1_rows(
     row_stop: int,
     phase_lut: np.ndarray,
     quadrant_bounds: np.ndarray,
-    min_modulation: np.float32,
+    min_square: np.int32,
     max_offset: np.float32,
     half_nlp: np.float32,
     max_centred: np.float32,
@@ -158,9 +169,10 @@ def gcps_v1_rows(
 
     ``stack``: (11, H, W) uint8, C-contiguous, in :data:`~metrology.core.patterns.PATTERN_NAMES`
     order (seven gray-code frames MSB first, four phase frames); ``phase_lut``, ``quadrant_bounds``:
-    :func:`phase_tables`; ``gray_lut`` (256,) float32 gray-code-only code by gray word (the table of
-    :mod:`metrology.core.decode`). The outputs are (H, W) float32, C-contiguous; only their rows
-    ``row_start:row_stop`` are written.
+    :func:`phase_tables`; ``min_square``: :func:`min_square` of ``min_modulation``; ``gray_lut``
+    (256,) float32 gray-code-only code by gray word (the table of :mod:`metrology.core.decode`).
+    The outputs are (H, W) float32, C-contiguous; only their rows ``row_start:row_stop`` are
+    written.
 
     Per pixel: ``4A = I0 + I1 + I2 + I3``, bit ``k`` is ``G_k > floor(4A / 4)``; ``l = l^ + K +
     (2/pi) Phi`` (Eq. 3, ``K``: :func:`dphi_codes`), valid where ``|l - l^ - 0.5| <= max_offset``
@@ -192,11 +204,8 @@ def gcps_v1_rows(
             word = binary[x]
             fraction = _fraction(phases[x], word, quadrant_bounds)
             l = np.float32(word) + fraction
-            modulation = np.float32(math.sqrt(np.float32(squares[x])))
             valid = (
-                (modulation >= min_modulation)
-                & (abs(fraction - half) <= max_offset)
-                & (abs(l - half_nlp) <= max_centred)
+                (squares[x] >= min_square) & (abs(fraction - half) <= max_offset) & (abs(l - half_nlp) <= max_centred)
             )
             l = l if valid else nan
             codes_out[r, x] = l
@@ -208,8 +217,7 @@ def gcps_v1_rows(
                 z_out[r, x] = (num * L_mm) / den
         if want_gray:
             for x in range(width):
-                modulation = np.float32(math.sqrt(np.float32(squares[x])))
-                gray_out[r, x] = gray_lut[words[x]] if modulation >= min_modulation else nan
+                gray_out[r, x] = gray_lut[words[x]] if squares[x] >= min_square else nan
         if want_visibility:
             for x in range(width):
                 visibility_out[r, x] = np.float32(math.sqrt(np.float32(squares[x]))) / np.float32(totals[x])
@@ -255,8 +263,17 @@ def warm() -> None:
     gcps_v1_sample(stack, np.zeros(0, np.intp), phase_lut, quadrant_bounds, f32, f32, f32)
     gcps_v1_rows(
         stack, 0, 0, phase_lut, quadrant_bounds,
-        z, z, z, z, f32, lut_f32, f32, False, f32, False, f32, f32, z, z, z, f32, False,
+        np.int32(0), z, z, z, f32, lut_f32, f32, False, f32, False, f32, f32, z, z, z, f32, False,
     )  # fmt: skip
 
 
-__all__ = ["PHASE_SIDE", "binary_word", "dphi_codes", "gcps_v1_rows", "gcps_v1_sample", "phase_tables", "warm"]
+__all__ = [
+    "PHASE_SIDE",
+    "binary_word",
+    "dphi_codes",
+    "gcps_v1_rows",
+    "gcps_v1_sample",
+    "min_square",
+    "phase_tables",
+    "warm",
+]

@@ -118,6 +118,13 @@ def test_closed_forms_equal_the_numpy_kernels_tables():
     quadrant = cv2.convertScaleAbs(phase, alpha=2 / np.pi, beta=-0.5).ravel()
     np.testing.assert_array_equal((phase[:, None] >= bounds[None, :]).sum(axis=1), quadrant)
     assert set(np.unique(quadrant)) <= {0, 1, 2, 3, 4} and np.all(np.diff(bounds) >= 0)
+    squares = np.arange(2 * 255**2 + 1)
+    modulation = np.sqrt(squares.astype(np.float32))
+    for min_modulation in (0.0, 3.0, 10.0, 10.2, 12.000001, 360.62445, 361.0):
+        n = decode_kernels.min_square(min_modulation)
+        np.testing.assert_array_equal(
+            squares >= n, modulation >= np.float32(min_modulation), err_msg=str(min_modulation)
+        )
 
 
 def test_compiled_sample_of_the_codec_self_check_equals_numpy(monkeypatch):
