@@ -487,7 +487,7 @@ def decode_tile(
         return False
     from metrology.core import decode_kernels as kernels
 
-    phase_lut, quadrant_lut = kernels.phase_tables()
+    phase_lut, quadrant_bounds = kernels.phase_tables()
     empty = np.empty((0, 0), np.float32)
     zero = np.float32(0)
     ref_codes, slope, q, d, L, z = empty, empty, zero, zero, zero, empty
@@ -500,11 +500,8 @@ def decode_tile(
         rows.start,
         rows.stop,
         phase_lut,
-        quadrant_lut,
-        _K_LUT,
-        _ROW8_FROM_GRAY_LUT,
-        _BINARY_FROM_GRAY_F32_LUT,
-        np.float32(min_modulation),
+        quadrant_bounds,
+        kernels.min_square(min_modulation),
         np.float32(0.5 + consistency_codes),
         np.float32(nlp / 2),
         np.float32(nlp / 2 - field_margin_codes),
@@ -523,6 +520,40 @@ def decode_tile(
         with_heights,
     )
     return with_heights
+
+
+def decode_sampled_rows(
+    stack: np.ndarray,
+    rows: np.ndarray,
+    nlp: int,
+    min_modulation: float,
+    fraction_out: np.ndarray,
+    word_out: np.ndarray,
+    modulation_out: np.ndarray,
+) -> None:
+    """:func:`decode_rows`' ``fraction_out``, ``word_out`` and ``modulation_out`` ((n, W) float32) on
+    the rows ``rows`` ((n,) intp) of a gcps-v1 stack (11, H, W): what the codec self-check reads
+    (:func:`metrology.core.measure.check_gcps_v1_sample`). A C-contiguous 8-bit stack takes the
+    compiled kernel where :func:`use_compiled` says so
+    (:func:`metrology.core.decode_kernels.gcps_v1_sample`, the same numbers)."""
+    _, height, width = stack.shape
+    if stack.flags.c_contiguous and use_compiled(stack.dtype, height * width):
+        from metrology.core import decode_kernels as kernels
+
+        kernels.gcps_v1_sample(stack, rows, *kernels.phase_tables(), fraction_out, word_out, modulation_out)
+        return
+    decode_rows(
+        np.ascontiguousarray(stack[:N_GRAY_BITS, rows]),
+        np.ascontiguousarray(stack[N_GRAY_BITS:, rows]),
+        nlp,
+        min_modulation,
+        0.0,
+        0.0,
+        np.empty(fraction_out.shape, np.float32),
+        modulation_out=modulation_out,
+        fraction_out=fraction_out,
+        word_out=word_out,
+    )
 
 
 def set_nan_where_false(values: np.ndarray, keep: np.ndarray, threads: int | None = None) -> None:

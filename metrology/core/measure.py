@@ -37,7 +37,7 @@ both captures then take the codec path (gcps-v1 as its codec), steps 2 and 3 unc
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -57,7 +57,7 @@ from metrology.core.codecs.model import Codec, gcps_v1_codec, is_gcps_v1
 from metrology.core.codecs.stack import ExposureStack
 from metrology.core.decode import (
     GcpsV1Options,
-    decode_rows,
+    decode_sampled_rows,
     decode_stack,
     decode_tile,
     default_min_modulation,
@@ -82,7 +82,7 @@ from metrology.core.geometry.base import (
 )
 from metrology.core.option_checks import check_bool, check_keys, check_positive
 from metrology.core.patterns import N_GRAY_BITS
-from metrology.core.tiling import run_beside, run_tiled, thread_scratch
+from metrology.core.tiling import run_tiled, thread_scratch
 from metrology.core.uncertainty import stage_coordinate_sigma
 
 if TYPE_CHECKING:  # the codec decoder is imported where a codec's stack is decoded: a gcps-v1 measurement never is
@@ -1055,18 +1055,7 @@ def check_gcps_v1_sample(
     rows = sampled_rows(stack.shape[1], pairs=8)
     shape = (rows.size, stack.shape[2])
     fraction, word, modulation = (np.empty(shape, np.float32) for _ in range(3))
-    decode_rows(
-        np.ascontiguousarray(stack[:N_GRAY_BITS, rows]),
-        np.ascontiguousarray(stack[N_GRAY_BITS:, rows]),
-        nlp,
-        min_modulation,
-        0.0,
-        0.0,
-        np.empty(shape, np.float32),
-        modulation_out=modulation,
-        fraction_out=fraction,
-        word_out=word,
-    )
+    decode_sampled_rows(stack, rows, nlp, min_modulation, fraction, word, modulation)
     w = np.float32(width / nlp)
     centre = (word + np.float32(0.5)) * w - np.float32(0.5)
     x = np.where(np.isfinite(fraction), (word + fraction) * w - np.float32(0.5), centre + 2 * w)
@@ -1140,21 +1129,31 @@ def _fused_measure(
     surface = None if reference is None else reference.surface
     blur_variance = 0.0 if reference is None else reference.blur_variance_px2
 
-    def checked_sample() -> tuple[Mapping[str, AxisCheck], float]:
-        start = time.perf_counter()
-        return check_gcps_v1_sample(stack, codec, nlp, filters.min_modulation), time.perf_counter() - start
+    checks: list[Mapping[str, AxisCheck]] = []
 
-    # the self-check (its own 8 row pairs) runs on a pool thread beside the fused pass (inline with one
-    # thread); an inconsistent capture is refused before the filters
-    pending_check = run_beside(checked_sample, threads)
+    def checked_sample() -> None:
+        start = time.perf_counter()
+        checks.append(check_gcps_v1_sample(stack, codec, nlp, filters.min_modulation))
+        timings["codec_check_s"] = time.perf_counter() - start
+
+    # the self-check (its own 8 row pairs) is the fused pass's first task: one thread takes it while
+    # the others start on the tiles; an inconsistent capture is refused before the filters
     start = time.perf_counter()
     correct_blur = blur_variance > 0  # then heights come from the corrected codes
     gray_surface = None if reference is None else reference.gray_surface
     gray_words = options.gray_only and (reference is None or gray_surface is not None)
     fused = _fused_pass(
-        prepared, nlp, surface, stack, options, threads, triangulate=not correct_blur, gray_words=gray_words
+        prepared,
+        nlp,
+        surface,
+        stack,
+        options,
+        threads,
+        triangulate=not correct_blur,
+        gray_words=gray_words,
+        first=checked_sample,
     )
-    codec_check, timings["codec_check_s"] = pending_check()
+    codec_check = checks[0]
     refuse_inconsistent(codec_check, options)
     z_mm, codes, visibility, gray_codes = fused.z_mm, fused.codes, fused.visibility, fused.gray_codes
     del fused  # the visibility map goes once the mixed-pixel filter has read it
@@ -1226,9 +1225,11 @@ def _fused_pass(
     *,
     triangulate: bool,
     gray_words: bool,
+    first: Callable[[], object] | None = None,
 ) -> _FusedPass:
     """Decode the object tile by tile (the fast path), triangulating against ``surface`` in the
-    same pass when ``triangulate``, and keeping the gray-code-only codes when ``gray_words``."""
+    same pass when ``triangulate``, and keeping the gray-code-only codes when ``gray_words``;
+    ``first``: a task run before the tiles, on one of the pass's threads (:func:`run_tiled`)."""
     filters, gcps = options.filters, options.gcps_v1
     _, height, width = stack.shape
     phase = stack[N_GRAY_BITS:]
@@ -1266,7 +1267,7 @@ def _fused_pass(
         if z_mm is not None and not done:
             prepared.triangulate_rows(rows, codes[rows], None, reference=surface, height_out=z_mm[rows])
 
-    run_tiled(run, height, width, threads)
+    run_tiled(run, height, width, threads, first=first)
     return _FusedPass(codes=codes, z_mm=z_mm, visibility=visibility, gray_codes=gray_codes)
 
 

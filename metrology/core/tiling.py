@@ -9,6 +9,7 @@ page fault.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import threading
@@ -49,12 +50,26 @@ def row_tiles(height: int, width: int, tile_px: int | None = None) -> list[slice
 
 
 def run_tiled(
-    run: Callable[[slice], object], height: int, width: int, threads: int | None = None, tile_px: int | None = None
+    run: Callable[[slice], object],
+    height: int,
+    width: int,
+    threads: int | None = None,
+    tile_px: int | None = None,
+    *,
+    first: Callable[[], object] | None = None,
 ) -> None:
     """Call ``run(rows)`` for every row tile of an ``(height, width)`` image, on ``threads`` threads.
 
     With several threads, tiles shrink (down to :data:`MIN_TILE_PX`) until there are at least
-    two per thread, so that no thread is left with a long last tile.
+    two per thread, so that no thread is left with a long last tile; the caller works too, beside
+    the ``threads - 1`` threads of a pool kept for this (so that ``threads`` threads hold the
+    tiles' scratch arrays), each taking the next task until none is left. A helper
+    that has not started by then is withdrawn: a core that wakes slowly, or is busy with another
+    process, delays nothing (the call then takes what one thread takes).
+
+    ``first``: one more task, taken before the tiles (the fused path's codec self-check, which then
+    runs on one thread while the others start on the tiles). After a task raises, no other task
+    starts; the exception is raised here.
     """
     n_threads = threads if threads is not None else DEFAULT_THREADS
     if n_threads < 1:
@@ -62,12 +77,42 @@ def run_tiled(
     tile_px = DEFAULT_TILE_PX if tile_px is None else tile_px
     if n_threads > 1:
         tile_px = max(MIN_TILE_PX, min(tile_px, math.ceil(height * width / (2 * n_threads))))
-    tiles = row_tiles(height, width, tile_px)
-    if n_threads == 1 or len(tiles) == 1:
-        for rows in tiles:
-            run(rows)
+    tasks: list[Callable[[], object]] = [] if first is None else [first]
+    tasks += [functools.partial(run, rows) for rows in row_tiles(height, width, tile_px)]
+    n_helpers = min(n_threads, len(tasks)) - 1
+    if n_helpers == 0:
+        for task in tasks:
+            task()
         return
-    list(_thread_pool(n_threads).map(run, tiles))
+    lock = threading.Lock()
+    taken = 0
+
+    def work() -> None:
+        nonlocal taken
+        while True:
+            with lock:
+                if taken == len(tasks):
+                    return
+                task = tasks[taken]
+                taken += 1
+            try:
+                task()
+            except BaseException:
+                with lock:
+                    taken = len(tasks)
+                raise
+
+    # a pool of threads - 1 for the helpers: with the caller, threads threads ever hold tile scratch
+    helpers = [_thread_pool(n_threads - 1).submit(work) for _ in range(n_helpers)]
+    in_tiles = getattr(_local, "in_tiles", False)
+    _local.in_tiles = True  # the caller's tiles see nested_threads as the pool's do
+    try:
+        work()
+    finally:
+        _local.in_tiles = in_tiles
+        for helper in helpers:
+            if not helper.cancel():
+                helper.result()
 
 
 def map_threads(func: Callable[[U], T], items: Sequence[U], threads: int | None = None) -> list[T]:
@@ -96,9 +141,11 @@ def run_beside(func: Callable[[], T], threads: int | None = None) -> Callable[[]
 
 def nested_threads(threads: int | None = None) -> int | None:
     """``threads`` for a call of :func:`run_tiled` or :func:`map_threads` that may itself run on
-    one of the pool's threads: 1 there (a nested call on the same pool would wait for workers
-    that are all busy), ``threads`` elsewhere."""
-    return 1 if threading.current_thread().name.startswith(_THREAD_PREFIX) else threads
+    one of the pool's threads, or in a tile the caller of :func:`run_tiled` runs: 1 there (a nested
+    call on the same pool would wait for workers that are all busy), ``threads`` elsewhere."""
+    if getattr(_local, "in_tiles", False) or threading.current_thread().name.startswith(_THREAD_PREFIX):
+        return 1
+    return threads
 
 
 _THREAD_PREFIX = "gcps-tile"

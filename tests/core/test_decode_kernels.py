@@ -1,14 +1,18 @@
 """The compiled gcps-v1 kernel (metrology.core.decode_kernels) against the numpy kernel: the same
 float32 numbers, bit for bit, on every 8-bit pair of phase differences and through measure()."""
 
+import cv2
 import numpy as np
 import pytest
 
 from metrology.core import decode as decode_module
-from metrology.core.decode import decode_tile, use_compiled
+from metrology.core import decode_kernels
+from metrology.core.codecs.check import sampled_rows
+from metrology.core.decode import decode_sampled_rows, decode_tile, use_compiled
 from metrology.core.filters import FilterOptions
 from metrology.core.geometry.crossed_axes import Rig
-from metrology.core.measure import MeasureOptions, measure, prepare_reference
+from metrology.core.measure import MeasureOptions, check_gcps_v1_sample, measure, prepare_reference
+from metrology.core.patterns import binary_from_gray
 from tests.core.ideal_stacks import RIG, ideal_stack, plane_codes
 
 OUTPUTS = ("codes", "gray_codes", "visibility", "z_mm")
@@ -98,3 +102,45 @@ def test_use_compiled_is_for_8_bit_stacks_only(monkeypatch):
     assert not use_compiled(np.uint16, 100) and use_compiled(np.uint8, 100)
     monkeypatch.setattr(decode_module, "COMPILED", None)
     assert use_compiled(np.uint8, decode_module.COMPILED_MIN_PX)
+
+
+def test_closed_forms_equal_the_numpy_kernels_tables():
+    """dPhi, the binary word and the quadrant, computed in the compiled kernel, against the tables and
+    the OpenCV rounding of the numpy kernel, entry for entry."""
+    for row in range(4):
+        for quadrant in range(5):
+            expected = decode_module._K_LUT[8 * row + quadrant]
+            got = decode_kernels.dphi_codes(np.int32(quadrant), np.int32(row))
+            assert (np.isnan(got) and np.isnan(expected)) or np.float32(got) == expected, (row, quadrant)
+    words = np.arange(128)
+    assert [decode_kernels.binary_word(np.int32(g)) for g in words] == binary_from_gray(words).tolist()
+    phase, bounds = decode_kernels.phase_tables()
+    quadrant = cv2.convertScaleAbs(phase, alpha=2 / np.pi, beta=-0.5).ravel()
+    np.testing.assert_array_equal((phase[:, None] >= bounds[None, :]).sum(axis=1), quadrant)
+    assert set(np.unique(quadrant)) <= {0, 1, 2, 3, 4} and np.all(np.diff(bounds) >= 0)
+    squares = np.arange(2 * 255**2 + 1)
+    modulation = np.sqrt(squares.astype(np.float32))
+    for min_modulation in (0.0, 3.0, 10.0, 10.2, 12.000001, 360.62445, 361.0):
+        n = decode_kernels.min_square(min_modulation)
+        np.testing.assert_array_equal(
+            squares >= n, modulation >= np.float32(min_modulation), err_msg=str(min_modulation)
+        )
+
+
+def test_compiled_sample_of_the_codec_self_check_equals_numpy(monkeypatch):
+    stack = every_difference_stack()
+    rows = sampled_rows(stack.shape[1], pairs=8)
+    outputs = {}
+    for compiled in (False, True):
+        monkeypatch.setattr(decode_module, "COMPILED", compiled)
+        outputs[compiled] = [np.full((rows.size, stack.shape[2]), -7.0, np.float32) for _ in range(3)]
+        decode_sampled_rows(stack, rows, 128, 10.2, *outputs[compiled])
+    for name, a, b in zip(("fraction", "word", "modulation"), outputs[False], outputs[True], strict=True):
+        np.testing.assert_array_equal(b, a, err_msg=name)
+    assert np.isnan(outputs[True][0]).any() and np.isfinite(outputs[True][0]).any()
+    ideal = ideal_stack(plane_codes(RIG, 10.0), bits=8, noise=1.5, seed=3)
+    checks = {}
+    for compiled in (False, True):
+        monkeypatch.setattr(decode_module, "COMPILED", compiled)
+        checks[compiled] = check_gcps_v1_sample(ideal, None, RIG.nlp)["u"]
+    assert checks[True] == checks[False] and checks[True].status == "consistent"

@@ -2,6 +2,7 @@
 
 import itertools
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ from metrology.core.allocation import retain_freed_memory
 from metrology.core.tiling import (
     MIN_TILE_PX,
     Scratch,
+    _thread_pool,
     map_threads,
     nested_threads,
     row_tiles,
@@ -40,7 +42,9 @@ def test_run_tiled_splits_for_every_thread_and_reuses_its_threads():
     for _ in range(5):
         run_tiled(run, 512, 512, threads=2)
     names = {name for _, name in seen}
-    assert len(names) <= 2 and all(name.startswith("gcps-tile") for name in names)  # one pool, kept
+    caller = threading.current_thread().name
+    pool_threads = names - {caller}  # the caller takes tiles too, beside one thread of the pool (if it starts in time)
+    assert len(pool_threads) <= 1 and all(name.startswith("gcps-tile") for name in pool_threads)  # one pool, kept
     seen.clear()
     run_tiled(run, 64, 64, threads=2)  # smaller than MIN_TILE_PX: one tile, run in the caller
     assert [r for r, _ in seen] == [slice(0, 64)] and MIN_TILE_PX > 64 * 64
@@ -77,3 +81,46 @@ def test_retain_freed_memory_applies_on_glibc():
 def test_nested_threads_is_one_on_a_thread_of_the_pool():
     assert nested_threads(3) == 3 and nested_threads() is None
     assert map_threads(lambda threads: nested_threads(threads), [2, None], threads=2) == [1, 1]
+
+
+def test_run_tiled_runs_first_once_before_the_tiles_and_withdraws_unstarted_helpers():
+    order: list[object] = []
+    lock = threading.Lock()
+
+    def run(rows: slice) -> None:
+        with lock:
+            order.append(rows.start)
+
+    run_tiled(run, 512, 512, threads=2, first=lambda: order.append("first"))
+    assert order.count("first") == 1 and sorted(r for r in order if r != "first") == [0, 128, 256, 384]  # type: ignore[type-var]
+    order.clear()
+    run_tiled(run, 512, 512, threads=1, first=lambda: order.append("first"))
+    assert order == ["first", 0, 256]  # one thread: in order, tiles of DEFAULT_TILE_PX
+    # with the helpers' pool busy, the caller takes every tile and does not wait for a helper
+    release = threading.Event()
+    busy = _thread_pool(1).submit(release.wait, 10)  # the pool of threads=2's one helper
+    order.clear()
+    run_tiled(run, 512, 512, threads=2)
+    assert sorted(order) == [0, 128, 256, 384] and not busy.done()  # type: ignore[type-var]
+    release.set()
+    busy.result()
+
+
+def test_a_tile_that_raises_stops_the_others_and_raises_in_the_caller():
+    started: list[int] = []
+
+    def run(rows: slice) -> None:
+        started.append(rows.start)
+        if rows.start == 0:
+            raise RuntimeError("tile 0")
+        time.sleep(0.002)
+
+    with pytest.raises(RuntimeError, match="tile 0"):
+        run_tiled(run, 4096, 512, threads=2, first=lambda: None)  # 16 tiles of 256 rows
+    assert 0 in started and len(started) < 16  # the tiles not started by then never start
+
+
+def test_nested_threads_is_one_in_the_callers_tiles():
+    seen: list[int | None] = []
+    run_tiled(lambda rows: seen.append(nested_threads(2)), 512, 512, threads=2)
+    assert seen == [1, 1, 1, 1] and nested_threads(2) == 2

@@ -221,22 +221,23 @@ def _jumps(top: _Rows, vertical: tuple[_Rows, _Rows] | None, jump: float) -> tup
 
 def _median(values: np.ndarray) -> float:
     """``np.median`` of a non-empty 1-D float32 array (the mean of its two middle values in float32),
-    by a sort (several times faster than numpy's selection on arrays of ~10^4 values)."""
-    ordered = np.sort(values)
-    n = ordered.size
+    by a partition at those two places (the same values as a full sort, about twice as fast on
+    ~10^4 values on the reference VM)."""
+    n = values.size
+    ordered = np.partition(values, [(n - 1) // 2, n // 2])
     return float((ordered[(n - 1) // 2] + ordered[n // 2]) / np.float32(2))
 
 
-def _sorted_quantiles(ordered: np.ndarray, quantiles: tuple[float, ...]) -> list[float]:
-    """Quantiles of a sorted non-empty 1-D array by numpy's default (``linear``) method:
-    ``q (n - 1)`` interpolated between its neighbours, in float64."""
-    n = ordered.size
+def _quantiles(values: np.ndarray, quantiles: tuple[float, ...]) -> list[float]:
+    """Quantiles of a non-empty 1-D array by numpy's default (``linear``) method: ``q (n - 1)``
+    interpolated between its neighbours, in float64, from one partition at the places read (the
+    values of a full sort)."""
+    n = values.size
+    places = [(math.floor(q * (n - 1)), min(math.floor(q * (n - 1)) + 1, n - 1)) for q in quantiles]
+    ordered = np.partition(values, sorted({i for pair in places for i in pair}))
     out = []
-    for q in quantiles:
-        position = q * (n - 1)
-        below = math.floor(position)
-        above = min(below + 1, n - 1)
-        t = position - below
+    for q, (below, above) in zip(quantiles, places, strict=True):
+        t = q * (n - 1) - below
         a, b = float(ordered[below]), float(ordered[above])
         out.append(b - (b - a) * (1 - t) if t >= 0.5 else a + (b - a) * t)
     return out
@@ -314,10 +315,10 @@ def _statistics(
     t *= np.float32(1 / word)
     t -= np.float32(0.5)
     word_index = np.rint(t, out=t)  # float32, exact small integers
-    # the quantiles from an even subsample of at most ~10,000 pixels, sorted once
+    # the quantiles from an even subsample of at most ~10,000 pixels, partitioned once
     every = max(1, math.ceil(d.size / DISTRIBUTION_PIXELS))
     ds, ns = d[::every], word_index[::every].astype(np.intp)
-    q25, median, q75 = _sorted_quantiles(np.sort(ds), (0.25, 0.5, 0.75))
+    q25, median, q75 = _quantiles(ds, (0.25, 0.5, 0.75))
     offset = median
     odd = ((ns ^ (ns >> 1)) & 1).astype(bool)  # the least significant digit of the word's gray code
     digit_offsets = tuple(_median(part) if part.size else None for part in (ds[~odd], ds[odd]))
