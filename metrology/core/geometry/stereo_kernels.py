@@ -183,7 +183,35 @@ def suffix_min(row: np.ndarray, w: int, out: np.ndarray) -> None:  # pragma: no 
         out[c] = low
 
 
-@njit(nogil=True, cache=True)
+@njit(nogil=True, cache=True, error_model="numpy", inline="always")  # inlined: run_positions' loop overlaps it
+def _run_position(
+    before: float, a: float, b: float, after: float, q: float
+) -> tuple[float, float]:  # pragma: no cover - compiled
+    """:func:`run_position`'s arithmetic, without a branch (inlined: its callers take numpy's error model,
+    a division by zero of a discarded case giving inf or NaN instead of raising)."""
+    lin = (q - a) / (b - a)
+    step = b - a
+    d0 = before - 2.0 * a + b
+    d1 = a - 2.0 * b + after
+    has_before = before < a and abs(d0) < step
+    has_after = after > b and abs(d1) < step
+    both = has_before and has_after
+    # the arithmetic runs whatever the case and the case selects the result at the end: no branch,
+    # so a loop over many segments (run_positions) overlaps them instead of waiting on each division
+    c3 = (d1 - d0) / 6.0 if both else 0.0
+    c2 = (0.5 * d0 + c3) if both else (0.5 * d0 if has_before else 0.5 * d1)
+    ok = has_before or has_after
+    s = lin
+    for _ in range(3):
+        slope = (b - a) + (2.0 * s - 1.0) * (c2 + c3 * s) + s * (s - 1.0) * c3
+        ok = ok and slope > 0
+        s -= (a + s * (b - a) + s * (s - 1.0) * (c2 + c3 * s) - q) / slope
+    slope = (b - a) + (2.0 * s - 1.0) * (c2 + c3 * s) + s * (s - 1.0) * c3
+    ok = ok and s >= 0.0 and s < 1.0 and slope > 0
+    return (s, slope) if ok else (lin, step)
+
+
+@njit(nogil=True, cache=True, error_model="numpy")
 def run_position(
     before: float, a: float, b: float, after: float, q: float
 ) -> tuple[float, float]:  # pragma: no cover - compiled
@@ -206,33 +234,28 @@ def run_position(
     ``q`` (no pixel locking). An outer sample whose second difference is not below the segment's
     step (``|D| >= b - a``: no smooth function sampled finely, e.g. a jump at a fringe's edge) is
     not used."""
-    lin = (q - a) / (b - a)
-    step = b - a
-    has_before = before < a and abs(before - 2.0 * a + b) < step
-    has_after = after > b and abs(a - 2.0 * b + after) < step
-    if not (has_before or has_after):
-        return lin, b - a
-    c3 = 0.0
-    if has_before and has_after:
-        c3 = ((a - 2.0 * b + after) - (before - 2.0 * a + b)) / 6.0
-        c2 = 0.5 * (before - 2.0 * a + b) + c3
-    elif has_before:
-        c2 = 0.5 * (before - 2.0 * a + b)
-    else:
-        c2 = 0.5 * (a - 2.0 * b + after)
-    s = lin
-    for _ in range(3):
-        slope = (b - a) + (2.0 * s - 1.0) * (c2 + c3 * s) + s * (s - 1.0) * c3
-        if not slope > 0:
-            return lin, b - a
-        s -= (a + s * (b - a) + s * (s - 1.0) * (c2 + c3 * s) - q) / slope
-    slope = (b - a) + (2.0 * s - 1.0) * (c2 + c3 * s) + s * (s - 1.0) * c3
-    if not (s >= 0.0 and s < 1.0 and slope > 0):
-        return lin, b - a
-    return s, slope
+    return _run_position(before, a, b, after, q)
 
 
-@njit(nogil=True, cache=True, inline="always")  # inlined in match_tile's loop: as a call it cost that kernel 30 %
+@njit(nogil=True, cache=True, error_model="numpy")
+def run_positions(
+    before: np.ndarray,
+    a: np.ndarray,
+    b: np.ndarray,
+    after: np.ndarray,
+    q: np.ndarray,
+    n: int,
+    s_out: np.ndarray,
+    slope_out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """:func:`run_position` of the first ``n`` segments of the float64 arrays ``before, a, b, after,
+    q`` into ``s_out``, ``slope_out``: a loop without branches, whose iterations the processor
+    overlaps (each alone waits on a chain of four divisions)."""
+    for k in range(n):
+        s_out[k], slope_out[k] = _run_position(before[k], a[k], b[k], after[k], q[k])
+
+
+@njit(nogil=True, cache=True, inline="always")
 def _segment_position(
     row1: np.ndarray, min1: np.ndarray, w1: int, p: int, q: float
 ) -> tuple[float, float]:  # pragma: no cover
@@ -253,7 +276,11 @@ def _segment_position(
     return p + s, slope
 
 
-@njit(nogil=True, cache=True)
+MATCH_SCRATCH_ROWS = 13
+"""Rows of :func:`match_tile`'s float64 scratch: four row buffers and nine of the segments found."""
+
+
+@njit(nogil=True, cache=True, error_model="numpy")
 def match_tile(
     u0: np.ndarray,
     u1: np.ndarray,
@@ -279,23 +306,39 @@ def match_tile(
     ``u1(x - 1) .. u1(x + 2)`` inside a monotone run, linear at its ends) (``x1_out``), the
     polynomial's slope there (``slope_out``, projector units per px) and the normalized disparity
     ``x1 inv_f - offset - x0n[j]`` (``d_out``), all (n, W0) float32, NaN where not matched.
-    ``scratch``: (4, max(W0, W1)) float64."""
+    ``scratch``: (:data:`MATCH_SCRATCH_ROWS`, max(W0, W1)) float64.
+
+    A row's walk collects its segments first and solves them afterwards in one loop
+    (:func:`run_positions`): solved one by one between the walk's steps, they took two thirds of the
+    kernel's time."""
     n, w0 = u0.shape
     w1 = u1.shape[1]
     inf = np.inf
     row0, row1, rmin0, rmin1 = scratch[0], scratch[1], scratch[2], scratch[3]
+    # the segments of a row: camera-0 column, camera-1 column p, u1(p - 1 .. p + 2), q; s and slope
+    at0, at1, before, a, b, after, value = (
+        scratch[4],
+        scratch[5],
+        scratch[6],
+        scratch[7],
+        scratch[8],
+        scratch[9],
+        scratch[10],
+    )
+    s, slope = scratch[11], scratch[12]
     for r in range(n):
         clean_row(u0[r], lo, hi, row0)
         clean_row(u1[r], lo, hi, row1)
         suffix_min(row1, w1, rmin1)
         suffix_min(row0, w0, rmin0)
+        x1_out[r] = np.nan
+        slope_out[r] = np.nan
+        d_out[r] = np.nan
         left = -inf  # the maximum decoded camera-0 value left of j
         p = -1  # the last column of camera 1 whose running maximum is at most q
         key = -inf  # camera 1's running maximum up to p (lo for undecoded values)
+        found = 0
         for j in range(w0):
-            x1_out[r, j] = np.nan
-            slope_out[r, j] = np.nan
-            d_out[r, j] = np.nan
             q = row0[j]
             if math.isnan(q):
                 continue
@@ -310,11 +353,27 @@ def match_tile(
                     break
                 key = candidate
                 p += 1
-            x1, slope = _segment_position(row1, rmin1, w1, p, q)
-            if not math.isnan(x1):
-                x1_out[r, j] = x1
-                slope_out[r, j] = slope
-                d_out[r, j] = x1 * inv_f - offset - x0n[j]
+            # _segment_position's rules, the position left for run_positions
+            if p < 0 or p > w1 - 2:
+                continue
+            beyond = rmin1[p + 2] if p + 2 < w1 else inf
+            if not (row1[p] <= q and q < row1[p + 1] and beyond > q):
+                continue
+            at0[found] = j
+            at1[found] = p
+            before[found] = row1[p - 1] if p >= 1 else np.nan
+            a[found] = row1[p]
+            b[found] = row1[p + 1]
+            after[found] = row1[p + 2] if p + 2 < w1 else np.nan
+            value[found] = q
+            found += 1
+        run_positions(before, a, b, after, value, found, s, slope)
+        for k in range(found):
+            j = int(at0[k])
+            x1 = at1[k] + s[k]
+            x1_out[r, j] = x1
+            slope_out[r, j] = slope[k]
+            d_out[r, j] = x1 * inv_f - offset - x0n[j]
 
 
 @njit(nogil=True, cache=True)

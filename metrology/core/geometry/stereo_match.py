@@ -95,6 +95,7 @@ from metrology.core.geometry.pinhole import (
 )
 from metrology.core.geometry.stereo_fusion import PAIR_CAMERAS, PairFusion
 from metrology.core.geometry.stereo_kernels import (
+    MATCH_SCRATCH_ROWS,
     SAMPLE_STRICT,
     SAMPLE_TRIANGLE,
     depth_tile,
@@ -352,7 +353,7 @@ def match_rows(u0: np.ndarray, u1: np.ndarray, lo: float, hi: float) -> Matched:
     """
     n, w0 = u0.shape
     x1, slope, d = (np.empty((n, w0), np.float32) for _ in range(3))
-    scratch = np.empty((4, max(w0, u1.shape[1])), np.float64)
+    scratch = np.empty((MATCH_SCRATCH_ROWS, max(w0, u1.shape[1])), np.float64)
     u0 = np.ascontiguousarray(u0, dtype=np.float32)
     u1 = np.ascontiguousarray(u1, dtype=np.float32)
     match_tile(u0, u1, float(lo), float(hi), np.zeros(w0, np.float32), 1.0, 0.0, x1, slope, d, scratch)
@@ -466,7 +467,7 @@ class PreparedStereo(PreparedGeometry):
         width = max(cols0, rect.shapes[1][1])
 
         def run(tile: slice) -> None:
-            scratch = thread_scratch().get("stereo-match", (4, width), np.float64)
+            scratch = thread_scratch().get("stereo-match", (MATCH_SCRATCH_ROWS, width), np.float64)
             match_tile(
                 u0r[tile], u1r[tile], lo, hi, self._x0n, inv_f, offset, x1[tile], step[tile], disparity[tile], scratch
             )
