@@ -540,6 +540,41 @@ def fuse_tile(
 
 
 @njit(nogil=True, cache=True)
+def direct_candidates(
+    u0: np.ndarray,
+    out: np.ndarray,
+    corner: np.ndarray,
+    width: int,
+    u0r: np.ndarray,
+    disparity: np.ndarray,
+    index_out: np.ndarray,
+) -> int:  # pragma: no cover - compiled
+    """The camera-0 pixels to match directly (:meth:`PreparedStereo._match_direct
+    <metrology.core.geometry.stereo_match.PreparedStereo._match_direct>`), in one pass: sets ``out``
+    (the disparity sampled back, (H W,) float32) NaN where camera 0's ``u0`` ((H W,) float32) is NaN,
+    and writes to ``index_out`` ((H W,) intp) the flat indices of the decoded pixels left NaN in
+    ``out`` whose four rectified samples (top-left flat index ``corner`` (H W,) int32 in the
+    rectified grid of ``width`` columns) include one camera 0 did not decode (``u0r`` NaN) or one
+    camera 1 matched (``disparity`` finite; both flat rectified maps, float32), in increasing
+    order. Returns how many."""
+    found = 0
+    for k in range(u0.shape[0]):
+        if math.isnan(u0[k]):
+            out[k] = np.nan
+            continue
+        if not math.isnan(out[k]):
+            continue
+        c = np.intp(corner[k])
+        lacking = False
+        for at in (c, c + 1, c + width, c + width + 1):
+            lacking = lacking or math.isnan(u0r[at]) or math.isfinite(disparity[at])
+        if lacking:
+            index_out[found] = k
+            found += 1
+    return found
+
+
+@njit(nogil=True, cache=True)
 def _prefix_max(row: np.ndarray, w: int, lo: float, out: np.ndarray) -> None:  # pragma: no cover - compiled
     """``out[c]`` = the maximum of ``row[:c + 1]`` counting a NaN as ``lo`` (the key of
     :func:`match_tile`'s merge walk)."""

@@ -99,6 +99,7 @@ from metrology.core.geometry.stereo_kernels import (
     SAMPLE_STRICT,
     SAMPLE_TRIANGLE,
     depth_tile,
+    direct_candidates,
     match_pixels,
     match_tile,
     sample_tile,
@@ -539,18 +540,14 @@ class PreparedStereo(PreparedGeometry):
         pixel's decoded value (times ``sign``) along its own epipolar line, between camera 1's
         rectified rows around it (:func:`~metrology.core.geometry.stereo_kernels.match_pixels`). Sets
         ``out`` NaN where camera 0 did not decode."""
-        undecoded = np.isnan(u0)
-        out[undecoded] = np.nan
-        index = np.flatnonzero(np.isnan(out) & ~undecoded)
         # only where the chain lacked a neighbour: among the four rectified samples the pixel is sampled
         # back from, one camera 0 did not decode or one camera 1 matched (not where all four were
         # decoded and camera 1 matched none: outside its view)
-        corner = self.back.index.ravel()[index]
-        cols = self.back.width
-        lacking = np.zeros(index.size, bool)
-        for offset in (0, 1, cols, cols + 1):
-            lacking |= np.isnan(u0r.ravel()[corner + offset]) | np.isfinite(disparity.ravel()[corner + offset])
-        index = index[lacking]
+        index = np.empty(out.size, np.intp)
+        found = direct_candidates(
+            u0.ravel(), out.ravel(), self.back.index.ravel(), self.back.width, u0r.ravel(), disparity.ravel(), index
+        )
+        index = index[:found]
         rect = self.rect
         y = self.y0r.ravel()[index] * rect.f + rect.cy
         order = np.argsort(np.floor(y), kind="stable")
