@@ -419,6 +419,22 @@ class PreparedStereo(PreparedGeometry):
         run_tiled(lambda rows: sampler.sample(image, rows, out[rows], True), *out.shape, threads)
         return out
 
+    def rectify_both(
+        self, image0: np.ndarray, image1: np.ndarray, threads: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`rectify` of camera 0's ``image0`` and camera 1's ``image1`` in one pass of tiles (the
+        two grids share their rows: each tile samples the same rows of both, and the threads wait for
+        one another once)."""
+        images = [np.ascontiguousarray(image, dtype=np.float32) for image in (image0, image1)]
+        out = [np.empty(shape, np.float32) for shape in self.rect.shapes]
+
+        def run(rows: slice) -> None:
+            for sampler, image, rectified in zip(self.forward, images, out, strict=True):
+                sampler.sample(image, rows, rectified[rows], True)
+
+        run_tiled(run, self.rect.shapes[0][0], self.rect.shapes[0][1] + self.rect.shapes[1][1], threads)
+        return out[0], out[1]
+
     def combine(
         self,
         coordinates: Sequence[Mapping[str, np.ndarray | None]],
@@ -447,7 +463,7 @@ class PreparedStereo(PreparedGeometry):
             :data:`~metrology.core.geometry.stereo_fusion.PAIR_CAMERAS` ...).
         """
         (u0,), (u1,) = self._maps(coordinates, (self.axis,))
-        u0r, u1r = self.rectify(0, u0, threads), self.rectify(1, u1, threads)
+        u0r, u1r = self.rectify_both(u0, u1, threads)
         proj = self.rig.projector
         size = proj.width if self.axis == "u" else proj.height
         lo, hi = -2.0, size + 1.0  # every decoded coordinate (the codec's field and its margin)
@@ -722,8 +738,7 @@ class PreparedStereo(PreparedGeometry):
             sigma_x1 = np.full(x1.shape, math.sqrt(2.0), np.float32)
             sigma_direct = np.hypot(np.float32(1.0), self._camera1_gain(direct))
         else:
-            s0 = self.rectify(0, sigma0, threads)
-            s1 = self.rectify(1, sigma1, threads)
+            s0, s1 = self.rectify_both(sigma0, sigma1, threads)
             rows, cols1 = rect.shapes[1]
             at = np.where(hit, np.clip(np.rint(x1), 0, cols1 - 1), 0).astype(np.intp)
             at += (np.arange(rows, dtype=np.intp) * cols1)[:, None]
@@ -992,7 +1007,9 @@ def _noise_maps(sigma: Sequence[np.ndarray | None] | None) -> tuple[np.ndarray, 
 
 def _camera_pair(d: np.ndarray, sigma: np.ndarray | None) -> CombinedMaps:
     """The camera pair's disparity (and its sigma) alone, its pairs map bit 0 where it matched."""
-    pairs = np.where(np.isfinite(d), np.uint8(PAIR_CAMERAS), np.uint8(0))
+    finite = np.isfinite(d)
+    # a bool is stored as the byte 1: the camera pair's bit as it is, without another pass
+    pairs = finite.view(np.uint8) if PAIR_CAMERAS == 1 else np.where(finite, np.uint8(PAIR_CAMERAS), np.uint8(0))
     return CombinedMaps(u=d, v=None, sigma=sigma, pairs=pairs)
 
 
