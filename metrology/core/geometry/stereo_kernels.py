@@ -83,6 +83,7 @@ def sample_tile(
     out: np.ndarray,
     curvature: bool,
     fallback: int,
+    where: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """``out[r, c]`` = the ``(h, w)`` float32 ``image`` sampled bilinearly at the positions of
     ``index`` (flat index of the top-left neighbour, ``(n, m)`` int32; ``inner`` (``(n, m)`` uint8)
@@ -103,13 +104,20 @@ def sample_tile(
 
     Where a neighbour is NaN the sample is NaN with ``fallback`` :data:`SAMPLE_STRICT`; with
     :data:`SAMPLE_TRIANGLE` and one neighbour NaN, the plane through the other three
-    (:func:`_sample_triangle`)."""
+    (:func:`_sample_triangle`).
+
+    ``where`` ((n, m) float32) samples only where it is not NaN (NaN elsewhere: the disparity sampled
+    back where camera 0 decoded); an empty ``(0, 0)`` array samples everywhere."""
     w = image.shape[1]
     h = image.shape[0]
     flat = image.ravel()
     n, m = index.shape
+    everywhere = where.shape[0] == 0
     for r in range(n):
         for c in range(m):
+            if not everywhere and math.isnan(where[r, c]):
+                out[r, c] = np.nan
+                continue
             i = index[r, c]
             fx = np.float64(wx[r, c])
             fy = np.float64(wy[r, c])
@@ -374,6 +382,22 @@ def match_tile(
             x1_out[r, j] = x1
             slope_out[r, j] = slope[k]
             d_out[r, j] = x1 * inv_f - offset - x0n[j]
+
+
+@njit(nogil=True, cache=True)
+def row_steps(u: np.ndarray, stride: int) -> tuple[int, int]:  # pragma: no cover - compiled
+    """Of the steps ``u[r, j + 1] - u[r, j]`` (float32, as ``np.diff``) of every ``stride``-th row of the
+    ``(n, m)`` float32 ``u``: how many are negative and how many finite."""
+    falling = 0
+    finite = 0
+    n, m = u.shape
+    for r in range(0, n, stride):
+        for j in range(m - 1):
+            step = u[r, j + 1] - u[r, j]
+            if math.isfinite(step):
+                finite += 1
+                falling += step < 0
+    return falling, finite
 
 
 @njit(nogil=True, cache=True)

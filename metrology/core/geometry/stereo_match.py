@@ -102,6 +102,7 @@ from metrology.core.geometry.stereo_kernels import (
     direct_candidates,
     match_pixels,
     match_tile,
+    row_steps,
     sample_tile,
 )
 from metrology.core.tiling import run_tiled, thread_scratch
@@ -115,6 +116,10 @@ NOISE_GAIN_WINDOW_PX = 15
 """Side of the box that averages :meth:`PreparedStereo.noise_gain`'s squared samples, px."""
 MIN_HORIZONTAL = 0.9
 """Smallest ``|(R_1 T)_x| / |T|`` accepted: the cameras must sit side by side (rows are epipolar lines)."""
+
+
+_EVERYWHERE = np.empty((0, 0), np.float32)
+"""``where`` of :func:`~metrology.core.geometry.stereo_kernels.sample_tile` that samples every position."""
 
 
 @dataclass(frozen=True)
@@ -166,10 +171,12 @@ class Bilinear:
         rows: slice | None = None,
         out: np.ndarray | None = None,
         curvature: bool = False,
+        where: np.ndarray | None = None,
     ) -> np.ndarray:
         """``image`` (float32 ``(h, w)``, the map) at the positions (of ``rows`` of them), float32; NaN
-        where the position is outside, and where a neighbour is NaN unless :attr:`fallback` finds the
-        value from the others. With ``curvature`` the parabolic terms
+        where the position is outside, where ``where`` (float32, the positions' shape) is NaN, and where
+        a neighbour is NaN unless :attr:`fallback` finds the value from the others. With ``curvature``
+        the parabolic terms
         are added, ``-(wx (1 - wx) c_xx + wy (1 - wy) c_yy) / 2`` with ``c_xx``, ``c_yy`` the second
         differences along the row and the column averaged over the cell's two sides, one-sided where
         a neighbour beyond the cell is missing (exact for a quadratic map; each term left out only
@@ -182,7 +189,8 @@ class Bilinear:
             out = np.empty(shape, np.float32)
         image = np.ascontiguousarray(image, dtype=np.float32).reshape(-1, self.width)
         two_d = (lambda a: a.reshape(1, -1)) if len(shape) == 1 else (lambda a: a)
-        sample_tile(image, two_d(index), two_d(inner), two_d(wx), two_d(wy), two_d(out), curvature, self.fallback)
+        mask = _EVERYWHERE if where is None else two_d(np.ascontiguousarray(where[rows], dtype=np.float32))
+        sample_tile(image, two_d(index), two_d(inner), two_d(wx), two_d(wy), two_d(out), curvature, self.fallback, mask)
         return out
 
 
@@ -491,7 +499,8 @@ class PreparedStereo(PreparedGeometry):
 
         run_tiled(run, rows, width, threads)
         out = np.empty(self.shape, np.float32)
-        run_tiled(lambda r: self.back.sample(disparity, r, out[r], True), *self.shape, threads)
+        # only where camera 0 decoded: _match_direct sets the other pixels NaN
+        run_tiled(lambda r: self.back.sample(disparity, r, out[r], True, u0), *self.shape, threads)
         direct = self._match_direct(u0, u0r, u1r, disparity, out, sign, lo, hi, threads)
         out.ravel()[direct.index] = direct.d
         noise = _noise_maps(sigma)
@@ -1015,9 +1024,8 @@ def _camera_pair(d: np.ndarray, sigma: np.ndarray | None) -> CombinedMaps:
 
 def _decreasing(u1r: np.ndarray) -> bool:
     """True when the coordinate mostly falls along the rows (every 8th row's steps)."""
-    steps = np.diff(u1r[::8], axis=1)
-    steps = steps[np.isfinite(steps)]
-    return bool(steps.size) and int(np.count_nonzero(steps < 0)) > steps.size // 2
+    falling, finite = row_steps(u1r, 8)
+    return bool(finite) and falling > finite // 2
 
 
 def _projector_geometry(rig: StereoRig) -> PinholeRig | None:
