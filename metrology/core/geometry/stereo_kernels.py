@@ -273,13 +273,13 @@ def _segment_position(
     otherwise."""
     if p < 0 or p > w1 - 2:
         return np.nan, np.nan
-    a = row1[p]
-    b = row1[p + 1]
-    beyond = min1[p + 2] if p + 2 < w1 else np.inf
+    a = np.float64(row1[p])
+    b = np.float64(row1[p + 1])
+    beyond = np.float64(min1[p + 2]) if p + 2 < w1 else np.inf
     if not (a <= q and q < b and beyond > q):
         return np.nan, np.nan
-    before = row1[p - 1] if p >= 1 else np.nan
-    after = row1[p + 2] if p + 2 < w1 else np.nan
+    before = np.float64(row1[p - 1]) if p >= 1 else np.nan
+    after = np.float64(row1[p + 2]) if p + 2 < w1 else np.nan
     s, slope = run_position(before, a, b, after, q)
     return p + s, slope
 
@@ -301,6 +301,8 @@ def match_tile(
     slope_out: np.ndarray,
     d_out: np.ndarray,
     scratch: np.ndarray,
+    rows0_out: np.ndarray,
+    rows1_out: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """Match rows of rectified maps whose coordinate grows along the rows.
 
@@ -315,6 +317,11 @@ def match_tile(
     polynomial's slope there (``slope_out``, projector units per px) and the normalized disparity
     ``x1 inv_f - offset - x0n[j]`` (``d_out``), all (n, W0) float32, NaN where not matched.
     ``scratch``: (:data:`MATCH_SCRATCH_ROWS`, max(W0, W1)) float64.
+
+    What :func:`match_pixels` needs of each row is kept (float32, exact: decoded values or
+    infinities): ``rows0_out`` (n, 2, W0) camera 0's running maximum of its cleaned row (of the
+    decoded values up to each column, ``-inf`` before the first) and suffix minimum;
+    ``rows1_out`` (n, 2, W1) camera 1's cleaned row and its suffix minimum.
 
     A row's walk collects its segments first and solves them afterwards in one loop
     (:func:`run_positions`): solved one by one between the walk's steps, they took two thirds of the
@@ -339,6 +346,10 @@ def match_tile(
         clean_row(u1[r], lo, hi, row1)
         suffix_min(row1, w1, rmin1)
         suffix_min(row0, w0, rmin0)
+        max0 = rows0_out[r, 0]
+        rows0_out[r, 1] = rmin0[:w0]
+        rows1_out[r, 0] = row1[:w1]
+        rows1_out[r, 1] = rmin1[:w1]
         x1_out[r] = np.nan
         slope_out[r] = np.nan
         d_out[r] = np.nan
@@ -349,9 +360,11 @@ def match_tile(
         for j in range(w0):
             q = row0[j]
             if math.isnan(q):
+                max0[j] = left
                 continue
             record = q > left and (j + 1 >= w0 or q < rmin0[j + 1])
             left = max(left, q)
+            max0[j] = left
             if not record:
                 continue
             while p + 1 < w1:
@@ -610,21 +623,9 @@ def _prefix_max(row: np.ndarray, w: int, lo: float, out: np.ndarray) -> None:  #
 
 
 @njit(nogil=True, cache=True)
-def _record_max(row: np.ndarray, w: int, out: np.ndarray) -> None:  # pragma: no cover - compiled
-    """``out[c]`` = the maximum of the (not NaN) values of ``row[:c + 1]``, ``-inf`` where all are NaN."""
-    high = -np.inf
-    for c in range(w):
-        v = row[c]
-        if v > high:
-            high = v
-        out[c] = high
-
-
-@njit(nogil=True, cache=True)
 def _match_in_row(
     q: float,
     x0: float,
-    row0: np.ndarray,
     max0: np.ndarray,
     min0: np.ndarray,
     row1: np.ndarray,
@@ -633,11 +634,11 @@ def _match_in_row(
 ) -> tuple[float, float]:  # pragma: no cover - compiled
     """Camera 1's column ``x1`` and slope where one rectified row (cleaned ``row1``, its merge keys
     ``key1`` and suffix minimum ``min1``) takes ``q``, for a camera-0 value at rectified column
-    ``x0`` of the same row (cleaned ``row0``, running maximum ``max0``, suffix minimum ``min0``):
+    ``x0`` of the same row (its cleaned values' running maximum ``max0`` and suffix minimum ``min0``):
     :func:`match_tile`'s rules (a record of camera 0's row: above every decoded value left of
     ``x0``, below every one right of it; the segment ``u1(x) <= q < u1(x + 1)`` unique in camera 1's
     row; :func:`run_position`). NaN, NaN where not matched."""
-    w0 = row0.shape[0]
+    w0 = max0.shape[0]
     w1 = row1.shape[0]
     left = math.ceil(x0) - 1  # the last column strictly left of x0
     right = math.floor(x0) + 1  # the first column strictly right of it
@@ -658,8 +659,8 @@ def _match_in_row(
 
 @njit(nogil=True, cache=True)
 def match_pixels(
-    u0r: np.ndarray,
-    u1r: np.ndarray,
+    rows0: np.ndarray,
+    rows1: np.ndarray,
     lo: float,
     hi: float,
     q: np.ndarray,
@@ -676,19 +677,19 @@ def match_pixels(
     """Match camera-0 pixels directly, without resampling camera 0: each pixel's own decoded value
     ``q`` ((n,) float64, the coordinate growing along the rows) at its rectified position ``(x0,
     y0)`` ((n,) float64 rectified px, sorted by ``floor(y0)``) is matched in the two rectified rows
-    ``r = floor(y0)`` and ``r + 1`` of camera 1's map ``u1r`` (rows of camera 0's map ``u0r`` for
-    the left-right consistency; both (rows, W) float32, cleaned by :func:`clean_row`) by
-    :func:`_match_in_row`, and camera 1's column at the pixel's own epipolar line ``y0`` is
-    interpolated between the rows, ``x1 = (1 - w) x1_r + w x1_(r+1)``, ``w = y0 - r`` (the line of
-    equal ``q`` in camera 1's rectified image: exact for a plane lit by a pinhole projector); so is
-    the slope. ``x1_out``, ``slope_out`` and the normalized disparity ``d = x1 inv_f - offset - x0n``
-    ((n,) float32), and the columns on rows ``r`` and ``r + 1`` (``rows_out``, (n, 2) float64); NaN
+    ``r = floor(y0)`` and ``r + 1`` of camera 1's rectified map (camera 0's for the left-right
+    consistency) by :func:`_match_in_row`, from what :func:`match_tile` kept of each row (``rows0``
+    (rows, 2, W0), ``rows1`` (rows, 2, W1) float32: its ``rows0_out``, ``rows1_out``), and camera
+    1's column at the pixel's own epipolar line ``y0`` is interpolated between the rows, ``x1 = (1 -
+    w) x1_r + w x1_(r+1)``, ``w = y0 - r`` (the line of equal ``q`` in camera 1's rectified image:
+    exact for a plane lit by a pinhole projector); so is the slope. ``x1_out``, ``slope_out`` and the
+    normalized disparity ``d = x1 inv_f - offset - x0n`` ((n,) float32), and the columns on rows
+    ``r`` and ``r + 1`` (``rows_out``, (n, 2) float64); NaN
     where either row does not match or ``y0`` is outside the grid's rows."""
     n = q.shape[0]
-    rows, w0 = u0r.shape
-    w1 = u1r.shape[1]
-    row0, max0, min0 = np.empty(w0), np.empty(w0), np.empty(w0)
-    row1, key1, min1 = np.empty(w1), np.empty(w1), np.empty(w1)
+    rows = rows0.shape[0]
+    w1 = rows1.shape[2]
+    key1 = np.empty(w1)
     found = np.full((2, n), np.nan)  # x1 on rows r and r + 1
     slopes = np.full((2, n), np.nan)
     first = 0  # the pixels [first, i) have r = rho - 1, [i, j) r = rho: each row is prepared once
@@ -700,16 +701,13 @@ def match_pixels(
         while j < n and min(max(math.floor(y0[j]), 0), rows - 2) == rho:
             j += 1
         if j > first:
-            clean_row(u0r[rho], lo, hi, row0)
-            _record_max(row0, w0, max0)
-            suffix_min(row0, w0, min0)
-            clean_row(u1r[rho], lo, hi, row1)
+            max0, min0 = rows0[rho, 0], rows0[rho, 1]
+            row1, min1 = rows1[rho, 0], rows1[rho, 1]
             _prefix_max(row1, w1, lo, key1)
-            suffix_min(row1, w1, min1)
             for k in range(first, j):
                 second = 1 if k < i else 0
                 if q[k] >= lo and q[k] <= hi and (second == 0 or not math.isnan(found[0, k])):
-                    found[second, k], slopes[second, k] = _match_in_row(q[k], x0[k], row0, max0, min0, row1, key1, min1)
+                    found[second, k], slopes[second, k] = _match_in_row(q[k], x0[k], max0, min0, row1, key1, min1)
         first, i = i, j
     for i in range(n):
         r = min(max(math.floor(y0[i]), 0), rows - 2)

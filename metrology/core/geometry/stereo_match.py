@@ -365,7 +365,8 @@ def match_rows(u0: np.ndarray, u1: np.ndarray, lo: float, hi: float) -> Matched:
     scratch = np.empty((MATCH_SCRATCH_ROWS, max(w0, u1.shape[1])), np.float64)
     u0 = np.ascontiguousarray(u0, dtype=np.float32)
     u1 = np.ascontiguousarray(u1, dtype=np.float32)
-    match_tile(u0, u1, float(lo), float(hi), np.zeros(w0, np.float32), 1.0, 0.0, x1, slope, d, scratch)
+    rows0, rows1 = np.empty((n, 2, w0), np.float32), np.empty((n, 2, u1.shape[1]), np.float32)
+    match_tile(u0, u1, float(lo), float(hi), np.zeros(w0, np.float32), 1.0, 0.0, x1, slope, d, scratch, rows0, rows1)
     return Matched(x1=x1, slope=slope)
 
 
@@ -489,19 +490,35 @@ class PreparedStereo(PreparedGeometry):
         inv_f = 1.0 / rect.f
         offset = rect.cx[1] / rect.f
 
-        width = max(cols0, rect.shapes[1][1])
+        cols1 = rect.shapes[1][1]
+        width = max(cols0, cols1)
+        # each row's running extrema and camera 1's cleaned row, kept for the direct matches
+        rows0 = np.empty((rows, 2, cols0), np.float32)
+        rows1 = np.empty((rows, 2, cols1), np.float32)
 
         def run(tile: slice) -> None:
             scratch = thread_scratch().get("stereo-match", (MATCH_SCRATCH_ROWS, width), np.float64)
             match_tile(
-                u0r[tile], u1r[tile], lo, hi, self._x0n, inv_f, offset, x1[tile], step[tile], disparity[tile], scratch
+                u0r[tile],
+                u1r[tile],
+                lo,
+                hi,
+                self._x0n,
+                inv_f,
+                offset,
+                x1[tile],
+                step[tile],
+                disparity[tile],
+                scratch,
+                rows0[tile],
+                rows1[tile],
             )
 
         run_tiled(run, rows, width, threads)
         out = np.empty(self.shape, np.float32)
         # only where camera 0 decoded: _match_direct sets the other pixels NaN
         run_tiled(lambda r: self.back.sample(disparity, r, out[r], True, u0), *self.shape, threads)
-        direct = self._match_direct(u0, u0r, u1r, disparity, out, sign, lo, hi, threads)
+        direct = self._match_direct(u0, u0r, (rows0, rows1), disparity, out, sign, lo, hi, threads)
         out.ravel()[direct.index] = direct.d
         noise = _noise_maps(sigma)
         if self.fusion is None and noise is None:
@@ -550,7 +567,7 @@ class PreparedStereo(PreparedGeometry):
         self,
         u0: np.ndarray,
         u0r: np.ndarray,
-        u1r: np.ndarray,
+        kept: tuple[np.ndarray, np.ndarray],
         disparity: np.ndarray,
         out: np.ndarray,
         sign: float,
@@ -563,8 +580,9 @@ class PreparedStereo(PreparedGeometry):
         frame's border, beside a pixel camera 0 dropped) or not matched (``disparity``, rectified: at
         the edge of camera 1's view, beside a refused match), matched at their own positions: the
         pixel's decoded value (times ``sign``) along its own epipolar line, between camera 1's
-        rectified rows around it (:func:`~metrology.core.geometry.stereo_kernels.match_pixels`). Sets
-        ``out`` NaN where camera 0 did not decode."""
+        rectified rows around it (:func:`~metrology.core.geometry.stereo_kernels.match_pixels`, from
+        the rows ``match_tile`` ``kept``: its ``rows0_out`` and ``rows1_out``). Sets ``out`` NaN where
+        camera 0 did not decode."""
         # only where the chain lacked a neighbour: among the four rectified samples the pixel is sampled
         # back from, one camera 0 did not decode or one camera 1 matched (not where all four were
         # decoded and camera 1 matched none: outside its view)
@@ -589,8 +607,8 @@ class PreparedStereo(PreparedGeometry):
         def run(tile: slice) -> None:
             part = slice(band[tile.start], band[tile.stop])
             match_pixels(
-                u0r,
-                u1r,
+                kept[0],
+                kept[1],
                 lo,
                 hi,
                 q[part],
