@@ -83,6 +83,7 @@ def sample_tile(
     out: np.ndarray,
     curvature: bool,
     fallback: int,
+    where: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """``out[r, c]`` = the ``(h, w)`` float32 ``image`` sampled bilinearly at the positions of
     ``index`` (flat index of the top-left neighbour, ``(n, m)`` int32; ``inner`` (``(n, m)`` uint8)
@@ -103,13 +104,20 @@ def sample_tile(
 
     Where a neighbour is NaN the sample is NaN with ``fallback`` :data:`SAMPLE_STRICT`; with
     :data:`SAMPLE_TRIANGLE` and one neighbour NaN, the plane through the other three
-    (:func:`_sample_triangle`)."""
+    (:func:`_sample_triangle`).
+
+    ``where`` ((n, m) float32) samples only where it is not NaN (NaN elsewhere: the disparity sampled
+    back where camera 0 decoded); an empty ``(0, 0)`` array samples everywhere."""
     w = image.shape[1]
     h = image.shape[0]
     flat = image.ravel()
     n, m = index.shape
+    everywhere = where.shape[0] == 0
     for r in range(n):
         for c in range(m):
+            if not everywhere and math.isnan(where[r, c]):
+                out[r, c] = np.nan
+                continue
             i = index[r, c]
             fx = np.float64(wx[r, c])
             fy = np.float64(wy[r, c])
@@ -183,7 +191,35 @@ def suffix_min(row: np.ndarray, w: int, out: np.ndarray) -> None:  # pragma: no 
         out[c] = low
 
 
-@njit(nogil=True, cache=True)
+@njit(nogil=True, cache=True, error_model="numpy", inline="always")  # inlined: run_positions' loop overlaps it
+def _run_position(
+    before: float, a: float, b: float, after: float, q: float
+) -> tuple[float, float]:  # pragma: no cover - compiled
+    """:func:`run_position`'s arithmetic, without a branch (inlined: its callers take numpy's error model,
+    a division by zero of a discarded case giving inf or NaN instead of raising)."""
+    lin = (q - a) / (b - a)
+    step = b - a
+    d0 = before - 2.0 * a + b
+    d1 = a - 2.0 * b + after
+    has_before = before < a and abs(d0) < step
+    has_after = after > b and abs(d1) < step
+    both = has_before and has_after
+    # the arithmetic runs whatever the case and the case selects the result at the end: no branch,
+    # so a loop over many segments (run_positions) overlaps them instead of waiting on each division
+    c3 = (d1 - d0) / 6.0 if both else 0.0
+    c2 = (0.5 * d0 + c3) if both else (0.5 * d0 if has_before else 0.5 * d1)
+    ok = has_before or has_after
+    s = lin
+    for _ in range(3):
+        slope = (b - a) + (2.0 * s - 1.0) * (c2 + c3 * s) + s * (s - 1.0) * c3
+        ok = ok and slope > 0
+        s -= (a + s * (b - a) + s * (s - 1.0) * (c2 + c3 * s) - q) / slope
+    slope = (b - a) + (2.0 * s - 1.0) * (c2 + c3 * s) + s * (s - 1.0) * c3
+    ok = ok and s >= 0.0 and s < 1.0 and slope > 0
+    return (s, slope) if ok else (lin, step)
+
+
+@njit(nogil=True, cache=True, error_model="numpy")
 def run_position(
     before: float, a: float, b: float, after: float, q: float
 ) -> tuple[float, float]:  # pragma: no cover - compiled
@@ -206,33 +242,28 @@ def run_position(
     ``q`` (no pixel locking). An outer sample whose second difference is not below the segment's
     step (``|D| >= b - a``: no smooth function sampled finely, e.g. a jump at a fringe's edge) is
     not used."""
-    lin = (q - a) / (b - a)
-    step = b - a
-    has_before = before < a and abs(before - 2.0 * a + b) < step
-    has_after = after > b and abs(a - 2.0 * b + after) < step
-    if not (has_before or has_after):
-        return lin, b - a
-    c3 = 0.0
-    if has_before and has_after:
-        c3 = ((a - 2.0 * b + after) - (before - 2.0 * a + b)) / 6.0
-        c2 = 0.5 * (before - 2.0 * a + b) + c3
-    elif has_before:
-        c2 = 0.5 * (before - 2.0 * a + b)
-    else:
-        c2 = 0.5 * (a - 2.0 * b + after)
-    s = lin
-    for _ in range(3):
-        slope = (b - a) + (2.0 * s - 1.0) * (c2 + c3 * s) + s * (s - 1.0) * c3
-        if not slope > 0:
-            return lin, b - a
-        s -= (a + s * (b - a) + s * (s - 1.0) * (c2 + c3 * s) - q) / slope
-    slope = (b - a) + (2.0 * s - 1.0) * (c2 + c3 * s) + s * (s - 1.0) * c3
-    if not (s >= 0.0 and s < 1.0 and slope > 0):
-        return lin, b - a
-    return s, slope
+    return _run_position(before, a, b, after, q)
 
 
-@njit(nogil=True, cache=True, inline="always")  # inlined in match_tile's loop: as a call it cost that kernel 30 %
+@njit(nogil=True, cache=True, error_model="numpy")
+def run_positions(
+    before: np.ndarray,
+    a: np.ndarray,
+    b: np.ndarray,
+    after: np.ndarray,
+    q: np.ndarray,
+    n: int,
+    s_out: np.ndarray,
+    slope_out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """:func:`run_position` of the first ``n`` segments of the float64 arrays ``before, a, b, after,
+    q`` into ``s_out``, ``slope_out``: a loop without branches, whose iterations the processor
+    overlaps (each alone waits on a chain of four divisions)."""
+    for k in range(n):
+        s_out[k], slope_out[k] = _run_position(before[k], a[k], b[k], after[k], q[k])
+
+
+@njit(nogil=True, cache=True, inline="always")
 def _segment_position(
     row1: np.ndarray, min1: np.ndarray, w1: int, p: int, q: float
 ) -> tuple[float, float]:  # pragma: no cover
@@ -242,18 +273,22 @@ def _segment_position(
     otherwise."""
     if p < 0 or p > w1 - 2:
         return np.nan, np.nan
-    a = row1[p]
-    b = row1[p + 1]
-    beyond = min1[p + 2] if p + 2 < w1 else np.inf
+    a = np.float64(row1[p])
+    b = np.float64(row1[p + 1])
+    beyond = np.float64(min1[p + 2]) if p + 2 < w1 else np.inf
     if not (a <= q and q < b and beyond > q):
         return np.nan, np.nan
-    before = row1[p - 1] if p >= 1 else np.nan
-    after = row1[p + 2] if p + 2 < w1 else np.nan
+    before = np.float64(row1[p - 1]) if p >= 1 else np.nan
+    after = np.float64(row1[p + 2]) if p + 2 < w1 else np.nan
     s, slope = run_position(before, a, b, after, q)
     return p + s, slope
 
 
-@njit(nogil=True, cache=True)
+MATCH_SCRATCH_ROWS = 13
+"""Rows of :func:`match_tile`'s float64 scratch: four row buffers and nine of the segments found."""
+
+
+@njit(nogil=True, cache=True, error_model="numpy")
 def match_tile(
     u0: np.ndarray,
     u1: np.ndarray,
@@ -266,6 +301,8 @@ def match_tile(
     slope_out: np.ndarray,
     d_out: np.ndarray,
     scratch: np.ndarray,
+    rows0_out: np.ndarray,
+    rows1_out: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """Match rows of rectified maps whose coordinate grows along the rows.
 
@@ -279,28 +316,55 @@ def match_tile(
     ``u1(x - 1) .. u1(x + 2)`` inside a monotone run, linear at its ends) (``x1_out``), the
     polynomial's slope there (``slope_out``, projector units per px) and the normalized disparity
     ``x1 inv_f - offset - x0n[j]`` (``d_out``), all (n, W0) float32, NaN where not matched.
-    ``scratch``: (4, max(W0, W1)) float64."""
+    ``scratch``: (:data:`MATCH_SCRATCH_ROWS`, max(W0, W1)) float64.
+
+    What :func:`match_pixels` needs of each row is kept (float32, exact: decoded values or
+    infinities): ``rows0_out`` (n, 2, W0) camera 0's running maximum of its cleaned row (of the
+    decoded values up to each column, ``-inf`` before the first) and suffix minimum;
+    ``rows1_out`` (n, 2, W1) camera 1's cleaned row and its suffix minimum.
+
+    A row's walk collects its segments first and solves them afterwards in one loop
+    (:func:`run_positions`): solved one by one between the walk's steps, they took two thirds of the
+    kernel's time."""
     n, w0 = u0.shape
     w1 = u1.shape[1]
     inf = np.inf
     row0, row1, rmin0, rmin1 = scratch[0], scratch[1], scratch[2], scratch[3]
+    # the segments of a row: camera-0 column, camera-1 column p, u1(p - 1 .. p + 2), q; s and slope
+    at0, at1, before, a, b, after, value = (
+        scratch[4],
+        scratch[5],
+        scratch[6],
+        scratch[7],
+        scratch[8],
+        scratch[9],
+        scratch[10],
+    )
+    s, slope = scratch[11], scratch[12]
     for r in range(n):
         clean_row(u0[r], lo, hi, row0)
         clean_row(u1[r], lo, hi, row1)
         suffix_min(row1, w1, rmin1)
         suffix_min(row0, w0, rmin0)
+        max0 = rows0_out[r, 0]
+        rows0_out[r, 1] = rmin0[:w0]
+        rows1_out[r, 0] = row1[:w1]
+        rows1_out[r, 1] = rmin1[:w1]
+        x1_out[r] = np.nan
+        slope_out[r] = np.nan
+        d_out[r] = np.nan
         left = -inf  # the maximum decoded camera-0 value left of j
         p = -1  # the last column of camera 1 whose running maximum is at most q
         key = -inf  # camera 1's running maximum up to p (lo for undecoded values)
+        found = 0
         for j in range(w0):
-            x1_out[r, j] = np.nan
-            slope_out[r, j] = np.nan
-            d_out[r, j] = np.nan
             q = row0[j]
             if math.isnan(q):
+                max0[j] = left
                 continue
             record = q > left and (j + 1 >= w0 or q < rmin0[j + 1])
             left = max(left, q)
+            max0[j] = left
             if not record:
                 continue
             while p + 1 < w1:
@@ -310,11 +374,43 @@ def match_tile(
                     break
                 key = candidate
                 p += 1
-            x1, slope = _segment_position(row1, rmin1, w1, p, q)
-            if not math.isnan(x1):
-                x1_out[r, j] = x1
-                slope_out[r, j] = slope
-                d_out[r, j] = x1 * inv_f - offset - x0n[j]
+            # _segment_position's rules, the position left for run_positions
+            if p < 0 or p > w1 - 2:
+                continue
+            beyond = rmin1[p + 2] if p + 2 < w1 else inf
+            if not (row1[p] <= q and q < row1[p + 1] and beyond > q):
+                continue
+            at0[found] = j
+            at1[found] = p
+            before[found] = row1[p - 1] if p >= 1 else np.nan
+            a[found] = row1[p]
+            b[found] = row1[p + 1]
+            after[found] = row1[p + 2] if p + 2 < w1 else np.nan
+            value[found] = q
+            found += 1
+        run_positions(before, a, b, after, value, found, s, slope)
+        for k in range(found):
+            j = int(at0[k])
+            x1 = at1[k] + s[k]
+            x1_out[r, j] = x1
+            slope_out[r, j] = slope[k]
+            d_out[r, j] = x1 * inv_f - offset - x0n[j]
+
+
+@njit(nogil=True, cache=True)
+def row_steps(u: np.ndarray, stride: int) -> tuple[int, int]:  # pragma: no cover - compiled
+    """Of the steps ``u[r, j + 1] - u[r, j]`` (float32, as ``np.diff``) of every ``stride``-th row of the
+    ``(n, m)`` float32 ``u``: how many are negative and how many finite."""
+    falling = 0
+    finite = 0
+    n, m = u.shape
+    for r in range(0, n, stride):
+        for j in range(m - 1):
+            step = u[r, j + 1] - u[r, j]
+            if math.isfinite(step):
+                finite += 1
+                falling += step < 0
+    return falling, finite
 
 
 @njit(nogil=True, cache=True)
@@ -481,6 +577,41 @@ def fuse_tile(
 
 
 @njit(nogil=True, cache=True)
+def direct_candidates(
+    u0: np.ndarray,
+    out: np.ndarray,
+    corner: np.ndarray,
+    width: int,
+    u0r: np.ndarray,
+    disparity: np.ndarray,
+    index_out: np.ndarray,
+) -> int:  # pragma: no cover - compiled
+    """The camera-0 pixels to match directly (:meth:`PreparedStereo._match_direct
+    <metrology.core.geometry.stereo_match.PreparedStereo._match_direct>`), in one pass: sets ``out``
+    (the disparity sampled back, (H W,) float32) NaN where camera 0's ``u0`` ((H W,) float32) is NaN,
+    and writes to ``index_out`` ((H W,) intp) the flat indices of the decoded pixels left NaN in
+    ``out`` whose four rectified samples (top-left flat index ``corner`` (H W,) int32 in the
+    rectified grid of ``width`` columns) include one camera 0 did not decode (``u0r`` NaN) or one
+    camera 1 matched (``disparity`` finite; both flat rectified maps, float32), in increasing
+    order. Returns how many."""
+    found = 0
+    for k in range(u0.shape[0]):
+        if math.isnan(u0[k]):
+            out[k] = np.nan
+            continue
+        if not math.isnan(out[k]):
+            continue
+        c = np.intp(corner[k])
+        lacking = False
+        for at in (c, c + 1, c + width, c + width + 1):
+            lacking = lacking or math.isnan(u0r[at]) or math.isfinite(disparity[at])
+        if lacking:
+            index_out[found] = k
+            found += 1
+    return found
+
+
+@njit(nogil=True, cache=True)
 def _prefix_max(row: np.ndarray, w: int, lo: float, out: np.ndarray) -> None:  # pragma: no cover - compiled
     """``out[c]`` = the maximum of ``row[:c + 1]`` counting a NaN as ``lo`` (the key of
     :func:`match_tile`'s merge walk)."""
@@ -492,21 +623,9 @@ def _prefix_max(row: np.ndarray, w: int, lo: float, out: np.ndarray) -> None:  #
 
 
 @njit(nogil=True, cache=True)
-def _record_max(row: np.ndarray, w: int, out: np.ndarray) -> None:  # pragma: no cover - compiled
-    """``out[c]`` = the maximum of the (not NaN) values of ``row[:c + 1]``, ``-inf`` where all are NaN."""
-    high = -np.inf
-    for c in range(w):
-        v = row[c]
-        if v > high:
-            high = v
-        out[c] = high
-
-
-@njit(nogil=True, cache=True)
 def _match_in_row(
     q: float,
     x0: float,
-    row0: np.ndarray,
     max0: np.ndarray,
     min0: np.ndarray,
     row1: np.ndarray,
@@ -515,11 +634,11 @@ def _match_in_row(
 ) -> tuple[float, float]:  # pragma: no cover - compiled
     """Camera 1's column ``x1`` and slope where one rectified row (cleaned ``row1``, its merge keys
     ``key1`` and suffix minimum ``min1``) takes ``q``, for a camera-0 value at rectified column
-    ``x0`` of the same row (cleaned ``row0``, running maximum ``max0``, suffix minimum ``min0``):
+    ``x0`` of the same row (its cleaned values' running maximum ``max0`` and suffix minimum ``min0``):
     :func:`match_tile`'s rules (a record of camera 0's row: above every decoded value left of
     ``x0``, below every one right of it; the segment ``u1(x) <= q < u1(x + 1)`` unique in camera 1's
     row; :func:`run_position`). NaN, NaN where not matched."""
-    w0 = row0.shape[0]
+    w0 = max0.shape[0]
     w1 = row1.shape[0]
     left = math.ceil(x0) - 1  # the last column strictly left of x0
     right = math.floor(x0) + 1  # the first column strictly right of it
@@ -540,8 +659,8 @@ def _match_in_row(
 
 @njit(nogil=True, cache=True)
 def match_pixels(
-    u0r: np.ndarray,
-    u1r: np.ndarray,
+    rows0: np.ndarray,
+    rows1: np.ndarray,
     lo: float,
     hi: float,
     q: np.ndarray,
@@ -558,19 +677,19 @@ def match_pixels(
     """Match camera-0 pixels directly, without resampling camera 0: each pixel's own decoded value
     ``q`` ((n,) float64, the coordinate growing along the rows) at its rectified position ``(x0,
     y0)`` ((n,) float64 rectified px, sorted by ``floor(y0)``) is matched in the two rectified rows
-    ``r = floor(y0)`` and ``r + 1`` of camera 1's map ``u1r`` (rows of camera 0's map ``u0r`` for
-    the left-right consistency; both (rows, W) float32, cleaned by :func:`clean_row`) by
-    :func:`_match_in_row`, and camera 1's column at the pixel's own epipolar line ``y0`` is
-    interpolated between the rows, ``x1 = (1 - w) x1_r + w x1_(r+1)``, ``w = y0 - r`` (the line of
-    equal ``q`` in camera 1's rectified image: exact for a plane lit by a pinhole projector); so is
-    the slope. ``x1_out``, ``slope_out`` and the normalized disparity ``d = x1 inv_f - offset - x0n``
-    ((n,) float32), and the columns on rows ``r`` and ``r + 1`` (``rows_out``, (n, 2) float64); NaN
+    ``r = floor(y0)`` and ``r + 1`` of camera 1's rectified map (camera 0's for the left-right
+    consistency) by :func:`_match_in_row`, from what :func:`match_tile` kept of each row (``rows0``
+    (rows, 2, W0), ``rows1`` (rows, 2, W1) float32: its ``rows0_out``, ``rows1_out``), and camera
+    1's column at the pixel's own epipolar line ``y0`` is interpolated between the rows, ``x1 = (1 -
+    w) x1_r + w x1_(r+1)``, ``w = y0 - r`` (the line of equal ``q`` in camera 1's rectified image:
+    exact for a plane lit by a pinhole projector); so is the slope. ``x1_out``, ``slope_out`` and the
+    normalized disparity ``d = x1 inv_f - offset - x0n`` ((n,) float32), and the columns on rows
+    ``r`` and ``r + 1`` (``rows_out``, (n, 2) float64); NaN
     where either row does not match or ``y0`` is outside the grid's rows."""
     n = q.shape[0]
-    rows, w0 = u0r.shape
-    w1 = u1r.shape[1]
-    row0, max0, min0 = np.empty(w0), np.empty(w0), np.empty(w0)
-    row1, key1, min1 = np.empty(w1), np.empty(w1), np.empty(w1)
+    rows = rows0.shape[0]
+    w1 = rows1.shape[2]
+    key1 = np.empty(w1)
     found = np.full((2, n), np.nan)  # x1 on rows r and r + 1
     slopes = np.full((2, n), np.nan)
     first = 0  # the pixels [first, i) have r = rho - 1, [i, j) r = rho: each row is prepared once
@@ -582,16 +701,13 @@ def match_pixels(
         while j < n and min(max(math.floor(y0[j]), 0), rows - 2) == rho:
             j += 1
         if j > first:
-            clean_row(u0r[rho], lo, hi, row0)
-            _record_max(row0, w0, max0)
-            suffix_min(row0, w0, min0)
-            clean_row(u1r[rho], lo, hi, row1)
+            max0, min0 = rows0[rho, 0], rows0[rho, 1]
+            row1, min1 = rows1[rho, 0], rows1[rho, 1]
             _prefix_max(row1, w1, lo, key1)
-            suffix_min(row1, w1, min1)
             for k in range(first, j):
                 second = 1 if k < i else 0
                 if q[k] >= lo and q[k] <= hi and (second == 0 or not math.isnan(found[0, k])):
-                    found[second, k], slopes[second, k] = _match_in_row(q[k], x0[k], row0, max0, min0, row1, key1, min1)
+                    found[second, k], slopes[second, k] = _match_in_row(q[k], x0[k], max0, min0, row1, key1, min1)
         first, i = i, j
     for i in range(n):
         r = min(max(math.floor(y0[i]), 0), rows - 2)

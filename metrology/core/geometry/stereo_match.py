@@ -95,11 +95,14 @@ from metrology.core.geometry.pinhole import (
 )
 from metrology.core.geometry.stereo_fusion import PAIR_CAMERAS, PairFusion
 from metrology.core.geometry.stereo_kernels import (
+    MATCH_SCRATCH_ROWS,
     SAMPLE_STRICT,
     SAMPLE_TRIANGLE,
     depth_tile,
+    direct_candidates,
     match_pixels,
     match_tile,
+    row_steps,
     sample_tile,
 )
 from metrology.core.tiling import run_tiled, thread_scratch
@@ -113,6 +116,10 @@ NOISE_GAIN_WINDOW_PX = 15
 """Side of the box that averages :meth:`PreparedStereo.noise_gain`'s squared samples, px."""
 MIN_HORIZONTAL = 0.9
 """Smallest ``|(R_1 T)_x| / |T|`` accepted: the cameras must sit side by side (rows are epipolar lines)."""
+
+
+_EVERYWHERE = np.empty((0, 0), np.float32)
+"""``where`` of :func:`~metrology.core.geometry.stereo_kernels.sample_tile` that samples every position."""
 
 
 @dataclass(frozen=True)
@@ -164,10 +171,12 @@ class Bilinear:
         rows: slice | None = None,
         out: np.ndarray | None = None,
         curvature: bool = False,
+        where: np.ndarray | None = None,
     ) -> np.ndarray:
         """``image`` (float32 ``(h, w)``, the map) at the positions (of ``rows`` of them), float32; NaN
-        where the position is outside, and where a neighbour is NaN unless :attr:`fallback` finds the
-        value from the others. With ``curvature`` the parabolic terms
+        where the position is outside, where ``where`` (float32, the positions' shape) is NaN, and where
+        a neighbour is NaN unless :attr:`fallback` finds the value from the others. With ``curvature``
+        the parabolic terms
         are added, ``-(wx (1 - wx) c_xx + wy (1 - wy) c_yy) / 2`` with ``c_xx``, ``c_yy`` the second
         differences along the row and the column averaged over the cell's two sides, one-sided where
         a neighbour beyond the cell is missing (exact for a quadratic map; each term left out only
@@ -180,7 +189,8 @@ class Bilinear:
             out = np.empty(shape, np.float32)
         image = np.ascontiguousarray(image, dtype=np.float32).reshape(-1, self.width)
         two_d = (lambda a: a.reshape(1, -1)) if len(shape) == 1 else (lambda a: a)
-        sample_tile(image, two_d(index), two_d(inner), two_d(wx), two_d(wy), two_d(out), curvature, self.fallback)
+        mask = _EVERYWHERE if where is None else two_d(np.ascontiguousarray(where[rows], dtype=np.float32))
+        sample_tile(image, two_d(index), two_d(inner), two_d(wx), two_d(wy), two_d(out), curvature, self.fallback, mask)
         return out
 
 
@@ -352,10 +362,11 @@ def match_rows(u0: np.ndarray, u1: np.ndarray, lo: float, hi: float) -> Matched:
     """
     n, w0 = u0.shape
     x1, slope, d = (np.empty((n, w0), np.float32) for _ in range(3))
-    scratch = np.empty((4, max(w0, u1.shape[1])), np.float64)
+    scratch = np.empty((MATCH_SCRATCH_ROWS, max(w0, u1.shape[1])), np.float64)
     u0 = np.ascontiguousarray(u0, dtype=np.float32)
     u1 = np.ascontiguousarray(u1, dtype=np.float32)
-    match_tile(u0, u1, float(lo), float(hi), np.zeros(w0, np.float32), 1.0, 0.0, x1, slope, d, scratch)
+    rows0, rows1 = np.empty((n, 2, w0), np.float32), np.empty((n, 2, u1.shape[1]), np.float32)
+    match_tile(u0, u1, float(lo), float(hi), np.zeros(w0, np.float32), 1.0, 0.0, x1, slope, d, scratch, rows0, rows1)
     return Matched(x1=x1, slope=slope)
 
 
@@ -417,6 +428,22 @@ class PreparedStereo(PreparedGeometry):
         run_tiled(lambda rows: sampler.sample(image, rows, out[rows], True), *out.shape, threads)
         return out
 
+    def rectify_both(
+        self, image0: np.ndarray, image1: np.ndarray, threads: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`rectify` of camera 0's ``image0`` and camera 1's ``image1`` in one pass of tiles (the
+        two grids share their rows: each tile samples the same rows of both, and the threads wait for
+        one another once)."""
+        images = [np.ascontiguousarray(image, dtype=np.float32) for image in (image0, image1)]
+        out = [np.empty(shape, np.float32) for shape in self.rect.shapes]
+
+        def run(rows: slice) -> None:
+            for sampler, image, rectified in zip(self.forward, images, out, strict=True):
+                sampler.sample(image, rows, rectified[rows], True)
+
+        run_tiled(run, self.rect.shapes[0][0], self.rect.shapes[0][1] + self.rect.shapes[1][1], threads)
+        return out[0], out[1]
+
     def combine(
         self,
         coordinates: Sequence[Mapping[str, np.ndarray | None]],
@@ -445,7 +472,7 @@ class PreparedStereo(PreparedGeometry):
             :data:`~metrology.core.geometry.stereo_fusion.PAIR_CAMERAS` ...).
         """
         (u0,), (u1,) = self._maps(coordinates, (self.axis,))
-        u0r, u1r = self.rectify(0, u0, threads), self.rectify(1, u1, threads)
+        u0r, u1r = self.rectify_both(u0, u1, threads)
         proj = self.rig.projector
         size = proj.width if self.axis == "u" else proj.height
         lo, hi = -2.0, size + 1.0  # every decoded coordinate (the codec's field and its margin)
@@ -463,18 +490,35 @@ class PreparedStereo(PreparedGeometry):
         inv_f = 1.0 / rect.f
         offset = rect.cx[1] / rect.f
 
-        width = max(cols0, rect.shapes[1][1])
+        cols1 = rect.shapes[1][1]
+        width = max(cols0, cols1)
+        # each row's running extrema and camera 1's cleaned row, kept for the direct matches
+        rows0 = np.empty((rows, 2, cols0), np.float32)
+        rows1 = np.empty((rows, 2, cols1), np.float32)
 
         def run(tile: slice) -> None:
-            scratch = thread_scratch().get("stereo-match", (4, width), np.float64)
+            scratch = thread_scratch().get("stereo-match", (MATCH_SCRATCH_ROWS, width), np.float64)
             match_tile(
-                u0r[tile], u1r[tile], lo, hi, self._x0n, inv_f, offset, x1[tile], step[tile], disparity[tile], scratch
+                u0r[tile],
+                u1r[tile],
+                lo,
+                hi,
+                self._x0n,
+                inv_f,
+                offset,
+                x1[tile],
+                step[tile],
+                disparity[tile],
+                scratch,
+                rows0[tile],
+                rows1[tile],
             )
 
         run_tiled(run, rows, width, threads)
         out = np.empty(self.shape, np.float32)
-        run_tiled(lambda r: self.back.sample(disparity, r, out[r], True), *self.shape, threads)
-        direct = self._match_direct(u0, u0r, u1r, disparity, out, sign, lo, hi, threads)
+        # only where camera 0 decoded: _match_direct sets the other pixels NaN
+        run_tiled(lambda r: self.back.sample(disparity, r, out[r], True, u0), *self.shape, threads)
+        direct = self._match_direct(u0, u0r, (rows0, rows1), disparity, out, sign, lo, hi, threads)
         out.ravel()[direct.index] = direct.d
         noise = _noise_maps(sigma)
         if self.fusion is None and noise is None:
@@ -523,7 +567,7 @@ class PreparedStereo(PreparedGeometry):
         self,
         u0: np.ndarray,
         u0r: np.ndarray,
-        u1r: np.ndarray,
+        kept: tuple[np.ndarray, np.ndarray],
         disparity: np.ndarray,
         out: np.ndarray,
         sign: float,
@@ -536,20 +580,17 @@ class PreparedStereo(PreparedGeometry):
         frame's border, beside a pixel camera 0 dropped) or not matched (``disparity``, rectified: at
         the edge of camera 1's view, beside a refused match), matched at their own positions: the
         pixel's decoded value (times ``sign``) along its own epipolar line, between camera 1's
-        rectified rows around it (:func:`~metrology.core.geometry.stereo_kernels.match_pixels`). Sets
-        ``out`` NaN where camera 0 did not decode."""
-        undecoded = np.isnan(u0)
-        out[undecoded] = np.nan
-        index = np.flatnonzero(np.isnan(out) & ~undecoded)
+        rectified rows around it (:func:`~metrology.core.geometry.stereo_kernels.match_pixels`, from
+        the rows ``match_tile`` ``kept``: its ``rows0_out`` and ``rows1_out``). Sets ``out`` NaN where
+        camera 0 did not decode."""
         # only where the chain lacked a neighbour: among the four rectified samples the pixel is sampled
         # back from, one camera 0 did not decode or one camera 1 matched (not where all four were
         # decoded and camera 1 matched none: outside its view)
-        corner = self.back.index.ravel()[index]
-        cols = self.back.width
-        lacking = np.zeros(index.size, bool)
-        for offset in (0, 1, cols, cols + 1):
-            lacking |= np.isnan(u0r.ravel()[corner + offset]) | np.isfinite(disparity.ravel()[corner + offset])
-        index = index[lacking]
+        index = np.empty(out.size, np.intp)
+        found = direct_candidates(
+            u0.ravel(), out.ravel(), self.back.index.ravel(), self.back.width, u0r.ravel(), disparity.ravel(), index
+        )
+        index = index[:found]
         rect = self.rect
         y = self.y0r.ravel()[index] * rect.f + rect.cy
         order = np.argsort(np.floor(y), kind="stable")
@@ -566,8 +607,8 @@ class PreparedStereo(PreparedGeometry):
         def run(tile: slice) -> None:
             part = slice(band[tile.start], band[tile.stop])
             match_pixels(
-                u0r,
-                u1r,
+                kept[0],
+                kept[1],
                 lo,
                 hi,
                 q[part],
@@ -724,8 +765,7 @@ class PreparedStereo(PreparedGeometry):
             sigma_x1 = np.full(x1.shape, math.sqrt(2.0), np.float32)
             sigma_direct = np.hypot(np.float32(1.0), self._camera1_gain(direct))
         else:
-            s0 = self.rectify(0, sigma0, threads)
-            s1 = self.rectify(1, sigma1, threads)
+            s0, s1 = self.rectify_both(sigma0, sigma1, threads)
             rows, cols1 = rect.shapes[1]
             at = np.where(hit, np.clip(np.rint(x1), 0, cols1 - 1), 0).astype(np.intp)
             at += (np.arange(rows, dtype=np.intp) * cols1)[:, None]
@@ -994,15 +1034,16 @@ def _noise_maps(sigma: Sequence[np.ndarray | None] | None) -> tuple[np.ndarray, 
 
 def _camera_pair(d: np.ndarray, sigma: np.ndarray | None) -> CombinedMaps:
     """The camera pair's disparity (and its sigma) alone, its pairs map bit 0 where it matched."""
-    pairs = np.where(np.isfinite(d), np.uint8(PAIR_CAMERAS), np.uint8(0))
+    finite = np.isfinite(d)
+    # a bool is stored as the byte 1: the camera pair's bit as it is, without another pass
+    pairs = finite.view(np.uint8) if PAIR_CAMERAS == 1 else np.where(finite, np.uint8(PAIR_CAMERAS), np.uint8(0))
     return CombinedMaps(u=d, v=None, sigma=sigma, pairs=pairs)
 
 
 def _decreasing(u1r: np.ndarray) -> bool:
     """True when the coordinate mostly falls along the rows (every 8th row's steps)."""
-    steps = np.diff(u1r[::8], axis=1)
-    steps = steps[np.isfinite(steps)]
-    return bool(steps.size) and int(np.count_nonzero(steps < 0)) > steps.size // 2
+    falling, finite = row_steps(u1r, 8)
+    return bool(finite) and falling > finite // 2
 
 
 def _projector_geometry(rig: StereoRig) -> PinholeRig | None:
