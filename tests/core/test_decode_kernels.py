@@ -4,7 +4,7 @@ float32 numbers, bit for bit, on every 8-bit pair of phase differences and throu
 import numpy as np
 import pytest
 
-from metrology.core import decode as decode_module
+from metrology.core import kernel_choice
 from metrology.core.decode import decode_tile, use_compiled
 from metrology.core.filters import FilterOptions
 from metrology.core.geometry.crossed_axes import Rig
@@ -81,7 +81,7 @@ def test_measure_with_the_compiled_kernel_equals_numpy(monkeypatch, gray_only):
     assert terms is not None and terms.ref_codes.flags.c_contiguous and obj_stack.flags.c_contiguous
     results = {}
     for compiled in (False, True):
-        monkeypatch.setattr(decode_module, "COMPILED", compiled)
+        monkeypatch.setattr(kernel_choice, "COMPILED", compiled)
         assert use_compiled(np.uint8, 100) is compiled
         results[compiled] = measure(RIG, obj_stack, reference=reference, options=options)
     for name in ("z_mm", "codes", "gray_z_mm"):
@@ -94,7 +94,7 @@ def test_measure_with_the_compiled_kernel_equals_numpy(monkeypatch, gray_only):
 
 
 def test_use_compiled_is_for_8_bit_stacks_only(monkeypatch):
-    monkeypatch.setattr(decode_module, "COMPILED", True)
+    monkeypatch.setattr(kernel_choice, "COMPILED", True)
     assert not use_compiled(np.uint16, 100) and use_compiled(np.uint8, 100)
-    monkeypatch.setattr(decode_module, "COMPILED", None)
-    assert use_compiled(np.uint8, decode_module.COMPILED_MIN_PX)
+    monkeypatch.setattr(kernel_choice, "COMPILED", None)
+    assert use_compiled(np.uint8, kernel_choice.COMPILED_MIN_PX)
