@@ -56,24 +56,24 @@ def _table_at(
     (float64) to the next row: ``g = (w - g0) / h`` clipped to the row, cell ``floor(g)``, ``tau =
     g - cell``, ``q = ((A_3 tau + c_2) tau + c_1) tau + A_0 + frac B_0``, ``c_m = A_m + frac B_m``
     (``c_2 = A_2`` with six planes), ``dq/dw = ((3 A_3 tau + 2 c_2) tau + c_1) / h``. NaN for NaN
-    ``w`` and ``frac`` (the compiled :func:`~metrology.core.geometry.pinhole_kernels._table_at`)."""
-    g = (w - g0) * inv_h
-    missing = np.isnan(g)
-    np.maximum(g, 0.0, out=g)  # NaN stays NaN
+    ``frac``; for NaN ``w`` the first cell of the row (the caller writes NaN there: the compiled
+    :func:`~metrology.core.geometry.pinhole_kernels._table_at` returns it)."""
+    g = w - g0
+    g *= inv_h
+    np.fmax(g, 0.0, out=g)  # NaN too goes to 0: a NaN index would read anywhere
     np.minimum(g, n_cols - 1e-3, out=g)
-    g[missing] = 0.0  # a NaN index would read anywhere
-    cell = np.floor(g)
-    tau = g - cell
-    idx = cell.astype(np.intp)
+    idx = g.astype(np.intp)  # floor(g): g >= 0
+    tau = g
+    tau -= idx
     idx += base
     np.minimum(idx, planes.shape[1] - 1, out=idx)
 
     def plane(k: int) -> np.ndarray:
         return planes[k].take(idx).astype(np.float64)
 
-    a1 = plane(1)
-    c1 = plane(5) * frac
-    c1 += a1
+    c1 = plane(5)
+    c1 *= frac
+    c1 += plane(1)
     c2 = plane(2)
     if planes.shape[0] == 7:
         b2 = plane(6)
@@ -89,14 +89,14 @@ def _table_at(
     b0 = plane(4)
     b0 *= frac
     q += b0
-    dq = 3.0 * a3
+    dq = a3
+    dq *= 3.0
     dq *= tau
-    dq += 2.0 * c2
+    c2 *= 2.0
+    dq += c2
     dq *= tau
     dq += c1
     dq *= inv_h
-    q[missing] = np.nan
-    dq[missing] = np.nan
     return q, dq
 
 
@@ -113,11 +113,15 @@ def table_tile(
     want_dq: bool,
 ) -> None:
     """``q_out``, ``dq_out`` (float32 ``(n,)``) = :func:`_table_at` of ``coded`` (``(n,)`` float32),
-    ``base`` (int32), ``frac`` (float32); ``dq_out`` written only with ``want_dq``."""
+    ``base`` (int32), ``frac`` (float32), NaN where ``coded`` is NaN; ``dq_out`` written only with
+    ``want_dq``."""
     q, dq = _table_at(coded.astype(np.float64), base, frac.astype(np.float64), planes, g0, inv_h, n_cols)
-    q_out[...] = q
+    missing = np.isnan(coded)
+    np.copyto(q_out, q, casting="same_kind")
+    np.copyto(q_out, np.nan, where=missing)
     if want_dq:
-        dq_out[...] = dq
+        np.copyto(dq_out, dq, casting="same_kind")
+        np.copyto(dq_out, np.nan, where=missing)
 
 
 def grid_tile(
@@ -148,12 +152,13 @@ def grid_tile(
     input (the compiled :func:`~metrology.core.geometry.pinhole_kernels.grid_tile`)."""
     w = coded.astype(np.float64)
     o = other.astype(np.float64)
-    g = (o - c_lo) * inv_step_c
-    missing = np.isnan(g)
-    np.clip(g, 0.0, n_lines - 1.0, out=g)
-    g[missing] = 0.0
-    j = np.minimum(np.floor(g).astype(np.intp), n_lines - 2)
+    g = o - c_lo
+    g *= inv_step_c
+    np.fmax(g, 0.0, out=g)  # NaN too goes to 0, written NaN below
+    np.minimum(g, n_lines - 1.0, out=g)
+    j = np.minimum(g.astype(np.intp), n_lines - 2)  # floor(g): g >= 0
     q, dq = _table_at(w, j * n_cols, g - j, planes, g0, inv_h, n_cols)
+    missing = np.isnan(coded) | np.isnan(other)
     u, v = (w, o) if axis_u else (o, w)
     y_lin = (v - cy) / fy
     if axis_u:
@@ -163,12 +168,12 @@ def grid_tile(
         q += x_lin
     else:
         q += y_lin
-    q[missing] = np.nan
-    q_out[...] = q
+    np.copyto(q_out, q, casting="same_kind")
+    np.copyto(q_out, np.nan, where=missing)
     if want_dq:
         dq += 1.0 / fx if axis_u else 1.0 / fy
-        dq[missing] = np.nan
-        dq_out[...] = dq
+        np.copyto(dq_out, dq, casting="same_kind")
+        np.copyto(dq_out, np.nan, where=missing)
 
 
 def plane_tile(
