@@ -20,9 +20,10 @@ machine's load falls on all of them alike:
   distortion set to zero (closed form); ``triangulate u, v``: both axes (undistortion grid);
 - ``prepare``: the tables of each rig from scratch (no local cache), once.
 
-The process is warm as a Celery worker is: numba imported and the pinhole model's compiled kernels
-loaded before the timers (``--kernels compiled``, the default); ``--kernels numpy`` times the numpy
-twins instead (:mod:`metrology.core.geometry.pinhole_numpy`, what a ``gcps measure`` process runs).
+The process is warm as a Celery worker is: numba imported and the compiled kernels loaded before
+the timers (:func:`metrology.core.compiled.warm_all`; ``--kernels compiled``, the default);
+``--kernels numpy`` times the numpy twins instead (:mod:`metrology.core.geometry.pinhole_numpy`,
+what a ``gcps measure`` process runs).
 
 Prints one line per row, the ratios, and a JSON line. Timings on a shared machine are noisy:
 compare the ratios within one run.
@@ -43,6 +44,7 @@ import cv2
 import numpy as np
 
 from metrology.core import kernel_choice
+from metrology.core.compiled import warm_all
 from metrology.core.distortion import Distortion, project_normalized, undistort_pixels
 from metrology.core.geometry.base import triangulate_frame
 from metrology.core.geometry.pinhole import PinholeProjector, PinholeRig, _camera_tables, _prepare_cached
@@ -175,9 +177,7 @@ def main() -> None:
     parser.add_argument("--kernels", choices=("compiled", "numpy"), default="compiled")
     args = parser.parse_args()
     if args.kernels == "compiled":  # a warm process, as a worker: numba loaded before any timer
-        from metrology.core.geometry import pinhole_kernels
-
-        pinhole_kernels.warm()
+        warm_all()
     else:
         kernel_choice.COMPILED = False
     with tempfile.TemporaryDirectory() as cache:
