@@ -18,8 +18,9 @@ float32 coefficients from as many contiguous planes and a cubic in the position 
 
     Q = sum_m tau^m (A_m + a_c B_m),   A: the cubic of row j, B: row j+1 minus row j
 
-evaluated by Horner's rule on the blended coefficients, in one compiled pass per tile
-(:mod:`metrology.core.geometry.pinhole_kernels`; float32 coefficients, float64 arithmetic). ``B_3``
+evaluated by Horner's rule on the blended coefficients, in one pass per tile, compiled
+(:mod:`metrology.core.geometry.pinhole_kernels`) or its numpy twin
+(:mod:`metrology.core.geometry.pinhole_numpy`); float32 coefficients, float64 arithmetic. ``B_3``
 (the change of the cubic term from one line to the next, ~1e-6 projector units on strongly
 distorted projectors) is left out and its largest value added to the table's error.
 

@@ -799,7 +799,7 @@ class PreparedPinhole(PreparedGeometry):
     ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray] | None, bool]:
         """Ray parameter ``t`` (= camera Z, mm) of each pixel of ``rows``, ``(n, W)`` float32, for
         the midpoint method the midpoints' ``(X, Y, Z)`` (float64, mm; None otherwise), and
-        whether the points ``t d`` were written to ``points_out`` too (by a compiled kernel)."""
+        whether the points ``t d`` were written to ``points_out`` too (by ``plane_tile``)."""
         tab = self.tables()
         coded = u if self.axis == "u" else v
         assert coded is not None

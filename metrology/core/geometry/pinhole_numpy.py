@@ -207,8 +207,10 @@ def plane_tile(
         den = rdi.astype(np.float64)
         den -= q64 * rdz64
         t = num / den
-        t[~(t > 0.0)] = np.nan
-        t_out[...] = t
+        behind = t > 0.0
+        np.logical_not(behind, out=behind)  # t <= 0 or NaN
+        np.copyto(t, np.nan, where=behind)
+        np.copyto(t_out, t, casting="same_kind")
         if want_sigma:
             dt = tz * den
             num *= rdz64
