@@ -278,7 +278,7 @@ the compiled decoding kernel of workers): about 0.15 s of imports each (issue 22
 
 PINHOLE_NEEDS_NONE_OF = (*MEASURING_NEEDS_NONE_OF, "numba")
 """A ``gcps measure`` through a distorted projector triangulates with the numpy twins of the compiled
-kernels (:mod:`metrology.core.geometry.pinhole_numpy`): numba's start (about 0.9 s of CPU and 140
+kernels (:mod:`metrology.core.geometry.pinhole_numpy`): numba's start (about 1 s of CPU and 117
 MiB with its kernels) would cost more than they save on one frame (issue 22)."""
 
 
