@@ -58,8 +58,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from metrology.core import decode as decode_module  # noqa: E402
-from metrology.core import decode_kernels  # noqa: E402
+from metrology.core import decode_kernels, kernel_choice  # noqa: E402
 from metrology.core.allocation import retain_freed_memory  # noqa: E402
 from metrology.core.filters import FilterOptions  # noqa: E402
 from metrology.core.geometry.crossed_axes import (  # noqa: E402
@@ -91,11 +90,11 @@ def synthetic_pair(width: int, height: int, seed: int = 0) -> tuple[Rig, np.ndar
 def numpy_kernel(func):
     """``func()`` with the fused path's numpy kernel (``decode_rows``, as a ``gcps measure`` process
     runs it) instead of the compiled one."""
-    decode_module.COMPILED = False
+    kernel_choice.COMPILED = False
     try:
         return func()
     finally:
-        decode_module.COMPILED = None
+        kernel_choice.COMPILED = None
 
 
 def median_time(func, repeats: int) -> float:

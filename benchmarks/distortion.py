@@ -4,7 +4,7 @@ distortion, in the same process.
 
 Usage (from the repository root, PYTHONPATH set to it)::
 
-    python benchmarks/distortion.py [--repeats 7] [--threads N]
+    python benchmarks/distortion.py [--repeats 7] [--threads N] [--kernels compiled|numpy]
 
 The rig is issue 22's public calibration (1280x1024 camera and 1920x1080 projector, both
 strongly distorted); a plane 740 mm away gives the exact projector coordinates of every pixel
@@ -19,6 +19,11 @@ machine's load falls on all of them alike:
   not), through the distorted projector (epipolar table) and the same rig with the projector's
   distortion set to zero (closed form); ``triangulate u, v``: both axes (undistortion grid);
 - ``prepare``: the tables of each rig from scratch (no local cache), once.
+
+The process is warm as a Celery worker is: numba imported and the compiled kernels loaded before
+the timers (:func:`metrology.core.compiled.warm_all`; ``--kernels compiled``, the default);
+``--kernels numpy`` times the numpy twins instead (:mod:`metrology.core.geometry.pinhole_numpy`,
+what a ``gcps measure`` process runs).
 
 Prints one line per row, the ratios, and a JSON line. Timings on a shared machine are noisy:
 compare the ratios within one run.
@@ -38,6 +43,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from metrology.core import kernel_choice
+from metrology.core.compiled import warm_all
 from metrology.core.distortion import Distortion, project_normalized, undistort_pixels
 from metrology.core.geometry.base import triangulate_frame
 from metrology.core.geometry.pinhole import PinholeProjector, PinholeRig, _camera_tables, _prepare_cached
@@ -167,7 +174,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--kernels", choices=("compiled", "numpy"), default="compiled")
     args = parser.parse_args()
+    if args.kernels == "compiled":  # a warm process, as a worker: numba loaded before any timer
+        warm_all()
+    else:
+        kernel_choice.COMPILED = False
     with tempfile.TemporaryDirectory() as cache:
         os.environ["GCPS_LOCAL_CACHE_DIR"] = cache  # measure the preparation, not a previous run's cache
         rows = undistortion_rows(args.repeats)

@@ -21,7 +21,9 @@ the uncontended speed. Every pinhole row includes the per-pixel tables being alr
 once per rig, like the rays); the row ``prepare tables`` times that one-off cost. Medians
 of ``--repeats`` calls after one warm-up; Mpx/s = W H / median seconds (all camera pixels,
 valid or not). Prints one line per row and a JSON line; timings on a shared machine are noisy:
-compare the ratios within one run.
+compare the ratios within one run. The process is warm as a Celery worker is (its compiled kernels
+loaded first: :func:`metrology.core.compiled.warm_all`), so the distorted rows run the pinhole
+model's compiled kernels.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
+from metrology.core.compiled import warm_all
 from metrology.core.distortion import undistort_pixels
 from metrology.core.geometry.base import triangulate_frame
 from metrology.core.geometry.pinhole import (
@@ -83,6 +86,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--threads", type=int, default=None)
     args = parser.parse_args()
+    warm_all()  # a worker's process: the compiled kernels, as the workers take them
     w, h = args.width, args.height
     rows: dict[str, float] = {}
 

@@ -276,6 +276,12 @@ functions (the codec path's noise model) nor numba (a distorted projector's kern
 the compiled decoding kernel of workers): about 0.15 s of imports each (issue 22)."""
 
 
+PINHOLE_NEEDS_NONE_OF = (*MEASURING_NEEDS_NONE_OF, "numba")
+"""A ``gcps measure`` through a distorted projector triangulates with the numpy twins of the compiled
+kernels (:mod:`metrology.core.geometry.pinhole_numpy`): numba's start (about 1 s of CPU and 117
+MiB with its kernels) would cost more than they save on one frame (issue 22)."""
+
+
 def gcps_imports(tmp: Path, *args: str, forbidden: tuple[str, ...] = MEASURING_NEEDS_NONE_OF) -> dict[str, str]:
     """``gcps ARGS`` run for real in a fresh interpreter with ``-X importtime``: the import chain of
     each module of ``forbidden`` it imported (empty when it imported none)."""
@@ -310,7 +316,7 @@ def test_measuring_processes_import_only_what_measuring_needs(tmp_path: Path) ->
     """Real ``gcps measure`` runs (gcps-v1 with a reference on the crossed-axes rig; a distorted
     pinhole rig with a u-only codec, its epipolar table built) and a ``gcps decode``, each in a
     fresh interpreter, import none of :data:`MEASURING_NEEDS_NONE_OF` (the first none of
-    :data:`GCPS_V1_NEEDS_NONE_OF`)."""
+    :data:`GCPS_V1_NEEDS_NONE_OF`, the second none of :data:`PINHOLE_NEEDS_NONE_OF`)."""
     import cv2
 
     from metrology.core.codecs import codec_from_dict, render_codec
@@ -350,7 +356,7 @@ def test_measuring_processes_import_only_what_measuring_needs(tmp_path: Path) ->
         ),
         "gcps decode": ("decode", "--stack", str(capture), "--out", str(tmp_path / "uv.npy")),
     }
-    forbidden = {"gcps measure gcps-v1": GCPS_V1_NEEDS_NONE_OF}
+    forbidden = {"gcps measure gcps-v1": GCPS_V1_NEEDS_NONE_OF, "gcps measure pinhole": PINHOLE_NEEDS_NONE_OF}
     found = {
         name: gcps_imports(tmp_path, *args, forbidden=forbidden.get(name, MEASURING_NEEDS_NONE_OF))
         for name, args in runs.items()

@@ -7,8 +7,8 @@ compile it (a fresh installation). Celery workers warm :data:`KERNEL_MODULES` as
 load on first use. ``python -m metrology.core.compiled`` compiles every kernel, the stereo model's
 included (:func:`warm_stereo`): the test script runs it once before its parallel workers start,
 so that they do not each compile the same kernels (a clean clone's stereo kernels alone take
-about 11 s of CPU). ``gcps`` commands never import numba unless a distorted rig needs
-:mod:`.geometry.pinhole_kernels` (see :func:`metrology.core.decode.use_compiled`).
+about 11 s of CPU). ``gcps`` commands never import numba for these: where it is not loaded the
+kernels' numpy twins run (same numbers), by one rule (:func:`metrology.core.kernel_choice.use_compiled`).
 """
 
 from __future__ import annotations

@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import functools
 import math
-import sys
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -46,6 +45,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from metrology.core import kernel_choice
 from metrology.core.option_checks import check_number
 from metrology.core.patterns import N_GRAY_BITS, N_PHASE_STEPS, PATTERN_NAMES, binary_from_gray
 from metrology.core.tiling import run_tiled, thread_scratch
@@ -420,25 +420,15 @@ def decode_rows(
         gray_out += cv2.LUT(modulated.view(np.uint8), _NAN_UNLESS_TRUE_LUT, dst=word)
 
 
-COMPILED_MIN_PX = 1 << 25
-"""Frames of at least this many pixels (32 Mpx) take the compiled kernel even in a process that has not
-imported numba: there one decode saves more than numba's import costs (0.3-0.65 s)."""
-COMPILED: bool | None = None
-"""Force the kernel of :func:`decode_tile`: True the compiled one (8-bit stacks), False numpy's;
-None (default) decides with :func:`use_compiled`. For tests and benchmarks."""
-
-
 def use_compiled(dtype: npt.DTypeLike, pixels: int) -> bool:
     """Whether :func:`decode_tile` takes the compiled kernel (:mod:`metrology.core.decode_kernels`)
-    for a stack of ``dtype`` and frames of ``pixels``: 8-bit stacks only, where numba is already
-    imported in this process (a Celery worker preloads it: ``jobs.handlers.preload_job_code``) or
-    the frame is large (:data:`COMPILED_MIN_PX`); numpy's otherwise (a ``gcps measure`` process
-    would pay more for importing numba than the kernel saves). Both give the same numbers."""
+    for a stack of ``dtype`` and frames of ``pixels``: 8-bit stacks only, by the rule of every
+    compiled kernel (:func:`metrology.core.kernel_choice.use_compiled`: where numba is already
+    imported, or the frame is large); numpy's otherwise (a ``gcps measure`` process would pay more
+    for importing numba than the kernel saves). Both give the same numbers."""
     if np.dtype(dtype) != np.uint8:
         return False
-    if COMPILED is not None:
-        return COMPILED
-    return "numba" in sys.modules or pixels >= COMPILED_MIN_PX
+    return kernel_choice.use_compiled(pixels)
 
 
 def decode_tile(

@@ -226,12 +226,13 @@ def undistort_pixels(
     v: npt.ArrayLike,
     tol_px: float = UNDISTORT_TOL_PX,
     max_iter: int = UNDISTORT_MAX_ITER,
+    start: tuple[npt.ArrayLike, npt.ArrayLike] | None = None,
 ) -> Undistorted:
     """Invert :func:`project_normalized`: pixels to undistorted normalized coordinates.
 
     Solves ``K D(x, y) = (u, v)`` by Newton's method with the analytic Jacobian of ``D``,
-    starting from ``K^-1 (u, v)`` and halving a step while it does not reduce the residual
-    (at most 8 times). A point has converged when its reprojection residual
+    starting from ``start`` if given, else from ``K^-1 (u, v)``, and halving a step while it
+    does not reduce the residual (at most 8 times). A point has converged when its reprojection residual
     ``hypot(fx rx + s ry, fy ry)`` is at most ``tol_px`` pixels.
 
     Parameters
@@ -244,6 +245,12 @@ def undistort_pixels(
         Convergence tolerance, pixels (> 0).
     max_iter : int
         Iteration cap (>= 1).
+    start : (x0, y0), optional
+        Undistorted normalized coordinates to start from (the shape of ``u``), e.g. interpolated
+        from a coarse grid of solutions: one Newton step where they are close. The result meets
+        ``tol_px`` whatever the start (points whose iteration from it does not converge restart
+        from ``K^-1 (u, v)``; untilted models), but a start far from the solution may reach
+        another preimage where the model folds over: give a close one.
 
     Returns
     -------
@@ -260,15 +267,22 @@ def undistort_pixels(
     # Target in distorted normalized coordinates; residuals scale back to pixels.
     yd_t = (v_arr - cy) / fy
     xd_t = (u_arr - cx - s * yd_t) / fx
-    x = xd_t.copy()
-    y = yd_t.copy()
-    finite = np.isfinite(x) & np.isfinite(y)
+    finite = np.isfinite(xd_t) & np.isfinite(yd_t)
+    if start is None:
+        x, y = xd_t.copy(), yd_t.copy()
+    else:
+        x = np.array(np.broadcast_to(np.asarray(start[0], dtype=np.float64), u_arr.shape))
+        y = np.array(np.broadcast_to(np.asarray(start[1], dtype=np.float64), u_arr.shape))
+        x[~finite], y[~finite] = np.nan, np.nan
     if dist.is_identity:
+        x, y = xd_t, yd_t
         return Undistorted(x=x, y=y, converged=finite, failed=np.zeros_like(finite), iterations=0)
     with np.errstate(all="ignore"):  # diverging points overflow; they are reported, not warned about
         if not dist._tilted:
             ok = np.zeros(x.shape, bool)
-            iterations = _fast_newton(dist, fx, s, fy, x, y, xd_t, yd_t, tol_px, min(max_iter, FAST_MAX_ITER), ok)
+            iterations = _fast_newton(
+                dist, fx, s, fy, x, y, xd_t, yd_t, tol_px, min(max_iter, FAST_MAX_ITER), ok, start is not None
+            )
             slow = finite & ~ok
             if not slow.any():
                 return Undistorted(x=x, y=y, converged=finite, failed=np.zeros_like(finite), iterations=iterations)
@@ -303,8 +317,10 @@ def _fast_newton(
     tol_px: float,
     max_iter: int,
     ok: npt.NDArray[np.bool_],
+    started: bool = False,
 ) -> int:
-    """Undamped Newton steps on ``D(x, y) = (xd_t, yd_t)`` in place, block by block of
+    """Undamped Newton steps on ``D(x, y) = (xd_t, yd_t)`` in place (from ``x, y``: with
+    ``started`` as given, else ``x_d / g(r_d^2)`` where the model is not rational), block by block of
     :data:`FAST_TILE` points, until every residual ``hypot(fx rx + s ry, fy ry)`` of a block is
     at most ``tol_px`` (checked before each step) or ``max_iter`` steps. Untilted models only
     (terms with zero coefficients skipped); the caller verifies the result and sends the points
@@ -326,7 +342,7 @@ def _fast_newton(
     for start in range(0, xf.size, FAST_TILE):
         blk = slice(start, start + FAST_TILE)
         bx, by, tx, ty = xf[blk].copy(), yf[blk].copy(), txf[blk], tyf[blk]
-        if not rational:  # start from x_d / g(r_d^2): one Newton step fewer for most blocks
+        if not rational and not started:  # start from x_d / g(r_d^2): one Newton step fewer for most blocks
             r2 = bx * bx + by * by
             g = r2 * k3
             g += k2

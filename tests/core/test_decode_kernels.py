@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from metrology.core import decode as decode_module
-from metrology.core import decode_kernels
+from metrology.core import decode_kernels, kernel_choice
 from metrology.core.codecs.check import sampled_rows
 from metrology.core.decode import decode_sampled_rows, decode_tile, use_compiled
 from metrology.core.filters import FilterOptions
@@ -85,7 +85,7 @@ def test_measure_with_the_compiled_kernel_equals_numpy(monkeypatch, gray_only):
     assert terms is not None and terms.ref_codes.flags.c_contiguous and obj_stack.flags.c_contiguous
     results = {}
     for compiled in (False, True):
-        monkeypatch.setattr(decode_module, "COMPILED", compiled)
+        monkeypatch.setattr(kernel_choice, "COMPILED", compiled)
         assert use_compiled(np.uint8, 100) is compiled
         results[compiled] = measure(RIG, obj_stack, reference=reference, options=options)
     for name in ("z_mm", "codes", "gray_z_mm"):
@@ -98,10 +98,10 @@ def test_measure_with_the_compiled_kernel_equals_numpy(monkeypatch, gray_only):
 
 
 def test_use_compiled_is_for_8_bit_stacks_only(monkeypatch):
-    monkeypatch.setattr(decode_module, "COMPILED", True)
+    monkeypatch.setattr(kernel_choice, "COMPILED", True)
     assert not use_compiled(np.uint16, 100) and use_compiled(np.uint8, 100)
-    monkeypatch.setattr(decode_module, "COMPILED", None)
-    assert use_compiled(np.uint8, decode_module.COMPILED_MIN_PX)
+    monkeypatch.setattr(kernel_choice, "COMPILED", None)
+    assert use_compiled(np.uint8, kernel_choice.COMPILED_MIN_PX)
 
 
 def test_closed_forms_equal_the_numpy_kernels_tables():
@@ -132,7 +132,7 @@ def test_compiled_sample_of_the_codec_self_check_equals_numpy(monkeypatch):
     rows = sampled_rows(stack.shape[1], pairs=8)
     outputs = {}
     for compiled in (False, True):
-        monkeypatch.setattr(decode_module, "COMPILED", compiled)
+        monkeypatch.setattr(kernel_choice, "COMPILED", compiled)
         outputs[compiled] = [np.full((rows.size, stack.shape[2]), -7.0, np.float32) for _ in range(3)]
         decode_sampled_rows(stack, rows, 128, 10.2, *outputs[compiled])
     for name, a, b in zip(("fraction", "word", "modulation"), outputs[False], outputs[True], strict=True):
@@ -141,6 +141,6 @@ def test_compiled_sample_of_the_codec_self_check_equals_numpy(monkeypatch):
     ideal = ideal_stack(plane_codes(RIG, 10.0), bits=8, noise=1.5, seed=3)
     checks = {}
     for compiled in (False, True):
-        monkeypatch.setattr(decode_module, "COMPILED", compiled)
+        monkeypatch.setattr(kernel_choice, "COMPILED", compiled)
         checks[compiled] = check_gcps_v1_sample(ideal, None, RIG.nlp)["u"]
     assert checks[True] == checks[False] and checks[True].status == "consistent"

@@ -60,6 +60,29 @@ def test_inverse_converges_to_tolerance(n: int) -> None:
     assert np.abs(res.x - x).max() < 1e-6 / 1400 * 2
 
 
+@pytest.mark.parametrize("n", [5, 8, 14])
+def test_a_given_start_meets_the_same_tolerance(n: int) -> None:
+    """``start``: from a close guess (the truth off by 1e-4) the solution without it; from a bad one
+    (off by 0.3) the points that do not converge restart from ``K^-1 (u, v)``: either way every
+    point reprojects within 1e-6 px, NaN input stays NaN. From a close guess one Newton step."""
+    dist = Distortion.from_coeffs(_coeffs(n, 7 * n))
+    rng = np.random.default_rng(5)
+    x, y = rng.uniform(-0.6, 0.6, (2, 3000))
+    u, v = project_normalized(K, dist, x, y)
+    u[:3] = np.nan
+    free = undistort_pixels(K, dist, u, v)
+    for off in (1e-4, 0.3):
+        res = undistort_pixels(K, dist, u, v, start=(x + off, y - off))
+        assert res.n_failed == 0 and np.isnan(res.x[:3]).all() and res.converged[3:].all()
+        u2, v2 = project_normalized(K, dist, res.x[3:], res.y[3:])
+        assert np.hypot(u2 - u[3:], v2 - v[3:]).max() <= 1e-6
+        if off < 1e-3:  # a bad start may find another preimage where the model folds over
+            assert np.abs(res.x[3:] - free.x[3:]).max() * 1400 < 2e-6
+    if n != 14:  # the undamped kernel (untilted models): one step from the close guess
+        close = undistort_pixels(K, dist, u[3:], v[3:], start=(x[3:] + 1e-5, y[3:] - 1e-5))
+        assert close.iterations == 1 < undistort_pixels(K, dist, u[3:], v[3:]).iterations
+
+
 def test_strong_distortion_beats_opencv_default_iterations() -> None:
     """Strong barrel distortion: OpenCV's five iterations leave pixels of error, ours 1e-6 px."""
     d = np.array([-0.35, 0.12, 0.001, -0.001, -0.02])

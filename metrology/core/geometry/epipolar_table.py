@@ -18,8 +18,9 @@ float32 coefficients from as many contiguous planes and a cubic in the position 
 
     Q = sum_m tau^m (A_m + a_c B_m),   A: the cubic of row j, B: row j+1 minus row j
 
-evaluated by Horner's rule on the blended coefficients, in one compiled pass per tile
-(:mod:`metrology.core.geometry.pinhole_kernels`; float32 coefficients, float64 arithmetic). ``B_3``
+evaluated by Horner's rule on the blended coefficients, in one pass per tile, compiled
+(:mod:`metrology.core.geometry.pinhole_kernels`) or its numpy twin
+(:mod:`metrology.core.geometry.pinhole_numpy`); float32 coefficients, float64 arithmetic. ``B_3``
 (the change of the cubic term from one line to the next, ~1e-6 projector units on strongly
 distorted projectors) is left out and its largest value added to the table's error.
 
@@ -33,6 +34,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+
+from metrology.core.geometry.pinhole_numpy import flat, tile_kernels
 
 LINE_TOL = 5e-5
 """Largest estimated interpolation error accepted, projector units. The float32 evaluation
@@ -187,22 +190,27 @@ class EpipolarTable:
         return self.planes, self.lo - self.step_w, 1.0 / self.step_w, self.n_cols
 
     def evaluate(
-        self, coded: np.ndarray, base: np.ndarray, frac: np.ndarray, derivative: bool = False
+        self,
+        coded: np.ndarray,
+        base: np.ndarray,
+        frac: np.ndarray,
+        derivative: bool = False,
+        frame_px: int | None = None,
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """``q`` (float32, the shape of ``coded``) at coded coordinates ``coded`` of pixels with
         :meth:`pixel_rows` ``(base, frac)``, and with ``derivative`` ``dq/dw`` (per projector
-        unit); NaN outside the table. One compiled pass
-        (:func:`~metrology.core.geometry.pinhole_kernels.table_tile`, float64 inside)."""
-        from metrology.core.geometry import pinhole_kernels as kernels
-
+        unit); NaN outside the table. One pass of ``table_tile`` (float64 inside), compiled or
+        numpy's as :func:`~metrology.core.geometry.pinhole_numpy.tile_kernels` chooses for frames
+        of ``frame_px`` pixels (default: ``coded.size``); both give the same numbers."""
         if not np.shape(coded) == np.shape(base) == np.shape(frac):
             raise ValueError("coded, base and frac must have one shape")
+        kernels = tile_kernels(np.size(coded) if frame_px is None else frame_px)
         q = np.empty(np.shape(coded), np.float32)
         dq = np.empty(q.shape if derivative else 0, np.float32)
         kernels.table_tile(
-            kernels.flat(coded),
-            kernels.flat(base, np.int32),
-            kernels.flat(frac),
+            flat(coded),
+            flat(base, np.int32),
+            flat(frac),
             *self.kernel_args(),
             q.reshape(-1),
             dq.reshape(-1),

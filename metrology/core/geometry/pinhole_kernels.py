@@ -16,8 +16,9 @@ The equations are those of the two tables' module docstrings and of
 :meth:`metrology.core.geometry.pinhole.PreparedPinhole._plane_of`. Every array is one-dimensional
 (a tile's contiguous rows, flattened); the arithmetic is float64 inside, float32 in and out.
 Compiled on first use and cached on disk (``cache=True``: a new process loads the machine code
-instead of compiling it again). This module imports numba: import it only where a distorted
-projector is triangulated, never at start-up.
+instead of compiling it again). This module imports numba: a process that has not imported it
+takes the numpy twins of :mod:`metrology.core.geometry.pinhole_numpy` (same numbers), by the rule
+of :func:`metrology.core.kernel_choice.use_compiled`.
 """
 
 from __future__ import annotations
@@ -180,11 +181,6 @@ def plane_tile(
             points[3 * i] = t * np.float64(xn[i])
             points[3 * i + 1] = t * np.float64(yn[i])
             points[3 * i + 2] = t
-
-
-def flat(a: np.ndarray, dtype: type[np.generic] = np.float32) -> np.ndarray:
-    """``a`` as a contiguous one-dimensional array of ``dtype`` (a view when it already is one)."""
-    return np.ascontiguousarray(a, dtype=dtype).reshape(-1)
 
 
 def warm() -> None:

@@ -23,6 +23,7 @@ import numpy as np
 
 from metrology.core.distortion import Distortion, undistort_pixels
 from metrology.core.geometry.epipolar_table import EpipolarTable
+from metrology.core.geometry.pinhole_numpy import flat, tile_kernels
 
 GRID_TOL = 2e-5
 """Largest estimated interpolation error (projector units) accepted for the projector's
@@ -107,22 +108,20 @@ class UndistortionGrid:
         return (*t.kernel_args(), t.c_lo, 1.0 / t.step_c, t.n_lines, self.axis == "u", *self.intrinsics)
 
     def normalized(
-        self, u: np.ndarray, v: np.ndarray, derivative: bool = False
+        self, u: np.ndarray, v: np.ndarray, derivative: bool = False, frame_px: int | None = None
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """The undistorted normalized coordinate of the coded axis, ``x_p`` (``axis="u"``) or
         ``y_p`` (``"v"``), at ``(u, v)`` (projector units, one shape) and, with ``derivative``,
         its derivative along the coded axis; float32, the shape of ``u``. NaN for NaN input and
         for coded coordinates beyond half a unit outside the projector; the other coordinate is
-        clamped to the table (one unit outside). One compiled pass
-        (:func:`~metrology.core.geometry.pinhole_kernels.grid_tile`, float64 inside)."""
-        from metrology.core.geometry import pinhole_kernels as kernels
-
+        clamped to the table (one unit outside). One pass of ``grid_tile`` (float64 inside),
+        compiled or numpy's as :func:`~metrology.core.geometry.pinhole_numpy.tile_kernels`
+        chooses for frames of ``frame_px`` pixels (default: ``u.size``)."""
         if np.shape(u) != np.shape(v):
             raise ValueError(f"u and v must have one shape, got {np.shape(u)} and {np.shape(v)}")
+        kernels = tile_kernels(np.size(u) if frame_px is None else frame_px)
         coded, other = (u, v) if self.axis == "u" else (v, u)
         q = np.empty(np.shape(u), np.float32)
         dq = np.empty(q.shape if derivative else 0, np.float32)
-        kernels.grid_tile(
-            kernels.flat(coded), kernels.flat(other), *self.kernel_args(), q.reshape(-1), dq.reshape(-1), derivative
-        )
+        kernels.grid_tile(flat(coded), flat(other), *self.kernel_args(), q.reshape(-1), dq.reshape(-1), derivative)
         return q, (dq if derivative else None)
