@@ -51,12 +51,11 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from scipy.ndimage import gaussian_filter1d
 
 from metrology.core.geometry.crossed_axes import Rig, camera_ray_point, codes_of_points
 from metrology.core.patterns import GRAY_NAMES, PATTERN_NAMES, PHASE_NAMES, pattern_intensity
 from metrology.core.scenes import Scene, StageScene
-from metrology.core.simulate.options import SimulationOptions, _is_int, camera_image
+from metrology.core.simulate.options import SimulationOptions, _is_int, blur_line, camera_image
 from metrology.core.simulate.series import series_seed, stack_seed
 
 FloatArray = npt.NDArray[np.float64]
@@ -489,7 +488,7 @@ def _blurred_table(name: str, nlp: int, sigma: float, square: bool, gamma: float
     if gamma != 1.0:
         emitted = emitted**gamma
     emitted = emitted.reshape(n, 8).mean(axis=1)
-    table = gaussian_filter1d(emitted, sigma / CODE_GRID_STEP, mode="constant", cval=0.0, truncate=8.0)
+    table = blur_line(emitted, sigma / CODE_GRID_STEP, 8.0, "constant")
     table[0] = table[-1] = 0.0
     if len(_TABLE_CACHE) > 64:
         _TABLE_CACHE.clear()

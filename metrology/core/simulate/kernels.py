@@ -1,0 +1,173 @@
+"""Compiled kernels of the virtual rig's hot loops (numba, ``nogil``), each giving the float64
+bits of the numpy passes it replaces (but :func:`sine_intensity`, to rounding) (``tests/core/test_render_kernels.py``):
+
+- :func:`plane_hits`: the first hit of camera rays that meet only the scene's reference plane
+  (their trace misses every footprint box, where the height is 0): the march of
+  :func:`metrology.core.simulate.cast.cast_truth` found in closed form, then its 60 bisections,
+  stopped where the bracket no longer changes;
+- :func:`interp_uniform`: ``np.interp`` on a uniform grid ``lo + j * step``, its cell found by
+  index arithmetic instead of a binary search, with numpy's arithmetic for the value;
+- :func:`lit_intensity`: a codec frame's light, the ambient everywhere plus the projector's where
+  lit, in one pass without the temporaries of a gather and a scatter;
+- :func:`sine_intensity`: the same for a sinusoidal frame, its cosine from the sequence's cos and sin
+  of the step-0 phase (angle addition: one ``cos`` and one ``sin`` per sequence instead of one ``cos``
+  per frame; the values agree with the direct cosine to float64 rounding, not bit for bit).
+
+No ``fastmath``: a fused multiply-add would change the bits. Compiled on first use and cached on
+disk (``cache=True``); :func:`warm` loads them (``python -m metrology.core.compiled``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(nogil=True, cache=True)
+def _march_t(t_near: float, t_far: float, i: int, n_steps: int) -> float:  # pragma: no cover
+    """Sample ``i`` of a march: ``t_near + (t_far - t_near) * (i / n_steps)``, as numpy computes it."""
+    return t_near + (t_far - t_near) * (float(i) / float(n_steps))
+
+
+@njit(nogil=True, cache=True)
+def plane_hits(
+    rows: np.ndarray,
+    t_near: np.ndarray,
+    t_far: np.ndarray,
+    rate: np.ndarray,
+    s_origin: float,
+    n_steps: int,
+    iterations: int,
+    hit_t: np.ndarray,
+    found: np.ndarray,
+) -> None:  # pragma: no cover
+    """First hits of the rays ``rows`` on the plane ``s = 0``, written into ``hit_t[rows]`` and
+    ``found[rows]`` (flat float64 and bool arrays over all rays).
+
+    The ray's height is ``g(t) = s_origin + t rate`` (``rate = ds/dt < 0``). The march samples
+    ``t_i = t_near + (t_far - t_near)(i / n_steps)``, ``i = 0 .. n_steps``; the hit sample is the
+    first with ``g(t_i) <= 0`` (``g`` is monotone in ``i`` in floating point too, so it is found from
+    the plane's crossing ``t = -s_origin / rate`` and corrected by whole steps). No such sample: not
+    found. Hit at ``i = 0``: ``t_0``. Else ``iterations`` bisections of ``[t_(i-1), t_i]`` on
+    ``g(mid) <= 0``, ``mid = 0.5 (a + b)``, stopped early once ``mid`` is ``a`` or ``b`` (the bracket
+    then stays as it is): ``hit_t = b``.
+    """
+    for k in range(rows.size):
+        r = rows[k]
+        tn = t_near[r]
+        tf = t_far[r]
+        slope = rate[r]
+        if not math.isfinite(tn):
+            found[r] = False
+            continue
+        guess = (-s_origin / slope - tn) / (tf - tn) * n_steps
+        i = n_steps + 1
+        if math.isfinite(guess):
+            i = min(max(math.ceil(guess), 0), n_steps + 1)
+        while i > 0 and s_origin + _march_t(tn, tf, i - 1, n_steps) * slope <= 0:
+            i -= 1
+        while i <= n_steps and not s_origin + _march_t(tn, tf, i, n_steps) * slope <= 0:
+            i += 1
+        if i > n_steps:
+            found[r] = False
+            continue
+        found[r] = True
+        b = _march_t(tn, tf, i, n_steps)
+        if i > 0:
+            a = _march_t(tn, tf, i - 1, n_steps)
+            if a < b:
+                for _ in range(iterations):
+                    mid = 0.5 * (a + b)
+                    if not a < mid < b:  # mid is a or b: the bracket is fixed from here on
+                        break
+                    if s_origin + mid * slope <= 0:
+                        b = mid
+                    else:
+                        a = mid
+        hit_t[r] = b
+
+
+@njit(nogil=True, cache=True)
+def interp_uniform(
+    x: np.ndarray, lo: float, step: float, table: np.ndarray, out: np.ndarray
+) -> None:  # pragma: no cover
+    """``out = np.interp(x, lo + np.arange(n) * step, table)`` for finite ``x`` (1-D float64 arrays,
+    ``n = table.size >= 2``), bit for bit: the cell ``j`` with ``xp[j] <= x < xp[j + 1]`` (first
+    guessed as ``floor((x - lo) / step)``, then moved to the grid values as numpy computes them),
+    ``table[0]`` left of the grid, ``table[-1]`` from its last value on, ``table[j]`` on a grid
+    value, else ``slope (x - xp[j]) + table[j]`` with ``slope = (table[j+1] - table[j]) / (xp[j+1] - xp[j])``.
+    """
+    n = table.size
+    last = lo + float(n - 1) * step
+    for k in range(x.size):
+        value = x[k]
+        if math.isnan(value):
+            out[k] = value
+            continue
+        if value < lo:
+            out[k] = table[0]
+            continue
+        if value >= last:
+            out[k] = table[n - 1]
+            continue
+        j = min(max(int((value - lo) / step), 0), n - 2)
+        while j > 0 and value < lo + float(j) * step:
+            j -= 1
+        while j < n - 2 and value >= lo + float(j + 1) * step:
+            j += 1
+        left = lo + float(j) * step
+        if value == left:
+            out[k] = table[j]
+            continue
+        right = lo + float(j + 1) * step
+        slope = (table[j + 1] - table[j]) / (right - left)
+        result = slope * (value - left) + table[j]
+        if math.isnan(result):
+            result = slope * (value - right) + table[j + 1]
+            if math.isnan(result) and table[j] == table[j + 1]:
+                result = table[j]
+        out[k] = result
+
+
+@njit(nogil=True, cache=True)
+def lit_intensity(
+    base: np.ndarray, index: np.ndarray, gain: np.ndarray, emitted: np.ndarray, out: np.ndarray
+) -> None:  # pragma: no cover
+    """A frame's light: ``out = base`` with ``out[index[k]] = base[index[k]] + gain[k] * emitted[k]``
+    (flat float64; the bits of ``intensity = base.copy(); intensity[index] += gain * emitted``)."""
+    out[:] = base
+    for k in range(index.size):
+        i = index[k]
+        out[i] = base[i] + gain[k] * emitted[k]
+
+
+@njit(nogil=True, cache=True)
+def sine_intensity(
+    base: np.ndarray,
+    index: np.ndarray,
+    gain: np.ndarray,
+    cos_a: np.ndarray,
+    sin_a: np.ndarray,
+    offset: float,
+    c: float,
+    s: float,
+    out: np.ndarray,
+) -> None:  # pragma: no cover
+    """A sinusoidal frame's light: ``out = base`` with ``out[index[k]] = base[index[k]] + gain[k] E_k``,
+    ``E_k = offset + (c cos_a[k] - s sin_a[k])`` (flat float64): with ``c = A cos p``, ``s = A sin p``,
+    ``E = offset + A cos(a + p)`` by the angle-addition formula (to float64 rounding)."""
+    out[:] = base
+    for k in range(index.size):
+        i = index[k]
+        out[i] = base[i] + gain[k] * (offset + (c * cos_a[k] - s * sin_a[k]))
+
+
+def warm() -> None:
+    """Load (or compile) the kernels now, on empty arrays of the types the renderers pass."""
+    e = np.empty(0, np.float64)
+    plane_hits(np.empty(0, np.intp), e, e, e, 1.0, 1, 60, e, np.empty(0, np.bool_))
+    interp_uniform(e, 0.0, 1.0, np.zeros(2), e)
+    lit_intensity(e, np.empty(0, np.int64), e, e, e)
+    sine_intensity(e, np.empty(0, np.int64), e, e, e, 0.5, 0.5, 0.0, e)
