@@ -12,7 +12,7 @@ from scipy.ndimage import gaussian_filter1d
 from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, look_at_rig
 from metrology.core.scenes import SphereScene, TwoSpheresScene
 from metrology.core.simulate.cast import ScenePlacement, cast_truth
-from metrology.core.simulate.kernels import interp_uniform, lit_intensity, sine_intensity
+from metrology.core.simulate.kernels import interp_uniform, lit_intensity, sine_intensity, slab_interval
 from metrology.core.simulate.options import blur_line
 
 
@@ -124,3 +124,41 @@ def test_blur_line_is_scipys_gaussian_filter_to_rounding(sigma, truncate, mode) 
         np.testing.assert_array_equal(got, expected)
     else:
         np.testing.assert_allclose(got, expected, rtol=0, atol=2e-15)
+
+
+def test_slab_interval_is_the_slab_test_of_numpy() -> None:
+    """Per axis ``[a / p, b / p]`` sorted (every s or none where ``p == 0``), intersected: the bits of
+    the numpy passes it replaced, on rays of every direction, axis-parallel ones and boxes holding 0."""
+    rng = np.random.default_rng(8)
+    px = np.concatenate([rng.uniform(-300.0, 300.0, 5000), np.zeros(50), [np.nan, 1.0]])
+    py = np.concatenate([rng.uniform(-200.0, 200.0, 5000), rng.uniform(-5.0, 5.0, 50), [1.0, np.nan]])
+    py[:100] = 0.0
+    for box in ((-40.0, 90.0, -30.0, 25.0), (10.0, 90.0, 5.0, 25.0), (-90.0, -10.0, -25.0, 0.0)):
+        lo, hi = np.full(px.shape, -np.inf), np.full(px.shape, np.inf)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for p, a, b in ((px, box[0], box[1]), (py, box[2], box[3])):
+                nz = p != 0.0
+                first, last = np.minimum(a / p, b / p), np.maximum(a / p, b / p)
+                inside = a <= 0.0 <= b
+                np.maximum(lo, np.where(nz, first, -np.inf if inside else np.inf), out=lo)
+                np.minimum(hi, np.where(nz, last, np.inf if inside else -np.inf), out=hi)
+        got_lo, got_hi = np.empty_like(px), np.empty_like(px)
+        slab_interval(px, py, *box, got_lo, got_hi)
+        np.testing.assert_array_equal(got_lo, lo)
+        np.testing.assert_array_equal(got_hi, hi)
+        assert ((got_lo <= got_hi) == (lo <= hi)).all()
+
+
+def test_sample_light_is_the_code_samplers_interpolation_scaled() -> None:
+    """``ambient + signal * E``, ``E`` the table interpolated at the codes' cells: the bits of
+    :class:`_CodeSampler`'s passes (codes beyond both ends of the table included)."""
+    from metrology.core.simulate.paper_rig import CODE_GRID_STEP, _CodeSampler
+
+    rng = np.random.default_rng(9)
+    codes = rng.uniform(-3.0, 131.0, (60, 80))
+    codes[0, :5] = np.nan
+    pad = 2.0
+    table = gaussian_filter1d((np.arange(round((128 + 2 * pad) / CODE_GRID_STEP) + 1) // 300 % 2).astype(float), 9.0)
+    signal, ambient = rng.uniform(0.0, 0.8, codes.shape), rng.uniform(0.0, 0.05, codes.shape)
+    sampler = _CodeSampler(codes, pad)
+    np.testing.assert_array_equal(sampler.light(table, signal, ambient), ambient + signal * sampler.sample(table))

@@ -11,7 +11,11 @@ bits of the numpy passes it replaces (but :func:`sine_intensity`, to rounding) (
   lit, in one pass without the temporaries of a gather and a scatter;
 - :func:`sine_intensity`: the same for a sinusoidal frame, its cosine from the sequence's cos and sin
   of the step-0 phase (angle addition: one ``cos`` and one ``sin`` per sequence instead of one ``cos``
-  per frame; the values agree with the direct cosine to float64 rounding, not bit for bit).
+  per frame; the values agree with the direct cosine to float64 rounding, not bit for bit);
+- :func:`slab_interval`: the paper rig's slab test of a ray or shadow segment against a footprint
+  box (fourteen passes of numpy before);
+- :func:`sample_light`: the paper rig's light per sub-ray, a blurred table interpolated at the
+  codes' cells and scaled by the albedo (six passes before).
 
 No ``fastmath``: a fused multiply-add would change the bits. Compiled on first use and cached on
 disk (``cache=True``); :func:`warm` loads them (``python -m metrology.core.compiled``).
@@ -164,6 +168,75 @@ def sine_intensity(
         out[i] = base[i] + gain[k] * (offset + (c * cos_a[k] - s * sin_a[k]))
 
 
+@njit(nogil=True, cache=True)
+def _max_nan(a: float, b: float) -> float:  # pragma: no cover
+    """``np.maximum(a, b)``: NaN when either is NaN."""
+    if math.isnan(a) or math.isnan(b):
+        return math.nan
+    return a if a >= b else b
+
+
+@njit(nogil=True, cache=True)
+def _min_nan(a: float, b: float) -> float:  # pragma: no cover
+    """``np.minimum(a, b)``: NaN when either is NaN."""
+    if math.isnan(a) or math.isnan(b):
+        return math.nan
+    return a if a <= b else b
+
+
+@njit(nogil=True, cache=True)
+def slab_interval(
+    px: np.ndarray, py: np.ndarray, x0: float, x1: float, y0: float, y1: float, lo: np.ndarray, hi: np.ndarray
+) -> None:  # pragma: no cover
+    """The interval ``[lo, hi]`` of ``s`` where ``s (px, py)`` lies in the box ``[x0, x1] x [y0, y1]``
+    (empty where ``lo > hi``), per element of the 1-D float64 ``px``, ``py``: per axis ``[a / p, b / p]``
+    sorted, or every ``s`` (the box's slab holds 0) or none where ``p == 0``; ``lo`` the largest of the
+    lower ends and -inf, ``hi`` the smallest of the upper ends and +inf (NaN propagated as numpy's
+    ``maximum``/``minimum``)."""
+    inside_x = x0 <= 0.0 and x1 >= 0.0
+    inside_y = y0 <= 0.0 and y1 >= 0.0
+    for k in range(px.size):
+        low = -math.inf
+        high = math.inf
+        for axis in range(2):
+            p = px[k] if axis == 0 else py[k]
+            a = x0 if axis == 0 else y0
+            b = x1 if axis == 0 else y1
+            inside = inside_x if axis == 0 else inside_y
+            if p != 0.0:
+                ta = a / p
+                tb = b / p
+                first = _min_nan(ta, tb)
+                last = _max_nan(ta, tb)
+            else:
+                first = -math.inf if inside else math.inf
+                last = math.inf if inside else -math.inf
+            low = _max_nan(low, first)
+            high = _min_nan(high, last)
+        lo[k] = low
+        hi[k] = high
+
+
+@njit(nogil=True, cache=True)
+def sample_light(
+    table: np.ndarray,
+    below: np.ndarray,
+    frac: np.ndarray,
+    signal: np.ndarray,
+    ambient: np.ndarray,
+    out: np.ndarray,
+) -> None:  # pragma: no cover
+    """The paper rig's light per ray, ``out = ambient + signal E``, with ``E`` the table linearly
+    interpolated at cell ``below`` (``E = (table[below + 1] - table[below]) frac + table[below]``):
+    the bits of :class:`~metrology.core.simulate.paper_rig._CodeSampler`'s passes followed by
+    ``ambient + signal * E`` (flat float64, ``below`` intp)."""
+    for k in range(below.size):
+        j = below[k]
+        base = table[j]
+        emitted = (table[j + 1] - base) * frac[k] + base
+        out[k] = ambient[k] + signal[k] * emitted
+
+
 def warm() -> None:
     """Load (or compile) the kernels now, on empty arrays of the types the renderers pass."""
     e = np.empty(0, np.float64)
@@ -171,3 +244,5 @@ def warm() -> None:
     interp_uniform(e, 0.0, 1.0, np.zeros(2), e)
     lit_intensity(e, np.empty(0, np.int64), e, e, e)
     sine_intensity(e, np.empty(0, np.int64), e, e, e, 0.5, 0.5, 0.0, e)
+    slab_interval(e, e, 0.0, 1.0, 0.0, 1.0, e, e)
+    sample_light(np.zeros(2), np.empty(0, np.intp), e, e, e, e)
