@@ -12,7 +12,10 @@ serves every model:
    and bottom in steps that move it at most :data:`MARCH_STEP_MM` sideways (and at most
    :data:`MAX_HEIGHT_STEP_MM` in height); the first sign change of ``g(t) = s(t) - h(X(t), Y(t))``
    (``s`` the ray point's height above the plane) is refined by 60 bisections (to ~1e-13 mm; at
-   a vertical wall of the height field, to the wall).
+   a vertical wall of the height field, to the wall; a ray stops once its bracket no longer
+   changes). A ray whose trace misses every footprint box (:attr:`~metrology.core.scenes.Scene.footprints_mm`,
+   outside which the height is 0) meets only the plane: the same march sample and bisections are
+   computed without the height field (:func:`metrology.core.simulate.kernels.plane_hits`), the same bits.
 2. **Shadow.** A hit is unlit when a sample of the segment to the projector's centre (samples
    again at most :data:`MARCH_STEP_MM` apart sideways, until the segment rises above the scene's
    top) lies more than 1e-6 mm inside the object.
