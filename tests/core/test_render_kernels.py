@@ -162,3 +162,24 @@ def test_sample_light_is_the_code_samplers_interpolation_scaled() -> None:
     signal, ambient = rng.uniform(0.0, 0.8, codes.shape), rng.uniform(0.0, 0.05, codes.shape)
     sampler = _CodeSampler(codes, pad)
     np.testing.assert_array_equal(sampler.light(table, signal, ambient), ambient + signal * sampler.sample(table))
+
+
+def test_the_first_float_below_the_plane_is_where_the_bisections_end() -> None:
+    """The plane rays' bisections replaced by ulp steps from the crossing: the same float on random
+    brackets, brackets of a few ulps and crossings at powers of two (where the ulp doubles)."""
+    from metrology.core.simulate.kernels import _bisect_plane, _first_below
+
+    rng = np.random.default_rng(10)
+    n = 20_000
+    slope = -rng.uniform(1e-3, 1.0, n)
+    root = np.where(
+        rng.random(n) < 0.5,
+        rng.uniform(1.0, 3000.0, n),
+        2.0 ** rng.integers(-3, 12, n) * (1 + rng.integers(-40, 40, n) * 2.0**-52),
+    )
+    s_origin = -root * slope
+    width = root * 10.0 ** rng.uniform(-15.0, -0.5, n)
+    below = rng.random(n)
+    for a, b, s, r in zip(root - width * below, root + width * (1 - below), s_origin, slope, strict=True):
+        if a < b:
+            assert _first_below(a, b, s, r, 60) == _bisect_plane(a, b, s, r, 60)

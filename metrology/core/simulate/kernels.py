@@ -3,8 +3,8 @@ bits of the numpy passes it replaces (but :func:`sine_intensity`, to rounding) (
 
 - :func:`plane_hits`: the first hit of camera rays that meet only the scene's reference plane
   (their trace misses every footprint box, where the height is 0): the march of
-  :func:`metrology.core.simulate.cast.cast_truth` found in closed form, then its 60 bisections,
-  stopped where the bracket no longer changes;
+  :func:`metrology.core.simulate.cast.cast_truth` found in closed form, then the float its 60
+  bisections end with (the first float below the plane, found by ulp steps from the crossing);
 - :func:`interp_uniform`: ``np.interp`` on a uniform grid ``lo + j * step``, its cell found by
   index arithmetic instead of a binary search, with numpy's arithmetic for the value;
 - :func:`lit_intensity`: a codec frame's light, the ambient everywhere plus the projector's where
@@ -54,9 +54,8 @@ def plane_hits(
     ``t_i = t_near + (t_far - t_near)(i / n_steps)``, ``i = 0 .. n_steps``; the hit sample is the
     first with ``g(t_i) <= 0`` (``g`` is monotone in ``i`` in floating point too, so it is found from
     the plane's crossing ``t = -s_origin / rate`` and corrected by whole steps). No such sample: not
-    found. Hit at ``i = 0``: ``t_0``. Else ``iterations`` bisections of ``[t_(i-1), t_i]`` on
-    ``g(mid) <= 0``, ``mid = 0.5 (a + b)``, stopped early once ``mid`` is ``a`` or ``b`` (the bracket
-    then stays as it is): ``hit_t = b``.
+    found. Hit at ``i = 0``: ``t_0``. Else what ``iterations`` bisections of ``[t_(i-1), t_i]`` on
+    ``g(mid) <= 0``, ``mid = 0.5 (a + b)``, end with, ``hit_t = b`` (:func:`_first_below`).
     """
     for k in range(rows.size):
         r = rows[k]
@@ -82,15 +81,50 @@ def plane_hits(
         if i > 0:
             a = _march_t(tn, tf, i - 1, n_steps)
             if a < b:
-                for _ in range(iterations):
-                    mid = 0.5 * (a + b)
-                    if not a < mid < b:  # mid is a or b: the bracket is fixed from here on
-                        break
-                    if s_origin + mid * slope <= 0:
-                        b = mid
-                    else:
-                        a = mid
+                b = _first_below(a, b, s_origin, slope, iterations)
         hit_t[r] = b
+
+
+@njit(nogil=True, cache=True)
+def _first_below(a: float, b: float, s_origin: float, slope: float, iterations: int) -> float:  # pragma: no cover
+    """What ``iterations`` bisections of ``[a, b]`` on ``s_origin + t slope <= 0`` end with (``b``).
+
+    The bisection stops moving once ``a`` and ``b`` are adjacent floats (``0.5 (a + b)`` is then one
+    of them; before, it lies strictly between), which takes at most ``log2((b - a) / ulp)`` < 60
+    halvings here, and ``g(t) = s_origin + t slope`` is monotone in floating point: so it ends at the
+    smallest float ``t`` in ``(a, b]`` with ``g(t) <= 0``. That float is found from the crossing
+    ``-s_origin / slope`` (off by an ulp or two) by steps of one ulp; where that takes more than 64
+    steps, the bisection itself runs."""
+    t = -s_origin / slope
+    if not a < t < b:
+        t = b
+    for _ in range(64):
+        if t >= b or s_origin + t * slope <= 0:
+            break
+        t = np.nextafter(t, math.inf)
+    else:
+        return _bisect_plane(a, b, s_origin, slope, iterations)
+    for _ in range(64):
+        p = np.nextafter(t, -math.inf)
+        if not (p > a and s_origin + p * slope <= 0):
+            return t
+        t = p
+    return _bisect_plane(a, b, s_origin, slope, iterations)
+
+
+@njit(nogil=True, cache=True)
+def _bisect_plane(a: float, b: float, s_origin: float, slope: float, iterations: int) -> float:  # pragma: no cover
+    """``iterations`` bisections of ``[a, b]`` on ``s_origin + mid slope <= 0``, ``mid = 0.5 (a + b)``,
+    stopped once ``mid`` is ``a`` or ``b`` (the bracket then stays as it is); returns ``b``."""
+    for _ in range(iterations):
+        mid = 0.5 * (a + b)
+        if not a < mid < b:
+            break
+        if s_origin + mid * slope <= 0:
+            b = mid
+        else:
+            a = mid
+    return b
 
 
 @njit(nogil=True, cache=True)
