@@ -19,6 +19,7 @@ KERNEL_MODULES = (
     "metrology.core.decode_kernels",
     "metrology.core.codecs.kernels",
     "metrology.core.geometry.pinhole_kernels",
+    "metrology.core.simulate.kernels",
 )
 """Modules of compiled kernels with a ``warm()``."""
 

@@ -46,7 +46,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
-from scipy.ndimage import gaussian_filter1d
 
 from metrology.core.codecs.gray import gray_digits
 from metrology.core.codecs.model import Codec, GrayCode, PhaseSequence
@@ -120,10 +119,10 @@ def pattern_value(role: FrameRole, x: npt.ArrayLike) -> FloatArray:
     if role.kind == "phase":
         seq = role.sequence
         assert seq is not None
-        c = np.cos(2 * np.pi * (x - seq.origin) / seq.period + 2 * np.pi * seq.shift * role.step / seq.steps)
         if seq.waveform == "square":
+            c = np.cos(2 * np.pi * (x - seq.origin) / seq.period + 2 * np.pi * seq.shift * role.step / seq.steps)
             return (c >= 0).astype(np.float64)
-        return 0.5 + 0.5 * c
+        return _sine(seq, role.step, _sine_angle(seq, x), 1.0)
     g = role.gray
     assert g is not None
     with np.errstate(invalid="ignore"):
@@ -144,11 +143,7 @@ def _emitted(role: FrameRole, x: FloatArray, sigma: float, gamma: float) -> Floa
         value = pattern_value(role, x)
         return value if gamma == 1.0 else value**gamma
     if role.kind == "phase" and role.sequence is not None and role.sequence.waveform == "sine" and gamma == 1.0:
-        # a Gaussian blur scales a sinusoid by exp(-2 pi^2 sigma^2 / P^2)
-        seq = role.sequence
-        damp = math.exp(-2 * math.pi**2 * sigma**2 / seq.period**2)
-        c = np.cos(2 * np.pi * (x - seq.origin) / seq.period + 2 * np.pi * seq.shift * role.step / seq.steps)
-        return 0.5 + 0.5 * damp * c
+        return _sine(role.sequence, role.step, _sine_angle(role.sequence, x), _sine_damping(role.sequence, sigma))
     # tabulate the stepped pattern on a fine grid (cell means of 8 sub-samples), blur, interpolate
     if x.size == 0:
         return np.zeros_like(x)
@@ -159,7 +154,40 @@ def _emitted(role: FrameRole, x: FloatArray, sigma: float, gamma: float) -> Floa
     n = math.ceil((hi - lo) / step) + 1
     if n > 2**24:
         raise ValueError(f"projector blur table too large ({n} samples); reduce the coordinate range or the blur")
-    return np.interp(x, lo + np.arange(n) * step, _blurred_table(role, lo, step, n, sigma, gamma))
+    from metrology.core.simulate.kernels import interp_uniform
+
+    out = np.empty(x.shape)  # np.interp(x, lo + np.arange(n) * step, table), bit for bit
+    interp_uniform(
+        np.ascontiguousarray(x, dtype=np.float64).ravel(),
+        lo,
+        step,
+        _blurred_table(role, lo, step, n, sigma, gamma),
+        out.reshape(-1),
+    )
+    return out
+
+
+def _sine_angle(seq: PhaseSequence, x: FloatArray) -> FloatArray:
+    """The phase of a sinusoidal sequence's step 0 at ``x``: ``2 pi (x - origin) / period`` (a new array)."""
+    angle = x - seq.origin
+    angle *= 2 * np.pi
+    angle /= seq.period
+    return angle
+
+
+def _sine_damping(seq: PhaseSequence, sigma: float) -> float:
+    """The factor ``exp(-2 pi^2 sigma^2 / P^2)`` by which a Gaussian blur of ``sigma`` scales a sinusoid."""
+    return math.exp(-2 * math.pi**2 * sigma**2 / seq.period**2)
+
+
+def _sine(seq: PhaseSequence, step: int, angle: FloatArray, damping: float) -> FloatArray:
+    """``0.5 + 0.5 damping cos(angle + 2 pi shift step / N)`` of a sinusoidal sequence's step ``step``,
+    ``angle`` from :func:`_sine_angle` (a new array; in-place passes, the bits of the expression)."""
+    wave = angle + 2 * np.pi * seq.shift * step / seq.steps
+    np.cos(wave, out=wave)
+    wave *= 0.5 * damping
+    wave += 0.5
+    return wave
 
 
 class _KeptArrays:
@@ -207,7 +235,8 @@ _TABLES = _KeptArrays(TABLE_CACHE_BYTES)
 
 def _blurred_table(role: FrameRole, lo: float, step: float, n: int, sigma: float, gamma: float) -> FloatArray:
     """``n`` samples from ``lo`` by ``step`` of the blurred pattern ``G_sigma * pattern^gamma``: the
-    stepped pattern's cell means of 8 sub-samples, blurred by a Gaussian truncated at 6 sigma.
+    stepped pattern's cell means of 8 sub-samples, blurred by a Gaussian truncated at 6 sigma
+    (:func:`~metrology.core.simulate.options.blur_line`: by FFT for long kernels).
 
     Renders of one scene draw the same table again and again (a Monte Carlo over noise seeds), and
     the blur is most of a render's cost: tables are kept, bounded by :data:`TABLE_CACHE_BYTES`. A
@@ -217,13 +246,15 @@ def _blurred_table(role: FrameRole, lo: float, step: float, n: int, sigma: float
     kept = _TABLES.get(key)
     if kept is not None:
         return kept
+    from metrology.core.simulate.options import blur_line
+
     sub = (np.arange(8) + 0.5) / 8 - 0.5
     fine = (lo + np.arange(n)[:, None] * step + sub[None, :] * step).ravel()
     table = pattern_value(role, fine)
     if gamma != 1.0:
         table = table**gamma
     table = table.reshape(n, 8).mean(axis=1)
-    table = gaussian_filter1d(table, sigma / step, mode="nearest", truncate=6.0)
+    table = blur_line(table, sigma / step, 6.0, "nearest")
     _TABLES.keep(key, table)
     return table
 
@@ -357,17 +388,43 @@ def render_codec(
     gamma = opts.projector_gamma / (codec.precompensated_gamma or 1.0)
 
     def clean_frames() -> Iterator[FloatArray]:
+        from metrology.core.simulate.kernels import lit_intensity, sine_intensity
+
         lit_index = np.flatnonzero(lit)
         lit_coords = {name: x.ravel()[lit_index] for name, x in coords.items()}
-        base = albedo_map * opts.ambient
+        base = (albedo_map * opts.ambient).ravel()
         gain = (albedo_map * opts.projector_gain).ravel()[lit_index]
+        # cos and sin of a sequence's step-0 phase a, once: step k's cos(a + p_k) = cos a cos p_k - sin a sin p_k
+        angles: dict[tuple[str, float, float], tuple[FloatArray, FloatArray]] = {}
+        intensity = np.empty(shape)
+        flat = intensity.reshape(-1)
         for role in frame_roles(codec):
-            intensity = base.copy()
-            if role.kind in ("phase", "gray"):
-                emitted = _emitted(role, lit_coords[role.axis], blur, gamma)
+            seq = role.sequence
+            if role.kind == "phase" and seq is not None and seq.waveform == "sine" and gamma == 1.0:
+                key = (role.axis, seq.origin, seq.period)
+                if key not in angles:
+                    angle = _sine_angle(seq, lit_coords[role.axis])
+                    angles[key] = (np.cos(angle), np.sin(angle, out=angle))
+                cos_a, sin_a = angles[key]
+                shift = 2 * np.pi * seq.shift * role.step / seq.steps
+                amplitude = 0.5 * (_sine_damping(seq, blur) if blur > 0 else 1.0)
+                sine_intensity(
+                    base,
+                    lit_index,
+                    gain,
+                    cos_a,
+                    sin_a,
+                    0.5,
+                    amplitude * math.cos(shift),
+                    amplitude * math.sin(shift),
+                    flat,
+                )
             else:
-                emitted = _emitted(role, np.zeros(lit_index.size), 0.0, gamma)
-            intensity.ravel()[lit_index] += gain * emitted
+                if role.kind in ("phase", "gray"):
+                    emitted = _emitted(role, lit_coords[role.axis], blur, gamma)
+                else:
+                    emitted = _emitted(role, np.zeros(lit_index.size), 0.0, gamma)
+                lit_intensity(base, lit_index, gain, emitted, flat)  # base, + gain E where lit
             yield camera_image(intensity, height, width, opts) * full
 
     frames: Iterable[FloatArray] = clean_frames()
@@ -376,9 +433,14 @@ def render_codec(
         frames = _kept_clean_render(key, frames, codec.n_frames * height * width * 8)
     images = np.empty((codec.n_frames, height, width), opts.dtype)
     for f, grey in enumerate(frames):
-        if opts.noise_grey > 0:
-            grey = grey + opts.noise_grey * rng.standard_normal(grey.shape)
-        images[f] = np.clip(np.rint(grey), 0, full).astype(opts.dtype)
+        if opts.noise_grey > 0:  # grey + noise_grey * z, in place on the draw z
+            noisy = rng.standard_normal(grey.shape)
+            noisy *= opts.noise_grey
+            noisy += grey
+            np.rint(noisy, out=noisy)
+        else:
+            noisy = np.rint(grey)
+        images[f] = np.clip(noisy, 0, full, out=noisy)
     return images
 
 

@@ -12,7 +12,10 @@ serves every model:
    and bottom in steps that move it at most :data:`MARCH_STEP_MM` sideways (and at most
    :data:`MAX_HEIGHT_STEP_MM` in height); the first sign change of ``g(t) = s(t) - h(X(t), Y(t))``
    (``s`` the ray point's height above the plane) is refined by 60 bisections (to ~1e-13 mm; at
-   a vertical wall of the height field, to the wall).
+   a vertical wall of the height field, to the wall; a ray stops once its bracket no longer
+   changes). A ray whose trace misses every footprint box (:attr:`~metrology.core.scenes.Scene.footprints_mm`,
+   outside which the height is 0) meets only the plane: the same march sample and bisections are
+   computed without the height field (:func:`metrology.core.simulate.kernels.plane_hits`), the same bits.
 2. **Shadow.** A hit is unlit when a sample of the segment to the projector's centre (samples
    again at most :data:`MARCH_STEP_MM` apart sideways, until the segment rises above the scene's
    top) lies more than 1e-6 mm inside the object.
@@ -29,6 +32,7 @@ The result, :class:`CastTruth`, feeds a codec renderer (:func:`~metrology.core.c
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,6 +49,11 @@ MAX_HEIGHT_STEP_MM = 2.0
 """Largest height step of the marches, mm (rays nearly along the plane's normal move little sideways)."""
 INSIDE_EPS_MM = 1e-6
 """A segment is blocked only where it lies deeper than this inside the object, mm."""
+BISECTIONS = 60
+"""Bisections of a first hit's bracket (fewer where the bracket stops changing: ~1e-13 mm)."""
+BOX_PAD_MM = 1e-3
+"""Margin around the footprint boxes within which a ray is cast against the height field, mm (a ray
+farther out meets only the plane, whose first hit is found in closed form)."""
 
 
 @dataclass(frozen=True)
@@ -176,9 +185,15 @@ def cast_truth(
     t_near, t_far = t_near.ravel(), t_far.ravel()
     height_step = _height_step(rate, march_step_mm)
     n_steps = max(1, math.ceil((top - bottom) / height_step))
+    # rays whose trace misses every footprint box meet only the plane (h = 0): compiled, same bits
+    boxes = scene.footprints_mm
+    meets = np.ones(flat, bool)
+    if boxes:
+        padded = tuple((x0 - BOX_PAD_MM, x1 + BOX_PAD_MM, y0 - BOX_PAD_MM, y1 + BOX_PAD_MM) for x0, x1, y0, y1 in boxes)
+        meets = _segments_meet_boxes(padded, o_xy[0], o_xy[1], d_x, d_y, t_near, t_far)
     hi = np.full(flat, np.nan)
     lo = t_near.copy()
-    pending = np.flatnonzero(np.isfinite(t_near))  # rays still marching
+    pending = np.flatnonzero(np.isfinite(t_near) & meets)  # rays still marching
     with np.errstate(invalid="ignore"):
         for i in range(n_steps + 1):
             if not pending.size:
@@ -189,15 +204,14 @@ def cast_truth(
             lo[pending[~hit]] = t[~hit]
             pending = pending[~hit]
         found = np.isfinite(hi)
-        a, b = lo.copy(), hi.copy()
-        refine = np.flatnonzero(found & (a < b))
-        aa, bb = a[refine], b[refine]
-        for _ in range(60):
-            mid = 0.5 * (aa + bb)
-            down = g(mid, refine) <= 0
-            bb = np.where(down, mid, bb)
-            aa = np.where(down, aa, mid)
-        b[refine] = bb
+        b = hi.copy()
+        refine = np.flatnonzero(found & (lo < hi))
+        b[refine] = _bisect(g, refine, lo[refine], hi[refine], BISECTIONS)
+    plane = np.flatnonzero(~meets)
+    if plane.size:
+        from metrology.core.simulate.kernels import plane_hits
+
+        plane_hits(plane, t_near, t_far, rate, s_origin, n_steps, BISECTIONS, b, found)
     found = found.reshape(d.shape[:-1])
     b = b.reshape(d.shape[:-1])
     t_hit = np.where(found, b, np.nan)
@@ -290,10 +304,25 @@ def _may_pass_over_the_object(
     boxes = scene.footprints_mm
     if not boxes:
         return np.ones(x0.shape, bool)
-    meets = np.zeros(x0.shape, bool)
+    return _segments_meet_boxes(boxes, x0, y0, dx, dy, np.zeros_like(x0), s_top) | (ds <= 0)
+
+
+def _segments_meet_boxes(
+    boxes: tuple[tuple[float, float, float, float], ...],
+    x0: FloatArray | float,
+    y0: FloatArray | float,
+    dx: FloatArray,
+    dy: FloatArray,
+    t_start: FloatArray,
+    t_stop: FloatArray,
+) -> npt.NDArray[np.bool_]:
+    """Whether each segment ``(x0 + t dx, y0 + t dy)``, ``t`` in ``[t_start, t_stop]``, meets one of
+    the boxes ``(x0, x1, y0, y1)`` (False where an end is NaN). Slab test per box: ``t`` in
+    ``[(b0 - x0) / dx, (b1 - x0) / dx]`` (sorted) for each axis, intersected with the segment's."""
+    meets = np.zeros(dx.shape, bool)
     with np.errstate(divide="ignore", invalid="ignore"):
         for bx0, bx1, by0, by1 in boxes:
-            lo, hi = np.zeros_like(x0), s_top.copy()
+            lo, hi = t_start.copy(), t_stop.copy()
             for start, step, b0, b1 in ((x0, dx, bx0, bx1), (y0, dy, by0, by1)):
                 t0, t1 = (b0 - start) / step, (b1 - start) / step
                 parallel = step == 0  # inside the slab for every t, or for none
@@ -303,7 +332,35 @@ def _may_pass_over_the_object(
                 np.maximum(lo, np.minimum(t0, t1), out=lo)
                 np.minimum(hi, np.maximum(t0, t1), out=hi)
             meets |= lo <= hi
-    return meets | (ds <= 0)
+    return meets
+
+
+def _bisect(
+    g: Callable[[FloatArray, npt.NDArray[np.intp]], FloatArray],
+    rows: npt.NDArray[np.intp],
+    a: FloatArray,
+    b: FloatArray,
+    iterations: int,
+) -> FloatArray:
+    """``iterations`` bisections of the brackets ``[a, b]`` (``g(a) > 0 >= g(b)``) of the rays ``rows``
+    on ``g(mid, rows) <= 0``, ``mid = 0.5 (a + b)``; returns ``b``. A ray leaves once ``mid`` is ``a`` or
+    ``b``: its bracket would not change any more, so the result is that of every iteration."""
+    out = b.copy()
+    active = np.arange(rows.size)
+    aa, bb = a.copy(), b.copy()
+    for _ in range(iterations):
+        mid = 0.5 * (aa + bb)
+        moving = (mid != aa) & (mid != bb)
+        if not moving.all():
+            out[active[~moving]] = bb[~moving]
+            active, aa, bb, mid = active[moving], aa[moving], bb[moving], mid[moving]
+            if not active.size:
+                return out
+        down = g(mid, rows[active]) <= 0
+        bb = np.where(down, mid, bb)
+        aa = np.where(down, aa, mid)
+    out[active] = bb
+    return out
 
 
 def _shadowed(

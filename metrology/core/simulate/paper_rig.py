@@ -51,12 +51,11 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from scipy.ndimage import gaussian_filter1d
 
 from metrology.core.geometry.crossed_axes import Rig, camera_ray_point, codes_of_points
 from metrology.core.patterns import GRAY_NAMES, PATTERN_NAMES, PHASE_NAMES, pattern_intensity
 from metrology.core.scenes import Scene, StageScene
-from metrology.core.simulate.options import SimulationOptions, _is_int, camera_image
+from metrology.core.simulate.options import SimulationOptions, _is_int, blur_line, camera_image
 from metrology.core.simulate.series import series_seed, stack_seed
 
 FloatArray = npt.NDArray[np.float64]
@@ -339,14 +338,30 @@ class _CodeSampler:
         self.frac = t - self.index
         self._size = -1  # the table size the clamped cells below are for
 
-    def sample(self, table: FloatArray) -> FloatArray:
-        """Values of ``table`` (zero at both ends, extended by zeros) at the codes."""
+    def _cells(self, table: FloatArray) -> None:
         last = table.size - 1
         if table.size != self._size:  # the clamped cells of every table of this size, once
             self._below = np.minimum(self.index, last - 1)
             self._above = self._below + 1
             self._frac = np.where(self.index >= last, 0.0, self.frac)
             self._size = table.size
+
+    def light(self, table: FloatArray, signal: FloatArray, ambient: FloatArray) -> FloatArray:
+        """``ambient + signal * sample(table)`` (arrays of the codes' shape), in one compiled pass."""
+        from metrology.core.simulate.kernels import sample_light
+
+        self._cells(table)
+        out = np.empty(self.index.shape)
+        signal = np.ascontiguousarray(signal, dtype=np.float64)
+        ambient = np.ascontiguousarray(ambient, dtype=np.float64)
+        below = np.ascontiguousarray(self._below).reshape(-1)
+        frac = np.ascontiguousarray(self._frac).reshape(-1)
+        sample_light(table, below, frac, signal.reshape(-1), ambient.reshape(-1), out.reshape(-1))
+        return out
+
+    def sample(self, table: FloatArray) -> FloatArray:
+        """Values of ``table`` (zero at both ends, extended by zeros) at the codes."""
+        self._cells(table)
         base = table.take(self._below)
         step = table.take(self._above)
         step -= base
@@ -407,10 +422,10 @@ def _render_clean(rig: Rig, scene: Scene, opts: SimulationOptions) -> _CleanRend
     sampler = _CodeSampler(sub_codes, pad) if max(sigmas) > 0 else None
     for p, name in enumerate(PATTERN_NAMES):
         if sampler is None or sigmas[p] == 0.0:
-            emitted = _exact_emitted(sub_codes, name, rig.nlp, opts)
-        else:
-            emitted = sampler.sample(_blurred_table(name, rig.nlp, sigmas[p], opts.square, opts.projector_gamma, pad))
-        intensity = ambient + signal * emitted
+            intensity = ambient + signal * _exact_emitted(sub_codes, name, rig.nlp, opts)
+        else:  # ambient + signal * E, E the blurred table at the codes
+            table = _blurred_table(name, rig.nlp, sigmas[p], opts.square, opts.projector_gamma, pad)
+            intensity = sampler.light(table, signal, ambient)
         img = camera_image(intensity, H, W, opts)
         grey[p] = img * full
     return _CleanRender(grey, truth, codes, lit_c, edges, z_c, scene, opts)
@@ -489,7 +504,7 @@ def _blurred_table(name: str, nlp: int, sigma: float, square: bool, gamma: float
     if gamma != 1.0:
         emitted = emitted**gamma
     emitted = emitted.reshape(n, 8).mean(axis=1)
-    table = gaussian_filter1d(emitted, sigma / CODE_GRID_STEP, mode="constant", cval=0.0, truncate=8.0)
+    table = blur_line(emitted, sigma / CODE_GRID_STEP, 8.0, "constant")
     table[0] = table[-1] = 0.0
     if len(_TABLE_CACHE) > 64:
         _TABLE_CACHE.clear()
@@ -509,19 +524,16 @@ def _trace(rig: Rig, scene: Scene, xa: FloatArray, ya: FloatArray) -> _Trace:
 
 
 def _slab(px: FloatArray, py: FloatArray, box: tuple[float, float, float, float]) -> tuple[FloatArray, FloatArray]:
-    """Interval of s where ``s * (px, py)`` lies in ``box`` (empty when lower > upper)."""
-    x0, x1, y0, y1 = box
-    lo = np.full(px.shape, -np.inf)
-    hi = np.full(px.shape, np.inf)
-    for p, a, b in ((px, x0, x1), (py, y0, y1)):
-        nz = p != 0.0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ta, tb = a / p, b / p
-        first, last = np.minimum(ta, tb), np.maximum(ta, tb)
-        # p == 0: the coordinate is 0 for every s; inside the slab or never.
-        inside = (a <= 0.0) & (b >= 0.0)
-        np.maximum(lo, np.where(nz, first, -np.inf if inside else np.inf), out=lo)
-        np.minimum(hi, np.where(nz, last, np.inf if inside else -np.inf), out=hi)
+    """Interval of s where ``s * (px, py)`` lies in ``box`` (empty when lower > upper): per axis
+    ``[a / p, b / p]`` sorted, or every s (the slab holds 0) or none where ``p == 0``
+    (:func:`~metrology.core.simulate.kernels.slab_interval`)."""
+    from metrology.core.simulate.kernels import slab_interval
+
+    px = np.ascontiguousarray(px, dtype=np.float64)
+    py = np.ascontiguousarray(py, dtype=np.float64)
+    lo, hi = np.empty(px.shape), np.empty(px.shape)
+    x0, x1, y0, y1 = (float(b) for b in box)
+    slab_interval(px.reshape(-1), py.reshape(-1), x0, x1, y0, y1, lo.reshape(-1), hi.reshape(-1))
     return lo, hi
 
 
