@@ -116,7 +116,13 @@ def table_tile(
     ``base`` (int32), ``frac`` (float32), NaN where ``coded`` is NaN; ``dq_out`` written only with
     ``want_dq``."""
     q, dq = _table_at(coded.astype(np.float64), base, frac.astype(np.float64), planes, g0, inv_h, n_cols)
-    missing = np.isnan(coded)
+    _write_q(q, dq, np.isnan(coded), q_out, dq_out, want_dq)
+
+
+def _write_q(
+    q: np.ndarray, dq: np.ndarray, missing: np.ndarray, q_out: np.ndarray, dq_out: np.ndarray, want_dq: bool
+) -> None:
+    """``q`` and (with ``want_dq``) ``dq`` (float64 ``(n,)``) into the float32 outputs, NaN where ``missing``."""
     np.copyto(q_out, q, casting="same_kind")
     np.copyto(q_out, np.nan, where=missing)
     if want_dq:
@@ -168,12 +174,9 @@ def grid_tile(
         q += x_lin
     else:
         q += y_lin
-    np.copyto(q_out, q, casting="same_kind")
-    np.copyto(q_out, np.nan, where=missing)
     if want_dq:
         dq += 1.0 / fx if axis_u else 1.0 / fy
-        np.copyto(dq_out, dq, casting="same_kind")
-        np.copyto(dq_out, np.nan, where=missing)
+    _write_q(q, dq, missing, q_out, dq_out, want_dq)
 
 
 def plane_tile(
