@@ -24,7 +24,7 @@ from metrology.core.procam.uncertainty import CORRELATION_LIMIT, SPREAD_FACTOR, 
 from metrology.core.procam.virtual import BoardPose
 
 from .noisy_corners import FACING, SIGMA_PX, board_poses, calibrate, noisy, observations
-from .virtual_rig import BOARD, POSES
+from .virtual_rig import BOARD, planned_poses
 
 
 def calibrated(poses: list[BoardPose], sigma: float = 0.05, seed: int = 0) -> dict:  # type: ignore[type-arg]
@@ -147,7 +147,7 @@ def test_boards_facing_the_camera_at_one_distance_raise_the_warning() -> None:
 def test_planned_tilted_poses_separate_focal_length_and_distance() -> None:
     """The 8 planned poses (tilted 20 to 30 degrees in four directions): correlations 0.970
     (camera) and 0.978 (projector), well below the limit; no warning, std below 0.5 px."""
-    report = calibrated(POSES)
+    report = calibrated(list(planned_poses()))
     u = report["uncertainty"]
     for device in ("camera", "projector"):
         assert abs(u[device]["focal_distance_correlation"]) < 0.99, device

@@ -41,11 +41,11 @@ from .virtual_rig import (
     CENTRAL,
     CODEC,
     OPTIONS,
-    POSES,
     PROJECTOR,
     RIG,
     make_codec,
     plane_flatness_mm,
+    planned_poses,
     pose,
     rendered_pose,
 )
@@ -58,7 +58,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("procam-board-renders")]
 def rendered() -> tuple[list[PoseObservation], np.ndarray]:
     observations = []
     first_images = None
-    for i in range(len(POSES)):
+    for i in range(len(planned_poses())):
         images = rendered_pose(i)
         if i == 0:
             first_images = images
@@ -115,9 +115,9 @@ def test_poses_reach_the_edges_of_both_images() -> None:
     """The planned poses: whole board seen and lit, tilted 20 to 30 degrees, its edges 13 to 32
     degrees off the pixel rows and columns, corners near every edge of both images that the other
     device allows (the projector's top: the camera never sees its first 48 to 133 rows)."""
-    cam = [true_corners(RIG, BOARD, p)[0] for p in POSES]
-    prj = [true_corners(RIG, BOARD, p)[1] for p in POSES]
-    for p in POSES:
+    cam = [true_corners(RIG, BOARD, p)[0] for p in planned_poses()]
+    prj = [true_corners(RIG, BOARD, p)[1] for p in planned_poses()]
+    for p in planned_poses():
         assert board_in_view(RIG, BOARD, p)
         assert 19 <= tilt_deg(p) <= 31
         angles = edge_angles_deg(RIG, BOARD, p)
