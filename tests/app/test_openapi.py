@@ -2,14 +2,45 @@
 
 from __future__ import annotations
 
+import fcntl
+import os
 import re
+import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from django.core.management import call_command
 
 from metrology.accounts.services import create_user_with_token
+from tests.shared_run import run_folder
+
+UNICODE_TABLES = (
+    "from hypothesis.internal.charmap import charmap, intervals_from_codec; charmap(); intervals_from_codec('utf-8')"
+)
+"""What a schemathesis run computes before its first string: Hypothesis's tables of the Unicode
+categories and of the characters UTF-8 encodes (1.1 million code points each, 1.3 s of CPU),
+which Hypothesis keeps in ``.hypothesis/unicode_data`` of the working directory."""
+
+
+@pytest.fixture
+def schemathesis_dir(request, tmp_path) -> Path:
+    """The working directory of one schemathesis run: empty (its Hypothesis examples database starts
+    empty, as before), except for the Unicode tables of :data:`UNICODE_TABLES`, computed once per
+    test run in the run's shared folder (under a lock: the API parts run on several workers) and
+    copied here, instead of once per schemathesis run. The tables depend only on Hypothesis's
+    version and Python's Unicode data; should Hypothesis's functions move, nothing is copied and
+    schemathesis computes them as before."""
+    shared = run_folder(request.config) / "hypothesis-home"
+    with open(run_folder(request.config) / "hypothesis-home.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not (shared / "unicode_data").is_dir():
+            env = {**os.environ, "HYPOTHESIS_STORAGE_DIRECTORY": str(shared)}
+            subprocess.run([sys.executable, "-c", UNICODE_TABLES], env=env, capture_output=True, check=False)
+    if (shared / "unicode_data").is_dir():
+        shutil.copytree(shared / "unicode_data", tmp_path / ".hypothesis" / "unicode_data")
+    return tmp_path
 
 
 def test_schema_validates_without_warnings(tmp_path):
@@ -32,7 +63,7 @@ def test_schema_validates_without_warnings(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.django_db(transaction=True)
-def test_schemathesis_finds_no_server_error(live_server, tmp_path, monkeypatch, settings):
+def test_schemathesis_finds_no_server_error(live_server, schemathesis_dir, monkeypatch, settings):
     """A 10 s budget of five examples per operation: a quick first pass over the API (the whole-API
     test below covers every operation with its stored objects)."""
     monkeypatch.setattr("metrology.acquisition.longpoll.MAX_WAIT_S", 0.5)  # as in the whole-API test
@@ -62,9 +93,9 @@ def test_schemathesis_finds_no_server_error(live_server, tmp_path, monkeypatch, 
             "--report",
             "junit",
             "--report-dir",
-            str(tmp_path),
+            str(schemathesis_dir),
         ],
-        cwd=tmp_path,  # schemathesis keeps a cache folder in its working directory
+        cwd=schemathesis_dir,  # Hypothesis keeps its examples and tables in its working directory
         capture_output=True,
         text=True,
         timeout=300,
@@ -166,7 +197,7 @@ def test_the_api_parts_cover_every_operation_once(schema):
 @pytest.mark.django_db(transaction=True)
 @pytest.mark.parametrize("part", sorted(API_PARTS))
 def test_schemathesis_over_the_whole_api_authenticated_finds_no_server_error(
-    live_server, tmp_path, settings, schema, part, monkeypatch
+    live_server, schemathesis_dir, settings, schema, part, monkeypatch
 ):
     """Every operation, authenticated, with stored objects to find (ids 1, 2, ...): examples, coverage
     and fuzzing phases; rates raised (tests/conftest.py) and simulations kept small. The API is
@@ -197,7 +228,7 @@ def test_schemathesis_over_the_whole_api_authenticated_finds_no_server_error(
         owner=user, rig=rig, upload=SimpleUploadedFile("o.zip", plane_zip(z_mm=10.0), "application/zip"), role="object"
     )
     request_measurement(owner=user, rig=rig, reference_id=reference.pk, object_id=obj.pk)
-    junit = tmp_path / "junit.xml"
+    junit = schemathesis_dir / "junit.xml"
     result = subprocess.run(
         [
             sys.executable,
@@ -227,7 +258,7 @@ def test_schemathesis_over_the_whole_api_authenticated_finds_no_server_error(
             "--report-junit-path",
             str(junit),
         ],
-        cwd=tmp_path,
+        cwd=schemathesis_dir,
         capture_output=True,
         text=True,
         timeout=1500,
