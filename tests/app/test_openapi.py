@@ -64,8 +64,10 @@ def test_schema_validates_without_warnings(tmp_path):
 @pytest.mark.slow
 @pytest.mark.django_db(transaction=True)
 def test_schemathesis_finds_no_server_error(live_server, schemathesis_dir, monkeypatch, settings):
-    """A 10 s budget of five examples per operation: a quick first pass over the API (the whole-API
-    test below covers every operation with its stored objects)."""
+    """An 8 s budget of five examples per operation: a quick first pass over the API (the whole-API
+    test below covers every operation with its stored objects). The budget was 10 s while it held
+    the computation of Hypothesis's Unicode tables (1.3 s of CPU, several seconds of a loaded run),
+    now made before it (:func:`schemathesis_dir`)."""
     monkeypatch.setattr("metrology.acquisition.longpoll.MAX_WAIT_S", 0.5)  # as in the whole-API test
     settings.GCPS_MAX_SIMULATION_BYTES = 32 * 1024 * 1024
     _user, key = create_user_with_token(username="fuzzer")
@@ -83,7 +85,7 @@ def test_schemathesis_finds_no_server_error(live_server, schemathesis_dir, monke
             "--max-examples",
             "5",
             "--max-time",
-            "10",
+            "8",
             "--seed",
             "4",
             "--request-timeout",
@@ -103,10 +105,11 @@ def test_schemathesis_finds_no_server_error(live_server, schemathesis_dir, monke
     output = result.stdout + result.stderr
     assert result.returncode == 0, output[-6000:]
     summary = re.search(r"(\d+) generated, (\d+) passed", output)
-    # not a vacuous run: 476 cases in its 10 s at load 0.8, at load 7-14 only 6-98
-    # (schemathesis spends its budget whatever the load), so the floor is low
+    # not a vacuous run: 476 cases in its 10 s at load 0.8, at load 7-14 only 6-98 (schemathesis
+    # spends its budget whatever the load), so the floor is low; 365-485 in 10 s at load 8-10 with
+    # the tables computed in the budget, 295-583 in 7-10 s without
     assert summary and summary.group(1) == summary.group(2) and int(summary.group(1)) >= 5, output[-3000:]
-    print(f"schemathesis in 10 s: {summary.group(0)}")
+    print(f"schemathesis in 8 s: {summary.group(0)}")
 
 
 @pytest.fixture
