@@ -257,7 +257,11 @@ else:
             # synchronous=NORMAL, SQLite's advice for WAL: the log is synced at checkpoints, not at
             # every commit (2.8 ms per commit -> 0.03 ms on the reference VM); the database stays
             # consistent, and only a power loss or OS crash (not a killed process) may undo the
-            # last commits (docs/operations.md)
+            # last commits (docs/operations.md).
+            # Connections are kept for the next request of their thread as with DATABASE_URL
+            # (GCPS_DB_CONN_MAX_AGE, 0 under ASGI): opening one costs about 1 ms of CPU (Django's
+            # set-up of the connection, SQLite's reading of the schema at its first statement)
+            "CONN_MAX_AGE": env_int("GCPS_DB_CONN_MAX_AGE", 60, minimum=0),
             "OPTIONS": {
                 "timeout": 20,
                 "transaction_mode": "IMMEDIATE",

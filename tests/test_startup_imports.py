@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from tests.commands.rigs import RIG as CROSSED_RIG
 from tests.import_graph import imported_modules, module_name
@@ -83,12 +84,33 @@ def fresh_interpreter(code: str, *options: str) -> subprocess.CompletedProcess:
     return done
 
 
-def test_django_setup_imports_no_heavy_module():
-    """With no environment variable set (the embedded default: ``metrology.settings`` loads)."""
-    done = fresh_interpreter(SETUP + "; print('ready')", "-X", "importtime")
+SET_UP_MARK = "django.setup() done"
+
+
+@pytest.fixture(scope="module")
+def setup_then_urlconf() -> tuple[list[tuple[int, str]], list[tuple[int, str]]]:
+    """The ``-X importtime`` rows of one fresh interpreter that runs ``django.setup()`` and then
+    loads the URLconf: those before :data:`SET_UP_MARK` (what the set-up imported) and all of them
+    (the set-up's and the URLconf's: what a web server has imported as it starts). One interpreter
+    for both tests below (a Django start is about 1 s of CPU); what each of them reads is what its own
+    interpreter read before."""
+    done = fresh_interpreter(
+        f"{SETUP}; import sys; print({SET_UP_MARK!r}, file=sys.stderr, flush=True); "
+        "import django.urls; django.urls.get_resolver().url_patterns; print('ready')",
+        "-X",
+        "importtime",
+    )
     assert done.stdout.strip() == "ready"
-    rows = importtime_tree(done.stderr)
+    before, mark, _ = done.stderr.partition(f"\n{SET_UP_MARK}\n")
+    assert mark, done.stderr[-3000:]
+    return importtime_tree(before), importtime_tree(done.stderr)
+
+
+def test_django_setup_imports_no_heavy_module(setup_then_urlconf):
+    """With no environment variable set (the embedded default: ``metrology.settings`` loads)."""
+    rows = setup_then_urlconf[0]
     assert any(name == "django" for _, name in rows), "no -X importtime output"
+    assert not any(name == "metrology.measurements.api" for _, name in rows), "the URLconf's imports were counted"
     found = import_chains(rows, HEAVY)
     assert not found, "django.setup() imported:\n" + "\n".join(f"{name}: {chain}" for name, chain in found.items())
 
@@ -97,15 +119,11 @@ def test_django_setup_imports_no_heavy_module():
 NOT_FOR_URLS = ("scipy", "numba", "open3d", "redis.asyncio")
 
 
-def test_the_urlconf_imports_no_optimiser_and_no_async_redis():
+def test_the_urlconf_imports_no_optimiser_and_no_async_redis(setup_then_urlconf):
     """Every web server process (and ``manage.py check``) imports the URLconf and with it every API
     module; SciPy (0.5 s of CPU, for one sphere fit of the acceptance API) and ``redis.asyncio`` (for
     the projector's long-poll) are imported where they are used."""
-    done = fresh_interpreter(
-        SETUP + "; import django.urls; django.urls.get_resolver().url_patterns; print('ready')", "-X", "importtime"
-    )
-    assert done.stdout.strip() == "ready"
-    rows = importtime_tree(done.stderr)
+    rows = setup_then_urlconf[1]
     assert any(name == "metrology.measurements.api" for _, name in rows), "the URLconf was not loaded"
     found = import_chains(rows, NOT_FOR_URLS)
     assert not found, "the URLconf imported:\n" + "\n".join(f"{name}: {chain}" for name, chain in found.items())

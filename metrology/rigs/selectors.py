@@ -11,7 +11,10 @@ from metrology.rigs.models import Rig
 
 
 def rigs_for(user) -> QuerySet[Rig]:
-    return Rig.objects.filter(owner=user).prefetch_related("history")
+    """The user's rigs. Their history is read when asked for (``rig.history``: the rig's own page and
+    URL show it, one query); lists and the views of a rig's captures, sessions and jobs never do,
+    and prefetching it loaded every entry's rig file with every rig they read."""
+    return Rig.objects.filter(owner=user)
 
 
 def get_rig(user, rig_id) -> Rig:

@@ -38,10 +38,16 @@ SHOW = "import django; django.setup(); from django.conf import settings as s; pr
 @pytest.mark.slow
 def test_embedded_default_uses_sqlite_local_media_and_in_process_tasks(tmp_path):
     result = run_python(
-        SHOW.format("s.DATABASES['default']['ENGINE'], s.CELERY_TASK_ALWAYS_EAGER, s.DEBUG, s.MEDIA_ROOT"), {}, tmp_path
+        SHOW.format(
+            "s.DATABASES['default']['ENGINE'], s.CELERY_TASK_ALWAYS_EAGER, s.DEBUG, s.MEDIA_ROOT, "
+            "s.DATABASES['default']['CONN_MAX_AGE']"
+        ),
+        {},
+        tmp_path,
     )
     assert result.returncode == 0, result.stderr
-    assert result.stdout.strip() == f"django.db.backends.sqlite3 True True {tmp_path / 'var' / 'media'}"
+    # connections kept for the next request of their thread, as with DATABASE_URL (60 s under WSGI)
+    assert result.stdout.strip() == f"django.db.backends.sqlite3 True True {tmp_path / 'var' / 'media'} 60"
 
 
 @pytest.mark.slow

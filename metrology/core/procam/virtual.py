@@ -65,8 +65,32 @@ def board_truth(
     rig: PinholeRig, board: BoardSpec, pose: BoardPose, supersample: int = 1
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """True ``u``, ``v`` and albedo on the camera's ``supersample``-times finer grid, ``(H s, W s)`` float64."""
+    X, t, albedo = _board_hits(rig.camera, board, pose, supersample)
+    Rr = np.asarray(rig.R)
+    Xp = X @ Rr.T + np.asarray(rig.T)
+    front = (t > 0) & (Xp[..., 2] > 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u, v = project_normalized(
+            np.asarray(rig.projector.K), rig.projector.distortion, Xp[..., 0] / Xp[..., 2], Xp[..., 1] / Xp[..., 2]
+        )
+    u = np.where(front, u, np.nan)
+    v = np.where(front, v, np.nan)
+    return u, v, albedo
+
+
+def board_albedo(camera: PinholeCamera, board: BoardSpec, pose: BoardPose, supersample: int = 1) -> FloatArray:
+    """The albedo of :func:`board_truth` alone, ``(H s, W s)`` float64 (what a camera sees of the
+    board under uniform light; no projector)."""
+    return _board_hits(camera, board, pose, supersample)[2]
+
+
+def _board_hits(
+    camera: PinholeCamera, board: BoardSpec, pose: BoardPose, supersample: int
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Where the camera's sub-pixel rays meet the board's plane: the points ``X`` (mm, camera frame,
+    ``(H s, W s, 3)``), the ray parameters ``t`` ``(H s, W s)`` and the anti-aliased albedo there."""
     s = int(supersample)
-    d = _sub_ray_directions(rig.camera, s)
+    d = _sub_ray_directions(camera, s)
     n = pose.R[:, 2]
     with np.errstate(invalid="ignore", divide="ignore"):
         t = float(n @ pose.t) / (d @ n)
@@ -74,7 +98,7 @@ def board_truth(
     Xb = (X - pose.t) @ pose.R  # R^T (X - t) for row vectors
     # anti-aliased squares: each sub-sample covers a box of about fp mm on the board; the
     # fraction of it on either side of the nearest edge line in x and in y weighs the four squares
-    fx = float(np.asarray(rig.camera.K)[0, 0])
+    fx = float(np.asarray(camera.K)[0, 0])
     fp = np.abs(t) / (fx * s)
     sq = board.size_mm
 
@@ -97,16 +121,7 @@ def board_truth(
         a * b * dark(0, 0) + a * (1 - b) * dark(0, 1) + (1 - a) * b * dark(1, 0) + (1 - a) * (1 - b) * dark(1, 1)
     )
     albedo = LIGHT_ALBEDO + (DARK_ALBEDO - LIGHT_ALBEDO) * dark_fraction
-    Rr = np.asarray(rig.R)
-    Xp = X @ Rr.T + np.asarray(rig.T)
-    front = (t > 0) & (Xp[..., 2] > 0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        u, v = project_normalized(
-            np.asarray(rig.projector.K), rig.projector.distortion, Xp[..., 0] / Xp[..., 2], Xp[..., 1] / Xp[..., 2]
-        )
-    u = np.where(front, u, np.nan)
-    v = np.where(front, v, np.nan)
-    return u, v, albedo
+    return X, t, albedo
 
 
 @functools.lru_cache(maxsize=4)
