@@ -73,7 +73,7 @@ def gcps(*args: str, env: dict[str, str], write_bytecode: bool = False) -> float
     """Wall seconds of ``gcps ARGS`` in a fresh process (stdout discarded); its CPU seconds are
     appended to ``CPU["gcps measure"]``. ``write_bytecode``: without ``PYTHONDONTWRITEBYTECODE``
     in its environment (Python writes the bytecode of the modules it imports)."""
-    code = "import sys; from metrology.cli import main; sys.argv[0] = 'gcps'; sys.exit(main())"
+    code = "import sys; from metrology.cli import run; sys.argv[0] = 'gcps'; run()"  # the console script's
     environment = {**os.environ, "PYTHONPATH": str(ROOT), **env}
     if write_bytecode:
         environment.pop("PYTHONDONTWRITEBYTECODE", None)

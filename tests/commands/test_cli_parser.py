@@ -5,6 +5,10 @@ arguments name none (help, an unknown command)."""
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import subprocess
+import sys
 
 import pytest
 
@@ -59,3 +63,38 @@ def test_an_unknown_command_lists_every_subcommand(capsys):
     assert parse(build_parser(argv), argv) == "exit 2"
     err = capsys.readouterr().err
     assert "invalid choice: 'calibrate_procam'" in err and "'calibrate-procam'" in err and "'inspect'" in err
+
+
+TEARDOWN = (
+    "import sys\n"
+    "LEFT_OPEN = open({left!r}, 'w')\n"  # buffered, never closed: flushed by the interpreter's teardown
+    "LEFT_OPEN.write('torn down')\n"
+    "{before}"
+    "import atexit\n"
+    "from metrology.cli import run\n"
+    "atexit.register(lambda: print('callback', flush=True))\n"
+    "sys.argv[1:] = {argv!r}\n"
+    "run()\n"
+)
+
+
+@pytest.mark.parametrize("first", [False, True])
+def test_a_gcps_process_ends_after_its_exit_callbacks_without_the_teardown(tmp_path, first):
+    """``run`` (the console script) ends the process after every exit callback and the threads,
+    with the command's status and its output flushed, skipping the modules' teardown; not where an
+    exit callback was registered before ``metrology.cli`` was imported (that one then runs too)."""
+    before = "import atexit\natexit.register(lambda: print('first', flush=True))\n" if first else ""
+    env = {**os.environ, "GCPS_LOCAL_CACHE_DIR": str(tmp_path / "cache")}
+    bad = ["measure", "--rig", str(tmp_path / "none.json"), "--object", "obj", "--out", "z.npy"]
+    for argv, status in ((["cache", "info"], 0), (bad, 2)):
+        left = tmp_path / "left_open.txt"
+        code = TEARDOWN.format(before=before, argv=argv, left=str(left))
+        done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+        lines = done.stdout.splitlines()
+        assert done.returncode == status, done.stderr
+        assert "callback" in lines and ("first" in lines) == first
+        assert left.read_text() == ("torn down" if first else "")  # no teardown: the buffer is lost
+        if status == 0:
+            assert json.loads(lines[0])  # the command's summary, flushed
+        else:
+            assert done.stderr.startswith("gcps: error: ") and done.stderr.count("\n") == 1
