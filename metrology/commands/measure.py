@@ -142,6 +142,26 @@ def read_early(path: str) -> Future[Any] | None:
     return future
 
 
+def digest_early(path: str | None) -> Future[str] | None:
+    """The files digest of the reference capture at ``path``
+    (:func:`~metrology.core.io.digests.capture_files_digest`: the kept reference's key), started now
+    on a thread, so that the files are hashed (outside the GIL) while the caller's thread imports
+    the measurement's modules; its errors are raised where it is taken. None where there is no
+    reference or nothing at ``path`` (read_capture then says so)."""
+    if path is None or not Path(path).exists():
+        return None
+
+    def digest() -> str:
+        from metrology.core.io.digests import capture_files_digest
+
+        return capture_files_digest(path)
+
+    pool = ThreadPoolExecutor(1, thread_name_prefix="gcps-digest")
+    future = pool.submit(digest)
+    pool.shutdown(wait=False)
+    return future
+
+
 def read_object(early: Future[Any] | None, path: str, codec: Codec | None, model: GeometryModel) -> Any:
     """The object's frames, as :func:`read_capture` reads them: the early read (:func:`read_early`)
     where the capture is a one-camera gcps-v1 stack of the rig's frame size, not a multi-exposure
@@ -176,6 +196,7 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     asked_sigma = bool(args.sigma) or args.max_sigma is not None
     ply_mesh = bool(args.mesh) and args.mesh.lower().endswith(".ply")
     early_object = read_early(args.object)
+    early_digest = digest_early(args.reference)
     started = time.perf_counter()
     model = load_model(args.rig)
     if args.reference is None and model.requires_reference:
@@ -240,7 +261,13 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
                 "object_exposures": object_exposures,
             }
             kept, reference_cache = cached_reference_of_files(
-                model, reference_path, read_reference, reader, measure_codec, opts
+                model,
+                reference_path,
+                read_reference,
+                reader,
+                measure_codec,
+                opts,
+                digest=None if early_digest is None else early_digest.result,
             )
         else:
             assert reference_images is not None
