@@ -14,10 +14,14 @@ Timed, interleaved in a random order per repeat:
 
 - ``gcps measure``: ``gcps measure --rig R --reference REF --object OBJ --out H.npy`` with its
   defaults, a fresh process each time (start-up, reading the PNGs, decoding both stacks, the
-  filters, writing the heights): the wall time from start to exit. The bytecode of
-  ``metrology/`` is written before (untimed, :func:`compile_bytecode`), as an installed package
-  has it; ``--no-bytecode`` leaves it out (with ``PYTHONDONTWRITEBYTECODE`` set, every process
-  then compiles the package's modules again);
+  filters, writing the heights): the wall time from start to exit. Every module the command
+  imports has its bytecode, as after ``pip install`` (or ``scripts/setup.sh``): the untimed
+  warm-up runs the command with ``PYTHONDONTWRITEBYTECODE`` removed from its environment, so that
+  Python writes the bytecode of what it imports, the package's and the installed packages'
+  (numpy, OpenCV...) alike, and nothing else; a second untimed run then lists the imported modules
+  whose bytecode is still missing (printed, and in the JSON: expected none).
+  ``--no-bytecode`` leaves the environment as it is (with ``PYTHONDONTWRITEBYTECODE`` set,
+  every process then compiles what has no bytecode yet);
 - ``numpy decode``: the paper's method on the two arrays in memory, no filters, one thread:
   the phase mean ``A = (I0 + I1 + I2 + I3) / 4`` as the gray codes' threshold, the gray word
   (MSB first) to binary by prefix XOR, the four-step ``Phi = atan2(I1 - I3, I0 - I2)``, the
@@ -65,16 +69,20 @@ def _children_cpu() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def gcps(*args: str, env: dict[str, str]) -> float:
+def gcps(*args: str, env: dict[str, str], write_bytecode: bool = False) -> float:
     """Wall seconds of ``gcps ARGS`` in a fresh process (stdout discarded); its CPU seconds are
-    appended to ``CPU["gcps measure"]``."""
-    code = "import sys; from metrology.cli import main; sys.argv[0] = 'gcps'; sys.exit(main())"
+    appended to ``CPU["gcps measure"]``. ``write_bytecode``: without ``PYTHONDONTWRITEBYTECODE``
+    in its environment (Python writes the bytecode of the modules it imports)."""
+    code = "import sys; from metrology.cli import run; sys.argv[0] = 'gcps'; run()"  # the console script's
+    environment = {**os.environ, "PYTHONPATH": str(ROOT), **env}
+    if write_bytecode:
+        environment.pop("PYTHONDONTWRITEBYTECODE", None)
     c0 = _children_cpu()
     t0 = time.perf_counter()
     done = subprocess.run(
         [sys.executable, "-c", code, *args],
         cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT), **env},
+        env=environment,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
@@ -86,12 +94,38 @@ def gcps(*args: str, env: dict[str, str]) -> float:
     return seconds
 
 
-def compile_bytecode() -> None:
-    """Write the bytecode of ``metrology/`` (its ``__pycache__`` folders, ignored by git), as an
-    installed package has it: a process run with ``PYTHONDONTWRITEBYTECODE`` set (as some shells
-    and CI images do) otherwise compiles the ~60 modules a measurement imports from source every
-    time, 0.3-0.7 s of its start-up that no installed ``gcps`` pays."""
-    subprocess.run([sys.executable, "-m", "compileall", "-q", str(ROOT / "metrology")], check=True)
+MISSING_BYTECODE = """
+import atexit, importlib.util, json, os, sys
+def _missing():
+    paths = (getattr(m, "__file__", None) for m in list(sys.modules.values()))
+    missing = sorted(
+        p for p in paths
+        if p and p.endswith(".py") and not os.path.exists(importlib.util.cache_from_source(p))
+    )
+    print(json.dumps(missing), file=sys.stderr)
+atexit.register(_missing)
+from metrology.cli import main
+sys.argv[0] = "gcps"
+sys.exit(main())
+"""
+"""A ``gcps`` process that prints (JSON, stderr, at exit) the source files of the modules it
+imported that have no bytecode beside them (``__pycache__``)."""
+
+
+def missing_bytecode(*args: str, env: dict[str, str]) -> list[str]:
+    """The modules ``gcps ARGS`` imports without bytecode (their source files), in the benchmark's
+    environment (untimed)."""
+    done = subprocess.run(
+        [sys.executable, "-c", MISSING_BYTECODE, *args],
+        cwd=ROOT,
+        env={**os.environ, "PYTHONPATH": str(ROOT), **env},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        check=True,
+    )
+    missing: list[str] = json.loads(done.stderr.strip().splitlines()[-1])
+    return missing
 
 
 def read_stack(folder: Path) -> np.ndarray:
@@ -145,7 +179,7 @@ def main() -> None:
     parser.add_argument(
         "--no-bytecode",
         action="store_true",
-        help="leave metrology/ uncompiled: under PYTHONDONTWRITEBYTECODE every process compiles its ~60 modules",
+        help="keep PYTHONDONTWRITEBYTECODE in the warm-up: what has no bytecode is compiled by every process",
     )
     args = parser.parse_args()
     rng = random.Random(args.seed)
@@ -155,8 +189,6 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="gcps-measure-vs-numpy-") as tmp:
         folder = Path(tmp)
         env = {"GCPS_LOCAL_CACHE_DIR": str(folder / "cache")}
-        if not args.no_bytecode:
-            compile_bytecode()
         rig_path = folder / "rig.json"
         rig_path.write_text(rig.to_json())
         for scene in ("reference", "sphere"):
@@ -175,8 +207,12 @@ def main() -> None:
             "gcps measure": lambda: gcps(*command, env=env),
             "numpy decode": lambda: _timed(lambda: numpy_heights(rig, ref, obj)),
         }
-        for fn in cases.values():  # warm-up: the page cache, the first process
-            fn()
+        # warm-up: the page cache, the kept reference, the bytecode of what the command imports
+        gcps(*command, env=env, write_bytecode=not args.no_bytecode)
+        cases["numpy decode"]()
+        missing = missing_bytecode(*command, env=env)
+        if missing:
+            print(f"{len(missing)} modules imported without bytecode, e.g. {missing[:3]}")
         times: dict[str, list[float]] = {name: [] for name in cases}
         CPU.clear()  # the set-up's and the warm-up's
         for _ in range(args.repeats):
@@ -200,6 +236,7 @@ def main() -> None:
             "gcps_valid_fraction": float(np.isfinite(ours).mean()),
             "numpy_valid_fraction": float(np.isfinite(plain).mean()),
             "height_median_abs_diff_um": float(np.median(diff) * 1e3),
+            "modules_without_bytecode": len(missing),
         }
         print(
             f"{result['size']}, medians of {args.repeats}: gcps measure {med['gcps measure']:.3f} s (a fresh process), "

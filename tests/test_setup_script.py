@@ -2,7 +2,8 @@
 install nothing), and a changed pyproject.toml installs again; it installs with uv, and with pip
 where uv cannot be installed or cannot install; the dev install takes the optional STEP reader
 (cadquery-ocp) in the same call, wheels only, and without a wheel says that the STEP tests will be
-skipped and installs the dev extras alone. Run on a copy, with stand-ins ``.venv/bin/python`` and
+skipped and installs the dev extras alone; the plain install (the users') compiles the installed
+packages' bytecode, the dev install does not. Run on a copy, with stand-ins ``.venv/bin/python`` and
 ``.venv/bin/uv`` that record the install calls instead of installing (and fail the wheels-only call,
 as pip and uv do where no wheel exists, when asked to)."""
 
@@ -66,6 +67,26 @@ def test_dev_install_satisfies_the_demo_and_changes_reinstall(tmp_path):
     assert installs(project, log) == [f"{UV} -e ."]
     assert installs(project, log, "--dev") == [f"{UV} {STEP}"]
     assert installs(project, log) == []
+
+
+def compiles(log: Path) -> list[str]:
+    return [line for line in log.read_text().splitlines() if "compileall" in line]
+
+
+def test_the_plain_install_compiles_the_bytecode_and_the_dev_install_does_not(tmp_path):
+    project, log = make_copy(tmp_path)
+    assert installs(project, log, "--dev") == [f"{UV} {STEP}"]
+    assert compiles(log) == []
+    (project / ".venv" / ".gcps-installed").unlink()
+    assert installs(project, log) == [f"{UV} -e ."]
+    (line,) = compiles(log)
+    assert line.startswith("-m compileall -q -q -j 0 ")
+    # a plain install made before its bytecode was compiled (stamp without "+pyc") is done again
+    stamp = project / ".venv" / ".gcps-installed"
+    stamp.write_text(stamp.read_text().replace("+pyc", ""))
+    assert installs(project, log) == [f"{UV} -e ."]
+    assert len(compiles(log)) == 2
+    assert installs(project, log) == [] and len(compiles(log)) == 2
 
 
 def test_without_uv_pip_installs(tmp_path):

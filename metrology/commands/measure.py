@@ -23,7 +23,7 @@ import argparse
 import contextlib
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -121,6 +121,64 @@ def is_exposures(path: str, model: GeometryModel) -> bool:
         return False
 
 
+def read_early(path: str) -> Future[Any] | None:
+    """The capture at ``path`` read as a gcps-v1 stack (:func:`~metrology.core.io.read_stack`, no
+    rig: any frame size), started now on a thread, before the rig and the codec are known: its
+    PNGs are decoded outside the GIL while the caller's thread imports the geometric models and
+    reads the rig. :func:`read_object` takes it where it is what :func:`read_capture` would read,
+    and reads the capture again otherwise (its errors then raised by :func:`read_capture`, as
+    before). None where ``path`` does not exist."""
+    if not Path(path).exists():
+        return None
+
+    def read() -> Any:
+        from metrology.core.io.stacks import read_stack
+
+        return read_stack(path).images
+
+    pool = ThreadPoolExecutor(1, thread_name_prefix="gcps-early")
+    future = pool.submit(read)
+    pool.shutdown(wait=False)
+    return future
+
+
+def digest_early(path: str | None) -> Future[str] | None:
+    """The files digest of the reference capture at ``path``
+    (:func:`~metrology.core.io.digests.capture_files_digest`: the kept reference's key), started now
+    on a thread, so that the files are hashed (outside the GIL) while the caller's thread imports
+    the measurement's modules; its errors are raised where it is taken. None where there is no
+    reference or nothing at ``path`` (read_capture then says so)."""
+    if path is None or not Path(path).exists():
+        return None
+
+    def digest() -> str:
+        from metrology.core.io.digests import capture_files_digest
+
+        return capture_files_digest(path)
+
+    pool = ThreadPoolExecutor(1, thread_name_prefix="gcps-digest")
+    future = pool.submit(digest)
+    pool.shutdown(wait=False)
+    return future
+
+
+def read_object(early: Future[Any] | None, path: str, codec: Codec | None, model: GeometryModel) -> Any:
+    """The object's frames, as :func:`read_capture` reads them: the early read (:func:`read_early`)
+    where the capture is a one-camera gcps-v1 stack of the rig's frame size, not a multi-exposure
+    capture (what :func:`read_capture` then reads: :func:`~metrology.core.io.read_stack` with the
+    rig's shape checked); else, or where the early read failed, :func:`read_capture`."""
+    from metrology.core.codecs.model import is_gcps_v1
+
+    if early is not None and model.cameras == 1 and is_gcps_v1(codec) and not is_exposures(path, model):
+        try:
+            images = early.result()
+        except Exception:
+            images = None
+        if images is not None and tuple(images.shape[1:]) == tuple(model.shape):
+            return images
+    return read_capture(path, codec, model, "object")
+
+
 def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     """Read the rig and the captures, measure (the pipeline), write the outputs; the summary."""
     from metrology.version import software_version_soon
@@ -137,6 +195,8 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
         raise BadInputError(f"--max-sigma must be a positive number of mm, got {args.max_sigma!r}")
     asked_sigma = bool(args.sigma) or args.max_sigma is not None
     ply_mesh = bool(args.mesh) and args.mesh.lower().endswith(".ply")
+    early_object = read_early(args.object)
+    early_digest = digest_early(args.reference)
     started = time.perf_counter()
     model = load_model(args.rig)
     if args.reference is None and model.requires_reference:
@@ -146,9 +206,10 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     codec = captures_codec(args.codec, [("reference", args.reference), ("object", args.object)])
     # the object's PNGs are decoded (outside the GIL) while this thread imports the measurement's
     # modules below: on two cores the imports cost little wall time beside the reading; a read error
-    # is raised where the object is taken, as before
+    # is raised where the object is taken, as before. A gcps-v1 stack has been read since the start
+    # (read_early), while this thread imported the models and read the rig.
     object_pool = ThreadPoolExecutor(1, thread_name_prefix="gcps-object")
-    object_read = object_pool.submit(read_capture, args.object, codec, model, "object")
+    object_read = object_pool.submit(read_object, early_object, args.object, codec, model)
     object_pool.shutdown(wait=False)
 
     import numpy as np
@@ -200,7 +261,13 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
                 "object_exposures": object_exposures,
             }
             kept, reference_cache = cached_reference_of_files(
-                model, reference_path, read_reference, reader, measure_codec, opts
+                model,
+                reference_path,
+                read_reference,
+                reader,
+                measure_codec,
+                opts,
+                digest=None if early_digest is None else early_digest.result,
             )
         else:
             assert reference_images is not None

@@ -246,13 +246,16 @@ def cached_reference_of_files(
     options: MeasureOptions | None = None,
     *,
     threads: int | None = None,
+    digest: Callable[[], str] | None = None,
 ) -> tuple[Reference, dict[str, Any]]:
     """:func:`~metrology.core.measure.prepare_reference` of the capture at ``capture`` (a folder or a
     file), through the local cache, keyed by the capture's files
     (:func:`~metrology.core.io.digests.capture_files_digest`) and ``reader`` (what ``read()`` does
     with them) besides the rig, codec, options and version (:func:`files_reference_key`): a hit
     reads no image; a miss calls ``read()`` for the frames, decodes them and keeps the reference
-    unless the files changed meanwhile (hashed again after the read).
+    unless the files changed meanwhile (hashed again after the read). ``digest``: the capture's
+    files digest computed beforehand (``gcps measure`` starts it with the command), called for it
+    instead of hashing the files here; ``hash_s`` is then the time waited for it.
 
     Returns the reference and what happened: ``{"hit": bool, "key": "files", "hash_s", "load_s",
     or "read_s" and "decode_s"}`` (seconds).
@@ -264,8 +267,8 @@ def cached_reference_of_files(
     """
     options = options or MeasureOptions()
     start = time.perf_counter()
-    digest = capture_files_digest(capture, threads)
-    key = files_reference_key(model, digest, reader, codec, options)
+    files = capture_files_digest(capture, threads) if digest is None else digest()
+    key = files_reference_key(model, files, reader, codec, options)
     report: dict[str, Any] = {"key": "files", "hash_s": time.perf_counter() - start}
 
     def frames() -> npt.ArrayLike | ExposureStack | tuple[np.ndarray, ...]:
@@ -275,7 +278,7 @@ def cached_reference_of_files(
         return images
 
     def unchanged() -> bool:
-        return capture_files_digest(capture, threads) == digest
+        return capture_files_digest(capture, threads) == files
 
     return _kept_or_prepared(key, model, frames, codec, options, threads, report, unchanged)
 

@@ -95,3 +95,30 @@ def test_model_from_dict_dispatches_on_model():
     assert model_from_dict({**PAPER_RIG.to_dict(), "model": "crossed_axes"}) == PAPER_RIG
     with pytest.raises(GeometryError, match="'fisheye'"):
         model_from_dict({**PAPER_RIG.to_dict(), "model": "fisheye"})
+
+
+def test_the_registry_imports_a_model_when_asked_for():
+    """metrology.core.geometry.MODELS: every model class under its own ``model`` key, its module
+    imported on first access only (a fresh interpreter reading a crossed-axes rig imports neither
+    the pinhole nor the stereo module)."""
+    import subprocess
+    import sys
+
+    from metrology.core import geometry
+
+    assert list(geometry.MODELS) == ["crossed_axes", "pinhole", "stereo"] and len(geometry.MODELS) == 3
+    for name, cls in geometry.MODELS.items():
+        assert cls.model == name and getattr(geometry, cls.__name__) is cls
+    assert "nope" not in geometry.MODELS
+    with pytest.raises(AttributeError):
+        geometry.Nope  # noqa: B018
+    code = (
+        "import sys\n"
+        "from metrology.core.geometry import model_from_dict\n"
+        "model_from_dict({'L_mm': 1022.0, 'd_mm': 352.0, 'alpha_rad': 0.332, 'fw_mm': 500.0, 'nlp': 128,"
+        " 'width_px': 64, 'height_px': 48})\n"
+        "print(sorted(m for m in sys.modules if m.startswith('metrology.core.geometry.')))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    imported = done.stdout
+    assert "crossed_axes" in imported and "geometry.pinhole" not in imported and "geometry.stereo" not in imported

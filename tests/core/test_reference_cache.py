@@ -120,6 +120,13 @@ def test_files_key_hits_without_reading_and_any_changed_file_misses(stacks, tmp_
     assert not first["hit"] and first["key"] == "files" and first["read_s"] > 0 and reads == [1]
     kept, second = cached_reference_of_files(RIG, capture, never, reader)
     assert second["hit"] and "read_s" not in second
+    # the files' digest computed beforehand (gcps measure starts it with the command): the same key;
+    # another digest is another key
+    early = capture_files_digest(capture)
+    assert cached_reference_of_files(RIG, capture, never, reader, digest=lambda: early)[1]["hit"]
+    assert not cached_reference_of_files(RIG, capture, read, reader, digest=lambda: "0" * 64)[1]["hit"]
+    local_cache.wait()
+    del reads[1:]
     _same(kept.codes, reference.codes)
     _same(kept.surface.slope_mm, reference.surface.slope_mm)  # type: ignore[attr-defined]
     assert not cached_reference_of_files(RIG, capture, read, {"reader": "test/2"})[1]["hit"]

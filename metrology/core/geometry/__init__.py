@@ -15,14 +15,17 @@ Files:
 - :mod:`.rig_file`: parsing and validating calibrated rig files' values (K, dist, R, T);
 - :mod:`.projector_grid`: a distorted projector's undistortion sampled on a grid.
 
+Each model's module is imported when its class is first asked for (:data:`MODELS`).
+
 :data:`MODELS` is the registry: a new model is one module here and one entry there.
 :func:`model_from_dict` builds the model a rig file's JSON object describes.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
+import importlib
+from collections.abc import Iterator, Mapping
+from typing import TYPE_CHECKING, Any
 
 from metrology.core.geometry.base import (
     AXES,
@@ -40,12 +43,51 @@ from metrology.core.geometry.base import (
     model_name,
     triangulate_frame,
 )
-from metrology.core.geometry.crossed_axes import Rig
-from metrology.core.geometry.pinhole import PinholeRig
-from metrology.core.geometry.stereo import StereoRig
 
-MODELS: dict[str, type[GeometryModel]] = {Rig.model: Rig, PinholeRig.model: PinholeRig, StereoRig.model: StereoRig}
-"""Every geometric model, keyed by the rig file's ``model`` value."""
+if TYPE_CHECKING:
+    from metrology.core.geometry.crossed_axes import Rig
+    from metrology.core.geometry.pinhole import PinholeRig
+    from metrology.core.geometry.stereo import StereoRig
+
+MODEL_CLASSES: dict[str, tuple[str, str]] = {
+    "crossed_axes": ("metrology.core.geometry.crossed_axes", "Rig"),
+    "pinhole": ("metrology.core.geometry.pinhole", "PinholeRig"),
+    "stereo": ("metrology.core.geometry.stereo", "StereoRig"),
+}
+"""Where each model's class lives (module, class name), keyed by its ``model`` value (the class's
+``model`` attribute): a model's module is imported when its class is first asked for, so that a
+process measuring with one model does not import the others (the pinhole and stereo modules with
+their kernels: 20-50 ms of ``gcps measure``'s start-up on a crossed-axes rig)."""
+
+
+class _Models(Mapping[str, "type[GeometryModel]"]):
+    """The registry: a read-only mapping of :data:`MODEL_CLASSES`'s keys to the classes, each
+    imported on first access."""
+
+    def __getitem__(self, name: str) -> type[GeometryModel]:
+        module, cls = MODEL_CLASSES[name]
+        model: type[GeometryModel] = getattr(importlib.import_module(module), cls)
+        return model
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(MODEL_CLASSES)
+
+    def __len__(self) -> int:
+        return len(MODEL_CLASSES)
+
+
+MODELS: Mapping[str, type[GeometryModel]] = _Models()
+"""Every geometric model, keyed by the rig file's ``model`` value (imported on first access)."""
+
+
+def __getattr__(name: str) -> Any:
+    """The model classes (``Rig``, ``PinholeRig``, ``StereoRig``), imported on first use (PEP 562)."""
+    for key, (_, cls) in MODEL_CLASSES.items():
+        if cls == name:
+            value = MODELS[key]
+            globals()[name] = value
+            return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def model_class(name: str) -> type[GeometryModel]:

@@ -39,13 +39,14 @@ Modules: :mod:`.atomic` (atomic writes), :mod:`.images` (image headers and decod
 :mod:`.exposures` (the ``exposures.json`` manifest of multi-exposure captures, read with their
 stacks by :func:`metrology.core.codecs.stack.read_exposure_stack`),
 :mod:`.rigs`, :mod:`.heights`, :mod:`.points` and :mod:`.series`; every public name is importable from
-``metrology.core.io`` as before.
+``metrology.core.io`` as before (:mod:`.rigs`'s on first use: it imports every geometric model).
 """
 
 from __future__ import annotations
 
 # ``os`` and ``cv2`` stay reachable as attributes (tests patch ``metrology.core.io.os.replace``).
 import os
+from typing import TYPE_CHECKING, Any
 
 import cv2
 
@@ -61,9 +62,28 @@ from metrology.core.io.errors import StackError
 from metrology.core.io.heights import read_height_npy, write_height_npy, write_height_tiff
 from metrology.core.io.images import DEFAULT_MAX_PIXELS, checked_header, decode_grey_image, image_header_size
 from metrology.core.io.points import read_point_map, write_point_map
-from metrology.core.io.rigs import read_model, read_rig, write_rig
 from metrology.core.io.series import StagePosition, StageSeries, read_series, series_capture_name, write_series
 from metrology.core.io.stacks import CaptureStack, encode_stack, read_stack, read_verified_stack, write_stack
+
+if TYPE_CHECKING:
+    from metrology.core.io.rigs import read_model, read_rig, write_rig
+
+RIG_NAMES = ("read_model", "read_rig", "write_rig")
+"""The names of :mod:`.rigs`, imported on first use (:func:`__getattr__`): reading a capture
+stack does not import the geometry package (every model's module), so that ``gcps measure``
+decodes the object's images while its main thread imports the models."""
+
+
+def __getattr__(name: str) -> Any:
+    """:data:`RIG_NAMES` from :mod:`.rigs`, imported here on first use (PEP 562)."""
+    if name in RIG_NAMES:
+        from metrology.core.io import rigs
+
+        value = getattr(rigs, name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "DEFAULT_MAX_BYTES",

@@ -11,13 +11,12 @@ from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, TYPE_CHECKING
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-from metrology.core.geometry.base import GeometryModel
 from metrology.core.io.archives import (
     DEFAULT_MAX_BYTES,
     DEFAULT_MAX_RATIO,
@@ -33,6 +32,9 @@ from metrology.core.io.atomic import _write_bytes_atomic, write_files_new_folder
 from metrology.core.io.errors import StackError
 from metrology.core.io.images import DEFAULT_MAX_PIXELS, checked_header, decode_grey_image
 from metrology.core.patterns import PATTERN_NAMES
+
+if TYPE_CHECKING:  # the geometry package (every model) is not imported to read a stack
+    from metrology.core.geometry.base import GeometryModel
 
 
 @dataclass(frozen=True, eq=False)
