@@ -217,6 +217,10 @@ class Stack:
             "GCPS_BROKER_VISIBILITY_TIMEOUT": "6",
             "GCPS_BROKER_RESTORE_INTERVAL": "1",
             "PYTHONUNBUFFERED": "1",
+            # Celery's Django fix-up runs Django's system checks as a worker starts (0.4 s of CPU a
+            # worker, most of it importing the URLconf, which no job needs); as for the web server
+            # (``runserver --skip-checks``), the checks have their own test (tests/app/test_settings.py)
+            "CELERY_SKIP_CHECKS": "1",
             **(extra_env or {}),  # e.g. the GCPS_S3_* settings of tests/s3.py
         }
         self.processes: list[subprocess.Popen] = []

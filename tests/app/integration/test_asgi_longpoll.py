@@ -25,9 +25,13 @@ pytestmark = pytest.mark.integration
 LONG_POLLS = 20
 
 
-@pytest.fixture
-def asgi_stack(tmp_path, media_root) -> Iterator[Stack]:
-    with migrated_stack(tmp_path, media_root) as stack:
+@pytest.fixture(scope="module")
+def asgi_stack(tmp_path_factory) -> Iterator[Stack]:
+    """The server, started once for the module's tests (its start costs about 0.8 s of CPU); each
+    test makes its own rigs and waits on their channels."""
+    folder = tmp_path_factory.mktemp("asgi")
+    (folder / "media").mkdir()
+    with migrated_stack(folder, folder / "media") as stack:
         stack.start_asgi(workers=1)
         yield stack
 
