@@ -27,6 +27,7 @@ import pytest
 import requests
 
 from tests.processes import free_port
+from tests.shared_run import RUN_FOLDER_ENV  # :func:`migrated_template` keeps its lock and record there
 
 if TYPE_CHECKING:
     import psycopg
@@ -95,10 +96,6 @@ call_command("migrate", interactive=False, verbosity=0)
 for name in {users!r}:
     call_command("createuser", name)
 """
-
-RUN_FOLDER_ENV = "GCPS_TEST_RUN_FOLDER"
-"""The environment variable that names the run's shared folder (tests/shared_run.py), set for every
-test session by tests/conftest.py: :func:`migrated_template` keeps its lock and record there."""
 
 #: ``gcps_test_template_<creation time, Unix seconds>_<migrations digest>_<random>``: the only
 #: databases that :func:`drop_run_templates` and the clean-up of stale templates ever drop.
