@@ -39,10 +39,10 @@ def stack_storage_env(request) -> dict[str, str]:
 @pytest.fixture(scope="module")
 def module_stack(request, tmp_path_factory) -> Iterator[Stack]:
     """A stack with its web server and one worker (``worker-1``, the default settings), shared by
-    the tests of a module that need only a running worker on a database of their own, not a fresh
-    worker: each test's web server and worker start cost about 0.8 and 1.9 s of CPU. A module's
-    tests that use it run on one pytest-xdist worker, one after another (tests/conftest.py groups
-    the tests of module-scoped fixtures)."""
+    the tests of a module that need a running worker but neither a fresh one nor an empty database
+    (they share this one): each test's own web server and worker start cost about 0.8 and 1.5 s of
+    CPU. Mark those tests with one ``xdist_group`` so that one pytest-xdist worker runs them
+    (tests/conftest.py groups by itself only the tests of a module's own module-scoped fixtures)."""
     folder = tmp_path_factory.mktemp("module-stack")
     media = folder / "media"
     media.mkdir()

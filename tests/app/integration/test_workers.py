@@ -26,6 +26,10 @@ from tests.app.integration.helpers import (
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
+#: The tests on the conftest's ``module_stack``: one pytest-xdist worker runs them, so that the stack
+#: is started once (tests/conftest.py groups only the tests of a module's own module-scoped fixtures).
+ON_MODULE_STACK = pytest.mark.xdist_group("integration-workers-module-stack")
+
 
 def ply_vertex_count(data: bytes) -> int:
     header = data[: data.index(b"end_header")].decode("ascii")
@@ -33,6 +37,7 @@ def ply_vertex_count(data: bytes) -> int:
     return int(next(line.split()[2] for line in header.splitlines() if line.startswith("element vertex")))
 
 
+@ON_MODULE_STACK
 def test_measurement_through_api_redis_and_a_worker_process(module_stack: Stack):
     """On the module's running worker (``module_stack``): the test needs a worker, not a fresh one."""
     stack, http = module_stack, authenticated(module_stack)
@@ -91,6 +96,7 @@ def _send_task(stack, job_id: int) -> None:
     app.close()
 
 
+@ON_MODULE_STACK
 def test_simulated_capture_is_rendered_by_the_worker(module_stack: Stack):
     http = authenticated(module_stack)
     rig_id = http.post(url(http, "/api/rigs/"), json=RIG).json()["id"]
