@@ -21,6 +21,7 @@ from metrology.core.procam import parse_board
 from metrology.core.procam.virtual import BoardPose, render_board
 from metrology.core.simulate import realistic_8bit
 from tests.app.stacks import SMALL_RIG, png, zip_bytes
+from tests.shared_run import arrays_made_once
 
 CAMERA = PinholeCamera(320, 240, ((400.0, 0, 161.3), (0, 400.4, 119.1), (0, 0, 1)), (-0.12, 0.08, 0.0008, -0.0005, 0.0))
 PROJECTOR = PinholeProjector(320, 240, ((420.0, 0, 160.5), (0, 420.0, 150.0), (0, 0, 1)), (0.04, -0.02, 0.0, 0.0, 0.0))
@@ -60,7 +61,13 @@ CODEC = codec_dict()
 
 @functools.cache
 def pose_stacks() -> tuple[np.ndarray, ...]:
-    """The six poses' ``(28, 240, 320)`` uint8 stacks (seeded: the same on every call)."""
+    """The six poses' ``(28, 240, 320)`` uint8 stacks (seeded: the same on every call), rendered once
+    per test run (1.6 s of CPU) and read by the run's other workers (tests/shared_run.py)."""
+    return arrays_made_once("procam-pose-stacks", render_pose_stacks)
+
+
+def render_pose_stacks() -> tuple[np.ndarray, ...]:
+    """Render the six poses of :func:`pose_stacks`."""
     board = parse_board(BOARD_SPEC)
     codec = codec_from_dict(CODEC)
     options = realistic_8bit(supersample=2)

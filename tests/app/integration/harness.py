@@ -21,12 +21,13 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import pytest
 import requests
 
 from tests.processes import free_port
+from tests.shared_run import RUN_FOLDER_ENV  # :func:`migrated_template` keeps its lock and record there
 
 if TYPE_CHECKING:
     import psycopg
@@ -82,11 +83,19 @@ def database_url(name: str) -> str:
 
 
 TEMPLATE_USER = "it-user"
-"""The user that :func:`migrated_template` makes (``manage.py createuser``), in every copy of it."""
+"""The user that :func:`migrated_template` makes (the ``createuser`` command), in every copy of it."""
+OTHER_TEMPLATE_USER = "it-other"
+"""A second user of the template, for the tests of one user's requests beside another's."""
 
-RUN_FOLDER_ENV = "GCPS_TEST_RUN_FOLDER"
-"""The environment variable that names the run's shared folder (tests/shared_run.py), set for every
-test session by tests/conftest.py: :func:`migrated_template` keeps its lock and record there."""
+#: What makes the template, in one ``manage.py shell`` process (each ``manage.py`` process costs
+#: about 0.5 s of CPU to start): ``migrate``, then the ``createuser`` command for each user, which
+#: prints the user's token on a line of its own (``migrate`` prints nothing at verbosity 0).
+MAKE_TEMPLATE = """
+from django.core.management import call_command
+call_command("migrate", interactive=False, verbosity=0)
+for name in {users!r}:
+    call_command("createuser", name)
+"""
 
 #: ``gcps_test_template_<creation time, Unix seconds>_<migrations digest>_<random>``: the only
 #: databases that :func:`drop_run_templates` and the clean-up of stale templates ever drop.
@@ -95,24 +104,25 @@ TEMPLATE_NAME = re.compile(r"gcps_test_template_(\d{10})_[0-9a-f]{16}_[0-9a-f]{1
 STALE_TEMPLATE_S = 86400
 
 _template: str | None = None
-_template_token: str | None = None
+_template_tokens: dict[str, str] = {}
 
 
 def migrated_template() -> str:
-    """The database that :func:`fresh_database` copies: migrated by ``manage.py migrate`` once per
-    test RUN, by the first pytest-xdist worker that needs it, and shared by the others. It holds one
-    user, :data:`TEMPLATE_USER`, whose token :func:`template_user_token` gives: a test's session
-    needs no ``manage.py createuser`` process of its own (about 0.5 s of CPU each). Nothing connects
+    """The database that :func:`fresh_database` copies: migrated once per test RUN, by the first
+    pytest-xdist worker that needs it, and shared by the others. It holds two users,
+    :data:`TEMPLATE_USER` and :data:`OTHER_TEMPLATE_USER`, whose tokens :func:`template_user_token`
+    gives: a test's session needs no ``manage.py createuser`` process of its own (about 0.5 s of CPU
+    each); the migration and the users are made in one process (:data:`MAKE_TEMPLATE`). Nothing connects
     to it after that (PostgreSQL copies a template only while no one is connected to it; concurrent
     copies by several workers are fine).
 
     The workers agree through the run's folder (:data:`RUN_FOLDER_ENV`): under an fcntl lock,
     ``pg-template-<migrations digest>.json`` holds the template's name (written before it is
-    created, so that it is dropped even if its maker dies) and, once made, the user's token; a
+    created, so that it is dropped even if its maker dies) and, once made, the users' tokens; a
     worker that finds a name without a token drops that database and makes it again. The run's
     controller (or the process, without xdist) drops it at the end of the session
     (:func:`drop_run_templates`, from ``pytest_sessionfinish`` in tests/conftest.py)."""
-    global _template, _template_token
+    global _template
     if _template is None:
         from tests.shared_run import migrations_digest
 
@@ -123,13 +133,14 @@ def migrated_template() -> str:
             made = json.loads(record.read_text()) if record.exists() else {}
             if "token" not in made:
                 made = _make_template(record, made.get("name"))
-        _template, _template_token = made["name"], made["token"]
+        _template = made["name"]
+        _template_tokens.update(made["token"])
     return _template
 
 
-def _make_template(record: Path, unfinished: str | None) -> dict[str, str]:
+def _make_template(record: Path, unfinished: str | None) -> dict[str, Any]:
     """Create and migrate the template that ``record`` names (after dropping ``unfinished``, the one
-    a dead worker began, and the stale templates of killed runs); write its name and user's token."""
+    a dead worker began, and the stale templates of killed runs); write its name and users' tokens."""
     import psycopg
 
     digest = record.stem.removeprefix("pg-template-")
@@ -144,13 +155,15 @@ def _make_template(record: Path, unfinished: str | None) -> dict[str, str]:
         conn.execute(f'CREATE DATABASE "{name}"')
     with tempfile.TemporaryDirectory() as scratch:
         maker = Stack(database_url(name), Path(scratch), Path(scratch))
-        maker.manage("migrate", "--noinput")
-        made = {"name": name, "token": maker.manage("createuser", TEMPLATE_USER).strip()}
+        users = (TEMPLATE_USER, OTHER_TEMPLATE_USER)
+        tokens = maker.manage("shell", "--no-imports", "-c", MAKE_TEMPLATE.format(users=users)).split()
+        assert len(tokens) == len(users) and all(re.fullmatch("[0-9a-f]{40}", t) for t in tokens), tokens
+        made = {"name": name, "token": dict(zip(users, tokens, strict=True))}
     _write_atomically(record, made)
     return made
 
 
-def _write_atomically(path: Path, content: dict[str, str]) -> None:
+def _write_atomically(path: Path, content: dict[str, Any]) -> None:
     partial = path.with_suffix(".partial")
     partial.write_text(json.dumps(content))
     os.replace(partial, path)
@@ -176,11 +189,11 @@ def drop_run_templates(folder: Path) -> None:
             record.unlink()
 
 
-def template_user_token() -> str:
-    """The API token of :data:`TEMPLATE_USER`, valid in every database :func:`fresh_database` copies."""
+def template_user_token(user: str = TEMPLATE_USER) -> str:
+    """The API token of ``user`` (:data:`TEMPLATE_USER` or :data:`OTHER_TEMPLATE_USER`), valid in
+    every database :func:`fresh_database` copies."""
     migrated_template()
-    assert _template_token is not None
-    return _template_token
+    return _template_tokens[user]
 
 
 class Stack:
@@ -217,6 +230,10 @@ class Stack:
             "GCPS_BROKER_VISIBILITY_TIMEOUT": "6",
             "GCPS_BROKER_RESTORE_INTERVAL": "1",
             "PYTHONUNBUFFERED": "1",
+            # Celery's Django fix-up runs Django's system checks as a worker starts (0.4 s of CPU a
+            # worker, most of it importing the URLconf, which no job needs); as for the web server
+            # (``runserver --skip-checks``), the checks have their own test (tests/app/test_settings.py)
+            "CELERY_SKIP_CHECKS": "1",
             **(extra_env or {}),  # e.g. the GCPS_S3_* settings of tests/s3.py
         }
         self.processes: list[subprocess.Popen] = []

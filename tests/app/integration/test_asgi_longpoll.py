@@ -7,7 +7,6 @@ Redis subscription is dropped). Real PostgreSQL, real Redis, real server.
 
 from __future__ import annotations
 
-import secrets
 import threading
 import time
 from collections.abc import Iterator
@@ -17,7 +16,14 @@ import pytest
 import redis
 import requests
 
-from tests.app.integration.harness import PG_ADMIN_URL, Stack, migrated_stack, template_user_token
+from tests.app.integration.harness import (
+    OTHER_TEMPLATE_USER,
+    PG_ADMIN_URL,
+    TEMPLATE_USER,
+    Stack,
+    migrated_stack,
+    template_user_token,
+)
 from tests.app.integration.helpers import RIG
 
 pytestmark = pytest.mark.integration
@@ -25,17 +31,21 @@ pytestmark = pytest.mark.integration
 LONG_POLLS = 20
 
 
-@pytest.fixture
-def asgi_stack(tmp_path, media_root) -> Iterator[Stack]:
-    with migrated_stack(tmp_path, media_root) as stack:
+@pytest.fixture(scope="module")
+def asgi_stack(tmp_path_factory) -> Iterator[Stack]:
+    """The server, started once for the module's tests (its start costs about 0.8 s of CPU); each
+    test makes its own rigs and waits on their channels."""
+    folder = tmp_path_factory.mktemp("asgi")
+    (folder / "media").mkdir()
+    with migrated_stack(folder, folder / "media") as stack:
         stack.start_asgi(workers=1)
         yield stack
 
 
-def session_of(stack: Stack, *, new_user: bool = False) -> requests.Session:
-    """A session of the user the stack's database was copied with, or (``new_user``) of another one
-    made by ``manage.py createuser``."""
-    key = stack.manage("createuser", f"asgi-{secrets.token_hex(3)}").strip() if new_user else template_user_token()
+def session_of(stack: Stack, *, other_user: bool = False) -> requests.Session:
+    """A session of the user the stack's database was copied with, or (``other_user``) of the
+    template's other user (:data:`harness.OTHER_TEMPLATE_USER`)."""
+    key = template_user_token(OTHER_TEMPLATE_USER if other_user else TEMPLATE_USER)
     session = requests.Session()
     session.headers["Authorization"] = f"Token {key}"
     return session
@@ -51,7 +61,7 @@ def database_connections(stack: Stack) -> int:
 
 def test_long_polls_leave_other_requests_unaffected_and_answer_on_change(asgi_stack):
     base = asgi_stack.base_url
-    owner, other = session_of(asgi_stack), session_of(asgi_stack, new_user=True)
+    owner, other = session_of(asgi_stack), session_of(asgi_stack, other_user=True)
     rig_id = owner.post(f"{base}/api/rigs/", json=RIG).json()["id"]
     assert other.post(f"{base}/api/rigs/", json={**RIG, "name": "other's"}).status_code == 201
     agent = owner.post(f"{base}/api/rigs/{rig_id}/agent/register/", json={"camera": "virtual", "name": "bench"})

@@ -12,9 +12,23 @@ import time
 import numpy as np
 import pytest
 
-from tests.app.integration.helpers import RIG, download, finished, simulated_zip, upload, url, wait_for
+from tests.app.integration.harness import Stack
+from tests.app.integration.helpers import (
+    RIG,
+    authenticated,
+    download,
+    finished,
+    simulated_zip,
+    upload,
+    url,
+    wait_for,
+)
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
+
+#: The tests on the conftest's ``module_stack``: one pytest-xdist worker runs them, so that the stack
+#: is started once (tests/conftest.py groups only the tests of a module's own module-scoped fixtures).
+ON_MODULE_STACK = pytest.mark.xdist_group("integration-workers-module-stack")
 
 
 def ply_vertex_count(data: bytes) -> int:
@@ -23,8 +37,10 @@ def ply_vertex_count(data: bytes) -> int:
     return int(next(line.split()[2] for line in header.splitlines() if line.startswith("element vertex")))
 
 
-def test_measurement_through_api_redis_and_a_worker_process(stack, http):
-    stack.start_worker("worker-1")
+@ON_MODULE_STACK
+def test_measurement_through_api_redis_and_a_worker_process(module_stack: Stack):
+    """On the module's running worker (``module_stack``): the test needs a worker, not a fresh one."""
+    stack, http = module_stack, authenticated(module_stack)
     rig = http.post(url(http, "/api/rigs/"), json=RIG)
     assert rig.status_code == 201, rig.text
     rig_id = rig.json()["id"]
@@ -80,8 +96,9 @@ def _send_task(stack, job_id: int) -> None:
     app.close()
 
 
-def test_simulated_capture_is_rendered_by_the_worker(stack, http):
-    stack.start_worker("worker-1")
+@ON_MODULE_STACK
+def test_simulated_capture_is_rendered_by_the_worker(module_stack: Stack):
+    http = authenticated(module_stack)
     rig_id = http.post(url(http, "/api/rigs/"), json=RIG).json()["id"]
     response = http.post(
         url(http, f"/api/rigs/{rig_id}/captures/simulate/"),
