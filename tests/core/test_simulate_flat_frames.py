@@ -45,7 +45,7 @@ def test_stereo_flats_lit_by_a_kept_cast_are_those_cast_anew():
     from metrology.core.simulate.stereo import cast_stereo
     from tests.stereo_rig import PLACEMENT, RIG, codec
 
-    scene = make_scene("sphere", radius_mm=50.0)
+    scene = make_scene("plane", z_mm=0.0)
     options = SimulationOptions(supersample=2, camera_defocus_px=0.5, ambient=0.1, projector_gain=2.0)
     cast = cast_stereo(RIG, scene, codec("u"), PLACEMENT, supersample=2)
     rho = HdrReflectance(x0_mm=-60.0, x1_mm=60.0, patch_x_mm=0.0, patch_y_mm=0.0, patch_radius_mm=10.0)

@@ -621,7 +621,7 @@ class VirtualCamera:
     :func:`~metrology.core.simulate.exposures.render_stereo_exposures`'s, the flats
     :func:`~metrology.core.simulate.render_camera_flats`'s under that map. A stereo rig's scene is
     cast once per acquisition (:func:`~metrology.core.simulate.stereo.cast_stereo`) and only lit
-    anew at each exposure: the same frames as casting it for each.
+    anew at each exposure: the same frames as casting it for each (so is a one-camera rig's HDR scene).
     """
 
     def __init__(
@@ -651,6 +651,7 @@ class VirtualCamera:
         self._cache: dict[str, Any] = {}
         self._reflectance: Any = None
         self._stereo_cast: Any = None
+        self._camera_cast: Any = None
 
     @property
     def camera_count(self) -> int:
@@ -672,6 +673,7 @@ class VirtualCamera:
         self._cache = {}
         self._reflectance = None
         self._stereo_cast = None
+        self._camera_cast = None
 
     def set_exposure(self, exposure_ms: float) -> None:
         if not exposure_ms > 0:
@@ -756,6 +758,19 @@ class VirtualCamera:
             self._stereo_cast = cast_stereo(rig, scene, codec or gcps_v1_codec(), where, supersample=opts.supersample)
         return self._stereo_cast
 
+    def _hdr_cast(self, rig, scene, codec, opts):
+        """A one-camera rig's HDR scene cast as :func:`~metrology.core.simulate.exposures.render_exposures`
+        casts it (:func:`~metrology.core.simulate.exposures.cast_exposures`: the pixel centres' truth
+        and the sub-pixel rays'), once per acquisition."""
+        if self._camera_cast is None:
+            from metrology.core.codecs.model import gcps_v1_codec
+            from metrology.core.simulate import default_placement
+            from metrology.core.simulate.exposures import cast_exposures
+
+            where = self.placement if self.placement is not None else default_placement(rig)
+            self._camera_cast = cast_exposures(rig, scene, codec or gcps_v1_codec(), opts.supersample, where)
+        return self._camera_cast
+
     def _frames(self, rig, scene, codec, opts) -> tuple[np.ndarray, ...]:
         """Each camera's codec frames at this exposure (the HDR map's single-exposure render, else the plain one)."""
         from metrology.core.codecs.model import gcps_v1_codec
@@ -789,7 +804,14 @@ class VirtualCamera:
             )
             return tuple(stack.images[0] for stack in stereo.stacks)
         rendered = render_exposures(
-            rig, scene, [Exposure("grab", 1000.0)], codec, opts, reflectance=rho, placement=self.placement
+            rig,
+            scene,
+            [Exposure("grab", 1000.0)],
+            codec,
+            opts,
+            reflectance=rho,
+            placement=self.placement,
+            cast=self._hdr_cast(rig, scene, codec, opts),
         )
         return (rendered.stack.images[0],)
 
@@ -813,8 +835,11 @@ class VirtualCamera:
                     pairs = render_camera_flats(rig, scene, opts, placement=self.placement)
                 else:  # on the path of render_exposures, bounded by the codec's projector
                     rho, size = self._hdr_reflectance(rig, scene, codec), self._projector_size(codec)
+                    rays = self._hdr_cast(rig, scene, codec, opts)[1]
                     pairs = (
-                        render_flats(rig, scene, opts, placement=self.placement, reflectance=rho, projector_size=size),
+                        render_flats(
+                            rig, scene, opts, placement=self.placement, reflectance=rho, projector_size=size, rays=rays
+                        ),
                     )
             else:
                 self._cache["stack"] = self._frames(rig, scene, codec, opts)
