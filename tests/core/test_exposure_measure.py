@@ -108,3 +108,24 @@ def test_multi_and_single_exposure_captures_measure_together_on_the_paper_rig(mu
     assert both.sum() > 0.8 * np.isfinite(single.z_mm).sum()
     assert np.abs(single.z_mm[both] - fused.z_mm[both]).max() < 1e-3
     assert isinstance(obj.stack, ExposureStack)
+
+
+def test_exposures_rendered_from_a_kept_cast_are_those_cast_anew() -> None:
+    """``render_exposures(cast=cast_exposures(...))`` (the virtual camera's HDR frames at each
+    exposure of a bracket) gives, bit for bit, the images and truth of a render that casts the scene
+    itself; a cast of another sub-pixel count is refused."""
+    from metrology.core.simulate.exposures import cast_exposures
+
+    scene = make_scene("plane", z_mm=0.0)
+    where = ScenePlacement.facing_camera(Z0)
+    options = SimulationOptions.realistic_8bit(seed=5, supersample=2)
+    cast = cast_exposures(RIG, scene, CODEC, 2, where)
+    anew = render_exposures(RIG, scene, EXPOSURES, CODEC, options, placement=where)
+    kept = render_exposures(RIG, scene, EXPOSURES, CODEC, options, placement=where, cast=cast)
+    assert len(kept.stack.images) == len(EXPOSURES)
+    for got, want in zip(kept.stack.images, anew.stack.images, strict=True):
+        assert np.ptp(want) > 100
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(kept.truth.points_mm, anew.truth.points_mm)
+    with pytest.raises(ValueError, match="per pixel side"):
+        render_exposures(RIG, scene, EXPOSURES, CODEC, options.with_changes(supersample=1), placement=where, cast=cast)

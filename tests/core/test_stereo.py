@@ -337,3 +337,27 @@ def test_a_single_camera_model_refuses_the_2d_match() -> None:
     assert GeometryOptions.from_dict(GeometryOptions(match="2d").to_dict()).match == "2d"
     with pytest.raises(ValueError, match="match must be one of"):
         GeometryOptions(match="3d")
+
+
+def test_renders_of_kept_casts_are_those_cast_anew() -> None:
+    """A kept cast rendered again (its albedo maps kept between renders) gives the images of a
+    render with nothing kept, bit for bit: two casts of two scenes of different reflectances
+    alternated (each render finds the other's albedo kept, or its own)."""
+    from metrology.core.simulate import frames
+
+    the_codec = codec("u")
+    scenes = (make_scene("plane", z_mm=0.0), make_scene("plane", z_mm=5.0, reflectance=0.5))
+    casts = [cast_stereo(RIG, scene, the_codec, PLACEMENT, projector=PROJECTOR) for scene in scenes]
+    options = [SimulationOptions(bit_depth=8, noise_grey=1.5, seed=seed) for seed in (1, 2)]
+    anew = {}
+    for k, (scene, cast) in enumerate(zip(scenes, casts, strict=True)):
+        for seed, noisy in enumerate(options):
+            frames._ALBEDOS.clear()
+            rendered = render_stereo_capture(RIG, scene, the_codec, noisy, placement=PLACEMENT, cast=cast)
+            anew[k, seed] = rendered.images
+    for seed, noisy in enumerate(options):
+        for k, (scene, cast) in enumerate(zip(scenes, casts, strict=True)):
+            kept = render_stereo_capture(RIG, scene, the_codec, noisy, placement=PLACEMENT, cast=cast)
+            for got, want in zip(kept.images, anew[k, seed], strict=True):
+                assert np.ptp(want) > 100
+                np.testing.assert_array_equal(got, want)

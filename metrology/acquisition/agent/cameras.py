@@ -619,7 +619,9 @@ class VirtualCamera:
     its own noise. HDR scenes on a stereo rig: one reflectance map over the scene for both cameras
     (camera 0's field, :func:`~metrology.core.simulate.exposures.scene_reflectance`), the frames
     :func:`~metrology.core.simulate.exposures.render_stereo_exposures`'s, the flats
-    :func:`~metrology.core.simulate.render_camera_flats`'s under that map.
+    :func:`~metrology.core.simulate.render_camera_flats`'s under that map. A stereo rig's scene is
+    cast once per acquisition (:func:`~metrology.core.simulate.stereo.cast_stereo`) and only lit
+    anew at each exposure: the same frames as casting it for each (so is a one-camera rig's HDR scene).
     """
 
     def __init__(
@@ -648,6 +650,8 @@ class VirtualCamera:
         self.target: AcquisitionTarget | None = None
         self._cache: dict[str, Any] = {}
         self._reflectance: Any = None
+        self._stereo_cast: Any = None
+        self._camera_cast: Any = None
 
     @property
     def camera_count(self) -> int:
@@ -668,6 +672,8 @@ class VirtualCamera:
             raise CameraError(f"the virtual camera cannot render this rig: {exc}") from None
         self._cache = {}
         self._reflectance = None
+        self._stereo_cast = None
+        self._camera_cast = None
 
     def set_exposure(self, exposure_ms: float) -> None:
         if not exposure_ms > 0:
@@ -739,28 +745,73 @@ class VirtualCamera:
             self._reflectance = scene_reflectance(rig, scene, size, placement=self.placement, **changes)
         return self._reflectance
 
+    def _cast(self, rig, scene, codec, opts):
+        """A stereo rig's scene cast through both cameras (:func:`~metrology.core.simulate.stereo.cast_stereo`
+        with the default projector, as :func:`~metrology.core.simulate.render_capture` casts it), once
+        per acquisition: the geometry does not change with the exposure, only the light."""
+        if self._stereo_cast is None:
+            from metrology.core.codecs.model import gcps_v1_codec
+            from metrology.core.simulate import default_placement
+            from metrology.core.simulate.stereo import cast_stereo
+
+            where = self.placement if self.placement is not None else default_placement(rig)
+            self._stereo_cast = cast_stereo(rig, scene, codec or gcps_v1_codec(), where, supersample=opts.supersample)
+        return self._stereo_cast
+
+    def _hdr_cast(self, rig, scene, codec, opts):
+        """A one-camera rig's HDR scene cast as :func:`~metrology.core.simulate.exposures.render_exposures`
+        casts it (:func:`~metrology.core.simulate.exposures.cast_exposures`: the pixel centres' truth
+        and the sub-pixel rays'), once per acquisition."""
+        if self._camera_cast is None:
+            from metrology.core.codecs.model import gcps_v1_codec
+            from metrology.core.simulate import default_placement
+            from metrology.core.simulate.exposures import cast_exposures
+
+            where = self.placement if self.placement is not None else default_placement(rig)
+            self._camera_cast = cast_exposures(rig, scene, codec or gcps_v1_codec(), opts.supersample, where)
+        return self._camera_cast
+
     def _frames(self, rig, scene, codec, opts) -> tuple[np.ndarray, ...]:
         """Each camera's codec frames at this exposure (the HDR map's single-exposure render, else the plain one)."""
-        from metrology.core.simulate import render_capture
+        from metrology.core.codecs.model import gcps_v1_codec
+        from metrology.core.simulate import default_placement, render_capture
 
+        where = self.placement if self.placement is not None else default_placement(rig)
         if self.hdr is None:
+            if rig.cameras > 1:  # render_capture's stereo frames, from the kept cast
+                from metrology.core.simulate.stereo import render_stereo_capture
+
+                cast = self._cast(rig, scene, codec, opts)
+                pair = render_stereo_capture(rig, scene, codec or gcps_v1_codec(), opts, placement=where, cast=cast)
+                return pair.images
             return render_capture(rig, scene, codec, opts, placement=self.placement).camera_stacks
         from metrology.core.io.exposures import Exposure
         from metrology.core.simulate.exposures import render_exposures
 
         rho = self._hdr_reflectance(rig, scene, codec)
         if rig.cameras > 1:  # both cameras, one map over the scene (render_stereo_exposures)
-            from metrology.core.codecs.model import gcps_v1_codec
-            from metrology.core.simulate import default_placement
             from metrology.core.simulate.exposures import render_stereo_exposures
 
-            where = self.placement if self.placement is not None else default_placement(rig)
             stereo = render_stereo_exposures(
-                rig, scene, [Exposure("grab", 1000.0)], codec or gcps_v1_codec(), opts, placement=where, reflectance=rho
+                rig,
+                scene,
+                [Exposure("grab", 1000.0)],
+                codec or gcps_v1_codec(),
+                opts,
+                placement=where,
+                reflectance=rho,
+                cast=self._cast(rig, scene, codec, opts),
             )
             return tuple(stack.images[0] for stack in stereo.stacks)
         rendered = render_exposures(
-            rig, scene, [Exposure("grab", 1000.0)], codec, opts, reflectance=rho, placement=self.placement
+            rig,
+            scene,
+            [Exposure("grab", 1000.0)],
+            codec,
+            opts,
+            reflectance=rho,
+            placement=self.placement,
+            cast=self._hdr_cast(rig, scene, codec, opts),
         )
         return (rendered.stack.images[0],)
 
@@ -776,15 +827,19 @@ class VirtualCamera:
         rig, scene, opts, codec = self._rig(), self._scene(), self._hdr_options(), self._codec()
         try:
             if part == "flats":
-                if self.hdr is None:
+                if rig.cameras > 1:  # each camera under one map with HDR, as render_stereo_exposures
+                    rho = None if self.hdr is None else self._hdr_reflectance(rig, scene, codec)
+                    cast = self._cast(rig, scene, codec, opts)
+                    pairs = render_camera_flats(rig, scene, opts, placement=self.placement, reflectance=rho, cast=cast)
+                elif self.hdr is None:
                     pairs = render_camera_flats(rig, scene, opts, placement=self.placement)
-                elif rig.cameras > 1:  # each camera under one map, as render_stereo_exposures
-                    rho = self._hdr_reflectance(rig, scene, codec)
-                    pairs = render_camera_flats(rig, scene, opts, placement=self.placement, reflectance=rho)
                 else:  # on the path of render_exposures, bounded by the codec's projector
                     rho, size = self._hdr_reflectance(rig, scene, codec), self._projector_size(codec)
+                    rays = self._hdr_cast(rig, scene, codec, opts)[1]
                     pairs = (
-                        render_flats(rig, scene, opts, placement=self.placement, reflectance=rho, projector_size=size),
+                        render_flats(
+                            rig, scene, opts, placement=self.placement, reflectance=rho, projector_size=size, rays=rays
+                        ),
                     )
             else:
                 self._cache["stack"] = self._frames(rig, scene, codec, opts)

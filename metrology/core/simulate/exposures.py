@@ -158,6 +158,7 @@ def render_exposures(
     reflectance: HdrReflectance | None = None,
     unit_exposure_us: float = 1000.0,
     placement: ScenePlacement | None = None,
+    cast: tuple[CastTruth, CastTruth] | None = None,
 ) -> RenderedExposures:
     """Render ``scene`` under ``reflectance`` at each exposure (module docstring).
 
@@ -178,14 +179,17 @@ def render_exposures(
         The exposure time at which ``t = 1``, microseconds, > 0.
     placement : ScenePlacement, optional
         Default :func:`~metrology.core.simulate.render.default_placement`.
+    cast : (CastTruth, CastTruth), optional
+        The scene already cast (:func:`cast_exposures`: the pixel centres' truth and the sub-pixel
+        rays'), e.g. kept by a caller rendering one scene at several exposures: the same images.
     """
     ordered = _ordered(exposures, unit_exposure_us)
     opts = options if options is not None else SimulationOptions()
     codec = codec if codec is not None else gcps_v1_codec()
-    prepared = model.prepare(model.shape, (codec.projector_width, codec.projector_height))
     where = placement if placement is not None else default_placement(model)
-    truth = cast_truth(prepared, scene, where)
-    rays = truth if opts.supersample == 1 else cast_truth(prepared, scene, where, supersample=opts.supersample)
+    truth, rays = cast if cast is not None else cast_exposures(model, scene, codec, opts.supersample, where)
+    if rays.points_mm.shape[:2] != (model.shape[0] * opts.supersample, model.shape[1] * opts.supersample):
+        raise ValueError(f"the cast's rays are {rays.points_mm.shape[:2]}, not {opts.supersample} per pixel side")
     rho_map = reflectance if reflectance is not None else _spanning(rays, where)
     factors = tuple(e.relative_exposure / unit_exposure_us for e in ordered)
     stacks = _exposure_frames(codec, rays, where, rho_map, factors, opts, _seed_base(opts, scene))
@@ -193,6 +197,18 @@ def render_exposures(
     return RenderedExposures(
         ExposureStack(stacks, ordered), rendered, _centre_reflectance(truth, where, rho_map), factors
     )
+
+
+def cast_exposures(
+    model: GeometryModel, scene: Scene, codec: Codec, supersample: int, placement: ScenePlacement
+) -> tuple[CastTruth, CastTruth]:
+    """What :func:`render_exposures` renders from: ``scene`` at ``placement`` cast through ``model``
+    prepared with ``codec``'s projector size, the pixel centres' truth and the ``supersample`` x
+    ``supersample`` sub-pixel rays' (the truth itself when 1)."""
+    prepared = model.prepare(model.shape, (codec.projector_width, codec.projector_height))
+    truth = cast_truth(prepared, scene, placement)
+    rays = truth if supersample == 1 else cast_truth(prepared, scene, placement, supersample=supersample)
+    return truth, rays
 
 
 def _ordered(exposures: Sequence[Exposure], unit_exposure_us: float) -> tuple[Exposure, ...]:

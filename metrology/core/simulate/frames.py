@@ -3,6 +3,7 @@ truth, and how a ray-cast truth becomes one (shared by :mod:`.render` and :mod:`
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -102,6 +103,39 @@ def _edges(height: FloatArray, lit: npt.NDArray[np.bool_]) -> npt.NDArray[np.boo
     return edges
 
 
+KEPT_ALBEDOS = 2
+"""How many of the last albedo maps :func:`_kept_albedo` keeps (a stereo capture's two cameras)."""
+_ALBEDOS: list[tuple[weakref.ref[Scene], weakref.ref[ScenePlacement], weakref.ref[CastTruth], FloatArray]] = []
+
+
+def _kept_albedo(scene: Scene, placement: ScenePlacement, rays: CastTruth) -> FloatArray:
+    """``(H s, W s)`` float64: the scene's albedo at the points the rays hit, 1 where they hit
+    nothing. Kept for the last :data:`KEPT_ALBEDOS` (scene, placement, rays) objects, compared by
+    identity and held weakly (a map is dropped with its rays): a kept cast rendered again with new
+    noise (a Monte Carlo's renders, :func:`~metrology.core.simulate.stereo.render_stereo_capture`
+    with ``cast``) does not recompute it. The kept map is read-only; a cast's arrays are not
+    modified after the cast."""
+    _ALBEDOS[:] = [entry for entry in _ALBEDOS if entry[2]() is not None]
+    for kept_scene, kept_placement, kept_rays, albedo in _ALBEDOS:
+        if kept_scene() is scene and kept_placement() is placement and kept_rays() is rays:
+            return albedo
+    X, Y, _ = placement.scene_coordinates(rays.points_mm)
+    hit = np.isfinite(X) & np.isfinite(Y)
+    albedo = np.where(hit, scene.albedo(np.where(hit, X, 0.0), np.where(hit, Y, 0.0)), 1.0)
+    albedo.flags.writeable = False
+    try:
+        entry = (weakref.ref(scene), weakref.ref(placement), weakref.ref(rays, _drop_albedos), albedo)
+    except TypeError:  # an object that cannot be referenced weakly (__slots__): not kept
+        return albedo
+    _ALBEDOS[:] = [*_ALBEDOS, entry][-KEPT_ALBEDOS:]
+    return albedo
+
+
+def _drop_albedos(_: object) -> None:
+    """Forget the albedo maps of rays that no longer exist (their memory is freed with them)."""
+    _ALBEDOS[:] = [entry for entry in _ALBEDOS if entry[2]() is not None]
+
+
 def _from_cast(
     scene: Scene,
     placement: ScenePlacement,
@@ -112,9 +146,7 @@ def _from_cast(
     seed: int | np.random.SeedSequence,
 ) -> RenderedCapture:
     """The codec's frames from the sub-rays' true coordinates, the truth from the pixel centres'."""
-    X, Y, _ = placement.scene_coordinates(sub_rays.points_mm)
-    hit = np.isfinite(X) & np.isfinite(Y)
-    albedo = np.where(hit, scene.albedo(np.where(hit, X, 0.0), np.where(hit, Y, 0.0)), 1.0)
+    albedo = _kept_albedo(scene, placement, sub_rays)
     images = render_codec(
         codec,
         sub_rays.u if "u" in codec.axes else None,

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
@@ -30,7 +31,7 @@ from metrology.core.codecs.model import Codec, gcps_v1_codec, is_gcps_v1
 from metrology.core.codecs.render import render_codec
 from metrology.core.geometry.base import GeometryModel
 from metrology.core.scenes import FIELD_WIDTH_MM, Scene, StageScene
-from metrology.core.simulate.cast import ScenePlacement, cast_truth
+from metrology.core.simulate.cast import CastTruth, ScenePlacement, cast_truth
 from metrology.core.simulate.frames import RenderedCapture, _from_cast
 from metrology.core.simulate.options import SimulationOptions, _is_int, camera_image
 from metrology.core.simulate.paper_rig import (
@@ -41,6 +42,9 @@ from metrology.core.simulate.paper_rig import (
     render_stack,
 )
 from metrology.core.simulate.series import series_seed, stack_seed
+
+if TYPE_CHECKING:
+    from metrology.core.simulate.stereo import StereoCast
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -142,6 +146,7 @@ def render_flats(
     placement: ScenePlacement | None = None,
     reflectance: Callable[[FloatArray, FloatArray], FloatArray] | None = None,
     projector_size: tuple[int, int] | None = None,
+    rays: CastTruth | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """The noise-free camera images of ``scene`` under a white and under a black projector frame,
     through any model (the paper's light path where :func:`uses_paper_renderer` takes a gcps-v1
@@ -151,6 +156,9 @@ def render_flats(
     :class:`~metrology.core.simulate.exposures.HdrReflectance`; ``projector_size``: the projector's
     (width, height) in its units, which bounds the lit field as the codec's frames do
     (:func:`~metrology.core.simulate.exposures.render_exposures` renders them on this path).
+    ``rays``: the scene already cast on this path, ``cast_truth(model.prepare(model.shape,
+    projector_size), scene, placement, supersample=options.supersample)`` (a caller rendering the
+    flats at several exposures casts once; the same images).
 
     Elsewhere the scene is cast as :func:`render_capture` casts it (``options.supersample`` rays
     per pixel and axis): ``I = full_scale * albedo * (ambient + gain * lit * e)`` with ``e = 1``
@@ -164,11 +172,16 @@ def render_flats(
     """
 
     opts = options if options is not None else SimulationOptions()
-    if reflectance is None and projector_size is None and uses_paper_renderer(model, None, opts, placement, scene):
+    paper = reflectance is None and projector_size is None and uses_paper_renderer(model, None, opts, placement, scene)
+    if paper and rays is None:
         return render_flat_frames(model, scene, opts)  # type: ignore[arg-type]
+    if paper:
+        raise ValueError("rays are cast on the cast path; the paper rig's flats trace their own")
     where = placement if placement is not None else default_placement(model)
-    s = opts.supersample
-    rays = cast_truth(model.prepare(model.shape, projector_size), scene, where, supersample=s)
+    if rays is None:
+        rays = cast_truth(model.prepare(model.shape, projector_size), scene, where, supersample=opts.supersample)
+    elif rays.points_mm.shape[:2] != (model.shape[0] * opts.supersample, model.shape[1] * opts.supersample):
+        raise ValueError(f"the rays are {rays.points_mm.shape[:2]}, the model's sub-pixels {opts.supersample} per side")
     X, Y, _ = where.scene_coordinates(rays.points_mm)
     hit = np.isfinite(X) & np.isfinite(Y)
     rho = reflectance if reflectance is not None else scene.albedo
@@ -190,13 +203,17 @@ def render_camera_flats(
     *,
     placement: ScenePlacement | None = None,
     reflectance: Callable[[FloatArray, FloatArray], FloatArray] | None = None,
+    cast: StereoCast | None = None,
 ) -> tuple[tuple[FloatArray, FloatArray], ...]:
     """Each camera's noise-free ``(white, black)`` images, camera 0 first: :func:`render_flats` for a
     model of one camera; for a stereo rig, :func:`render_flats` of each camera's pinhole rig with the
     projector that lights :func:`render_capture`'s stereo frames
     (:func:`~metrology.core.simulate.stereo.lighting_projector`, bounded by the rig's projector
     size), the scene placed in that camera's frame. ``reflectance``: as :func:`render_flats`'s, one
-    map over the scene's coordinates for every camera (stereo rigs only).
+    map over the scene's coordinates for every camera (stereo rigs only). ``cast``: the stereo
+    scene already cast with that projector (:func:`~metrology.core.simulate.stereo.cast_stereo` of
+    ``placement``, its default projector and ``options.supersample``; what
+    :func:`render_capture` casts): its sub-rays light the flats (the same images, no cast).
 
     Returns
     -------
@@ -205,20 +222,30 @@ def render_camera_flats(
     """
     opts = options if options is not None else SimulationOptions()
     if model.cameras == 1:
-        if reflectance is not None:
-            raise ValueError("render_camera_flats takes a reflectance map for stereo rigs; use render_flats")
+        if reflectance is not None or cast is not None:
+            raise ValueError("render_camera_flats takes a reflectance map or a cast for stereo rigs; use render_flats")
         return (render_flats(model, scene, opts, placement=placement),)
     from metrology.core.geometry.stereo import StereoRig
     from metrology.core.simulate.stereo import camera_rigs, lighting_projector
 
     if not isinstance(model, StereoRig):
         raise ValueError(f"the virtual rig renders two-camera stereo rigs, not a {model.short_label} rig")
+    if cast is not None and cast.supersample != opts.supersample:
+        raise ValueError(f"the cast has {cast.supersample} rays per pixel side, the options {opts.supersample}")
     where = placement if placement is not None else default_placement(model)
     size = (round(model.projector.width), round(model.projector.height))
     projector = lighting_projector(model, where, None)
     return tuple(
-        render_flats(pinhole, scene, opts, placement=in_camera, reflectance=reflectance, projector_size=size)
-        for pinhole, in_camera in camera_rigs(model, where, projector)
+        render_flats(
+            pinhole,
+            scene,
+            opts,
+            placement=in_camera,
+            reflectance=reflectance,
+            projector_size=size,
+            rays=None if cast is None else cast.sub_rays[index],
+        )
+        for index, (pinhole, in_camera) in enumerate(camera_rigs(model, where, projector))
     )
 
 
