@@ -304,7 +304,8 @@ def board_pixels(
     fraction of the sub-ray's box (:func:`~metrology.core.procam.virtual.board_truth`). ``K`` ``(3, 3)``
     and ``coeffs`` (14 floats, OpenCV's order) the projector's; ``tilt`` ``(3, 3)``: its sensor's
     tilt matrix (:func:`metrology.core.distortion.tilt_matrix`), identity when untilted (skipped).
-    Rays with ``t <= 0`` or behind the projector (``Z_p <= 0``): ``u = v = NaN``."""
+    Rays that do not meet the plane in front of the camera (``t > 0``) and of the projector
+    (``Z_p > 0``): ``u = v = NaN``."""
     k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tx, ty = coeffs
     rational = k4 != 0.0 or k5 != 0.0 or k6 != 0.0
     tilted = tx != 0.0 or ty != 0.0
