@@ -1,7 +1,7 @@
 """A virtual stereo pair of known K, dist, R, T and chessboard images rendered through it (tests of
 ``gcps calibrate-stereo`` and of :mod:`metrology.core.stereo_calibration`).
 
-Each camera's image is the board's albedo (``metrology.core.procam.virtual.board_albedo``, anti-aliased,
+Each camera's image is the board's albedo (``metrology.core.procam.virtual.board_truth``, anti-aliased,
 2x2 supersampled and averaged) through that camera alone: camera 0 sees board pose ``(R_b, t_b)``,
 camera 1 ``(R R_b, R t_b + T)``. Grey level ``20 + 220 albedo`` plus Gaussian noise, 8 bits.
 """
@@ -18,7 +18,7 @@ from metrology.core.codecs import codec_from_dict
 from metrology.core.codecs.model import Codec
 from metrology.core.geometry.pinhole import PinholeCamera, PinholeProjector, PinholeRig, look_at_rig
 from metrology.core.procam.board import BoardSpec
-from metrology.core.procam.virtual import BoardPose, board_albedo, render_board
+from metrology.core.procam.virtual import BoardPose, board_truth, render_board
 from metrology.core.simulate import realistic_8bit
 
 WIDTH, HEIGHT = 320, 256
@@ -65,7 +65,7 @@ def board_poses() -> list[BoardPose]:
 
 def render_camera(K: np.ndarray, dist: np.ndarray, pose: BoardPose, seed: int, noise: float = 1.0) -> np.ndarray:
     """One camera's 8-bit image ``(HEIGHT, WIDTH)`` of the board at ``pose`` (in that camera's frame)."""
-    albedo = board_albedo(_camera_rig(K, dist).camera, BOARD, pose, supersample=2)
+    _, _, albedo = board_truth(_camera_rig(K, dist), BOARD, pose, supersample=2)
     grey = albedo.reshape(HEIGHT, 2, WIDTH, 2).mean(axis=(1, 3))
     rng = np.random.default_rng(seed)
     return np.clip(np.round(20.0 + 220.0 * grey + rng.normal(0.0, noise, grey.shape)), 0, 255).astype(np.uint8)

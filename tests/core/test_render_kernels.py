@@ -183,3 +183,66 @@ def test_the_first_float_below_the_plane_is_where_the_bisections_end() -> None:
     for a, b, s, r in zip(root - width * below, root + width * (1 - below), s_origin, slope, strict=True):
         if a < b:
             assert _first_below(a, b, s, r, 60) == _bisect_plane(a, b, s, r, 60)
+
+
+def numpy_board_truth(rig, board, pose, supersample):  # type: ignore[no-untyped-def]
+    """The numpy passes that :func:`metrology.core.simulate.kernels.board_pixels` replaced in
+    :func:`metrology.core.procam.virtual.board_truth` (the reference of its bits)."""
+    from metrology.core.distortion import project_normalized
+    from metrology.core.procam.virtual import DARK_ALBEDO, LIGHT_ALBEDO, board_hits
+
+    s = int(supersample)
+    t, Xb, Xp = board_hits(rig, pose, s)
+    fp = np.abs(t) / (float(np.asarray(rig.camera.K)[0, 0]) * s)
+    sq = board.size_mm
+    k, m = np.round(Xb[..., 0] / sq), np.round(Xb[..., 1] / sq)
+    with np.errstate(invalid="ignore"):
+        even = (k + m) % 2 == 0
+        column = [(k - i >= -1) & (k - i <= board.cols - 1) for i in (0, 1)]
+        row = [(m - j >= -1) & (m - j <= board.rows - 1) for j in (0, 1)]
+
+    def dark(i: int, j: int) -> np.ndarray:
+        return (column[i] & row[j] & (even if (i + j) % 2 == 0 else ~even)).astype(np.float64)
+
+    with np.errstate(invalid="ignore"):
+        a = np.clip(0.5 + (Xb[..., 0] - k * sq) / fp, 0.0, 1.0)
+        b = np.clip(0.5 + (Xb[..., 1] - m * sq) / fp, 0.0, 1.0)
+    fraction = a * b * dark(0, 0) + a * (1 - b) * dark(0, 1) + (1 - a) * b * dark(1, 0) + (1 - a) * (1 - b) * dark(1, 1)
+    albedo = LIGHT_ALBEDO + (DARK_ALBEDO - LIGHT_ALBEDO) * fraction
+    front = (t > 0) & (Xp[..., 2] > 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u, v = project_normalized(
+            np.asarray(rig.projector.K), rig.projector.distortion, Xp[..., 0] / Xp[..., 2], Xp[..., 1] / Xp[..., 2]
+        )
+    return np.where(front, u, np.nan), np.where(front, v, np.nan), albedo
+
+
+@pytest.mark.parametrize(
+    "dist",
+    [
+        (0.03, -0.01, 0.0, 0.0, 0.0),
+        (0.03, -0.01, 0.001, -0.002, 0.004, 0.01, -0.003, 0.002),  # rational
+        (0.03, -0.01, 0.001, -0.002, 0.004, 0.0, 0.0, 0.0, 1e-3, -2e-4, 3e-4, 1e-4, 0.01, -0.02),  # tilted
+    ],
+)
+@pytest.mark.parametrize("supersample", [1, 2])
+def test_board_truth_is_the_numpy_passes_bit_for_bit(dist, supersample) -> None:
+    """The compiled chessboard pass gives the numpy passes' ``u``, ``v`` and albedo, NaN where they
+    have it: a board in view (squares, its edge and the light plane around it), one seen at a grazing
+    angle (sub-rays far beyond the board, some hitting its plane behind the camera or the projector)."""
+    from metrology.core.procam import parse_board
+    from metrology.core.procam.virtual import BoardPose, board_truth
+
+    board = parse_board("chessboard:9x6:20")
+    rig = look_at_rig(CAMERA, PinholeProjector(320, 200, PROJECTOR.K, dist), (-150.0, 10.0, 5.0), (0.0, 0.0, 500.0))
+    poses = [BoardPose.from_angles(10.0, -15.0, 20.0, (0.0, 0.0, 500.0)).centred(board)]
+    poses.append(BoardPose.from_angles(86.0, 10.0, 5.0, (0.0, 0.0, 300.0)).centred(board))
+    seen = []
+    for pose in poses:
+        got, expected = board_truth(rig, board, pose, supersample), numpy_board_truth(rig, board, pose, supersample)
+        for name, a, b in zip(("u", "v", "albedo"), got, expected, strict=True):
+            np.testing.assert_array_equal(a, b, err_msg=name)
+        seen.append((np.isnan(got[0]).mean(), np.unique(np.round(got[2], 6)).size))
+    (nan_in_view, shades), (nan_grazing, _) = seen
+    assert nan_in_view == 0 and shades > 10  # light, dark and anti-aliased edges
+    assert 0.05 < nan_grazing < 0.95, nan_grazing  # both kinds of sub-rays

@@ -428,9 +428,12 @@ def render_codec(
             yield camera_image(intensity, height, width, opts) * full
 
     frames: Iterable[FloatArray] = clean_frames()
-    if opts.noise_grey > 0:  # noise drawn anew on a kept noise-free render: a Monte Carlo's renders
+    clean_bytes = codec.n_frames * height * width * 8
+    # noise drawn anew on a kept noise-free render (a Monte Carlo's renders); a render too large to
+    # keep is never looked up (its scene's digest, a hash of every coordinate, would be wasted)
+    if opts.noise_grey > 0 and _CLEAN.fits(clean_bytes):
         key = (repr(codec), _digest(coords, albedo), dataclasses.replace(opts, seed=0), blur)
-        frames = _kept_clean_render(key, frames, codec.n_frames * height * width * 8)
+        frames = _kept_clean_render(key, frames, clean_bytes)
     images = np.empty((codec.n_frames, height, width), opts.dtype)
     for f, grey in enumerate(frames):
         if opts.noise_grey > 0:  # grey + noise_grey * z, in place on the draw z

@@ -54,10 +54,17 @@ Open3D's RANSAC (``open3d.utility.random.seed(seed + k)`` for restart ``k``); ea
 answer is refined by :func:`best_fit` on a few thousand points (trimming floor two voxels), and the one with most points
 within one voxel of the surface (then the lowest RMS) wins; the restarts stop early once one
 explains ``accept_fraction`` (98 %) of the points that way. Same inputs and seed, same answer.
+The nominal's sampled cloud and its features depend only on the surface, the seed and the voxel:
+the last :data:`KEPT_TARGETS` of each surface are kept (with the generator's state after the
+sampling), so that registering several scans to one nominal samples and describes it once.
 """
 
 from __future__ import annotations
 
+import threading
+import weakref
+from collections import OrderedDict
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -85,6 +92,11 @@ BLOCK_POINTS = 1 << 15
 """Rows per block of the per-point products (:func:`apply`, :meth:`FitResult.normal_uncertainty_mm`)."""
 COARSE_TOLERANCE = 1e3
 """The coarse stage stops at steps below 1000 times the final tolerances (1e-7 rad, 1e-5 mm)."""
+KEPT_TARGETS = 4
+"""Registration targets (the nominal's cloud and FPFH features) kept per surface, by seed and voxel."""
+_TARGETS: weakref.WeakKeyDictionary[SurfaceDistance, OrderedDict[tuple[int, float], tuple[Any, Any, Mapping[str, Any]]]]
+_TARGETS = weakref.WeakKeyDictionary()
+_TARGETS_LOCK = threading.Lock()
 
 
 @dataclass(frozen=True)
@@ -455,12 +467,10 @@ def global_registration(
     scan = np.asarray(scan_mm, dtype=np.float64).reshape(-1, 3)
     low, high = surface.vertices.min(axis=0), surface.vertices.max(axis=0)
     voxel = float(np.linalg.norm(high - low)) / voxel_divisions
-    nominal_points, nominal_normals = sample_surface(surface, 40000, rng)
-    target = _cloud(nominal_points, voxel, nominal_normals)
+    feature = open3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100)
+    target, target_fpfh = _target(surface, seed, voxel, rng, feature)
     subset = scan if scan.shape[0] <= 200000 else scan[rng.choice(scan.shape[0], 200000, replace=False)]
     source = _cloud(subset, voxel, None, viewpoint_mm)
-    feature = open3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100)
-    target_fpfh = reg.compute_fpfh_feature(target, feature)  # type: ignore[call-arg]
     source_fpfh = reg.compute_fpfh_feature(source, feature)  # type: ignore[call-arg]
     refine = scan[rng.choice(scan.shape[0], min(refine_points, scan.shape[0]), replace=False)]
     best: tuple[float, float, np.ndarray] | None = None
@@ -490,6 +500,33 @@ def global_registration(
             break
     assert best is not None
     return GlobalRegistration(best[2], seed, restarts, voxel, fractions)
+
+
+def _target(
+    surface: SurfaceDistance, seed: int, voxel: float, rng: np.random.Generator, feature: Any
+) -> tuple[Any, Any]:
+    """The nominal's registration target: 40000 points sampled with ``rng`` (fresh from ``seed``),
+    voxel-downsampled with their face normals, and their FPFH features; kept per surface
+    (:data:`KEPT_TARGETS`), ``rng`` then set to the state the sampling leaves (the same draws follow)."""
+    import open3d
+
+    key = (int(seed), float(voxel))
+    with _TARGETS_LOCK:
+        kept = _TARGETS.setdefault(surface, OrderedDict())
+        found = kept.get(key)
+        if found is not None:
+            kept.move_to_end(key)
+    if found is not None:
+        rng.bit_generator.state = found[2]
+        return found[0], found[1]
+    points, normals = sample_surface(surface, 40000, rng)
+    target = _cloud(points, voxel, normals)
+    fpfh = open3d.pipelines.registration.compute_fpfh_feature(target, feature)  # type: ignore[call-arg]
+    with _TARGETS_LOCK:
+        kept[key] = (target, fpfh, rng.bit_generator.state)
+        while len(kept) > KEPT_TARGETS:
+            kept.popitem(last=False)
+    return target, fpfh
 
 
 def _cloud(points: np.ndarray, voxel: float, normals: np.ndarray | None, viewpoint: np.ndarray | None = None) -> Any:

@@ -29,7 +29,7 @@ import numpy.typing as npt
 
 from metrology.core.codecs.model import Codec
 from metrology.core.codecs.render import render_codec
-from metrology.core.distortion import project_normalized, undistort_pixels
+from metrology.core.distortion import project_normalized, tilt_matrix, undistort_pixels
 from metrology.core.geometry.pinhole import PinholeCamera, PinholeRig
 from metrology.core.procam.board import BoardSpec
 from metrology.core.simulate import SimulationOptions
@@ -64,64 +64,51 @@ class BoardPose:
 def board_truth(
     rig: PinholeRig, board: BoardSpec, pose: BoardPose, supersample: int = 1
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """True ``u``, ``v`` and albedo on the camera's ``supersample``-times finer grid, ``(H s, W s)`` float64."""
-    X, t, albedo = _board_hits(rig.camera, board, pose, supersample)
-    Rr = np.asarray(rig.R)
-    Xp = X @ Rr.T + np.asarray(rig.T)
-    front = (t > 0) & (Xp[..., 2] > 0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        u, v = project_normalized(
-            np.asarray(rig.projector.K), rig.projector.distortion, Xp[..., 0] / Xp[..., 2], Xp[..., 1] / Xp[..., 2]
-        )
-    u = np.where(front, u, np.nan)
-    v = np.where(front, v, np.nan)
+    """True ``u``, ``v`` and albedo on the camera's ``supersample``-times finer grid, ``(H s, W s)`` float64.
+
+    Per sub-ray, compiled (:func:`metrology.core.simulate.kernels.board_pixels`, the bits of the
+    numpy passes it replaced, ``tests/core/test_render_kernels.py``): the anti-aliased squares (a
+    sub-ray covers a box of about ``|t| / (f_x s)`` mm of the board; the fraction of it on either
+    side of the nearest edge line in x and in y weighs the four squares around it), the albedo, and
+    the projection of the hit through the projector's ``K`` and distortion."""
+    from metrology.core.simulate.kernels import board_pixels
+
+    s = int(supersample)
+    t, Xb, Xp = board_hits(rig, pose, s)
+    coeffs = tuple(float(c) for c in rig.projector.distortion.coeffs)
+    tilt = tilt_matrix(coeffs[12], coeffs[13]) if coeffs[12] != 0.0 or coeffs[13] != 0.0 else np.eye(3)
+    u, v, albedo = (np.empty(t.shape) for _ in range(3))
+    board_pixels(
+        t.reshape(-1),
+        Xb.reshape(-1, 3),
+        Xp.reshape(-1, 3),
+        float(np.asarray(rig.camera.K)[0, 0]) * s,
+        float(board.size_mm),
+        int(board.cols),
+        int(board.rows),
+        LIGHT_ALBEDO,
+        DARK_ALBEDO,
+        np.asarray(rig.projector.K, dtype=np.float64),
+        coeffs,
+        tilt,
+        u.reshape(-1),
+        v.reshape(-1),
+        albedo.reshape(-1),
+    )
     return u, v, albedo
 
 
-def board_albedo(camera: PinholeCamera, board: BoardSpec, pose: BoardPose, supersample: int = 1) -> FloatArray:
-    """The albedo of :func:`board_truth` alone, ``(H s, W s)`` float64 (what a camera sees of the
-    board under uniform light; no projector)."""
-    return _board_hits(camera, board, pose, supersample)[2]
-
-
-def _board_hits(
-    camera: PinholeCamera, board: BoardSpec, pose: BoardPose, supersample: int
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Where the camera's sub-pixel rays meet the board's plane: the points ``X`` (mm, camera frame,
-    ``(H s, W s, 3)``), the ray parameters ``t`` ``(H s, W s)`` and the anti-aliased albedo there."""
-    s = int(supersample)
-    d = _sub_ray_directions(camera, s)
+def board_hits(rig: PinholeRig, pose: BoardPose, supersample: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Where each camera sub-ray ``t d`` meets the board's plane: ``t`` ``(H s, W s)``, the hit in
+    the board's frame and in the projector's ``(H s, W s, 3)`` (mm), all C-contiguous float64."""
+    d = _sub_ray_directions(rig.camera, supersample)
     n = pose.R[:, 2]
     with np.errstate(invalid="ignore", divide="ignore"):
         t = float(n @ pose.t) / (d @ n)
     X = d * t[..., None]
     Xb = (X - pose.t) @ pose.R  # R^T (X - t) for row vectors
-    # anti-aliased squares: each sub-sample covers a box of about fp mm on the board; the
-    # fraction of it on either side of the nearest edge line in x and in y weighs the four squares
-    fx = float(np.asarray(camera.K)[0, 0])
-    fp = np.abs(t) / (fx * s)
-    sq = board.size_mm
-
-    k = np.round(Xb[..., 0] / sq)
-    m = np.round(Xb[..., 1] / sq)
-    # square (c, r) is dark where it lies on the board and c + r is even; the four squares around a
-    # sub-sample are (k - i, m - j), i, j in {0, 1}: their parities from one modulo
-    with np.errstate(invalid="ignore"):
-        even = (k + m) % 2 == 0
-        column = [(k - i >= -1) & (k - i <= board.cols - 1) for i in (0, 1)]
-        row = [(m - j >= -1) & (m - j <= board.rows - 1) for j in (0, 1)]
-
-    def dark(i: int, j: int) -> FloatArray:
-        return (column[i] & row[j] & (even if (i + j) % 2 == 0 else ~even)).astype(np.float64)
-
-    with np.errstate(invalid="ignore"):
-        a = np.clip(0.5 + (Xb[..., 0] - k * sq) / fp, 0.0, 1.0)
-        b = np.clip(0.5 + (Xb[..., 1] - m * sq) / fp, 0.0, 1.0)
-    dark_fraction = (
-        a * b * dark(0, 0) + a * (1 - b) * dark(0, 1) + (1 - a) * b * dark(1, 0) + (1 - a) * (1 - b) * dark(1, 1)
-    )
-    albedo = LIGHT_ALBEDO + (DARK_ALBEDO - LIGHT_ALBEDO) * dark_fraction
-    return X, t, albedo
+    Xp = X @ np.asarray(rig.R).T + np.asarray(rig.T)
+    return np.ascontiguousarray(t), np.ascontiguousarray(Xb), np.ascontiguousarray(Xp)
 
 
 @functools.lru_cache(maxsize=4)

@@ -15,7 +15,10 @@ bits of the numpy passes it replaces (but :func:`sine_intensity`, to rounding) (
 - :func:`slab_interval`: the paper rig's slab test of a ray or shadow segment against a footprint
   box (fourteen passes of numpy before);
 - :func:`sample_light`: the paper rig's light per sub-ray, a blurred table interpolated at the
-  codes' cells and scaled by the albedo (six passes before).
+  codes' cells and scaled by the albedo (six passes before);
+- :func:`board_pixels`: the procam virtual rig's chessboard seen by each camera sub-ray, its albedo
+  and its true projector coordinates (:func:`metrology.core.procam.virtual.board_truth`: some
+  thirty passes of numpy over the sub-rays before, the distortion's included).
 
 No ``fastmath``: a fused multiply-add would change the bits. Compiled on first use and cached on
 disk (``cache=True``); :func:`warm` loads them (``python -m metrology.core.compiled``).
@@ -271,6 +274,91 @@ def sample_light(
         out[k] = ambient[k] + signal[k] * emitted
 
 
+@njit(nogil=True, cache=True)
+def board_pixels(
+    t: np.ndarray,
+    board_xy: np.ndarray,
+    in_projector: np.ndarray,
+    footprint_scale: float,
+    square_mm: float,
+    cols: int,
+    rows: int,
+    light: float,
+    dark: float,
+    K: np.ndarray,
+    coeffs: tuple[float, ...],
+    tilt: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    albedo: np.ndarray,
+) -> None:  # pragma: no cover
+    """The chessboard's albedo and the projector coordinates of ``N`` camera sub-rays (flat float64
+    outputs ``u``, ``v``, ``albedo``), the bits of :func:`metrology.core.procam.virtual.board_truth`'s
+    numpy passes.
+
+    ``t`` ``(N,)``: each ray's distance parameter to the board's plane; ``board_xy`` ``(N, 3)``: the
+    hit in the board's frame, mm (``Z`` unused); ``in_projector`` ``(N, 3)``: the hit in the
+    projector's frame, mm. ``footprint_scale = f_x s``: a sub-ray covers ``|t| / (f_x s)`` mm of the
+    board. Squares ``square_mm``; the printed board's squares ``c = -1..cols-1``, ``r = -1..rows-1``
+    are dark where ``c + r`` is even, the albedo ``light + (dark - light) f`` with ``f`` the dark
+    fraction of the sub-ray's box (:func:`~metrology.core.procam.virtual.board_truth`). ``K`` ``(3, 3)``
+    and ``coeffs`` (14 floats, OpenCV's order) the projector's; ``tilt`` ``(3, 3)``: its sensor's
+    tilt matrix (:func:`metrology.core.distortion.tilt_matrix`), identity when untilted (skipped).
+    Rays that do not meet the plane in front of the camera (``t > 0``) and of the projector
+    (``Z_p > 0``): ``u = v = NaN``."""
+    k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tx, ty = coeffs
+    rational = k4 != 0.0 or k5 != 0.0 or k6 != 0.0
+    tilted = tx != 0.0 or ty != 0.0
+    for i in range(t.size):
+        bx, by = board_xy[i, 0], board_xy[i, 1]
+        fp = np.abs(t[i]) / footprint_scale
+        k = np.rint(bx / square_mm)
+        m = np.rint(by / square_mm)
+        even = (k + m) % 2.0 == 0.0  # NaN: not even, as in numpy
+        c0 = (k >= -1) & (k <= cols - 1)
+        c1 = (k - 1 >= -1) & (k - 1 <= cols - 1)
+        r0 = (m >= -1) & (m <= rows - 1)
+        r1 = (m - 1 >= -1) & (m - 1 <= rows - 1)
+        d00 = 1.0 if c0 and r0 and even else 0.0
+        d01 = 1.0 if c0 and r1 and not even else 0.0
+        d10 = 1.0 if c1 and r0 and not even else 0.0
+        d11 = 1.0 if c1 and r1 and even else 0.0
+        a = _clip01(0.5 + (bx - k * square_mm) / fp)
+        b = _clip01(0.5 + (by - m * square_mm) / fp)
+        fraction = a * b * d00 + a * (1 - b) * d01 + (1 - a) * b * d10 + (1 - a) * (1 - b) * d11
+        albedo[i] = light + (dark - light) * fraction
+        xp, yp, zp = in_projector[i, 0], in_projector[i, 1], in_projector[i, 2]
+        if not (t[i] > 0 and zp > 0):
+            u[i] = np.nan
+            v[i] = np.nan
+            continue
+        x, y = xp / zp, yp / zp
+        x2, y2, xy = x * x, y * y, x * y
+        r2 = x2 + y2
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        if rational:
+            radial = radial / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+        xd = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x2) + r2 * (s1 + s2 * r2)
+        yd = y * radial + p1 * (r2 + 2.0 * y2) + 2.0 * p2 * xy + r2 * (s3 + s4 * r2)
+        if tilted:
+            w0 = tilt[0, 0] * xd + tilt[0, 1] * yd + tilt[0, 2]
+            w1 = tilt[1, 0] * xd + tilt[1, 1] * yd + tilt[1, 2]
+            w2 = tilt[2, 0] * xd + tilt[2, 1] * yd + tilt[2, 2]
+            xd, yd = w0 / w2, w1 / w2
+        u[i] = K[0, 0] * xd + K[0, 1] * yd + K[0, 2]
+        v[i] = K[1, 1] * yd + K[1, 2]
+
+
+@njit(nogil=True, cache=True)
+def _clip01(x: float) -> float:  # pragma: no cover
+    """``np.clip(x, 0, 1)``: NaN stays NaN."""
+    if x < 0.0:
+        return 0.0
+    if x > 1.0:
+        return 1.0
+    return x
+
+
 def warm() -> None:
     """Load (or compile) the kernels now, on empty arrays of the types the renderers pass."""
     e = np.empty(0, np.float64)
@@ -280,3 +368,5 @@ def warm() -> None:
     sine_intensity(e, np.empty(0, np.int64), e, e, e, 0.5, 0.5, 0.0, e)
     slab_interval(e, e, 0.0, 1.0, 0.0, 1.0, e, e)
     sample_light(np.zeros(2), np.empty(0, np.intp), e, e, e, e)
+    e3 = np.empty((0, 3), np.float64)
+    board_pixels(e, e3, e3, 1.0, 1.0, 1, 1, 0.9, 0.08, np.eye(3), (0.0,) * 14, np.eye(3), e, e, e)

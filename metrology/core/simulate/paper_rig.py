@@ -454,10 +454,14 @@ def _centre_rays(rig: Rig, scene: Scene, sub: _Trace, H: int, W: int, s: int) ->
 
 def _capture(clean: _CleanRender, rng: np.random.Generator) -> RenderedStack:
     opts = clean.options
-    values = clean.grey
-    if opts.noise_grey > 0:
-        values = values + opts.noise_grey * rng.standard_normal(values.shape, dtype=np.float32)
-    images = np.clip(np.rint(values), 0, opts.full_scale).astype(opts.dtype)
+    if opts.noise_grey > 0:  # grey + noise_grey * z (z float32, scaled in float32), rounded in place
+        noise = rng.standard_normal(clean.grey.shape, dtype=np.float32)
+        noise *= opts.noise_grey
+        values = clean.grey + noise
+        np.rint(values, out=values)
+    else:
+        values = np.rint(clean.grey)
+    images = np.clip(values, 0, opts.full_scale, out=values).astype(opts.dtype)
     return RenderedStack(
         images=images,
         truth_mm=clean.truth_mm,
