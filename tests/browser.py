@@ -36,11 +36,14 @@ def screenshots_wanted() -> bool:
     return os.environ.get("GCPS_SCREENSHOTS", "") not in ("", "0")
 
 
-def shot(page, name: str) -> None:
-    """A full-page screenshot of ``page`` to artifacts/screenshots/<name>.png when screenshots are
-    wanted (``GCPS_SCREENSHOTS``); otherwise nothing."""
+def shot(page, name: str, settle_ms: int = 0) -> None:
+    """A full-page screenshot of ``page`` to artifacts/screenshots/<name>.png, ``settle_ms`` after the
+    call (for figures still drawing), when screenshots are wanted (``GCPS_SCREENSHOTS``); otherwise
+    nothing."""
     if not screenshots_wanted():
         return
+    if settle_ms:
+        page.wait_for_timeout(settle_ms)
     SCREENSHOTS.mkdir(parents=True, exist_ok=True)
     page.screenshot(path=str(SCREENSHOTS / f"{name}.png"), full_page=True)
 

@@ -1,7 +1,7 @@
 """Projector-camera calibration in headless Chromium: upload six pose zips through the form, watch the
 job's progress, see the warnings and figures, apply, see the rig page show the pinhole calibration.
 
-Jobs run in the in-process worker thread of tests/dashboard/conftest.py; screenshots go to
+Jobs run in the in-process worker thread of tests/dashboard/conftest.py; screenshots (GCPS_SCREENSHOTS=1) go to
 artifacts/screenshots/ (procam-*.png).
 """
 
