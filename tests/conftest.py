@@ -23,7 +23,7 @@ from metrology.accounts.services import create_user_with_token
 from metrology.devserver import disable_nagle
 from metrology.rigs.services import create_rig
 from tests.app.stacks import SMALL_RIG
-from tests.browser import CHROMIUM, CHROMIUM_ARGS, TIMEOUT_MS
+from tests.browser import TIMEOUT_MS, shared_browser
 from tests.shared_run import migrations_digest, run_folder
 
 disable_nagle()  # pytest-django's live server is Django's development server (metrology/devserver.py)
@@ -63,6 +63,8 @@ def shared_setup_group(item: pytest.Item) -> str | None:
     if info is None:  # doctests
         return None
     module = item.nodeid.split("::")[0]
+    if "module_browser" in getattr(item, "fixturenames", ()):  # the module's Chromium (browser_page)
+        return f"module-fixtures:{module}"
     for definitions in info.name2fixturedefs.values():
         # the module's own fixtures (plugins' autouse class fixtures have another baseid)
         if definitions and definitions[-1].scope in ("module", "class") and definitions[-1].baseid == module:
@@ -288,18 +290,29 @@ def rig(alice):
     return create_rig(owner=alice, data={**SMALL_RIG, "name": "bench"})
 
 
-@pytest.fixture
-def browser_page():
-    """A page of headless Chromium (1280 x 900) that collects the page's JavaScript errors in ``js_errors``."""
+@pytest.fixture(scope="module")
+def module_browser():
+    """One headless Chromium for a test module's browser tests (tests/browser.py, ``SharedBrowser``):
+    a launch costs about 1.4 s of CPU. Between the tests no event loop is marked running in the
+    thread, and the browser stops at the module's end, so that the tests after it (browser or not)
+    run as without it. ``shared_setup_group`` keeps a module's tests that use it on one worker."""
     sync_api = pytest.importorskip("playwright.sync_api")
-    with sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        context = browser.new_context(viewport={"width": 1280, "height": 900}, accept_downloads=True)
-        page = context.new_page()
-        page.set_default_timeout(TIMEOUT_MS)
-        errors: list[str] = []
-        page.on("pageerror", lambda exc: errors.append(str(exc)))
-        page.js_errors = errors
-        yield page
-        context.close()
-        browser.close()
+    with shared_browser(sync_api) as shared:
+        yield shared
+
+
+@pytest.fixture
+def browser_page(module_browser):
+    """A page of headless Chromium (1280 x 900) in a browser context of its own (its own cookies and
+    storage) that collects the page's JavaScript errors in ``js_errors``."""
+    module_browser.resume()
+    context = module_browser.browser.new_context(viewport={"width": 1280, "height": 900}, accept_downloads=True)
+    page = context.new_page()
+    page.set_default_timeout(TIMEOUT_MS)
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    page.js_errors = errors
+    yield page
+    module_browser.resume()  # a test may have cleared the mark (asyncio.run does on its way out)
+    context.close()
+    module_browser.idle()

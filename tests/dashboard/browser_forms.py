@@ -3,6 +3,7 @@ a stage series on a rig's captures page, and wait for a job's progress page to m
 
 from __future__ import annotations
 
+from tests.browser import POLL_MS
 from tests.conftest import PASSWORD
 
 
@@ -18,7 +19,8 @@ def wait_for_job(page, next_url_glob: str) -> None:
     """From a job's progress page, wait until it moved on to ``next_url_glob`` (the job done); fail
     with the job's error when it failed instead."""
     page.wait_for_function(
-        "() => !document.querySelector('.js-job') || document.querySelector('.js-job [data-status=failed]')"
+        "() => !document.querySelector('.js-job') || document.querySelector('.js-job [data-status=failed]')",
+        polling=POLL_MS,
     )
     failed = page.locator(".js-job [data-status=failed]")
     assert not failed.count(), page.locator(".js-error").inner_text()

@@ -2,7 +2,8 @@
 
 The live server runs in a thread of this process; jobs are picked up by a small in-process
 "worker" thread (one job at a time, like a Celery worker with concurrency 1) so that the pages
-really show a progress bar moving from queued to done. Screenshots go to artifacts/screenshots/.
+really show a progress bar moving from queued to done. With GCPS_SCREENSHOTS=1, screenshots go to
+artifacts/screenshots/.
 """
 
 from __future__ import annotations
@@ -73,8 +74,7 @@ def test_measure_and_characterize_in_the_browser(live_server, alice, worker, bro
     x_range = page.evaluate("document.getElementById('fig-height_map')._fullLayout.xaxis.range")
     assert 101.0 <= x_range[0] <= 103.0 and 601.0 <= x_range[1] <= 603.0, x_range
     assert "down" in page.locator("#fig-height_map .g-ytitle").text_content()
-    page.wait_for_timeout(500)
-    shot(page, "05-measurement")
+    shot(page, "05-measurement", settle_ms=500)
 
     # row chooser
     page.fill("#id_row", "60")
@@ -109,8 +109,7 @@ def test_measure_and_characterize_in_the_browser(live_server, alice, worker, bro
     assert "Fig. 12" in page.content() and "Fig. 13" in page.content()
     assert page.locator("#fig-in_out .scatterlayer .trace").count() >= 2
     assert "% of full scale" in page.locator("table").first.inner_text()
-    page.wait_for_timeout(500)
-    shot(page, "06-characterization")
+    shot(page, "06-characterization", settle_ms=500)
 
     # the sensitivity page
     page.goto(f"{rig_url}sensitivity/")

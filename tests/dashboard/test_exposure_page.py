@@ -13,7 +13,7 @@ from django.core.files.uploadedfile import SimpleUploadedFile
 from metrology.captures.services import upload_capture
 from metrology.core.geometry.crossed_axes import Rig
 from tests.app.stacks import SMALL_RIG, hdr_members, zip_bytes
-from tests.browser import CHROMIUM, shot
+from tests.browser import CHROMIUM, POLL_MS, shot
 from tests.conftest import log_page_in
 from tests.dashboard.helpers import figure_data
 
@@ -71,7 +71,7 @@ def test_capture_page_of_a_multi_exposure_capture_in_the_browser(live_server, al
     log_page_in(page, alice, live_server.url)
     response = page.goto(f"{live_server.url}/captures/{capture.pk}/")
     assert response is not None and response.status == 200
-    page.wait_for_function("() => document.querySelector('#fig-exposure_u .main-svg') !== null")
+    page.wait_for_function("() => document.querySelector('#fig-exposure_u .main-svg') !== null", polling=POLL_MS)
     legend = page.locator("#fig-exposure_u").inner_text()
     assert "short (" in legend and "long (" in legend
     assert page.locator("#h-exposures").is_visible()

@@ -8,7 +8,7 @@ import os
 
 import pytest
 
-from tests.browser import CHROMIUM, shot
+from tests.browser import CHROMIUM, POLL_MS, shot
 from tests.dashboard.browser_forms import log_in
 
 pytestmark = [
@@ -101,7 +101,9 @@ def test_on_the_embedded_default_a_measurement_page_shows_progress_then_its_maps
     bar = page.locator(".js-job .progress")
     assert bar.count() == 1 and bar.get_attribute("data-status") in ("queued", "running")
     # the heading's badge follows the job, as the progress card does
-    page.wait_for_function("() => document.querySelector('h1 [data-job-badge]').textContent === 'running'")
+    page.wait_for_function(
+        "() => document.querySelector('h1 [data-job-badge]').textContent === 'running'", polling=POLL_MS
+    )
     shot(page, "first-day-embedded-progress")
     page.wait_for_selector("#fig-height_map .main-svg", timeout=120_000)  # reloaded once the job is done
     colour_bar = page.locator("#fig-height_map .colorbar").text_content() or ""

@@ -5,7 +5,7 @@ tolerance marked), the histogram, the conformance counts and the features table 
 JSON in the form), open the printable report.
 
 The scene and the nominal are tests/app/test_inspections.py's (a block with a 0.1 mm pit, the block
-without it). Jobs run in the in-process worker of tests/dashboard/conftest.py; screenshots go to
+without it). Jobs run in the in-process worker of tests/dashboard/conftest.py; screenshots (GCPS_SCREENSHOTS=1) go to
 artifacts/screenshots/ (inspection-*.png).
 """
 

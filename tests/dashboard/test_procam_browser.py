@@ -1,7 +1,7 @@
 """Projector-camera calibration in headless Chromium: upload six pose zips through the form, watch the
 job's progress, see the warnings and figures, apply, see the rig page show the pinhole calibration.
 
-Jobs run in the in-process worker thread of tests/dashboard/conftest.py; screenshots go to
+Jobs run in the in-process worker thread of tests/dashboard/conftest.py; screenshots (GCPS_SCREENSHOTS=1) go to
 artifacts/screenshots/ (procam-*.png).
 """
 
@@ -12,7 +12,7 @@ import pytest
 
 from metrology.rigs.services import create_rig
 from tests.app.procam_stacks import BOARD_SPEC, RIG_320, TRUE_RIG, UNUSABLE_POSE, pose_name, pose_zips
-from tests.browser import CHROMIUM, shot
+from tests.browser import CHROMIUM, POLL_MS, shot
 from tests.conftest import PASSWORD
 
 pytestmark = [
@@ -70,7 +70,9 @@ def test_procam_calibration_in_the_browser(live_server, alice, procam_rig, worke
     assert images.count() == 7
     for i in range(images.count()):
         images.nth(i).scroll_into_view_if_needed()
-        page.wait_for_function("el => el.complete && el.naturalWidth > 0", arg=images.nth(i).element_handle())
+        page.wait_for_function(
+            "el => el.complete && el.naturalWidth > 0", arg=images.nth(i).element_handle(), polling=POLL_MS
+        )
     assert f"/residuals/{UNUSABLE_POSE}.svg" not in page.content()
     # what the poses cannot determine: both devices' focal-distance correlation, and the
     # intrinsics' tables with their spread and correlation columns fitting their cards

@@ -10,7 +10,7 @@ default codec form, the inspection plan page, a restore from the history, and a 
 itself. Each job runs in the dashboard's in-process worker and must end ``done``; every page must
 load without a JavaScript error. A button the walk does not know fails the test, so an action
 added to the rig page is added to the walk.
-Screenshots go to artifacts/screenshots/rig-walk-*.png.
+With GCPS_SCREENSHOTS=1, screenshots go to artifacts/screenshots/rig-walk-*.png.
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from django.core.files.uploadedfile import SimpleUploadedFile
 
-from tests.browser import CHROMIUM, shot
+from tests.browser import CHROMIUM, POLL_MS, shot
 from tests.conftest import log_page_in
 
 
@@ -46,7 +46,7 @@ def test_capture_page_of_a_stereo_multi_exposure_capture_in_the_browser(live_ser
     log_page_in(page, alice, live_server.url)
     response = page.goto(f"{live_server.url}/captures/{capture.pk}/")
     assert response is not None and response.status == 200
-    page.wait_for_function("() => document.querySelector('#fig-exposure_u .main-svg') !== null")
+    page.wait_for_function("() => document.querySelector('#fig-exposure_u .main-svg') !== null", polling=POLL_MS)
     legend = page.locator("#fig-exposure_u").inner_text()
     assert all(f"{name} (" in legend for name in ("exp0", "exp1", "exp2")), legend
     assert page.locator("#h-exposures").is_visible()
