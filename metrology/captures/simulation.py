@@ -48,13 +48,14 @@ SCENE_SIZE_FACTOR = 10.0
 DEPTH_BELOW_FRACTION = 1.0
 DEPTH_ABOVE_FRACTION = 0.95
 
-# Peak memory of render_stack, bytes per camera pixel and per sub-ray (measured with tracemalloc:
-# 286 B/px at one ray per pixel, 152 B per further sub-ray, 374 B/px with noise and blur), with margin.
-# A process's first realistic render (3x3 sub-rays, noise and blur) peaks higher than its later ones:
-# 2006 B/px against 1468 on the 160x120 test rig (tests/app/test_simulation_bounds.py, which failed
-# with 400 here when it ran first in its process: 1930 B/px estimated).
-_BYTES_PER_PIXEL = 560
-_BYTES_PER_SUBRAY = 170
+# Peak memory of render_stack, bytes per camera pixel and per sub-ray, with margin (tracemalloc,
+# December 2026, after the renders' in-place passes): a warm process's render peaks at 220 B/px
+# noise-free and 253 B/px realistic at one ray per pixel, about 130 B more per further sub-ray
+# (1188 and 1323 B/px at 3x3); a process's first render at 640x480, 416 B/px (1x1) and 1474 B/px
+# (3x3, realistic). A process's first render also loads the compiled kernels and tables, about
+# 40 MB whatever the frame size, which is not the render's and not modelled here.
+_BYTES_PER_PIXEL = 300
+_BYTES_PER_SUBRAY = 140
 
 
 def preset_options(preset: str, overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
@@ -81,9 +82,9 @@ def depth_range_mm(model: Any) -> tuple[float, float]:
 def estimated_render_bytes(model: Any, options: Any) -> int:
     """Peak memory of rendering a stack for ``rig`` with ``options``, bytes (every camera's).
 
-    ``H W (560 + 170 s^2)`` with ``s`` the sub-rays per pixel along each axis: the traced peak
-    is 286 + 152 (s^2 - 1) bytes per pixel noise-free and ~90 more with noise and blur; a
-    process's first realistic render up to 2006 B/px at ``s`` = 3.
+    ``H W (300 + 140 s^2)`` with ``s`` the sub-rays per pixel along each axis: the traced peak
+    is about 220 + 121 (s^2 - 1) bytes per pixel noise-free and 253 + 134 (s^2 - 1) realistic; a
+    process's first realistic render up to 1474 B/px at ``s`` = 3 (640x480).
     """
     subrays = int(options.supersample) ** 2
     peak = sum(int(h) * int(w) for h, w in model.camera_shapes)  # every camera's cast is kept

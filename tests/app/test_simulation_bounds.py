@@ -96,8 +96,13 @@ def test_memory_limit_refuses_supersampling_that_would_exceed_it(api, rig, setti
 
 @pytest.mark.parametrize("options", [SimulationOptions.noise_free_16bit(), SimulationOptions.realistic_8bit()])
 def test_memory_estimate_bounds_the_measured_peak(options):
-    """The estimate is at least the render's traced peak and at most three times it."""
+    """The estimate is at least the render's traced peak and at most three times it. A smaller
+    sphere is rendered first with the same options: a process's first render of a scene with a
+    footprint also loads the compiled kernels and tables (about 40 MB, 2100 B/px of this 160x120
+    rig), which are not the render's own memory, so the traced peak no longer depends on what the
+    process rendered before."""
     rig = Rig.from_dict(SMALL_RIG)
+    render_stack(rig, make_scene("sphere", rig=rig, radius_mm=30.0), options)
     scene = make_scene("sphere", rig=rig)
     tracemalloc.start()
     try:
