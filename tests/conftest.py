@@ -40,6 +40,9 @@ PASSWORD = "a-long-test-password-42"
 SINGLE_THREAD_ENV = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENCV_FOR_THREADS_NUM")
 #: Markers of the long tests, which the scheduling below starts first.
 LONG_MARKERS = ("slow", "integration", "browser")
+WAITING_MARKERS = ("integration", "browser")
+"""Long tests that mostly wait (on servers, Celery workers, Redis, Chromium): a fault test uses
+about a fifth of its wall time's CPU in its processes, a slow core test nearly all of it."""
 
 
 def runs_on_xdist_workers(config: pytest.Config) -> bool:
@@ -79,10 +82,13 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     - the tests of a module that use one of its module- or class-scoped fixtures share an
       ``xdist_group``, so that they run on one worker and the fixture is made once, not once per
       worker (tests grouped by hand keep their group);
-    - the long tests (marked ``slow``, ``integration`` or ``browser``) come first, the others after,
-      each part in the order of collection: xdist hands the work out in this order (with
-      ``--no-loadscope-reorder``), so the long ones start at once instead of being the last ones
-      running while the other workers idle.
+    - the long tests (marked ``slow``, ``integration`` or ``browser``) come first, the others after:
+      xdist hands the work out in this order (with ``--no-loadscope-reorder``), so the long ones
+      start at once instead of being the last ones running while the other workers idle. Among the
+      long ones, those that mostly wait (:data:`WAITING_MARKERS`) are spread evenly between those
+      that compute (:func:`long_tests_first`): in collection order, the integration tests came
+      together and for about a minute all four workers waited on their servers with the two cores
+      40-60 % idle.
 
     Every worker sorts the same collection the same way, as xdist requires."""
     if not runs_on_xdist_workers(config):
@@ -92,7 +98,24 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.xdist_group(group))
         if config.getoption("dist", default="no") == "loadgroup" or getattr(config.option, "loadgroup", False):
             name_group_in_nodeid(item)
-    items.sort(key=lambda item: not any(item.get_closest_marker(name) for name in LONG_MARKERS))
+    items[:] = long_tests_first(items)
+
+
+def long_tests_first(items: list[pytest.Item]) -> list[pytest.Item]:
+    """``items`` with the long tests first, the waiting ones (:data:`WAITING_MARKERS`) and the
+    computing ones each kept in collection order and merged by their fraction of their own list
+    (test ``k`` of ``n`` at ``(k + 1/2) / n``), then the others in collection order."""
+
+    def marked(item: pytest.Item, names: tuple[str, ...]) -> bool:
+        return any(item.get_closest_marker(name) for name in names)
+
+    long_items = [item for item in items if marked(item, LONG_MARKERS)]
+    waiting = [item for item in long_items if marked(item, WAITING_MARKERS)]
+    computing = [item for item in long_items if not marked(item, WAITING_MARKERS)]
+    place = {id(item): (k + 0.5) / len(part) for part in (waiting, computing) for k, item in enumerate(part)}
+    return sorted(long_items, key=lambda item: place[id(item)]) + [
+        item for item in items if not marked(item, LONG_MARKERS)
+    ]
 
 
 def name_group_in_nodeid(item: pytest.Item) -> None:
