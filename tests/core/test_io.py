@@ -574,3 +574,18 @@ def test_series_repeated_capture_and_missing_file(tmp_path: Path) -> None:
         read_series(tmp_path / "SERIES.json")
     with pytest.raises(StackError, match=re.escape("series file 'nope.json' does not exist")):
         read_series(tmp_path / "nope.json")
+
+
+def test_png_frames_are_written_smaller_than_opencvs_default_and_decode_to_the_same_pixels() -> None:
+    """Frames are PNG-encoded with a row filter of none, sub or up (``PNG_WRITE_PARAMS``): on fringe
+    frames with noise (a cosine of period 24 px, 2 grey levels of noise) the file is 0.62x the size
+    of OpenCV's default encoding (which filtered every row with sub here), the pixels the same."""
+    rng = np.random.default_rng(0)
+    x = np.arange(320)[None, :]
+    frame = np.clip(np.round(128 + 90 * np.cos(2 * np.pi * x / 24) + rng.normal(0, 2, (256, 320))), 0, 255)
+    stack = np.repeat(frame.astype(np.uint8)[None], len(PATTERN_NAMES), axis=0)
+    files = gio.encode_stack(stack, ".png")
+    ours = files[f"{PATTERN_NAMES[0]}.png"]
+    default = cv2.imencode(".png", stack[0])[1].tobytes()
+    assert len(ours) < 0.7 * len(default), (len(ours), len(default))
+    assert np.array_equal(cv2.imdecode(np.frombuffer(ours, np.uint8), cv2.IMREAD_UNCHANGED), stack[0])

@@ -31,6 +31,7 @@ from metrology.acquisition.agent.sequencer import (
     run_bracketed_sequence,
     run_sequence,
 )
+from metrology.core.io.images import encode_params
 
 logger = logging.getLogger(__name__)
 
@@ -200,7 +201,7 @@ def _frames_zip(
             archive.writestr(name, text)
         for folder, images in zip(folders, stacks, strict=True):
             for name, image in zip(codec.frame_names, images, strict=True):
-                ok, data = cv2.imencode(".png", image)
+                ok, data = cv2.imencode(".png", image, encode_params(".png"))
                 if not ok:
                     raise AcquisitionError(f"cannot encode frame {name} as PNG")
                 archive.writestr(folder + (f"{name}.png" if "." not in name else name), data.tobytes())

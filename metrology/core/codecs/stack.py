@@ -744,10 +744,12 @@ def _frame_files(codec: Codec, images: np.ndarray) -> dict[str, bytes]:
     """File name -> encoded bytes of each frame of ``codec``."""
     import cv2
 
+    from metrology.core.io.images import encode_params
+
     files: dict[str, bytes] = {}
     for name, image in zip(frame_file_names(codec), images, strict=True):
         ext = PurePosixPath(name).suffix.lower()
-        ok, buf = cv2.imencode(ext, np.ascontiguousarray(image))
+        ok, buf = cv2.imencode(ext, np.ascontiguousarray(image), encode_params(ext))
         if not ok:
             raise OSError(f"OpenCV could not encode {name}")
         files[name] = buf.tobytes()

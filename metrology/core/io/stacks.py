@@ -30,7 +30,7 @@ from metrology.core.io.archives import (
 )
 from metrology.core.io.atomic import _write_bytes_atomic, write_files_new_folder_atomic, write_files_zip_atomic
 from metrology.core.io.errors import StackError
-from metrology.core.io.images import DEFAULT_MAX_PIXELS, checked_header, decode_grey_image
+from metrology.core.io.images import DEFAULT_MAX_PIXELS, checked_header, decode_grey_image, encode_params
 from metrology.core.patterns import PATTERN_NAMES
 
 if TYPE_CHECKING:  # the geometry package (every model) is not imported to read a stack
@@ -253,7 +253,7 @@ def encode_stack(images: CaptureStack | npt.ArrayLike, ext: str = ".png") -> dic
         raise ValueError("BMP holds 8-bit images only; write 16-bit stacks as .png or .tif")
     encoded = {}
     for pattern, image in zip(PATTERN_NAMES, array, strict=True):
-        ok, buf = cv2.imencode(ext, np.ascontiguousarray(image))
+        ok, buf = cv2.imencode(ext, np.ascontiguousarray(image), encode_params(ext))
         if not ok:
             raise OSError(f"OpenCV could not encode {pattern}{ext}")
         encoded[pattern + ext] = buf.tobytes()
