@@ -28,8 +28,10 @@ def test_worker_keeps_the_reference_and_meshes_are_built_on_request(stack, http)
         bodies.append(body)
     # the first job reads and decodes the reference; the next ones find it kept in the worker
     first, *kept = (body["timings"]["reference"] for body in bodies)
-    assert all(seconds < first for seconds in kept), (first, kept)
-    assert all(seconds < 0.005 for seconds in kept), kept  # a dictionary look-up, not a 320x240 decode
+    # a dictionary look-up (0.2 ms on a quiet machine), not a 320x240 read and decode (the first job's,
+    # 12-13 ms): under half the first job's time, which a second decode would not be; an absolute
+    # bound of 5 ms failed once in a loaded run (5.2 ms: the worker's thread preempted)
+    assert all(seconds < first / 2 for seconds in kept), (first, kept)
     assert "mesh" not in bodies[0]["timings"]
 
     # storage: the two float32 height maps, under 3x one of them
