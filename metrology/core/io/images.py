@@ -20,11 +20,12 @@ PNG_WRITE_PARAMS: tuple[int, ...] = (
     (cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FAST_FILTERS) if hasattr(cv2, "IMWRITE_PNG_FILTER") else ()
 )
 """OpenCV's PNG encoder parameters for the frames GCPS Lab writes (capture stacks, codec stacks, the
-capture agent's uploads): each row filtered with the best of none, sub and up, not paeth or
-average. Measured on the 11 frames of a realistic 1280x1024 8-bit capture (OpenCV 5.1): 8.08 ->
-5.92 MB and 103 -> 71 ms of CPU to decode them (OpenCV's default chose the sub filter), 10 -> 12 ms
-to encode one; a 16-bit frame 2.30 -> 2.08 MB, 15.8 -> 14.4 ms to decode. The same pixels (PNG is
-lossless). Empty where OpenCV has no filter choice (before 4.11)."""
+capture agent's uploads): each row filtered with none, sub or up, as libpng's heuristic picks per
+row (the smallest sum of absolute filtered values), never paeth or average. Measured on the 11
+frames of a realistic 1280x1024 8-bit capture (OpenCV 5.1): 8.08 -> 5.92 MB and 103 -> 71 ms of CPU
+to decode them (OpenCV's default chose the sub filter), 10 -> 12 ms to encode one; a 16-bit frame
+2.30 -> 2.08 MB, 15.8 -> 14.4 ms to decode. The same pixels (PNG is lossless). Empty where this
+OpenCV has no filter choice (``IMWRITE_PNG_FILTER``)."""
 
 
 def encode_params(ext: str) -> list[int]:
