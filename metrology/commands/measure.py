@@ -162,14 +162,17 @@ def digest_early(path: str | None) -> Future[str] | None:
     return future
 
 
-def read_object(early: Future[Any] | None, path: str, codec: Codec | None, model: GeometryModel) -> Any:
+def read_object(
+    early: Future[Any] | None, path: str, codec: Codec | None, model: GeometryModel, exposures: bool
+) -> Any:
     """The object's frames, as :func:`read_capture` reads them: the early read (:func:`read_early`)
     where the capture is a one-camera gcps-v1 stack of the rig's frame size, not a multi-exposure
-    capture (what :func:`read_capture` then reads: :func:`~metrology.core.io.read_stack` with the
-    rig's shape checked); else, or where the early read failed, :func:`read_capture`."""
+    capture (``exposures``: :func:`is_exposures` of ``path``; :func:`read_capture` then reads
+    :func:`~metrology.core.io.read_stack` with the rig's shape checked); else, or where the early
+    read failed, :func:`read_capture`."""
     from metrology.core.codecs.model import is_gcps_v1
 
-    if early is not None and model.cameras == 1 and is_gcps_v1(codec) and not is_exposures(path, model):
+    if early is not None and model.cameras == 1 and is_gcps_v1(codec) and not exposures:
         try:
             images = early.result()
         except Exception:
@@ -208,8 +211,9 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     # modules below: on two cores the imports cost little wall time beside the reading; a read error
     # is raised where the object is taken, as before. A gcps-v1 stack has been read since the start
     # (read_early), while this thread imported the models and read the rig.
+    object_exposures = is_exposures(args.object, model)
     object_pool = ThreadPoolExecutor(1, thread_name_prefix="gcps-object")
-    object_read = object_pool.submit(read_object, early_object, args.object, codec, model)
+    object_read = object_pool.submit(read_object, early_object, args.object, codec, model, object_exposures)
     object_pool.shutdown(wait=False)
 
     import numpy as np
@@ -235,7 +239,6 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
         preparing = prepare_while_reading(model, (codec.projector_width, codec.projector_height), options.geometry)
     reference_path = args.reference
     by_files = reference_path is not None and keyed_by_files(reference_path, model)
-    object_exposures = is_exposures(args.object, model)
     reference_cache: dict[str, Any] | None = None
     captured: list[Any] = []  # the object as read
     read_frames: list[Any] = []

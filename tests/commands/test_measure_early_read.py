@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from metrology.commands.common import BadInputError, read_capture
-from metrology.commands.measure import read_early, read_object
+from metrology.commands.measure import is_exposures, read_early, read_object
 from metrology.core.codecs.model import gcps_v1_codec
 from metrology.core.geometry.crossed_axes import Rig
 from metrology.core.io import write_stack
@@ -32,12 +32,13 @@ def test_the_early_read_is_the_stack_read_capture_reads(stack):
     model = rig(32, 24)
     early = read_early(str(path))
     assert early is not None
-    taken = read_object(early, str(path), None, model)
+    taken = read_object(early, str(path), None, model, is_exposures(str(path), model))
     assert taken is early.result()  # the early read itself, not a second read
     np.testing.assert_array_equal(taken, frames)
     np.testing.assert_array_equal(taken, read_capture(str(path), None, model, "object"))
     # gcps-v1 named as a codec: the same stack
-    assert read_object(early, str(path), gcps_v1_codec(1024, 768, 128), model) is early.result()
+    codec = gcps_v1_codec(1024, 768, 128)
+    assert read_object(early, str(path), codec, model, is_exposures(str(path), model)) is early.result()
 
 
 def test_another_frame_size_reads_again_with_read_captures_message(stack):
@@ -46,7 +47,7 @@ def test_another_frame_size_reads_again_with_read_captures_message(stack):
     with pytest.raises(BadInputError) as before:
         read_capture(str(path), None, model, "object")
     with pytest.raises(BadInputError) as now:
-        read_object(read_early(str(path)), str(path), None, model)
+        read_object(read_early(str(path)), str(path), None, model, is_exposures(str(path), model))
     assert str(now.value) == str(before.value) and "object stack" in str(now.value)
 
 
@@ -58,6 +59,6 @@ def test_a_failed_early_read_reads_again_with_read_captures_message(stack):
     with pytest.raises(BadInputError) as before:
         read_capture(str(path), None, rig(32, 24), "object")
     with pytest.raises(BadInputError) as now:
-        read_object(early, str(path), None, rig(32, 24))
+        read_object(early, str(path), None, rig(32, 24), is_exposures(str(path), rig(32, 24)))
     assert str(now.value) == str(before.value) and "PS_2" in str(now.value)
     assert read_early(str(path / "nothere")) is None
