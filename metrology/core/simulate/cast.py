@@ -132,6 +132,16 @@ class CastTruth:
         """Pixels whose point is lit by the projector (both coordinates finite)."""
         return np.isfinite(self.u) & np.isfinite(self.v)
 
+    def check_sub_rays(self, shape: tuple[int, int], supersample: int) -> None:
+        """Raise ValueError unless these are the ``supersample`` x ``supersample`` sub-pixel rays of a
+        camera of ``shape`` (H, W): ``(H s, W s)`` of them (a kept cast handed to a render)."""
+        expected = (shape[0] * supersample, shape[1] * supersample)
+        if self.points_mm.shape[:2] != expected:
+            raise ValueError(
+                f"the cast's rays are {self.points_mm.shape[:2]}, not {supersample} rays per pixel side of "
+                f"the camera's {tuple(shape)} pixels"
+            )
+
 
 def cast_truth(
     prepared: PreparedGeometry,

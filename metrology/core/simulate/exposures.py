@@ -188,8 +188,7 @@ def render_exposures(
     codec = codec if codec is not None else gcps_v1_codec()
     where = placement if placement is not None else default_placement(model)
     truth, rays = cast if cast is not None else cast_exposures(model, scene, codec, opts.supersample, where)
-    if rays.points_mm.shape[:2] != (model.shape[0] * opts.supersample, model.shape[1] * opts.supersample):
-        raise ValueError(f"the cast's rays are {rays.points_mm.shape[:2]}, not {opts.supersample} per pixel side")
+    rays.check_sub_rays(model.shape, opts.supersample)
     rho_map = reflectance if reflectance is not None else _spanning(rays, where)
     factors = tuple(e.relative_exposure / unit_exposure_us for e in ordered)
     stacks = _exposure_frames(codec, rays, where, rho_map, factors, opts, _seed_base(opts, scene))
@@ -342,8 +341,8 @@ def render_stereo_exposures(
     opts = options if options is not None else SimulationOptions()
     if cast is None:
         cast = cast_stereo(rig, scene, codec, placement, projector=projector, supersample=opts.supersample)
-    elif cast.supersample != opts.supersample:
-        raise ValueError(f"the cast has {cast.supersample} rays per pixel side, the options {opts.supersample}")
+    else:
+        cast.check_supersample(opts.supersample)
     rho_map = reflectance if reflectance is not None else _spanning(cast.sub_rays[0], cast.placements[0])
     factors = tuple(e.relative_exposure / unit_exposure_us for e in ordered)
     base = _seed_base(opts, scene)

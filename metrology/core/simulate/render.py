@@ -180,8 +180,8 @@ def render_flats(
     where = placement if placement is not None else default_placement(model)
     if rays is None:
         rays = cast_truth(model.prepare(model.shape, projector_size), scene, where, supersample=opts.supersample)
-    elif rays.points_mm.shape[:2] != (model.shape[0] * opts.supersample, model.shape[1] * opts.supersample):
-        raise ValueError(f"the rays are {rays.points_mm.shape[:2]}, the model's sub-pixels {opts.supersample} per side")
+    else:
+        rays.check_sub_rays(model.shape, opts.supersample)
     X, Y, _ = where.scene_coordinates(rays.points_mm)
     hit = np.isfinite(X) & np.isfinite(Y)
     rho = reflectance if reflectance is not None else scene.albedo
@@ -230,8 +230,8 @@ def render_camera_flats(
 
     if not isinstance(model, StereoRig):
         raise ValueError(f"the virtual rig renders two-camera stereo rigs, not a {model.short_label} rig")
-    if cast is not None and cast.supersample != opts.supersample:
-        raise ValueError(f"the cast has {cast.supersample} rays per pixel side, the options {opts.supersample}")
+    if cast is not None:
+        cast.check_supersample(opts.supersample)
     where = placement if placement is not None else default_placement(model)
     size = (round(model.projector.width), round(model.projector.height))
     projector = lighting_projector(model, where, None)

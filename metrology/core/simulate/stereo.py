@@ -173,6 +173,12 @@ class StereoCast:
     projector: ProjectorPlacement
     supersample: int
 
+    def check_supersample(self, supersample: int) -> None:
+        """Raise ValueError unless this cast has ``supersample`` rays per pixel side (a kept cast
+        handed to a render with its options)."""
+        if self.supersample != supersample:
+            raise ValueError(f"the cast has {self.supersample} rays per pixel side, the options {supersample}")
+
 
 def cast_stereo(
     rig: StereoRig,
@@ -249,8 +255,8 @@ def render_stereo_capture(
             supersample=opts.supersample,
             field_width_mm=field_width_mm,
         )
-    elif cast.supersample != opts.supersample:
-        raise ValueError(f"the cast has {cast.supersample} rays per pixel side, the options {opts.supersample}")
+    else:
+        cast.check_supersample(opts.supersample)
     seed = stack_seed(opts, scene)
     rendered = []
     for index in range(2):
