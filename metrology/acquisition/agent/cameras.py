@@ -745,16 +745,22 @@ class VirtualCamera:
             self._reflectance = scene_reflectance(rig, scene, size, placement=self.placement, **changes)
         return self._reflectance
 
+    def _placement(self, rig):
+        """Where the scene stands: the camera's placement, else the renders' default for ``rig``
+        (:func:`~metrology.core.simulate.default_placement`)."""
+        from metrology.core.simulate import default_placement
+
+        return self.placement if self.placement is not None else default_placement(rig)
+
     def _cast(self, rig, scene, codec, opts):
         """A stereo rig's scene cast through both cameras (:func:`~metrology.core.simulate.stereo.cast_stereo`
         with the default projector, as :func:`~metrology.core.simulate.render_capture` casts it), once
         per acquisition: the geometry does not change with the exposure, only the light."""
         if self._stereo_cast is None:
             from metrology.core.codecs.model import gcps_v1_codec
-            from metrology.core.simulate import default_placement
             from metrology.core.simulate.stereo import cast_stereo
 
-            where = self.placement if self.placement is not None else default_placement(rig)
+            where = self._placement(rig)
             self._stereo_cast = cast_stereo(rig, scene, codec or gcps_v1_codec(), where, supersample=opts.supersample)
         return self._stereo_cast
 
@@ -764,19 +770,18 @@ class VirtualCamera:
         and the sub-pixel rays'), once per acquisition."""
         if self._camera_cast is None:
             from metrology.core.codecs.model import gcps_v1_codec
-            from metrology.core.simulate import default_placement
             from metrology.core.simulate.exposures import cast_exposures
 
-            where = self.placement if self.placement is not None else default_placement(rig)
+            where = self._placement(rig)
             self._camera_cast = cast_exposures(rig, scene, codec or gcps_v1_codec(), opts.supersample, where)
         return self._camera_cast
 
     def _frames(self, rig, scene, codec, opts) -> tuple[np.ndarray, ...]:
         """Each camera's codec frames at this exposure (the HDR map's single-exposure render, else the plain one)."""
         from metrology.core.codecs.model import gcps_v1_codec
-        from metrology.core.simulate import default_placement, render_capture
+        from metrology.core.simulate import render_capture
 
-        where = self.placement if self.placement is not None else default_placement(rig)
+        where = self._placement(rig)
         if self.hdr is None:
             if rig.cameras > 1:  # render_capture's stereo frames, from the kept cast
                 from metrology.core.simulate.stereo import render_stereo_capture
