@@ -9,7 +9,6 @@ integration tests (tests/app/integration/conftest.py) keep the media root out of
 
 from __future__ import annotations
 
-import fcntl
 import os
 import shutil
 import sqlite3
@@ -24,7 +23,7 @@ from metrology.devserver import disable_nagle
 from metrology.rigs.services import create_rig
 from tests.app.stacks import SMALL_RIG
 from tests.browser import TIMEOUT_MS, shared_browser
-from tests.shared_run import migrations_digest, run_folder
+from tests.shared_run import migrations_digest, run_folder, run_lock
 
 disable_nagle()  # pytest-django's live server is Django's development server (metrology/devserver.py)
 
@@ -202,8 +201,7 @@ def django_db_setup(
     else:
         root = run_folder(request.config)
         template = root / f"migrated-{migrations_digest()}.sqlite3"
-        with open(root / "migrated-sqlite.lock", "w") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        with run_lock(root, "migrated-sqlite"):
             made_here = not template.exists()
             if made_here:
                 config = setup(keepdb=False)

@@ -4,10 +4,11 @@ tests/app/integration/harness.py), and arrays that one of them made (:func:`arra
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import hashlib
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +41,16 @@ def migrations_digest() -> str:
     return digest.hexdigest()[:16]
 
 
+@contextlib.contextmanager
+def run_lock(folder: Path, name: str) -> Iterator[None]:
+    """Hold the run's exclusive lock ``name`` (the file ``<name>.lock`` in the run's ``folder``,
+    fcntl, released when the file closes): what one worker makes for the run is made under it, and
+    the others wait for it and read what was made."""
+    with open(folder / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        yield
+
+
 def arrays_made_once(name: str, make: Callable[[], tuple[np.ndarray, ...]]) -> tuple[np.ndarray, ...]:
     """``make()``'s arrays, made by the first process of the run that asks for ``name`` and kept in
     the run's folder (``<name>.npy``, one per array, under an fcntl lock), so that the run's other
@@ -49,8 +60,7 @@ def arrays_made_once(name: str, make: Callable[[], tuple[np.ndarray, ...]]) -> t
     if folder is None:
         return make()
     index = Path(folder) / f"{name}.count"
-    with open(Path(folder) / f"{name}.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+    with run_lock(Path(folder), name):
         if index.exists():
             count = int(index.read_text())
             return tuple(np.load(Path(folder) / f"{name}-{i}.npy") for i in range(count))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import fcntl
 import os
 import re
 import shutil
@@ -14,7 +13,7 @@ import pytest
 from django.core.management import call_command
 
 from metrology.accounts.services import create_user_with_token
-from tests.shared_run import run_folder
+from tests.shared_run import run_folder, run_lock
 
 UNICODE_TABLES = (
     "from hypothesis.internal.charmap import charmap, intervals_from_codec; charmap(); intervals_from_codec('utf-8')"
@@ -33,8 +32,7 @@ def schemathesis_dir(request, tmp_path) -> Path:
     version and Python's Unicode data; should Hypothesis's functions move, nothing is copied and
     schemathesis computes them as before."""
     shared = run_folder(request.config) / "hypothesis-home"
-    with open(run_folder(request.config) / "hypothesis-home.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+    with run_lock(run_folder(request.config), "hypothesis-home"):
         if not (shared / "unicode_data").is_dir():
             env = {**os.environ, "HYPOTHESIS_STORAGE_DIRECTORY": str(shared)}
             subprocess.run([sys.executable, "-c", UNICODE_TABLES], env=env, capture_output=True, check=False)

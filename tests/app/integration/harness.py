@@ -8,7 +8,6 @@ the database afterwards, so runs do not interfere with each other or with a deve
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
 import os
 import re
@@ -124,12 +123,11 @@ def migrated_template() -> str:
     (:func:`drop_run_templates`, from ``pytest_sessionfinish`` in tests/conftest.py)."""
     global _template
     if _template is None:
-        from tests.shared_run import migrations_digest
+        from tests.shared_run import migrations_digest, run_lock
 
         folder = Path(os.environ[RUN_FOLDER_ENV])
         record = folder / f"pg-template-{migrations_digest()}.json"
-        with open(folder / "pg-template.lock", "w") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        with run_lock(folder, "pg-template"):
             made = json.loads(record.read_text()) if record.exists() else {}
             if "token" not in made:
                 made = _make_template(record, made.get("name"))
