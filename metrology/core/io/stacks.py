@@ -31,6 +31,7 @@ from metrology.core.io.archives import (
 from metrology.core.io.atomic import _write_bytes_atomic, write_files_new_folder_atomic, write_files_zip_atomic
 from metrology.core.io.errors import StackError
 from metrology.core.io.images import DEFAULT_MAX_PIXELS, checked_header, decode_grey_image, encode_params
+from metrology.core.io.png import sample_dtype
 from metrology.core.patterns import PATTERN_NAMES
 
 if TYPE_CHECKING:  # the geometry package (every model) is not imported to read a stack
@@ -188,10 +189,17 @@ def _decode_stack(
         if first_shape is None:
             first_shape = (name, shape)
 
-    # 2. decode in parallel (cv2.imdecode releases the GIL); the first error in pattern order wins
+    # 2. decode in parallel (the decoders release the GIL), each frame straight into its slot of
+    # the stack when the first file's header tells the stack's dtype (a PNG); the first error in
+    # pattern order wins
+    assert first_shape is not None
+    dtype = sample_dtype(files[PATTERN_NAMES[0]][1])
+    slots = None if dtype is None else np.empty((len(PATTERN_NAMES), *first_shape[1]), dtype)
+
     def decode(index: int) -> np.ndarray | StackError:
+        slot = None if slots is None else slots[index]
         try:
-            return decode_grey_image(files[PATTERN_NAMES[index]][1], names[index], max_pixels=max_pixels)
+            return decode_grey_image(files[PATTERN_NAMES[index]][1], names[index], max_pixels=max_pixels, out=slot)
         except StackError as exc:
             return exc
 
@@ -210,14 +218,17 @@ def _decode_stack(
             raise StackError(f"{name} is {depth}-bit but the stack was declared {expected_bit_depth}-bit")
         if first_depth is None:
             first_depth = (name, depth)
-            images = np.empty((len(PATTERN_NAMES), *image.shape), dtype=image.dtype)
+            images = slots if slots is not None and slots.dtype == image.dtype else None
+            if images is None:
+                images = np.empty((len(PATTERN_NAMES), *image.shape), dtype=image.dtype)
         elif depth != first_depth[1]:
             raise StackError(
                 f"{name} is {depth}-bit but {first_depth[0]} is {first_depth[1]}-bit; a stack has one bit depth"
             )
         assert images is not None
-        images[index] = image
-    assert images is not None and first_depth is not None and first_shape is not None
+        if image.base is not images:  # not decoded into its slot
+            images[index] = image
+    assert images is not None and first_depth is not None
     return CaptureStack(images=images, bit_depth=first_depth[1], shape=first_shape[1])
 
 
