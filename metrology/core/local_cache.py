@@ -30,7 +30,6 @@ import hashlib
 import json
 import os
 import struct
-import tempfile
 import threading
 import time
 import warnings
@@ -146,6 +145,8 @@ def store(kind: str, key: str, arrays: Mapping[str, np.ndarray], root: Path | No
     try:
         folder.mkdir(parents=True, exist_ok=True)
         payload = _encode(arrays)
+        import tempfile  # here: loading a kept entry (gcps measure's start-up) does without it
+
         fd, tmp_name = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=SUFFIX)
         with os.fdopen(fd, "wb") as fh:
             for chunk in payload:

@@ -23,11 +23,10 @@ import contextlib
 import fnmatch
 import io
 import os
-import zipfile
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -47,6 +46,9 @@ from metrology.core.io.atomic import write_files_new_folder_atomic, write_files_
 from metrology.core.io.cameras import camera_folder, camera_folders
 from metrology.core.io.exposures import EXPOSURES_FILE_NAME, Exposure, exposures_json, parse_exposures
 from metrology.core.patterns import PATTERN_NAMES
+
+if TYPE_CHECKING:
+    import zipfile  # imported where a zip is read (_open_source)
 
 CODEC_FILE_NAME = "codec.json"
 """Name of the codec file inside a capture folder or zip."""
@@ -282,6 +284,8 @@ def _open_source(
     source: str | os.PathLike[str] | IO[bytes], max_bytes: int, max_ratio: float, *, rewind: bool = False
 ) -> Iterator[_Source]:
     """The files of a capture folder, zip or zip file object (rewound after reading when ``rewind``)."""
+    import zipfile  # here: a folder's reading (gcps measure's start-up) does without it
+
     if isinstance(source, (str, os.PathLike)):
         path = Path(source)
         label = repr(path.name or str(path))

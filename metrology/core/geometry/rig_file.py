@@ -23,7 +23,6 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from metrology.core.distortion import DIST_COUNTS
 from metrology.core.geometry.base import GeometryError
 
 Matrix3 = tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
@@ -127,6 +126,8 @@ def distortion_coefficients(value: Any, name: str) -> tuple[float, ...]:
     if not isinstance(value, (list, tuple)):
         raise RigFileError(f"{name} must be a list of 4, 5, 8, 12 or 14 numbers, got {value!r}")
     coeffs = tuple(bounded(x, f"{name}[{i}]", MAX_DISTORTION_COEFFICIENT) for i, x in enumerate(value))
+    from metrology.core.distortion import DIST_COUNTS  # here: a rig without distortion does without the module
+
     if coeffs and len(coeffs) not in DIST_COUNTS:
         raise RigFileError(f"{name} must hold 4, 5, 8, 12 or 14 coefficients (or none), got {len(coeffs)}")
     return coeffs

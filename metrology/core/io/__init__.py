@@ -39,12 +39,14 @@ Modules: :mod:`.atomic` (atomic writes), :mod:`.images` (image headers and decod
 :mod:`.exposures` (the ``exposures.json`` manifest of multi-exposure captures, read with their
 stacks by :func:`metrology.core.codecs.stack.read_exposure_stack`),
 :mod:`.rigs`, :mod:`.heights`, :mod:`.points` and :mod:`.series`; every public name is importable from
-``metrology.core.io`` as before (:mod:`.rigs`'s on first use: it imports every geometric model).
+``metrology.core.io`` as before (those of :mod:`.rigs`, :mod:`.points` and :mod:`.series` on first
+use: :data:`LAZY_NAMES`).
 """
 
 from __future__ import annotations
 
 # ``os`` and ``cv2`` stay reachable as attributes (tests patch ``metrology.core.io.os.replace``).
+import importlib
 import os
 from typing import TYPE_CHECKING, Any
 
@@ -61,25 +63,29 @@ from metrology.core.io.atomic import atomic_path, write_text_atomic
 from metrology.core.io.errors import StackError
 from metrology.core.io.heights import read_height_npy, write_height_npy, write_height_tiff
 from metrology.core.io.images import DEFAULT_MAX_PIXELS, checked_header, decode_grey_image, image_header_size
-from metrology.core.io.points import read_point_map, write_point_map
-from metrology.core.io.series import StagePosition, StageSeries, read_series, series_capture_name, write_series
 from metrology.core.io.stacks import CaptureStack, encode_stack, read_stack, read_verified_stack, write_stack
 
 if TYPE_CHECKING:
+    from metrology.core.io.points import read_point_map, write_point_map
     from metrology.core.io.rigs import read_model, read_rig, write_rig
+    from metrology.core.io.series import StagePosition, StageSeries, read_series, series_capture_name, write_series
 
-RIG_NAMES = ("read_model", "read_rig", "write_rig")
-"""The names of :mod:`.rigs`, imported on first use (:func:`__getattr__`): reading a capture
-stack does not import the geometry package (every model's module), so that ``gcps measure``
-decodes the object's images while its main thread imports the models."""
+LAZY_NAMES = {
+    **dict.fromkeys(("read_model", "read_rig", "write_rig"), "rigs"),
+    **dict.fromkeys(("read_point_map", "write_point_map"), "points"),
+    **dict.fromkeys(("StagePosition", "StageSeries", "read_series", "series_capture_name", "write_series"), "series"),
+}
+"""The names of :mod:`.rigs`, :mod:`.points` and :mod:`.series` (name -> module), imported on first
+use (:func:`__getattr__`): reading a capture stack does not import the geometry package (every
+model's module), so that ``gcps measure`` decodes the object's images while its main thread imports
+the models, nor the point maps' and stage series' modules, which measuring does not use."""
 
 
 def __getattr__(name: str) -> Any:
-    """:data:`RIG_NAMES` from :mod:`.rigs`, imported here on first use (PEP 562)."""
-    if name in RIG_NAMES:
-        from metrology.core.io import rigs
-
-        value = getattr(rigs, name)
+    """:data:`LAZY_NAMES` from their modules, imported here on first use (PEP 562)."""
+    if name in LAZY_NAMES:
+        module = importlib.import_module(f"{__name__}.{LAZY_NAMES[name]}")
+        value = getattr(module, name)
         globals()[name] = value
         return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -4,14 +4,16 @@ checks made before anything is decompressed."""
 from __future__ import annotations
 
 import contextlib
-import zipfile
 import zlib
 from collections.abc import Iterator, Sequence
 from pathlib import Path, PurePosixPath
-from typing import IO
+from typing import IO, TYPE_CHECKING
 
 from metrology.core.io.errors import StackError
 from metrology.core.patterns import PATTERN_NAMES
+
+if TYPE_CHECKING:
+    import zipfile  # imported where a zip is read: a folder's reading (gcps measure's start-up) does without it
 
 IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".tif", ".tiff", ".bmp")
 """Accepted image file extensions (compared case-insensitively)."""
@@ -144,6 +146,8 @@ def checked_zip_members(
 def read_zip_member(archive: zipfile.ZipFile, member: str, label: str) -> bytes:
     """The bytes of one member of a checked zip, refusing a corrupt, unreadable (encrypted,
     unsupported method) or larger-than-declared member with a :class:`StackError`."""
+    import zipfile
+
     info = archive.getinfo(member)
     try:
         with archive.open(info) as fh:
@@ -205,6 +209,8 @@ def _read_folder(label: str, folder: Path, *, max_bytes: int) -> dict[str, tuple
 
 @contextlib.contextmanager
 def _open_zip(label: str, source: Path | IO[bytes]) -> Iterator[zipfile.ZipFile]:
+    import zipfile
+
     try:
         archive = zipfile.ZipFile(source)
     except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError) as exc:

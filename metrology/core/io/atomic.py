@@ -5,9 +5,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import secrets
-import shutil
-import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import BinaryIO
@@ -34,7 +31,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     final = Path(path)
     if not final.parent.is_dir():
         raise FileNotFoundError(f"output folder {str(final.parent)!r} does not exist")
-    tmp = final.with_name(f".{final.stem}.{secrets.token_hex(6)}.tmp{final.suffix}")
+    tmp = final.with_name(f".{final.stem}.{os.urandom(6).hex()}.tmp{final.suffix}")
     try:
         yield tmp
         if not tmp.exists():
@@ -69,6 +66,8 @@ def write_files_zip_atomic(files: dict[str, bytes], path: str | os.PathLike[str]
     """Write ``files`` (member name -> bytes) as a new zip at ``path``: written to a temporary
     file and renamed into place, so a reader never sees half a zip. PNG data compresses no
     further: ``compress=False`` stores the members."""
+    import zipfile  # here: writing a height map (gcps measure) does without it
+
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
@@ -83,7 +82,7 @@ def write_files_new_folder_atomic(files: dict[str, bytes], path: str | os.PathLi
     sibling folder and renamed into place, so the folder appears whole or not at all."""
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
-    tmp_dir = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
+    tmp_dir = target.with_name(f".{target.name}.{os.urandom(6).hex()}.tmp")
     tmp_dir.mkdir()
     try:
         for name, data in files.items():
@@ -94,5 +93,7 @@ def write_files_new_folder_atomic(files: dict[str, bytes], path: str | os.PathLi
         os.rename(tmp_dir, target)
     finally:
         if tmp_dir.exists():
+            import shutil  # here: only a failed write has a folder to remove
+
             shutil.rmtree(tmp_dir)
     return target

@@ -6,7 +6,6 @@ from __future__ import annotations
 import hashlib
 import io
 import os
-import zipfile
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -130,6 +129,8 @@ def read_stack(
     """
     if expected_bit_depth not in (None, 8, 16):
         raise ValueError(f"expected_bit_depth must be None, 8 or 16, got {expected_bit_depth!r}")
+    import zipfile  # here: reading a folder (gcps measure's start-up) does without it
+
     if isinstance(source, (str, os.PathLike)):
         path = Path(source)
         label = repr(path.name or str(path))
@@ -347,6 +348,8 @@ def read_verified_stack(data: bytes, sha256: str, *, shape: tuple[int, int] | No
     StackError
         If the hash differs, or the images are not one shape and bit depth (or not ``shape``).
     """
+    import zipfile
+
     digest = hashlib.sha256(data).hexdigest()
     if digest != sha256.lower():
         raise StackError(
