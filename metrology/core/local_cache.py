@@ -118,15 +118,17 @@ def load(kind: str, key: str, root: Path | None = None) -> dict[str, np.ndarray]
     try:
         with open(path, "rb") as fh:
             size = os.fstat(fh.fileno()).st_size
-            buf = bytearray(size)
-            got = fh.readinto(buf)
+            # a numpy buffer: numpy backs allocations of 4 MiB and more with huge pages where the
+            # kernel offers them (a 10 MB kept reference: a few page faults instead of 2,600)
+            buf = np.empty(size, np.uint8)
+            got = fh.readinto(buf.data)
     except FileNotFoundError:
         return None
     except OSError as exc:
         _warn(f"local cache: cannot read {path}: {exc}")
         return None
     try:
-        arrays = _decode(memoryview(buf)[:got], buf)
+        arrays = _decode(buf.data[:got], buf)
     except ValueError as exc:
         _warn(f"local cache: {path} is corrupted ({exc}); removed")
         _unlink(path)
@@ -210,7 +212,7 @@ def _encode(arrays: Mapping[str, np.ndarray]) -> list[bytes | memoryview]:
     return [MAGIC, struct.pack("<Q", len(header)), digest.digest(), header, *blobs]
 
 
-def _decode(view: memoryview, buf: bytearray) -> dict[str, np.ndarray]:
+def _decode(view: memoryview, buf: np.ndarray) -> dict[str, np.ndarray]:
     """Inverse of :func:`_encode`; ``ValueError`` on a bad magic, length, digest or header."""
     head = len(MAGIC) + 8 + 32
     if len(view) < head or bytes(view[: len(MAGIC)]) != MAGIC:

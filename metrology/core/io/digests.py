@@ -10,16 +10,12 @@ from pathlib import Path
 
 from metrology.core.tiling import map_threads
 
-_CHUNK = 1 << 20
-
 
 def file_sha256(path: Path) -> str:
-    """SHA-256 (hex) of a file's bytes, read in 1 MiB chunks."""
-    digest = hashlib.sha256()
+    """SHA-256 (hex) of a file's bytes (``hashlib.file_digest``: read into one reused buffer, no
+    bytes object per chunk)."""
     with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(_CHUNK), b""):
-            digest.update(block)
-    return digest.hexdigest()
+        return hashlib.file_digest(handle, "sha256").hexdigest()
 
 
 def capture_files_digest(source: str | os.PathLike[str], threads: int | None = None) -> str:
