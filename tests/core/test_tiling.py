@@ -60,7 +60,7 @@ def test_scratch_returns_the_same_array_and_never_shares_names():
     b = scratch.get("b", (4, 5), np.float32)
     assert not np.shares_memory(a, b)
     assert a.flags.c_contiguous and a.dtype == np.float32
-    assert scratch.nbytes == 2 * 4 * 5 * 4
+    assert scratch.nbytes == Scratch.CHUNK_BYTES + 64  # both cut from one chunk (and its alignment slack)
     assert thread_scratch() is thread_scratch()
     assert scratch_nbytes() >= scratch.nbytes
     other: list[Scratch] = []
@@ -68,6 +68,25 @@ def test_scratch_returns_the_same_array_and_never_shares_names():
     worker.start()
     worker.join()
     assert other[0] is not thread_scratch()
+
+
+def test_scratch_buffers_are_aligned_chunks_and_grow_apart():
+    """Buffers are cut from chunks of CHUNK_BYTES (huge pages where offered), 64-byte aligned; a
+    buffer larger than what is left of the chunk gets a new one; a name that asks for more
+    gets a new buffer, never one overlapping another name's."""
+    scratch = Scratch()
+    small = [scratch.get(name, (3, 7), np.uint8) for name in "abc"]
+    assert all(view.ctypes.data % 64 == 0 for view in small)
+    big = scratch.get("big", (Scratch.CHUNK_BYTES // 4,), np.float32)  # a whole chunk of its own
+    assert big.nbytes == Scratch.CHUNK_BYTES and big.ctypes.data % 64 == 0
+    grown = scratch.get("a", (100, 100), np.float64)
+    for view in (*small[1:], big):
+        assert not np.shares_memory(grown, view)
+    assert scratch.nbytes >= 2 * Scratch.CHUNK_BYTES
+    grown[...] = 1.0
+    big[...] = 2.0
+    small[1][...] = 3
+    assert (grown == 1.0).all() and (big == 2.0).all() and (small[1] == 3).all()
 
 
 def test_retain_freed_memory_applies_on_glibc():
