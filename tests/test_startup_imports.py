@@ -288,10 +288,21 @@ renderer and the optimisers, the mesh and figure libraries, Django; each is load
 used (``--mesh`` loads Open3D, calibration SciPy's optimisers, ``gcps simulate`` the renderer)."""
 
 
-GCPS_V1_NEEDS_NONE_OF = (*MEASURING_NEEDS_NONE_OF, "scipy.special", "numba")
+GCPS_V1_NEEDS_NONE_OF = (
+    *MEASURING_NEEDS_NONE_OF,
+    "scipy.special",
+    "numba",
+    "zipfile",
+    "secrets",
+    "metrology.core.io.points",
+    "metrology.core.io.series",
+    "metrology.core.distortion",
+)
 """A ``gcps measure`` of gcps-v1 captures on the crossed-axes rig needs neither SciPy's special
 functions (the codec path's noise model) nor numba (a distorted projector's kernels, stereo's,
-the compiled decoding kernel of workers): about 0.15 s of imports each (issue 22)."""
+the compiled decoding kernel of workers): about 0.15 s of imports each (issue 22); nor, reading
+folders and writing a height map of a rig without distortion, zipfile, secrets, the point-map and
+stage-series modules or the distortion model (about 8 ms of imports holding the GIL together)."""
 
 
 PINHOLE_NEEDS_NONE_OF = (*MEASURING_NEEDS_NONE_OF, "numba")

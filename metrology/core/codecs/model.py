@@ -23,11 +23,9 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-if TYPE_CHECKING:  # the chain parser is imported where an explicit chain is parsed
-    from metrology.core.codecs.chain import Operand
-
+from metrology.core.codecs.chain import ChainSyntaxError, Operand, parse_stage_label
 
 CODEC_FORMAT = "gcps-codec/1"
 """Value of the ``codec`` key of every codec file."""
@@ -343,8 +341,6 @@ class Codec:
 # ----------------------------------------------------------------------------- parsing
 def _parse_stage(label: str, phase: Sequence[PhaseSequence]) -> Stage:
     """A chain entry as a :class:`Stage` (indices already validated by :func:`validate_codec`)."""
-    from metrology.core.codecs.chain import parse_stage_label  # an explicit chain's: gcps-v1 has none
-
     parsed = parse_stage_label(label)
     if parsed.tree is None:
         return Stage("gray", (), 0.0, 0.0)
@@ -700,8 +696,6 @@ def _check_length(where: str, value: float, extent: int) -> None:
 def _validate_chain(where: str, axis: Axis, extent: int) -> None:
     labels = list(axis.unwrap) if axis.unwrap is not None else None
     if labels is not None:
-        from metrology.core.codecs.chain import ChainSyntaxError, parse_stage_label
-
         if not labels:
             raise CodecError(f"codec field {where}.unwrap must not be empty")
         canonical: list[str] = []

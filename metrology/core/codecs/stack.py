@@ -284,14 +284,15 @@ def _open_source(
     source: str | os.PathLike[str] | IO[bytes], max_bytes: int, max_ratio: float, *, rewind: bool = False
 ) -> Iterator[_Source]:
     """The files of a capture folder, zip or zip file object (rewound after reading when ``rewind``)."""
-    import zipfile  # here: a folder's reading (gcps measure's start-up) does without it
+    if isinstance(source, (str, os.PathLike)) and Path(source).is_dir():
+        path = Path(source)
+        yield _folder_source(repr(path.name or str(path)), path)
+        return
+    import zipfile  # here, past a folder's return: reading a folder (gcps measure's start-up) does without it
 
     if isinstance(source, (str, os.PathLike)):
         path = Path(source)
         label = repr(path.name or str(path))
-        if path.is_dir():
-            yield _folder_source(label, path)
-            return
         if not path.is_file():
             raise StackError(f"capture {label} does not exist")
         if path.stat().st_size > max_bytes:

@@ -129,14 +129,14 @@ def read_stack(
     """
     if expected_bit_depth not in (None, 8, 16):
         raise ValueError(f"expected_bit_depth must be None, 8 or 16, got {expected_bit_depth!r}")
-    import zipfile  # here: reading a folder (gcps measure's start-up) does without it
-
     if isinstance(source, (str, os.PathLike)):
         path = Path(source)
         label = repr(path.name or str(path))
         if path.is_dir():
             files = _read_folder(label, path, max_bytes=max_bytes)
         elif path.is_file():
+            import zipfile  # here: reading a folder (gcps measure's start-up) does without it
+
             size = path.stat().st_size
             if size > max_bytes:
                 raise StackError(f"capture stack {label} is {size} bytes, more than the limit of {max_bytes} bytes")
