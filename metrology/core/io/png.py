@@ -46,7 +46,7 @@ def _inflater() -> tuple[ModuleType, tuple[type[BaseException], ...]]:
 
 
 INFLATE, _INFLATE_ERRORS = _inflater()
-"""The module whose ``decompress`` and ``crc32`` decode PNGs here (``isal.isal_zlib`` or ``zlib``)."""
+"""The module whose ``decompress`` inflates PNGs here (``isal.isal_zlib`` or ``zlib``)."""
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -155,6 +155,22 @@ def unfilter_rows(filtered: np.ndarray, filters: np.ndarray, bpp: int, out: np.n
     return out
 
 
+CRC_PIECE_BYTES = 4096
+"""The CRC of a chunk is computed over pieces of at most this many bytes: CPython's ``zlib.crc32``
+keeps the GIL for less than 5 KiB and releases it above, and each release is followed by taking it
+back, which waits for the switch interval (5 ms) where another thread holds it -- ``gcps measure``'s
+main thread importing while the frames decode. A frame's 60-odd IDAT chunks of 8 KiB (libpng's)
+then cost tens of milliseconds of waiting; in pieces, 0.2 ms of CPU holding the GIL."""
+
+
+def _crc32(data: memoryview) -> int:
+    """CRC-32 of ``data`` (zlib's), computed piecewise without releasing the GIL (:data:`CRC_PIECE_BYTES`)."""
+    crc = 0
+    for start in range(0, len(data), CRC_PIECE_BYTES):
+        crc = zlib.crc32(data[start : start + CRC_PIECE_BYTES], crc)
+    return crc
+
+
 def _parse(data: bytes) -> tuple[int, int, int, bytes] | None:
     """Width, height, bit depth and the concatenated IDAT data of a PNG this decoder takes; None
     for any other (module docstring), a malformed one or a chunk whose CRC does not match."""
@@ -172,7 +188,7 @@ def _parse(data: bytes) -> tuple[int, int, int, bytes] | None:
             return None
         body = view[position + 8 : end - 4]
         (crc,) = struct.unpack_from(">I", data, end - 4)
-        if INFLATE.crc32(view[position + 4 : end - 4]) != crc:
+        if _crc32(view[position + 4 : end - 4]) != crc:
             return None
         if header is None:
             if kind != b"IHDR" or length != 13:
