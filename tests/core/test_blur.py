@@ -80,9 +80,9 @@ def test_laplacian_of_a_quadratic_and_the_correction():
         correct_blur_bias(codes, -1.0)
 
 
-def test_correction_on_row_tiles_equals_the_whole_frame():
+def test_correction_on_row_tiles_equals_the_whole_frame(monkeypatch):
     # 256 x 512 px: one tile on one thread, four tiles of 64 rows on two or three (tiling.run_tiled);
-    # each tile reads 16 rows either side, more than the 5x5 Laplacian and the 13-tap smoothing reach
+    # each tile reads 8 rows either side, what the 5x5 Laplacian and the 13-tap smoothing reach
     y, x = np.mgrid[0:256, 0:512].astype(np.float64)
     codes = (0.2 * x + 0.003 * x**2 + 0.001 * y**2).astype(np.float32)  # laplacian 0.008 everywhere
     rng = np.random.default_rng(3)
@@ -92,6 +92,11 @@ def test_correction_on_row_tiles_equals_the_whole_frame():
     whole = correct_blur_bias(codes.copy(), 0.5, threads=1)
     for threads in (2, 3):
         assert np.array_equal(correct_blur_bias(codes.copy(), 0.5, threads=threads), whole, equal_nan=True)
+    import metrology.core.blur as blur_module
+
+    monkeypatch.setattr(blur_module, "_HALO_ROWS", blur_module._HALO_ROWS - 1)  # one row less is not enough
+    assert not np.array_equal(correct_blur_bias(codes.copy(), 0.5, threads=2), whole, equal_nan=True)
+    monkeypatch.undo()
     # and the correction is s2 / 2 * laplacian = 0.002 code, noise averaged over 1.5 px, away from holes
     diff = (codes - whole)[120:250, 200:500]
     assert np.nanmedian(diff) == pytest.approx(0.002, abs=2e-4)
