@@ -30,23 +30,10 @@ from __future__ import annotations
 import itertools
 import struct
 import zlib
-from types import ModuleType
-from typing import cast
 
 import numpy as np
 
-
-def _inflater() -> tuple[ModuleType, tuple[type[BaseException], ...]]:
-    """ISA-L's inflate and its errors; zlib's where the package is missing (same results, slower)."""
-    try:
-        from isal import isal_zlib
-    except ImportError:  # pragma: no cover - isal is a dependency; kept for platforms without its wheel
-        return zlib, (zlib.error,)
-    return isal_zlib, (zlib.error, cast(type[BaseException], isal_zlib.error))  # its stub types error as an instance
-
-
-INFLATE, _INFLATE_ERRORS = _inflater()
-"""The module whose ``decompress`` inflates PNGs here (``isal.isal_zlib`` or ``zlib``)."""
+from metrology.core.deflate import ZLIB, ZLIB_ERRORS
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -83,8 +70,8 @@ def decode_grey_png(data: bytes, out: np.ndarray | None = None) -> np.ndarray | 
     bpp = bit_depth // 8
     stride = 1 + width * bpp
     try:
-        raw = INFLATE.decompress(compressed, bufsize=height * stride)
-    except _INFLATE_ERRORS:
+        raw = ZLIB.decompress(compressed, bufsize=height * stride)
+    except ZLIB_ERRORS:
         return None
     if len(raw) != height * stride:
         return None
@@ -213,4 +200,4 @@ def _parse(data: bytes) -> tuple[int, int, int, bytes] | None:
     return None  # no IEND: truncated
 
 
-__all__ = ["IGNORED_CHUNKS", "INFLATE", "PNG_SIGNATURE", "decode_grey_png", "sample_dtype", "unfilter_rows"]
+__all__ = ["IGNORED_CHUNKS", "PNG_SIGNATURE", "decode_grey_png", "sample_dtype", "unfilter_rows"]
