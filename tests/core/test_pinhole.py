@@ -429,6 +429,28 @@ def test_undistortion_round_trip_of_a_strongly_distorted_calibration(device: Any
     assert float(np.hypot(u - jj, v - kk).max()) < 1e-6
 
 
+def test_camera_tables_start_within_a_tenth_of_the_tolerance_and_meet_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The issue-22 camera's table (every pixel): the cubic interpolation of the grid of solutions
+    is within 1e-7 px of the solution everywhere (its reprojection), so the iteration takes no step
+    from it; the grid's own solve, from ``K^-1 (u, v)``, does."""
+    from metrology.core import distortion
+    from metrology.core.distortion import project_normalized
+    from metrology.core.geometry.pinhole import _camera_tables
+
+    _camera_tables.cache_clear()
+    steps: list[int] = []
+    fast_newton = distortion._fast_newton
+    monkeypatch.setattr(distortion, "_fast_newton", lambda *a, **k: steps.append(fast_newton(*a, **k)) or steps[-1])
+    xn, yn = _camera_tables(ISSUE_22_CAMERA)
+    _camera_tables.cache_clear()
+    w, h = ISSUE_22_CAMERA.width_px, ISSUE_22_CAMERA.height_px
+    jj, kk = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    u, v = project_normalized(np.asarray(ISSUE_22_CAMERA.K), ISSUE_22_CAMERA.distortion, xn, yn)
+    assert float(np.hypot(u - jj, v - kk).max()) < 1e-7
+    # the first call is the grid's own solve (from K^-1 (u, v)); the tiles' take no step
+    assert steps[0] >= 1 and max(steps[1:]) == 0, steps
+
+
 def test_prepared_tables_come_back_from_the_local_cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A second preparation (as in a new process: the in-memory caches cleared) reads the tables
     the first stored, and triangulates to the same numbers."""
