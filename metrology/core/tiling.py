@@ -187,7 +187,6 @@ class Scratch:
         self._buffers: dict[str, np.ndarray] = {}
         self._views: dict[tuple[str, tuple[int, ...], npt.DTypeLike], np.ndarray] = {}
         self._chunk = np.empty(0, np.uint8)  # the free end of the current chunk
-        self._chunk_bytes = 0  # bytes of all chunks
 
     def get(self, name: str, shape: tuple[int, ...], dtype: npt.DTypeLike) -> np.ndarray:
         key = (name, shape, dtype)
@@ -209,15 +208,16 @@ class Scratch:
         size = -(-n_bytes // self._ALIGN) * self._ALIGN
         if self._chunk.nbytes < size:
             chunk = np.empty(max(self.CHUNK_BYTES, size) + self._ALIGN, np.uint8)
-            self._chunk_bytes += chunk.nbytes
             self._chunk = chunk[-chunk.ctypes.data % self._ALIGN :]
         buffer, self._chunk = self._chunk[:n_bytes], self._chunk[size:]
         return buffer
 
     @property
     def nbytes(self) -> int:
-        """Bytes held (the chunks the buffers are cut from)."""
-        return self._chunk_bytes
+        """Bytes held: the chunks that the buffers and the free end are cut from (a chunk is freed
+        once no buffer is cut from it: every name in it has grown out of it)."""
+        chunks = {id(a.base): a.base for a in (*self._buffers.values(), self._chunk) if a.base is not None}
+        return sum(chunk.nbytes for chunk in chunks.values())
 
 
 _all_scratch: weakref.WeakSet[Scratch] = weakref.WeakSet()

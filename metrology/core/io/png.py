@@ -15,9 +15,9 @@ is a running sum along the row (``numpy.cumsum`` in uint8), an up row one vector
 0), 8 or 16 bits per sample, not interlaced, no transparency chunk, every row of type 0, 1 or 2 --
 the files OpenCV writes by default (sub rows) and with GCPS Lab's fast filters
 (:data:`~metrology.core.io.images.PNG_WRITE_PARAMS`: none, sub or up per row). Inflating is
-the cost of decoding such a file; ISA-L's inflate (the ``isal`` package, GIL released) does it
-2.7x faster than zlib, the part of OpenCV's decoder that takes most of its time: on the 11 frames of a
-realistic 1280x1024 capture, 26 ms of CPU against zlib's 72 ms, OpenCV's whole decode 85 ms.
+most of the cost of decoding such a file, and ISA-L's inflate (:mod:`metrology.core.deflate`)
+does it 2.7x faster than zlib's, which OpenCV's decoder uses: on the 11 frames of a realistic
+1280x1024 capture, 26 ms of CPU against 72 ms with zlib and 85 ms for OpenCV's whole decode.
 Anything else -- colour, palette, alpha, transparency, interlacing, 1/2/4-bit samples, average or
 Paeth rows, a chunk that could change the pixels, a checksum that does not match, a truncated or
 over-long stream -- returns None, and the caller decodes the file with OpenCV, which gives the
