@@ -230,16 +230,18 @@ with contextlib.suppress(OSError):  # WhiteNoise warns on every request while th
 _database_url = env_url("DATABASE_URL", ("postgres", "postgresql", "pgsql", "sqlite"))
 # read-only here: dj_database_url's typed configuration or the sqlite one below (whose NAME is a Path)
 DATABASES: dict[str, Mapping[str, Any]]
+# connections are kept 60 s for the next request of their thread, on either database
+# (GCPS_DB_CONN_MAX_AGE; the ASGI entry point sets 0: its requests run in threads of their own, so a
+# kept connection would never be reused)
+_conn_max_age = env_int("GCPS_DB_CONN_MAX_AGE", 60, minimum=0)
 if _database_url:
     try:
-        # connections are kept 60 s (GCPS_DB_CONN_MAX_AGE; the ASGI entry point sets 0: its requests run in
-        # threads of their own, so a kept connection would never be reused) and checked before reuse (one
-        # killed while idle is reopened); GCPS_DB_HEALTH_CHECKS=0 leaves only the in-request retry
-        # (metrology/unavailable.py)
+        # checked before reuse (one killed while idle is reopened); GCPS_DB_HEALTH_CHECKS=0 leaves
+        # only the in-request retry (metrology/unavailable.py)
         DATABASES = {
             "default": dj_database_url.parse(
                 _database_url,
-                conn_max_age=env_int("GCPS_DB_CONN_MAX_AGE", 60, minimum=0),
+                conn_max_age=_conn_max_age,
                 conn_health_checks=env_bool("GCPS_DB_HEALTH_CHECKS", True),
             )
         }
@@ -258,10 +260,9 @@ else:
             # every commit (2.8 ms per commit -> 0.03 ms on the reference VM); the database stays
             # consistent, and only a power loss or OS crash (not a killed process) may undo the
             # last commits (docs/operations.md).
-            # Connections are kept for the next request of their thread as with DATABASE_URL
-            # (GCPS_DB_CONN_MAX_AGE, 0 under ASGI): opening one costs about 1 ms of CPU (Django's
-            # set-up of the connection, SQLite's reading of the schema at its first statement)
-            "CONN_MAX_AGE": env_int("GCPS_DB_CONN_MAX_AGE", 60, minimum=0),
+            # Opening a connection costs about 1 ms of CPU (Django's set-up of the connection,
+            # SQLite's reading of the schema at its first statement): kept as with DATABASE_URL.
+            "CONN_MAX_AGE": _conn_max_age,
             "OPTIONS": {
                 "timeout": 20,
                 "transaction_mode": "IMMEDIATE",
