@@ -23,9 +23,10 @@ import argparse
 import contextlib
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from metrology.commands.common import (
     BadInputError,
@@ -42,6 +43,8 @@ if TYPE_CHECKING:
     from metrology.core.codecs.model import Codec
     from metrology.core.geometry.base import GeometryModel, GeometryOptions
     from metrology.core.measure import MeasureOptions, Reference
+
+T = TypeVar("T")
 
 MESH_SUFFIXES = (".ply", ".stl", ".obj")
 READER = "gcps-measure/read_capture/1"
@@ -121,6 +124,17 @@ def is_exposures(path: str, model: GeometryModel) -> bool:
         return False
 
 
+def on_thread(name: str, func: Callable[..., T], *args: Any) -> Future[T]:
+    """``func(*args)`` started now on a thread of its own, named ``name``, while the caller goes on
+    (a one-thread pool that ends with the call): what ``gcps measure`` reads and hashes beside its
+    imports and beside each other."""
+    pool = ThreadPoolExecutor(1, thread_name_prefix=name)
+    try:
+        return pool.submit(func, *args)
+    finally:
+        pool.shutdown(wait=False)
+
+
 def read_early(path: str) -> Future[Any] | None:
     """The capture at ``path`` read as a gcps-v1 stack (:func:`~metrology.core.io.read_stack`, no
     rig: any frame size), started now on a thread, before the rig and the codec are known: its
@@ -136,10 +150,7 @@ def read_early(path: str) -> Future[Any] | None:
 
         return read_stack(path).images
 
-    pool = ThreadPoolExecutor(1, thread_name_prefix="gcps-early")
-    future = pool.submit(read)
-    pool.shutdown(wait=False)
-    return future
+    return on_thread("gcps-early", read)
 
 
 def digest_early(path: str | None) -> Future[str] | None:
@@ -156,10 +167,7 @@ def digest_early(path: str | None) -> Future[str] | None:
 
         return capture_files_digest(path)
 
-    pool = ThreadPoolExecutor(1, thread_name_prefix="gcps-digest")
-    future = pool.submit(digest)
-    pool.shutdown(wait=False)
-    return future
+    return on_thread("gcps-digest", digest)
 
 
 def read_object(
@@ -212,9 +220,7 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     # is raised where the object is taken, as before. A gcps-v1 stack has been read since the start
     # (read_early), while this thread imported the models and read the rig.
     object_exposures = is_exposures(args.object, model)
-    object_pool = ThreadPoolExecutor(1, thread_name_prefix="gcps-object")
-    object_read = object_pool.submit(read_object, early_object, args.object, codec, model, object_exposures)
-    object_pool.shutdown(wait=False)
+    object_read = on_thread("gcps-object", read_object, early_object, args.object, codec, model, object_exposures)
 
     import numpy as np
 
@@ -280,13 +286,8 @@ def cmd_measure(args: argparse.Namespace) -> dict[str, Any]:
     # the kept reference is loaded (or read and decoded) on a thread while the object is read, when
     # neither is a multi-exposure capture (the codec is then the captures')
     early = by_files and not object_exposures and not (ply_mesh and not asked_sigma)
-    pending = ThreadPoolExecutor(1, thread_name_prefix="gcps-reference") if early else None
-    kept_early = None if pending is None else pending.submit(reference_for, options, codec)
-    try:
-        obj = object_read.result()
-    finally:
-        if pending is not None:
-            pending.shutdown(wait=False)
+    kept_early = on_thread("gcps-reference", reference_for, options, codec) if early else None
+    obj = object_read.result()
     captured.append(obj)
     reference_images = None
     if reference_path is not None and not by_files:
